@@ -1,0 +1,92 @@
+"""The ``gcs`` command: a thin argparse front over pure functions.
+
+Each subcommand lives in ``gcs/commands/<name>.py`` and exposes::
+
+    HELP: str                                   # one line for ``gcs --help``
+    def add_arguments(p: argparse.ArgumentParser) -> None
+    def run(args: argparse.Namespace) -> int    # exit status
+
+Only subcommands whose module exists are offered, so ``gcs --help`` never
+lists a command that does not work.
+
+Exit statuses (DESIGN.md section 9): 0 ok, 1 a check failed, 2 bad user
+input.  User errors are exceptions derived from :class:`gcs.errors.UserError`
+(or the packages' own input errors, see :data:`gcs.errors.USER_ERRORS`); they
+are printed as one line, without a traceback unless ``--debug`` is given.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import sys
+from collections.abc import Sequence
+
+from gcs.errors import USER_ERRORS, format_user_error
+
+#: Subcommands in the order ``gcs --help`` lists them (DESIGN.md section 9).
+COMMAND_NAMES: tuple[str, ...] = (
+    "plan",
+    "verify",
+    "plot",
+    "export",
+    "mock",
+    "fly",
+    "upload",
+    "status",
+    "demo",
+)
+
+EXIT_OK = 0
+EXIT_CHECK_FAILED = 1
+EXIT_BAD_INPUT = 2
+
+
+def available_commands() -> list[str]:
+    """Names of the subcommands whose implementation module is installed."""
+    return [n for n in COMMAND_NAMES if importlib.util.find_spec(f"gcs.commands.{n}") is not None]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full argument parser, one sub-parser per available subcommand."""
+    parser = argparse.ArgumentParser(
+        prog="gcs",
+        description="Plan, verify and fly multi-drone missions from STL specifications.",
+    )
+    parser.add_argument(
+        "--debug", action="store_true", help="show tracebacks for errors (for bug reports)"
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in available_commands():
+        module = importlib.import_module(f"gcs.commands.{name}")
+        p = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        p.add_argument(
+            "--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS
+        )
+        module.add_arguments(p)
+        p.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``gcs`` console script; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "_run", None) is None:
+        parser.print_help()
+        return EXIT_BAD_INPUT
+    try:
+        return int(args._run(args))
+    except KeyboardInterrupt:
+        print("gcs: interrupted", file=sys.stderr)
+        return 130
+    except USER_ERRORS as exc:
+        if args.debug:
+            raise
+        print(f"gcs {args.command}: error: {format_user_error(exc)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

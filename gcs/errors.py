@@ -1,0 +1,48 @@
+"""Errors of the ``gcs`` command.
+
+Exception tree::
+
+    UserError(Exception)          bad input from the user: one line, exit 2
+      InputFileError              a file that is missing, unreadable or malformed
+
+Errors raised by the packages for bad user input are treated alike (one
+line, exit status 2): they are collected in :data:`USER_ERRORS`, which grows
+as the packages define their error trees (``planner.stl.SpecError``,
+``planner.scenario.ScenarioError``, ``mavlink.LinkError``, ...).
+"""
+
+from __future__ import annotations
+
+import importlib
+
+
+class UserError(Exception):
+    """Bad user input; the message names the file, field or position."""
+
+
+class InputFileError(UserError):
+    """A file given on the command line is missing, unreadable or malformed."""
+
+
+def _optional(module: str, name: str) -> tuple[type[BaseException], ...]:
+    """The exception class ``module.name`` if that module already exists."""
+    try:
+        return (getattr(importlib.import_module(module), name),)
+    except (ImportError, AttributeError):
+        return ()
+
+
+#: Exception types that mean "the user gave bad input" (exit status 2).
+USER_ERRORS: tuple[type[BaseException], ...] = (
+    UserError,
+    *_optional("planner.stl", "SpecError"),
+    *_optional("planner.scenario", "ScenarioError"),
+    *_optional("planner.planfile", "PlanFileError"),
+    *_optional("mavlink.errors", "LinkError"),
+)
+
+
+def format_user_error(exc: BaseException) -> str:
+    """One line for the user: the message with newlines folded."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text
