@@ -1,0 +1,122 @@
+"""Chains of Mueller minimum-jerk primitives between waypoints: :class:`MinimumJerkChain`.
+
+Decision variables (per axis, one column of ``Z`` each): the waypoint positions and
+velocities at ``t_i = i * segment_s``, ``i = 1 .. n_seg``::
+
+    Z[0 : n_seg]         waypoint positions p_1 .. p_n   (m)      rows ``pos_rows``
+    Z[n_seg : 2 n_seg]   waypoint velocities v_1 .. v_n  (m/s)    rows ``vel_rows``
+
+and ``X0 = [p0; v0; a0]`` ``(3, 3)``. Segment ``i`` is Mueller's jerk-optimal primitive
+from the state reached at ``t_{i-1}`` to ``(p_i, v_i)`` with the **end acceleration free**
+([M] "Partially defined end state", closed form in
+:func:`planner.dynamics.primitives.min_jerk_parameters` with ``EndState.POS_VEL``); the
+next segment starts with the acceleration this one ends with. Why free end accelerations:
+
+* acceleration is continuous across waypoints (the trajectory is C2, so the thrust
+  direction never jumps), with no extra decision variables;
+* the start acceleration of each segment is a linear function of the earlier waypoints,
+  so everything stays linear in ``(Z, X0)``; the recursion contracts (the end
+  acceleration depends on the start acceleration with gain 1/3), so long chains are
+  numerically benign;
+* fixing the waypoint accelerations to zero instead would force a stop of the
+  acceleration at every waypoint and waste jerk (and robustness) for nothing.
+
+The last segment uses the fully defined end state with ``a_f = 0`` when
+``final_acc_zero`` (default), so a planner that also constrains ``v_n = 0`` ends at rest
+and the hover hold after the end is consistent.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from planner.dynamics.errors import DynamicsError
+from planner.dynamics.linear import PiecewisePolynomialModel, _ratio_steps
+from planner.dynamics.primitives import EndState, _forms
+from planner.trajectory import YawPolicy
+
+__all__ = ["MinimumJerkChain"]
+
+
+class MinimumJerkChain(PiecewisePolynomialModel):
+    """Mueller primitives between waypoints every ``segment_s`` seconds (module docstring).
+
+    Args:
+        horizon_s: plan length in seconds, a whole multiple of ``segment_s``.
+        segment_s: waypoint spacing in seconds.
+        sample_dt_s: sample step ``Ts`` of the planner's matrices; ``horizon_s`` must be a
+            whole multiple of it.
+        final_acc_zero: last segment ends with zero acceleration (see module docstring).
+        limit_subdivisions: Bezier pieces per segment for the limit constraints.
+        yaw_policy: yaw rule of the trajectories this model produces.
+
+    Attributes (beyond :class:`~planner.dynamics.linear.LinearModel`):
+        n_segments, segment_s, waypoint_times_s ``(n_seg,)``, pos_rows, vel_rows (slices
+        of ``Z``).
+    """
+
+    def __init__(
+        self,
+        horizon_s: float,
+        segment_s: float,
+        sample_dt_s: float,
+        *,
+        final_acc_zero: bool = True,
+        limit_subdivisions: int = 2,
+        yaw_policy: YawPolicy | None = None,
+    ) -> None:
+        n = _ratio_steps(horizon_s, segment_s, "horizon_s / segment_s")
+        self.n_segments = n
+        self.segment_s = float(segment_s)
+        self.final_acc_zero = bool(final_acc_zero)
+        self.pos_rows = slice(0, n)
+        self.vel_rows = slice(n, 2 * n)
+        self.waypoint_times_s = np.arange(1, n + 1) * self.segment_s
+        m = 2 * n + 3
+        eye = np.eye(m)
+        P, V, A = eye[2 * n], eye[2 * n + 1], eye[2 * n + 2]
+        T = self.segment_s
+        Tarr = np.array(T)
+        coef = np.empty((n, 6, m))
+        for i in range(n):
+            last = i == n - 1
+            end = EndState.POS_VEL_ACC if (last and self.final_acc_zero) else EndState.POS_VEL
+            Pf, Vf = eye[i], eye[n + i]
+            d = np.stack([Pf - P - V * T - 0.5 * A * T * T, Vf - V - A * T, -A])
+            alpha, beta, gamma = _forms(Tarr, end) @ d
+            coef[i] = np.stack([P, V, A / 2.0, gamma / 6.0, beta / 24.0, alpha / 120.0])
+            P, V, A = Pf, Vf, A + gamma * T + beta * T**2 / 2.0 + alpha * T**3 / 6.0
+        self._build(
+            horizon_s=float(horizon_s),
+            sample_dt_s=float(sample_dt_s),
+            n_dec=2 * n,
+            n_init=3,
+            segment_t0_s=np.arange(n) * self.segment_s,
+            segment_duration_s=np.full(n, self.segment_s),
+            coef_maps=coef,
+            limit_subdivisions=limit_subdivisions,
+            yaw_policy=yaw_policy if yaw_policy is not None else YawPolicy(),
+        )
+
+    def initial_guess(self, start: ArrayLike, goal: ArrayLike) -> NDArray[np.float64]:
+        """Straight line from ``start`` to ``goal`` (ENU m, ``(3,)``) over the horizon.
+
+        The waypoints follow the rest-to-rest minimum-jerk profile
+        ``s(u) = 10u^3 - 15u^4 + 6u^5`` along the line, so the guess starts and ends at
+        rest and its speed stays within ``1.875 |goal - start| / horizon_s``.
+
+        Returns:
+            ``Z`` ``(n_dec, 3)``.
+        """
+        p_a = np.asarray(start, dtype=float).reshape(-1)
+        p_b = np.asarray(goal, dtype=float).reshape(-1)
+        if p_a.shape != (3,) or p_b.shape != (3,):
+            raise DynamicsError("initial_guess: start and goal must be 3-vectors (ENU m)")
+        u = self.waypoint_times_s / self.horizon_s
+        s = 10 * u**3 - 15 * u**4 + 6 * u**5
+        ds = (30 * u**2 - 60 * u**3 + 30 * u**4) / self.horizon_s
+        Z = np.empty((self.n_dec, 3))
+        Z[self.pos_rows] = p_a + s[:, None] * (p_b - p_a)
+        Z[self.vel_rows] = ds[:, None] * (p_b - p_a)
+        return Z
