@@ -17,6 +17,13 @@ from __future__ import annotations
 from planner.dynamics.chain import MinimumJerkChain
 from planner.dynamics.double_integrator import DoubleIntegrator
 from planner.dynamics.errors import DynamicsError
+from planner.dynamics.feasibility import (
+    FeasibilityReport,
+    InputFeasibility,
+    InputLimits,
+    check_input_feasibility,
+    primitive_input_feasibility,
+)
 from planner.dynamics.linear import LimitConstraints, LinearModel
 from planner.dynamics.primitives import (
     EndState,
@@ -29,10 +36,15 @@ __all__ = [
     "DoubleIntegrator",
     "DynamicsError",
     "EndState",
+    "FeasibilityReport",
+    "InputFeasibility",
+    "InputLimits",
     "LimitConstraints",
     "LinearModel",
     "MinimumJerkChain",
+    "check_input_feasibility",
     "jerk_cost",
     "min_jerk_parameters",
     "primitive_coefficients",
+    "primitive_input_feasibility",
 ]

@@ -48,7 +48,11 @@ class MinimumJerkChain(PiecewisePolynomialModel):
         sample_dt_s: sample step ``Ts`` of the planner's matrices; ``horizon_s`` must be a
             whole multiple of it.
         final_acc_zero: last segment ends with zero acceleration (see module docstring).
-        limit_subdivisions: Bezier pieces per segment for the limit constraints.
+        limit_subdivisions: Bezier pieces per segment for the limit constraints. Worst
+            ratio of the true peak to the limit for plans on the constraint boundary
+            (random zig-zag plans, 1 s segments): 0.23 / 0.56 / 0.84 / 0.90 / 0.94 / 0.97
+            for 1 / 2 / 3 / 4 / 6 / 8 pieces (median 1.0 from 3 on), at about
+            13 / 27 / 41 / 55 / 83 / 111 rows per segment and axis. Default 3.
         yaw_policy: yaw rule of the trajectories this model produces.
 
     Attributes (beyond :class:`~planner.dynamics.linear.LinearModel`):
@@ -63,7 +67,7 @@ class MinimumJerkChain(PiecewisePolynomialModel):
         sample_dt_s: float,
         *,
         final_acc_zero: bool = True,
-        limit_subdivisions: int = 2,
+        limit_subdivisions: int = 3,
         yaw_policy: YawPolicy | None = None,
     ) -> None:
         n = _ratio_steps(horizon_s, segment_s, "horizon_s / segment_s")

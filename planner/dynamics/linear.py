@@ -17,9 +17,9 @@ linear in the polynomial's coefficients and hence in ``(Z, X0)``. Bounding every
 point by the limit is therefore a sufficient linear condition. Each segment is split
 into ``limit_subdivisions`` equal pieces (de Casteljau subdivision) to make the hull
 tight; the tests measure the remaining conservatism (ratio of the true peak to the
-limit for trajectories on the constraint boundary). Control points that do not depend
-on ``Z`` (the start state's own velocity and acceleration) are omitted: the start state
-is data, not a decision. The closed-form extremum locations of [M] are not used for the
+limit for trajectories on the constraint boundary). Rows whose ``G`` part is zero (the
+start state's own velocity and acceleration) are kept, so the constraints also reject a
+start state that itself violates the limits. The closed-form extremum locations of [M] are not used for the
 constraints because they depend nonlinearly on the decision variables (the planner needs
 linear constraints); they are used by the input-feasibility check instead.
 """
@@ -219,12 +219,12 @@ class PiecewisePolynomialModel:
                     rows.append(cp)
                     kinds.extend([kind] * cp.shape[0])
         A = np.vstack(rows)
-        # Drop rows that do not depend on Z (start state) and exact duplicates (shared
-        # end/start control points of adjacent pieces).
-        scale = np.maximum(1.0, np.abs(A).max(axis=1, keepdims=True))
-        keep = np.abs(A[:, : self.n_dec]).max(axis=1) > 1e-12 * scale[:, 0]
-        A, kinds_arr = A[keep], np.asarray(kinds)[keep]
-        key = np.round(A / scale[keep], 12)
+        # Drop all-zero rows and duplicates (the shared end/start control points of
+        # adjacent pieces).
+        scale = np.abs(A).max(axis=1, keepdims=True)
+        keep = scale[:, 0] > 0.0
+        A, kinds_arr, scale = A[keep], np.asarray(kinds)[keep], scale[keep]
+        key = np.round(A / scale, 12)
         _, first = np.unique(
             np.column_stack([key, (kinds_arr == "acc")]), axis=0, return_index=True
         )
