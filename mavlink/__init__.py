@@ -1,0 +1,58 @@
+"""Everything that speaks MAVLink: the ground-station link and the mock vehicle.
+
+GCS side (this package's modules; MAVSDK for connections, telemetry,
+actions, missions and offboard, pymavlink for logs)::
+
+    mavlink.urls        connection URLs and the PX4 SITL port convention
+    mavlink.px4_modes   PX4 custom_mode encode/decode, DO_SET_MODE params
+    mavlink.fleet       Fleet: N vehicles through one MAVSDK instance, live status
+    mavlink.stream      deadline-scheduled setpoint streaming and its statistics
+    mavlink.offboard    fly_offboard: a plan flown in offboard mode, all in step
+    mavlink.mission     trajectory -> PX4 mission / geofence items, upload, verify
+    mavlink.monitor     online safety monitor of the spec's always-clauses
+    mavlink.tlog        telemetry recording to .tlog and CSV
+    mavlink.mock        the mock PX4 vehicle endpoint (vehicle side)
+
+Error tree (``mavlink.errors``)::
+
+    LinkError(Exception)              a link to a vehicle failed or a vehicle refused;
+                                      carries .vehicle and .url, names them in the message
+      UrlError(LinkError, ValueError)     malformed connection URL
+      ConnectTimeoutError                 a vehicle did not appear in time
+      LinkLostError                       a connected vehicle stopped sending heartbeats
+      CommandError                        a command was refused / unanswered (.result)
+      PreflightError                      a vehicle may not start the plan (too far from
+                                          its start, cannot reach it, no offboard)
+      StreamError                         setpoints that cannot be streamed (rate, shapes)
+      MissionError                        mission transfer or verification failed
+                                          (.result: MissionResult, .origin: operation)
+      UnknownModeError(LinkError, ValueError)  custom_mode that is no PX4 mode
+                                               (defined in mavlink.px4_modes)
+
+A safety stop by the monitor is not an error: it is reported as a
+``mavlink.monitor.SafetyEvent`` in the flight result.
+"""
+
+from mavlink.errors import (
+    CommandError,
+    ConnectTimeoutError,
+    LinkError,
+    LinkLostError,
+    MissionError,
+    MissionResult,
+    PreflightError,
+    StreamError,
+    UrlError,
+)
+
+__all__ = [
+    "CommandError",
+    "ConnectTimeoutError",
+    "LinkError",
+    "LinkLostError",
+    "MissionError",
+    "MissionResult",
+    "PreflightError",
+    "StreamError",
+    "UrlError",
+]
