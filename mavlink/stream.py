@@ -1,0 +1,261 @@
+"""Timed setpoint streaming against absolute deadlines.
+
+:class:`SetpointStreamer` sends setpoint ``k`` of every vehicle at the
+deadline ``t0 + k / rate_hz`` (``time.monotonic`` clock), so errors never
+accumulate: a late tick does not shift the following ones. If the loop falls
+more than one period behind, the stale setpoints are skipped (counted in
+``skipped``) and the current one is sent, as a vehicle gains nothing from an
+outdated target.
+
+Lateness of a setpoint is the time from its deadline to the moment its send
+call returned; :class:`StreamStats` summarises it per vehicle.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections.abc import Awaitable, Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from mavlink.errors import StreamError
+
+#: Highest stream rate accepted (DESIGN.md section 7: configurable up to 100 Hz).
+MAX_RATE_HZ = 100.0
+#: Lowest rate PX4 accepts for offboard (it needs > 2 Hz).
+MIN_RATE_HZ = 2.0
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class NedSetpoints:
+    """One vehicle's setpoints in its own local NED frame.
+
+    Attributes:
+        t_s: ``(n,)`` seconds from the shared start, step ``1 / rate_hz``.
+        pos_ned_m: ``(n, 3)`` north, east, down.
+        vel_ned_m_s: ``(n, 3)`` velocity feed-forward.
+        acc_ned_m_s2: ``(n, 3)`` acceleration feed-forward.
+        yaw_ned_rad: ``(n,)`` heading, 0 = north, clockwise.
+    """
+
+    t_s: np.ndarray
+    pos_ned_m: np.ndarray
+    vel_ned_m_s: np.ndarray
+    acc_ned_m_s2: np.ndarray
+    yaw_ned_rad: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = self.t_s.shape[0]
+        for name in ("pos_ned_m", "vel_ned_m_s", "acc_ned_m_s2"):
+            if getattr(self, name).shape != (n, 3):
+                raise StreamError(
+                    f"setpoints: {name} has shape {getattr(self, name).shape}, expected ({n}, 3)"
+                )
+        if self.yaw_ned_rad.shape != (n,):
+            raise StreamError(
+                f"setpoints: yaw_ned_rad has shape {self.yaw_ned_rad.shape}, expected ({n},)"
+            )
+        if n == 0:
+            raise StreamError("setpoints: empty")
+
+    def __len__(self) -> int:
+        return int(self.t_s.shape[0])
+
+    def constant(self, index: int, n: int) -> NedSetpoints:
+        """``n`` copies of setpoint ``index`` with zero velocity and acceleration (a hover)."""
+        z = np.zeros((n, 3))
+        return NedSetpoints(
+            t_s=np.arange(n, dtype=float),
+            pos_ned_m=np.repeat(self.pos_ned_m[index : index + 1], n, axis=0),
+            vel_ned_m_s=z,
+            acc_ned_m_s2=z.copy(),
+            yaw_ned_rad=np.full(n, self.yaw_ned_rad[index]),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class StreamStats:
+    """Per-vehicle statistics of one stream.
+
+    Attributes:
+        vehicle: name.
+        sent: setpoints sent.
+        skipped: setpoints not sent because the loop was more than one period late.
+        failed: send calls that raised (the stream went on).
+        late: setpoints whose lateness exceeded ``late_threshold_s``.
+        late_threshold_s: the threshold used for ``late``.
+        mean_lateness_s, p99_lateness_s, max_lateness_s: lateness of the sent setpoints.
+        rate_hz: the stream rate.
+    """
+
+    vehicle: str
+    sent: int
+    skipped: int
+    failed: int
+    late: int
+    late_threshold_s: float
+    mean_lateness_s: float
+    p99_lateness_s: float
+    max_lateness_s: float
+    rate_hz: float
+
+    def row(self) -> str:
+        """One table row (milliseconds)."""
+        return (
+            f"{self.vehicle:>8} {self.sent:6d} {self.skipped:5d} {self.failed:5d} {self.late:5d} "
+            f"{self.mean_lateness_s * 1e3:8.3f} {self.p99_lateness_s * 1e3:8.3f} "
+            f"{self.max_lateness_s * 1e3:8.3f}"
+        )
+
+
+STATS_HEADER = f"{'vehicle':>8} {'sent':>6} {'skip':>5} {'fail':>5} {'late':>5} {'mean ms':>8} {'p99 ms':>8} {'max ms':>8}"
+
+
+@dataclass(frozen=True, slots=True)
+class StreamTarget:
+    """What to stream to one vehicle.
+
+    Attributes:
+        name: vehicle name.
+        send: non-blocking call ``send(n, e, d, vn, ve, vd, an, ae, ad, yaw_deg)``
+            (metres, m/s, m/s^2, degrees; NED), run on the event loop thread.
+        setpoints: the vehicle's setpoints.
+    """
+
+    name: str
+    send: Callable[..., None]
+    setpoints: NedSetpoints
+
+
+class SetpointStreamer:
+    """Stream setpoints to many vehicles from one asyncio task.
+
+    Args:
+        targets: one :class:`StreamTarget` per vehicle. Setpoint ``k`` of
+            each is sent at ``t0 + k / rate_hz``; a vehicle whose setpoints
+            are shorter than the others holds its last one.
+        rate_hz: stream rate (2 < rate <= 100).
+        late_threshold_s: lateness above which a setpoint counts as late
+            (default a quarter period).
+        clock, sleep: the time source and the way to wait (tests replace
+            both with a simulated clock).
+
+    The vehicles of one tick are sent back to back in a rotating order, so
+    no vehicle is always last.
+    """
+
+    def __init__(
+        self,
+        targets: Sequence[StreamTarget],
+        rate_hz: float,
+        *,
+        late_threshold_s: float | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], Awaitable[None]] = asyncio.sleep,
+    ) -> None:
+        self._clock = clock
+        self._sleep = sleep
+        if not (MIN_RATE_HZ < rate_hz <= MAX_RATE_HZ) or not math.isfinite(rate_hz):
+            raise StreamError(
+                f"stream rate {rate_hz!r} Hz outside ({MIN_RATE_HZ:g}, {MAX_RATE_HZ:g}]"
+            )
+        if not targets:
+            raise StreamError("nothing to stream: no vehicles")
+        self.targets = tuple(targets)
+        self.rate_hz = float(rate_hz)
+        self.period_s = 1.0 / self.rate_hz
+        self.late_threshold_s = self.period_s / 4 if late_threshold_s is None else late_threshold_s
+        self.n_ticks = max(len(t.setpoints) for t in self.targets)
+        # Plain Python floats per setpoint: the hot loop must not touch numpy.
+        self._rows = [
+            np.column_stack(
+                [
+                    t.setpoints.pos_ned_m,
+                    t.setpoints.vel_ned_m_s,
+                    t.setpoints.acc_ned_m_s2,
+                    np.degrees(t.setpoints.yaw_ned_rad),
+                ]
+            ).tolist()
+            for t in self.targets
+        ]
+
+    async def run(
+        self,
+        t0_s: float,
+        *,
+        stop: asyncio.Event | None = None,
+        extra_ticks: int = 0,
+    ) -> dict[str, StreamStats]:
+        """Stream every setpoint, then ``extra_ticks`` more of the last one.
+
+        Args:
+            t0_s: ``time.monotonic()`` deadline of setpoint 0.
+            stop: if set, streaming ends before the next tick.
+            extra_ticks: ticks to keep sending the final setpoints (a hold).
+
+        Returns:
+            :class:`StreamStats` per vehicle name.
+        """
+        n_v = len(self.targets)
+        total = self.n_ticks + extra_ticks
+        lateness = np.full((total, n_v), np.nan)
+        failed = [0] * n_v
+        errors: list[BaseException | None] = [None] * n_v
+        skipped = 0
+        sends = [t.send for t in self.targets]
+        rows = self._rows
+        last = [len(r) - 1 for r in rows]
+        clock = self._clock
+        sleep = self._sleep
+        period = self.period_s
+        k = 0
+        while k < total:
+            if stop is not None and stop.is_set():
+                break
+            deadline = t0_s + k * period
+            delay = deadline - clock()
+            if delay > 0:
+                await sleep(delay)
+                if stop is not None and stop.is_set():
+                    break
+            behind = int((clock() - deadline) // period)
+            if behind >= 1:  # more than a period late: skip to the current tick
+                behind = min(behind, total - 1 - k)
+                skipped += behind
+                k += behind
+                deadline = t0_s + k * period
+            start = k % n_v
+            for j in range(n_v):
+                i = (start + j) % n_v
+                r = rows[i][min(k, last[i])]
+                try:
+                    sends[i](*r)
+                except Exception as exc:  # counted and reported below
+                    failed[i] += 1
+                    errors[i] = exc
+                    continue
+                lateness[k, i] = clock() - deadline
+            k += 1
+        out: dict[str, StreamStats] = {}
+        for i, t in enumerate(self.targets):
+            lat = lateness[:, i]
+            lat = lat[~np.isnan(lat)]
+            out[t.name] = StreamStats(
+                vehicle=t.name,
+                sent=int(lat.size),
+                skipped=skipped,
+                failed=failed[i],
+                late=int(np.count_nonzero(lat > self.late_threshold_s)),
+                late_threshold_s=self.late_threshold_s,
+                mean_lateness_s=float(lat.mean()) if lat.size else math.nan,
+                p99_lateness_s=float(np.percentile(lat, 99)) if lat.size else math.nan,
+                max_lateness_s=float(lat.max()) if lat.size else math.nan,
+                rate_hz=self.rate_hz,
+            )
+        self.last_errors = {
+            t.name: e for t, e in zip(self.targets, errors, strict=True) if e is not None
+        }
+        return out
