@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import enum
 import math
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -191,15 +192,15 @@ class Trajectory:
             if not np.all(np.isfinite(c[i])):
                 raise TrajectoryError(f"segment {i}: coeffs must be finite")
         if t0[0] != 0.0:
-            raise TrajectoryError(f"segment 0: t0_s must be 0, got {t0[0]!r}")
+            raise TrajectoryError(f"segment 0: t0_s must be 0, got {float(t0[0])!r}")
         ends = t0 + dur
         gaps = np.abs(t0[1:] - ends[:-1])
         bad = np.nonzero(gaps > 1e-9 * np.maximum(1.0, ends[:-1]))[0]
         if bad.size:
             i = int(bad[0]) + 1
             raise TrajectoryError(
-                f"segment {i}: t0_s={t0[i]!r} does not follow segment {i - 1} "
-                f"(which ends at {ends[i - 1]!r})"
+                f"segment {i}: t0_s={float(t0[i])!r} does not follow segment {i - 1} "
+                f"(which ends at {float(ends[i - 1])!r})"
             )
         object.__setattr__(self, "segment_t0_s", _readonly(t0))
         object.__setattr__(self, "segment_duration_s", _readonly(dur))
@@ -411,7 +412,8 @@ class Trajectory:
         try:
             return cls(t0, dur, coeffs, name=name, yaw_policy=yaw)
         except TrajectoryError as exc:
-            raise TrajectoryError(f"{where}: {exc}") from None
+            msg = re.sub(r"^segment (\d+): ", lambda m: f"{where}[{m.group(1)}]: ", str(exc))
+            raise TrajectoryError(msg if msg != str(exc) else f"{where}: {exc}") from None
 
 
 def _wrap(angle: ArrayLike) -> Any:
