@@ -1,0 +1,405 @@
+"""A fleet of mock PX4 vehicles in one asyncio event loop.
+
+Vehicle ``i`` binds UDP ``bind_host:vehicle_ports[i]`` (default 14580 + i) and
+sends to ``gcs_host:gcs_ports[i]`` (default 14540 + i) until it hears from a
+client, then to the address it last heard from, exactly as PX4 SITL's MAVLink
+instance does.  One task advances the vectorised physics at ``physics_rate_hz``
+against absolute deadlines (no drift; when the process falls behind, steps run
+back to back and :attr:`MockFleet.real_time_factor` drops below 1) and lets each
+vehicle run its mode logic and telemetry.
+
+Usage::
+
+    async with MockFleet(n=4, seed=1) as fleet:
+        ...                                   # MAVSDK at udpin://0.0.0.0:14540..14543
+    with MockFleet(n=1).running_in_thread() as fleet:
+        fleet.vehicles[0].state               # from synchronous code
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import random
+import threading
+from collections.abc import Iterator, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import pymap3d
+
+from mavlink.mock.config import FaultConfig, MockVehicleConfig, NoiseConfig, WindConfig
+from mavlink.mock.errors import MockConfigError, MockStartError
+from mavlink.mock.faults import FaultyChannel
+from mavlink.mock.physics import FleetPhysics
+from mavlink.mock.vehicle import MockVehicle
+from planner.frames import GeodeticPoint, enu_to_geodetic
+
+#: PX4 SITL's default home (Zurich, the Gazebo/jMAVSim worlds).
+DEFAULT_ORIGIN = GeodeticPoint(47.397742, 8.545594, 488.0)
+GCS_BASE_PORT = 14540
+VEHICLE_BASE_PORT = 14580
+
+
+class _VehicleProtocol(asyncio.DatagramProtocol):
+    def __init__(self, vehicle: MockVehicle) -> None:
+        self.vehicle = vehicle
+        self.send_errors = 0
+
+    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        self.vehicle.datagram_received(data, addr)
+
+    def error_received(self, exc: Exception) -> None:
+        # ICMP "port unreachable" while no client listens yet: PX4 keeps sending too.
+        self.send_errors += 1
+
+
+class MockFleet:
+    """``n`` mock PX4 quad-rotors sharing one event loop and one physics model.
+
+    Parameters
+    ----------
+    n : number of vehicles (system ids 1..n).
+    origin : mission origin (``GeodeticPoint`` or ``(lat, lon, alt_amsl)``); the
+        spawn points are ENU offsets from it.
+    spawns_enu_m : ``n`` spawn points (x east, y north, z up, m); default a
+        line along x with 2 m spacing (``(2 i, 0, 0)``).
+    gcs_host, gcs_ports, vehicle_ports, bind_host : addresses, PX4 SITL defaults.
+    seed : seeds wind, noise and link faults (a run is reproducible for a seed).
+    faults : one ``FaultConfig`` for every vehicle, a sequence of ``n``, or a
+        mapping ``index -> FaultConfig``.
+    params : PX4 parameter overrides for every vehicle (``{"COM_OF_LOSS_T": 0.5}``).
+    vehicle_configs : full per-vehicle configurations (override spawns/faults/params).
+    wind, noise : environment; noise only affects reported telemetry.
+    physics_rate_hz : simulation step rate (100 Hz like PX4's position controller).
+    ready_after_s : simulated GPS/EKF convergence time before arming is allowed.
+    """
+
+    def __init__(
+        self,
+        n: int = 1,
+        origin: GeodeticPoint | tuple[float, float, float] | None = None,
+        spawns_enu_m: Sequence[Sequence[float]] | None = None,
+        gcs_host: str = "127.0.0.1",
+        gcs_ports: Sequence[int] | None = None,
+        vehicle_ports: Sequence[int] | None = None,
+        bind_host: str = "127.0.0.1",
+        seed: int = 0,
+        faults: FaultConfig | Sequence[FaultConfig] | Mapping[int, FaultConfig] | None = None,
+        params: Mapping[str, float] | None = None,
+        vehicle_configs: Sequence[MockVehicleConfig] | None = None,
+        wind: WindConfig | None = None,
+        noise: NoiseConfig | None = None,
+        physics_rate_hz: float = 100.0,
+        ready_after_s: float = 0.5,
+    ) -> None:
+        if not isinstance(n, int) or n < 1 or n > 254:
+            raise MockConfigError(f"n must be an integer in 1..254, got {n!r}")
+        if not (physics_rate_hz > 0):
+            raise MockConfigError(f"physics_rate_hz must be > 0, got {physics_rate_hz!r}")
+        self.n = n
+        if origin is None:
+            origin = DEFAULT_ORIGIN
+        elif not isinstance(origin, GeodeticPoint):
+            try:
+                origin = GeodeticPoint(*(float(v) for v in origin))
+            except (TypeError, ValueError) as exc:
+                raise MockConfigError(f"origin must be (lat, lon, alt): {exc}") from None
+        self.origin: GeodeticPoint = origin
+        self.gcs_host = gcs_host
+        self.bind_host = bind_host
+        self.gcs_ports = self._ports(gcs_ports, GCS_BASE_PORT, "gcs_ports")
+        self.vehicle_ports = self._ports(vehicle_ports, VEHICLE_BASE_PORT, "vehicle_ports")
+        self.seed = seed
+        self.dt_s = 1.0 / physics_rate_hz
+        self.time_s = 0.0
+        self.configs = self._configs(
+            n, spawns_enu_m, faults, params, vehicle_configs, ready_after_s
+        )
+        seeds = np.random.SeedSequence(seed)
+        phys_seed, link_seed = seeds.spawn(2)
+        self.physics = FleetPhysics(n, self.dt_s, np.random.default_rng(phys_seed), wind, noise)
+        self._link_seed = int(link_seed.generate_state(1)[0])
+        spawns = np.array([c.spawn_enu_m for c in self.configs])
+        lat, lon, alt = enu_to_geodetic(spawns, self.origin)
+        self.vehicles: list[MockVehicle] = []
+        for i, cfg in enumerate(self.configs):
+            uid = (0x5354_4C00_0000_0000 | (seed & 0xFFFF) << 8 | (i + 1)) & 0xFFFF_FFFF_FFFF_FFFF
+            origin_lla = (float(lat[i]), float(lon[i]), float(alt[i]))
+            self.vehicles.append(MockVehicle(self, i, cfg, origin_lla, uid))
+        self._origins_np()
+        self._geo_tick = -1
+        self._geo: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._ticks = 0
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._task: asyncio.Task[None] | None = None
+        self._transports: list[asyncio.DatagramTransport] = []
+        self._protocols: list[_VehicleProtocol] = []
+        self._t0_wall = 0.0
+
+    # ---------------------------------------------------------------- set-up
+    def _ports(self, ports: Sequence[int] | None, base: int, name: str) -> list[int]:
+        if ports is None:
+            return [base + i for i in range(self.n)]
+        ports = [int(p) for p in ports]
+        if len(ports) != self.n:
+            raise MockConfigError(f"{name}: expected {self.n} ports, got {len(ports)}")
+        for p in ports:
+            if not 0 <= p <= 65535:
+                raise MockConfigError(f"{name}: port {p} out of range")
+        return ports
+
+    @staticmethod
+    def _configs(
+        n: int,
+        spawns: Sequence[Sequence[float]] | None,
+        faults: Any,
+        params: Mapping[str, float] | None,
+        vehicle_configs: Sequence[MockVehicleConfig] | None,
+        ready_after_s: float,
+    ) -> list[MockVehicleConfig]:
+        if vehicle_configs is not None:
+            if len(vehicle_configs) != n:
+                raise MockConfigError(
+                    f"vehicle_configs: expected {n} configurations, got {len(vehicle_configs)}"
+                )
+            return list(vehicle_configs)
+        if spawns is None:
+            spawns = [(2.0 * i, 0.0, 0.0) for i in range(n)]
+        if len(spawns) != n:
+            raise MockConfigError(f"spawns_enu_m: expected {n} points, got {len(spawns)}")
+        per_vehicle: list[FaultConfig]
+        if faults is None:
+            per_vehicle = [FaultConfig()] * n
+        elif isinstance(faults, FaultConfig):
+            per_vehicle = [faults] * n
+        elif isinstance(faults, Mapping):
+            bad = [k for k in faults if not (isinstance(k, int) and 0 <= k < n)]
+            if bad:
+                raise MockConfigError(f"faults: vehicle index {bad[0]!r} not in 0..{n - 1}")
+            per_vehicle = [faults.get(i, FaultConfig()) for i in range(n)]
+        else:
+            per_vehicle = list(faults)
+            if len(per_vehicle) != n:
+                raise MockConfigError(
+                    f"faults: expected {n} configurations, got {len(per_vehicle)}"
+                )
+        prm = tuple((params or {}).items())
+        return [
+            MockVehicleConfig(
+                spawn_enu_m=tuple(spawns[i]),  # type: ignore[arg-type]
+                faults=per_vehicle[i],
+                params=prm,
+                ready_after_s=ready_after_s,
+            )
+            for i in range(n)
+        ]
+
+    def _origins_np(self) -> None:
+        o = np.array([v.origin_lla for v in self.vehicles])
+        self._lat0, self._lon0, self._h0 = o[:, 0], o[:, 1], o[:, 2]
+
+    def origins_changed(self) -> None:
+        """A vehicle moved its EKF origin (SET_GPS_GLOBAL_ORIGIN): refresh the cache."""
+        self._origins_np()
+        self._geo_tick = -1
+
+    def geodetic(self, i: int) -> tuple[float, float, float]:
+        """Reported (lat_deg, lon_deg, alt_m AMSL) of vehicle ``i`` this tick (with noise).
+
+        Computed for the whole fleet at once, at most once per tick.
+        """
+        if self._geo_tick != self._ticks or self._geo is None:
+            p = self.physics.pos_ned_m + self.physics.noise_pos_m
+            lat, lon, alt = pymap3d.ned2geodetic(
+                p[:, 0], p[:, 1], p[:, 2], self._lat0, self._lon0, self._h0
+            )
+            self._geo = (np.asarray(lat), np.asarray(lon), np.asarray(alt))
+            self._geo_tick = self._ticks
+        lat, lon, alt = self._geo
+        return float(lat[i]), float(lon[i]), float(alt[i])
+
+    def configure_links(self, vehicle: MockVehicle, faults: FaultConfig) -> None:
+        """(Re)build the fault channels of ``vehicle``; usable before or while running."""
+        loop = self._loop
+        if loop is None:
+            vehicle.config = _replace_faults(vehicle.config, faults)
+            return
+        seed = self._link_seed + 1000 * vehicle.index
+        vehicle.uplink = FaultyChannel(
+            faults, faults.loss_to_vehicle, random.Random(seed), loop,
+            vehicle._deliver_up, lambda: self.time_s,
+        )  # fmt: skip
+        vehicle.downlink = FaultyChannel(
+            faults, faults.loss_to_gcs, random.Random(seed + 1), loop,
+            vehicle._deliver_down, lambda: self.time_s,
+        )  # fmt: skip
+        vehicle.config = _replace_faults(vehicle.config, faults)
+
+    # ---------------------------------------------------------------- running
+    async def start(self) -> None:
+        """Bind every vehicle's socket and start the simulation task."""
+        if self._task is not None:
+            raise MockConfigError("the fleet is already running")
+        loop = asyncio.get_running_loop()
+        self._loop = loop
+        try:
+            for v in self.vehicles:
+                self.configure_links(v, v.config.faults)
+                port = self.vehicle_ports[v.index]
+                try:
+                    transport, protocol = await loop.create_datagram_endpoint(
+                        lambda v=v: _VehicleProtocol(v), local_addr=(self.bind_host, port)
+                    )
+                except OSError as exc:
+                    raise MockStartError(
+                        f"vehicle {v.index} (sysid {v.sysid}): cannot bind UDP "
+                        f"{self.bind_host}:{port}: {exc.strerror or exc}"
+                    ) from exc
+                self._transports.append(transport)
+                self._protocols.append(protocol)
+                v._transport_send = transport.sendto
+        except BaseException:
+            self._close_transports()
+            raise
+        self._t0_wall = loop.time()
+        self._task = loop.create_task(self._run(), name="mock-fleet-physics")
+
+    async def stop(self) -> None:
+        """Stop the simulation and close the sockets."""
+        task, self._task = self._task, None
+        if task is not None:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        self._close_transports()
+
+    def _close_transports(self) -> None:
+        for t in self._transports:
+            t.close()
+        self._transports.clear()
+        for v in self.vehicles:
+            v._transport_send = None
+
+    async def __aenter__(self) -> MockFleet:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.stop()
+
+    async def _run(self) -> None:
+        loop = asyncio.get_running_loop()
+        dt = self.dt_s
+        t0 = self._t0_wall
+        vehicles = self.vehicles
+        physics = self.physics
+        sleep = asyncio.sleep
+        while True:
+            physics.step()
+            self._ticks += 1
+            now = self._ticks * dt
+            self.time_s = now
+            for v in vehicles:
+                v.tick(now)
+            delay = t0 + self._ticks * dt - loop.time()
+            await sleep(delay if delay > 0.0 else 0.0)
+
+    @property
+    def running(self) -> bool:
+        """True while the simulation task runs."""
+        return self._task is not None and not self._task.done()
+
+    @property
+    def wall_elapsed_s(self) -> float:
+        """Wall-clock seconds since :meth:`start`."""
+        if self._loop is None:
+            return 0.0
+        return self._loop.time() - self._t0_wall
+
+    @property
+    def real_time_factor(self) -> float:
+        """Simulated seconds per wall-clock second since start (1.0 = keeping up)."""
+        wall = self.wall_elapsed_s
+        return self.time_s / wall if wall > 0 else 0.0
+
+    @contextlib.contextmanager
+    def running_in_thread(self, start_timeout_s: float = 10.0) -> Iterator[MockFleet]:
+        """Run the fleet in its own event loop on a background thread.
+
+        For synchronous callers (tests, the CLI)::
+
+            with MockFleet(n=2).running_in_thread() as fleet:
+                ...
+
+        Errors at start-up (a port in use) are raised here; the thread is
+        stopped and joined on exit.
+        """
+        started = threading.Event()
+        box: dict[str, Any] = {}
+
+        async def main() -> None:
+            stop = asyncio.Event()
+            box["loop"] = asyncio.get_running_loop()
+            box["stop"] = stop
+            try:
+                await self.start()
+            except BaseException as exc:
+                box["error"] = exc
+                started.set()
+                return
+            started.set()
+            try:
+                await stop.wait()
+            finally:
+                await self.stop()
+
+        def target() -> None:
+            try:
+                asyncio.run(main())
+            except BaseException as exc:  # reported to the caller via box
+                box.setdefault("error", exc)
+                started.set()
+
+        thread = threading.Thread(target=target, name="mock-fleet", daemon=True)
+        thread.start()
+        if not started.wait(start_timeout_s):
+            raise MockStartError("the mock fleet did not start in time")
+        if "error" in box:
+            thread.join()
+            raise box["error"]
+        try:
+            yield self
+        finally:
+            loop: asyncio.AbstractEventLoop = box["loop"]
+            loop.call_soon_threadsafe(box["stop"].set)
+            thread.join()
+
+    def call_soon(self, fn: Any, *args: Any) -> None:
+        """Run ``fn(*args)`` in the fleet's loop (thread-safe)."""
+        if self._loop is None:
+            raise MockConfigError("the fleet is not running")
+        self._loop.call_soon_threadsafe(fn, *args)
+
+    def link_stats(self) -> list[dict[str, Any]]:
+        """Datagram counters per vehicle: uplink/downlink offered, dropped, ..."""
+        out = []
+        for v, proto in zip(self.vehicles, self._protocols or [None] * self.n, strict=False):
+            out.append(
+                {
+                    "sysid": v.sysid,
+                    "uplink": v.uplink.stats if v.uplink else None,
+                    "downlink": v.downlink.stats if v.downlink else None,
+                    "send_errors": proto.send_errors if proto else 0,
+                }
+            )
+        return out
+
+
+def _replace_faults(cfg: MockVehicleConfig, faults: FaultConfig) -> MockVehicleConfig:
+    return MockVehicleConfig(
+        spawn_enu_m=cfg.spawn_enu_m,
+        faults=faults,
+        params=cfg.params,
+        ready_after_s=cfg.ready_after_s,
+    )

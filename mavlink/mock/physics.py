@@ -1,0 +1,214 @@
+"""Translational quad-rotor dynamics of the whole fleet, vectorised over vehicles.
+
+Each vehicle is a point mass in its own local NED frame (origin at its spawn
+point, ground at ``down = 0``) driven by a PX4-like cascaded controller:
+
+* position loop: ``v_cmd = v_ff + Kp_pos * (p_sp - p)``, limited to the
+  horizontal speed ``vel_xy_max_m_s`` and the vertical speeds
+  ``vel_up_max_m_s`` / ``vel_dn_max_m_s``;
+* velocity loop (PI): ``a_cmd = a_ff + Kp_vel * (v_cmd - v) + Ki_vel * int(v_cmd - v)``,
+  limited to ``acc_xy_max_m_s2`` horizontally and ``acc_up_max_m_s2`` /
+  ``acc_dn_max_m_s2`` vertically;
+* the airframe follows ``a_cmd`` with a first-order lag (``thrust_tau_s``);
+  wind pushes with ``drag_per_s * wind`` (the controller's integrator rejects it).
+
+Per axis, a setpoint may carry a position, a velocity and an acceleration
+(``m_pos``/``m_vel``/``m_acc`` masks, 0 or 1): position (+ optional velocity and
+acceleration feed-forward), velocity only, or acceleration only, as PX4 accepts
+in ``SET_POSITION_TARGET_LOCAL_NED``.  A disarmed vehicle gets no thrust and
+falls until it reaches the ground.  All arrays have one row per vehicle:
+``(n, 3)`` for vectors in NED (m, m/s, m/s^2), ``(n,)`` for scalars.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mavlink.mock.config import NoiseConfig, WindConfig
+
+GRAVITY_M_S2 = 9.80665
+_GROUND_D_M = 0.0
+
+
+class FleetPhysics:
+    """State, setpoints and limits of ``n`` vehicles, advanced by :meth:`step`."""
+
+    def __init__(
+        self,
+        n: int,
+        dt_s: float,
+        rng: np.random.Generator,
+        wind: WindConfig | None = None,
+        noise: NoiseConfig | None = None,
+        thrust_tau_s: float = 0.05,
+    ) -> None:
+        self.n = n
+        self.dt_s = dt_s
+        self.rng = rng
+        self.wind = wind or WindConfig()
+        self.noise = noise or NoiseConfig()
+        self._alpha = min(1.0, dt_s / thrust_tau_s)
+        # true state
+        self.pos_ned_m = np.zeros((n, 3))
+        self.vel_ned_m_s = np.zeros((n, 3))
+        self.acc_ned_m_s2 = np.zeros((n, 3))
+        self.yaw_rad = np.zeros(n)
+        self.yaw_rate_rad_s = np.zeros(n)
+        self.armed = np.zeros(n, dtype=bool)
+        self._vel_int = np.zeros((n, 3))
+        # setpoints
+        self.sp_pos_ned_m = np.zeros((n, 3))
+        self.sp_vel_ned_m_s = np.zeros((n, 3))
+        self.sp_acc_ned_m_s2 = np.zeros((n, 3))
+        self.m_pos = np.zeros((n, 3))
+        self.m_vel = np.zeros((n, 3))
+        self.m_acc = np.zeros((n, 3))
+        self.sp_yaw_rad = np.zeros(n)
+        self.sp_yaw_rate_rad_s = np.zeros(n)
+        self.m_yaw = np.zeros(n, dtype=bool)
+        self.m_yaw_rate = np.zeros(n, dtype=bool)
+        # limits and gains (PX4 defaults; vehicles overwrite them from their parameters)
+        self.vel_xy_max_m_s = np.full(n, 12.0)
+        self.vel_up_max_m_s = np.full(n, 3.0)
+        self.vel_dn_max_m_s = np.full(n, 1.5)
+        self.acc_xy_max_m_s2 = np.full(n, 5.0)
+        self.acc_up_max_m_s2 = np.full(n, 4.0)
+        self.acc_dn_max_m_s2 = np.full(n, 3.0)
+        self.yaw_rate_max_rad_s = np.full(n, np.deg2rad(45.0))
+        self.kp_pos = np.tile([0.95, 0.95, 1.0], (n, 1))
+        self.kp_vel = np.tile([1.8, 1.8, 4.0], (n, 1))
+        self.ki_vel = np.tile([0.4, 0.4, 2.0], (n, 1))
+        # wind and telemetry noise
+        self._gust_ne_m_s = np.zeros((n, 2))
+        self.noise_pos_m = np.zeros((n, 3))
+        self.noise_vel_m_s = np.zeros((n, 3))
+        self.roll_rad = np.zeros(n)
+        self.pitch_rad = np.zeros(n)
+        self.roll_rate_rad_s = np.zeros(n)
+        self.pitch_rate_rad_s = np.zeros(n)
+
+    def hold_here(self, i: int) -> None:
+        """Make vehicle ``i`` hold its current position (and yaw)."""
+        self.set_position(i, self.pos_ned_m[i].copy())
+        self.sp_yaw_rad[i] = self.yaw_rad[i]
+        self.m_yaw[i] = True
+        self.m_yaw_rate[i] = False
+
+    def set_position(
+        self,
+        i: int,
+        pos_ned_m: np.ndarray,
+        vel_ff_ned_m_s: np.ndarray | None = None,
+        acc_ff_ned_m_s2: np.ndarray | None = None,
+    ) -> None:
+        """Position setpoint (all axes) with optional feed-forward for vehicle ``i``."""
+        self.sp_pos_ned_m[i] = pos_ned_m
+        self.m_pos[i] = 1.0
+        if vel_ff_ned_m_s is None:
+            self.m_vel[i] = 0.0
+        else:
+            self.sp_vel_ned_m_s[i] = vel_ff_ned_m_s
+            self.m_vel[i] = 1.0
+        if acc_ff_ned_m_s2 is None:
+            self.m_acc[i] = 0.0
+        else:
+            self.sp_acc_ned_m_s2[i] = acc_ff_ned_m_s2
+            self.m_acc[i] = 1.0
+
+    def set_axes(
+        self,
+        i: int,
+        pos_ned_m: np.ndarray,
+        vel_ned_m_s: np.ndarray,
+        acc_ned_m_s2: np.ndarray,
+        m_pos: np.ndarray,
+        m_vel: np.ndarray,
+        m_acc: np.ndarray,
+    ) -> None:
+        """Per-axis setpoint with masks (each (3,), 1.0 where the component is used)."""
+        self.sp_pos_ned_m[i] = pos_ned_m
+        self.sp_vel_ned_m_s[i] = vel_ned_m_s
+        self.sp_acc_ned_m_s2[i] = acc_ned_m_s2
+        self.m_pos[i] = m_pos
+        self.m_vel[i] = m_vel
+        self.m_acc[i] = m_acc
+
+    def step(self) -> None:
+        """Advance every vehicle by ``dt_s``."""
+        dt = self.dt_s
+        pos, vel = self.pos_ned_m, self.vel_ned_m_s
+        # position loop
+        v_cmd = (
+            self.m_pos * self.kp_pos * (self.sp_pos_ned_m - pos) + self.m_vel * self.sp_vel_ned_m_s
+        )
+        v_h = np.hypot(v_cmd[:, 0], v_cmd[:, 1])
+        scale = np.minimum(1.0, self.vel_xy_max_m_s / np.maximum(v_h, 1e-9))
+        v_cmd[:, 0] *= scale
+        v_cmd[:, 1] *= scale
+        np.clip(v_cmd[:, 2], -self.vel_up_max_m_s, self.vel_dn_max_m_s, out=v_cmd[:, 2])
+        # velocity loop (PI), inactive on axes that only carry an acceleration
+        vel_ctl = np.maximum(self.m_pos, self.m_vel)
+        err = (v_cmd - vel) * vel_ctl
+        armed_col = self.armed[:, None]
+        self._vel_int += err * self.ki_vel * dt * armed_col
+        lim = np.column_stack((self.acc_xy_max_m_s2, self.acc_xy_max_m_s2, self.acc_up_max_m_s2))
+        np.clip(self._vel_int, -lim, lim, out=self._vel_int)
+        self._vel_int *= vel_ctl
+        a_cmd = self.kp_vel * err + self._vel_int + self.m_acc * self.sp_acc_ned_m_s2
+        a_h = np.hypot(a_cmd[:, 0], a_cmd[:, 1])
+        scale = np.minimum(1.0, self.acc_xy_max_m_s2 / np.maximum(a_h, 1e-9))
+        a_cmd[:, 0] *= scale
+        a_cmd[:, 1] *= scale
+        np.clip(a_cmd[:, 2], -self.acc_up_max_m_s2, self.acc_dn_max_m_s2, out=a_cmd[:, 2])
+        a_cmd *= armed_col
+        # airframe: thrust lag, wind, gravity when disarmed
+        acc = self.acc_ned_m_s2
+        acc += (a_cmd - acc) * self._alpha
+        a_total = acc.copy()
+        airborne = pos[:, 2] < _GROUND_D_M - 1e-3
+        w = self.wind
+        if w.gust_sigma_m_s > 0.0 or w.mean_ne_m_s != (0.0, 0.0):
+            if w.gust_sigma_m_s > 0.0:
+                decay = dt / w.gust_tau_s
+                self._gust_ne_m_s += -self._gust_ne_m_s * decay + w.gust_sigma_m_s * np.sqrt(
+                    2.0 * decay
+                ) * self.rng.standard_normal((self.n, 2))
+            wind_ne = np.asarray(w.mean_ne_m_s) + self._gust_ne_m_s
+            a_total[:, :2] += w.drag_per_s * wind_ne * (airborne & self.armed)[:, None]
+        falling = ~self.armed & airborne
+        a_total[falling] = (0.0, 0.0, GRAVITY_M_S2)
+        vel += a_total * dt
+        pos += vel * dt
+        # ground contact: no penetration, no sliding
+        grounded = pos[:, 2] >= _GROUND_D_M
+        if grounded.any():
+            pos[grounded, 2] = _GROUND_D_M
+            vel[grounded, 2] = np.minimum(vel[grounded, 2], 0.0)
+            vel[grounded, :2] = 0.0
+            acc[grounded & (acc[:, 2] > 0.0), 2] = 0.0
+        # yaw
+        err_yaw = np.angle(np.exp(1j * (self.sp_yaw_rad - self.yaw_rad)))
+        rate = np.where(
+            self.m_yaw, 2.0 * err_yaw, np.where(self.m_yaw_rate, self.sp_yaw_rate_rad_s, 0.0)
+        )
+        rate = np.clip(rate, -self.yaw_rate_max_rad_s, self.yaw_rate_max_rad_s) * (
+            self.armed & airborne
+        )
+        self.yaw_rate_rad_s = rate
+        self.yaw_rad = np.angle(np.exp(1j * (self.yaw_rad + rate * dt)))
+        # attitude implied by the specific force (for ATTITUDE telemetry)
+        c, s = np.cos(self.yaw_rad), np.sin(self.yaw_rad)
+        a_fwd = acc[:, 0] * c + acc[:, 1] * s
+        a_right = -acc[:, 0] * s + acc[:, 1] * c
+        lift = GRAVITY_M_S2 - acc[:, 2]
+        pitch = np.arctan2(-a_fwd, lift)
+        roll = np.arctan2(a_right * np.cos(pitch), lift)
+        self.roll_rate_rad_s = (roll - self.roll_rad) / dt
+        self.pitch_rate_rad_s = (pitch - self.pitch_rad) / dt
+        self.roll_rad, self.pitch_rad = roll, pitch
+        # telemetry noise for this tick
+        nz = self.noise
+        if nz.pos_m > 0.0 or nz.vel_m_s > 0.0:
+            draw = self.rng.standard_normal((self.n, 6))
+            self.noise_pos_m = draw[:, :3] * nz.pos_m
+            self.noise_vel_m_s = draw[:, 3:] * nz.vel_m_s

@@ -1,0 +1,219 @@
+"""PX4 facts the mock vehicle reproduces: flight modes, their MAVLink encoding, parameters.
+
+PX4 packs its flight mode into ``HEARTBEAT.custom_mode`` as
+``(main_mode << 16) | (sub_mode << 24)`` (``px4_custom_mode.h``); the same
+pair arrives in ``MAV_CMD_DO_SET_MODE`` as param2 (main) and param3 (sub), with
+``MAV_MODE_FLAG_CUSTOM_MODE_ENABLED`` in param1.
+
+The parameter table is a small subset of a PX4 v1.14 multicopter (SITL
+``4001_quad_x`` airframe) with PX4's defaults; integer parameters travel with
+PX4's byte-wise encoding (the int32 bits reinterpreted as the float field).
+"""
+
+from __future__ import annotations
+
+import enum
+import struct
+from dataclasses import dataclass
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+
+class MainMode(enum.IntEnum):
+    """PX4 main modes (``PX4_CUSTOM_MAIN_MODE_*``)."""
+
+    MANUAL = 1
+    ALTCTL = 2
+    POSCTL = 3
+    AUTO = 4
+    ACRO = 5
+    OFFBOARD = 6
+    STABILIZED = 7
+
+
+class AutoSubMode(enum.IntEnum):
+    """PX4 AUTO sub modes (``PX4_CUSTOM_SUB_MODE_AUTO_*``)."""
+
+    READY = 1
+    TAKEOFF = 2
+    LOITER = 3
+    MISSION = 4
+    RTL = 5
+    LAND = 6
+
+
+class Px4Mode(enum.Enum):
+    """A PX4 flight mode as the (main, sub) pair of its custom mode."""
+
+    MANUAL = (1, 0)
+    ALTCTL = (2, 0)
+    POSCTL = (3, 0)
+    AUTO_READY = (4, 1)
+    AUTO_TAKEOFF = (4, 2)
+    AUTO_LOITER = (4, 3)
+    AUTO_MISSION = (4, 4)
+    AUTO_RTL = (4, 5)
+    AUTO_LAND = (4, 6)
+    ACRO = (5, 0)
+    OFFBOARD = (6, 0)
+    STABILIZED = (7, 0)
+
+    @property
+    def custom_mode(self) -> int:
+        """``HEARTBEAT.custom_mode`` of this mode."""
+        main, sub = self.value
+        return (main << 16) | (sub << 24)
+
+    @property
+    def needs_manual_control(self) -> bool:
+        """True for the modes PX4 cannot enter without an RC / joystick input."""
+        return self.value[0] in (1, 2, 3, 5, 7)
+
+    @property
+    def base_mode_flags(self) -> int:
+        """``MAV_MODE_FLAG_*`` bits PX4 reports with this mode (without the armed bit)."""
+        flags = mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        main = self.value[0]
+        if main in (4, 6):
+            flags |= (
+                mavlink2.MAV_MODE_FLAG_AUTO_ENABLED
+                | mavlink2.MAV_MODE_FLAG_STABILIZE_ENABLED
+                | mavlink2.MAV_MODE_FLAG_GUIDED_ENABLED
+            )
+        elif main == 3:
+            flags |= (
+                mavlink2.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+                | mavlink2.MAV_MODE_FLAG_STABILIZE_ENABLED
+                | mavlink2.MAV_MODE_FLAG_GUIDED_ENABLED
+            )
+        else:
+            flags |= (
+                mavlink2.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+                | mavlink2.MAV_MODE_FLAG_STABILIZE_ENABLED
+            )
+        return flags
+
+    @classmethod
+    def from_main_sub(cls, main: int, sub: int) -> Px4Mode | None:
+        """The mode for a (main, sub) pair, or None if PX4 has no such mode.
+
+        A sub mode of 0 with main AUTO means "keep AUTO, sub unspecified" and is
+        answered with AUTO.LOITER as PX4 does.
+        """
+        if main == 4 and sub == 0:
+            return cls.AUTO_LOITER
+        if main != 4:
+            sub = 0
+        for mode in cls:
+            if mode.value == (main, sub):
+                return mode
+        return None
+
+    @classmethod
+    def from_custom_mode(cls, custom_mode: int) -> Px4Mode | None:
+        """Decode ``HEARTBEAT.custom_mode``; None for an unknown pair."""
+        return cls.from_main_sub((custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF)
+
+
+class ParamType(enum.IntEnum):
+    """The two ``MAV_PARAM_TYPE`` values PX4 uses."""
+
+    INT32 = mavlink2.MAV_PARAM_TYPE_INT32
+    REAL32 = mavlink2.MAV_PARAM_TYPE_REAL32
+
+
+@dataclass(frozen=True, slots=True)
+class ParamSpec:
+    """One parameter: name (<= 16 chars), type and PX4 default."""
+
+    name: str
+    type: ParamType
+    default: float
+
+
+#: The parameters the mock exposes, with PX4 v1.14 multicopter defaults.
+PARAM_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("COM_DISARM_LAND", ParamType.REAL32, 2.0),
+    ParamSpec("COM_DISARM_PRFLT", ParamType.REAL32, 10.0),
+    ParamSpec("COM_OBL_RC_ACT", ParamType.INT32, 0),
+    ParamSpec("COM_OF_LOSS_T", ParamType.REAL32, 1.0),
+    ParamSpec("COM_RC_IN_MODE", ParamType.INT32, 3),
+    ParamSpec("GF_ACTION", ParamType.INT32, 2),
+    ParamSpec("MIS_TAKEOFF_ALT", ParamType.REAL32, 2.5),
+    ParamSpec("MPC_ACC_DOWN_MAX", ParamType.REAL32, 3.0),
+    ParamSpec("MPC_ACC_HOR", ParamType.REAL32, 3.0),
+    ParamSpec("MPC_ACC_HOR_MAX", ParamType.REAL32, 5.0),
+    ParamSpec("MPC_ACC_UP_MAX", ParamType.REAL32, 4.0),
+    ParamSpec("MPC_LAND_SPEED", ParamType.REAL32, 0.7),
+    ParamSpec("MPC_TKO_SPEED", ParamType.REAL32, 1.5),
+    ParamSpec("MPC_XY_CRUISE", ParamType.REAL32, 5.0),
+    ParamSpec("MPC_XY_P", ParamType.REAL32, 0.95),
+    ParamSpec("MPC_XY_VEL_I_ACC", ParamType.REAL32, 0.4),
+    ParamSpec("MPC_XY_VEL_MAX", ParamType.REAL32, 12.0),
+    ParamSpec("MPC_XY_VEL_P_ACC", ParamType.REAL32, 1.8),
+    ParamSpec("MPC_YAWRAUTO_MAX", ParamType.REAL32, 45.0),
+    ParamSpec("MPC_Z_P", ParamType.REAL32, 1.0),
+    ParamSpec("MPC_Z_VEL_I_ACC", ParamType.REAL32, 2.0),
+    ParamSpec("MPC_Z_VEL_MAX_DN", ParamType.REAL32, 1.5),
+    ParamSpec("MPC_Z_VEL_MAX_UP", ParamType.REAL32, 3.0),
+    ParamSpec("MPC_Z_VEL_P_ACC", ParamType.REAL32, 4.0),
+    ParamSpec("NAV_ACC_RAD", ParamType.REAL32, 2.0),
+    ParamSpec("NAV_MC_ALT_RAD", ParamType.REAL32, 0.8),
+    ParamSpec("RTL_RETURN_ALT", ParamType.REAL32, 60.0),
+    ParamSpec("SYS_AUTOSTART", ParamType.INT32, 4001),
+)
+
+#: COM_OBL_RC_ACT values (offboard loss action).  Without an RC link the
+#: manual modes (0 position, 1 altitude, 2 manual) fall back to Hold, as PX4's
+#: failsafe state machine does.
+OBL_ACTION_MODES: dict[int, Px4Mode | None] = {
+    0: Px4Mode.AUTO_LOITER,
+    1: Px4Mode.AUTO_LOITER,
+    2: Px4Mode.AUTO_LOITER,
+    3: Px4Mode.AUTO_RTL,
+    4: Px4Mode.AUTO_LAND,
+    5: Px4Mode.AUTO_LOITER,
+    6: None,  # terminate: disarm in the air
+    7: None,  # disarm
+}
+
+#: GF_ACTION values (geofence breach action): 0 none, 1 warning, 2 hold,
+#: 3 return, 4 terminate, 5 land.
+GF_ACTION_MODES: dict[int, Px4Mode | None] = {
+    2: Px4Mode.AUTO_LOITER,
+    3: Px4Mode.AUTO_RTL,
+    5: Px4Mode.AUTO_LAND,
+}
+
+
+def encode_param_value(value: float, ptype: ParamType) -> float:
+    """The float that carries ``value`` in PARAM_VALUE/PARAM_SET (PX4 byte-wise encoding)."""
+    if ptype is ParamType.INT32:
+        return struct.unpack("<f", struct.pack("<i", int(value)))[0]
+    return float(value)
+
+
+def decode_param_value(wire: float, ptype: ParamType) -> float:
+    """Inverse of :func:`encode_param_value`."""
+    if ptype is ParamType.INT32:
+        return float(struct.unpack("<i", struct.pack("<f", wire))[0])
+    return float(wire)
+
+
+#: AUTOPILOT_VERSION.capabilities of the mock (what PX4 v1.14 reports, minus FTP).
+CAPABILITIES: int = (
+    mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
+    | mavlink2.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+    | mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+    | mavlink2.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+    | mavlink2.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+    | mavlink2.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
+    | mavlink2.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+    | mavlink2.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
+    | mavlink2.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+    | mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
+    | mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY
+)
+
+#: PX4 v1.14.0 release as AUTOPILOT_VERSION.flight_sw_version (major, minor, patch, type 0xFF).
+FLIGHT_SW_VERSION: int = (1 << 24) | (14 << 16) | (0 << 8) | 0xFF

@@ -1,0 +1,1469 @@
+"""One mock PX4 quad-rotor: the MAVLink endpoint and the flight logic of PX4's commander/navigator.
+
+A :class:`MockVehicle` owns row ``index`` of the fleet's vectorised
+:class:`~mavlink.mock.physics.FleetPhysics`; every physics tick the fleet
+calls :meth:`MockVehicle.tick`, which runs the mode logic (takeoff, hold,
+land, return, mission, offboard failsafe, geofence, auto-disarm), the mission
+protocol timers and the telemetry streams due at that time.  Incoming
+datagrams are parsed with pymavlink's MAVLink 2 codec and dispatched by
+message type; every ``COMMAND_LONG``/``COMMAND_INT`` addressed to the vehicle is
+answered with a ``COMMAND_ACK``.
+
+Frames: the vehicle's local NED origin is its EKF origin, the spawn point;
+global positions are that origin's geodetic coordinates plus the local offset
+(pymap3d).  Altitudes are AMSL; "relative" altitudes are above home.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, ClassVar
+
+import numpy as np
+import pymap3d
+from pymavlink.dialects.v20 import common as mavlink2
+
+from mavlink.mock import px4
+from mavlink.mock.config import FaultConfig, MockVehicleConfig
+from mavlink.mock.mission import FENCE, MISSION, RALLY, MissionItem, MissionServer
+from mavlink.mock.px4 import Px4Mode
+
+if TYPE_CHECKING:
+    from mavlink.mock.fleet import MockFleet
+
+Msg = mavlink2.MAVLink_message
+
+ACCEPTED = mavlink2.MAV_RESULT_ACCEPTED
+TEMPORARILY_REJECTED = mavlink2.MAV_RESULT_TEMPORARILY_REJECTED
+DENIED = mavlink2.MAV_RESULT_DENIED
+UNSUPPORTED = mavlink2.MAV_RESULT_UNSUPPORTED
+FAILED = mavlink2.MAV_RESULT_FAILED
+
+#: Default telemetry rates (Hz) of a PX4 GCS/onboard link, by message id.
+DEFAULT_RATES_HZ: dict[int, float] = {
+    mavlink2.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
+    mavlink2.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
+    mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
+    mavlink2.MAVLINK_MSG_ID_BATTERY_STATUS: 1.0,
+    mavlink2.MAVLINK_MSG_ID_HOME_POSITION: 1.0,
+    mavlink2.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: 1.0,
+    mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT: 1.0,
+    mavlink2.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
+    mavlink2.MAVLINK_MSG_ID_VFR_HUD: 4.0,
+    mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 10.0,
+    mavlink2.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: 10.0,
+    mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 50.0,
+    mavlink2.MAVLINK_MSG_ID_ATTITUDE: 50.0,
+}
+
+_SENSORS = (
+    mavlink2.MAV_SYS_STATUS_SENSOR_3D_GYRO
+    | mavlink2.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+    | mavlink2.MAV_SYS_STATUS_SENSOR_3D_MAG
+    | mavlink2.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+    | mavlink2.MAV_SYS_STATUS_SENSOR_GPS
+    | mavlink2.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
+    | mavlink2.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
+    | mavlink2.MAV_SYS_STATUS_SENSOR_YAW_POSITION
+    | mavlink2.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
+    | mavlink2.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+    | mavlink2.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+    | mavlink2.MAV_SYS_STATUS_AHRS
+    | mavlink2.MAV_SYS_STATUS_SENSOR_BATTERY
+)
+_PREARM = mavlink2.MAV_SYS_STATUS_PREARM_CHECK
+
+_FORCE_MAGIC = 21196.0
+_STREAM_GAP_S = 0.5  # setpoints at >= 2 Hz
+_STREAM_MIN_S = 1.0  # ... for at least 1 s before offboard is allowed
+_RTL_MIN_DIST_M = 10.0
+
+
+class LandedState(enum.IntEnum):
+    """``MAV_LANDED_STATE`` values reported in EXTENDED_SYS_STATE."""
+
+    ON_GROUND = mavlink2.MAV_LANDED_STATE_ON_GROUND
+    IN_AIR = mavlink2.MAV_LANDED_STATE_IN_AIR
+    TAKEOFF = mavlink2.MAV_LANDED_STATE_TAKEOFF
+    LANDING = mavlink2.MAV_LANDED_STATE_LANDING
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleState:
+    """A snapshot of one vehicle's true state (for tests and status displays).
+
+    Positions/velocities are in the vehicle's local NED frame (m, m/s), the
+    origin at its spawn point.
+    """
+
+    sysid: int
+    time_s: float
+    pos_ned_m: tuple[float, float, float]
+    vel_ned_m_s: tuple[float, float, float]
+    yaw_rad: float
+    mode: Px4Mode
+    armed: bool
+    landed: bool
+    failsafe: bool
+    mission_seq: int
+    home_ned_m: tuple[float, float, float]
+
+
+@dataclass(slots=True)
+class _Stream:
+    msg_id: int
+    interval_s: float
+    next_s: float
+    build: Callable[[], Msg | None]
+
+
+@dataclass(slots=True)
+class _Setpoint:
+    """The last offboard setpoint, already in the local NED frame."""
+
+    pos: np.ndarray
+    vel: np.ndarray
+    acc: np.ndarray
+    m_pos: np.ndarray
+    m_vel: np.ndarray
+    m_acc: np.ndarray
+    yaw_rad: float
+    yaw_rate_rad_s: float
+    use_yaw: bool
+    use_yaw_rate: bool
+
+
+class MockVehicle:
+    """Vehicle ``index`` of a :class:`~mavlink.mock.fleet.MockFleet` (system id ``index + 1``)."""
+
+    def __init__(
+        self,
+        fleet: MockFleet,
+        index: int,
+        config: MockVehicleConfig,
+        origin_lla: tuple[float, float, float],
+        uid: int,
+    ) -> None:
+        self.fleet = fleet
+        self.index = index
+        self.sysid = index + 1
+        self.config = config
+        self.uid = uid
+        self.origin_lla = origin_lla
+        self.phys = fleet.physics
+        self._mav = mavlink2.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
+        self._rx = mavlink2.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
+        self._rx.robust_parsing = True
+        self.params: dict[str, float] = {p.name: float(p.default) for p in px4.PARAM_SPECS}
+        self._param_specs = {p.name: p for p in px4.PARAM_SPECS}
+        self._param_names = [p.name for p in px4.PARAM_SPECS]
+        for name, value in config.params:
+            if name not in self.params:
+                from mavlink.mock.errors import MockConfigError
+
+                raise MockConfigError(f"vehicle {index}: unknown parameter {name!r}")
+            self.params[name] = value
+        self.mode = Px4Mode.AUTO_LOITER
+        self.armed = False
+        self.landed = True
+        self.failsafe = False
+        self.has_flown = False
+        self._armed_at_s = 0.0
+        self._landed_since_s = 0.0
+        self.home_ned_m = np.zeros(3)
+        self.cruise_speed_m_s = self.params["MPC_XY_CRUISE"]
+        # offboard
+        self._sp: _Setpoint | None = None
+        self._sp_last_s = -math.inf
+        self._sp_stream_start_s = -math.inf
+        self._frame_warned: set[int] = set()
+        # auto modes
+        self._takeoff_d_m = 0.0
+        self._rtl_phase = ""
+        self._rtl_alt_d_m = 0.0
+        # mission execution
+        self.mission_seq = 0
+        self.mission_finished = False
+        self._mis_phase = ""
+        self._mis_target = np.zeros(3)
+        self._mis_hold_until_s = 0.0
+        self._mis_reached_sent = -1
+        self._jump_counts: dict[int, int] = {}
+        # geofence in local NE (m): list of (kind, inclusion, data)
+        self._fence: list[tuple[str, bool, np.ndarray, float]] = []
+        self._fence_breached = False
+        self.missions = MissionServer(
+            send=self.send,
+            clock_s=self._now,
+            on_changed=self._on_plan_changed,
+            current_seq=lambda: self.mission_seq,
+            statustext=self.statustext,
+        )
+        self.received: dict[str, int] = {}
+        self.remote_addr: tuple[str, int] = (fleet.gcs_host, fleet.gcs_ports[index])
+        self._transport_send: Callable[[bytes, tuple[str, int]], None] | None = None
+        self.uplink = None  # FaultyChannel, set by the fleet
+        self.downlink = None
+        self._streams: dict[int, _Stream] = {}
+        self._builders: dict[int, Callable[[], Msg | None]] = {
+            mavlink2.MAVLINK_MSG_ID_HEARTBEAT: self._msg_heartbeat,
+            mavlink2.MAVLINK_MSG_ID_SYS_STATUS: self._msg_sys_status,
+            mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: self._msg_extended_sys_state,
+            mavlink2.MAVLINK_MSG_ID_BATTERY_STATUS: self._msg_battery_status,
+            mavlink2.MAVLINK_MSG_ID_HOME_POSITION: self._msg_home_position,
+            mavlink2.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: self._msg_gps_global_origin,
+            mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT: self._msg_gps_raw_int,
+            mavlink2.MAVLINK_MSG_ID_MISSION_CURRENT: self._msg_mission_current,
+            mavlink2.MAVLINK_MSG_ID_VFR_HUD: self._msg_vfr_hud,
+            mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: self._msg_global_position_int,
+            mavlink2.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: self._msg_position_target,
+            mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED: self._msg_local_position_ned,
+            mavlink2.MAVLINK_MSG_ID_ATTITUDE: self._msg_attitude,
+            mavlink2.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self._msg_autopilot_version,
+            mavlink2.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: self._msg_attitude_quaternion,
+            mavlink2.MAVLINK_MSG_ID_ALTITUDE: self._msg_altitude,
+        }
+        for msg_id, rate_hz in DEFAULT_RATES_HZ.items():
+            self._streams[msg_id] = _Stream(msg_id, 1.0 / rate_hz, 0.0, self._builders[msg_id])
+        self._handlers: dict[str, Callable[[Msg], None]] = {
+            "COMMAND_LONG": self._on_command_long,
+            "COMMAND_INT": self._on_command_int,
+            "SET_POSITION_TARGET_LOCAL_NED": self._on_set_position_target_local,
+            "SET_POSITION_TARGET_GLOBAL_INT": self._on_set_position_target_global,
+            "PARAM_REQUEST_LIST": self._on_param_request_list,
+            "PARAM_REQUEST_READ": self._on_param_request_read,
+            "PARAM_SET": self._on_param_set,
+            "TIMESYNC": self._on_timesync,
+            "MISSION_SET_CURRENT": self._on_mission_set_current,
+            "SET_GPS_GLOBAL_ORIGIN": self._on_set_gps_global_origin,
+        }
+        self._apply_params()
+        self.phys.hold_here(index)
+
+    # ================================================================ plumbing
+    def _now(self) -> float:
+        return self.fleet.time_s
+
+    def _boot_ms(self) -> int:
+        return int(self.fleet.time_s * 1000.0) & 0xFFFFFFFF
+
+    def _usec(self) -> int:
+        return int(self.fleet.time_s * 1e6)
+
+    def send(self, msg: Msg) -> None:
+        """Encode ``msg`` as MAVLink 2 from (sysid, 1) and send it to the GCS."""
+        mav = self._mav
+        buf = msg.pack(mav)
+        mav.seq = (mav.seq + 1) & 0xFF
+        self.downlink.push(buf)
+
+    def _deliver_down(self, data: bytes) -> None:
+        if self._transport_send is not None:
+            self._transport_send(data, self.remote_addr)
+
+    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        """A datagram arrived on the vehicle port: remember the sender (as PX4 does), parse."""
+        self.remote_addr = addr
+        self.uplink.push(data)
+
+    def _deliver_up(self, data: bytes) -> None:
+        msgs = self._rx.parse_buffer(data)
+        if not msgs:
+            return
+        for msg in msgs:
+            kind = msg.get_type()
+            if kind == "BAD_DATA":
+                continue
+            self.received[kind] = self.received.get(kind, 0) + 1
+            handler = self._handlers.get(kind)
+            if handler is not None:
+                handler(msg)
+            elif kind.startswith("MISSION_"):
+                tgt = getattr(msg, "target_system", self.sysid)
+                if tgt in (0, self.sysid):
+                    self.missions.handle(msg)
+
+    def set_faults(self, faults: FaultConfig) -> None:
+        """Replace the link faults of this vehicle (takes effect for the next datagram)."""
+        self.fleet.configure_links(self, faults)
+
+    def statustext(self, severity: int, text: str) -> None:
+        """Send a STATUSTEXT (text cut to the 50 bytes MAVLink allows)."""
+        raw = text.encode("ascii", "replace")[:50]
+        self.send(mavlink2.MAVLink_statustext_message(severity, raw, 0, 0))
+
+    @property
+    def state(self) -> VehicleState:
+        """Snapshot of the true state (thread-safe enough for tests: values are copied)."""
+        i = self.index
+        p = self.phys
+        return VehicleState(
+            sysid=self.sysid,
+            time_s=self.fleet.time_s,
+            pos_ned_m=tuple(float(v) for v in p.pos_ned_m[i]),
+            vel_ned_m_s=tuple(float(v) for v in p.vel_ned_m_s[i]),
+            yaw_rad=float(p.yaw_rad[i]),
+            mode=self.mode,
+            armed=self.armed,
+            landed=self.landed,
+            failsafe=self.failsafe,
+            mission_seq=self.mission_seq,
+            home_ned_m=tuple(float(v) for v in self.home_ned_m),
+        )
+
+    def mission_items(self, mission_type: int = MISSION) -> tuple[MissionItem, ...]:
+        """The stored plan of ``mission_type`` (MAV_MISSION_TYPE_*)."""
+        return self.missions.plans[mission_type]
+
+    # ================================================================ geodesy
+    def ned_to_global(self, pos_ned_m: np.ndarray) -> tuple[float, float, float]:
+        """Local NED (m) -> (lat_deg, lon_deg, alt_m AMSL)."""
+        lat0, lon0, h0 = self.origin_lla
+        lat, lon, alt = pymap3d.ned2geodetic(
+            float(pos_ned_m[0]), float(pos_ned_m[1]), float(pos_ned_m[2]), lat0, lon0, h0
+        )
+        return float(lat), float(lon), float(alt)
+
+    def global_to_ned(self, lat_deg: float, lon_deg: float, alt_m: float) -> np.ndarray:
+        """(lat_deg, lon_deg, alt_m AMSL) -> local NED (m), shape (3,)."""
+        lat0, lon0, h0 = self.origin_lla
+        n, e, d = pymap3d.geodetic2ned(lat_deg, lon_deg, alt_m, lat0, lon0, h0)
+        return np.array([float(n), float(e), float(d)])
+
+    def _home_alt_amsl(self) -> float:
+        return self.origin_lla[2] - float(self.home_ned_m[2])
+
+    def _item_target_ned(
+        self, frame: int, x_e7: int, y_e7: int, z_m: float, default: np.ndarray
+    ) -> np.ndarray:
+        """Position of a global mission item / command in local NED; NaN or 0,0 keep ``default``."""
+        target = default.copy()
+        if (x_e7 != 0 or y_e7 != 0) and frame in (
+            mavlink2.MAV_FRAME_GLOBAL,
+            mavlink2.MAV_FRAME_GLOBAL_INT,
+            mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+            mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+            mavlink2.MAV_FRAME_GLOBAL_TERRAIN_ALT,
+            mavlink2.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
+        ):
+            ned = self.global_to_ned(x_e7 / 1e7, y_e7 / 1e7, self.origin_lla[2])
+            target[0], target[1] = ned[0], ned[1]
+        if math.isfinite(z_m):
+            target[2] = self._alt_to_down(frame, z_m)
+        return target
+
+    def _alt_to_down(self, frame: int, alt_m: float) -> float:
+        if frame in (mavlink2.MAV_FRAME_GLOBAL, mavlink2.MAV_FRAME_GLOBAL_INT):
+            return self.origin_lla[2] - alt_m
+        # relative to home (terrain following over flat ground is the same)
+        return float(self.home_ned_m[2]) - alt_m
+
+    # ================================================================ parameters
+    def _apply_params(self) -> None:
+        i, p, prm = self.index, self.phys, self.params
+        p.kp_pos[i] = (prm["MPC_XY_P"], prm["MPC_XY_P"], prm["MPC_Z_P"])
+        p.kp_vel[i] = (prm["MPC_XY_VEL_P_ACC"], prm["MPC_XY_VEL_P_ACC"], prm["MPC_Z_VEL_P_ACC"])
+        p.ki_vel[i] = (prm["MPC_XY_VEL_I_ACC"], prm["MPC_XY_VEL_I_ACC"], prm["MPC_Z_VEL_I_ACC"])
+        p.yaw_rate_max_rad_s[i] = math.radians(prm["MPC_YAWRAUTO_MAX"])
+        self._apply_limits()
+
+    def _apply_limits(self) -> None:
+        """Speed/acceleration limits of the current mode from the parameters."""
+        i, p, prm = self.index, self.phys, self.params
+        auto = self.mode.value[0] == 4
+        p.vel_xy_max_m_s[i] = (
+            min(self.cruise_speed_m_s, prm["MPC_XY_VEL_MAX"]) if auto else prm["MPC_XY_VEL_MAX"]
+        )
+        p.vel_up_max_m_s[i] = (
+            prm["MPC_TKO_SPEED"] if self.mode is Px4Mode.AUTO_TAKEOFF else prm["MPC_Z_VEL_MAX_UP"]
+        )
+        p.vel_dn_max_m_s[i] = prm["MPC_Z_VEL_MAX_DN"]
+        p.acc_xy_max_m_s2[i] = prm["MPC_ACC_HOR"] if auto else prm["MPC_ACC_HOR_MAX"]
+        p.acc_up_max_m_s2[i] = prm["MPC_ACC_UP_MAX"]
+        p.acc_dn_max_m_s2[i] = prm["MPC_ACC_DOWN_MAX"]
+
+    def _param_value_msg(self, name: str) -> Msg:
+        spec = self._param_specs[name]
+        return mavlink2.MAVLink_param_value_message(
+            name.encode("ascii"),
+            px4.encode_param_value(self.params[name], spec.type),
+            int(spec.type),
+            len(self._param_names),
+            self._param_names.index(name),
+        )
+
+    def _for_me(self, msg: Msg) -> bool:
+        return msg.target_system in (0, self.sysid)
+
+    def _on_param_request_list(self, msg: Msg) -> None:
+        if self._for_me(msg):
+            for name in self._param_names:
+                self.send(self._param_value_msg(name))
+
+    def _on_param_request_read(self, msg: Msg) -> None:
+        if not self._for_me(msg):
+            return
+        if msg.param_index >= 0:
+            if msg.param_index < len(self._param_names):
+                self.send(self._param_value_msg(self._param_names[msg.param_index]))
+            return
+        name = _param_name(msg.param_id)
+        if name in self.params:
+            self.send(self._param_value_msg(name))
+        else:
+            self.statustext(mavlink2.MAV_SEVERITY_WARNING, f"Parameter {name} not found")
+
+    def _on_param_set(self, msg: Msg) -> None:
+        if not self._for_me(msg):
+            return
+        name = _param_name(msg.param_id)
+        spec = self._param_specs.get(name)
+        if spec is None:
+            self.statustext(mavlink2.MAV_SEVERITY_WARNING, f"Parameter {name} not found")
+            return
+        value = px4.decode_param_value(msg.param_value, spec.type)
+        if math.isfinite(value):
+            self.params[name] = value
+            if name == "MPC_XY_CRUISE":
+                self.cruise_speed_m_s = value
+            self._apply_params()
+        self.send(self._param_value_msg(name))
+
+    def _on_timesync(self, msg: Msg) -> None:
+        if msg.tc1 == 0:
+            self.send(mavlink2.MAVLink_timesync_message(self._usec() * 1000, msg.ts1))
+
+    # ================================================================ commands
+    def _on_command_long(self, msg: Msg) -> None:
+        if not self._for_me(msg) or msg.target_component not in (0, 1):
+            return
+        p = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
+        self._command(msg, msg.command, p, mavlink2.MAV_FRAME_GLOBAL, is_int=False)
+
+    def _on_command_int(self, msg: Msg) -> None:
+        if not self._for_me(msg) or msg.target_component not in (0, 1):
+            return
+        p = (msg.param1, msg.param2, msg.param3, msg.param4, msg.x, msg.y, msg.z)
+        self._command(msg, msg.command, p, msg.frame, is_int=True)
+
+    def _command(
+        self, msg: Msg, command: int, p: tuple[float, ...], frame: int, is_int: bool
+    ) -> None:
+        handler = self._COMMANDS.get(command)
+        if handler is None:
+            result = UNSUPPORTED
+            after = None
+        else:
+            result, after = handler(self, p, frame, is_int)
+        self.send(
+            mavlink2.MAVLink_command_ack_message(
+                command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
+            )
+        )
+        if after is not None:
+            after()
+
+    def _cmd_arm_disarm(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+        force = abs(p[1] - _FORCE_MAGIC) < 0.5
+        if p[0] >= 0.5:
+            return self.arm(force=force), None
+        return self.disarm(force=force), None
+
+    def arm(self, force: bool = False) -> int:
+        """Arm as PX4 does (pre-arm checks unless forced); returns a MAV_RESULT."""
+        if self.armed:
+            return ACCEPTED
+        if not force:
+            reason = self._arming_denied_reason()
+            if reason:
+                self.statustext(mavlink2.MAV_SEVERITY_CRITICAL, f"Arming denied: {reason}")
+                return TEMPORARILY_REJECTED
+        self.armed = True
+        self.phys.armed[self.index] = True
+        self._armed_at_s = self._now()
+        self.has_flown = not self.landed
+        if self.landed:
+            self.home_ned_m = self.phys.pos_ned_m[self.index].copy()
+        self.failsafe = False
+        if self.mode in (Px4Mode.AUTO_LOITER, Px4Mode.AUTO_READY):
+            self.phys.hold_here(self.index)
+        self.statustext(mavlink2.MAV_SEVERITY_INFO, "Armed by external command")
+        return ACCEPTED
+
+    def _arming_denied_reason(self) -> str:
+        if self._now() < self.config.ready_after_s:
+            return "EKF not ready, wait for GPS lock"
+        if self.mode is Px4Mode.OFFBOARD and not self._stream_ok():
+            return "no offboard signal"
+        if self.mode is Px4Mode.AUTO_MISSION and not self.missions.plans[MISSION]:
+            return "no valid mission"
+        if self._fence_breached:
+            return "geofence violation"
+        return ""
+
+    def disarm(self, force: bool = False) -> int:
+        """Disarm; refused in the air unless forced.  Returns a MAV_RESULT."""
+        if not self.armed:
+            return ACCEPTED
+        if not self.landed and not force:
+            self.statustext(mavlink2.MAV_SEVERITY_CRITICAL, "Disarming denied: not landed")
+            return DENIED
+        self._do_disarm("Disarmed by external command")
+        return ACCEPTED
+
+    def _do_disarm(self, why: str) -> None:
+        self.armed = False
+        self.phys.armed[self.index] = False
+        self.statustext(mavlink2.MAV_SEVERITY_INFO, why)
+
+    def _cmd_set_mode(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+        if not (int(p[0]) & mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED):
+            return UNSUPPORTED, None
+        mode = Px4Mode.from_main_sub(int(p[1]), int(p[2]))
+        if mode is None or mode is Px4Mode.AUTO_READY:
+            self.statustext(mavlink2.MAV_SEVERITY_WARNING, "Unsupported mode")
+            return DENIED, None
+        return self.request_mode(mode), None
+
+    def request_mode(self, mode: Px4Mode) -> int:
+        """A mode switch requested by a client; returns a MAV_RESULT."""
+        if mode is self.mode and not self.failsafe:
+            return ACCEPTED
+        if mode.needs_manual_control:
+            self.statustext(
+                mavlink2.MAV_SEVERITY_CRITICAL,
+                f"Switching to {mode.name} is not possible: no manual control",
+            )
+            return TEMPORARILY_REJECTED
+        if mode is Px4Mode.OFFBOARD and not self._stream_ok():
+            self.statustext(
+                mavlink2.MAV_SEVERITY_CRITICAL, "Switching to Offboard is currently not possible"
+            )
+            return TEMPORARILY_REJECTED
+        if mode is Px4Mode.AUTO_MISSION and not self.missions.plans[MISSION]:
+            self.statustext(mavlink2.MAV_SEVERITY_CRITICAL, "Mission rejected: no mission")
+            return TEMPORARILY_REJECTED
+        self.failsafe = False
+        self.set_mode(mode)
+        return ACCEPTED
+
+    def set_mode(self, mode: Px4Mode, takeoff_down_m: float | None = None) -> None:
+        """Enter ``mode`` (no checks) and set up its controller targets."""
+        i = self.index
+        phys = self.phys
+        was_mission = self.mode is Px4Mode.AUTO_MISSION
+        self.mode = mode
+        self._apply_limits()
+        pos = phys.pos_ned_m[i]
+        if mode is Px4Mode.AUTO_LOITER:
+            phys.hold_here(i)
+        elif mode is Px4Mode.AUTO_TAKEOFF:
+            if takeoff_down_m is None:
+                takeoff_down_m = float(self.home_ned_m[2]) - self.params["MIS_TAKEOFF_ALT"]
+            self._takeoff_d_m = min(takeoff_down_m, float(pos[2]))
+            target = pos.copy()
+            target[2] = self._takeoff_d_m
+            phys.set_position(i, target)
+            phys.sp_yaw_rad[i] = phys.yaw_rad[i]
+            phys.m_yaw[i] = True
+        elif mode is Px4Mode.AUTO_LAND:
+            self._start_descent()
+        elif mode is Px4Mode.AUTO_RTL:
+            self._rtl_start()
+        elif mode is Px4Mode.AUTO_MISSION:
+            if not was_mission or self.mission_finished:
+                if self.mission_finished:
+                    self.mission_seq = 0
+                    self._jump_counts.clear()
+                self.mission_finished = False
+            self._mission_start_item(self.mission_seq)
+        elif mode is Px4Mode.OFFBOARD:
+            self._apply_setpoint()
+
+    def _start_descent(self) -> None:
+        i = self.index
+        self.phys.set_axes(
+            i,
+            self.phys.pos_ned_m[i].copy(),
+            np.array([0.0, 0.0, self.params["MPC_LAND_SPEED"]]),
+            np.zeros(3),
+            np.array([1.0, 1.0, 0.0]),
+            np.array([0.0, 0.0, 1.0]),
+            np.zeros(3),
+        )
+
+    def _cmd_takeoff(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+        alt = p[6]
+        down = None
+        if math.isfinite(alt):
+            down = self._alt_to_down(frame if is_int else mavlink2.MAV_FRAME_GLOBAL, float(alt))
+        if not self.landed and self.mode is not Px4Mode.AUTO_TAKEOFF and down is None:
+            return ACCEPTED, None
+        self.failsafe = False
+        self.set_mode(Px4Mode.AUTO_TAKEOFF, takeoff_down_m=down)
+        return ACCEPTED, None
+
+    def _cmd_land(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+        self.failsafe = False
+        self.set_mode(Px4Mode.AUTO_LAND)
+        return ACCEPTED, None
+
+    def _cmd_rtl(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+        self.failsafe = False
+        self.set_mode(Px4Mode.AUTO_RTL)
+        return ACCEPTED, None
+
+    def _cmd_mission_start(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+        plan = self.missions.plans[MISSION]
+        if not plan:
+            self.statustext(mavlink2.MAV_SEVERITY_CRITICAL, "Mission rejected: no mission")
+            return DENIED, None
+        first = int(p[0]) if math.isfinite(p[0]) else 0
+        if 0 <= first < len(plan) and first != self.mission_seq:
+            self.mission_seq = first
+            self.mission_finished = False
+        if self.mission_finished:
+            self.mission_seq = 0
+            self.mission_finished = False
+        self.failsafe = False
+        self.mode = Px4Mode.AUTO_MISSION
+        self._apply_limits()
+        self._mission_start_item(self.mission_seq)
+        return ACCEPTED, None
+
+    def _cmd_set_mission_current(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+        seq = int(p[0]) if math.isfinite(p[0]) else -1
+        if not self.set_mission_current(seq):
+            return DENIED, None
+        return ACCEPTED, None
+
+    def set_mission_current(self, seq: int) -> bool:
+        """Make ``seq`` the current mission item; False if out of range."""
+        if not (0 <= seq < len(self.missions.plans[MISSION])):
+            return False
+        self.mission_seq = seq
+        self.mission_finished = False
+        if self.mode is Px4Mode.AUTO_MISSION:
+            self._mission_start_item(seq)
+        self.send(self._msg_mission_current())
+        return True
+
+    def _on_mission_set_current(self, msg: Msg) -> None:
+        if self._for_me(msg):
+            self.set_mission_current(msg.seq)
+
+    def _cmd_reposition(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+        if not self.armed or self.landed:
+            return TEMPORARILY_REJECTED, None
+        i = self.index
+        pos = self.phys.pos_ned_m[i].copy()
+        if is_int:
+            x, y = int(p[4]), int(p[5])
+        else:
+            x = round(p[4] * 1e7) if math.isfinite(p[4]) else 0
+            y = round(p[5] * 1e7) if math.isfinite(p[5]) else 0
+        target = self._item_target_ned(
+            frame if is_int else mavlink2.MAV_FRAME_GLOBAL, x, y, float(p[6]), pos
+        )
+        if p[0] > 0:
+            self.cruise_speed_m_s = float(p[0])
+        self.failsafe = False
+        self.set_mode(Px4Mode.AUTO_LOITER)
+        self.phys.set_position(i, target)
+        if math.isfinite(p[3]):
+            self.phys.sp_yaw_rad[i] = math.radians(p[3])
+        return ACCEPTED, None
+
+    def _cmd_change_speed(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+        if p[1] > 0:
+            self.cruise_speed_m_s = float(p[1])
+        elif p[1] == -1:
+            self.cruise_speed_m_s = self.params["MPC_XY_CRUISE"]
+        self._apply_limits()
+        return ACCEPTED, None
+
+    def _cmd_set_home(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+        if p[0] >= 0.5:
+            self.home_ned_m = self.phys.pos_ned_m[self.index].copy()
+        else:
+            if is_int:
+                x, y = int(p[4]), int(p[5])
+            else:
+                x, y = round(p[4] * 1e7), round(p[5] * 1e7)
+            self.home_ned_m = self._item_target_ned(
+                mavlink2.MAV_FRAME_GLOBAL_INT, x, y, float(p[6]), self.home_ned_m
+            )
+        self.send(self._msg_home_position())
+        return ACCEPTED, None
+
+    def _cmd_request_message(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+        msg_id = int(p[0])
+        build = self._builders.get(msg_id)
+        if build is None:
+            return DENIED, None
+
+        def send_it() -> None:
+            msg = build()
+            if msg is not None:
+                self.send(msg)
+
+        return ACCEPTED, send_it
+
+    def _cmd_request_capabilities(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+        return ACCEPTED, lambda: self.send(self._msg_autopilot_version())
+
+    def _cmd_set_message_interval(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+        msg_id = int(p[0])
+        build = self._builders.get(msg_id)
+        if build is None:
+            return DENIED, None
+        interval_us = p[1]
+        if interval_us == -1:
+            self._streams.pop(msg_id, None)
+            return ACCEPTED, None
+        if interval_us == 0:
+            rate = DEFAULT_RATES_HZ.get(msg_id)
+            if rate is None:
+                self._streams.pop(msg_id, None)
+                return ACCEPTED, None
+            interval_s = 1.0 / rate
+        elif interval_us > 0:
+            interval_s = max(interval_us * 1e-6, self.fleet.dt_s)
+        else:
+            return DENIED, None
+        self._streams[msg_id] = _Stream(msg_id, interval_s, self._now(), build)
+        return ACCEPTED, None
+
+    def _cmd_get_message_interval(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+        msg_id = int(p[0])
+        stream = self._streams.get(msg_id)
+        interval_us = -1 if stream is None else round(stream.interval_s * 1e6)
+        if msg_id not in self._builders:
+            interval_us = 0
+        return ACCEPTED, lambda: self.send(
+            mavlink2.MAVLink_message_interval_message(msg_id, interval_us)
+        )
+
+    _COMMANDS: ClassVar[dict[int, Callable[..., tuple[int, Callable[[], None] | None]]]] = {
+        mavlink2.MAV_CMD_COMPONENT_ARM_DISARM: _cmd_arm_disarm,
+        mavlink2.MAV_CMD_DO_SET_MODE: _cmd_set_mode,
+        mavlink2.MAV_CMD_NAV_TAKEOFF: _cmd_takeoff,
+        mavlink2.MAV_CMD_NAV_LAND: _cmd_land,
+        mavlink2.MAV_CMD_NAV_RETURN_TO_LAUNCH: _cmd_rtl,
+        mavlink2.MAV_CMD_MISSION_START: _cmd_mission_start,
+        mavlink2.MAV_CMD_DO_SET_MISSION_CURRENT: _cmd_set_mission_current,
+        mavlink2.MAV_CMD_DO_REPOSITION: _cmd_reposition,
+        mavlink2.MAV_CMD_DO_CHANGE_SPEED: _cmd_change_speed,
+        mavlink2.MAV_CMD_DO_SET_HOME: _cmd_set_home,
+        mavlink2.MAV_CMD_REQUEST_MESSAGE: _cmd_request_message,
+        mavlink2.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: _cmd_request_capabilities,
+        mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL: _cmd_set_message_interval,
+        mavlink2.MAV_CMD_GET_MESSAGE_INTERVAL: _cmd_get_message_interval,
+    }
+
+    def _on_set_gps_global_origin(self, msg: Msg) -> None:
+        if not self._for_me(msg):
+            return
+        # PX4 accepts a new EKF origin only while landed; the vehicle stays where it is
+        # physically, so its local coordinates shift by the origin change.
+        if not self.landed:
+            return
+        new = (msg.latitude / 1e7, msg.longitude / 1e7, msg.altitude / 1e3)
+        shift = self.global_to_ned(*new)
+        self.origin_lla = new
+        i = self.index
+        self.phys.pos_ned_m[i] -= shift
+        self.phys.sp_pos_ned_m[i] -= shift
+        self.home_ned_m = self.home_ned_m - shift
+        self.fleet.origins_changed()
+        self.send(self._msg_gps_global_origin())
+
+    # ================================================================ offboard
+    def _stream_ok(self) -> bool:
+        now = self._now()
+        return (
+            now - self._sp_last_s <= _STREAM_GAP_S
+            and now - self._sp_stream_start_s >= _STREAM_MIN_S
+        )
+
+    def _keepalive(self) -> None:
+        now = self._now()
+        if now - self._sp_last_s > _STREAM_GAP_S:
+            self._sp_stream_start_s = now
+        self._sp_last_s = now
+
+    def _on_set_position_target_local(self, msg: Msg) -> None:
+        if not self._for_me(msg):
+            return
+        frame = msg.coordinate_frame
+        i = self.index
+        if frame not in (
+            mavlink2.MAV_FRAME_LOCAL_NED,
+            mavlink2.MAV_FRAME_LOCAL_OFFSET_NED,
+            mavlink2.MAV_FRAME_BODY_NED,
+            mavlink2.MAV_FRAME_BODY_OFFSET_NED,
+        ):
+            if frame not in self._frame_warned:
+                self._frame_warned.add(frame)
+                self.statustext(
+                    mavlink2.MAV_SEVERITY_WARNING, f"Offboard: frame {frame} not supported"
+                )
+            return
+        pos = np.array([msg.x, msg.y, msg.z], dtype=float)
+        vel = np.array([msg.vx, msg.vy, msg.vz], dtype=float)
+        acc = np.array([msg.afx, msg.afy, msg.afz], dtype=float)
+        if frame in (mavlink2.MAV_FRAME_BODY_NED, mavlink2.MAV_FRAME_BODY_OFFSET_NED):
+            yaw = float(self.phys.yaw_rad[i])
+            c, s = math.cos(yaw), math.sin(yaw)
+            rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+            pos, vel, acc = rot @ pos, rot @ vel, rot @ acc
+        if frame != mavlink2.MAV_FRAME_LOCAL_NED:
+            pos = pos + self.phys.pos_ned_m[i]
+        self._store_setpoint(msg.type_mask, pos, vel, acc, msg.yaw, msg.yaw_rate)
+
+    def _on_set_position_target_global(self, msg: Msg) -> None:
+        if not self._for_me(msg):
+            return
+        frame = msg.coordinate_frame
+        if frame not in (
+            mavlink2.MAV_FRAME_GLOBAL_INT,
+            mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+            mavlink2.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
+            mavlink2.MAV_FRAME_GLOBAL,
+            mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+        ):
+            return
+        pos = self._item_target_ned(
+            frame, msg.lat_int, msg.lon_int, msg.alt, self.phys.pos_ned_m[self.index]
+        )
+        vel = np.array([msg.vx, msg.vy, msg.vz], dtype=float)
+        acc = np.array([msg.afx, msg.afy, msg.afz], dtype=float)
+        self._store_setpoint(msg.type_mask, pos, vel, acc, msg.yaw, msg.yaw_rate)
+
+    def _store_setpoint(
+        self,
+        type_mask: int,
+        pos: np.ndarray,
+        vel: np.ndarray,
+        acc: np.ndarray,
+        yaw: float,
+        yaw_rate: float,
+    ) -> None:
+        m_pos = np.array([not (type_mask & b) for b in (1, 2, 4)], dtype=float)
+        m_vel = np.array([not (type_mask & b) for b in (8, 16, 32)], dtype=float)
+        m_acc = np.array([not (type_mask & b) for b in (64, 128, 256)], dtype=float)
+        m_pos *= np.isfinite(pos)
+        m_vel *= np.isfinite(vel)
+        m_acc *= np.isfinite(acc)
+        # an axis with a position uses velocity/acceleration as feed-forward; an axis with
+        # only a velocity is velocity-controlled; an acceleration alone is applied directly
+        pos = np.where(m_pos > 0, pos, 0.0)
+        vel = np.where(m_vel > 0, vel, 0.0)
+        acc = np.where(m_acc > 0, acc, 0.0)
+        use_yaw = not (type_mask & 1024) and math.isfinite(yaw)
+        use_rate = not (type_mask & 2048) and math.isfinite(yaw_rate) and not use_yaw
+        self._keepalive()
+        if not (m_pos.any() or m_vel.any() or m_acc.any()):
+            return
+        self._sp = _Setpoint(
+            pos, vel, acc, m_pos, m_vel, m_acc, float(yaw), float(yaw_rate), use_yaw, use_rate
+        )
+        if self.mode is Px4Mode.OFFBOARD:
+            self._apply_setpoint()
+
+    def _apply_setpoint(self) -> None:
+        sp = self._sp
+        i = self.index
+        phys = self.phys
+        if sp is None:
+            phys.hold_here(i)
+            return
+        phys.set_axes(i, sp.pos, sp.vel, sp.acc, sp.m_pos, sp.m_vel, sp.m_acc)
+        phys.m_yaw[i] = sp.use_yaw
+        phys.m_yaw_rate[i] = sp.use_yaw_rate
+        if sp.use_yaw:
+            phys.sp_yaw_rad[i] = sp.yaw_rad
+        if sp.use_yaw_rate:
+            phys.sp_yaw_rate_rad_s[i] = sp.yaw_rate_rad_s
+
+    def _offboard_lost(self) -> None:
+        action = int(self.params["COM_OBL_RC_ACT"])
+        mode = px4.OBL_ACTION_MODES.get(action, Px4Mode.AUTO_LOITER)
+        self.failsafe = True
+        if mode is None:
+            self.statustext(mavlink2.MAV_SEVERITY_CRITICAL, "Failsafe: no offboard, disarming")
+            self.mode = Px4Mode.AUTO_LOITER
+            self._do_disarm("Disarmed by failsafe")
+            return
+        self.statustext(
+            mavlink2.MAV_SEVERITY_CRITICAL, f"Failsafe: no offboard signal, {mode.name}"
+        )
+        self.set_mode(mode)
+
+    # ================================================================ RTL
+    def _rtl_start(self) -> None:
+        i = self.index
+        pos = self.phys.pos_ned_m[i]
+        home = self.home_ned_m
+        dist = math.hypot(pos[0] - home[0], pos[1] - home[1])
+        return_d = float(home[2]) - self.params["RTL_RETURN_ALT"]
+        self._rtl_alt_d_m = (
+            min(float(pos[2]), return_d) if dist > _RTL_MIN_DIST_M else float(pos[2])
+        )
+        self._rtl_phase = "climb"
+        target = pos.copy()
+        target[2] = self._rtl_alt_d_m
+        self.phys.set_position(i, target)
+
+    def _rtl_tick(self) -> None:
+        i = self.index
+        pos = self.phys.pos_ned_m[i]
+        if self._rtl_phase == "climb":
+            if abs(pos[2] - self._rtl_alt_d_m) < self.params["NAV_MC_ALT_RAD"]:
+                self._rtl_phase = "return"
+                target = self.home_ned_m.copy()
+                target[2] = self._rtl_alt_d_m
+                self.phys.set_position(i, target)
+                self._face(target)
+        elif self._rtl_phase == "return":
+            home = self.home_ned_m
+            if math.hypot(pos[0] - home[0], pos[1] - home[1]) < self.params["NAV_ACC_RAD"]:
+                self._rtl_phase = "land"
+                self._start_descent()
+                self.phys.sp_pos_ned_m[i, :2] = home[:2]
+
+    def _face(self, target: np.ndarray) -> None:
+        i = self.index
+        pos = self.phys.pos_ned_m[i]
+        dn, de = target[0] - pos[0], target[1] - pos[1]
+        if math.hypot(dn, de) > 2.0:
+            self.phys.sp_yaw_rad[i] = math.atan2(de, dn)
+            self.phys.m_yaw[i] = True
+
+    # ================================================================ mission
+    def _on_plan_changed(self, mission_type: int) -> None:
+        if mission_type == MISSION:
+            self.mission_seq = 0
+            self.mission_finished = False
+            self._jump_counts.clear()
+            self._mis_reached_sent = -1
+            if self.mode is Px4Mode.AUTO_MISSION:
+                if self.missions.plans[MISSION]:
+                    self._mission_start_item(0)
+                else:
+                    self.set_mode(Px4Mode.AUTO_LOITER)
+        elif mission_type == FENCE:
+            self._build_fence()
+        elif mission_type == RALLY:
+            pass  # stored and served; RTL returns home (RTL_TYPE 0)
+
+    def _mission_start_item(self, seq: int) -> None:
+        """Make ``seq`` current, run DO items until the next NAV item, and head for it."""
+        plan = self.missions.plans[MISSION]
+        i = self.index
+        for _ in range(len(plan) * 4 + 8):
+            if seq >= len(plan):
+                self._mission_finish()
+                return
+            item = plan[seq]
+            cmd = item.command
+            if cmd == mavlink2.MAV_CMD_DO_JUMP:
+                target, repeat = int(item.param1), int(item.param2)
+                done = self._jump_counts.get(seq, 0)
+                if (repeat < 0 or done < repeat) and 0 <= target < len(plan):
+                    self._jump_counts[seq] = done + 1
+                    seq = target
+                else:
+                    seq += 1
+                continue
+            if cmd == mavlink2.MAV_CMD_DO_CHANGE_SPEED:
+                if item.param2 > 0:
+                    self.cruise_speed_m_s = float(item.param2)
+                elif item.param2 == -1:
+                    self.cruise_speed_m_s = self.params["MPC_XY_CRUISE"]
+                self._apply_limits()
+                seq += 1
+                continue
+            if cmd == mavlink2.MAV_CMD_DO_SET_HOME:
+                if item.param1 >= 0.5:
+                    self.home_ned_m = self.phys.pos_ned_m[i].copy()
+                else:
+                    self.home_ned_m = self._item_target_ned(
+                        item.frame, item.x, item.y, item.z, self.home_ned_m
+                    )
+                seq += 1
+                continue
+            if cmd not in _NAV_COMMANDS:
+                seq += 1  # camera, gimbal, servo ...: done at once
+                continue
+            break
+        else:
+            self._mission_finish()
+            return
+        changed = seq != self.mission_seq
+        self.mission_seq = seq
+        self._mis_hold_until_s = math.inf
+        pos = self.phys.pos_ned_m[i].copy()
+        if cmd == mavlink2.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            self.set_mode(Px4Mode.AUTO_RTL)
+            self.mode = Px4Mode.AUTO_MISSION  # keep reporting mission while returning
+            self._mis_phase = "rtl"
+        elif cmd in (mavlink2.MAV_CMD_NAV_DELAY, mavlink2.MAV_CMD_CONDITION_DELAY):
+            self.phys.hold_here(i)
+            self._mis_phase = "delay"
+            self._mis_hold_until_s = self._now() + max(0.0, item.param1)
+        else:
+            target = self._item_target_ned(item.frame, item.x, item.y, item.z, pos)
+            if cmd in (mavlink2.MAV_CMD_NAV_TAKEOFF, mavlink2.MAV_CMD_NAV_VTOL_TAKEOFF):
+                target[:2] = pos[:2]
+                target[2] = min(target[2], pos[2])
+                self._mis_phase = "takeoff"
+            elif cmd in (mavlink2.MAV_CMD_NAV_LAND, mavlink2.MAV_CMD_NAV_VTOL_LAND):
+                target[2] = pos[2]
+                self._mis_phase = "land_approach"
+            else:
+                self._mis_phase = "goto"
+            if self.landed and self._mis_phase == "goto":
+                # PX4 takes off first when a mission starts on the ground without a takeoff
+                target_to = pos.copy()
+                target_to[2] = min(
+                    float(self.home_ned_m[2]) - self.params["MIS_TAKEOFF_ALT"], target[2]
+                )
+                self._mis_target = target
+                self._mis_phase = "pre_takeoff"
+                self.phys.set_position(i, target_to)
+            else:
+                self._mis_target = target
+                self.phys.set_position(i, target)
+                self._face(target)
+        if changed or self._mis_phase:
+            self.send(self._msg_mission_current())
+
+    def _mission_finish(self) -> None:
+        plan = self.missions.plans[MISSION]
+        self.mission_finished = True
+        self.mission_seq = max(0, len(plan) - 1)
+        self._mis_phase = "done"
+        if not self.landed:
+            self.phys.hold_here(self.index)
+        self.send(self._msg_mission_current())
+
+    def _item_reached(self, seq: int) -> None:
+        if self._mis_reached_sent != seq:
+            self._mis_reached_sent = seq
+            self.send(mavlink2.MAVLink_mission_item_reached_message(seq))
+
+    def _mission_tick(self) -> None:
+        if not self.armed or self.mission_finished:
+            return
+        plan = self.missions.plans[MISSION]
+        if self.mission_seq >= len(plan):
+            return
+        item = plan[self.mission_seq]
+        i = self.index
+        pos = self.phys.pos_ned_m[i]
+        now = self._now()
+        phase = self._mis_phase
+        tgt = self._mis_target
+        alt_rad = self.params["NAV_MC_ALT_RAD"]
+        if phase == "pre_takeoff":
+            if pos[2] <= self.phys.sp_pos_ned_m[i, 2] + alt_rad:
+                self._mis_phase = "goto"
+                self.phys.set_position(i, tgt)
+                self._face(tgt)
+            return
+        if phase == "takeoff":
+            if abs(pos[2] - tgt[2]) < alt_rad:
+                self._item_reached(self.mission_seq)
+                self._advance()
+            return
+        if phase == "goto":
+            acc_rad = item.param2 if item.param2 > 0 else self.params["NAV_ACC_RAD"]
+            if (
+                math.hypot(pos[0] - tgt[0], pos[1] - tgt[1]) < acc_rad
+                and abs(pos[2] - tgt[2]) < alt_rad
+            ):
+                self._item_reached(self.mission_seq)
+                if math.isfinite(item.param4) and item.command == mavlink2.MAV_CMD_NAV_WAYPOINT:
+                    self.phys.sp_yaw_rad[i] = math.radians(item.param4)
+                if item.command == mavlink2.MAV_CMD_NAV_LOITER_UNLIM:
+                    self._mis_phase = "loiter"
+                    return
+                hold_s = (
+                    item.param1
+                    if item.command
+                    in (mavlink2.MAV_CMD_NAV_WAYPOINT, mavlink2.MAV_CMD_NAV_LOITER_TIME)
+                    else 0.0
+                )
+                self._mis_hold_until_s = now + max(0.0, hold_s)
+                self._mis_phase = "hold"
+            return
+        if phase in ("hold", "delay"):
+            if now >= self._mis_hold_until_s:
+                self._advance()
+            return
+        if phase == "land_approach":
+            if math.hypot(pos[0] - tgt[0], pos[1] - tgt[1]) < self.params["NAV_ACC_RAD"]:
+                self._mis_phase = "land"
+                self._start_descent()
+                self.phys.sp_pos_ned_m[i, :2] = tgt[:2]
+            return
+        if phase == "land" and self.landed:
+            self._item_reached(self.mission_seq)
+            self._advance()
+
+    def _advance(self) -> None:
+        self._mission_start_item(self.mission_seq + 1)
+
+    # ================================================================ geofence
+    def _build_fence(self) -> None:
+        items = self.missions.plans[FENCE]
+        fence: list[tuple[str, bool, np.ndarray, float]] = []
+        k = 0
+        while k < len(items):
+            it = items[k]
+            if it.command in (
+                mavlink2.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
+                mavlink2.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION,
+            ):
+                count = int(it.param1)
+                verts = items[k : k + count]
+                ne = np.array([self.global_to_ned(v.x / 1e7, v.y / 1e7, 0.0)[:2] for v in verts])
+                inclusion = it.command == mavlink2.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION
+                fence.append(("polygon", inclusion, ne, 0.0))
+                k += max(count, 1)
+                continue
+            if it.command in (
+                mavlink2.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION,
+                mavlink2.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION,
+            ):
+                centre = self.global_to_ned(it.x / 1e7, it.y / 1e7, 0.0)[:2]
+                inclusion = it.command == mavlink2.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION
+                fence.append(("circle", inclusion, centre, float(it.param1)))
+            k += 1
+        self._fence = fence
+        self._fence_breached = False
+
+    def fence_violated(self, pos_ned_m: np.ndarray) -> bool:
+        """True if the local point (3,) lies outside an inclusion or inside an exclusion zone."""
+        ne = pos_ned_m[:2]
+        for kind, inclusion, data, radius in self._fence:
+            if kind == "circle":
+                inside = float(np.hypot(*(ne - data))) <= radius
+            else:
+                inside = _point_in_polygon(ne, data)
+            if inside != inclusion:
+                return True
+        return False
+
+    def _fence_tick(self) -> None:
+        if not self._fence or not self.armed or self.landed:
+            return
+        violated = self.fence_violated(self.phys.pos_ned_m[self.index])
+        if violated and not self._fence_breached:
+            self._fence_breached = True
+            action = int(self.params["GF_ACTION"])
+            self.statustext(mavlink2.MAV_SEVERITY_CRITICAL, "Geofence violated")
+            if action == 4:
+                self.failsafe = True
+                self._do_disarm("Flight termination: geofence")
+                return
+            mode = px4.GF_ACTION_MODES.get(action)
+            if mode is not None:
+                self.failsafe = True
+                self.set_mode(mode)
+        elif not violated:
+            self._fence_breached = False
+
+    # ================================================================ tick
+    def tick(self, now: float) -> None:
+        """Mode logic, protocol timers and telemetry for simulation time ``now``."""
+        i = self.index
+        phys = self.phys
+        d = phys.pos_ned_m[i, 2]
+        vd = phys.vel_ned_m_s[i, 2]
+        if self.landed:
+            if d < -0.3:
+                self.landed = False
+                self.has_flown = True
+        elif d > -0.05 and abs(vd) < 0.3:
+            self.landed = True
+            self._landed_since_s = now
+        mode = self.mode
+        if self.armed:
+            if mode is Px4Mode.OFFBOARD:
+                if now - self._sp_last_s > self.params["COM_OF_LOSS_T"]:
+                    self._offboard_lost()
+            elif mode is Px4Mode.AUTO_MISSION:
+                if self._mis_phase == "rtl":
+                    self._rtl_tick()
+                else:
+                    self._mission_tick()
+            elif mode is Px4Mode.AUTO_TAKEOFF:
+                if abs(d - self._takeoff_d_m) < 0.1 * self.params["MIS_TAKEOFF_ALT"] + 0.05:
+                    # PX4 holds at the takeoff altitude once it is (nearly) reached
+                    self.set_mode(Px4Mode.AUTO_LOITER)
+                    phys.sp_pos_ned_m[i, 2] = self._takeoff_d_m
+            elif mode is Px4Mode.AUTO_RTL:
+                self._rtl_tick()
+            if self.landed:
+                t_land = self.params["COM_DISARM_LAND"]
+                t_pre = self.params["COM_DISARM_PRFLT"]
+                if self.has_flown:
+                    if t_land > 0 and now - self._landed_since_s >= t_land:
+                        self.has_flown = False
+                        self._do_disarm("Disarmed by auto preflight disarming")
+                elif t_pre > 0 and now - self._armed_at_s >= t_pre:
+                    self._do_disarm("Disarmed by auto preflight disarming")
+            if self._fence:
+                self._fence_tick()
+        elif mode is Px4Mode.OFFBOARD and now - self._sp_last_s > self.params["COM_OF_LOSS_T"]:
+            # PX4 leaves offboard on the ground too when the stream stops
+            self.set_mode(Px4Mode.AUTO_LOITER)
+        if self.missions.busy:
+            self.missions.tick()
+        for stream in list(self._streams.values()):
+            if now + 1e-9 >= stream.next_s:
+                stream.next_s += stream.interval_s
+                if stream.next_s < now:
+                    stream.next_s = now + stream.interval_s
+                msg = stream.build()
+                if msg is not None:
+                    self.send(msg)
+
+    # ================================================================ telemetry
+    def _landed_state(self) -> int:
+        if self.landed:
+            return LandedState.ON_GROUND
+        if self.mode is Px4Mode.AUTO_TAKEOFF:
+            return LandedState.TAKEOFF
+        if self.mode is Px4Mode.AUTO_LAND or (
+            self.mode is Px4Mode.AUTO_RTL and self._rtl_phase == "land"
+        ):
+            return LandedState.LANDING
+        return LandedState.IN_AIR
+
+    def _msg_heartbeat(self) -> Msg:
+        base = self.mode.base_mode_flags
+        if self.armed:
+            base |= mavlink2.MAV_MODE_FLAG_SAFETY_ARMED
+        if self.failsafe and self.armed:
+            status = mavlink2.MAV_STATE_CRITICAL
+        elif self.armed:
+            status = mavlink2.MAV_STATE_ACTIVE
+        else:
+            status = mavlink2.MAV_STATE_STANDBY
+        return mavlink2.MAVLink_heartbeat_message(
+            mavlink2.MAV_TYPE_QUADROTOR,
+            mavlink2.MAV_AUTOPILOT_PX4,
+            base,
+            self.mode.custom_mode,
+            status,
+            3,
+        )
+
+    def _msg_sys_status(self) -> Msg:
+        ready = self._now() >= self.config.ready_after_s
+        health = _SENSORS | (_PREARM if ready and not self._fence_breached else 0)
+        remaining = self._battery_remaining()
+        return mavlink2.MAVLink_sys_status_message(
+            _SENSORS | _PREARM, _SENSORS | _PREARM, health,
+            250, int(15200 + 1000 * remaining / 100), 1200 if self.armed else 50,
+            int(remaining), 0, 0, 0, 0, 0, 0,
+        )  # fmt: skip
+
+    def _battery_remaining(self) -> float:
+        flown_s = self._now() - self._armed_at_s if self.armed else 0.0
+        return max(5.0, 100.0 - 0.05 * flown_s)
+
+    def _msg_battery_status(self) -> Msg:
+        remaining = self._battery_remaining()
+        volts = [int(15200 + 1000 * remaining / 100)] + [65535] * 9
+        return mavlink2.MAVLink_battery_status_message(
+            0, mavlink2.MAV_BATTERY_FUNCTION_ALL, mavlink2.MAV_BATTERY_TYPE_LIPO, 2500,
+            volts, 1200 if self.armed else 50, -1, -1, int(remaining), -1,
+            mavlink2.MAV_BATTERY_CHARGE_STATE_OK, [0, 0, 0, 0], 0, 0,
+        )  # fmt: skip
+
+    def _msg_extended_sys_state(self) -> Msg:
+        return mavlink2.MAVLink_extended_sys_state_message(
+            mavlink2.MAV_VTOL_STATE_UNDEFINED, self._landed_state()
+        )
+
+    def _msg_home_position(self) -> Msg:
+        lat, lon, alt = self.ned_to_global(self.home_ned_m)
+        h = self.home_ned_m
+        return mavlink2.MAVLink_home_position_message(
+            round(lat * 1e7), round(lon * 1e7), round(alt * 1000),
+            float(h[0]), float(h[1]), float(h[2]), [1.0, 0.0, 0.0, 0.0],
+            0.0, 0.0, 0.0, self._usec(),
+        )  # fmt: skip
+
+    def _msg_gps_global_origin(self) -> Msg:
+        lat, lon, alt = self.origin_lla
+        return mavlink2.MAVLink_gps_global_origin_message(
+            round(lat * 1e7), round(lon * 1e7), round(alt * 1000), self._usec()
+        )
+
+    def _msg_global_position_int(self) -> Msg:
+        i = self.index
+        lat, lon, alt = self.fleet.geodetic(i)
+        vel = self.phys.vel_ned_m_s[i] + self.phys.noise_vel_m_s[i]
+        rel = alt - self._home_alt_amsl()
+        hdg = round(math.degrees(self.phys.yaw_rad[i]) * 100) % 36000
+        return mavlink2.MAVLink_global_position_int_message(
+            self._boot_ms(), round(lat * 1e7), round(lon * 1e7), round(alt * 1000),
+            round(rel * 1000), round(vel[0] * 100), round(vel[1] * 100), round(vel[2] * 100),
+            hdg,
+        )  # fmt: skip
+
+    def _msg_gps_raw_int(self) -> Msg:
+        i = self.index
+        lat, lon, alt = self.fleet.geodetic(i)
+        v = self.phys.vel_ned_m_s[i]
+        speed = math.hypot(v[0], v[1])
+        cog = round(math.degrees(math.atan2(v[1], v[0])) * 100) % 36000 if speed > 0.2 else 65535
+        return mavlink2.MAVLink_gps_raw_int_message(
+            self._usec(), mavlink2.GPS_FIX_TYPE_3D_FIX, round(lat * 1e7), round(lon * 1e7),
+            round(alt * 1000), 80, 120, round(speed * 100), cog, 12, round(alt * 1000),
+            500, 800, 200, 0, 0,
+        )  # fmt: skip
+
+    def _msg_local_position_ned(self) -> Msg:
+        i = self.index
+        p = self.phys.pos_ned_m[i] + self.phys.noise_pos_m[i]
+        v = self.phys.vel_ned_m_s[i] + self.phys.noise_vel_m_s[i]
+        return mavlink2.MAVLink_local_position_ned_message(
+            self._boot_ms(), p[0], p[1], p[2], v[0], v[1], v[2]
+        )
+
+    def _msg_attitude(self) -> Msg:
+        i, p = self.index, self.phys
+        return mavlink2.MAVLink_attitude_message(
+            self._boot_ms(), p.roll_rad[i], p.pitch_rad[i], p.yaw_rad[i],
+            p.roll_rate_rad_s[i], p.pitch_rate_rad_s[i], p.yaw_rate_rad_s[i],
+        )  # fmt: skip
+
+    def _msg_attitude_quaternion(self) -> Msg:
+        i, p = self.index, self.phys
+        q = _euler_to_quaternion(p.roll_rad[i], p.pitch_rad[i], p.yaw_rad[i])
+        return mavlink2.MAVLink_attitude_quaternion_message(
+            self._boot_ms(), *q,
+            p.roll_rate_rad_s[i], p.pitch_rate_rad_s[i], p.yaw_rate_rad_s[i], [0.0] * 4,
+        )  # fmt: skip
+
+    def _msg_altitude(self) -> Msg:
+        i = self.index
+        _, _, alt = self.fleet.geodetic(i)
+        rel = alt - self._home_alt_amsl()
+        return mavlink2.MAVLink_altitude_message(
+            self._usec(), alt, alt, -self.phys.pos_ned_m[i, 2], rel, rel, -1000.0
+        )
+
+    def _msg_vfr_hud(self) -> Msg:
+        i = self.index
+        v = self.phys.vel_ned_m_s[i]
+        _, _, alt = self.fleet.geodetic(i)
+        speed = math.hypot(v[0], v[1])
+        hdg = round(math.degrees(self.phys.yaw_rad[i])) % 360
+        throttle = 50 if self.armed and not self.landed else (10 if self.armed else 0)
+        return mavlink2.MAVLink_vfr_hud_message(speed, speed, hdg, throttle, alt, -v[2])
+
+    def _msg_mission_current(self) -> Msg:
+        plan = self.missions.plans[MISSION]
+        if not plan:
+            state = mavlink2.MISSION_STATE_NO_MISSION
+        elif self.mission_finished:
+            state = mavlink2.MISSION_STATE_COMPLETE
+        elif self.mode is Px4Mode.AUTO_MISSION and self.armed:
+            state = mavlink2.MISSION_STATE_ACTIVE
+        elif self.mission_seq == 0:
+            state = mavlink2.MISSION_STATE_NOT_STARTED
+        else:
+            state = mavlink2.MISSION_STATE_PAUSED
+        return mavlink2.MAVLink_mission_current_message(
+            self.mission_seq, len(plan), state, int(self.mode is Px4Mode.AUTO_MISSION)
+        )
+
+    def _msg_position_target(self) -> Msg | None:
+        if not self.armed:
+            return None
+        i, p = self.index, self.phys
+        mask = 0
+        for k, bit in enumerate((1, 2, 4)):
+            if p.m_pos[i, k] == 0:
+                mask |= bit
+        for k, bit in enumerate((8, 16, 32)):
+            if p.m_vel[i, k] == 0:
+                mask |= bit
+        for k, bit in enumerate((64, 128, 256)):
+            if p.m_acc[i, k] == 0:
+                mask |= bit
+        if not p.m_yaw[i]:
+            mask |= 1024
+        if not p.m_yaw_rate[i]:
+            mask |= 2048
+        sp, sv, sa = p.sp_pos_ned_m[i], p.sp_vel_ned_m_s[i], p.sp_acc_ned_m_s2[i]
+        return mavlink2.MAVLink_position_target_local_ned_message(
+            self._boot_ms(), mavlink2.MAV_FRAME_LOCAL_NED, mask,
+            sp[0], sp[1], sp[2], sv[0], sv[1], sv[2], sa[0], sa[1], sa[2],
+            p.sp_yaw_rad[i], p.sp_yaw_rate_rad_s[i],
+        )  # fmt: skip
+
+    def _msg_autopilot_version(self) -> Msg:
+        return mavlink2.MAVLink_autopilot_version_message(
+            px4.CAPABILITIES, px4.FLIGHT_SW_VERSION, px4.FLIGHT_SW_VERSION, 0, 0,
+            [0] * 8, [0] * 8, [0] * 8, 0x26AC, 0x0011, self.uid,
+            list(self.uid.to_bytes(8, "little")) + [0] * 10,
+        )  # fmt: skip
+
+
+_NAV_COMMANDS = frozenset(
+    {
+        mavlink2.MAV_CMD_NAV_WAYPOINT,
+        mavlink2.MAV_CMD_NAV_LOITER_UNLIM,
+        mavlink2.MAV_CMD_NAV_LOITER_TURNS,
+        mavlink2.MAV_CMD_NAV_LOITER_TIME,
+        mavlink2.MAV_CMD_NAV_RETURN_TO_LAUNCH,
+        mavlink2.MAV_CMD_NAV_LAND,
+        mavlink2.MAV_CMD_NAV_TAKEOFF,
+        mavlink2.MAV_CMD_NAV_DELAY,
+        mavlink2.MAV_CMD_NAV_VTOL_TAKEOFF,
+        mavlink2.MAV_CMD_NAV_VTOL_LAND,
+        mavlink2.MAV_CMD_CONDITION_DELAY,
+    }
+)
+
+
+def _param_name(raw: str | bytes) -> str:
+    if isinstance(raw, bytes):
+        raw = raw.decode("ascii", "replace")
+    return raw.split("\x00", 1)[0]
+
+
+def _point_in_polygon(pt: np.ndarray, poly: np.ndarray) -> bool:
+    """Even-odd rule for a point (2,) and polygon vertices (k, 2)."""
+    x, y = float(pt[0]), float(pt[1])
+    xs, ys = poly[:, 0], poly[:, 1]
+    xj, yj = np.roll(xs, 1), np.roll(ys, 1)
+    crosses = (ys > y) != (yj > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x_int = (xj - xs) * (y - ys) / (yj - ys) + xs
+    return bool(np.count_nonzero(crosses & (x < x_int)) % 2)
+
+
+def _euler_to_quaternion(
+    roll: float, pitch: float, yaw: float
+) -> tuple[float, float, float, float]:
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    )
