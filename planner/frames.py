@@ -96,17 +96,18 @@ def _enu_to_ned_axes(e: Any, n: Any, u: Any) -> NDArray[np.float64]:
     return np.column_stack([n, e, -np.asarray(u)])
 
 
-def enu_to_geodetic(
-    pos_enu_m: ArrayLike, origin: GeodeticPoint
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """ENU points ``(n, 3)`` (m) at ``origin`` -> ``(lat_deg, lon_deg, alt_m)``, each ``(n,)``."""
+def enu_to_geodetic(pos_enu_m: ArrayLike, origin: GeodeticPoint) -> tuple[Any, Any, Any]:
+    """ENU points ``(n, 3)`` (m) at ``origin`` -> ``(lat_deg, lon_deg, alt_m)``, each ``(n,)``.
+
+    A single ``(3,)`` point gives three floats.
+    """
     p, single = _points(pos_enu_m, "pos_enu_m")
     lat, lon, alt = pymap3d.enu2geodetic(
         p[:, 0], p[:, 1], p[:, 2], origin.lat_deg, origin.lon_deg, origin.alt_m
     )
     lat, lon, alt = (np.asarray(v, dtype=float).reshape(-1) for v in (lat, lon, alt))
     if single:
-        return lat[:1], lon[:1], alt[:1]
+        return float(lat[0]), float(lon[0]), float(alt[0])
     return lat, lon, alt
 
 

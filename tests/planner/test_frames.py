@@ -45,6 +45,9 @@ def test_enu_geodetic_round_trip_to_millimetres() -> None:
     lat, lon, alt = enu_to_geodetic(p, MISSION)
     assert lat.shape == lon.shape == alt.shape == (p.shape[0],)
     assert np.max(np.abs(geodetic_to_enu(lat, lon, alt, MISSION) - p)) < 1e-3
+    one = enu_to_geodetic(p[0], MISSION)
+    assert all(isinstance(x, float) for x in one)
+    assert one == (lat[0], lon[0], alt[0])
 
 
 def test_vehicle_origin_maps_to_ned_zero_and_axes_are_ned() -> None:

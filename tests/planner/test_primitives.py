@@ -198,7 +198,13 @@ def test_sample_matrices_work_with_casadi_symbols() -> None:
         pos, acc = f(Z)
         np.testing.assert_allclose(np.array(pos), model.positions(Z, X0), atol=1e-12)
         np.testing.assert_allclose(np.array(acc), model.accelerations(Z, X0), atol=1e-12)
-    # The plain matrices also combine with CasADi through ca.mtimes.
+    # The plain numpy matrices combine with CasADi symbols directly (Mp @ Z) ...
+    Zs = ca.SX.sym("Z", model.n_dec, 3)
+    expr = model.Mp @ Zs + model.Np @ X0
+    np.testing.assert_allclose(
+        np.array(ca.Function("h", [Zs], [expr])(Z)), model.positions(Z, X0), atol=1e-12
+    )
+    # ... and through ca.mtimes.
     Zs = ca.SX.sym("Z", model.n_dec, 3)
     expr = ca.mtimes(ca.DM(model.Mv), Zs) + ca.DM(model.Nv @ X0)
     np.testing.assert_allclose(
