@@ -343,11 +343,11 @@ class Trajectory:
         n = math.ceil(self.duration_s * rate_hz - 1e-9) + 1
         t = np.arange(n) / rate_hz
         return Setpoints(
-            t_s=t,
-            pos_enu_m=self.position(t),
-            vel_enu_m_s=self.velocity(t),
-            acc_enu_m_s2=self.acceleration(t),
-            yaw_rad=self.yaw_rad(t),
+            t_s=_readonly(t),
+            pos_enu_m=_readonly(self.position(t)),
+            vel_enu_m_s=_readonly(self.velocity(t)),
+            acc_enu_m_s2=_readonly(self.acceleration(t)),
+            yaw_rad=_readonly(self.yaw_rad(t)),
         )
 
     # ------------------------------------------------------------------ serialisation

@@ -46,6 +46,7 @@ __all__ = [
     "InputLimits",
     "check_input_feasibility",
     "primitive_input_feasibility",
+    "thrust_and_body_rate",
 ]
 
 GRAVITY_M_S2 = 9.81

@@ -16,6 +16,7 @@ from planner.dynamics import (
     primitive_coefficients,
     primitive_input_feasibility,
 )
+from planner.dynamics.feasibility import thrust_and_body_rate
 from planner.trajectory import Trajectory
 
 G = 9.81
@@ -80,6 +81,9 @@ def test_report_gives_the_first_violating_time() -> None:
     jerk = traj.jerk(t)
     e3 = acc / f[:, None]
     w = np.linalg.norm(jerk - np.sum(jerk * e3, axis=1)[:, None] * e3, axis=1) / f
+    f_lib, w_lib = thrust_and_body_rate(traj, t)
+    np.testing.assert_allclose(f_lib, f, rtol=1e-12)
+    np.testing.assert_allclose(w_lib, w, rtol=1e-9, atol=1e-12)
     viol = (f > LIMITS.f_max_m_s2) | (f < LIMITS.f_min_m_s2) | (w > LIMITS.omega_max_rad_s)
     t_first = t[np.argmax(viol)]
     assert report.first_violation_t_s == pytest.approx(t_first, abs=1.1e-3)
