@@ -208,16 +208,20 @@ class PiecewisePolynomialModel:
         deg = self.coef_maps.shape[1] - 1
         rows: list[NDArray[np.float64]] = []
         kinds: list[str] = []
+        Q = self.limit_subdivisions
+        n_seg, _, m = self.coef_maps.shape
+        durations, group = np.unique(self.segment_duration_s, return_inverse=True)
         for order, kind in ((1, "vel"), (2, "acc")):
             if order > deg:
                 continue
-            for s, T in enumerate(self.segment_duration_s):
-                edges = np.linspace(0.0, T, self.limit_subdivisions + 1)
-                for q in range(self.limit_subdivisions):
-                    B = bernstein_map(deg, order, edges[q], edges[q + 1])
-                    cp = B @ self.coef_maps[s]
-                    rows.append(cp)
-                    kinds.extend([kind] * cp.shape[0])
+            cp = np.empty((n_seg, Q, deg - order + 1, m))
+            for g, T in enumerate(durations):  # one set of maps per distinct duration
+                edges = np.linspace(0.0, T, Q + 1)
+                B = np.stack([bernstein_map(deg, order, edges[q], edges[q + 1]) for q in range(Q)])
+                segs = np.nonzero(group == g)[0]
+                cp[segs] = np.einsum("qij,sjm->sqim", B, self.coef_maps[segs])
+            rows.append(cp.reshape(-1, m))
+            kinds.extend([kind] * (cp.size // m))
         A = np.vstack(rows)
         # Drop all-zero rows and duplicates (the shared end/start control points of
         # adjacent pieces).
