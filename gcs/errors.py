@@ -38,6 +38,7 @@ USER_ERRORS: tuple[type[BaseException], ...] = (
     *_optional("planner.stl", "SpecError"),
     *_optional("planner.scenario", "ScenarioError"),
     *_optional("planner.planfile", "PlanFileError"),
+    *_optional("planner.frames", "FrameError"),
     *_optional("mavlink.errors", "LinkError"),
 )
 
