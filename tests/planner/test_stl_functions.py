@@ -202,3 +202,39 @@ def test_weakest_reports_the_violated_function_and_its_time():
     assert str(safety[-1].formula) == "dist(d1, d2) >= 0.5"
     assert safety[-1].t_s == 2.5 and safety[-1].step == 5
     assert safety[-1].robustness == pytest.approx(0.1 - 0.5) == clauses[1]
+
+
+def _docstring_block(marker: str) -> str:
+    import textwrap
+
+    import planner.stl
+
+    doc = planner.stl.__doc__
+    assert doc is not None
+    lines = doc.split(marker, 1)[1].splitlines()[2:]
+    block = []
+    for line in lines:
+        if line and not line.startswith("    "):
+            break
+        block.append(line)
+    return textwrap.dedent("\n".join(block))
+
+
+def test_package_docstring_usage_example_runs():
+    namespace: dict = {}
+    exec(_docstring_block("Usage::"), namespace)
+    phi, signals = namespace["phi"], namespace["signals"]
+    assert phi.horizon == 5.0
+    assert abs(phi.smooth_robustness(signals, 0.1, 50) - phi.robustness(signals, 0.1)) <= (
+        phi.smooth_error_bound(50, 0.1)
+    )
+
+
+def test_package_docstring_syntax_examples_parse_and_round_trip():
+    reg = registry()
+    examples = [line.split("#")[0].strip() for line in _docstring_block("Examples::").splitlines()]
+    examples = [text for text in examples if text]
+    assert len(examples) == 5
+    for text in examples:
+        phi = parse(text, reg)
+        assert parse(str(phi), reg) == phi
