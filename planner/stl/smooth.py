@@ -279,7 +279,7 @@ class SmoothEvaluator:
         if isinstance(result, float):
             return result if not self.ops.symbolic else self.kind(result)
         if self.ops.symbolic:
-            return result[0]
+            return self.kind(result[0])  # a DM when only constants were compared
         return float(result[0])
 
     # ---- needed steps
