@@ -13,6 +13,7 @@ Usage::
     phi.robustness_trace(signals, dt=0.1)          # (n - H,) exact trace, see below
     phi.smooth_robustness(signals, dt=0.1, k=50)   # log-sum-exp robustness at t = 0
     phi.smooth_error_bound(k=50, dt=0.1)           # |smooth - exact| <= this
+    phi.smooth_robustness_trace(signals, 0.1, 50)  # smooth value at every step, one graph
     [c.robustness(signals, 0.1) for c in phi.clauses]   # per conjunct of a top-level "and"
     phi.weakest(signals, dt=0.1)[-1]               # deciding atom and its time (Witness)
 

@@ -402,6 +402,29 @@ class Formula:
 
         return smooth_robustness(self, signals, dt, k)
 
+    def smooth_robustness_trace(
+        self,
+        signals: Mapping[str, Any],
+        dt: float,
+        k: float = 10.0,
+        first_step: int = 0,
+        last_step: int | None = None,
+    ) -> Any:
+        """Smooth robustness at every step ``first_step..last_step`` in one graph.
+
+        Same trace convention as :meth:`robustness_trace`: ``last_step`` defaults to the last
+        step where the horizon fits (``n - 1 - H``); a later step raises TraceLengthError.
+        Sub-formulas shared between steps are built once (windows cost O(steps + width)).
+
+        Returns:
+            (R,) float array for numpy signals, (R, 1) SX/MX column for CasADi signals,
+            ``R = last_step - first_step + 1``; entry ``i`` equals :meth:`smooth_robustness`
+            of the signals shifted by ``first_step + i`` steps.
+        """
+        from planner.stl.smooth import smooth_robustness_trace
+
+        return smooth_robustness_trace(self, signals, dt, k, first_step, last_step)
+
     def smooth_error_bound(self, k: float, dt: float) -> float:
         """Bound on ``|smooth_robustness - robustness|`` (robustness units); see smooth.py."""
         from planner.stl.smooth import smooth_error_bound

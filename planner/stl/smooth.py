@@ -270,22 +270,43 @@ class SmoothEvaluator:
         needed = formula.horizon_steps(self.dt) + 1
         if self.n < needed:
             raise TraceLengthError(needed, self.n, self.dt, formula.horizon)
-        ranges = self._ranges(formula)
-        values: dict[Formula, Values] = {}
-        for node in _postorder(formula):
-            if node in ranges and node not in values:
-                values[node] = self._node(node, ranges[node], values, ranges)
-        result = values[formula]
+        result = self._evaluate(formula, 0, 0)
         if isinstance(result, float):
             return result if not self.ops.symbolic else self.kind(result)
         if self.ops.symbolic:
             return self.kind(result[0])  # a DM when only constants were compared
         return float(result[0])
 
+    def evaluate_steps(self, formula: Formula, first: int, last: int | None) -> Any:
+        """Smooth robustness at steps ``first..last``: (R,) numpy or (R, 1) SX/MX column."""
+        horizon = formula.horizon_steps(self.dt)
+        if self.n < horizon + 1:
+            raise TraceLengthError(horizon + 1, self.n, self.dt, formula.horizon)
+        top = self.n - 1 - horizon
+        last = top if last is None else int(last)
+        first = int(first)
+        if not 0 <= first <= last:
+            raise EvaluationError(f"steps {first}..{last}: need 0 <= first <= last")
+        if last > top:
+            raise TraceLengthError(last + horizon + 1, self.n, self.dt, formula.horizon)
+        rows = last - first + 1
+        result = self._evaluate(formula, first, last)
+        if isinstance(result, float):
+            result = self.ops.full(rows, result)
+        return self.kind(result) if self.ops.symbolic else np.asarray(result, dtype=float)
+
+    def _evaluate(self, formula: Formula, first: int, last: int) -> Values:
+        ranges = self._ranges(formula, first, last)
+        values: dict[Formula, Values] = {}
+        for node in _postorder(formula):
+            if node in ranges and node not in values:
+                values[node] = self._node(node, ranges[node], values, ranges)
+        return values[formula]
+
     # ---- needed steps
 
-    def _ranges(self, formula: Formula) -> dict[Formula, tuple[int, int]]:
-        ranges: dict[Formula, tuple[int, int]] = {formula: (0, 0)}
+    def _ranges(self, formula: Formula, first: int, last: int) -> dict[Formula, tuple[int, int]]:
+        ranges: dict[Formula, tuple[int, int]] = {formula: (first, last)}
         for node in reversed(_postorder(formula)):
             if node not in ranges:
                 continue
@@ -448,6 +469,18 @@ def _postorder(formula: Formula) -> list[Formula]:
 def smooth_robustness(formula: Formula, signals: Mapping[str, Any], dt: float, k: float) -> Any:
     """Smooth robustness at t = 0 (see :meth:`Formula.smooth_robustness`)."""
     return SmoothEvaluator(signals, dt, k).evaluate(formula)
+
+
+def smooth_robustness_trace(
+    formula: Formula,
+    signals: Mapping[str, Any],
+    dt: float,
+    k: float,
+    first_step: int = 0,
+    last_step: int | None = None,
+) -> Any:
+    """Smooth robustness at steps ``first_step..last_step`` (see Formula.smooth_robustness_trace)."""
+    return SmoothEvaluator(signals, dt, k).evaluate_steps(formula, first_step, last_step)
 
 
 def smooth_error_bound(formula: Formula, k: float, dt: float) -> float:

@@ -23,6 +23,7 @@ from planner.stl import (
     CmpOp,
     Comparison,
     Const,
+    EvaluationError,
     Eventually,
     Formula,
     Implies,
@@ -463,3 +464,32 @@ def test_block_window_lse_equals_direct_lse_in_both_back_ends(rows, width):
     expr = window_lse(_CasadiOps(), sym, width, rows)
     got = np.asarray(ca.Function("w", [sym], [expr])(y)).ravel()
     np.testing.assert_allclose(got, direct, rtol=1e-13)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cases(depth=3), st.sampled_from([2.0, 20.0]))
+def test_smooth_trace_matches_per_step_smooth_values_in_both_back_ends(case, k):
+    phi, x, dt = case
+    horizon = ref_horizon(phi, dt)
+    n = len(x["a"])
+    trace = phi.smooth_robustness_trace(x, dt, k)
+    assert trace.shape == (n - horizon,)
+    for step in range(n - horizon):
+        shifted = {name: values[step:] for name, values in x.items()}
+        expected = phi.smooth_robustness(shifted, dt, k)
+        assert trace[step] == pytest.approx(expected, rel=1e-9, abs=1e-9) or trace[step] == expected
+    syms, flat, values = _symbolic(x)
+    column = phi.smooth_robustness_trace(syms, dt, k, 0, n - horizon - 1)
+    assert column.shape == (n - horizon, 1)
+    got = np.asarray(ca.Function("tr", [flat], [column])(values)).ravel()
+    np.testing.assert_allclose(got, trace, rtol=1e-9, atol=1e-9)
+
+
+def test_smooth_trace_checks_its_step_range():
+    phi = parse("always[0,2] (a >= 0)")
+    x = {"a": np.arange(6.0)}
+    assert phi.smooth_robustness_trace(x, 1.0, 10.0, 1, 3).shape == (3,)
+    with pytest.raises(TraceLengthError, match="needs 7 samples, the trace has 6"):
+        phi.smooth_robustness_trace(x, 1.0, 10.0, 0, 4)
+    with pytest.raises(EvaluationError, match="first <= last"):
+        phi.smooth_robustness_trace(x, 1.0, 10.0, 3, 1)
