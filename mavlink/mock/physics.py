@@ -146,20 +146,21 @@ class FleetPhysics:
         v_cmd[:, 0] *= scale
         v_cmd[:, 1] *= scale
         np.clip(v_cmd[:, 2], -self.vel_up_max_m_s, self.vel_dn_max_m_s, out=v_cmd[:, 2])
-        # velocity loop (PI), inactive on axes that only carry an acceleration
+        # velocity loop (PI with PX4's back-calculation anti-windup), inactive on axes that
+        # only carry an acceleration
         vel_ctl = np.maximum(self.m_pos, self.m_vel)
         err = (v_cmd - vel) * vel_ctl
-        armed_col = self.armed[:, None]
-        self._vel_int += err * self.ki_vel * dt * armed_col
-        lim = np.column_stack((self.acc_xy_max_m_s2, self.acc_xy_max_m_s2, self.acc_up_max_m_s2))
-        np.clip(self._vel_int, -lim, lim, out=self._vel_int)
-        self._vel_int *= vel_ctl
         a_cmd = self.kp_vel * err + self._vel_int + self.m_acc * self.sp_acc_ned_m_s2
+        a_unsat = a_cmd.copy()
         a_h = np.hypot(a_cmd[:, 0], a_cmd[:, 1])
         scale = np.minimum(1.0, self.acc_xy_max_m_s2 / np.maximum(a_h, 1e-9))
         a_cmd[:, 0] *= scale
         a_cmd[:, 1] *= scale
         np.clip(a_cmd[:, 2], -self.acc_up_max_m_s2, self.acc_dn_max_m_s2, out=a_cmd[:, 2])
+        armed_col = self.armed[:, None]
+        err_arw = err - (2.0 / self.kp_vel) * (a_unsat - a_cmd)
+        self._vel_int += err_arw * self.ki_vel * dt * armed_col
+        self._vel_int *= vel_ctl
         a_cmd *= armed_col
         # airframe: thrust lag, wind, gravity when disarmed
         acc = self.acc_ned_m_s2
