@@ -1,0 +1,561 @@
+"""Fly a plan in PX4 offboard mode: every vehicle streams its own trajectory, all in step.
+
+:func:`fly_offboard` does, in order (DESIGN.md sections 3 and 7):
+
+1. learns each vehicle's EKF origin (GPS_GLOBAL_ORIGIN) and transforms the
+   vehicle's trajectory from the mission ENU frame into its own local NED
+   frame (:func:`plan_setpoints_ned`);
+2. refuses the flight, before anything is armed, if a vehicle is farther
+   than ``start_tolerance_m`` from its planned start (horizontally while it
+   is on the ground, in 3-D if it already hovers) (:class:`PreflightError`);
+3. takes off to the plan's start altitude (or checks the vehicle already
+   hovers at its start) and waits until each vehicle is within the
+   tolerance of its start;
+4. streams the start setpoint for ``prestream_s`` (>= 1 s), switches all
+   vehicles to offboard and waits until every one reports OFFBOARD;
+5. picks one shared start time and streams position + velocity +
+   acceleration + yaw setpoints at ``rate_hz`` against absolute deadlines
+   (:mod:`mavlink.stream`), while a :class:`~mavlink.monitor.SafetyMonitor`
+   watches the links and the spec's always-clauses;
+6. holds the final setpoint for ``hold_after_s`` and then holds, lands or
+   returns as asked, and returns a :class:`FlightResult` with per-vehicle
+   stream statistics and the flown tracks in the mission frame.
+
+Setpoints go through MAVSDK's Offboard plugin
+(``set_position_velocity_acceleration_ned``: SET_POSITION_TARGET_LOCAL_NED,
+frame LOCAL_NED, yaw rate ignored), called directly on the event loop; it
+does not block (it packs and queues one UDP datagram).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+from mavsdk.plugins.offboard import (
+    AccelerationNed,
+    Offboard,
+    OffboardResult,
+    PositionNedYaw,
+    VelocityNedYaw,
+)
+
+from mavlink.errors import CommandError, LinkError, PreflightError
+from mavlink.fleet import Fleet, Vehicle, VehicleStatus, mavsdk_call
+from mavlink.monitor import SafetyAction, SafetyEvent, SafetyMonitor, safe_stop
+from mavlink.px4_modes import Px4Mode
+from mavlink.stream import MAX_RATE_HZ, NedSetpoints, SetpointStreamer, StreamStats, StreamTarget
+from planner.frames import (
+    GeodeticPoint,
+    enu_to_geodetic,
+    enu_to_ned,
+    enu_vector_to_ned,
+    ned_to_enu,
+    ned_vector_to_enu,
+    yaw_enu_to_ned,
+)
+from planner.trajectory import Trajectory
+
+
+class EndAction(Enum):
+    """What every vehicle does after the last setpoint has been held."""
+
+    HOLD = "hold"
+    LAND = "land"
+    RETURN = "return"
+
+
+@dataclass(frozen=True, slots=True)
+class OffboardConfig:
+    """Settings of an offboard flight.
+
+    Attributes:
+        rate_hz: setpoint rate, 2 < rate <= 100 (default 20 Hz).
+        prestream_s: how long the start setpoint is streamed before the
+            switch to offboard (>= 1 s; PX4 needs a live stream; a denied
+            switch is retried twice, 0.5 s apart, while the stream goes on).
+        start_tolerance_m: refuse a vehicle farther than this from its planned start.
+        takeoff: take off to the start altitude if a vehicle is on the ground
+            (otherwise a vehicle must already hover at its start).
+        takeoff_timeout_s: time allowed to reach the start after takeoff.
+        settle_speed_m_s: a vehicle counts as hovering below this speed.
+        mode_timeout_s: time allowed for all vehicles to report OFFBOARD.
+        start_delay_s: the shared start time is this long after the switch.
+        hold_after_s: keep streaming the final setpoint this long.
+        end_action: hold, land or return to launch afterwards.
+        late_threshold_s: lateness that counts as late (default a quarter period).
+    """
+
+    rate_hz: float = 20.0
+    prestream_s: float = 1.2
+    start_tolerance_m: float = 1.0
+    takeoff: bool = True
+    takeoff_timeout_s: float = 30.0
+    settle_speed_m_s: float = 0.3
+    mode_timeout_s: float = 5.0
+    start_delay_s: float = 0.3
+    hold_after_s: float = 1.0
+    end_action: EndAction = EndAction.HOLD
+    late_threshold_s: float | None = None
+
+    def __post_init__(self) -> None:
+        if not (2.0 < self.rate_hz <= MAX_RATE_HZ):
+            raise LinkError(f"offboard rate_hz {self.rate_hz!r} outside (2, {MAX_RATE_HZ:g}]")
+        if not self.prestream_s >= 1.0:
+            raise LinkError(f"prestream_s {self.prestream_s!r} must be >= 1 s (PX4 offboard rule)")
+        for name in (
+            "start_tolerance_m",
+            "takeoff_timeout_s",
+            "mode_timeout_s",
+            "settle_speed_m_s",
+        ):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise LinkError(f"{name} must be a finite number > 0, got {value!r}")
+        for name in ("start_delay_s", "hold_after_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise LinkError(f"{name} must be a finite number >= 0, got {value!r}")
+
+
+def plan_setpoints_ned(
+    trajectory: Trajectory,
+    rate_hz: float,
+    mission_origin: GeodeticPoint,
+    vehicle_origin: GeodeticPoint,
+) -> NedSetpoints:
+    """Sample ``trajectory`` at ``rate_hz`` and express it in the vehicle's local NED frame.
+
+    Positions go mission ENU -> geodetic -> vehicle NED; velocity and
+    acceleration are rotated between the two tangent planes; yaw becomes a
+    NED heading (planner.frames).
+
+    Returns:
+        :class:`NedSetpoints` with ``t_s = k / rate_hz``, ``k = 0 .. ceil(T*rate)``.
+    """
+    sp = trajectory.sample(rate_hz)
+    return NedSetpoints(
+        t_s=sp.t_s,
+        pos_ned_m=enu_to_ned(sp.pos_enu_m, mission_origin, vehicle_origin),
+        vel_ned_m_s=enu_vector_to_ned(sp.vel_enu_m_s, mission_origin, vehicle_origin),
+        acc_ned_m_s2=enu_vector_to_ned(sp.acc_enu_m_s2, mission_origin, vehicle_origin),
+        yaw_ned_rad=np.asarray(yaw_enu_to_ned(sp.yaw_rad, mission_origin, vehicle_origin)),
+    )
+
+
+def offboard_sender(offboard: Offboard) -> Callable[..., None]:
+    """A :class:`StreamTarget` sender over MAVSDK's blocking-free setpoint call."""
+    set_pva = offboard.set_position_velocity_acceleration_ned
+
+    def send(
+        n: float,
+        e: float,
+        d: float,
+        vn: float,
+        ve: float,
+        vd: float,
+        an: float,
+        ae: float,
+        ad: float,
+        yaw_deg: float,
+    ) -> None:
+        set_pva(
+            PositionNedYaw(n, e, d, yaw_deg),
+            VelocityNedYaw(vn, ve, vd, yaw_deg),
+            AccelerationNed(an, ae, ad),
+        )
+
+    return send
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class FlownTrack:
+    """What one vehicle reported during the flight, in the mission frame.
+
+    Attributes:
+        name: vehicle name.
+        t_s: ``(k,)`` receive times, seconds from the shared start.
+        pos_enu_m: ``(k, 3)`` mission-frame ENU positions.
+        vel_enu_m_s: ``(k, 3)`` mission-frame ENU velocities.
+        pos_ned_m: ``(k, 3)`` the raw LOCAL_POSITION_NED positions.
+    """
+
+    name: str
+    t_s: np.ndarray
+    pos_enu_m: np.ndarray
+    vel_enu_m_s: np.ndarray
+    pos_ned_m: np.ndarray
+
+    def resample(self, dt_s: float, t_end_s: float) -> np.ndarray:
+        """Positions ``(n, 3)`` at ``t = 0, dt, ..., t_end`` by linear interpolation.
+
+        Raises:
+            LinkError: the track does not cover ``[0, t_end]`` (names the gap).
+        """
+        n = math.floor(t_end_s / dt_s + 1e-9) + 1
+        t = np.arange(n) * dt_s
+        if self.t_s.size < 2 or self.t_s[0] > dt_s or self.t_s[-1] < t[-1] - dt_s:
+            covered = f"{self.t_s[0]:.2f}..{self.t_s[-1]:.2f} s" if self.t_s.size else "no samples"
+            raise LinkError(
+                f"flown track covers {covered}, need 0..{t[-1]:.2f} s", vehicle=self.name
+            )
+        return np.column_stack([np.interp(t, self.t_s, self.pos_enu_m[:, a]) for a in range(3)])
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class FlightResult:
+    """The outcome of :func:`fly_offboard`.
+
+    Attributes:
+        completed: every setpoint was streamed and no safety stop happened.
+        t0_monotonic_s: ``time.monotonic()`` of the shared start.
+        stats: stream statistics per vehicle (the main stream only).
+        tracks: flown tracks per vehicle, in the mission frame.
+        safety_event: what stopped the flight, if the monitor did.
+        end_failures: vehicles whose end action failed, with the reason.
+        origins: each vehicle's EKF origin used for the transform.
+    """
+
+    completed: bool
+    t0_monotonic_s: float
+    stats: dict[str, StreamStats]
+    tracks: dict[str, FlownTrack]
+    safety_event: SafetyEvent | None
+    end_failures: dict[str, str] = field(default_factory=dict)
+    origins: dict[str, GeodeticPoint] = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------
+# Preflight
+# --------------------------------------------------------------------------
+
+
+def _vec(p: np.ndarray) -> str:
+    return "(" + ", ".join(f"{x:.2f}" for x in np.ravel(p)) + ")"
+
+
+def _is_hovering(st: VehicleStatus, settle_speed_m_s: float) -> bool:
+    return bool(
+        st.armed
+        and st.mode in (Px4Mode.AUTO_LOITER, Px4Mode.POSCTL, Px4Mode.OFFBOARD)
+        and st.vel_ned_m_s is not None
+        and float(np.linalg.norm(st.vel_ned_m_s)) < settle_speed_m_s
+    )
+
+
+def check_start(
+    st: VehicleStatus,
+    start_ned_m: np.ndarray,
+    *,
+    tolerance_m: float,
+    on_ground: bool,
+    mission_origin: GeodeticPoint,
+    vehicle_origin: GeodeticPoint,
+) -> None:
+    """Refuse a vehicle that is too far from its planned start.
+
+    On the ground only the horizontal distance counts (it will climb
+    vertically to the start); in the air the 3-D distance.
+
+    Raises:
+        PreflightError: naming the vehicle, both positions in the mission
+            frame, the distance and the tolerance.
+    """
+    if st.pos_ned_m is None:
+        raise PreflightError("no local position reported", vehicle=st.name, url=st.url)
+    here = np.asarray(st.pos_ned_m)
+    delta = here - start_ned_m
+    dist = float(np.linalg.norm(delta[:2] if on_ground else delta))
+    if dist > tolerance_m:
+        here_enu = ned_to_enu(here, mission_origin, vehicle_origin)
+        start_enu = ned_to_enu(start_ned_m, mission_origin, vehicle_origin)
+        what = "horizontally " if on_ground else ""
+        raise PreflightError(
+            f"refused: it is {dist:.2f} m {what}from its planned start "
+            f"(tolerance {tolerance_m:.2f} m): at ENU {_vec(here_enu)} m, "
+            f"plan starts at ENU {_vec(start_enu)} m (mission frame)",
+            vehicle=st.name,
+            url=st.url,
+        )
+
+
+async def _takeoff_to_start(
+    v: Vehicle,
+    start_ned_m: np.ndarray,
+    start_alt_amsl_m: float,
+    cfg: OffboardConfig,
+    mission_origin: GeodeticPoint,
+    vehicle_origin: GeodeticPoint,
+) -> None:
+    st = await v.wait_for(lambda s: s.home is not None, "HOME_POSITION", timeout_s=5.0)
+    assert st.home is not None
+    rel_alt_m = start_alt_amsl_m - st.home.alt_m
+    if rel_alt_m < 0.3:
+        raise PreflightError(
+            f"refused: planned start is {rel_alt_m:.2f} m above home; "
+            "an offboard plan must start in the air (>= 0.3 m)",
+            vehicle=v.name,
+            url=v.url,
+        )
+    await v.arm()
+    await v.takeoff_to(start_alt_amsl_m)
+
+    def arrived(s: VehicleStatus) -> bool:
+        return (
+            s.pos_ned_m is not None
+            and float(np.linalg.norm(np.asarray(s.pos_ned_m) - start_ned_m))
+            <= cfg.start_tolerance_m
+            and _is_hovering(s, cfg.settle_speed_m_s)
+        )
+
+    try:
+        await v.wait_for(
+            arrived, "reaching the start after takeoff", timeout_s=cfg.takeoff_timeout_s
+        )
+    except PreflightError:
+        raise
+    except LinkError as exc:
+        raise PreflightError(exc.detail, vehicle=v.name, url=v.url) from None
+    check_start(
+        v.status(),
+        start_ned_m,
+        tolerance_m=cfg.start_tolerance_m,
+        on_ground=False,
+        mission_origin=mission_origin,
+        vehicle_origin=vehicle_origin,
+    )
+
+
+# --------------------------------------------------------------------------
+# The flight
+# --------------------------------------------------------------------------
+
+
+async def _start_offboard(v: Vehicle, retries: int = 3, retry_after_s: float = 0.5) -> None:
+    # PX4 denies the switch until it has seen the setpoint stream for long enough by
+    # its own clock; a denial right at the end of the pre-stream is retried while the
+    # stream goes on.
+    for _ in range(retries):
+        result = await mavsdk_call(v.offboard.start_async)
+        if result != OffboardResult.COMMAND_DENIED:
+            break
+        await asyncio.sleep(retry_after_s)
+    if result != OffboardResult.SUCCESS:
+        raise CommandError(
+            f"offboard start failed: {result.name}", result=result.name, vehicle=v.name, url=v.url
+        )
+
+
+async def _stop_offboard(v: Vehicle) -> None:
+    # MAVSDK stops re-sending the last setpoint and commands Hold.
+    result = await mavsdk_call(v.offboard.stop_async)
+    if result != OffboardResult.SUCCESS:
+        raise CommandError(
+            f"offboard stop failed: {result.name}", result=result.name, vehicle=v.name, url=v.url
+        )
+
+
+async def _end(v: Vehicle, action: EndAction) -> None:
+    await _stop_offboard(v)
+    if action is EndAction.LAND:
+        await v.land()
+    elif action is EndAction.RETURN:
+        await v.return_to_launch()
+
+
+def _track(
+    name: str, rows: np.ndarray, t0: float, mission_origin: GeodeticPoint, origin: GeodeticPoint
+) -> FlownTrack:
+    if rows.shape[0] == 0:
+        z = np.zeros((0, 3))
+        return FlownTrack(name, np.zeros(0), z, z.copy(), z.copy())
+    ned = rows[:, 1:4]
+    return FlownTrack(
+        name=name,
+        t_s=rows[:, 0] - t0,
+        pos_enu_m=ned_to_enu(ned, mission_origin, origin),
+        vel_enu_m_s=ned_vector_to_enu(rows[:, 4:7], mission_origin, origin),
+        pos_ned_m=ned,
+    )
+
+
+async def fly_offboard(
+    fleet: Fleet,
+    trajectories: Mapping[str, Trajectory],
+    mission_origin: GeodeticPoint,
+    config: OffboardConfig | None = None,
+    *,
+    monitor: SafetyMonitor | None = None,
+) -> FlightResult:
+    """Fly each vehicle's trajectory in offboard mode, all from one shared start time.
+
+    Args:
+        fleet: a connected :class:`Fleet`; every name in ``trajectories`` must be in it.
+        trajectories: mission-frame (ENU) trajectory per vehicle name.
+        mission_origin: geodetic origin of the mission frame.
+        config: :class:`OffboardConfig` (defaults: 20 Hz, 1 s pre-stream, 1 m tolerance).
+        monitor: safety monitor to run during the stream (default: one that
+            only watches the links and holds every vehicle if one is lost).
+
+    Returns:
+        A :class:`FlightResult`. A safety stop is a result (``completed``
+        false, ``safety_event`` set), not an exception.
+
+    Raises:
+        PreflightError: a vehicle is too far from its start, cannot reach it
+            or does not switch to offboard (nothing was streamed).
+        LinkError: a vehicle is unknown, its origin unknown or its link lost
+            before the stream starts.
+    """
+    cfg = config or OffboardConfig()
+    vehicles = [fleet[name] for name in trajectories]
+    origins = await fleet.origins()
+    setpoints = {
+        v.name: plan_setpoints_ned(
+            trajectories[v.name], cfg.rate_hz, mission_origin, origins[v.name]
+        )
+        for v in vehicles
+    }
+    await asyncio.gather(
+        *(
+            v.wait_for(
+                lambda s: s.pos_ned_m is not None and s.armed is not None,
+                "local position",
+                timeout_s=5.0,
+            )
+            for v in vehicles
+        )
+    )
+
+    # Preflight: check every vehicle before arming any.
+    needs_takeoff: list[Vehicle] = []
+    for v in vehicles:
+        st = v.status()
+        start = setpoints[v.name].pos_ned_m[0]
+        airborne = _is_hovering(st, cfg.settle_speed_m_s)
+        if not airborne and not cfg.takeoff:
+            raise PreflightError(
+                "refused: not hovering at its start and takeoff is disabled",
+                vehicle=v.name,
+                url=v.url,
+            )
+        check_start(
+            st,
+            start,
+            tolerance_m=cfg.start_tolerance_m,
+            on_ground=not airborne,
+            mission_origin=mission_origin,
+            vehicle_origin=origins[v.name],
+        )
+        if not airborne:
+            needs_takeoff.append(v)
+    start_alt = {
+        v.name: float(enu_to_geodetic(trajectories[v.name].position(0.0), mission_origin)[2][0])
+        for v in needs_takeoff
+    }
+    await asyncio.gather(
+        *(
+            _takeoff_to_start(
+                v,
+                setpoints[v.name].pos_ned_m[0],
+                start_alt[v.name],
+                cfg,
+                mission_origin,
+                origins[v.name],
+            )
+            for v in needs_takeoff
+        )
+    )
+
+    # Pre-stream the start setpoint, then switch everyone to offboard.
+    n_pre = math.ceil((cfg.prestream_s + cfg.mode_timeout_s + 1.0) * cfg.rate_hz)
+    hover = SetpointStreamer(
+        [
+            StreamTarget(v.name, offboard_sender(v.offboard), setpoints[v.name].constant(0, n_pre))
+            for v in vehicles
+        ],
+        cfg.rate_hz,
+    )
+    hover_stop = asyncio.Event()
+    hover_task = asyncio.create_task(hover.run(time.monotonic(), stop=hover_stop))
+    try:
+        await asyncio.sleep(cfg.prestream_s)
+        failures = await fleet.for_each(_start_offboard, vehicles)
+        if failures:
+            name, exc = next(iter(failures.items()))
+            raise PreflightError(
+                f"did not switch to offboard: {exc}", vehicle=name, url=fleet[name].url
+            )
+        await asyncio.gather(
+            *(
+                v.wait_for(
+                    lambda s: s.mode is Px4Mode.OFFBOARD,
+                    "mode OFFBOARD",
+                    timeout_s=cfg.mode_timeout_s,
+                )
+                for v in vehicles
+            )
+        )
+    except Exception as exc:
+        hover_stop.set()
+        await hover_task
+        failed = await fleet.for_each(lambda v: safe_stop(v, SafetyAction.HOLD), vehicles)
+        for name, err in failed.items():
+            exc.add_note(f"vehicle {name}: hold after the failed start also failed: {err}")
+        raise
+
+    # One shared start; the hover stream runs until just before it.
+    t0 = time.monotonic() + cfg.start_delay_s
+    main = SetpointStreamer(
+        [StreamTarget(v.name, offboard_sender(v.offboard), setpoints[v.name]) for v in vehicles],
+        cfg.rate_hz,
+        late_threshold_s=cfg.late_threshold_s,
+    )
+    for v in vehicles:
+        v.start_track()
+    await asyncio.sleep(max(0.0, t0 - time.monotonic() - 0.5 / cfg.rate_hz))
+    hover_stop.set()
+    await hover_task
+
+    mon = monitor or SafetyMonitor(())
+    stop = asyncio.Event()
+    mon_task = asyncio.create_task(
+        mon.run(
+            fleet,
+            vehicles,
+            t0_monotonic_s=t0,
+            mission_origin=mission_origin,
+            origins=origins,
+            stop=stop,
+            plans=trajectories,
+        )
+    )
+    extra = round(cfg.hold_after_s * cfg.rate_hz)
+    try:
+        stats = await main.run(t0, stop=stop, extra_ticks=extra)
+    finally:
+        stop.set()
+        event = await mon_task
+    end_failures: dict[str, str] = {}
+    if event is None:
+        failed = await fleet.for_each(lambda v: _end(v, cfg.end_action), vehicles)
+        end_failures = {k: str(e) for k, e in failed.items()}
+    tracks = {
+        v.name: _track(v.name, v.stop_track(), t0, mission_origin, origins[v.name])
+        for v in vehicles
+    }
+    completed = event is None and all(s.sent + s.skipped >= main.n_ticks for s in stats.values())
+    return FlightResult(
+        completed=completed,
+        t0_monotonic_s=t0,
+        stats=stats,
+        tracks=tracks,
+        safety_event=event,
+        end_failures=end_failures,
+        origins=origins,
+    )
