@@ -3,7 +3,8 @@
 Each vehicle is a point mass in its own local NED frame (origin at its spawn
 point, ground at ``down = 0``) driven by a PX4-like cascaded controller:
 
-* position loop: ``v_cmd = v_ff + Kp_pos * (p_sp - p)``, limited to the
+* position loop: ``v_cmd = v_ff + Kp_pos * (p_sp - p)``, the P term capped by the
+  braking speed ``sqrt(2 a d)`` (no overshoot on large steps), limited to the
   horizontal speed ``vel_xy_max_m_s`` and the vertical speeds
   ``vel_up_max_m_s`` / ``vel_dn_max_m_s``;
 * velocity loop (PI): ``a_cmd = a_ff + Kp_vel * (v_cmd - v) + Ki_vel * int(v_cmd - v)``,
@@ -28,6 +29,7 @@ from mavlink.mock.config import NoiseConfig, WindConfig
 
 GRAVITY_M_S2 = 9.80665
 _GROUND_D_M = 0.0
+_BRAKE_MARGIN = 0.6
 
 
 class FleetPhysics:
@@ -138,9 +140,20 @@ class FleetPhysics:
         dt = self.dt_s
         pos, vel = self.pos_ned_m, self.vel_ned_m_s
         # position loop
-        v_cmd = (
-            self.m_pos * self.kp_pos * (self.sp_pos_ned_m - pos) + self.m_vel * self.sp_vel_ned_m_s
-        )
+        err_pos = self.m_pos * (self.sp_pos_ned_m - pos)
+        p_term = self.kp_pos * err_pos
+        # the P term never asks for more speed than can be braked away before the target
+        # (sqrt(2 a d) with margin for the loop lag), so large steps do not overshoot
+        e_h = np.hypot(err_pos[:, 0], err_pos[:, 1])
+        p_h = np.hypot(p_term[:, 0], p_term[:, 1])
+        brake_h = np.sqrt(2.0 * _BRAKE_MARGIN * self.acc_xy_max_m_s2 * e_h)
+        scale = np.minimum(1.0, brake_h / np.maximum(p_h, 1e-9))
+        p_term[:, 0] *= scale
+        p_term[:, 1] *= scale
+        acc_v = np.where(err_pos[:, 2] > 0, self.acc_up_max_m_s2, self.acc_dn_max_m_s2)
+        brake_v = np.sqrt(2.0 * _BRAKE_MARGIN * acc_v * np.abs(err_pos[:, 2]))
+        np.clip(p_term[:, 2], -brake_v, brake_v, out=p_term[:, 2])
+        v_cmd = p_term + self.m_vel * self.sp_vel_ned_m_s
         v_h = np.hypot(v_cmd[:, 0], v_cmd[:, 1])
         scale = np.minimum(1.0, self.vel_xy_max_m_s / np.maximum(v_h, 1e-9))
         v_cmd[:, 0] *= scale

@@ -1,0 +1,122 @@
+"""The mock's vectorised quad-rotor model and controller, without sockets."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mavlink.mock.config import NoiseConfig, WindConfig
+from mavlink.mock.physics import FleetPhysics
+
+
+def airborne_fleet(n: int, seed: int = 0, wind: WindConfig | None = None, noise: NoiseConfig | None = None) -> FleetPhysics:  # fmt: skip
+    p = FleetPhysics(n, 0.01, np.random.default_rng(seed), wind, noise or NoiseConfig(0.0, 0.0))
+    p.armed[:] = True
+    p.pos_ned_m[:, 2] = -5.0
+    for i in range(n):
+        p.hold_here(i)
+    return p
+
+
+def run(p: FleetPhysics, seconds: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Step for ``seconds``; positions, velocities, accelerations per step, (k, n, 3)."""
+    pos, vel, acc = [], [], []
+    for _ in range(round(seconds / p.dt_s)):
+        p.step()
+        pos.append(p.pos_ned_m.copy())
+        vel.append(p.vel_ned_m_s.copy())
+        acc.append(p.acc_ned_m_s2.copy())
+    return np.array(pos), np.array(vel), np.array(acc)
+
+
+def test_position_steps_converge_and_respect_speed_and_acceleration_limits() -> None:
+    p = airborne_fleet(3)
+    p.vel_xy_max_m_s[:] = (12.0, 3.0, 5.0)
+    p.acc_xy_max_m_s2[:] = (5.0, 2.0, 3.0)
+    targets = np.array([[20.0, 0.0, -5.0], [-10.0, 10.0, -5.0], [0.0, 0.0, -15.0]])
+    for i in range(3):
+        p.set_position(i, targets[i])
+    pos, vel, acc = run(p, 30.0)
+    assert np.abs(pos[-1] - targets).max() < 0.05
+    speed_h = np.hypot(vel[..., 0], vel[..., 1])
+    acc_h = np.hypot(acc[..., 0], acc[..., 1])
+    # the first-order thrust lag never exceeds what the controller commands
+    assert (acc_h <= p.acc_xy_max_m_s2 + 1e-9).all()
+    # speed may exceed the limit only by the velocity loop's small tracking error
+    assert (speed_h.max(axis=0) <= p.vel_xy_max_m_s * 1.05).all()
+    assert speed_h[:, 1].max() > 0.95 * 3.0  # the limit is actually reached
+    assert -vel[:, 2, 2].min() <= 3.0 * 1.05  # climb limit MPC_Z_VEL_MAX_UP
+    # and the step is flown without a large overshoot
+    assert pos[:, 0, 0].max() < 20.0 + 0.3
+
+
+def test_feed_forward_tracks_a_circle_better_than_position_alone() -> None:
+    radius_m, omega = 5.0, 0.8
+    t = np.arange(0.0, 20.0, 0.01) + 0.01
+    ref = np.stack([radius_m * np.cos(omega * t), radius_m * np.sin(omega * t), -5.0 + 0 * t], 1)
+    ref_v = np.stack(
+        [-radius_m * omega * np.sin(omega * t), radius_m * omega * np.cos(omega * t), 0 * t], 1
+    )
+    ref_a = np.stack([-radius_m * omega**2 * np.cos(omega * t), -radius_m * omega**2 * np.sin(omega * t), 0 * t], 1)  # fmt: skip
+
+    def track(feed_forward: bool) -> float:
+        p = airborne_fleet(1)
+        p.pos_ned_m[0] = (radius_m, 0.0, -5.0)
+        p.vel_ned_m_s[0] = (0.0, radius_m * omega, 0.0)
+        errors = []
+        for k in range(len(t)):
+            if feed_forward:
+                p.set_position(0, ref[k], ref_v[k], ref_a[k])
+            else:
+                p.set_position(0, ref[k])
+            p.step()
+            errors.append(np.linalg.norm(p.pos_ned_m[0] - ref[k]))
+        return float(np.max(errors[500:]))
+
+    with_ff, without = track(True), track(False)
+    assert with_ff < 0.15
+    assert without > 5 * with_ff
+
+
+def test_velocity_and_acceleration_only_setpoints() -> None:
+    p = airborne_fleet(2)
+    p.set_axes(0, np.zeros(3), np.array([2.0, -1.0, 0.0]), np.zeros(3), np.zeros(3), np.ones(3), np.zeros(3))  # fmt: skip
+    p.set_axes(1, np.zeros(3), np.zeros(3), np.array([1.0, 0.0, 0.0]), np.zeros(3), np.zeros(3), np.ones(3))  # fmt: skip
+    _, vel, _ = run(p, 3.0)
+    # a constant 1 m/s^2 gives ~3 m/s after 3 s (minus the thrust lag)
+    assert vel[-1, 1, 0] == pytest.approx(3.0 - 0.05, abs=0.05)
+    _, vel, _ = run(p, 7.0)
+    assert vel[-1, 0] == pytest.approx([2.0, -1.0, 0.0], abs=0.03)
+
+
+def test_integrator_rejects_steady_wind() -> None:
+    wind = WindConfig(mean_ne_m_s=(5.0, -3.0), drag_per_s=0.35)
+    p = airborne_fleet(1, wind=wind)
+    pos, _, _ = run(p, 25.0)
+    assert np.abs(pos[-1, 0] - [0.0, 0.0, -5.0]).max() < 0.05
+    assert np.abs(pos[200:600, 0, :2]).max() > 0.1  # the gust of wind did push it first
+
+
+def test_disarmed_vehicle_falls_and_stays_on_the_ground() -> None:
+    p = airborne_fleet(1)
+    p.armed[:] = False
+    pos, vel, _ = run(p, 2.0)
+    assert pos[-1, 0, 2] == 0.0 and vel[-1, 0, 2] == 0.0
+    t_hit = np.argmax(pos[:, 0, 2] >= 0.0) * p.dt_s
+    assert t_hit == pytest.approx(np.sqrt(2 * 5.0 / 9.80665), abs=0.03)
+
+
+def test_same_seed_same_flight_other_seed_other_flight() -> None:
+    def flight(seed: int) -> np.ndarray:
+        p = airborne_fleet(4, seed, WindConfig(gust_sigma_m_s=1.0), NoiseConfig(0.05, 0.05))
+        for i in range(4):
+            p.set_position(i, np.array([3.0 * i, 2.0, -6.0]))
+        out = []
+        for _ in range(300):
+            p.step()
+            out.append(np.concatenate([p.pos_ned_m.ravel(), p.noise_pos_m.ravel()]))
+        return np.array(out)
+
+    a, b, c = flight(11), flight(11), flight(12)
+    assert np.array_equal(a, b)
+    assert not np.allclose(a, c)
