@@ -1,0 +1,624 @@
+"""Trajectories as PX4 missions: conversion, geofence, upload, read-back, the path flown.
+
+PX4 has no local-frame mission items, so a vehicle's mission-frame trajectory
+becomes global ``*_INT`` items (DESIGN.md section 7):
+
+* ``NAV_TAKEOFF`` to the start point (lat/lon/alt AMSL of the plan's start);
+* a ``NAV_WAYPOINT`` at the start (its hold time is the plan's initial hover);
+* per segment of the trajectory that moves: ``DO_CHANGE_SPEED`` to the
+  straight-line length / duration of the segment, so the mission's timing
+  follows the plan, then ``NAV_WAYPOINT`` at the segment's end point with
+  ``acceptance_radius_m`` (param2) and, where the plan then hovers, the hover
+  time as hold time (param1);
+* ``NAV_LAND`` at the last point, ``NAV_RETURN_TO_LAUNCH``, or nothing (PX4
+  then holds at the last waypoint).
+
+A segment whose peak speed stays below ``hover_speed_m_s`` (or which ends
+less than the acceptance radius from where it started) is a hover.
+
+The mission flies straight legs at constant speed: :class:`PiecewiseLinearPath`
+is that path as a function of time (knots at the segment boundaries, so it
+meets the plan exactly at every waypoint). :func:`path_deviation` measures how
+far it strays from the planned trajectory and :func:`path_robustness`
+evaluates the exact STL robustness of the paths (DESIGN.md section 4), so the
+mission can be judged before it is flown.
+
+A geofence (``FENCE`` items) is built from the workspace box (inclusion
+polygon) and no-fly boxes (exclusion polygons). PX4 fences are 2-D
+polygons; the workspace's height limits are not expressed by them (PX4 takes
+those from the ``GF_MAX_VER_DIST`` parameter).
+
+Upload and download go through MAVSDK's ``mission_raw`` plugin (the
+MISSION_COUNT / MISSION_REQUEST_INT / MISSION_ITEM_INT / MISSION_ACK
+transactions with their retries); :func:`compare_items` checks a read-back
+item by item, field by field, at the wire's precision (float32 params).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, fields
+from enum import Enum, IntEnum
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from mavsdk.plugins.mission_raw import MissionItem as MavsdkMissionItem
+from mavsdk.plugins.mission_raw import MissionRawResult
+
+from mavlink.errors import MissionError, MissionResult
+from planner.frames import GeodeticPoint, enu_to_geodetic, yaw_enu_to_ned
+from planner.trajectory import Trajectory
+
+if TYPE_CHECKING:
+    from mavlink.fleet import Vehicle
+    from planner.stl.ast import Formula
+
+
+class Cmd(IntEnum):
+    """MAV_CMD values used here."""
+
+    NAV_WAYPOINT = 16
+    NAV_RETURN_TO_LAUNCH = 20
+    NAV_LAND = 21
+    NAV_TAKEOFF = 22
+    DO_CHANGE_SPEED = 178
+    NAV_FENCE_POLYGON_VERTEX_INCLUSION = 5001
+    NAV_FENCE_POLYGON_VERTEX_EXCLUSION = 5002
+
+
+class Frame(IntEnum):
+    """MAV_FRAME values used here."""
+
+    MISSION = 2
+    GLOBAL_INT = 5
+    GLOBAL_RELATIVE_ALT_INT = 6
+
+
+class MissionType(IntEnum):
+    """MAV_MISSION_TYPE."""
+
+    MISSION = 0
+    FENCE = 1
+    RALLY = 2
+
+
+class MissionEnd(Enum):
+    """What the mission ends with."""
+
+    LAND = "land"
+    RETURN = "return"
+    HOLD = "hold"  # no item: PX4 holds at the last waypoint
+
+
+@dataclass(frozen=True, slots=True)
+class MissionItem:
+    """One MISSION_ITEM_INT (lat/lon in degE7, altitude in metres, AMSL in GLOBAL_INT)."""
+
+    seq: int
+    frame: int
+    command: int
+    current: int
+    autocontinue: int
+    param1: float
+    param2: float
+    param3: float
+    param4: float
+    x: int
+    y: int
+    z: float
+    mission_type: int
+
+    def to_mavsdk(self) -> MavsdkMissionItem:
+        """The MAVSDK ``mission_raw.MissionItem``."""
+        return MavsdkMissionItem(**{f.name: getattr(self, f.name) for f in fields(self)})
+
+    @classmethod
+    def from_mavsdk(cls, item: Any) -> MissionItem:
+        """From a MAVSDK ``mission_raw.MissionItem``."""
+        return cls(**{f.name: getattr(item, f.name) for f in fields(cls)})
+
+
+#: Fields compared on read-back (``current`` is the vehicle's, not ours).
+COMPARED_FIELDS = tuple(f.name for f in fields(MissionItem) if f.name != "current")
+_FLOAT_FIELDS = frozenset({"param1", "param2", "param3", "param4", "z"})
+
+
+def _same_value(name: str, a: float, b: float) -> bool:
+    if name in _FLOAT_FIELDS:
+        fa, fb = np.float32(a), np.float32(b)
+        return bool(fa == fb or (np.isnan(fa) and np.isnan(fb)))
+    return int(a) == int(b)
+
+
+def compare_items(sent: Sequence[MissionItem], back: Sequence[MissionItem]) -> list[str]:
+    """Differences between two item lists, one line per differing field (empty: identical).
+
+    Floats are compared at float32 precision (what MISSION_ITEM_INT carries),
+    NaN equal to NaN; ``current`` is ignored.
+    """
+    out: list[str] = []
+    if len(sent) != len(back):
+        out.append(f"{len(sent)} items sent, {len(back)} read back")
+    for i, (a, b) in enumerate(zip(sent, back, strict=False)):
+        for name in COMPARED_FIELDS:
+            va, vb = getattr(a, name), getattr(b, name)
+            if not _same_value(name, va, vb):
+                out.append(f"item {i}: {name} sent {va!r}, read back {vb!r}")
+    return out
+
+
+# --------------------------------------------------------------------------
+# The piecewise-linear path a mission flies
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class PiecewiseLinearPath:
+    """Straight legs at constant speed with holds: position linear between knots.
+
+    Attributes:
+        knots_t_s: ``(m,)`` non-decreasing times from the plan's start.
+        knots_enu_m: ``(m, 3)`` mission-frame positions at those times.
+    """
+
+    knots_t_s: np.ndarray
+    knots_enu_m: np.ndarray
+
+    @property
+    def duration_s(self) -> float:
+        """Time of the last knot."""
+        return float(self.knots_t_s[-1])
+
+    def position(self, t_s: np.ndarray) -> np.ndarray:
+        """``(n, 3)`` positions at times ``t_s`` ``(n,)`` (held before/after the knots)."""
+        t = np.atleast_1d(np.asarray(t_s, dtype=float))
+        return np.column_stack(
+            [np.interp(t, self.knots_t_s, self.knots_enu_m[:, a]) for a in range(3)]
+        )
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class MissionPlan:
+    """A vehicle's mission and what it means in the mission frame.
+
+    Attributes:
+        name: vehicle name.
+        items: the MISSION items, ``seq`` 0..n-1.
+        waypoints_enu_m: ``(k, 3)`` the NAV_WAYPOINT positions (the first is the start).
+        arrival_t_s: ``(k,)`` planned arrival time at each waypoint.
+        hold_s: ``(k,)`` hold time at each waypoint.
+        leg_speed_m_s: ``(k-1,)`` commanded speed of each leg.
+        path: the piecewise-linear path the mission flies.
+    """
+
+    name: str
+    items: tuple[MissionItem, ...]
+    waypoints_enu_m: np.ndarray
+    arrival_t_s: np.ndarray
+    hold_s: np.ndarray
+    leg_speed_m_s: np.ndarray
+    path: PiecewiseLinearPath
+
+
+def _e7(deg: float) -> int:
+    return round(deg * 1e7)
+
+
+def trajectory_to_mission(
+    trajectory: Trajectory,
+    origin: GeodeticPoint,
+    *,
+    acceptance_radius_m: float = 0.3,
+    hover_speed_m_s: float = 0.05,
+    end: MissionEnd = MissionEnd.LAND,
+    name: str | None = None,
+) -> MissionPlan:
+    """Convert one mission-frame trajectory into PX4 mission items (module docstring).
+
+    Args:
+        trajectory: the vehicle's planned trajectory (mission ENU frame).
+        origin: geodetic origin of the mission frame.
+        acceptance_radius_m: NAV_WAYPOINT acceptance radius (param2), > 0.
+        hover_speed_m_s: segments slower than this everywhere are hovers.
+        end: land, return to launch, or hold at the last waypoint.
+        name: vehicle name (default the trajectory's).
+
+    Raises:
+        MissionError: ``INVALID_ITEM`` for a non-positive acceptance radius.
+    """
+    vname = name if name is not None else trajectory.name
+    if not (math.isfinite(acceptance_radius_m) and acceptance_radius_m > 0):
+        raise MissionError(
+            MissionResult.INVALID_ITEM,
+            "trajectory_to_mission",
+            f"acceptance_radius_m must be > 0, got {acceptance_radius_m!r}",
+            vehicle=vname,
+        )
+    t0 = np.asarray(trajectory.segment_t0_s, dtype=float)
+    dur = np.asarray(trajectory.segment_duration_s, dtype=float)
+    bounds = np.append(t0, t0[-1] + dur[-1])
+    pts = trajectory.position(bounds)
+    # Peak speed per segment on a dense grid (21 points per segment).
+    u = np.linspace(0.0, 1.0, 21)
+    dense_t = (t0[:, None] + dur[:, None] * u[None, :]).ravel()
+    speed = np.linalg.norm(trajectory.velocity(dense_t), axis=1).reshape(t0.size, u.size)
+    moving = speed.max(axis=1) >= hover_speed_m_s
+    lengths = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    moving &= lengths >= acceptance_radius_m
+
+    waypoints = [pts[0]]
+    arrival = [0.0]
+    hold = [0.0]
+    leg_speed: list[float] = []
+    leg_index: list[int] = []
+    for s in range(t0.size):
+        if moving[s]:
+            waypoints.append(pts[s + 1])
+            arrival.append(float(bounds[s + 1]))
+            hold.append(0.0)
+            leg_speed.append(float(lengths[s] / dur[s]))
+            leg_index.append(s)
+        else:
+            hold[-1] += float(dur[s])
+    wp = np.asarray(waypoints)
+    lat, lon, alt = enu_to_geodetic(wp, origin)
+    yaw_deg = np.degrees(
+        np.asarray(yaw_enu_to_ned(trajectory.yaw_rad(np.asarray(arrival))), dtype=float)
+    )
+
+    items: list[MissionItem] = []
+
+    def add(
+        command: int,
+        frame: int,
+        p1: float,
+        p2: float,
+        p3: float,
+        p4: float,
+        x: int,
+        y: int,
+        z: float,
+    ) -> None:
+        items.append(
+            MissionItem(
+                seq=len(items),
+                frame=frame,
+                command=command,
+                current=1 if not items else 0,  # MAVSDK requires item 0 to be current
+                autocontinue=1,
+                param1=p1,
+                param2=p2,
+                param3=p3,
+                param4=p4,
+                x=x,
+                y=y,
+                z=z,
+                mission_type=MissionType.MISSION,
+            )
+        )
+
+    g = Frame.GLOBAL_INT
+    add(
+        Cmd.NAV_TAKEOFF,
+        g,
+        0.0,
+        0.0,
+        0.0,
+        float(yaw_deg[0]),
+        _e7(lat[0]),
+        _e7(lon[0]),
+        float(alt[0]),
+    )
+    add(
+        Cmd.NAV_WAYPOINT,
+        g,
+        hold[0],
+        acceptance_radius_m,
+        0.0,
+        float(yaw_deg[0]),
+        _e7(lat[0]),
+        _e7(lon[0]),
+        float(alt[0]),
+    )
+    for j in range(1, wp.shape[0]):
+        add(Cmd.DO_CHANGE_SPEED, Frame.MISSION, 1.0, leg_speed[j - 1], -1.0, 0.0, 0, 0, 0.0)
+        add(
+            Cmd.NAV_WAYPOINT,
+            g,
+            hold[j],
+            acceptance_radius_m,
+            0.0,
+            float(yaw_deg[j]),
+            _e7(lat[j]),
+            _e7(lon[j]),
+            float(alt[j]),
+        )
+    if end is MissionEnd.LAND:
+        add(
+            Cmd.NAV_LAND, g, 0.0, 0.0, 0.0, float("nan"), _e7(lat[-1]), _e7(lon[-1]), float(alt[-1])
+        )
+    elif end is MissionEnd.RETURN:
+        add(Cmd.NAV_RETURN_TO_LAUNCH, Frame.MISSION, 0.0, 0.0, 0.0, 0.0, 0, 0, 0.0)
+
+    # Knots: arrive at each waypoint at its planned time, hold, leave.
+    kt: list[float] = []
+    kp: list[np.ndarray] = []
+    for j in range(wp.shape[0]):
+        kt += [arrival[j], arrival[j] + hold[j]]
+        kp += [wp[j], wp[j]]
+    path = PiecewiseLinearPath(np.asarray(kt), np.asarray(kp))
+    return MissionPlan(
+        name=vname,
+        items=tuple(items),
+        waypoints_enu_m=wp,
+        arrival_t_s=np.asarray(arrival),
+        hold_s=np.asarray(hold),
+        leg_speed_m_s=np.asarray(leg_speed),
+        path=path,
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class PathDeviation:
+    """How far a mission's straight-leg path strays from the planned trajectory.
+
+    Attributes:
+        max_m: largest distance between the two at the same time.
+        rms_m: root-mean-square distance.
+        t_at_max_s: when the largest distance occurs.
+    """
+
+    max_m: float
+    rms_m: float
+    t_at_max_s: float
+
+
+def path_deviation(
+    trajectory: Trajectory, path: PiecewiseLinearPath, dt_s: float = 0.01
+) -> PathDeviation:
+    """Distance between ``path`` and ``trajectory`` at equal times, sampled every ``dt_s``."""
+    t_end = max(trajectory.duration_s, path.duration_s)
+    t = np.linspace(0.0, t_end, math.ceil(t_end / dt_s) + 1)
+    d = np.linalg.norm(path.position(t) - trajectory.position(t), axis=1)
+    i = int(np.argmax(d))
+    return PathDeviation(float(d[i]), float(np.sqrt(np.mean(d**2))), float(t[i]))
+
+
+def path_robustness(
+    spec: Formula, paths: Mapping[str, PiecewiseLinearPath], dt_s: float, horizon_s: float
+) -> float:
+    """Exact STL robustness of the vehicles flying ``paths`` (signals: name -> ``(n, 3)`` ENU).
+
+    Sampled at ``t = 0, dt, ..., horizon`` (paths hold their last point beyond their end).
+    """
+    n = math.floor(horizon_s / dt_s + 1e-9) + 1
+    t = np.arange(n) * dt_s
+    signals = {name: p.position(t) for name, p in paths.items()}
+    return float(spec.robustness(signals, dt_s))
+
+
+# --------------------------------------------------------------------------
+# Geofence
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class FenceBox:
+    """An axis-aligned box of the mission frame, as a fence polygon (its footprint).
+
+    Attributes:
+        name: region name (for messages).
+        lo_enu_m, hi_enu_m: corners (only x/y are used: PX4 fences are 2-D).
+        inclusion: True for the workspace (stay inside), False for a no-fly zone.
+    """
+
+    name: str
+    lo_enu_m: tuple[float, float, float]
+    hi_enu_m: tuple[float, float, float]
+    inclusion: bool
+
+
+def geofence_items(boxes: Sequence[FenceBox], origin: GeodeticPoint) -> tuple[MissionItem, ...]:
+    """FENCE items: one 4-vertex polygon per box (counter-clockwise from the south-west corner)."""
+    items: list[MissionItem] = []
+    for box in boxes:
+        (x0, y0, _), (x1, y1, _) = box.lo_enu_m, box.hi_enu_m
+        corners = np.array([[x0, y0, 0.0], [x1, y0, 0.0], [x1, y1, 0.0], [x0, y1, 0.0]])
+        lat, lon, _alt = enu_to_geodetic(corners, origin)
+        cmd = (
+            Cmd.NAV_FENCE_POLYGON_VERTEX_INCLUSION
+            if box.inclusion
+            else Cmd.NAV_FENCE_POLYGON_VERTEX_EXCLUSION
+        )
+        for k in range(4):
+            items.append(
+                MissionItem(
+                    seq=len(items),
+                    frame=Frame.GLOBAL_INT,
+                    command=cmd,
+                    current=1 if not items else 0,
+                    autocontinue=1,
+                    param1=4.0,  # vertex count of this polygon
+                    param2=0.0,  # inclusion group
+                    param3=0.0,
+                    param4=0.0,
+                    x=_e7(lat[k]),
+                    y=_e7(lon[k]),
+                    z=0.0,
+                    mission_type=MissionType.FENCE,
+                )
+            )
+    return tuple(items)
+
+
+# --------------------------------------------------------------------------
+# Transfers
+# --------------------------------------------------------------------------
+
+
+def _raise_for(result: Any, origin: str, v: Vehicle) -> None:
+    if result != MissionRawResult.SUCCESS:
+        name = getattr(result, "name", str(result))
+        kind = (
+            MissionResult.TOO_MANY_ITEMS
+            if result == MissionRawResult.TOO_MANY_MISSION_ITEMS
+            else MissionResult.TRANSFER_FAILED
+        )
+        raise MissionError(kind, origin, mavsdk_result=name, vehicle=v.name, url=v.url)
+
+
+async def upload(
+    v: Vehicle, items: Sequence[MissionItem], mission_type: MissionType = MissionType.MISSION
+) -> None:
+    """Upload a MISSION or FENCE plan with MAVSDK mission_raw (replacing the vehicle's)."""
+    from mavlink.fleet import mavsdk_call
+
+    raw = [i.to_mavsdk() for i in items]
+    if mission_type is MissionType.MISSION:
+        origin, start = "upload_mission", v.mission_raw.upload_mission_async
+    elif mission_type is MissionType.FENCE:
+        origin, start = "upload_geofence", v.mission_raw.upload_geofence_async
+    else:
+        origin, start = "upload_rally_points", v.mission_raw.upload_rally_points_async
+    try:
+        result = await mavsdk_call(start, raw, timeout_s=60.0)
+    except TimeoutError:
+        result = "TIMEOUT"
+    _raise_for(result, origin, v)
+
+
+async def download(
+    v: Vehicle, mission_type: MissionType = MissionType.MISSION
+) -> tuple[MissionItem, ...]:
+    """Download the vehicle's MISSION, FENCE or RALLY plan."""
+    from mavlink.fleet import mavsdk_call
+
+    if mission_type is MissionType.MISSION:
+        origin, start = "download_mission", v.mission_raw.download_mission_async
+    elif mission_type is MissionType.FENCE:
+        origin, start = "download_geofence", v.mission_raw.download_geofence_async
+    else:
+        origin, start = "download_rallypoints", v.mission_raw.download_rallypoints_async
+    try:
+        result, raw = await mavsdk_call(start, timeout_s=60.0)
+    except TimeoutError:
+        result, raw = "TIMEOUT", None
+    _raise_for(result, origin, v)
+    return tuple(MissionItem.from_mavsdk(r) for r in raw)
+
+
+@dataclass(frozen=True, slots=True)
+class TransferReport:
+    """Timing of one upload + read-back + comparison."""
+
+    vehicle: str
+    items: int
+    upload_s: float
+    download_s: float
+
+
+async def upload_and_verify(
+    v: Vehicle, items: Sequence[MissionItem], mission_type: MissionType = MissionType.MISSION
+) -> TransferReport:
+    """Upload, download back and compare item by item (``download_s`` includes the comparison).
+
+    Raises:
+        MissionError: ``MISMATCH`` naming the first differing items and fields,
+            or the transfer's own failure.
+    """
+    t0 = time.perf_counter()
+    await upload(v, items, mission_type)
+    t1 = time.perf_counter()
+    await verify(v, items, mission_type)
+    t2 = time.perf_counter()
+    return TransferReport(v.name, len(items), t1 - t0, t2 - t1)
+
+
+async def verify(
+    v: Vehicle, items: Sequence[MissionItem], mission_type: MissionType = MissionType.MISSION
+) -> None:
+    """Download the vehicle's plan and require it to equal ``items`` (:func:`compare_items`).
+
+    Raises:
+        MissionError: ``MISMATCH`` naming the first three differences.
+    """
+    back = await download(v, mission_type)
+    diffs = compare_items(items, back)
+    if diffs:
+        more = f" (+{len(diffs) - 3} more)" if len(diffs) > 3 else ""
+        raise MissionError(
+            MissionResult.MISMATCH,
+            f"verify_{mission_type.name.lower()}",
+            "; ".join(diffs[:3]) + more,
+            vehicle=v.name,
+            url=v.url,
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class MissionRun:
+    """What a vehicle reported while flying its mission.
+
+    Attributes:
+        vehicle: name.
+        reached: ``(seq, t_s)`` for each MISSION_ITEM_REACHED, seconds from the start command.
+        finished: the vehicle reported the mission finished in time.
+        duration_s: time from the start command to the end (or the timeout).
+    """
+
+    vehicle: str
+    reached: tuple[tuple[int, float], ...]
+    finished: bool
+    duration_s: float
+
+
+async def fly_missions(
+    vehicles: Sequence[Vehicle], *, timeout_s: float, poll_s: float = 0.1
+) -> dict[str, MissionRun]:
+    """Arm, start the uploaded missions together and follow them until finished or timeout.
+
+    Progress comes from MISSION_ITEM_REACHED (via MAVSDK mavlink_direct) and
+    MAVSDK's ``is_mission_finished`` (MISSION_CURRENT).
+    """
+    import json
+
+    from mavlink.fleet import mavsdk_call
+
+    reached: dict[str, list[tuple[int, float]]] = {v.name: [] for v in vehicles}
+    handles = []
+    t_start = time.monotonic()
+    for v in vehicles:
+
+        def on_reached(msg: Any, _ud: Any, name: str = v.name) -> None:
+            seq = int(json.loads(msg.fields_json)["seq"])
+            reached[name].append((seq, time.monotonic() - t_start))
+
+        handles.append((v, v.direct.subscribe_message("MISSION_ITEM_REACHED", on_reached)))
+    try:
+        await asyncio.gather(*(v.arm() for v in vehicles))
+        t_start = time.monotonic()
+        for v in vehicles:
+            result = await mavsdk_call(v.mission_raw.start_mission_async)
+            _raise_for(result, "start_mission", v)
+        done: dict[str, float] = {}
+        while len(done) < len(vehicles) and time.monotonic() - t_start < timeout_s:
+            await asyncio.sleep(poll_s)
+            for v in vehicles:
+                if v.name not in done and v.mission_raw.is_mission_finished():
+                    done[v.name] = time.monotonic() - t_start
+    finally:
+        for v, h in handles:
+            v.direct.unsubscribe_message(h)
+    now = time.monotonic() - t_start
+    return {
+        v.name: MissionRun(
+            vehicle=v.name,
+            reached=tuple(reached[v.name]),
+            finished=v.name in done,
+            duration_s=done.get(v.name, now),
+        )
+        for v in vehicles
+    }

@@ -1,0 +1,189 @@
+"""Trajectories as PX4 missions: conversion (pure), and upload / read-back / flight on the mock."""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import math
+
+import numpy as np
+import pymap3d
+import pytest
+
+from mavlink.errors import MissionError, MissionResult
+from mavlink.mission import (
+    Cmd,
+    FenceBox,
+    Frame,
+    MissionEnd,
+    MissionItem,
+    MissionType,
+    compare_items,
+    fly_missions,
+    geofence_items,
+    path_deviation,
+    path_robustness,
+    trajectory_to_mission,
+    upload,
+    upload_and_verify,
+    verify,
+)
+from planner.frames import GeodeticPoint
+from planner.trajectory import Trajectory
+from tests.mavlink.linkutil import mock_and_fleet, scenario, spec_formula, stored_plan
+
+ORIGIN = GeodeticPoint(47.397742, 8.545594, 488.0)
+
+
+def min_jerk(waypoints: list[tuple[float, float, float]], seg_s: float) -> Trajectory:
+    """Rest-to-rest quintic between consecutive waypoints (a repeated waypoint is a hover)."""
+    w = np.asarray(waypoints, dtype=float)
+    n = len(w) - 1
+    c = np.zeros((n, 3, 6))
+    for s in range(n):
+        d = w[s + 1] - w[s]
+        c[s, :, 0] = w[s]
+        c[s, :, 3] = 10 * d / seg_s**3
+        c[s, :, 4] = -15 * d / seg_s**4
+        c[s, :, 5] = 6 * d / seg_s**5
+    return Trajectory(np.arange(n) * seg_s, np.full(n, seg_s), c, name="d1")
+
+
+def e7(lat_lon_alt: tuple[float, float, float]) -> tuple[int, int, float]:
+    return round(lat_lon_alt[0] * 1e7), round(lat_lon_alt[1] * 1e7), lat_lon_alt[2]
+
+
+def test_mission_items_follow_the_trajectory_legs_hovers_and_speeds() -> None:
+    # 1 s segments: hover 2 s, leg east 3 m in 1 s, hover 2 s, leg north 4 m in 1 s, land.
+    wps = [(0, 0, 2), (0, 0, 2), (0, 0, 2), (3, 0, 2), (3, 0, 2), (3, 0, 2), (3, 4, 2)]
+    traj = min_jerk(wps, 1.0)
+    mp = trajectory_to_mission(traj, ORIGIN, acceptance_radius_m=0.25, end=MissionEnd.LAND)
+    cmds = [i.command for i in mp.items]
+    assert cmds == [
+        Cmd.NAV_TAKEOFF,
+        Cmd.NAV_WAYPOINT,
+        Cmd.DO_CHANGE_SPEED,
+        Cmd.NAV_WAYPOINT,
+        Cmd.DO_CHANGE_SPEED,
+        Cmd.NAV_WAYPOINT,
+        Cmd.NAV_LAND,
+    ]
+    assert [i.seq for i in mp.items] == list(range(7))
+    wp_items = [i for i in mp.items if i.command == Cmd.NAV_WAYPOINT]
+    assert [i.param1 for i in wp_items] == [2.0, 2.0, 0.0]  # hold times where the plan hovers
+    assert all(i.param2 == 0.25 for i in wp_items)  # acceptance radius
+    speeds = [i.param2 for i in mp.items if i.command == Cmd.DO_CHANGE_SPEED]
+    assert speeds == pytest.approx([3.0, 4.0])  # chord length / leg duration
+    # Positions: pymap3d's geodetic of the ENU waypoints (independent of the module's path).
+    for item, (x, y, z) in zip(wp_items, [(0, 0, 2), (3, 0, 2), (3, 4, 2)], strict=True):
+        lat, lon, alt = pymap3d.enu2geodetic(x, y, z, ORIGIN.lat_deg, ORIGIN.lon_deg, ORIGIN.alt_m)
+        assert (item.x, item.y) == e7((lat, lon, alt))[:2]
+        assert item.z == pytest.approx(alt, abs=1e-6)
+        assert item.frame == Frame.GLOBAL_INT
+    assert math.isnan(mp.items[-1].param4)
+    # The straight-leg path meets the plan at every waypoint at the planned time ...
+    np.testing.assert_allclose(mp.arrival_t_s, [0.0, 3.0, 6.0])
+    for t, p in (
+        (0.0, (0, 0, 2)),
+        (2.0, (0, 0, 2)),
+        (3.0, (3, 0, 2)),
+        (5.0, (3, 0, 2)),
+        (6.0, (3, 4, 2)),
+    ):
+        np.testing.assert_allclose(mp.path.position(np.array([t]))[0], p, atol=1e-12)
+    # ... and in between deviates as a min-jerk leg does from a constant-speed one:
+    # max |s(u) - u| for s = 10u^3 - 15u^4 + 6u^5 over a 4 m leg.
+    u = np.linspace(0, 1, 100001)
+    ref = 4.0 * np.max(np.abs(10 * u**3 - 15 * u**4 + 6 * u**5 - u))
+    dev = path_deviation(traj, mp.path, dt_s=0.001)
+    assert dev.max_m == pytest.approx(ref, rel=1e-3)
+    assert 5.0 < dev.t_at_max_s < 6.0
+
+
+def test_mission_end_options_and_bad_radius() -> None:
+    traj = min_jerk([(0, 0, 2), (2, 0, 2)], 2.0)
+    rtl = trajectory_to_mission(traj, ORIGIN, end=MissionEnd.RETURN)
+    assert rtl.items[-1].command == Cmd.NAV_RETURN_TO_LAUNCH
+    hold = trajectory_to_mission(traj, ORIGIN, end=MissionEnd.HOLD)
+    assert hold.items[-1].command == Cmd.NAV_WAYPOINT
+    with pytest.raises(MissionError) as info:
+        trajectory_to_mission(traj, ORIGIN, acceptance_radius_m=0.0)
+    assert info.value.result is MissionResult.INVALID_ITEM and "acceptance_radius_m" in str(
+        info.value
+    )
+
+
+def test_compare_items_works_at_wire_precision() -> None:
+    a = trajectory_to_mission(min_jerk([(0, 0, 2), (2, 1, 2)], 2.0), ORIGIN).items
+    same = [dataclasses.replace(i, param2=float(np.float32(i.param2)), current=1) for i in a]
+    assert compare_items(a, same) == []  # float32 rounding and `current` are not differences
+    moved = list(a)
+    moved[1] = dataclasses.replace(a[1], x=a[1].x + 1)
+    assert compare_items(a, moved) == [f"item 1: x sent {a[1].x}, read back {a[1].x + 1}"]
+    assert compare_items(a, a[:-1])[0] == f"{len(a)} items sent, {len(a) - 1} read back"
+
+
+def test_mission_path_of_the_stored_plan_keeps_its_robustness_close() -> None:
+    plan, problem = stored_plan(2), scenario(2)
+    spec = spec_formula(problem)
+    paths = {v.name: trajectory_to_mission(v.trajectory, plan.origin).path for v in plan.vehicles}
+    dt, horizon = problem.timing.check_dt_s, problem.timing.horizon_s
+    rho = path_robustness(spec, paths, dt, horizon)
+    t = np.arange(round(horizon / dt) + 1) * dt
+    rho_plan = spec.robustness({v.name: v.trajectory.position(t) for v in plan.vehicles}, dt)
+    worst = max(path_deviation(v.trajectory, paths[v.name]).max_m for v in plan.vehicles)
+    # Every predicate is 1-Lipschitz in each vehicle's position (box margins, distances), so
+    # moving each vehicle by at most `worst` changes the robustness by at most 2 * worst
+    # (dist(a, b) moves with both vehicles).
+    assert rho_plan - 2 * worst - 1e-9 <= rho <= rho_plan + 2 * worst + 1e-9
+
+
+def test_upload_read_back_identical_then_fly_the_mission_on_the_mock() -> None:
+    plan = stored_plan(2)
+    v1 = plan.vehicles[0]
+    mp = trajectory_to_mission(v1.trajectory, plan.origin, acceptance_radius_m=0.3)
+    ws = plan.workspace
+    fence = geofence_items(
+        [
+            FenceBox(ws.name, ws.lo_enu_m, ws.hi_enu_m, inclusion=True),
+            *(
+                FenceBox(r.name, r.lo_enu_m, r.hi_enu_m, inclusion=False)
+                for r in plan.regions
+                if r.kind.value == "obstacle"
+            ),
+        ],
+        plan.origin,
+    )
+    spawn = (v1.start_enu_m[0], v1.start_enu_m[1], 0.0)
+
+    async def run():
+        async with mock_and_fleet(["d1"], plan.origin, [spawn]) as (mock, fleet):
+            v = fleet["d1"]
+            report = await upload_and_verify(v, mp.items)
+            fence_report = await upload_and_verify(v, fence, MissionType.FENCE)
+            stored = mock.vehicles[0].mission_items(0)
+            stored_fence = mock.vehicles[0].mission_items(1)
+            # A different upload replaces it; the read-back then reports the mismatch.
+            changed = list(mp.items)
+            changed[3] = dataclasses.replace(changed[3], param1=9.0)
+            await upload(v, changed)
+            with pytest.raises(MissionError) as info:
+                await verify(v, mp.items)
+            await upload(v, mp.items)
+            runs = await fly_missions([v], timeout_s=40.0)
+            return report, fence_report, stored, stored_fence, info.value, runs
+
+    report, fence_report, stored, stored_fence, mismatch, runs = asyncio.run(run())
+    assert report.items == len(mp.items) and fence_report.items == 8
+    # The vehicle's own copy (the mock's storage, not MAVSDK's download) equals what we sent.
+    assert compare_items(mp.items, [MissionItem(**dataclasses.asdict(i)) for i in stored]) == []
+    assert compare_items(fence, [MissionItem(**dataclasses.asdict(i)) for i in stored_fence]) == []
+    assert mismatch.result is MissionResult.MISMATCH and mismatch.origin == "verify_mission"
+    assert "item 3: param1 sent 2.0, read back 9.0" in str(mismatch) or "item 3: param1" in str(
+        mismatch
+    )
+    run = runs["d1"]
+    assert run.finished
+    wp_seqs = [i.seq for i in mp.items if i.command == Cmd.NAV_WAYPOINT]
+    reached = [seq for seq, _ in run.reached]
+    assert [s for s in reached if s in wp_seqs] == wp_seqs  # every waypoint, in order
