@@ -1,0 +1,54 @@
+"""``gcs plot PLAN.json [-o FILE.png|.html] [--telemetry LOG]``: draw a plan.
+
+One figure: the regions and paths in 3-D, the robustness of every top-level clause over
+time, per-axis velocity and acceleration against the limits, and flown over planned when
+telemetry is given (see :mod:`gcs.plot`). ``.html`` output embeds the PNG and adds a table of
+clause robustness.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+HELP = "draw a plan: 3-D regions and paths, clause robustness over time, speed/acceleration"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``gcs plot``."""
+    p.add_argument("plan", help="plan file written by gcs plan")
+    p.add_argument(
+        "-o",
+        "--output",
+        help="picture to write, .png or .html (default: the plan's name with .png)",
+    )
+    p.add_argument(
+        "--telemetry",
+        metavar="LOG",
+        help="flown telemetry to draw over the plan: CSV (t,vehicle,x,y,z or the link's track "
+        "CSV) or .tlog (with --t0)",
+    )
+    p.add_argument(
+        "--t0",
+        type=float,
+        metavar="UNIX_S",
+        help="for a .tlog: Unix time (s) of the plan's start (t = 0)",
+    )
+    p.add_argument("--dt", type=float, help="sample step in s (default: the plan's check step)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Draw; 0 when the picture is written."""
+    from gcs.plot import load_telemetry, plot_plan
+    from planner.planfile import load_plan
+
+    plan = load_plan(args.plan)
+    telemetry = load_telemetry(args.telemetry, plan, args.t0) if args.telemetry else None
+    output = args.output or str(Path(args.plan).with_suffix(".png"))
+    result = plot_plan(plan, output, telemetry, args.dt)
+    worst = min(result.traces, key=lambda c: c.robustness)
+    print(
+        f"wrote {result.path} ({len(result.traces)} clauses; "
+        f"weakest {worst.robustness:+.4f}: {' '.join(worst.text.split())[:80]})"
+    )
+    return 0
