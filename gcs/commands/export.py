@@ -1,0 +1,77 @@
+"""``gcs export PLAN.json --format qgc|csv|json [-o DIR|FILE]``: files for other tools.
+
+* ``qgc``: one QGroundControl ``.plan`` per vehicle (the mission items ``gcs upload`` sends,
+  and the geofence), written to a directory (default: beside the plan file);
+* ``csv``: setpoints ``t,vehicle,x,y,z,vx,vy,vz,ax,ay,az,yaw`` (mission ENU, SI units);
+* ``json``: the same setpoints as JSON.
+
+See :mod:`gcs.export` for the exact layouts.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+HELP = "export a plan: QGroundControl .plan files, setpoint CSV or JSON"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``gcs export``."""
+    p.add_argument("plan", help="plan file written by gcs plan")
+    p.add_argument("--format", help="qgc (QGroundControl .plan per vehicle), csv or json")
+    p.add_argument(
+        "-o",
+        "--output",
+        help="directory for qgc, file for csv/json (default: beside the plan file)",
+    )
+    p.add_argument(
+        "--rate", type=float, default=None, help="setpoint rate in Hz for csv/json (default 20)"
+    )
+    p.add_argument(
+        "--acceptance-radius",
+        type=float,
+        default=None,
+        metavar="M",
+        help="qgc: waypoint acceptance radius in m (default: as gcs upload, 0.3)",
+    )
+    p.add_argument(
+        "--end",
+        default=None,
+        help="qgc: what the mission ends with: land (default), return or hold",
+    )
+    p.add_argument("--no-fence", action="store_true", help="qgc: leave the geofence out")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Export; 0 when the files are written."""
+    from gcs.errors import UserError
+    from gcs.export import DEFAULT_RATE_HZ, ExportFormat, QgcOptions, write_export
+    from planner.planfile import load_plan
+
+    fmt = ExportFormat.parse(args.format)
+    qgc: QgcOptions | None = None
+    if fmt is ExportFormat.QGC:
+        from mavlink.mission import MissionEnd
+
+        end = None
+        if args.end is not None:
+            try:
+                end = MissionEnd(args.end.lower())
+            except ValueError:
+                raise UserError(
+                    f"--end: unknown {args.end!r} (choose land, return or hold)"
+                ) from None
+        radius = 0.3 if args.acceptance_radius is None else args.acceptance_radius
+        if not radius > 0:
+            raise UserError(f"--acceptance-radius: must be > 0 m, got {radius!r}")
+        qgc = QgcOptions(acceptance_radius_m=radius, end=end, fence=not args.no_fence)
+    elif args.end is not None or args.acceptance_radius is not None or args.no_fence:
+        raise UserError("--end, --acceptance-radius and --no-fence apply to --format qgc only")
+    if fmt is ExportFormat.QGC and args.rate is not None:
+        raise UserError("--rate applies to --format csv and json only")
+    plan = load_plan(args.plan)
+    rate = DEFAULT_RATE_HZ if args.rate is None else args.rate
+    paths = write_export(plan, args.plan, fmt, args.output, rate_hz=rate, qgc=qgc)
+    for p in paths:
+        print(f"wrote {p}")
+    return 0
