@@ -284,8 +284,9 @@ def vehicle_table(fleet: MockFleet) -> list[dict[str, Any]]:
     return rows
 
 
-async def serve(fleet: MockFleet, duration_s: float | None, out: Any = sys.stdout, as_json: bool = False) -> dict[str, Any]:  # fmt: skip
+async def serve(fleet: MockFleet, duration_s: float | None, out: Any = None, as_json: bool = False) -> dict[str, Any]:  # fmt: skip
     """Run ``fleet`` until SIGINT/SIGTERM or ``duration_s``; return a summary."""
+    out = sys.stdout if out is None else out
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     installed = []

@@ -1,0 +1,172 @@
+"""``gcs mock``: options, errors, real vehicles on the requested ports, clean Ctrl-C."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+from pymavlink.dialects.v20 import common as mavlink2
+
+from gcs.cli import main
+from mavlink.mock.testing import free_udp_port
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def bound_block(n: int) -> tuple[int, list[socket.socket]]:
+    """``n`` consecutive UDP ports bound on loopback (the GCS side), and their sockets."""
+    for _ in range(50):
+        base = free_udp_port()
+        socks: list[socket.socket] = []
+        try:
+            for i in range(n):
+                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                socks.append(s)
+                s.bind(("127.0.0.1", base + i))
+        except OSError:
+            for s in socks:
+                s.close()
+            continue
+        return base, socks
+    raise RuntimeError("no block of free UDP ports")
+
+
+def free_block(n: int) -> int:
+    base, socks = bound_block(n)
+    for s in socks:
+        s.close()
+    return base
+
+
+def first_heartbeat(
+    sock: socket.socket, timeout_s: float = 5.0
+) -> mavlink2.MAVLink_heartbeat_message:
+    mav = mavlink2.MAVLink(None)
+    sock.settimeout(timeout_s)
+    while True:
+        data, _ = sock.recvfrom(65535)
+        for msg in mav.parse_buffer(data) or []:
+            if msg.get_type() == "HEARTBEAT":
+                return msg
+
+
+@pytest.mark.parametrize(
+    ("argv", "needle"),
+    [
+        (["--origin", "1,2"], "--origin"),
+        (["--origin", "95,8,400"], "lat_deg"),
+        (["-n", "2", "--spawn", "0,0,0"], "--spawn"),
+        (["--spawn", "0,x,0"], "--spawn"),
+        (["--loss-in", "1.5"], "loss_to_vehicle"),
+        (["--param", "NOT_A_PARAM=1"], "NOT_A_PARAM"),
+        (["--param", "MPC_XY_VEL_MAX"], "NAME=VALUE"),
+        (["--fault-vehicles", "3", "--loss-in", "0.1"], "--fault-vehicles"),
+        (["--outage", "5"], "START:END"),
+        (["--scenario", "does/not/exist.yaml"], "exist.yaml"),
+    ],
+)
+def test_bad_options_are_one_line_errors_with_status_2(argv, needle, capsys) -> None:  # type: ignore[no-untyped-def]
+    assert main(["mock", *argv, "--duration", "0.1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("gcs mock: error:") and needle in err and "\n" not in err
+
+
+def test_port_in_use_is_a_user_error(capsys) -> None:  # type: ignore[no-untyped-def]
+    vbase, socks = bound_block(1)
+    try:
+        rc = main(["mock", "--vehicle-base-port", str(vbase), "--base-port", str(free_block(1)), "--duration", "0.1"])  # fmt: skip
+    finally:
+        for s in socks:
+            s.close()
+    assert rc == 2
+    assert f"127.0.0.1:{vbase}" in capsys.readouterr().err
+
+
+def test_vehicles_run_on_px4_style_ports_with_spawns(capsys) -> None:  # type: ignore[no-untyped-def]
+    gbase, gcs = bound_block(2)
+    vbase = free_block(2)
+    argv = ["mock", "-n", "2", "--base-port", str(gbase), "--vehicle-base-port", str(vbase)]
+    argv += ["--spawn", "0,0,0", "--spawn", "5,-3,0", "--origin", "46.5,7.25,600", "--json"]
+    argv += ["--duration", "1.5", "--loss-out", "0.2", "--fault-vehicles", "1", "--seed", "3"]
+    result: dict[str, int] = {}
+    runner = threading.Thread(target=lambda: result.setdefault("rc", main(argv)))
+    runner.start()
+    try:
+        beats = [first_heartbeat(s) for s in gcs]
+    finally:
+        runner.join()
+        for s in gcs:
+            s.close()
+    assert result["rc"] == 0
+    assert [b.get_srcSystem() for b in beats] == [1, 2]
+    assert all(b.autopilot == mavlink2.MAV_AUTOPILOT_PX4 for b in beats)
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines() if x.startswith("{")]
+    table, summary = lines[0]["vehicles"], lines[1]["summary"]
+    assert [r["listen"] for r in table] == [f"127.0.0.1:{vbase}", f"127.0.0.1:{vbase + 1}"]
+    assert [r["gcs"] for r in table] == [f"127.0.0.1:{gbase}", f"127.0.0.1:{gbase + 1}"]
+    assert table[1]["spawn_enu_m"] == [5.0, -3.0, 0.0]
+    assert table[0]["origin"] == pytest.approx({"lat": 46.5, "lon": 7.25, "alt": 600.0}, abs=1e-6)
+    assert table[1]["origin"]["lon"] > 7.25 and table[1]["origin"]["lat"] < 46.5
+    assert summary["sim_time_s"] >= 1.0
+
+
+def test_scenario_gives_origin_and_starts(capsys) -> None:  # type: ignore[no-untyped-def]
+    from planner.scenario import load_scenario
+
+    path = REPO / "configs" / "reach_avoid.yaml"
+    problem = load_scenario(path)
+    gbase = free_block(len(problem.vehicles))
+    vbase = free_block(len(problem.vehicles))
+    argv = ["mock", "--scenario", str(path), "--base-port", str(gbase)]
+    argv += ["--vehicle-base-port", str(vbase), "--duration", "0.2", "--json"]
+    assert main(argv) == 0
+    table = json.loads(capsys.readouterr().out.splitlines()[0])["vehicles"]
+    assert [r["spawn_enu_m"] for r in table] == [list(v.start_enu_m) for v in problem.vehicles]
+    import pymap3d
+
+    o = problem.origin
+    for row, v in zip(table, problem.vehicles, strict=True):
+        lat, lon, alt = pymap3d.enu2geodetic(*v.start_enu_m, o.lat_deg, o.lon_deg, o.alt_m)
+        assert row["origin"] == pytest.approx({"lat": lat, "lon": lon, "alt": alt}, abs=1e-6)
+
+
+def test_ctrl_c_stops_cleanly() -> None:
+    gbase, vbase = free_block(1), free_block(1)
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "gcs.cli",
+            "mock",
+            "--base-port",
+            str(gbase),
+            "--vehicle-base-port",
+            str(vbase),
+        ],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            if "Ctrl-C to stop" in line:
+                break
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    assert "stopped after" in out and "Traceback" not in err
