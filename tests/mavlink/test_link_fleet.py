@@ -1,0 +1,156 @@
+"""Fleet connection and status against the mock, cross-checked with MAVSDK's own decoding."""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+
+import numpy as np
+import pytest
+from mavsdk.plugins.telemetry import FlightMode
+
+from mavlink.errors import ConnectTimeoutError, LinkError, UrlError
+from mavlink.fleet import Fleet, VehicleSpec, default_specs
+from mavlink.mock.fleet import MockFleet
+from mavlink.px4_modes import Px4Mode
+from planner.frames import GeodeticPoint
+from tests.mavlink.linkutil import free_udp_ports, mock_and_fleet
+
+ORIGIN = GeodeticPoint(47.397742, 8.545594, 488.0)
+
+#: MAVSDK's independent decoding of PX4 modes, for the ones these tests visit.
+MAVSDK_MODE = {
+    FlightMode.HOLD: Px4Mode.AUTO_LOITER,
+    FlightMode.TAKEOFF: Px4Mode.AUTO_TAKEOFF,
+    FlightMode.LAND: Px4Mode.AUTO_LAND,
+    FlightMode.OFFBOARD: Px4Mode.OFFBOARD,
+    FlightMode.MISSION: Px4Mode.AUTO_MISSION,
+}
+
+
+def test_default_specs_follow_the_px4_sitl_convention() -> None:
+    specs = default_specs(["a", "b", "c"], urls=[None, "udpin://0.0.0.0:15000", None])
+    assert [(s.name, s.url, s.sysid) for s in specs] == [
+        ("a", "udpin://0.0.0.0:14540", 1),
+        ("b", "udpin://0.0.0.0:15000", 2),
+        ("c", "udpin://0.0.0.0:14542", 3),
+    ]
+
+
+def test_bad_specs_are_refused_before_opening_anything() -> None:
+    with pytest.raises(UrlError, match=r"^vehicle d2: bad connection URL 'udp://x:1'"):
+        Fleet([VehicleSpec("d1", "udpin://0.0.0.0:1", 1), VehicleSpec("d2", "udp://x:1", 2)])
+    with pytest.raises(LinkError, match="system id 1 used by more than one vehicle"):
+        Fleet(
+            [VehicleSpec("d1", "udpin://0.0.0.0:1", 1), VehicleSpec("d2", "udpin://0.0.0.0:2", 1)]
+        )
+    with pytest.raises(LinkError, match="duplicate vehicle names: d1"):
+        Fleet(
+            [VehicleSpec("d1", "udpin://0.0.0.0:1", 1), VehicleSpec("d1", "udpin://0.0.0.0:2", 2)]
+        )
+
+
+def test_missing_vehicle_is_one_error_naming_it_its_url_and_what_was_seen() -> None:
+    ports = free_udp_ports(3)
+
+    async def run() -> ConnectTimeoutError:
+        async with MockFleet(n=1, origin=ORIGIN, gcs_ports=ports[:1], vehicle_ports=ports[2:]):
+            fleet = Fleet(
+                [
+                    VehicleSpec("d1", f"udpin://127.0.0.1:{ports[0]}", 1),
+                    VehicleSpec("d2", f"udpin://127.0.0.1:{ports[1]}", 2),
+                ],
+                connect_timeout_s=1.5,
+            )
+            with pytest.raises(ConnectTimeoutError) as info:
+                await fleet.connect()
+            return info.value
+
+    err = asyncio.run(run())
+    assert err.vehicle == "d2" and err.url == f"udpin://127.0.0.1:{ports[1]}"
+    assert str(err) == (
+        f"vehicle d2 (udpin://127.0.0.1:{ports[1]}): no heartbeat from system id 2 within 1.5 s "
+        "(systems seen: 1)"
+    )
+
+
+def test_a_port_in_use_is_a_link_error_naming_the_vehicle() -> None:
+    busy = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    busy.bind(("127.0.0.1", 0))
+    port = busy.getsockname()[1]
+    try:
+        fleet = Fleet([VehicleSpec("d1", f"udpin://127.0.0.1:{port}", 1)], connect_timeout_s=1.0)
+        with pytest.raises(LinkError, match=r"^vehicle d1 \(udpin://127.0.0.1:\d+\): cannot open"):
+            asyncio.run(fleet.connect())
+    finally:
+        busy.close()
+
+
+def test_status_matches_the_vehicle_and_mavsdks_own_mode_decoding() -> None:
+    spawns = [(0.0, 0.0, 0.0), (3.0, -2.0, 0.0)]
+
+    async def run():
+        async with mock_and_fleet(["d1", "d2"], ORIGIN, spawns) as (mock, fleet):
+            theirs: list[FlightMode] = []
+            ours: list[Px4Mode | None] = []
+            v = fleet["d2"]
+            done = asyncio.Event()
+
+            async def poll() -> None:
+                while not done.is_set():
+                    ours.append(v.status().mode)
+                    await asyncio.sleep(0.01)
+
+            def on_mode(mode: FlightMode, _ud: object) -> None:
+                theirs.append(mode)
+
+            poller = asyncio.create_task(poll())
+            handle = v.telemetry.subscribe_flight_mode(on_mode)
+            await fleet.for_each(
+                lambda x: x.wait_for(lambda s: s.home is not None, "home", timeout_s=5)
+            )
+            first = fleet.statuses()
+            truth = [x.state for x in mock.vehicles]
+            origins = [x.origin_lla for x in mock.vehicles]
+            await v.arm()
+            await v.takeoff_to(ORIGIN.alt_m + 2.0)
+            await v.wait_for(lambda s: s.mode is Px4Mode.AUTO_TAKEOFF, "takeoff", timeout_s=5)
+            await v.wait_for(
+                lambda s: s.mode is Px4Mode.AUTO_LOITER and s.relative_alt_m > 1.8,
+                "hover at 2 m",
+                timeout_s=15,
+            )
+            await v.land()
+            await v.wait_for(lambda s: s.mode is Px4Mode.AUTO_LAND, "land", timeout_s=5)
+            await asyncio.sleep(1.2)
+            v.telemetry.unsubscribe_flight_mode(handle)
+            done.set()
+            await poller
+            return first, truth, origins, ours, theirs
+
+    first, truth, origins, ours, theirs = asyncio.run(run())
+    for st, tr, org in zip(first, truth, origins, strict=True):
+        assert st.connected and st.armed is False
+        assert st.mode is not None and st.mode.value == tr.mode.value  # the mock's (main, sub)
+        np.testing.assert_allclose(st.pos_ned_m, tr.pos_ned_m, atol=0.1)  # telemetry noise
+        o = st.origin
+        assert o is not None  # GPS_GLOBAL_ORIGIN: degE7 and millimetres on the wire
+        assert (o.lat_deg, o.lon_deg) == pytest.approx(org[:2], abs=1.5e-7)
+        assert o.alt_m == pytest.approx(org[2], abs=2e-3)
+        assert st.home is not None and st.position is not None
+        assert st.battery_remaining == pytest.approx(1.0, abs=0.05)
+    # d2's origin is its spawn point, 3 m east and 2 m south of the mission origin.
+    assert first[1].origin.lon_deg > ORIGIN.lon_deg and first[1].origin.lat_deg < ORIGIN.lat_deg
+
+    # Our decoding of HEARTBEAT.custom_mode went through the same modes as MAVSDK's own.
+    def changes(seq: list) -> list:
+        return [m for i, m in enumerate(seq) if i == 0 or m != seq[i - 1]]
+
+    mavsdk_seq = changes([MAVSDK_MODE[m] for m in theirs])  # MAVSDK reports changes only
+    assert len(mavsdk_seq) >= 3 and changes(ours)[-len(mavsdk_seq) :] == mavsdk_seq
+    assert changes(ours) == [
+        Px4Mode.AUTO_LOITER,
+        Px4Mode.AUTO_TAKEOFF,
+        Px4Mode.AUTO_LOITER,
+        Px4Mode.AUTO_LAND,
+    ]
