@@ -1,0 +1,299 @@
+"""``gcs plot``: the clause curves against brute-force robustness, the picture, the HTML page,
+flown telemetry and bad input.
+
+References: the robustness curves are checked against plain numpy formulas of the predicates
+(Euclidean distance, Chebyshev box margins) on positions from the closed-form quintic, and the
+clause values against the min/max of those over the clause's window.
+"""
+
+from __future__ import annotations
+
+import base64
+import csv
+import re
+import struct
+from pathlib import Path
+
+import numpy as np
+import pymap3d
+import pytest
+from matplotlib.image import imread
+from pymavlink.dialects.v20 import common as mavlink2
+
+from gcs import cli
+from gcs.plot import clause_traces, load_telemetry, plot_plan, render_figure
+from planner.planfile import load_plan
+from tests.gcs.test_export_support import (
+    D1,
+    D2,
+    quintic_position,
+    reach_avoid_plan,
+    write_plan,
+)
+
+DT = 0.01
+T = np.arange(601) * DT
+
+
+def _inside(p: np.ndarray, lo: tuple, hi: tuple) -> np.ndarray:
+    """Chebyshev margin to a box, positive inside (reference for ``inside``)."""
+    return np.minimum(p - np.asarray(lo), np.asarray(hi) - p).min(axis=1)
+
+
+def _outside(p: np.ndarray, lo: tuple, hi: tuple) -> np.ndarray:
+    return np.maximum(np.asarray(lo) - p, p - np.asarray(hi)).max(axis=1)
+
+
+P1 = quintic_position(*D1, T)
+P2 = quintic_position(*D2, T)
+GOAL = ((1.5, 1.5, 0.5), (2.0, 2.0, 1.0))
+OBSTACLE = ((-1.0, -1.0, 0.0), (1.0, 1.0, 1.5))
+WORKSPACE = ((-2.0, -2.0, 0.0), (2.0, 2.0, 2.0))
+
+
+def test_clause_curves_match_brute_force_predicates_and_clause_values() -> None:
+    plan = reach_avoid_plan()
+    traces = {tr.text: tr for tr in clause_traces(plan)}
+    assert len(traces) == 5
+
+    dist = traces["always[0,6] (dist(d1, d2) >= 0.2)"]
+    ref = np.linalg.norm(P1 - P2, axis=1) - 0.2
+    assert dist.shown == "body" and dist.operator == "always"
+    np.testing.assert_allclose(dist.t_s, T, atol=1e-12)
+    np.testing.assert_allclose(dist.rho, ref, atol=1e-9)
+    assert dist.robustness == pytest.approx(ref.min(), abs=1e-9)
+    assert dist.witness_t_s == pytest.approx(T[np.argmin(ref)])
+
+    goal = traces["eventually[0,6] inside(d1, goal)"]
+    ref = _inside(P1, *GOAL)
+    assert goal.operator == "eventually"
+    np.testing.assert_allclose(goal.rho, ref, atol=1e-9)
+    assert goal.robustness == pytest.approx(ref.max(), abs=1e-9)
+
+    avoid = traces["always[0,6] (outside(d2, obstacle) and inside(d2, workspace))"]
+    ref = np.minimum(_outside(P2, *OBSTACLE), _inside(P2, *WORKSPACE))
+    np.testing.assert_allclose(avoid.rho, ref, atol=1e-9)
+    assert avoid.robustness == pytest.approx(ref.min(), abs=1e-9)
+    # Without telemetry there is nothing flown.
+    assert all(tr.flown_rho is None and tr.flown_robustness is None for tr in traces.values())
+
+
+def test_until_clause_is_drawn_as_its_own_trace_over_the_steps_its_horizon_allows() -> None:
+    spec = "(not inside(d1, goal)) until[0,3] (always[0,1] inside(d1, goal))"
+    (tr,) = clause_traces(reach_avoid_plan(spec))
+    # Horizon 3 + 1 s: the trace exists for t in [0, 2] s.
+    assert tr.shown == "clause" and tr.operator == "" and tr.window_s is None
+    assert tr.t_s.size == 601 - 400
+    # Reference: brute force of the until definition (DESIGN.md section 4) at a few steps.
+    phi = _inside(P1, *GOAL)
+    hold = np.array([phi[k : k + 101].min() for k in range(501)])  # always[0,1]
+    for t in (0, 50, 137, 200):
+        best = -np.inf
+        for tp in range(t, t + 301):
+            before = np.inf if tp == t else (-phi[t:tp]).min()
+            best = max(best, min(hold[tp], before))
+        assert tr.rho[t] == pytest.approx(best, abs=1e-9)
+    assert tr.robustness == tr.rho[0]
+
+
+def test_plot_png_is_written_with_all_panels(tmp_path: Path) -> None:
+    plan_path = write_plan(tmp_path / "ra.json")
+    out = tmp_path / "pic.png"
+    assert cli.main(["plot", str(plan_path), "-o", str(out)]) == 0
+    img = imread(out)
+    assert img.shape[:2] == (1250, 1600)
+    # The picture is not blank: many distinct colours (boxes, paths, curves).
+    assert len(np.unique(img.reshape(-1, img.shape[2]), axis=0)) > 200
+
+    plan = load_plan(plan_path)
+    fig = render_figure(plan, clause_traces(plan))
+    titles = [ax.get_title() for ax in fig.axes]
+    assert any("Regions and paths" in t for t in titles)
+    assert any("Clause robustness over time" in t for t in titles)
+    for axis in ("east x", "north y", "up z"):
+        assert any(t.startswith(f"velocity {axis}") and "m/s" in t for t in titles)
+        assert any(t.startswith(f"acceleration {axis}") and "m/s²" in t for t in titles)
+    ax3 = next(ax for ax in fig.axes if ax.name == "3d")
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    boxes = [c for c in ax3.collections if isinstance(c, Poly3DCollection)]
+    assert len(boxes) == len(plan.regions)
+    labels = {t.get_text() for t in ax3.get_legend().get_texts()}
+    assert {"d1", "d2", "workspace", "start", "end", "pole", "conductor corridor"} <= labels
+    # The velocity panels carry the per-axis limits as dashed lines at +-v_max.
+    vx = next(ax for ax in fig.axes if ax.get_title().startswith("velocity east x"))
+    levels = {round(ln.get_ydata()[0], 6) for ln in vx.get_lines() if ln.get_linestyle() == "--"}
+    assert levels == {3.5, -3.5}
+
+
+def test_html_embeds_the_png_and_tabulates_clause_robustness(tmp_path: Path) -> None:
+    plan_path = write_plan(tmp_path / "ra.json")
+    out = tmp_path / "report.html"
+    assert cli.main(["plot", str(plan_path), "-o", str(out)]) == 0
+    page = out.read_text()
+    m = re.search(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"', page)
+    assert m is not None
+    png = base64.b64decode(m.group(1))
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    rows = re.findall(r"<tr><td class='num'>([^<]+)</td><td>([^<]+)</td><td><code>([^<]+)", page)
+    traces = clause_traces(load_plan(plan_path))
+    assert len(rows) == len(traces)
+    by_text = {tr.text: tr for tr in traces}
+    for value, verdict, text in rows:
+        tr = by_text[text.replace("&gt;", ">")]
+        assert float(value) == pytest.approx(tr.robustness, abs=5e-5)
+        assert verdict == ("ok" if tr.robustness >= 0.01 else "below epsilon")
+    # Weakest first.
+    values = [float(v) for v, _, _ in rows]
+    assert values == sorted(values)
+
+
+def _write_telemetry(path: Path, tracks: dict[str, np.ndarray], t: np.ndarray) -> Path:
+    with path.open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["t", "vehicle", "x", "y", "z", "mode"])
+        # Interleaved and reversed rows: the reader must sort by time per vehicle.
+        for k in reversed(range(t.size)):
+            for name, p in tracks.items():
+                w.writerow([repr(float(t[k])), name, *map(repr, p[k].tolist()), "OFFBOARD"])
+    return path
+
+
+def test_flown_curves_follow_the_telemetry(tmp_path: Path) -> None:
+    plan = reach_avoid_plan()
+    shift = np.array([0.0, 0.1, 0.0])
+    # d2 flew 0.1 m north of its plan, sampled every 0.02 s (a grid point every other step).
+    t_tel = np.arange(301) * 0.02
+    tel_path = _write_telemetry(
+        tmp_path / "flown.csv",
+        {"d1": quintic_position(*D1, t_tel), "d2": quintic_position(*D2, t_tel) + shift},
+        t_tel,
+    )
+    telemetry = load_telemetry(tel_path)
+    traces = {tr.text: tr for tr in clause_traces(plan, telemetry)}
+    # At the telemetry samples the flown curve is exact; between them it is interpolated.
+    dist = traces["always[0,6] (dist(d1, d2) >= 0.2)"]
+    ref = np.linalg.norm(P1 - (P2 + shift), axis=1) - 0.2
+    assert dist.flown_rho is not None
+    np.testing.assert_allclose(dist.flown_rho[::2], ref[::2], atol=1e-9)
+    assert dist.flown_robustness == pytest.approx(ref.min(), abs=2e-3)
+    goal = traces["eventually[0,6] inside(d2, goal)"]
+    ref_goal = _inside(P2 + shift, *GOAL)
+    assert goal.flown_robustness == pytest.approx(ref_goal.max(), abs=1e-9)
+    assert goal.flown_robustness < goal.robustness  # pushed towards the goal's north face
+    # d1 flew exactly as planned.
+    d1 = traces["eventually[0,6] inside(d1, goal)"]
+    assert d1.flown_robustness == pytest.approx(d1.robustness, abs=1e-9)
+
+    out = tmp_path / "flown.html"
+    plot_plan(plan, out, telemetry)
+    page = out.read_text()
+    assert "flown ρ" in page and "flown.csv" in page and "d2: 0.00-6.00 s (301 samples)" in page
+
+
+def test_telemetry_without_a_vehicle_leaves_its_clauses_unflown(tmp_path: Path) -> None:
+    t = np.arange(61) * 0.1
+    tel = load_telemetry(_write_telemetry(tmp_path / "d1.csv", {"d1": quintic_position(*D1, t)}, t))
+    traces = {tr.text: tr for tr in clause_traces(reach_avoid_plan(), tel)}
+    assert traces["eventually[0,6] inside(d1, goal)"].flown_robustness is not None
+    assert traces["eventually[0,6] inside(d2, goal)"].flown_robustness is None
+    assert traces["always[0,6] (dist(d1, d2) >= 0.2)"].flown_rho is None
+
+
+def test_links_track_csv_layout_is_read(tmp_path: Path) -> None:
+    path = tmp_path / "tracks.csv"
+    path.write_text(
+        "vehicle,t_s,x_enu_m,y_enu_m,z_enu_m,vx_enu_m_s,vy_enu_m_s,vz_enu_m_s,north_m,east_m,down_m\n"
+        "d1,0.5,1.0,2.0,3.0,0,0,0,2.0,1.0,-3.0\n"
+        "d1,0.0,0.0,0.0,1.0,0,0,0,0.0,0.0,-1.0\n"
+    )
+    tel = load_telemetry(path)
+    np.testing.assert_array_equal(tel.vehicles["d1"].t_s, [0.0, 0.5])
+    np.testing.assert_array_equal(tel.vehicles["d1"].pos_enu_m, [[0, 0, 1], [1, 2, 3]])
+
+
+@pytest.mark.parametrize(
+    ("content", "args", "message"),
+    [
+        (None, [], r"no\.json: cannot read"),
+        ("{not json", [], r"bad\.json: line 1, column 2: not JSON"),
+        ('{"format": "other"}', [], r"bad\.json: format: expected 'stl-gcs-plan'"),
+        ("PLAN", ["-o", "pic.jpg"], r"pic\.jpg: output must end in \.png or \.html"),
+        ("PLAN", ["--telemetry", "t.csv"], r"t\.csv: line 1: missing column\(s\) z"),
+        ("PLAN", ["--telemetry", "n.csv"], r"n\.csv: line 3: column x: not a number: 'abc'"),
+        ("PLAN", ["--telemetry", "f.tlog"], r"f\.tlog: a \.tlog does not record"),
+        ("PLAN", ["--dt", "-1"], r"--dt: must be a positive number"),
+    ],
+)
+def test_bad_input_exits_2_with_one_line(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    content: str | None,
+    args: list[str],
+    message: str,
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "t.csv").write_text("t,vehicle,x,y\n0,d1,0,0\n")
+    (tmp_path / "n.csv").write_text("t,vehicle,x,y,z\n0,d1,0,0,1\n0.1,d1,abc,0,1\n")
+    if content is None:
+        plan = "no.json"
+    elif content == "PLAN":
+        plan = str(write_plan(tmp_path / "ok.json"))
+    else:
+        plan = "bad.json"
+        (tmp_path / plan).write_text(content)
+    assert cli.main(["plot", plan, *args]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    assert err.startswith("gcs plot: error: ")
+    assert re.search(message, err), err
+
+
+def _write_tlog(path: Path, t0_unix_s: float, vehicle_origin: tuple[float, float, float]) -> None:
+    """A .tlog as QGC/MAVProxy write it: 8-byte big-endian microseconds + MAVLink packet."""
+    # The origin as the wire carries it (degE7, mm), so the reference uses the same point.
+    lat, lon, alt = (
+        round(vehicle_origin[0] * 1e7) / 1e7,
+        round(vehicle_origin[1] * 1e7) / 1e7,
+        round(vehicle_origin[2] * 1e3) / 1e3,
+    )
+    with path.open("wb") as f:
+        for sysid, (wps, durs) in ((1, D1), (2, D2)):
+            mav = mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=1)
+            origin = mavlink2.MAVLink_gps_global_origin_message(
+                round(lat * 1e7), round(lon * 1e7), round(alt * 1e3), 0
+            )
+            f.write(struct.pack(">Q", round(t0_unix_s * 1e6)) + origin.pack(mav))
+            t = np.arange(61) * 0.1
+            enu = quintic_position(wps, durs, t)
+            # Local NED of the vehicle's own origin, computed with pymap3d directly.
+            g = pymap3d.enu2geodetic(enu[:, 0], enu[:, 1], enu[:, 2], 47.397742, 8.545594, 488.0)
+            e, n, u = pymap3d.geodetic2enu(*g, lat, lon, alt)
+            for k in range(t.size):
+                msg = mavlink2.MAVLink_local_position_ned_message(
+                    int(t[k] * 1000), n[k], e[k], -u[k], 0.0, 0.0, 0.0
+                )
+                f.write(struct.pack(">Q", round((t0_unix_s + t[k]) * 1e6)) + msg.pack(mav))
+
+
+def test_tlog_telemetry_is_read_in_the_mission_frame_from_the_vehicles_own_origins(
+    tmp_path: Path,
+) -> None:
+    t0 = 1_700_000_000.0
+    tlog = tmp_path / "flight.tlog"
+    # Vehicles spawned 30 m east and 2 m higher than the mission origin.
+    _write_tlog(tlog, t0, (47.397742, 8.545594 + 30 / 75_300.0, 490.0))
+    plan_path = write_plan(tmp_path / "ra.json")
+    plan = load_plan(plan_path)
+    tel = load_telemetry(tlog, plan, t0)
+    t = np.arange(61) * 0.1
+    for name, (wps, durs) in (("d1", D1), ("d2", D2)):
+        path = tel.vehicles[name]
+        np.testing.assert_allclose(path.t_s, t, atol=1e-6)
+        # float32 NED on the wire (30 m east: resolution ~2e-6 m).
+        np.testing.assert_allclose(path.pos_enu_m, quintic_position(wps, durs, t), atol=1e-5)
+    out = tmp_path / "flown.png"
+    args = ["plot", str(plan_path), "-o", str(out), "--telemetry", str(tlog), "--t0", str(t0)]
+    assert cli.main(args) == 0
+    assert imread(out).shape[:2] == (1250, 1600)
