@@ -155,9 +155,11 @@ def _compose_prefix(low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.n
     even_l, even_h = low[0::2], high[0::2]
     odd_l, odd_h = low[1::2], high[1::2]
     pairs = m // 2
-    # e_{2i+1} o e_{2i}
-    pair_l = np.minimum(np.maximum(even_l[:pairs], odd_l), odd_h)
-    pair_h = np.minimum(np.maximum(even_h[:pairs], odd_l), odd_h)
+    # e_{2i+1} o e_{2i}  (in place: fewer temporaries on the 10^6-sample path)
+    pair_l = np.maximum(even_l[:pairs], odd_l)
+    np.minimum(pair_l, odd_h, out=pair_l)
+    pair_h = np.maximum(even_h[:pairs], odd_l)
+    np.minimum(pair_h, odd_h, out=pair_h)
     pre_l, pre_h = _compose_prefix(pair_l, pair_h)
     out_l = np.empty(m)
     out_h = np.empty(m)
@@ -167,8 +169,10 @@ def _compose_prefix(low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.n
     out_h[0] = high[0]
     n_even = even_l.shape[0]
     # e_{2i} o (e_{2i-1} o ... o e_0), i >= 1
-    out_l[2::2] = np.minimum(np.maximum(pre_l[: n_even - 1], even_l[1:]), even_h[1:])
-    out_h[2::2] = np.minimum(np.maximum(pre_h[: n_even - 1], even_l[1:]), even_h[1:])
+    for out, pre in ((out_l, pre_l), (out_h, pre_h)):
+        target = out[2::2]
+        np.maximum(pre[: n_even - 1], even_l[1:], out=target)
+        np.minimum(target, even_h[1:], out=target)
     return out_l, out_h
 
 
