@@ -26,6 +26,18 @@ def free_udp_port(host: str = "127.0.0.1") -> int:
         return int(s.getsockname()[1])
 
 
+def free_udp_ports(n: int, host: str = "127.0.0.1") -> list[int]:
+    """``n`` distinct UDP ports that were free a moment ago (all bound at once, then released)."""
+    socks = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(n)]
+    try:
+        for s in socks:
+            s.bind((host, 0))
+        return [int(s.getsockname()[1]) for s in socks]
+    finally:
+        for s in socks:
+            s.close()
+
+
 class GcsEndpoint:
     """A GCS socket bound on ``127.0.0.1:<free port>`` talking to ``vehicle_port``.
 

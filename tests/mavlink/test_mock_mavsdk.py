@@ -15,7 +15,7 @@ from mavsdk.asyncio.plugins.offboard import OffboardAsync, PositionNedYaw
 from mavsdk.asyncio.plugins.telemetry import LandedState, TelemetryAsync
 
 from mavlink.mock import MockFleet, Px4Mode
-from mavlink.mock.testing import free_udp_port
+from mavlink.mock.testing import free_udp_ports
 
 T = TypeVar("T")
 FAST_LANDING = {"MPC_LAND_SPEED": 1.5, "COM_DISARM_LAND": 0.5}
@@ -130,7 +130,7 @@ async def fly(system: System, fleet: MockFleet, index: int, target_ned: tuple[fl
 
 
 def test_mavsdk_uploads_mission_arms_takes_off_flies_offboard_and_lands() -> None:
-    gcs_port, vehicle_port = free_udp_port(), free_udp_port()
+    gcs_port, vehicle_port = free_udp_ports(2)
 
     async def main() -> None:
         fleet = MockFleet(
@@ -149,8 +149,8 @@ def test_mavsdk_uploads_mission_arms_takes_off_flies_offboard_and_lands() -> Non
 
 def test_mavsdk_flies_four_vehicles_on_their_own_ports() -> None:
     n = 4
-    gcs_ports = [free_udp_port() for _ in range(n)]
-    vehicle_ports = [free_udp_port() for _ in range(n)]
+    ports = free_udp_ports(2 * n)
+    gcs_ports, vehicle_ports = ports[:n], ports[n:]
 
     async def main() -> None:
         fleet = MockFleet(

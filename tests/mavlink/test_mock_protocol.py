@@ -15,7 +15,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from mavlink.mock import FaultConfig, MockFleet, Outage, Px4Mode
 from mavlink.mock.mission import FENCE, MISSION, RALLY
 from mavlink.mock.px4 import PARAM_SPECS, ParamType, decode_param_value, encode_param_value
-from mavlink.mock.testing import GcsEndpoint, free_udp_port
+from mavlink.mock.testing import GcsEndpoint, free_udp_ports
 
 ORIGIN = (47.397742, 8.545594, 488.0)
 
@@ -23,7 +23,7 @@ ORIGIN = (47.397742, 8.545594, 488.0)
 @contextmanager
 def mock_vehicles(n: int = 1, **kwargs: object) -> Iterator[tuple[MockFleet, list[GcsEndpoint]]]:
     """``n`` vehicles on free ports, each with its own pymavlink GCS endpoint."""
-    vports = [free_udp_port() for _ in range(n)]
+    vports = free_udp_ports(n)
     gcs = [GcsEndpoint(vports[i], target_system=i + 1) for i in range(n)]
     kwargs.setdefault("ready_after_s", 0.0)
     fleet = MockFleet(

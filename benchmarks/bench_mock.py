@@ -1,0 +1,173 @@
+"""Figures of the mock PX4 fleet (mavlink.mock).
+
+1. Real-time capacity: N vehicles in this one process, pinned to one CPU core,
+   telemetry at the default rates (LOCAL_POSITION_NED and ATTITUDE 50 Hz, ...),
+   physics at 100 Hz, each vehicle sending to a bound (never read) GCS socket.
+   For growing N it reports the real-time factor (simulated s / wall s), the CPU
+   share of the core, and the datagrams sent per second; the capacity is the
+   largest N whose real-time factor stays >= 0.99 with the simulation less than
+   0.1 s behind its wall-clock deadlines at the end.
+2. Mission upload: 200 MISSION_ITEM_INT from MAVSDK (mission_raw) to one mock
+   vehicle over loopback, and the download back; median and best of repeats.
+
+Prints a table, then one JSON line.  Usage::
+
+    .venv/bin/python benchmarks/bench_mock.py [--seconds 4] [--max-vehicles 254]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import socket
+import statistics
+import time
+
+from mavlink.mock import MockFleet
+from mavlink.mock.testing import free_udp_ports
+
+
+def _sinks(n: int) -> tuple[list[int], list[socket.socket]]:
+    socks = []
+    for _ in range(n):
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        s.bind(("127.0.0.1", 0))
+        socks.append(s)
+    return [s.getsockname()[1] for s in socks], socks
+
+
+async def _run_fleet(n: int, seconds: float) -> dict[str, float]:
+    gcs_ports, socks = _sinks(n)
+    vehicle_ports = free_udp_ports(n)
+    try:
+        fleet = MockFleet(n=n, gcs_ports=gcs_ports, vehicle_ports=vehicle_ports, seed=1)
+        async with fleet:
+            await asyncio.sleep(0.5)  # warm-up
+            sim0, wall0, cpu0 = fleet.time_s, time.perf_counter(), time.process_time()
+            sent0 = sum(v.downlink.stats.offered for v in fleet.vehicles)
+            await asyncio.sleep(seconds)
+            sim1, wall1, cpu1 = fleet.time_s, time.perf_counter(), time.process_time()
+            lag_s = fleet.wall_elapsed_s - fleet.time_s
+            sent1 = sum(v.downlink.stats.offered for v in fleet.vehicles)
+    finally:
+        for s in socks:
+            s.close()
+    wall = wall1 - wall0
+    return {
+        "vehicles": n,
+        "rtf": (sim1 - sim0) / wall,
+        "cpu_share": (cpu1 - cpu0) / wall,
+        "msgs_per_s": (sent1 - sent0) / wall,
+        "lag_s": lag_s,
+    }
+
+
+async def _upload(repeats: int, n_items: int) -> dict[str, float]:
+    from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
+    from mavsdk.asyncio.plugins.mission_raw import MissionItem, MissionRawAsync
+
+    gcs_port, vehicle_port = free_udp_ports(2)
+    items = [
+        MissionItem(
+            seq,
+            6,
+            16,
+            int(seq == 0),
+            1,
+            0.0,
+            0.0,
+            0.0,
+            float("nan"),
+            473977420 + 50 * seq,
+            85455940 + 70 * seq,
+            10.0 + 0.01 * seq,
+            0,
+        )
+        for seq in range(n_items)
+    ]
+    up, down = [], []
+    async with MockFleet(n=1, gcs_ports=[gcs_port], vehicle_ports=[vehicle_port]):
+        config = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
+        async with Mavsdk(config) as sdk:
+            await sdk.add_any_connection(f"udpin://127.0.0.1:{gcs_port}")
+            system = await sdk.first_autopilot(timeout_s=10.0)
+            if system is None:
+                raise RuntimeError("MAVSDK did not discover the mock vehicle")
+            mission = MissionRawAsync(system)
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                await mission.upload_mission(items)
+                up.append(time.perf_counter() - t0)
+                t0 = time.perf_counter()
+                back = await mission.download_mission()
+                down.append(time.perf_counter() - t0)
+                if len(back) != n_items:
+                    raise RuntimeError(f"downloaded {len(back)} items, expected {n_items}")
+    return {
+        "items": n_items,
+        "upload_median_s": statistics.median(up),
+        "upload_best_s": min(up),
+        "download_median_s": statistics.median(down),
+        "download_best_s": min(down),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=4.0, help="measuring time per fleet size")
+    ap.add_argument("--max-vehicles", type=int, default=254)
+    ap.add_argument("--repeats", type=int, default=5, help="mission uploads to time")
+    ap.add_argument("--items", type=int, default=200)
+    args = ap.parse_args()
+    try:
+        core = min(os.sched_getaffinity(0))
+        os.sched_setaffinity(0, {core})
+        pinned = f"core {core}"
+    except (AttributeError, OSError):
+        pinned = "not pinned"
+
+    sizes = [1, 4, 8, 16, 24, 32, 48, 64, 96, 128, 160, 192, 254]
+    rows = []
+    capacity = 0
+    print(f"Mock fleet in one process ({pinned}), physics 100 Hz, default telemetry rates")
+    print(f"{'vehicles':>8} {'RTF':>7} {'lag s':>7} {'CPU':>6} {'msgs/s':>9}")
+    for n in sizes:
+        if n > args.max_vehicles:
+            break
+        row = asyncio.run(_run_fleet(n, args.seconds))
+        rows.append(row)
+        print(
+            f"{n:>8} {row['rtf']:>7.3f} {row['lag_s']:>7.3f} {row['cpu_share']:>6.0%} "
+            f"{row['msgs_per_s']:>9.0f}"
+        )
+        # real time: the window kept pace and the simulation is not behind its deadlines
+        if row["rtf"] >= 0.99 and row["lag_s"] < 0.1:
+            capacity = n
+        else:
+            break
+    print(f"real-time capacity: {capacity} vehicles (largest N with RTF >= 0.99, lag < 0.1 s)")
+
+    up = asyncio.run(_upload(args.repeats, args.items))
+    print(
+        f"MAVSDK mission_raw {up['items']} items: upload median {up['upload_median_s'] * 1e3:.0f} ms "
+        f"(best {up['upload_best_s'] * 1e3:.0f} ms), download median "
+        f"{up['download_median_s'] * 1e3:.0f} ms (best {up['download_best_s'] * 1e3:.0f} ms)"
+    )
+    print(
+        json.dumps(
+            {
+                "bench": "mock",
+                "pinned": pinned,
+                "realtime_capacity_vehicles": capacity,
+                "rows": [{k: round(v, 4) for k, v in r.items()} for r in rows],
+                "mission": {k: round(v, 4) for k, v in up.items()},
+            }
+        )
+    )
+
+
+if __name__ == "__main__":
+    main()
