@@ -202,13 +202,11 @@ def until_trace(p: np.ndarray, q: np.ndarray, ta: int, tb: int) -> np.ndarray:
     length = m - tb
     if length <= 0:
         return np.empty(0)
-    if ta == 0:
-        before = np.full(length, np.inf)
-    else:
-        before = window_extreme(p, 0, ta - 1, minimum=True)[:length]
     reach = window_extreme(q[ta:], 0, tb - ta, minimum=False)[:length]
-    unbounded = until_unbounded(p, q)[ta : ta + length]
-    return np.minimum(np.minimum(before, reach), unbounded)
+    result = np.minimum(reach, until_unbounded(p, q)[ta : ta + length])
+    if ta > 0:  # A(t) = min p[t, t+ta); +inf (no effect) when ta = 0
+        np.minimum(result, window_extreme(p, 0, ta - 1, minimum=True)[:length], out=result)
+    return result
 
 
 # --------------------------------------------------------------------------- evaluator
@@ -246,7 +244,9 @@ class ExactEvaluator:
             lhs = self.expr(node.lhs)
             rhs = self.expr(node.rhs)
             diff = lhs - rhs if node.op in (CmpOp.GE, CmpOp.GT) else rhs - lhs
-            return np.broadcast_to(np.asarray(diff, dtype=float), (n,)).copy()
+            if isinstance(diff, np.ndarray) and diff.shape == (n,):
+                return diff  # already a fresh array
+            return np.full(n, float(diff))
         if isinstance(node, Predicate):
             return np.asarray(self.expr(node.call), dtype=float)
         if isinstance(node, Not):
