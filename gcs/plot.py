@@ -294,20 +294,22 @@ def _curve(clause: Formula, signals: Mapping[str, Any], dt: float) -> tuple[str,
     return "clause", clause.robustness_trace(signals, dt)
 
 
-def _window_value(
+def _witness(
     clause: Formula, rho: NDArray[np.float64], dt: float
-) -> tuple[float, int, str, tuple[float, float] | None]:
-    """Clause value from its body trace, the step where it is attained, operator, window."""
+) -> tuple[int, str, tuple[float, float] | None]:
+    """Step of the curve where the clause value is attained, operator name, window (s).
+
+    Only called once the clause itself evaluated, so its window lies inside ``rho``.
+    """
     from planner.stl import Always, Eventually
 
     if isinstance(clause, Always | Eventually):
         lo, hi = clause.steps(dt)
-        window = rho[lo : hi + 1]
         pick = np.argmin if isinstance(clause, Always) else np.argmax
-        k = lo + int(pick(window))
+        k = lo + int(pick(rho[lo : hi + 1]))
         op = "always" if isinstance(clause, Always) else "eventually"
-        return float(rho[k]), k, op, (clause.start_s, clause.end_s)
-    return float(rho[0]), 0, "", None
+        return k, op, (clause.start_s, clause.end_s)
+    return 0, "", None
 
 
 def clause_traces(
@@ -318,23 +320,37 @@ def clause_traces(
     The planned curves come from the trajectories' exact positions on :func:`plan_grid`; the
     flown ones from the telemetry on the same grid (module docstring).
     """
+    from planner.planfile import PlanFileError
+    from planner.stl import EvaluationError
+
     phi = _parse_spec(plan)
     t, dt = plan_grid(plan, dt_s)
     planned = {v.name: v.trajectory.position(t) for v in plan.vehicles}
-    flown = (
-        {name: path.position(t) for name, path in telemetry.vehicles.items()}
-        if telemetry is not None
-        else None
-    )
+    flown: dict[str, NDArray[np.float64]] | None = None
+    if telemetry is not None:
+        known = {v.name for v in plan.vehicles}
+        if not known & telemetry.vehicles.keys():
+            raise InputFileError(
+                f"{telemetry.source}: no vehicle of the plan in the telemetry (it has "
+                f"{', '.join(sorted(telemetry.vehicles))}; the plan has {', '.join(sorted(known))})"
+            )
+        flown = {name: path.position(t) for name, path in telemetry.vehicles.items()}
     out: list[ClauseTrace] = []
-    for clause in phi.clauses:
-        shown, rho = _curve(clause, planned, dt)
-        value, k, op, window = _window_value(clause, rho, dt)
-        flown_value: float | None = None
-        flown_rho: NDArray[np.float64] | None = None
-        if flown is not None and clause.signal_names() <= flown.keys():
-            _, flown_rho = _curve(clause, flown, dt)
-            flown_value = float(clause.robustness(flown, dt))
+    for i, clause in enumerate(phi.clauses):
+        try:
+            # The clause's own value (planner.stl), which also rejects a plan too short for it.
+            value = float(clause.robustness(planned, dt))
+            shown, rho = _curve(clause, planned, dt)
+            flown_value: float | None = None
+            flown_rho: NDArray[np.float64] | None = None
+            if flown is not None and clause.signal_names() <= flown.keys():
+                _, flown_rho = _curve(clause, flown, dt)
+                flown_value = float(clause.robustness(flown, dt))
+        except EvaluationError as exc:
+            raise PlanFileError(
+                plan.scenario, f"spec clause {i + 1} ({clause})", str(exc)
+            ) from None
+        k, op, window = _witness(clause, rho, dt)
         out.append(
             ClauseTrace(
                 text=str(clause),
@@ -508,7 +524,8 @@ def _draw_robustness(
         if i in coloured:
             colour, lw, alpha = cmap(rank % 10), 1.3, 1.0
             rank += 1
-            label = f"{tr.robustness:+.3f}  {_short(tr.text)}"
+            flown = "" if tr.flown_robustness is None else f" (flown {tr.flown_robustness:+.3f})"
+            label = f"{tr.robustness:+.3f}{flown}  {_short(tr.text)}"
             handles.append(Line2D([], [], color=colour, lw=lw, label=label))
         else:
             colour, lw, alpha = "0.6", 0.8, 0.7
@@ -619,8 +636,12 @@ def render_figure(
     traces: Sequence[ClauseTrace],
     telemetry: Telemetry | None = None,
     dt_s: float | None = None,
+    name: str | None = None,
 ) -> Figure:
-    """The whole picture as a matplotlib Figure (Agg canvas; no screen needed)."""
+    """The whole picture as a matplotlib Figure (Agg canvas; no screen needed).
+
+    ``name`` titles it (default: the scenario's file stem).
+    """
     import mpl_toolkits.mplot3d  # noqa: F401  (registers the 3-D projection)
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -644,7 +665,7 @@ def render_figure(
     _, dt = plan_grid(plan, dt_s)
     status = plan.status.split(";")[0].strip()
     fig.suptitle(
-        f"{Path(plan.scenario).stem}: {len(plan.vehicles)} vehicle(s), horizon {plan.horizon_s:g} s"
+        f"{name or Path(plan.scenario).stem}: {len(plan.vehicles)} vehicle(s), horizon {plan.horizon_s:g} s"
         f" | spec robustness {rho:+.4f} (exact, dt {dt:g} s; epsilon {plan.epsilon:g})"
         f" | planner: {status[:40]}",
         fontsize=12,
@@ -666,10 +687,18 @@ def _fmt(x: float | None) -> str:
 
 
 def html_report(
-    plan: Plan, traces: Sequence[ClauseTrace], png: bytes, telemetry: Telemetry | None = None
+    plan: Plan,
+    traces: Sequence[ClauseTrace],
+    png: bytes,
+    telemetry: Telemetry | None = None,
+    name: str | None = None,
 ) -> str:
-    """A self-contained HTML page: the PNG (base64) and a table of clause robustness."""
+    """A self-contained HTML page: the PNG (base64) and a table of clause robustness.
+
+    ``name`` titles it (default: the scenario's file stem).
+    """
     esc = html.escape
+    title = name or Path(plan.scenario).stem
     flown = telemetry is not None
     rows = []
     for tr in sorted(traces, key=lambda c: c.robustness):
@@ -706,7 +735,7 @@ def html_report(
     png64 = base64.b64encode(png).decode("ascii")
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8">
-<title>stl-gcs plan: {esc(Path(plan.scenario).stem)}</title>
+<title>stl-gcs plan: {esc(title)}</title>
 <style>
 body {{ font-family: sans-serif; margin: 1.5em; }}
 table {{ border-collapse: collapse; font-size: 0.9em; }}
@@ -714,7 +743,7 @@ td, th {{ border: 1px solid #bbb; padding: 0.2em 0.5em; text-align: left; }}
 td.num {{ text-align: right; font-family: monospace; }}
 img {{ max-width: 100%; }}
 </style></head><body>
-<h1>Plan {esc(Path(plan.scenario).stem)}</h1>
+<h1>Plan {esc(title)}</h1>
 <p>Scenario <code>{esc(plan.scenario)}</code>; status {esc(plan.status)};
 robustness {_fmt(plan.robustness)} (smooth {_fmt(plan.smooth_robustness)}, epsilon {plan.epsilon:g});
 {len(plan.vehicles)} vehicle(s); horizon {plan.horizon_s:g} s; solve time {plan.solve_time_s:.2f} s.</p>
@@ -744,8 +773,9 @@ def plot_plan(
     output: str | Path,
     telemetry: Telemetry | None = None,
     dt_s: float | None = None,
+    name: str | None = None,
 ) -> PlotResult:
-    """Draw ``plan`` to ``output`` (``.png`` or ``.html``).
+    """Draw ``plan`` to ``output`` (``.png`` or ``.html``), titled ``name`` (e.g. the plan file).
 
     Raises:
         InputFileError: another extension, or the file cannot be written.
@@ -755,9 +785,11 @@ def plot_plan(
     if kind not in (".png", ".html", ".htm"):
         raise InputFileError(f"{out}: output must end in .png or .html")
     traces = clause_traces(plan, telemetry, dt_s)
-    fig = render_figure(plan, traces, telemetry, dt_s)
+    fig = render_figure(plan, traces, telemetry, dt_s, name)
     png = figure_png(fig)
-    data = png if kind == ".png" else html_report(plan, traces, png, telemetry).encode("utf-8")
+    data = (
+        png if kind == ".png" else html_report(plan, traces, png, telemetry, name).encode("utf-8")
+    )
     try:
         out.write_bytes(data)
     except OSError as exc:

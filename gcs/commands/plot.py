@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     plan = load_plan(args.plan)
     telemetry = load_telemetry(args.telemetry, plan, args.t0) if args.telemetry else None
     output = args.output or str(Path(args.plan).with_suffix(".png"))
-    result = plot_plan(plan, output, telemetry, args.dt)
+    result = plot_plan(plan, output, telemetry, args.dt, name=Path(args.plan).name)
     worst = min(result.traces, key=lambda c: c.robustness)
     print(
         f"wrote {result.path} ({len(result.traces)} clauses; "

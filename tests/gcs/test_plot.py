@@ -297,3 +297,25 @@ def test_tlog_telemetry_is_read_in_the_mission_frame_from_the_vehicles_own_origi
     args = ["plot", str(plan_path), "-o", str(out), "--telemetry", str(tlog), "--t0", str(t0)]
     assert cli.main(args) == 0
     assert imread(out).shape[:2] == (1250, 1600)
+
+
+def test_unusable_telemetry_or_spec_is_one_line_exit_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    plan_path = write_plan(tmp_path / "ok.json")
+    tel = tmp_path / "other.csv"
+    tel.write_text("t,vehicle,x,y,z\n0,x9,0,0,1\n")
+    assert cli.main(["plot", str(plan_path), "--telemetry", str(tel)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert (
+        len(err) == 1 and "other.csv: no vehicle of the plan in the telemetry (it has x9" in err[0]
+    )
+
+    # A clause that needs 10 s of a 6 s plan.
+    long = write_plan(
+        tmp_path / "long.json", reach_avoid_plan("always[0,10] inside(d1, workspace)")
+    )
+    assert cli.main(["plot", str(long)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert "spec clause 1 (always[0,10] inside(d1, workspace))" in err[0], err
