@@ -385,4 +385,10 @@ def parse(text: str, functions: FunctionRegistry | None = None) -> Formula:
     """
     if not isinstance(text, str):
         raise TypeError(f"spec text must be a str, got {type(text).__name__}")
-    return _Parser(text, functions).spec()
+    parser = _Parser(text, functions)
+    try:
+        return parser.spec()
+    except RecursionError:
+        raise parser.error(
+            "less deeply nested text", message="formula nested too deeply to parse"
+        ) from None

@@ -235,3 +235,10 @@ def test_unknown_function_lists_the_known_ones_and_without_registry_none():
         parse("inside(d1, pole1)")
     with pytest.raises(SpecError, match="known: dist, inside, wind"):
         parse("outside(d1, box)", REGISTRY)
+
+
+def test_absurd_nesting_is_a_spec_error_not_a_crash():
+    with pytest.raises(SpecError, match="nested too deeply"):
+        parse("not " * 5000 + "a > 0")
+    with pytest.raises(SpecError, match="nested too deeply"):
+        parse("(" * 5000 + "a > 0" + ")" * 5000)
