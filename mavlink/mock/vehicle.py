@@ -1200,6 +1200,9 @@ class MockVehicle:
             elif mode is Px4Mode.AUTO_MISSION:
                 if self._mis_phase == "rtl":
                     self._rtl_tick()
+                    if self._rtl_phase == "land" and self.landed:
+                        self._item_reached(self.mission_seq)
+                        self._mission_finish()
                 else:
                     self._mission_tick()
             elif mode is Px4Mode.AUTO_TAKEOFF:

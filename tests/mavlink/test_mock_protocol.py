@@ -676,3 +676,81 @@ def test_fault_draws_are_reproducible_for_a_seed() -> None:
     a, b, c = pattern(1), pattern(1), pattern(2)
     assert a == b and a != c
     assert 100 < len(a) < 180  # about 70 % survive
+
+
+def test_latency_jitter_and_reordering_delays_with_a_patched_clock() -> None:
+    import random
+
+    from mavlink.mock.faults import FaultyChannel
+
+    class RecordingLoop:
+        """Stands in for the event loop: records call_later delays instead of waiting."""
+
+        def __init__(self) -> None:
+            self.delays: list[float] = []
+
+        def call_later(self, delay: float, fn, *args):  # type: ignore[no-untyped-def]
+            self.delays.append(delay)
+            fn(*args)
+
+    loop = RecordingLoop()
+    got: list[bytes] = []
+    faults = FaultConfig(latency_s=0.2, jitter_s=0.05, reorder=0.25, reorder_delay_s=0.5)
+    ch = FaultyChannel(faults, 0.0, random.Random(5), loop, got.append, lambda: 0.0)  # type: ignore[arg-type]
+    for k in range(400):
+        ch.push(bytes([k % 256]))
+    assert len(got) == 400 and len(loop.delays) == 400
+    plain = [d for d in loop.delays if d < 0.5]
+    held = [d for d in loop.delays if d >= 0.5]
+    assert all(0.2 <= d <= 0.25 for d in plain)
+    assert all(0.7 <= d <= 0.75 for d in held)
+    assert 60 < len(held) < 140  # about a quarter
+    assert ch.stats.reordered == len(held) and ch.stats.delayed == 400
+
+
+def test_reposition_then_return_to_launch_lands_at_home() -> None:
+    params = {
+        "MPC_TKO_SPEED": 3.0,
+        "MIS_TAKEOFF_ALT": 2.0,
+        "MPC_LAND_SPEED": 2.5,
+        "COM_DISARM_LAND": 0.3,
+        "RTL_RETURN_ALT": 6.0,
+    }
+    with mock_vehicles(params=params) as (fleet, (gcs,)):
+        v = fleet.vehicles[0]
+        assert gcs.command(mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
+        nan = math.nan
+        assert gcs.command(mavlink2.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, nan, nan, nan, nan).result == 0
+        assert wait_for(lambda: v.state.mode is Px4Mode.AUTO_LOITER and not v.state.landed, 5.0)
+        lat, lon, alt0 = v.ned_to_global([6.0, 0.0, -2.0])
+        gcs.send(
+            mavlink2.MAVLink_command_int_message(
+                1,
+                1,
+                mavlink2.MAV_FRAME_GLOBAL_INT,
+                mavlink2.MAV_CMD_DO_REPOSITION,
+                0,
+                0,
+                8.0,
+                0,
+                0,
+                nan,
+                round(lat * 1e7),
+                round(lon * 1e7),
+                alt0,
+            )
+        )
+        ack = gcs.recv("COMMAND_ACK", 3.0, lambda m: m.command == mavlink2.MAV_CMD_DO_REPOSITION)
+        assert ack is not None and ack.result == 0
+        assert wait_for(lambda: math.dist(v.state.pos_ned_m, (6.0, 0.0, -2.0)) < 0.3, 8.0)
+        assert gcs.command(mavlink2.MAV_CMD_NAV_RETURN_TO_LAUNCH).result == 0
+        top = 0.0
+        deadline = time.monotonic() + 15.0
+        while time.monotonic() < deadline and v.state.armed:
+            top = max(top, -v.state.pos_ned_m[2])
+            time.sleep(0.02)
+        st = v.state
+        assert not st.armed and st.landed
+        assert math.hypot(st.pos_ned_m[0], st.pos_ned_m[1]) < 0.5
+        # within RTL_MIN_DIST of home PX4 returns at the current altitude (no climb to 6 m)
+        assert top < 2.6
