@@ -1,7 +1,7 @@
 """Pictures of a plan: regions and paths in 3-D, clause robustness over time, kinematics.
 
-:func:`plot_plan` reads nothing and draws nothing it does not compute here from the plan's
-stored ``segments`` (the same source of truth ``gcs verify`` uses):
+Everything :func:`plot_plan` draws is computed from the plan's stored ``segments`` (the source
+of truth ``gcs verify`` uses too) and, when given, the flown telemetry:
 
 * **3-D view**: every region box of the plan drawn by kind (obstacles and no-fly zones red,
   inspection boxes and goals green, poles grey, conductor corridors orange, other regions
@@ -33,8 +33,11 @@ the horizon the telemetry covers).
 
 Errors::
 
-    gcs.errors.InputFileError    unreadable/malformed telemetry or output path (file, line)
-    planner.planfile.PlanFileError  a plan whose spec no longer parses (names the plan)
+    gcs.errors.InputFileError        unreadable/malformed telemetry (file, line, column), telemetry
+                                     without any vehicle of the plan, a bad output path or --dt
+    planner.planfile.PlanFileError   a spec that does not parse, or a clause that cannot be
+                                     evaluated on the plan (e.g. longer than its horizon)
+    mavlink.errors.LinkError         a .tlog the link's reader rejects (no origin message)
 """
 
 from __future__ import annotations
@@ -67,6 +70,7 @@ __all__ = [
     "PlotResult",
     "Telemetry",
     "clause_traces",
+    "figure_png",
     "html_report",
     "load_telemetry",
     "plan_grid",
