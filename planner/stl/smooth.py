@@ -36,7 +36,8 @@ exact one, and the outer smax over ``tb - ta + 1`` steps adds ``log(tb - ta + 1)
 :func:`smooth_error_bound` computes E.
 
 Only the needed steps are built. The set of steps each node must be evaluated at is propagated
-from the root (step 0) down the tree as a contiguous range ``[lo, hi]``: ``always[ta,tb]`` at
+from the root (step 0; steps ``first..last`` for :func:`smooth_robustness_trace`) down the tree
+as a contiguous range ``[lo, hi]``: ``always[ta,tb]`` at
 ``[lo, hi]`` needs its child at ``[lo+ta, hi+tb]``; ``phi until[ta,tb] psi`` needs phi at
 ``[lo, hi+tb-1]`` and psi at ``[lo+ta, hi+tb]``; Boolean operators pass the range through.
 Equal sub-formulas are evaluated once on the union of their ranges. Functions receive the rows
