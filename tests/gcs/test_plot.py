@@ -98,9 +98,8 @@ def test_until_clause_is_drawn_as_its_own_trace_over_the_steps_its_horizon_allow
 
 def test_plot_png_is_written_with_all_panels(tmp_path: Path) -> None:
     plan_path = write_plan(tmp_path / "ra.json")
-    out = tmp_path / "pic.png"
-    assert cli.main(["plot", str(plan_path), "-o", str(out)]) == 0
-    img = imread(out)
+    assert cli.main(["plot", str(plan_path)]) == 0  # default: beside the plan, .png
+    img = imread(tmp_path / "ra.png")
     assert img.shape[:2] == (1250, 1600)
     # The picture is not blank: many distinct colours (boxes, paths, curves).
     assert len(np.unique(img.reshape(-1, img.shape[2]), axis=0)) > 200
