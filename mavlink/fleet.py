@@ -184,6 +184,7 @@ class VehicleStatus:
         name, sysid, url: the vehicle.
         connected: a heartbeat arrived within the link timeout.
         armed: from HEARTBEAT.base_mode.
+        in_air: from EXTENDED_SYS_STATE.landed_state (MAVSDK's in-air flag).
         mode: decoded PX4 mode, ``None`` if unknown (``custom_mode`` keeps the raw value).
         custom_mode: raw HEARTBEAT.custom_mode.
         pos_ned_m: local position (north, east, down), metres, LOCAL_POSITION_NED.
@@ -203,6 +204,7 @@ class VehicleStatus:
     url: str
     connected: bool
     armed: bool | None
+    in_air: bool | None
     mode: Px4Mode | None
     custom_mode: int | None
     pos_ned_m: tuple[float, float, float] | None
@@ -244,6 +246,7 @@ class Vehicle:
         self.direct = MavlinkDirect(system)
         self._lock = threading.Lock()
         self._armed: bool | None = None
+        self._in_air: bool | None = None
         self._custom_mode: int | None = None
         self._mode: Px4Mode | None = None
         self._pos_ned: tuple[float, float, float] | None = None
@@ -271,6 +274,7 @@ class Vehicle:
             (tel.unsubscribe_position, tel.subscribe_position(self._on_position)),
             (tel.unsubscribe_home, tel.subscribe_home(self._on_home)),
             (tel.unsubscribe_battery, tel.subscribe_battery(self._on_battery)),
+            (tel.unsubscribe_in_air, tel.subscribe_in_air(self._on_in_air)),
             (
                 self.direct.unsubscribe_message,
                 self.direct.subscribe_message("HEARTBEAT", self._on_heartbeat),
@@ -311,6 +315,10 @@ class Vehicle:
         with self._lock:
             self._battery = (remaining / 100.0, float(b.voltage_v))
 
+    def _on_in_air(self, in_air: bool, _ud: Any) -> None:
+        with self._lock:
+            self._in_air = bool(in_air)
+
     def _on_heartbeat(self, msg: MavlinkMessage, _ud: Any) -> None:
         if msg.component_id != 1:  # only the autopilot's heartbeat
             return
@@ -344,6 +352,7 @@ class Vehicle:
                 url=self.url,
                 connected=hb_age is not None and hb_age <= self.link_timeout_s,
                 armed=self._armed,
+                in_air=self._in_air,
                 mode=self._mode,
                 custom_mode=self._custom_mode,
                 pos_ned_m=self._pos_ned,
@@ -394,15 +403,6 @@ class Vehicle:
     async def disarm(self) -> None:
         """Disarm."""
         await self._action("disarm", self.action.disarm_async)
-
-    async def takeoff(self, relative_alt_m: float) -> None:
-        """Take off (AUTO.TAKEOFF) to ``relative_alt_m`` above home; returns once accepted."""
-        await self._action(
-            "set takeoff altitude",
-            self.action.set_takeoff_altitude_async,
-            float(relative_alt_m),
-        )
-        await self._action("takeoff", self.action.takeoff_async)
 
     async def hold(self) -> None:
         """Switch to Hold (AUTO.LOITER) where the vehicle is."""

@@ -50,6 +50,7 @@ from mavlink.fleet import Fleet, Vehicle, VehicleStatus, mavsdk_call
 from mavlink.monitor import SafetyAction, SafetyEvent, SafetyMonitor, safe_stop
 from mavlink.px4_modes import Px4Mode
 from mavlink.stream import MAX_RATE_HZ, NedSetpoints, SetpointStreamer, StreamStats, StreamTarget
+from mavlink.tlog import FlownTrack
 from planner.frames import (
     GeodeticPoint,
     enu_to_geodetic,
@@ -174,40 +175,6 @@ def offboard_sender(offboard: Offboard) -> Callable[..., None]:
 
 
 @dataclass(frozen=True, slots=True, eq=False)
-class FlownTrack:
-    """What one vehicle reported during the flight, in the mission frame.
-
-    Attributes:
-        name: vehicle name.
-        t_s: ``(k,)`` receive times, seconds from the shared start.
-        pos_enu_m: ``(k, 3)`` mission-frame ENU positions.
-        vel_enu_m_s: ``(k, 3)`` mission-frame ENU velocities.
-        pos_ned_m: ``(k, 3)`` the raw LOCAL_POSITION_NED positions.
-    """
-
-    name: str
-    t_s: np.ndarray
-    pos_enu_m: np.ndarray
-    vel_enu_m_s: np.ndarray
-    pos_ned_m: np.ndarray
-
-    def resample(self, dt_s: float, t_end_s: float) -> np.ndarray:
-        """Positions ``(n, 3)`` at ``t = 0, dt, ..., t_end`` by linear interpolation.
-
-        Raises:
-            LinkError: the track does not cover ``[0, t_end]`` (names the gap).
-        """
-        n = math.floor(t_end_s / dt_s + 1e-9) + 1
-        t = np.arange(n) * dt_s
-        if self.t_s.size < 2 or self.t_s[0] > dt_s or self.t_s[-1] < t[-1] - dt_s:
-            covered = f"{self.t_s[0]:.2f}..{self.t_s[-1]:.2f} s" if self.t_s.size else "no samples"
-            raise LinkError(
-                f"flown track covers {covered}, need 0..{t[-1]:.2f} s", vehicle=self.name
-            )
-        return np.column_stack([np.interp(t, self.t_s, self.pos_enu_m[:, a]) for a in range(3)])
-
-
-@dataclass(frozen=True, slots=True, eq=False)
 class FlightResult:
     """The outcome of :func:`fly_offboard`.
 
@@ -242,6 +209,7 @@ def _vec(p: np.ndarray) -> str:
 def _is_hovering(st: VehicleStatus, settle_speed_m_s: float) -> bool:
     return bool(
         st.armed
+        and st.in_air
         and st.mode in (Px4Mode.AUTO_LOITER, Px4Mode.POSCTL, Px4Mode.OFFBOARD)
         and st.vel_ned_m_s is not None
         and float(np.linalg.norm(st.vel_ned_m_s)) < settle_speed_m_s
@@ -424,7 +392,7 @@ async def fly_offboard(
     await asyncio.gather(
         *(
             v.wait_for(
-                lambda s: s.pos_ned_m is not None and s.armed is not None,
+                lambda s: s.pos_ned_m is not None and s.armed is not None and s.in_air is not None,
                 "local position",
                 timeout_s=5.0,
             )

@@ -255,6 +255,8 @@ class SetpointStreamer:
                 max_lateness_s=float(lat.max()) if lat.size else math.nan,
                 rate_hz=self.rate_hz,
             )
+        #: Lateness of every send, ``(ticks, vehicles)`` seconds, NaN where none was sent.
+        self.last_lateness = lateness
         self.last_errors = {
             t.name: e for t, e in zip(self.targets, errors, strict=True) if e is not None
         }

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import struct
 import threading
 import time
@@ -37,7 +38,6 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mav
 
 from mavlink.errors import LinkError
-from mavlink.offboard import FlownTrack
 from planner.frames import GeodeticPoint, ned_to_enu, ned_vector_to_enu
 
 if TYPE_CHECKING:
@@ -130,7 +130,7 @@ class TlogRecorder:
                 self._unknown[msg.message_name] += 1
                 return
             try:
-                args = [_field_value(cls, name, fields[name]) for name in cls.fieldnames]
+                args = [_field_value(fields[name]) for name in cls.fieldnames]
                 packet = cls(*args).pack(self._codec(msg.system_id, msg.component_id))
             except (KeyError, TypeError, ValueError, struct.error):
                 self._unknown[msg.message_name] += 1
@@ -163,11 +163,45 @@ class TlogRecorder:
         self.stop()
 
 
-def _field_value(cls: type, name: str, value: Any) -> Any:
+def _field_value(value: Any) -> Any:
     """A JSON field as pymavlink's constructor wants it (char arrays as bytes)."""
     if isinstance(value, str):
         return value.encode("utf-8")
     return value
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class FlownTrack:
+    """What one vehicle reported during the flight, in the mission frame.
+
+    Attributes:
+        name: vehicle name.
+        t_s: ``(k,)`` receive times, seconds from the shared start.
+        pos_enu_m: ``(k, 3)`` mission-frame ENU positions.
+        vel_enu_m_s: ``(k, 3)`` mission-frame ENU velocities.
+        pos_ned_m: ``(k, 3)`` the raw LOCAL_POSITION_NED positions.
+    """
+
+    name: str
+    t_s: np.ndarray
+    pos_enu_m: np.ndarray
+    vel_enu_m_s: np.ndarray
+    pos_ned_m: np.ndarray
+
+    def resample(self, dt_s: float, t_end_s: float) -> np.ndarray:
+        """Positions ``(n, 3)`` at ``t = 0, dt, ..., t_end`` by linear interpolation.
+
+        Raises:
+            LinkError: the track does not cover ``[0, t_end]`` (names the gap).
+        """
+        n = math.floor(t_end_s / dt_s + 1e-9) + 1
+        t = np.arange(n) * dt_s
+        if self.t_s.size < 2 or self.t_s[0] > dt_s or self.t_s[-1] < t[-1] - dt_s:
+            covered = f"{self.t_s[0]:.2f}..{self.t_s[-1]:.2f} s" if self.t_s.size else "no samples"
+            raise LinkError(
+                f"flown track covers {covered}, need 0..{t[-1]:.2f} s", vehicle=self.name
+            )
+        return np.column_stack([np.interp(t, self.t_s, self.pos_enu_m[:, a]) for a in range(3)])
 
 
 # --------------------------------------------------------------------------

@@ -13,7 +13,7 @@ import yaml
 
 from mavlink.fleet import Fleet, VehicleSpec
 from mavlink.mock.fleet import MockFleet
-from mavlink.offboard import FlownTrack
+from mavlink.tlog import FlownTrack
 from planner.planfile import Plan, load_plan
 from planner.predicates import build_registry, parse_clause
 from planner.scenario import Problem, parse_scenario

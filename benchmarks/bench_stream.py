@@ -1,0 +1,343 @@
+"""Offboard streaming capacity and mission transfer time of the GCS link.
+
+1. Streaming: the largest fleet one process streams at 50 Hz with p99 lateness
+   <= 5 ms and no missed setpoint. Fleets of growing size connect through
+   :class:`mavlink.fleet.Fleet` (one MAVSDK instance, one UDP connection per
+   vehicle) to a sink process (``benchmarks/stream_sink.py``) that answers
+   like N PX4 endpoints and counts every SET_POSITION_TARGET_LOCAL_NED it
+   receives. Each vehicle streams a ramp of distinct setpoints for
+   ``--seconds`` through :class:`mavlink.stream.SetpointStreamer` and MAVSDK's
+   Offboard plugin (the path ``fly_offboard`` uses). A setpoint is missed if
+   it was skipped, its send failed, or the sink did not receive it. CPU is
+   the GCS process's CPU time (all threads, MAVSDK's included) over the
+   stream, per vehicle per setpoint.
+2. The same at 32 vehicles through ``mavsdk.asyncio``'s ``OffboardAsync``
+   (every call through the default thread pool), to show why the link calls
+   the native binding directly.
+3. Mission: upload + read-back + item-by-item comparison of a 100-item
+   mission to one mock vehicle (``mavlink.mock``) over loopback, repeated.
+
+Prints a table, then one JSON line. Bounded: a few seconds per fleet size.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from mavsdk.asyncio import System as AsyncSystem
+from mavsdk.asyncio.plugins.offboard import OffboardAsync
+from mavsdk.plugins.offboard import AccelerationNed, PositionNedYaw, VelocityNedYaw
+
+from mavlink.fleet import Fleet, VehicleSpec
+from mavlink.mission import MissionEnd, trajectory_to_mission, upload_and_verify
+from mavlink.mock.fleet import MockFleet
+from mavlink.offboard import offboard_sender
+from mavlink.stream import NedSetpoints, SetpointStreamer, StreamTarget
+from planner.frames import GeodeticPoint
+from planner.trajectory import Trajectory
+
+HERE = Path(__file__).parent
+RATE_HZ = 50.0
+P99_LIMIT_S = 0.005
+ORIGIN = GeodeticPoint(47.397742, 8.545594, 488.0)
+
+
+def free_udp_ports(k: int) -> list[int]:
+    """``k`` UDP ports the OS just handed out (bound to port 0, then released)."""
+    import socket
+
+    socks = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(k)]
+    try:
+        for s in socks:
+            s.bind(("127.0.0.1", 0))
+        return [s.getsockname()[1] for s in socks]
+    finally:
+        for s in socks:
+            s.close()
+
+
+class Sink:
+    """The counting sink process."""
+
+    def __init__(self, gcs_ports: list[int], vehicle_ports: list[int]) -> None:
+        self.proc = subprocess.Popen(
+            [
+                sys.executable,
+                str(HERE / "stream_sink.py"),
+                json.dumps(gcs_ports),
+                json.dumps(vehicle_ports),
+            ],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        assert self.proc.stdout is not None and self.proc.stdin is not None
+        line = self.proc.stdout.readline().strip()
+        if line != "ready":
+            raise RuntimeError(f"sink did not start: {line!r}")
+
+    def report(self) -> dict[str, list[int]]:
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        self.proc.stdin.write("report\n")
+        self.proc.stdin.flush()
+        return json.loads(self.proc.stdout.readline())
+
+    def close(self) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write("quit\n")
+        self.proc.stdin.flush()
+        self.proc.wait(timeout=10)
+
+
+def ramp(i: int, n: int) -> NedSetpoints:
+    """Distinct setpoints (1 mm apart) so the sink can tell them from MAVSDK's re-sends."""
+    k = np.arange(n, dtype=float)
+    pos = np.column_stack([k * 1e-3, np.full(n, float(i)), np.full(n, -2.0)])
+    z = np.zeros((n, 3))
+    return NedSetpoints(k / RATE_HZ, pos, z, z.copy(), np.zeros(n))
+
+
+async def stream_fleet(n: int, seconds: float, use_asyncio_wrapper: bool = False) -> dict:
+    """Connect ``n`` sink endpoints, stream for ``seconds`` at 50 Hz, return the figures."""
+    ports = free_udp_ports(2 * n)
+    sink = Sink(ports[:n], ports[n:])
+    try:
+        specs = [VehicleSpec(f"v{i + 1}", f"udpin://127.0.0.1:{ports[i]}", i + 1) for i in range(n)]
+        fleet = Fleet(specs, telemetry_rate_hz=None, connect_timeout_s=30.0)
+        t_connect = time.perf_counter()
+        await fleet.connect()
+        connect_s = time.perf_counter() - t_connect
+        try:
+            ticks = round(seconds * RATE_HZ)
+            if use_asyncio_wrapper:
+                out = await _stream_async_wrapper(fleet, ticks)
+            else:
+                out = await _stream_native(fleet, ticks)
+            await asyncio.sleep(0.3)  # let the last datagrams arrive
+            counts = sink.report()
+        finally:
+            fleet.close()
+    finally:
+        sink.close()
+    sent = out["sent"]
+    received_ok = all(d >= s for d, s in zip(counts["distinct"], sent, strict=True))
+    out.update(
+        n=n,
+        connect_s=connect_s,
+        ticks=ticks,
+        received_min=min(counts["distinct"]),
+        missed=int(sum(max(0, ticks - d) for d in counts["distinct"])),
+        all_received=received_ok,
+    )
+    out["ok"] = bool(
+        out["missed"] == 0
+        and out["skipped"] == 0
+        and out["failed"] == 0
+        and out["p99_ms"] <= P99_LIMIT_S * 1e3
+    )
+    return out
+
+
+async def _stream_native(fleet: Fleet, ticks: int) -> dict:
+    targets = [
+        StreamTarget(v.name, offboard_sender(v.offboard), ramp(i, ticks))
+        for i, v in enumerate(fleet.vehicles)
+    ]
+    streamer = SetpointStreamer(targets, RATE_HZ)
+    c0 = time.process_time()
+    stats = await streamer.run(time.monotonic() + 0.2)
+    cpu_s = time.process_time() - c0
+    lat = streamer.last_lateness
+    lat = lat[~np.isnan(lat)]
+    n = len(fleet)
+    return {
+        "path": "native",
+        "sent": [s.sent for s in stats.values()],
+        "skipped": max(s.skipped for s in stats.values()),
+        "failed": sum(s.failed for s in stats.values()),
+        "p99_ms": float(np.percentile(lat, 99) * 1e3),
+        "max_ms": float(lat.max() * 1e3),
+        "mean_ms": float(lat.mean() * 1e3),
+        "worst_vehicle_p99_ms": max(s.p99_lateness_s for s in stats.values()) * 1e3,
+        "cpu_us_per_setpoint": cpu_s / (n * ticks) * 1e6,
+    }
+
+
+async def _stream_async_wrapper(fleet: Fleet, ticks: int) -> dict:
+    """The same stream through mavsdk.asyncio's OffboardAsync (thread-pool per call)."""
+    offs = [OffboardAsync(AsyncSystem(v.system)) for v in fleet.vehicles]
+    setpoints = [ramp(i, ticks) for i in range(len(offs))]
+    lat = np.full((ticks, len(offs)), np.nan)
+    period = 1.0 / RATE_HZ
+    t0 = time.monotonic() + 0.2
+    skipped = 0
+    c0 = time.process_time()
+
+    async def one(j: int, k: int, deadline: float) -> None:
+        p = setpoints[j].pos_ned_m[k]
+        await offs[j].set_position_velocity_acceleration_ned(
+            PositionNedYaw(*p, 0.0),
+            VelocityNedYaw(0.0, 0.0, 0.0, 0.0),
+            AccelerationNed(0.0, 0.0, 0.0),
+        )
+        lat[k, j] = time.monotonic() - deadline
+
+    k = 0
+    while k < ticks:
+        deadline = t0 + k * period
+        delay = deadline - time.monotonic()
+        if delay > 0:
+            await asyncio.sleep(delay)
+        behind = int((time.monotonic() - deadline) // period)
+        if behind >= 1:
+            behind = min(behind, ticks - 1 - k)
+            skipped += behind
+            k += behind
+            deadline = t0 + k * period
+        await asyncio.gather(*(one(j, k, deadline) for j in range(len(offs))))
+        k += 1
+    cpu_s = time.process_time() - c0
+    flat = lat[~np.isnan(lat)]
+    for o in offs:
+        o.destroy()
+    return {
+        "path": "mavsdk.asyncio",
+        "sent": [int(np.count_nonzero(~np.isnan(lat[:, j]))) for j in range(len(offs))],
+        "skipped": skipped,
+        "failed": 0,
+        "p99_ms": float(np.percentile(flat, 99) * 1e3),
+        "max_ms": float(flat.max() * 1e3),
+        "mean_ms": float(flat.mean() * 1e3),
+        "worst_vehicle_p99_ms": float(np.nanmax(np.nanpercentile(lat, 99, axis=0)) * 1e3),
+        "cpu_us_per_setpoint": cpu_s / (len(offs) * ticks) * 1e6,
+    }
+
+
+def zigzag_trajectory(legs: int) -> Trajectory:
+    """``legs`` rest-to-rest 1 s legs alternating east/north by 2 m, at 10 m height."""
+    w = [np.array([0.0, 0.0, 10.0])]
+    for j in range(legs):
+        w.append(w[-1] + (np.array([2.0, 0.0, 0.0]) if j % 2 == 0 else np.array([0.0, 2.0, 0.0])))
+    c = np.zeros((legs, 3, 6))
+    for s in range(legs):
+        d = w[s + 1] - w[s]
+        c[s, :, 0], c[s, :, 3], c[s, :, 4], c[s, :, 5] = w[s], 10 * d, -15 * d, 6 * d
+    return Trajectory(np.arange(legs, dtype=float), np.ones(legs), c, name="m1")
+
+
+async def mission_transfer(repeats: int) -> dict:
+    """Upload + verify a 100-item mission to one mock vehicle ``repeats`` times."""
+    mp = trajectory_to_mission(zigzag_trajectory(49), ORIGIN, end=MissionEnd.HOLD)
+    assert len(mp.items) == 100
+    ports = free_udp_ports(2)
+    mock = MockFleet(n=1, origin=ORIGIN, gcs_ports=ports[:1], vehicle_ports=ports[1:])
+    fleet = Fleet([VehicleSpec("m1", f"udpin://127.0.0.1:{ports[0]}", 1)])
+    async with mock, fleet:
+        reports = [await upload_and_verify(fleet["m1"], mp.items) for _ in range(repeats)]
+    up = [r.upload_s for r in reports]
+    down = [r.download_s for r in reports]
+    total = [a + b for a, b in zip(up, down, strict=True)]
+    return {
+        "items": len(mp.items),
+        "repeats": repeats,
+        "upload_s_median": statistics.median(up),
+        "verify_s_median": statistics.median(down),
+        "total_s_median": statistics.median(total),
+        "total_s_max": max(total),
+    }
+
+
+async def main_async(args: argparse.Namespace) -> dict:
+    rows = []
+    largest_ok = 0
+    for n in args.sizes:
+        r = await stream_fleet(n, args.seconds)
+        rows.append(r)
+        _row(r)
+        if r["ok"]:
+            largest_ok = n
+        elif n > 32:
+            break  # past the first failing size above the target nothing new is learnt
+    wrapper = await stream_fleet(32, args.seconds, use_asyncio_wrapper=True)
+    _row(wrapper)
+    mission = await mission_transfer(args.mission_repeats)
+    return {
+        "streaming": rows,
+        "asyncio_wrapper_32": wrapper,
+        "largest_ok": largest_ok,
+        "mission": mission,
+    }
+
+
+def _row(r: dict) -> None:
+    print(
+        f"{r['path']:>14} {r['n']:5d} {r['ticks']:6d} {min(r['sent']):6d} {r['received_min']:6d} "
+        f"{r['skipped']:5d} {r['missed']:6d} {r['mean_ms']:8.3f} {r['p99_ms']:8.3f} {r['max_ms']:8.3f} "
+        f"{r['cpu_us_per_setpoint']:8.1f} {r['connect_s']:7.2f}  {'ok' if r['ok'] else 'FAIL'}",
+        flush=True,
+    )
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--sizes", type=int, nargs="+", default=[8, 16, 32, 64, 96, 128, 192, 256])
+    p.add_argument("--seconds", type=float, default=4.0)
+    p.add_argument("--mission-repeats", type=int, default=5)
+    args = p.parse_args()
+    print(
+        f"offboard streaming at {RATE_HZ:g} Hz, criterion p99 lateness <= {P99_LIMIT_S * 1e3:g} ms, nothing missed"
+    )
+    print(
+        f"{'path':>14} {'n':>5} {'ticks':>6} {'sent':>6} {'recv':>6} {'skip':>5} {'missed':>6} "
+        f"{'mean ms':>8} {'p99 ms':>8} {'max ms':>8} {'cpu us':>8} {'conn s':>7}"
+    )
+    out = asyncio.run(main_async(args))
+    m = out["mission"]
+    print(f"largest fleet streamed at {RATE_HZ:g} Hz within the criterion: {out['largest_ok']}")
+    print(
+        f"mission of {m['items']} items, upload + read-back + compare over loopback (mock), "
+        f"median of {m['repeats']}: upload {m['upload_s_median']:.3f} s, verify {m['verify_s_median']:.3f} s, "
+        f"total {m['total_s_median']:.3f} s (max {m['total_s_max']:.3f} s)"
+    )
+    summary = {
+        "bench": "stream",
+        "rate_hz": RATE_HZ,
+        "largest_fleet_ok": out["largest_ok"],
+        "streaming": [
+            {
+                k: r[k]
+                for k in (
+                    "n",
+                    "ticks",
+                    "missed",
+                    "skipped",
+                    "p99_ms",
+                    "max_ms",
+                    "cpu_us_per_setpoint",
+                    "ok",
+                )
+            }
+            for r in out["streaming"]
+        ],
+        "asyncio_wrapper_32": {
+            k: out["asyncio_wrapper_32"][k]
+            for k in ("missed", "skipped", "p99_ms", "max_ms", "cpu_us_per_setpoint", "ok")
+        },
+        "mission_100_items_s": m["total_s_median"],
+        "mission_upload_s": m["upload_s_median"],
+        "mission_verify_s": m["verify_s_median"],
+    }
+    print(json.dumps(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

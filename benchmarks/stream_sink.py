@@ -1,0 +1,112 @@
+"""A counting MAVLink sink: N minimal PX4-like endpoints in one process (for bench_stream.py).
+
+Each endpoint ``i`` binds ``127.0.0.1:vehicle_ports[i]``, sends a HEARTBEAT
+(PX4 autopilot, quad-rotor, system id ``i+1``) at 2 Hz to
+``127.0.0.1:gcs_ports[i]`` (as PX4 SITL does, so MAVSDK's ``udpin://``
+discovers it), acknowledges every COMMAND_LONG/COMMAND_INT as
+ACCEPTED, applies MAV_CMD_DO_SET_MODE to the mode it reports, and counts
+every SET_POSITION_TARGET_LOCAL_NED it receives together with the number of
+*distinct* setpoints (MAVSDK re-sends the last setpoint by itself when the
+stream is slower than 20 Hz; distinct positions are the GCS's own sends).
+
+It has no physics: it measures the link, not a vehicle. Run as::
+
+    python benchmarks/stream_sink.py '[GCS_PORT, ...]' '[VEHICLE_PORT, ...]'
+
+It prints ``ready`` once bound; on a line ``report`` on stdin it prints one
+JSON line ``{"received": [...], "distinct": [...]}`` per endpoint order and on
+``quit`` (or end of input) it exits.
+"""
+
+from __future__ import annotations
+
+import json
+import selectors
+import socket
+import sys
+import threading
+import time
+
+from pymavlink.dialects.v20 import common as mav
+
+
+def main(argv: list[str]) -> int:
+    """Run the sink until ``quit``; see the module docstring."""
+    gcs_ports = [int(p) for p in json.loads(argv[1])]
+    vehicle_ports = [int(p) for p in json.loads(argv[2])]
+    n = len(gcs_ports)
+    sel = selectors.DefaultSelector()
+    socks: list[socket.socket] = []
+    links: list[mav.MAVLink] = []
+    modes = [0] * n
+    received = [0] * n
+    distinct: list[set[tuple[float, float, float]]] = [set() for _ in range(n)]
+    for i in range(n):
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 21)
+        s.bind(("127.0.0.1", vehicle_ports[i]))
+        s.setblocking(False)
+        socks.append(s)
+        links.append(mav.MAVLink(None, srcSystem=i + 1, srcComponent=1))
+        sel.register(s, selectors.EVENT_READ, i)
+    lock = threading.Lock()
+    done = threading.Event()
+
+    def commands() -> None:
+        for line in sys.stdin:
+            cmd = line.strip()
+            if cmd == "report":
+                with lock:
+                    out = {"received": list(received), "distinct": [len(d) for d in distinct]}
+                print(json.dumps(out), flush=True)
+            elif cmd == "quit":
+                break
+        done.set()
+
+    threading.Thread(target=commands, daemon=True).start()
+    print("ready", flush=True)
+    next_hb = 0.0
+    while not done.is_set():
+        now = time.monotonic()
+        if now >= next_hb:
+            next_hb = now + 0.5
+            for i, s in enumerate(socks):
+                hb = links[i].heartbeat_encode(
+                    mav.MAV_TYPE_QUADROTOR,
+                    mav.MAV_AUTOPILOT_PX4,
+                    mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mav.MAV_MODE_FLAG_SAFETY_ARMED,
+                    modes[i],
+                    mav.MAV_STATE_ACTIVE,
+                )
+                s.sendto(hb.pack(links[i]), ("127.0.0.1", gcs_ports[i]))
+        for key, _ in sel.select(timeout=0.05):
+            i = key.data
+            s = socks[i]
+            while True:
+                try:
+                    data = s.recv(65536)
+                except BlockingIOError:
+                    break
+                for msg in links[i].parse_buffer(data) or ():
+                    kind = msg.get_type()
+                    if kind == "SET_POSITION_TARGET_LOCAL_NED":
+                        with lock:
+                            received[i] += 1
+                            distinct[i].add((msg.x, msg.y, msg.z))
+                    elif kind in ("COMMAND_LONG", "COMMAND_INT"):
+                        if msg.command == mav.MAV_CMD_DO_SET_MODE:
+                            modes[i] = (int(msg.param2) << 16) | (int(msg.param3) << 24)
+                        ack = links[i].command_ack_encode(
+                            msg.command,
+                            mav.MAV_RESULT_ACCEPTED,
+                            0,
+                            0,
+                            msg.get_srcSystem(),
+                            msg.get_srcComponent(),
+                        )
+                        s.sendto(ack.pack(links[i]), ("127.0.0.1", gcs_ports[i]))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv))
