@@ -30,11 +30,13 @@ does not block (it packs and queues one UDP datagram).
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from enum import Enum
+from pathlib import Path
 
 import numpy as np
 from mavsdk.plugins.offboard import (
@@ -50,7 +52,7 @@ from mavlink.fleet import Fleet, Vehicle, VehicleStatus, mavsdk_call
 from mavlink.monitor import SafetyAction, SafetyEvent, SafetyMonitor, safe_stop
 from mavlink.px4_modes import Px4Mode
 from mavlink.stream import MAX_RATE_HZ, NedSetpoints, SetpointStreamer, StreamStats, StreamTarget
-from mavlink.tlog import FlownTrack
+from mavlink.tlog import FlownTrack, TlogRecorder, TlogStats, write_tracks_csv
 from planner.frames import (
     GeodeticPoint,
     enu_to_geodetic,
@@ -181,20 +183,24 @@ class FlightResult:
     Attributes:
         completed: every setpoint was streamed and no safety stop happened.
         t0_monotonic_s: ``time.monotonic()`` of the shared start.
+        t0_unix_s: the same instant as Unix time (to align a ``.tlog``).
         stats: stream statistics per vehicle (the main stream only).
         tracks: flown tracks per vehicle, in the mission frame.
         safety_event: what stopped the flight, if the monitor did.
         end_failures: vehicles whose end action failed, with the reason.
         origins: each vehicle's EKF origin used for the transform.
+        tlog: what the ``.tlog`` recording holds, if one was asked for.
     """
 
     completed: bool
     t0_monotonic_s: float
+    t0_unix_s: float
     stats: dict[str, StreamStats]
     tracks: dict[str, FlownTrack]
     safety_event: SafetyEvent | None
     end_failures: dict[str, str] = field(default_factory=dict)
     origins: dict[str, GeodeticPoint] = field(default_factory=dict)
+    tlog: TlogStats | None = None
 
 
 # --------------------------------------------------------------------------
@@ -359,6 +365,8 @@ async def fly_offboard(
     config: OffboardConfig | None = None,
     *,
     monitor: SafetyMonitor | None = None,
+    tlog_path: str | Path | None = None,
+    csv_path: str | Path | None = None,
 ) -> FlightResult:
     """Fly each vehicle's trajectory in offboard mode, all from one shared start time.
 
@@ -369,6 +377,9 @@ async def fly_offboard(
         config: :class:`OffboardConfig` (defaults: 20 Hz, 1 s pre-stream, 1 m tolerance).
         monitor: safety monitor to run during the stream (default: one that
             only watches the links and holds every vehicle if one is lost).
+        tlog_path: record everything the vehicles send, from before the
+            preflight checks to the end action, to this ``.tlog``.
+        csv_path: write the flown tracks (mission frame) to this CSV.
 
     Returns:
         A :class:`FlightResult`. A safety stop is a result (``completed``
@@ -380,7 +391,27 @@ async def fly_offboard(
         LinkError: a vehicle is unknown, its origin unknown or its link lost
             before the stream starts.
     """
-    cfg = config or OffboardConfig()
+    recorder = TlogRecorder(fleet, tlog_path) if tlog_path is not None else None
+    if recorder is not None:
+        recorder.start()
+    try:
+        result = await _fly(
+            fleet, trajectories, mission_origin, config or OffboardConfig(), monitor
+        )
+    finally:
+        stats = recorder.stop() if recorder is not None else None
+    if csv_path is not None:
+        write_tracks_csv(csv_path, result.tracks)
+    return dataclasses.replace(result, tlog=stats)
+
+
+async def _fly(
+    fleet: Fleet,
+    trajectories: Mapping[str, Trajectory],
+    mission_origin: GeodeticPoint,
+    cfg: OffboardConfig,
+    monitor: SafetyMonitor | None,
+) -> FlightResult:
     vehicles = [fleet[name] for name in trajectories]
     origins = await fleet.origins()
     setpoints = {
@@ -521,6 +552,7 @@ async def fly_offboard(
     return FlightResult(
         completed=completed,
         t0_monotonic_s=t0,
+        t0_unix_s=t0 + (time.time() - time.monotonic()),
         stats=stats,
         tracks=tracks,
         safety_event=event,

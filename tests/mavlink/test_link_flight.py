@@ -20,7 +20,7 @@ from mavlink.mock.config import FaultConfig, Outage
 from mavlink.mock.px4 import Px4Mode as MockMode
 from mavlink.monitor import SafetyMonitor, Verdict, always_clauses
 from mavlink.offboard import FlightResult, OffboardConfig, fly_offboard
-from mavlink.tlog import TlogRecorder, read_tracks_csv, tracks_from_tlog, write_tracks_csv
+from mavlink.tlog import read_tracks_csv, tracks_from_tlog
 from planner.frames import GeodeticPoint, ned_to_enu
 from tests.mavlink.linkutil import (
     flown_robustness,
@@ -84,23 +84,24 @@ def test_fleet_flies_planned_reach_avoid_and_the_flown_telemetry_satisfies_the_s
     spawns = [(v.start_enu_m[0], v.start_enu_m[1], 0.0) for v in plan.vehicles]
     cfg = OffboardConfig(rate_hz=rate_hz)
     monitor = SafetyMonitor(always_clauses(spec, names), horizon_s=0.5)
-    tlog = tmp_path / "flight.tlog"
+    tlog, csv = tmp_path / "flight.tlog", tmp_path / "flight.csv"
 
     async def run():
         async with mock_and_fleet(names, plan.origin, spawns) as (mock, fleet):
             truth: list = []
             stop = asyncio.Event()
             sampler = asyncio.create_task(sample_truth(mock, stop, truth))
-            with TlogRecorder(fleet, tlog) as rec:
-                result = await fly_offboard(fleet, trajs, plan.origin, cfg, monitor=monitor)
-                unix_minus_mono = time.time() - time.monotonic()
+            result = await fly_offboard(
+                fleet, trajs, plan.origin, cfg, monitor=monitor, tlog_path=tlog, csv_path=csv
+            )
             stop.set()
             await sampler
             await asyncio.sleep(1.1)  # one heartbeat period for the end mode to show
             modes = [s.mode for s in fleet.statuses()]
-            return result, truth, rec.stats, unix_minus_mono, modes
+            return result, truth, modes
 
-    result, truth, stats, unix_minus_mono, modes = asyncio.run(run())
+    result, truth, modes = asyncio.run(run())
+    stats = result.tlog
     assert result.completed, result.safety_event
     assert result.safety_event is None and result.end_failures == {}
     assert monitor.checks > 0
@@ -116,7 +117,7 @@ def test_fleet_flies_planned_reach_avoid_and_the_flown_telemetry_satisfies_the_s
     assert all(m is not None and m.label == "AUTO.LOITER" for m in modes)
 
     # The .tlog reads back with pymavlink and gives the same flight.
-    assert stats.messages > 0 and stats.unknown == {}
+    assert stats is not None and stats.messages > 0 and stats.unknown == {}
     log = mavutil.mavlink_connection(str(tlog), dialect="common")
     kinds = set()
     while (m := log.recv_match()) is not None:
@@ -131,12 +132,12 @@ def test_fleet_flies_planned_reach_avoid_and_the_flown_telemetry_satisfies_the_s
         tlog,
         {i + 1: name for i, name in enumerate(names)},
         plan.origin,
-        result.t0_monotonic_s + unix_minus_mono,
+        result.t0_unix_s,
     )
     rho_tlog = flown_robustness(spec, from_tlog, dt, horizon)
     assert rho_tlog == pytest.approx(rho_flown, abs=0.02)
     # CSV round trip for `gcs verify`.
-    back = read_tracks_csv(write_tracks_csv(tmp_path / "flight.csv", result.tracks))
+    back = read_tracks_csv(csv)
     for name in names:
         np.testing.assert_array_equal(back[name].pos_enu_m, result.tracks[name].pos_enu_m)
         np.testing.assert_array_equal(back[name].t_s, result.tracks[name].t_s)
