@@ -37,6 +37,7 @@ item by item, field by field, at the wire's precision (float32 params).
 from __future__ import annotations
 
 import asyncio
+import json
 import math
 import time
 from collections.abc import Mapping, Sequence
@@ -421,6 +422,27 @@ class FenceBox:
     inclusion: bool
 
 
+def fence_boxes(
+    workspace: Any, regions: Sequence[Any], exclude_kinds: Sequence[str] = ("obstacle", "no_fly")
+) -> tuple[FenceBox, ...]:
+    """Fence boxes of a scenario: the workspace to stay in, obstacles and no-fly zones to stay out of.
+
+    Args:
+        workspace: a :class:`planner.scenario.Region` (``name``, ``lo_enu_m``, ``hi_enu_m``).
+        regions: the scenario's other regions; those whose ``kind.value`` is in
+            ``exclude_kinds`` become exclusion polygons.
+    """
+    out = [
+        FenceBox(
+            workspace.name, tuple(workspace.lo_enu_m), tuple(workspace.hi_enu_m), inclusion=True
+        )
+    ]
+    for r in regions:
+        if r.kind.value in exclude_kinds:
+            out.append(FenceBox(r.name, tuple(r.lo_enu_m), tuple(r.hi_enu_m), inclusion=False))
+    return tuple(out)
+
+
 def geofence_items(boxes: Sequence[FenceBox], origin: GeodeticPoint) -> tuple[MissionItem, ...]:
     """FENCE items: one 4-vertex polygon per box (counter-clockwise from the south-west corner)."""
     items: list[MissionItem] = []
@@ -564,12 +586,14 @@ class MissionRun:
 
     Attributes:
         vehicle: name.
-        reached: ``(seq, t_s)`` for each MISSION_ITEM_REACHED, seconds from the start command.
+        current: ``(seq, t_s)`` each time MISSION_CURRENT changed, seconds from the start command.
+        reached: ``(seq, t_s)`` for each MISSION_ITEM_REACHED.
         finished: the vehicle reported the mission finished in time.
         duration_s: time from the start command to the end (or the timeout).
     """
 
     vehicle: str
+    current: tuple[tuple[int, float], ...]
     reached: tuple[tuple[int, float], ...]
     finished: bool
     duration_s: float
@@ -580,42 +604,64 @@ async def fly_missions(
 ) -> dict[str, MissionRun]:
     """Arm, start the uploaded missions together and follow them until finished or timeout.
 
-    Progress comes from MISSION_ITEM_REACHED (via MAVSDK mavlink_direct) and
-    MAVSDK's ``is_mission_finished`` (MISSION_CURRENT).
-    """
-    import json
+    Progress comes from MISSION_CURRENT (MAVSDK's mission progress),
+    MISSION_ITEM_REACHED (mavlink_direct) and MAVSDK's ``is_mission_finished``.
 
+    Raises:
+        CommandError: a vehicle refused to arm.
+        MissionError: a vehicle refused to start its mission.
+    """
     from mavlink.fleet import mavsdk_call
 
-    reached: dict[str, list[tuple[int, float]]] = {v.name: [] for v in vehicles}
-    handles = []
     t_start = time.monotonic()
+    reached: dict[str, list[tuple[int, float]]] = {v.name: [] for v in vehicles}
+    current: dict[str, list[tuple[int, float]]] = {v.name: [] for v in vehicles}
+    unsubscribe: list[tuple[Any, Any]] = []
     for v in vehicles:
 
         def on_reached(msg: Any, _ud: Any, name: str = v.name) -> None:
             seq = int(json.loads(msg.fields_json)["seq"])
             reached[name].append((seq, time.monotonic() - t_start))
 
-        handles.append((v, v.direct.subscribe_message("MISSION_ITEM_REACHED", on_reached)))
+        def on_progress(progress: Any, _ud: Any, name: str = v.name) -> None:
+            seq = int(progress.current)
+            if not current[name] or current[name][-1][0] != seq:
+                current[name].append((seq, time.monotonic() - t_start))
+
+        unsubscribe.append(
+            (
+                v.direct.unsubscribe_message,
+                v.direct.subscribe_message("MISSION_ITEM_REACHED", on_reached),
+            )
+        )
+        unsubscribe.append(
+            (
+                v.mission_raw.unsubscribe_mission_progress,
+                v.mission_raw.subscribe_mission_progress(on_progress),
+            )
+        )
+    done: dict[str, float] = {}
     try:
         await asyncio.gather(*(v.arm() for v in vehicles))
         t_start = time.monotonic()
-        for v in vehicles:
-            result = await mavsdk_call(v.mission_raw.start_mission_async)
+        results = await asyncio.gather(
+            *(mavsdk_call(v.mission_raw.start_mission_async) for v in vehicles)
+        )
+        for v, result in zip(vehicles, results, strict=True):
             _raise_for(result, "start_mission", v)
-        done: dict[str, float] = {}
         while len(done) < len(vehicles) and time.monotonic() - t_start < timeout_s:
             await asyncio.sleep(poll_s)
             for v in vehicles:
                 if v.name not in done and v.mission_raw.is_mission_finished():
                     done[v.name] = time.monotonic() - t_start
     finally:
-        for v, h in handles:
-            v.direct.unsubscribe_message(h)
+        for unsub, handle in unsubscribe:
+            unsub(handle)
     now = time.monotonic() - t_start
     return {
         v.name: MissionRun(
             vehicle=v.name,
+            current=tuple(current[v.name]),
             reached=tuple(reached[v.name]),
             finished=v.name in done,
             duration_s=done.get(v.name, now),

@@ -13,12 +13,12 @@ import pytest
 from mavlink.errors import MissionError, MissionResult
 from mavlink.mission import (
     Cmd,
-    FenceBox,
     Frame,
     MissionEnd,
     MissionItem,
     MissionType,
     compare_items,
+    fence_boxes,
     fly_missions,
     geofence_items,
     path_deviation,
@@ -142,18 +142,9 @@ def test_upload_read_back_identical_then_fly_the_mission_on_the_mock() -> None:
     plan = stored_plan(2)
     v1 = plan.vehicles[0]
     mp = trajectory_to_mission(v1.trajectory, plan.origin, acceptance_radius_m=0.3)
-    ws = plan.workspace
-    fence = geofence_items(
-        [
-            FenceBox(ws.name, ws.lo_enu_m, ws.hi_enu_m, inclusion=True),
-            *(
-                FenceBox(r.name, r.lo_enu_m, r.hi_enu_m, inclusion=False)
-                for r in plan.regions
-                if r.kind.value == "obstacle"
-            ),
-        ],
-        plan.origin,
-    )
+    boxes = fence_boxes(plan.workspace, plan.regions)
+    assert [(b.name, b.inclusion) for b in boxes] == [("workspace", True), ("obstacle", False)]
+    fence = geofence_items(boxes, plan.origin)
     spawn = (v1.start_enu_m[0], v1.start_enu_m[1], 0.0)
 
     async def run():
@@ -187,3 +178,27 @@ def test_upload_read_back_identical_then_fly_the_mission_on_the_mock() -> None:
     wp_seqs = [i.seq for i in mp.items if i.command == Cmd.NAV_WAYPOINT]
     reached = [seq for seq, _ in run.reached]
     assert [s for s in reached if s in wp_seqs] == wp_seqs  # every waypoint, in order
+    seqs = [seq for seq, _ in run.current]
+    # MISSION_CURRENT walked through the items in order; MAVSDK reports current == total at the end.
+    assert seqs == sorted(seqs) and seqs[-1] == len(mp.items)
+
+
+def test_geofence_polygons_are_the_box_footprints() -> None:
+    from mavlink.mission import FenceBox
+
+    items = geofence_items(
+        [
+            FenceBox("ws", (-4.0, -4.0, 0.0), (4.0, 4.0, 3.0), inclusion=True),
+            FenceBox("nfz", (1.0, 2.0, 0.0), (1.5, 3.0, 9.0), inclusion=False),
+        ],
+        ORIGIN,
+    )
+    assert [i.command for i in items] == [Cmd.NAV_FENCE_POLYGON_VERTEX_INCLUSION] * 4 + [
+        Cmd.NAV_FENCE_POLYGON_VERTEX_EXCLUSION
+    ] * 4
+    assert all(i.param1 == 4.0 and i.mission_type == MissionType.FENCE for i in items)
+    assert [i.seq for i in items] == list(range(8))
+    corners = [(-4, -4), (4, -4), (4, 4), (-4, 4), (1, 2), (1.5, 2), (1.5, 3), (1, 3)]
+    for item, (x, y) in zip(items, corners, strict=True):
+        lat, lon, _ = pymap3d.enu2geodetic(x, y, 0.0, ORIGIN.lat_deg, ORIGIN.lon_deg, ORIGIN.alt_m)
+        assert (item.x, item.y) == (round(lat * 1e7), round(lon * 1e7))
