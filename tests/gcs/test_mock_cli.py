@@ -117,24 +117,43 @@ def test_vehicles_run_on_px4_style_ports_with_spawns(capsys) -> None:  # type: i
     assert summary["sim_time_s"] >= 1.0
 
 
-def test_scenario_gives_origin_and_starts(capsys) -> None:  # type: ignore[no-untyped-def]
-    from planner.scenario import load_scenario
+SCENARIO = """\
+name: mock_cli_test
+origin: {lat: 46.9, lon: 7.4, alt: 540.0}
+workspace: {min: [-10, -10, 0], max: [10, 10, 5]}
+regions:
+  goal: {kind: goal, center: [5, 5, 2], half_size: 0.5}
+limits: {v_max_m_s: 2.0, a_max_m_s2: 2.0}
+vehicles:
+  - {name: d1, start: [0, 0, 0]}
+  - {name: d2, start: [3, -2, 1]}
+timing: {horizon_s: 6, segment_s: 1, Ts_s: 0.1}
+separation_m: 0.5
+epsilon: 0.01
+spec:
+  - each: d in all
+    formula: eventually[0, $horizon] inside(d, goal)
+"""
 
-    path = REPO / "configs" / "reach_avoid.yaml"
-    problem = load_scenario(path)
-    gbase = free_block(len(problem.vehicles))
-    vbase = free_block(len(problem.vehicles))
+
+def test_scenario_gives_origin_and_starts(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    import pymap3d
+
+    path = tmp_path / "scenario.yaml"
+    path.write_text(SCENARIO, encoding="utf-8")
+    gbase, vbase = free_block(2), free_block(2)
     argv = ["mock", "--scenario", str(path), "--base-port", str(gbase)]
     argv += ["--vehicle-base-port", str(vbase), "--duration", "0.2", "--json"]
     assert main(argv) == 0
     table = json.loads(capsys.readouterr().out.splitlines()[0])["vehicles"]
-    assert [r["spawn_enu_m"] for r in table] == [list(v.start_enu_m) for v in problem.vehicles]
-    import pymap3d
-
-    o = problem.origin
-    for row, v in zip(table, problem.vehicles, strict=True):
-        lat, lon, alt = pymap3d.enu2geodetic(*v.start_enu_m, o.lat_deg, o.lon_deg, o.alt_m)
+    assert [r["spawn_enu_m"] for r in table] == [[0.0, 0.0, 0.0], [3.0, -2.0, 1.0]]
+    for row in table:
+        lat, lon, alt = pymap3d.enu2geodetic(*row["spawn_enu_m"], 46.9, 7.4, 540.0)
         assert row["origin"] == pytest.approx({"lat": lat, "lon": lon, "alt": alt}, abs=1e-6)
+    # --ground-spawn puts the airborne start on the ground below it
+    assert main([*argv, "--ground-spawn"]) == 0
+    table = json.loads(capsys.readouterr().out.splitlines()[0])["vehicles"]
+    assert table[1]["spawn_enu_m"] == [3.0, -2.0, 0.0]
 
 
 def test_ctrl_c_stops_cleanly() -> None:
