@@ -7,6 +7,7 @@ import asyncio
 import numpy as np
 import pytest
 
+from mavlink.errors import PreflightError
 from mavlink.mock.px4 import Px4Mode as MockMode
 from mavlink.monitor import SafetyAction, SafetyMonitor, Verdict, always_clauses
 from mavlink.offboard import OffboardConfig, fly_offboard
@@ -98,9 +99,13 @@ def test_monitor_stops_a_flight_that_would_leave_an_extra_geofence() -> None:
                 fleet, trajs, plan.origin, OffboardConfig(), monitor=monitor
             )
             await asyncio.sleep(0.5)
-            return result, [v.state for v in mock.vehicles]
+            states = [v.state for v in mock.vehicles]
+            # Hovering away from their starts now: a new flight is refused in 3-D.
+            with pytest.raises(PreflightError) as again:
+                await fly_offboard(fleet, trajs, plan.origin)
+            return result, states, again.value
 
-    result, states = asyncio.run(run())
+    result, states, again = asyncio.run(run())
     ev = result.safety_event
     assert ev is not None and not result.completed
     assert ev.verdict in (Verdict.PREDICTED, Verdict.VIOLATED)
@@ -109,3 +114,6 @@ def test_monitor_stops_a_flight_that_would_leave_an_extra_geofence() -> None:
     assert ev.action_failures == {}
     assert all(s.mode is MockMode.AUTO_LOITER for s in states)  # everyone holds
     assert "commanded hold to all vehicles" in ev.describe()
+    assert again.vehicle in ("d1", "d2")
+    assert "m from its planned start (tolerance 1.00 m)" in str(again)
+    assert "horizontally" not in str(again)
