@@ -7,7 +7,7 @@
    frame (:func:`plan_setpoints_ned`);
 2. refuses the flight, before anything is armed, if a vehicle is farther
    than ``start_tolerance_m`` from its planned start (horizontally while it
-   is on the ground, in 3-D if it already hovers) (:class:`PreflightError`);
+   is on the ground, in 3-D if it is in the air) (:class:`PreflightError`);
 3. takes off to the plan's start altitude (or checks the vehicle already
    hovers at its start) and waits until each vehicle is within the
    tolerance of its start;
@@ -436,10 +436,12 @@ async def _fly(
     for v in vehicles:
         st = v.status()
         start = setpoints[v.name].pos_ned_m[0]
-        airborne = _is_hovering(st, cfg.settle_speed_m_s)
+        # In the air (EXTENDED_SYS_STATE): judged in 3-D where it is; on the ground:
+        # horizontally, as it will climb straight up to its start.
+        airborne = bool(st.armed and st.in_air)
         if not airborne and not cfg.takeoff:
             raise PreflightError(
-                "refused: not hovering at its start and takeoff is disabled",
+                "refused: on the ground and takeoff is disabled",
                 vehicle=v.name,
                 url=v.url,
             )
