@@ -47,7 +47,7 @@ from mavsdk.plugins.offboard import (
     VelocityNedYaw,
 )
 
-from mavlink.errors import CommandError, LinkError, PreflightError
+from mavlink.errors import CommandError, LinkError, LinkLostError, PreflightError
 from mavlink.fleet import Fleet, Vehicle, VehicleStatus, mavsdk_call
 from mavlink.monitor import SafetyAction, SafetyEvent, SafetyMonitor, safe_stop
 from mavlink.px4_modes import Px4Mode
@@ -266,16 +266,6 @@ async def _takeoff_to_start(
     mission_origin: GeodeticPoint,
     vehicle_origin: GeodeticPoint,
 ) -> None:
-    st = await v.wait_for(lambda s: s.home is not None, "HOME_POSITION", timeout_s=5.0)
-    assert st.home is not None
-    rel_alt_m = start_alt_amsl_m - st.home.alt_m
-    if rel_alt_m < 0.3:
-        raise PreflightError(
-            f"refused: planned start is {rel_alt_m:.2f} m above home; "
-            "an offboard plan must start in the air (>= 0.3 m)",
-            vehicle=v.name,
-            url=v.url,
-        )
     await v.arm()
     await v.takeoff_to(start_alt_amsl_m)
 
@@ -291,7 +281,7 @@ async def _takeoff_to_start(
         await v.wait_for(
             arrived, "reaching the start after takeoff", timeout_s=cfg.takeoff_timeout_s
         )
-    except PreflightError:
+    except (PreflightError, LinkLostError):
         raise
     except LinkError as exc:
         raise PreflightError(exc.detail, vehicle=v.name, url=v.url) from None
@@ -455,11 +445,22 @@ async def _fly(
         )
         if not airborne:
             needs_takeoff.append(v)
-    start_alt = {
-        v.name: float(enu_to_geodetic(trajectories[v.name].position(0.0), mission_origin)[2][0])
-        for v in needs_takeoff
-    }
-    await asyncio.gather(
+    start_alt: dict[str, float] = {}
+    for v in needs_takeoff:
+        alt = float(enu_to_geodetic(trajectories[v.name].position(0.0), mission_origin)[2][0])
+        st = await v.wait_for(lambda s: s.home is not None, "HOME_POSITION", timeout_s=5.0)
+        assert st.home is not None
+        if alt - st.home.alt_m < 0.3:
+            raise PreflightError(
+                f"refused: planned start is {alt - st.home.alt_m:.2f} m above home; "
+                "an offboard plan must start in the air (>= 0.3 m)",
+                vehicle=v.name,
+                url=v.url,
+            )
+        start_alt[v.name] = alt
+
+    # Take off together; every vehicle finishes (or fails) before the first failure is raised.
+    results = await asyncio.gather(
         *(
             _takeoff_to_start(
                 v,
@@ -470,8 +471,14 @@ async def _fly(
                 origins[v.name],
             )
             for v in needs_takeoff
-        )
+        ),
+        return_exceptions=True,
     )
+    errors = [r for r in results if isinstance(r, BaseException)]
+    if errors:
+        for other in errors[1:]:
+            errors[0].add_note(f"also: {other}")
+        raise errors[0]
 
     # Pre-stream the start setpoint, then switch everyone to offboard.
     n_pre = math.ceil((cfg.prestream_s + cfg.mode_timeout_s + 1.0) * cfg.rate_hz)
