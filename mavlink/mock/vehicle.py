@@ -7,7 +7,9 @@ land, return, mission, offboard failsafe, geofence, auto-disarm), the mission
 protocol timers and the telemetry streams due at that time.  Incoming
 datagrams are parsed with pymavlink's MAVLink 2 codec and dispatched by
 message type; every ``COMMAND_LONG``/``COMMAND_INT`` addressed to the vehicle is
-answered with a ``COMMAND_ACK``.
+answered with a ``COMMAND_ACK``.  The navigator (mission execution, return to
+launch, geofence) lives in :mod:`mavlink.mock.navigator`, the telemetry
+messages in :mod:`mavlink.mock.telemetry`.
 
 Frames: the vehicle's local NED origin is its EKF origin, the spawn point;
 global positions are that origin's geodetic coordinates plus the local offset
@@ -16,7 +18,6 @@ global positions are that origin's geodetic coordinates plus the local offset
 
 from __future__ import annotations
 
-import enum
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -28,8 +29,10 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.mock import px4
 from mavlink.mock.config import FaultConfig, MockVehicleConfig
-from mavlink.mock.mission import FENCE, MISSION, RALLY, MissionItem, MissionServer
+from mavlink.mock.mission import MISSION, MissionItem, MissionServer
+from mavlink.mock.navigator import NavigatorMixin
 from mavlink.mock.px4 import Px4Mode
+from mavlink.mock.telemetry import DEFAULT_RATES_HZ, TelemetryMixin
 
 if TYPE_CHECKING:
     from mavlink.mock.fleet import MockFleet
@@ -42,53 +45,10 @@ DENIED = mavlink2.MAV_RESULT_DENIED
 UNSUPPORTED = mavlink2.MAV_RESULT_UNSUPPORTED
 FAILED = mavlink2.MAV_RESULT_FAILED
 
-#: Default telemetry rates (Hz) of a PX4 GCS/onboard link, by message id.
-DEFAULT_RATES_HZ: dict[int, float] = {
-    mavlink2.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
-    mavlink2.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
-    mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
-    mavlink2.MAVLINK_MSG_ID_BATTERY_STATUS: 1.0,
-    mavlink2.MAVLINK_MSG_ID_HOME_POSITION: 1.0,
-    mavlink2.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: 1.0,
-    mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT: 1.0,
-    mavlink2.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
-    mavlink2.MAVLINK_MSG_ID_VFR_HUD: 4.0,
-    mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 10.0,
-    mavlink2.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: 10.0,
-    mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 50.0,
-    mavlink2.MAVLINK_MSG_ID_ATTITUDE: 50.0,
-}
-
-_SENSORS = (
-    mavlink2.MAV_SYS_STATUS_SENSOR_3D_GYRO
-    | mavlink2.MAV_SYS_STATUS_SENSOR_3D_ACCEL
-    | mavlink2.MAV_SYS_STATUS_SENSOR_3D_MAG
-    | mavlink2.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
-    | mavlink2.MAV_SYS_STATUS_SENSOR_GPS
-    | mavlink2.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
-    | mavlink2.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
-    | mavlink2.MAV_SYS_STATUS_SENSOR_YAW_POSITION
-    | mavlink2.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
-    | mavlink2.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
-    | mavlink2.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
-    | mavlink2.MAV_SYS_STATUS_AHRS
-    | mavlink2.MAV_SYS_STATUS_SENSOR_BATTERY
-)
-_PREARM = mavlink2.MAV_SYS_STATUS_PREARM_CHECK
 
 _FORCE_MAGIC = 21196.0
 _STREAM_GAP_S = 0.5  # setpoints at >= 2 Hz
 _STREAM_MIN_S = 1.0  # ... for at least 1 s before offboard is allowed
-_RTL_MIN_DIST_M = 10.0
-
-
-class LandedState(enum.IntEnum):
-    """``MAV_LANDED_STATE`` values reported in EXTENDED_SYS_STATE."""
-
-    ON_GROUND = mavlink2.MAV_LANDED_STATE_ON_GROUND
-    IN_AIR = mavlink2.MAV_LANDED_STATE_IN_AIR
-    TAKEOFF = mavlink2.MAV_LANDED_STATE_TAKEOFF
-    LANDING = mavlink2.MAV_LANDED_STATE_LANDING
 
 
 @dataclass(frozen=True, slots=True)
@@ -136,7 +96,7 @@ class _Setpoint:
     use_yaw_rate: bool
 
 
-class MockVehicle:
+class MockVehicle(TelemetryMixin, NavigatorMixin):
     """Vehicle ``index`` of a :class:`~mavlink.mock.fleet.MockFleet` (system id ``index + 1``)."""
 
     def __init__(
@@ -903,281 +863,6 @@ class MockVehicle:
         )
         self.set_mode(mode)
 
-    # ================================================================ RTL
-    def _rtl_start(self) -> None:
-        i = self.index
-        pos = self.phys.pos_ned_m[i]
-        home = self.home_ned_m
-        dist = math.hypot(pos[0] - home[0], pos[1] - home[1])
-        return_d = float(home[2]) - self.params["RTL_RETURN_ALT"]
-        self._rtl_alt_d_m = (
-            min(float(pos[2]), return_d) if dist > _RTL_MIN_DIST_M else float(pos[2])
-        )
-        self._rtl_phase = "climb"
-        target = pos.copy()
-        target[2] = self._rtl_alt_d_m
-        self.phys.set_position(i, target)
-
-    def _rtl_tick(self) -> None:
-        i = self.index
-        pos = self.phys.pos_ned_m[i]
-        if self._rtl_phase == "climb":
-            if abs(pos[2] - self._rtl_alt_d_m) < self.params["NAV_MC_ALT_RAD"]:
-                self._rtl_phase = "return"
-                target = self.home_ned_m.copy()
-                target[2] = self._rtl_alt_d_m
-                self.phys.set_position(i, target)
-                self._face(target)
-        elif self._rtl_phase == "return":
-            home = self.home_ned_m
-            if math.hypot(pos[0] - home[0], pos[1] - home[1]) < self.params["NAV_ACC_RAD"]:
-                self._rtl_phase = "land"
-                self._start_descent()
-                self.phys.sp_pos_ned_m[i, :2] = home[:2]
-
-    def _face(self, target: np.ndarray) -> None:
-        i = self.index
-        pos = self.phys.pos_ned_m[i]
-        dn, de = target[0] - pos[0], target[1] - pos[1]
-        if math.hypot(dn, de) > 2.0:
-            self.phys.sp_yaw_rad[i] = math.atan2(de, dn)
-            self.phys.m_yaw[i] = True
-
-    # ================================================================ mission
-    def _on_plan_changed(self, mission_type: int) -> None:
-        if mission_type == MISSION:
-            self.mission_seq = 0
-            self.mission_finished = False
-            self._jump_counts.clear()
-            self._mis_reached_sent = -1
-            if self.mode is Px4Mode.AUTO_MISSION:
-                if self.missions.plans[MISSION]:
-                    self._mission_start_item(0)
-                else:
-                    self.set_mode(Px4Mode.AUTO_LOITER)
-        elif mission_type == FENCE:
-            self._build_fence()
-        elif mission_type == RALLY:
-            pass  # stored and served; RTL returns home (RTL_TYPE 0)
-
-    def _mission_start_item(self, seq: int) -> None:
-        """Make ``seq`` current, run DO items until the next NAV item, and head for it."""
-        plan = self.missions.plans[MISSION]
-        i = self.index
-        for _ in range(len(plan) * 4 + 8):
-            if seq >= len(plan):
-                self._mission_finish()
-                return
-            item = plan[seq]
-            cmd = item.command
-            if cmd == mavlink2.MAV_CMD_DO_JUMP:
-                target, repeat = int(item.param1), int(item.param2)
-                done = self._jump_counts.get(seq, 0)
-                if (repeat < 0 or done < repeat) and 0 <= target < len(plan):
-                    self._jump_counts[seq] = done + 1
-                    seq = target
-                else:
-                    seq += 1
-                continue
-            if cmd == mavlink2.MAV_CMD_DO_CHANGE_SPEED:
-                if item.param2 > 0:
-                    self.cruise_speed_m_s = float(item.param2)
-                elif item.param2 == -1:
-                    self.cruise_speed_m_s = self.params["MPC_XY_CRUISE"]
-                self._apply_limits()
-                seq += 1
-                continue
-            if cmd == mavlink2.MAV_CMD_DO_SET_HOME:
-                if item.param1 >= 0.5:
-                    self.home_ned_m = self.phys.pos_ned_m[i].copy()
-                else:
-                    self.home_ned_m = self._item_target_ned(
-                        item.frame, item.x, item.y, item.z, self.home_ned_m
-                    )
-                seq += 1
-                continue
-            if cmd not in _NAV_COMMANDS:
-                seq += 1  # camera, gimbal, servo ...: done at once
-                continue
-            break
-        else:
-            self._mission_finish()
-            return
-        changed = seq != self.mission_seq
-        self.mission_seq = seq
-        self._mis_hold_until_s = math.inf
-        pos = self.phys.pos_ned_m[i].copy()
-        if cmd == mavlink2.MAV_CMD_NAV_RETURN_TO_LAUNCH:
-            self.set_mode(Px4Mode.AUTO_RTL)
-            self.mode = Px4Mode.AUTO_MISSION  # keep reporting mission while returning
-            self._mis_phase = "rtl"
-        elif cmd in (mavlink2.MAV_CMD_NAV_DELAY, mavlink2.MAV_CMD_CONDITION_DELAY):
-            self.phys.hold_here(i)
-            self._mis_phase = "delay"
-            self._mis_hold_until_s = self._now() + max(0.0, item.param1)
-        else:
-            target = self._item_target_ned(item.frame, item.x, item.y, item.z, pos)
-            if cmd in (mavlink2.MAV_CMD_NAV_TAKEOFF, mavlink2.MAV_CMD_NAV_VTOL_TAKEOFF):
-                target[:2] = pos[:2]
-                target[2] = min(target[2], pos[2])
-                self._mis_phase = "takeoff"
-            elif cmd in (mavlink2.MAV_CMD_NAV_LAND, mavlink2.MAV_CMD_NAV_VTOL_LAND):
-                target[2] = pos[2]
-                self._mis_phase = "land_approach"
-            else:
-                self._mis_phase = "goto"
-            if self.landed and self._mis_phase == "goto":
-                # PX4 takes off first when a mission starts on the ground without a takeoff
-                target_to = pos.copy()
-                target_to[2] = min(
-                    float(self.home_ned_m[2]) - self.params["MIS_TAKEOFF_ALT"], target[2]
-                )
-                self._mis_target = target
-                self._mis_phase = "pre_takeoff"
-                self.phys.set_position(i, target_to)
-            else:
-                self._mis_target = target
-                self.phys.set_position(i, target)
-                self._face(target)
-        if changed or self._mis_phase:
-            self.send(self._msg_mission_current())
-
-    def _mission_finish(self) -> None:
-        plan = self.missions.plans[MISSION]
-        self.mission_finished = True
-        self.mission_seq = max(0, len(plan) - 1)
-        self._mis_phase = "done"
-        if not self.landed:
-            self.phys.hold_here(self.index)
-        self.send(self._msg_mission_current())
-
-    def _item_reached(self, seq: int) -> None:
-        if self._mis_reached_sent != seq:
-            self._mis_reached_sent = seq
-            self.send(mavlink2.MAVLink_mission_item_reached_message(seq))
-
-    def _mission_tick(self) -> None:
-        if not self.armed or self.mission_finished:
-            return
-        plan = self.missions.plans[MISSION]
-        if self.mission_seq >= len(plan):
-            return
-        item = plan[self.mission_seq]
-        i = self.index
-        pos = self.phys.pos_ned_m[i]
-        now = self._now()
-        phase = self._mis_phase
-        tgt = self._mis_target
-        alt_rad = self.params["NAV_MC_ALT_RAD"]
-        if phase == "pre_takeoff":
-            if pos[2] <= self.phys.sp_pos_ned_m[i, 2] + alt_rad:
-                self._mis_phase = "goto"
-                self.phys.set_position(i, tgt)
-                self._face(tgt)
-            return
-        if phase == "takeoff":
-            if abs(pos[2] - tgt[2]) < alt_rad:
-                self._item_reached(self.mission_seq)
-                self._advance()
-            return
-        if phase == "goto":
-            acc_rad = item.param2 if item.param2 > 0 else self.params["NAV_ACC_RAD"]
-            if (
-                math.hypot(pos[0] - tgt[0], pos[1] - tgt[1]) < acc_rad
-                and abs(pos[2] - tgt[2]) < alt_rad
-            ):
-                self._item_reached(self.mission_seq)
-                if math.isfinite(item.param4) and item.command == mavlink2.MAV_CMD_NAV_WAYPOINT:
-                    self.phys.sp_yaw_rad[i] = math.radians(item.param4)
-                if item.command == mavlink2.MAV_CMD_NAV_LOITER_UNLIM:
-                    self._mis_phase = "loiter"
-                    return
-                hold_s = (
-                    item.param1
-                    if item.command
-                    in (mavlink2.MAV_CMD_NAV_WAYPOINT, mavlink2.MAV_CMD_NAV_LOITER_TIME)
-                    else 0.0
-                )
-                self._mis_hold_until_s = now + max(0.0, hold_s)
-                self._mis_phase = "hold"
-            return
-        if phase in ("hold", "delay"):
-            if now >= self._mis_hold_until_s:
-                self._advance()
-            return
-        if phase == "land_approach":
-            if math.hypot(pos[0] - tgt[0], pos[1] - tgt[1]) < self.params["NAV_ACC_RAD"]:
-                self._mis_phase = "land"
-                self._start_descent()
-                self.phys.sp_pos_ned_m[i, :2] = tgt[:2]
-            return
-        if phase == "land" and self.landed:
-            self._item_reached(self.mission_seq)
-            self._advance()
-
-    def _advance(self) -> None:
-        self._mission_start_item(self.mission_seq + 1)
-
-    # ================================================================ geofence
-    def _build_fence(self) -> None:
-        items = self.missions.plans[FENCE]
-        fence: list[tuple[str, bool, np.ndarray, float]] = []
-        k = 0
-        while k < len(items):
-            it = items[k]
-            if it.command in (
-                mavlink2.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
-                mavlink2.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION,
-            ):
-                count = int(it.param1)
-                verts = items[k : k + count]
-                ne = np.array([self.global_to_ned(v.x / 1e7, v.y / 1e7, 0.0)[:2] for v in verts])
-                inclusion = it.command == mavlink2.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION
-                fence.append(("polygon", inclusion, ne, 0.0))
-                k += max(count, 1)
-                continue
-            if it.command in (
-                mavlink2.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION,
-                mavlink2.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION,
-            ):
-                centre = self.global_to_ned(it.x / 1e7, it.y / 1e7, 0.0)[:2]
-                inclusion = it.command == mavlink2.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION
-                fence.append(("circle", inclusion, centre, float(it.param1)))
-            k += 1
-        self._fence = fence
-        self._fence_breached = False
-
-    def fence_violated(self, pos_ned_m: np.ndarray) -> bool:
-        """True if the local point (3,) lies outside an inclusion or inside an exclusion zone."""
-        ne = pos_ned_m[:2]
-        for kind, inclusion, data, radius in self._fence:
-            if kind == "circle":
-                inside = float(np.hypot(*(ne - data))) <= radius
-            else:
-                inside = _point_in_polygon(ne, data)
-            if inside != inclusion:
-                return True
-        return False
-
-    def _fence_tick(self) -> None:
-        if not self._fence or not self.armed or self.landed:
-            return
-        violated = self.fence_violated(self.phys.pos_ned_m[self.index])
-        if violated and not self._fence_breached:
-            self._fence_breached = True
-            action = int(self.params["GF_ACTION"])
-            self.statustext(mavlink2.MAV_SEVERITY_CRITICAL, "Geofence violated")
-            if action == 4:
-                self.failsafe = True
-                self._do_disarm("Flight termination: geofence")
-                return
-            mode = px4.GF_ACTION_MODES.get(action)
-            if mode is not None:
-                self.failsafe = True
-                self.set_mode(mode)
-        elif not violated:
-            self._fence_breached = False
-
     # ================================================================ tick
     def tick(self, now: float) -> None:
         """Mode logic, protocol timers and telemetry for simulation time ``now``."""
@@ -1237,236 +922,8 @@ class MockVehicle:
                 if msg is not None:
                     self.send(msg)
 
-    # ================================================================ telemetry
-    def _landed_state(self) -> int:
-        if self.landed:
-            return LandedState.ON_GROUND
-        if self.mode is Px4Mode.AUTO_TAKEOFF:
-            return LandedState.TAKEOFF
-        if self.mode is Px4Mode.AUTO_LAND or (
-            self.mode is Px4Mode.AUTO_RTL and self._rtl_phase == "land"
-        ):
-            return LandedState.LANDING
-        return LandedState.IN_AIR
-
-    def _msg_heartbeat(self) -> Msg:
-        base = self.mode.base_mode_flags
-        if self.armed:
-            base |= mavlink2.MAV_MODE_FLAG_SAFETY_ARMED
-        if self.failsafe and self.armed:
-            status = mavlink2.MAV_STATE_CRITICAL
-        elif self.armed:
-            status = mavlink2.MAV_STATE_ACTIVE
-        else:
-            status = mavlink2.MAV_STATE_STANDBY
-        return mavlink2.MAVLink_heartbeat_message(
-            mavlink2.MAV_TYPE_QUADROTOR,
-            mavlink2.MAV_AUTOPILOT_PX4,
-            base,
-            self.mode.custom_mode,
-            status,
-            3,
-        )
-
-    def _msg_sys_status(self) -> Msg:
-        ready = self._now() >= self.config.ready_after_s
-        health = _SENSORS | (_PREARM if ready and not self._fence_breached else 0)
-        remaining = self._battery_remaining()
-        return mavlink2.MAVLink_sys_status_message(
-            _SENSORS | _PREARM, _SENSORS | _PREARM, health,
-            250, int(15200 + 1000 * remaining / 100), 1200 if self.armed else 50,
-            int(remaining), 0, 0, 0, 0, 0, 0,
-        )  # fmt: skip
-
-    def _battery_remaining(self) -> float:
-        flown_s = self._now() - self._armed_at_s if self.armed else 0.0
-        return max(5.0, 100.0 - 0.05 * flown_s)
-
-    def _msg_battery_status(self) -> Msg:
-        remaining = self._battery_remaining()
-        volts = [int(15200 + 1000 * remaining / 100)] + [65535] * 9
-        return mavlink2.MAVLink_battery_status_message(
-            0, mavlink2.MAV_BATTERY_FUNCTION_ALL, mavlink2.MAV_BATTERY_TYPE_LIPO, 2500,
-            volts, 1200 if self.armed else 50, -1, -1, int(remaining), -1,
-            mavlink2.MAV_BATTERY_CHARGE_STATE_OK, [0, 0, 0, 0], 0, 0,
-        )  # fmt: skip
-
-    def _msg_extended_sys_state(self) -> Msg:
-        return mavlink2.MAVLink_extended_sys_state_message(
-            mavlink2.MAV_VTOL_STATE_UNDEFINED, self._landed_state()
-        )
-
-    def _msg_home_position(self) -> Msg:
-        lat, lon, alt = self.ned_to_global(self.home_ned_m)
-        h = self.home_ned_m
-        return mavlink2.MAVLink_home_position_message(
-            round(lat * 1e7), round(lon * 1e7), round(alt * 1000),
-            float(h[0]), float(h[1]), float(h[2]), [1.0, 0.0, 0.0, 0.0],
-            0.0, 0.0, 0.0, self._usec(),
-        )  # fmt: skip
-
-    def _msg_gps_global_origin(self) -> Msg:
-        lat, lon, alt = self.origin_lla
-        return mavlink2.MAVLink_gps_global_origin_message(
-            round(lat * 1e7), round(lon * 1e7), round(alt * 1000), self._usec()
-        )
-
-    def _msg_global_position_int(self) -> Msg:
-        i = self.index
-        lat, lon, alt = self.fleet.geodetic(i)
-        vel = self.phys.vel_ned_m_s[i] + self.phys.noise_vel_m_s[i]
-        rel = alt - self._home_alt_amsl()
-        hdg = round(math.degrees(self.phys.yaw_rad[i]) * 100) % 36000
-        return mavlink2.MAVLink_global_position_int_message(
-            self._boot_ms(), round(lat * 1e7), round(lon * 1e7), round(alt * 1000),
-            round(rel * 1000), round(vel[0] * 100), round(vel[1] * 100), round(vel[2] * 100),
-            hdg,
-        )  # fmt: skip
-
-    def _msg_gps_raw_int(self) -> Msg:
-        i = self.index
-        lat, lon, alt = self.fleet.geodetic(i)
-        v = self.phys.vel_ned_m_s[i]
-        speed = math.hypot(v[0], v[1])
-        cog = round(math.degrees(math.atan2(v[1], v[0])) * 100) % 36000 if speed > 0.2 else 65535
-        return mavlink2.MAVLink_gps_raw_int_message(
-            self._usec(), mavlink2.GPS_FIX_TYPE_3D_FIX, round(lat * 1e7), round(lon * 1e7),
-            round(alt * 1000), 80, 120, round(speed * 100), cog, 12, round(alt * 1000),
-            500, 800, 200, 0, 0,
-        )  # fmt: skip
-
-    def _msg_local_position_ned(self) -> Msg:
-        i = self.index
-        p = self.phys.pos_ned_m[i] + self.phys.noise_pos_m[i]
-        v = self.phys.vel_ned_m_s[i] + self.phys.noise_vel_m_s[i]
-        return mavlink2.MAVLink_local_position_ned_message(
-            self._boot_ms(), p[0], p[1], p[2], v[0], v[1], v[2]
-        )
-
-    def _msg_attitude(self) -> Msg:
-        i, p = self.index, self.phys
-        return mavlink2.MAVLink_attitude_message(
-            self._boot_ms(), p.roll_rad[i], p.pitch_rad[i], p.yaw_rad[i],
-            p.roll_rate_rad_s[i], p.pitch_rate_rad_s[i], p.yaw_rate_rad_s[i],
-        )  # fmt: skip
-
-    def _msg_attitude_quaternion(self) -> Msg:
-        i, p = self.index, self.phys
-        q = _euler_to_quaternion(p.roll_rad[i], p.pitch_rad[i], p.yaw_rad[i])
-        return mavlink2.MAVLink_attitude_quaternion_message(
-            self._boot_ms(), *q,
-            p.roll_rate_rad_s[i], p.pitch_rate_rad_s[i], p.yaw_rate_rad_s[i], [0.0] * 4,
-        )  # fmt: skip
-
-    def _msg_altitude(self) -> Msg:
-        i = self.index
-        _, _, alt = self.fleet.geodetic(i)
-        rel = alt - self._home_alt_amsl()
-        return mavlink2.MAVLink_altitude_message(
-            self._usec(), alt, alt, -self.phys.pos_ned_m[i, 2], rel, rel, -1000.0
-        )
-
-    def _msg_vfr_hud(self) -> Msg:
-        i = self.index
-        v = self.phys.vel_ned_m_s[i]
-        _, _, alt = self.fleet.geodetic(i)
-        speed = math.hypot(v[0], v[1])
-        hdg = round(math.degrees(self.phys.yaw_rad[i])) % 360
-        throttle = 50 if self.armed and not self.landed else (10 if self.armed else 0)
-        return mavlink2.MAVLink_vfr_hud_message(speed, speed, hdg, throttle, alt, -v[2])
-
-    def _msg_mission_current(self) -> Msg:
-        plan = self.missions.plans[MISSION]
-        if not plan:
-            state = mavlink2.MISSION_STATE_NO_MISSION
-        elif self.mission_finished:
-            state = mavlink2.MISSION_STATE_COMPLETE
-        elif self.mode is Px4Mode.AUTO_MISSION and self.armed:
-            state = mavlink2.MISSION_STATE_ACTIVE
-        elif self.mission_seq == 0:
-            state = mavlink2.MISSION_STATE_NOT_STARTED
-        else:
-            state = mavlink2.MISSION_STATE_PAUSED
-        return mavlink2.MAVLink_mission_current_message(
-            self.mission_seq, len(plan), state, int(self.mode is Px4Mode.AUTO_MISSION)
-        )
-
-    def _msg_position_target(self) -> Msg | None:
-        if not self.armed:
-            return None
-        i, p = self.index, self.phys
-        mask = 0
-        for k, bit in enumerate((1, 2, 4)):
-            if p.m_pos[i, k] == 0:
-                mask |= bit
-        for k, bit in enumerate((8, 16, 32)):
-            if p.m_vel[i, k] == 0:
-                mask |= bit
-        for k, bit in enumerate((64, 128, 256)):
-            if p.m_acc[i, k] == 0:
-                mask |= bit
-        if not p.m_yaw[i]:
-            mask |= 1024
-        if not p.m_yaw_rate[i]:
-            mask |= 2048
-        sp, sv, sa = p.sp_pos_ned_m[i], p.sp_vel_ned_m_s[i], p.sp_acc_ned_m_s2[i]
-        return mavlink2.MAVLink_position_target_local_ned_message(
-            self._boot_ms(), mavlink2.MAV_FRAME_LOCAL_NED, mask,
-            sp[0], sp[1], sp[2], sv[0], sv[1], sv[2], sa[0], sa[1], sa[2],
-            p.sp_yaw_rad[i], p.sp_yaw_rate_rad_s[i],
-        )  # fmt: skip
-
-    def _msg_autopilot_version(self) -> Msg:
-        return mavlink2.MAVLink_autopilot_version_message(
-            px4.CAPABILITIES, px4.FLIGHT_SW_VERSION, px4.FLIGHT_SW_VERSION, 0, 0,
-            [0] * 8, [0] * 8, [0] * 8, 0x26AC, 0x0011, self.uid,
-            list(self.uid.to_bytes(8, "little")) + [0] * 10,
-        )  # fmt: skip
-
-
-_NAV_COMMANDS = frozenset(
-    {
-        mavlink2.MAV_CMD_NAV_WAYPOINT,
-        mavlink2.MAV_CMD_NAV_LOITER_UNLIM,
-        mavlink2.MAV_CMD_NAV_LOITER_TURNS,
-        mavlink2.MAV_CMD_NAV_LOITER_TIME,
-        mavlink2.MAV_CMD_NAV_RETURN_TO_LAUNCH,
-        mavlink2.MAV_CMD_NAV_LAND,
-        mavlink2.MAV_CMD_NAV_TAKEOFF,
-        mavlink2.MAV_CMD_NAV_DELAY,
-        mavlink2.MAV_CMD_NAV_VTOL_TAKEOFF,
-        mavlink2.MAV_CMD_NAV_VTOL_LAND,
-        mavlink2.MAV_CMD_CONDITION_DELAY,
-    }
-)
-
 
 def _param_name(raw: str | bytes) -> str:
     if isinstance(raw, bytes):
         raw = raw.decode("ascii", "replace")
     return raw.split("\x00", 1)[0]
-
-
-def _point_in_polygon(pt: np.ndarray, poly: np.ndarray) -> bool:
-    """Even-odd rule for a point (2,) and polygon vertices (k, 2)."""
-    x, y = float(pt[0]), float(pt[1])
-    xs, ys = poly[:, 0], poly[:, 1]
-    xj, yj = np.roll(xs, 1), np.roll(ys, 1)
-    crosses = (ys > y) != (yj > y)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        x_int = (xj - xs) * (y - ys) / (yj - ys) + xs
-    return bool(np.count_nonzero(crosses & (x < x_int)) % 2)
-
-
-def _euler_to_quaternion(
-    roll: float, pitch: float, yaw: float
-) -> tuple[float, float, float, float]:
-    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
-    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
-    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return (
-        cr * cp * cy + sr * sp * sy,
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-    )

@@ -1,0 +1,266 @@
+"""Telemetry of the mock vehicle: the MAVLink messages PX4 streams, built from the true state.
+
+Mixed into :class:`mavlink.mock.vehicle.MockVehicle`.  Each ``_msg_*`` method
+builds one message for the current tick; positions and velocities carry the
+fleet's seeded telemetry noise, global positions are the vehicle's EKF origin
+plus its local offset (the fleet converts the whole fleet at once per tick).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+from mavlink.mock import px4
+from mavlink.mock.mission import MISSION
+from mavlink.mock.px4 import Px4Mode
+
+Msg = mavlink2.MAVLink_message
+
+#: Default telemetry rates (Hz) of a PX4 GCS/onboard link, by message id.
+DEFAULT_RATES_HZ: dict[int, float] = {
+    mavlink2.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
+    mavlink2.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
+    mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
+    mavlink2.MAVLINK_MSG_ID_BATTERY_STATUS: 1.0,
+    mavlink2.MAVLINK_MSG_ID_HOME_POSITION: 1.0,
+    mavlink2.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: 1.0,
+    mavlink2.MAVLINK_MSG_ID_GPS_RAW_INT: 1.0,
+    mavlink2.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
+    mavlink2.MAVLINK_MSG_ID_VFR_HUD: 4.0,
+    mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 10.0,
+    mavlink2.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: 10.0,
+    mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 50.0,
+    mavlink2.MAVLINK_MSG_ID_ATTITUDE: 50.0,
+}
+
+_SENSORS = (
+    mavlink2.MAV_SYS_STATUS_SENSOR_3D_GYRO
+    | mavlink2.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+    | mavlink2.MAV_SYS_STATUS_SENSOR_3D_MAG
+    | mavlink2.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+    | mavlink2.MAV_SYS_STATUS_SENSOR_GPS
+    | mavlink2.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
+    | mavlink2.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
+    | mavlink2.MAV_SYS_STATUS_SENSOR_YAW_POSITION
+    | mavlink2.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
+    | mavlink2.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+    | mavlink2.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+    | mavlink2.MAV_SYS_STATUS_AHRS
+    | mavlink2.MAV_SYS_STATUS_SENSOR_BATTERY
+)
+_PREARM = mavlink2.MAV_SYS_STATUS_PREARM_CHECK
+
+
+class LandedState(enum.IntEnum):
+    """``MAV_LANDED_STATE`` values reported in EXTENDED_SYS_STATE."""
+
+    ON_GROUND = mavlink2.MAV_LANDED_STATE_ON_GROUND
+    IN_AIR = mavlink2.MAV_LANDED_STATE_IN_AIR
+    TAKEOFF = mavlink2.MAV_LANDED_STATE_TAKEOFF
+    LANDING = mavlink2.MAV_LANDED_STATE_LANDING
+
+
+class TelemetryMixin:
+    """Message builders of :class:`~mavlink.mock.vehicle.MockVehicle` (one per message type)."""
+
+    def _landed_state(self) -> int:
+        if self.landed:
+            return LandedState.ON_GROUND
+        if self.mode is Px4Mode.AUTO_TAKEOFF:
+            return LandedState.TAKEOFF
+        if self.mode is Px4Mode.AUTO_LAND or (
+            self.mode is Px4Mode.AUTO_RTL and self._rtl_phase == "land"
+        ):
+            return LandedState.LANDING
+        return LandedState.IN_AIR
+
+    def _msg_heartbeat(self) -> Msg:
+        base = self.mode.base_mode_flags
+        if self.armed:
+            base |= mavlink2.MAV_MODE_FLAG_SAFETY_ARMED
+        if self.failsafe and self.armed:
+            status = mavlink2.MAV_STATE_CRITICAL
+        elif self.armed:
+            status = mavlink2.MAV_STATE_ACTIVE
+        else:
+            status = mavlink2.MAV_STATE_STANDBY
+        return mavlink2.MAVLink_heartbeat_message(
+            mavlink2.MAV_TYPE_QUADROTOR,
+            mavlink2.MAV_AUTOPILOT_PX4,
+            base,
+            self.mode.custom_mode,
+            status,
+            3,
+        )
+
+    def _msg_sys_status(self) -> Msg:
+        ready = self._now() >= self.config.ready_after_s
+        health = _SENSORS | (_PREARM if ready and not self._fence_breached else 0)
+        remaining = self._battery_remaining()
+        return mavlink2.MAVLink_sys_status_message(
+            _SENSORS | _PREARM, _SENSORS | _PREARM, health,
+            250, int(15200 + 1000 * remaining / 100), 1200 if self.armed else 50,
+            int(remaining), 0, 0, 0, 0, 0, 0,
+        )  # fmt: skip
+
+    def _battery_remaining(self) -> float:
+        flown_s = self._now() - self._armed_at_s if self.armed else 0.0
+        return max(5.0, 100.0 - 0.05 * flown_s)
+
+    def _msg_battery_status(self) -> Msg:
+        remaining = self._battery_remaining()
+        volts = [int(15200 + 1000 * remaining / 100)] + [65535] * 9
+        return mavlink2.MAVLink_battery_status_message(
+            0, mavlink2.MAV_BATTERY_FUNCTION_ALL, mavlink2.MAV_BATTERY_TYPE_LIPO, 2500,
+            volts, 1200 if self.armed else 50, -1, -1, int(remaining), -1,
+            mavlink2.MAV_BATTERY_CHARGE_STATE_OK, [0, 0, 0, 0], 0, 0,
+        )  # fmt: skip
+
+    def _msg_extended_sys_state(self) -> Msg:
+        return mavlink2.MAVLink_extended_sys_state_message(
+            mavlink2.MAV_VTOL_STATE_UNDEFINED, self._landed_state()
+        )
+
+    def _msg_home_position(self) -> Msg:
+        lat, lon, alt = self.ned_to_global(self.home_ned_m)
+        h = self.home_ned_m
+        return mavlink2.MAVLink_home_position_message(
+            round(lat * 1e7), round(lon * 1e7), round(alt * 1000),
+            float(h[0]), float(h[1]), float(h[2]), [1.0, 0.0, 0.0, 0.0],
+            0.0, 0.0, 0.0, self._usec(),
+        )  # fmt: skip
+
+    def _msg_gps_global_origin(self) -> Msg:
+        lat, lon, alt = self.origin_lla
+        return mavlink2.MAVLink_gps_global_origin_message(
+            round(lat * 1e7), round(lon * 1e7), round(alt * 1000), self._usec()
+        )
+
+    def _msg_global_position_int(self) -> Msg:
+        i = self.index
+        lat, lon, alt = self.fleet.geodetic(i)
+        vel = self.phys.vel_ned_m_s[i] + self.phys.noise_vel_m_s[i]
+        rel = alt - self._home_alt_amsl()
+        hdg = round(math.degrees(self.phys.yaw_rad[i]) * 100) % 36000
+        return mavlink2.MAVLink_global_position_int_message(
+            self._boot_ms(), round(lat * 1e7), round(lon * 1e7), round(alt * 1000),
+            round(rel * 1000), round(vel[0] * 100), round(vel[1] * 100), round(vel[2] * 100),
+            hdg,
+        )  # fmt: skip
+
+    def _msg_gps_raw_int(self) -> Msg:
+        i = self.index
+        lat, lon, alt = self.fleet.geodetic(i)
+        v = self.phys.vel_ned_m_s[i]
+        speed = math.hypot(v[0], v[1])
+        cog = round(math.degrees(math.atan2(v[1], v[0])) * 100) % 36000 if speed > 0.2 else 65535
+        return mavlink2.MAVLink_gps_raw_int_message(
+            self._usec(), mavlink2.GPS_FIX_TYPE_3D_FIX, round(lat * 1e7), round(lon * 1e7),
+            round(alt * 1000), 80, 120, round(speed * 100), cog, 12, round(alt * 1000),
+            500, 800, 200, 0, 0,
+        )  # fmt: skip
+
+    def _msg_local_position_ned(self) -> Msg:
+        i = self.index
+        p = self.phys.pos_ned_m[i] + self.phys.noise_pos_m[i]
+        v = self.phys.vel_ned_m_s[i] + self.phys.noise_vel_m_s[i]
+        return mavlink2.MAVLink_local_position_ned_message(
+            self._boot_ms(), p[0], p[1], p[2], v[0], v[1], v[2]
+        )
+
+    def _msg_attitude(self) -> Msg:
+        i, p = self.index, self.phys
+        return mavlink2.MAVLink_attitude_message(
+            self._boot_ms(), p.roll_rad[i], p.pitch_rad[i], p.yaw_rad[i],
+            p.roll_rate_rad_s[i], p.pitch_rate_rad_s[i], p.yaw_rate_rad_s[i],
+        )  # fmt: skip
+
+    def _msg_attitude_quaternion(self) -> Msg:
+        i, p = self.index, self.phys
+        q = _euler_to_quaternion(p.roll_rad[i], p.pitch_rad[i], p.yaw_rad[i])
+        return mavlink2.MAVLink_attitude_quaternion_message(
+            self._boot_ms(), *q,
+            p.roll_rate_rad_s[i], p.pitch_rate_rad_s[i], p.yaw_rate_rad_s[i], [0.0] * 4,
+        )  # fmt: skip
+
+    def _msg_altitude(self) -> Msg:
+        i = self.index
+        _, _, alt = self.fleet.geodetic(i)
+        rel = alt - self._home_alt_amsl()
+        return mavlink2.MAVLink_altitude_message(
+            self._usec(), alt, alt, -self.phys.pos_ned_m[i, 2], rel, rel, -1000.0
+        )
+
+    def _msg_vfr_hud(self) -> Msg:
+        i = self.index
+        v = self.phys.vel_ned_m_s[i]
+        _, _, alt = self.fleet.geodetic(i)
+        speed = math.hypot(v[0], v[1])
+        hdg = round(math.degrees(self.phys.yaw_rad[i])) % 360
+        throttle = 50 if self.armed and not self.landed else (10 if self.armed else 0)
+        return mavlink2.MAVLink_vfr_hud_message(speed, speed, hdg, throttle, alt, -v[2])
+
+    def _msg_mission_current(self) -> Msg:
+        plan = self.missions.plans[MISSION]
+        if not plan:
+            state = mavlink2.MISSION_STATE_NO_MISSION
+        elif self.mission_finished:
+            state = mavlink2.MISSION_STATE_COMPLETE
+        elif self.mode is Px4Mode.AUTO_MISSION and self.armed:
+            state = mavlink2.MISSION_STATE_ACTIVE
+        elif self.mission_seq == 0:
+            state = mavlink2.MISSION_STATE_NOT_STARTED
+        else:
+            state = mavlink2.MISSION_STATE_PAUSED
+        return mavlink2.MAVLink_mission_current_message(
+            self.mission_seq, len(plan), state, int(self.mode is Px4Mode.AUTO_MISSION)
+        )
+
+    def _msg_position_target(self) -> Msg | None:
+        if not self.armed:
+            return None
+        i, p = self.index, self.phys
+        mask = 0
+        for k, bit in enumerate((1, 2, 4)):
+            if p.m_pos[i, k] == 0:
+                mask |= bit
+        for k, bit in enumerate((8, 16, 32)):
+            if p.m_vel[i, k] == 0:
+                mask |= bit
+        for k, bit in enumerate((64, 128, 256)):
+            if p.m_acc[i, k] == 0:
+                mask |= bit
+        if not p.m_yaw[i]:
+            mask |= 1024
+        if not p.m_yaw_rate[i]:
+            mask |= 2048
+        sp, sv, sa = p.sp_pos_ned_m[i], p.sp_vel_ned_m_s[i], p.sp_acc_ned_m_s2[i]
+        return mavlink2.MAVLink_position_target_local_ned_message(
+            self._boot_ms(), mavlink2.MAV_FRAME_LOCAL_NED, mask,
+            sp[0], sp[1], sp[2], sv[0], sv[1], sv[2], sa[0], sa[1], sa[2],
+            p.sp_yaw_rad[i], p.sp_yaw_rate_rad_s[i],
+        )  # fmt: skip
+
+    def _msg_autopilot_version(self) -> Msg:
+        return mavlink2.MAVLink_autopilot_version_message(
+            px4.CAPABILITIES, px4.FLIGHT_SW_VERSION, px4.FLIGHT_SW_VERSION, 0, 0,
+            [0] * 8, [0] * 8, [0] * 8, 0x26AC, 0x0011, self.uid,
+            list(self.uid.to_bytes(8, "little")) + [0] * 10,
+        )  # fmt: skip
+
+
+def _euler_to_quaternion(
+    roll: float, pitch: float, yaw: float
+) -> tuple[float, float, float, float]:
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    )
