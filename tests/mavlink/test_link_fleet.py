@@ -154,3 +154,22 @@ def test_status_matches_the_vehicle_and_mavsdks_own_mode_decoding() -> None:
         Px4Mode.AUTO_LOITER,
         Px4Mode.AUTO_LAND,
     ]
+
+
+def test_set_mode_sends_px4_custom_modes_and_reports_refusals() -> None:
+    from mavlink.errors import CommandError
+
+    async def run():
+        async with mock_and_fleet(["d1"], ORIGIN, [(0.0, 0.0, 0.0)]) as (mock, fleet):
+            v = fleet["d1"]
+            # Offboard without a setpoint stream: PX4 (and the mock) refuse it.
+            with pytest.raises(CommandError) as refused:
+                await v.set_mode(Px4Mode.OFFBOARD)
+            await v.set_mode(Px4Mode.AUTO_RTL)
+            return refused.value, mock.vehicles[0].state.mode
+
+    refused, mode_after = asyncio.run(run())
+    assert refused.result == "TEMPORARILY_REJECTED"
+    assert str(refused).startswith("vehicle d1 (udpin://127.0.0.1:")
+    assert "set mode OFFBOARD failed: TEMPORARILY_REJECTED" in str(refused)
+    assert mode_after.value == Px4Mode.AUTO_RTL.value  # the mock decoded our custom mode
