@@ -7,7 +7,8 @@ converts the vehicle's trajectory (takeoff, waypoints with hold times, a speed c
 land/return/hold), and this module only writes each item in QGC's JSON form, so QGC (and
 MAVSDK's importer, ``mission_raw.import_qgroundcontrol_mission``) read back the same
 ``MISSION_ITEM_INT`` fields. The geofence polygons are the link's fence items
-(:func:`mavlink.mission.geofence_items`) of :func:`fence_boxes`. Layout (QGC plan format,
+(:func:`mavlink.mission.geofence_items`) of the link's
+:func:`mavlink.mission.fence_boxes` of the plan's regions. Layout (QGC plan format,
 ``fileType`` "Plan" version 1)::
 
     {"fileType": "Plan", "version": 1, "groundStation": "stl-gcs",
@@ -36,9 +37,9 @@ Choices and why:
   ``z = 0``, the origin's AMSL altitude), where the vehicle is armed.
 * ``hoverSpeed`` / ``cruiseSpeed`` (QGC's defaults for time estimates) are the mean commanded
   leg speed; the legs themselves carry their own ``DO_CHANGE_SPEED``.
-* The fence is the workspace's footprint (inclusion) and every ``no_fly`` region's footprint
-  (exclusion). Obstacles, poles and corridors are 3-D things the plan flies over or beside,
-  so they are not 2-D fences.
+* The fence is what ``gcs upload --fence`` sends: the link's choice of boxes
+  (:func:`mavlink.mission.fence_boxes`: the workspace's footprint as inclusion, obstacles' and
+  no-fly zones' footprints as exclusions), one 4-vertex polygon each.
 
 Setpoints (CSV and JSON)
 ------------------------
@@ -75,7 +76,7 @@ import numpy as np
 from gcs.errors import InputFileError, UserError
 
 if TYPE_CHECKING:
-    from mavlink.mission import FenceBox, MissionEnd, MissionItem
+    from mavlink.mission import MissionEnd, MissionItem
     from planner.planfile import Plan, PlannedVehicle
 
 __all__ = [
@@ -83,7 +84,6 @@ __all__ = [
     "DEFAULT_RATE_HZ",
     "ExportFormat",
     "QgcOptions",
-    "fence_boxes",
     "mission_item_to_qgc",
     "qgc_plan",
     "setpoints_json",
@@ -151,21 +151,6 @@ class QgcOptions:
     fence: bool = True
 
 
-def fence_boxes(plan: Plan) -> tuple[FenceBox, ...]:
-    """Fence boxes of a plan: the workspace (inclusion) and every no-fly region (exclusion)."""
-    from mavlink.mission import FenceBox
-    from planner.scenario import RegionKind
-
-    ws = plan.workspace
-    boxes = [FenceBox(ws.name, ws.lo_enu_m, ws.hi_enu_m, inclusion=True)]
-    boxes += [
-        FenceBox(r.name, r.lo_enu_m, r.hi_enu_m, inclusion=False)
-        for r in plan.regions
-        if r.kind is RegionKind.NO_FLY
-    ]
-    return tuple(boxes)
-
-
 def _json_number(x: float) -> float | None:
     x = float(x)
     return x if math.isfinite(x) else None
@@ -231,7 +216,7 @@ def _fence_polygons(items: Sequence[MissionItem]) -> list[dict[str, Any]]:
 
 def qgc_plan(plan: Plan, vehicle: PlannedVehicle, options: QgcOptions | None = None) -> dict:
     """The QGroundControl plan (a JSON-ready dict) of one vehicle of ``plan``."""
-    from mavlink.mission import geofence_items, trajectory_to_mission
+    from mavlink.mission import fence_boxes, geofence_items, trajectory_to_mission
     from planner.frames import enu_to_geodetic
 
     opts = options if options is not None else QgcOptions()
@@ -243,7 +228,10 @@ def qgc_plan(plan: Plan, vehicle: PlannedVehicle, options: QgcOptions | None = N
     home_lat, home_lon, home_alt = enu_to_geodetic(np.array([x0, y0, 0.0]), plan.origin)
     legs = np.asarray(mission.leg_speed_m_s, dtype=float)
     speed = float(legs.mean()) if legs.size else float(min(vehicle.v_max_m_s[:2]))
-    fence = _fence_polygons(geofence_items(fence_boxes(plan), plan.origin)) if opts.fence else []
+    fence = []
+    if opts.fence:
+        boxes = fence_boxes(plan.workspace, plan.regions)
+        fence = _fence_polygons(geofence_items(boxes, plan.origin))
     return {
         "fileType": QGC_FILE_TYPE,
         "version": QGC_PLAN_VERSION,

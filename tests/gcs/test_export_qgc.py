@@ -21,12 +21,13 @@ import pymap3d
 import pytest
 
 from gcs import cli
-from gcs.export import QgcOptions, fence_boxes, qgc_plan
+from gcs.export import QgcOptions, qgc_plan
 from mavlink.mission import (
     Cmd,
     MissionEnd,
     MissionItem,
     compare_items,
+    fence_boxes,
     geofence_items,
     trajectory_to_mission,
 )
@@ -123,14 +124,15 @@ def test_mavsdk_importer_gives_back_exactly_the_uploaded_items(
             yaws = {round(it.param4, 3) for it in back if it.command == Cmd.NAV_WAYPOINT}
             assert len(yaws) > 1
 
-        fence_sent = geofence_items(fence_boxes(loaded), loaded.origin)
+        fence_sent = geofence_items(fence_boxes(loaded.workspace, loaded.regions), loaded.origin)
         fence_back = _items(data.geofence_items)
         # QGC's fence polygons carry only lat/lon and inclusion: the importer sets the frame to
         # MAV_FRAME_GLOBAL and autocontinue to 0 where the link sends GLOBAL_INT and 1 (same
         # lat/lon; autocontinue means nothing for a fence vertex). Every other field matches.
         assert {(f.frame, f.autocontinue) for f in fence_back} == {(MAV_FRAME_GLOBAL, 0)}
         assert compare_items([_as_imported(f) for f in fence_sent], fence_back) == []
-        assert len(fence_back) == 8  # workspace (inclusion) + the one no-fly box (exclusion)
+        # Workspace (inclusion), obstacle and no-fly box (exclusions): 3 polygons of 4 vertices.
+        assert len(fence_back) == 12
         assert list(data.rally_items) == []
 
 
@@ -211,7 +213,7 @@ def test_qgc_plan_has_the_field_names_and_versions_of_qgc_plan_format(tmp_path: 
             assert set(poly) == {"inclusion", "polygon", "version"}
             assert poly["version"] == 1 and isinstance(poly["inclusion"], bool)
             assert all(len(v) == 2 for v in poly["polygon"])
-        assert [p["inclusion"] for p in plan["geoFence"]["polygons"]] == [True, False]
+        assert [p["inclusion"] for p in plan["geoFence"]["polygons"]] == [True, False, False]
         assert plan["rallyPoints"] == {"version": 2, "points": []}
         for k, item in enumerate(m["items"]):
             assert item["type"] == "SimpleItem"
@@ -311,6 +313,10 @@ def test_planned_scenario_plots_verifies_and_exports_round_trip(
         data = importer.load(text)
         sent = trajectory_to_mission(v.trajectory, plan.origin).items
         assert compare_items(sent, _items(data.mission_items)) == []
-        fence = [_as_imported(f) for f in geofence_items(fence_boxes(plan), plan.origin)]
+        fence = [
+            _as_imported(f)
+            for f in geofence_items(fence_boxes(plan.workspace, plan.regions), plan.origin)
+        ]
         assert compare_items(fence, _items(data.geofence_items)) == []
-        assert [p["inclusion"] for p in json.loads(text)["geoFence"]["polygons"]] == [True, False]
+        polygons = json.loads(text)["geoFence"]["polygons"]
+        assert [p["inclusion"] for p in polygons] == [True, False, False]
