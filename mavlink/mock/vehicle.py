@@ -29,6 +29,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.mock import px4
 from mavlink.mock.config import FaultConfig, MockVehicleConfig
+from mavlink.mock.errors import MockConfigError
 from mavlink.mock.mission import MISSION, MissionItem, MissionServer
 from mavlink.mock.navigator import NavigatorMixin
 from mavlink.mock.px4 import Px4Mode
@@ -46,6 +47,16 @@ UNSUPPORTED = mavlink2.MAV_RESULT_UNSUPPORTED
 FAILED = mavlink2.MAV_RESULT_FAILED
 
 
+_GLOBAL_FRAMES = frozenset(
+    {
+        mavlink2.MAV_FRAME_GLOBAL,
+        mavlink2.MAV_FRAME_GLOBAL_INT,
+        mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+        mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+        mavlink2.MAV_FRAME_GLOBAL_TERRAIN_ALT,
+        mavlink2.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
+    }
+)
 _FORCE_MAGIC = 21196.0
 _STREAM_GAP_S = 0.5  # setpoints at >= 2 Hz
 _STREAM_MIN_S = 1.0  # ... for at least 1 s before offboard is allowed
@@ -122,8 +133,6 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         self._param_names = [p.name for p in px4.PARAM_SPECS]
         for name, value in config.params:
             if name not in self.params:
-                from mavlink.mock.errors import MockConfigError
-
                 raise MockConfigError(f"vehicle {index}: unknown parameter {name!r}")
             self.params[name] = value
         self.mode = Px4Mode.AUTO_LOITER
@@ -301,18 +310,16 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
     ) -> np.ndarray:
         """Position of a global mission item / command in local NED; NaN or 0,0 keep ``default``."""
         target = default.copy()
-        if (x_e7 != 0 or y_e7 != 0) and frame in (
-            mavlink2.MAV_FRAME_GLOBAL,
-            mavlink2.MAV_FRAME_GLOBAL_INT,
-            mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT,
-            mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-            mavlink2.MAV_FRAME_GLOBAL_TERRAIN_ALT,
-            mavlink2.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
-        ):
-            ned = self.global_to_ned(x_e7 / 1e7, y_e7 / 1e7, self.origin_lla[2])
-            target[0], target[1] = ned[0], ned[1]
+        has_latlon = (x_e7 != 0 or y_e7 != 0) and frame in _GLOBAL_FRAMES
         if math.isfinite(z_m):
             target[2] = self._alt_to_down(frame, z_m)
+        if has_latlon:
+            # exact geodetic conversion (curvature included) at the target's altitude
+            alt_amsl = self.origin_lla[2] - float(target[2])
+            ned = self.global_to_ned(x_e7 / 1e7, y_e7 / 1e7, alt_amsl)
+            target[0], target[1] = ned[0], ned[1]
+            if math.isfinite(z_m):
+                target[2] = ned[2]
         return target
 
     def _alt_to_down(self, frame: int, alt_m: float) -> float:
