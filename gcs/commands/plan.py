@@ -1,0 +1,185 @@
+"""``gcs plan SCENARIO.yaml``: plan trajectories and write the plan file (DESIGN.md section 6).
+
+Prints a progress line while solving, then a summary table (per vehicle: path length, max
+speed, max acceleration, limits; per top-level clause: robustness), or with ``--json`` one
+JSON object.  Exit status 0 when the plan succeeds (exact robustness >= epsilon and all
+checks pass), 1 when it does not (the plan file is still written, for inspection), 2 for
+bad input (scenario errors).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+HELP = "plan trajectories for a scenario (STL robustness, CasADi/IPOPT) and write a plan file"
+
+#: Clause rows shown in the table when there are many (the weakest ones).
+_MAX_CLAUSE_ROWS = 12
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``gcs plan``."""
+    p.add_argument("scenario", help="scenario YAML file (see configs/)")
+    p.add_argument("--vehicles", type=int, metavar="N", help="number of vehicles (generators)")
+    p.add_argument("-o", "--output", default="plan.json", help="plan file (default plan.json)")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--print-spec", action="store_true", help="print the expanded STL spec and exit")
+    p.add_argument(
+        "--solver", choices=["ipopt", "sqpmethod"], help="override the scenario's NLP method"
+    )
+
+
+def summary(result: Any, output: str | None) -> dict[str, Any]:
+    """JSON-ready summary of a PlanResult."""
+    w = result.weakest
+    s = result.stats
+    return {
+        "success": result.success,
+        "status": result.status,
+        "robustness": result.robustness,
+        "robustness_planning_grid": result.robustness_planning_grid,
+        "smooth_robustness": result.smooth_robustness,
+        "solve_time_s": result.solve_time_s,
+        "iterations": result.iterations,
+        "weakest": None
+        if w is None
+        else {
+            "formula": w.formula,
+            "robustness": w.robustness,
+            "t_s": w.t_s,
+            "clause": w.clause_key,
+        },
+        "vehicles": [
+            {
+                "name": lim.name,
+                "path_length_m": lim.path_length_m,
+                "max_speed_m_s": lim.max_speed_m_s,
+                "max_acc_m_s2": lim.max_acc_m_s2,
+                "v_ratio": lim.v_ratio,
+                "a_ratio": lim.a_ratio,
+                "limits_ok": lim.ok,
+            }
+            for lim in result.limits
+        ],
+        "clauses": [
+            {"key": c.key_path, "text": c.text, "robustness": c.robustness} for c in result.clauses
+        ],
+        "stats": None
+        if s is None
+        else {
+            "build_s": s.build_s,
+            "solver_s": s.solver_s,
+            "function_eval_s": s.function_eval_s,
+            "check_s": s.check_s,
+            "n_variables": s.n_variables,
+            "n_constraints": s.n_constraints,
+            "k": s.k,
+            "solver": s.solver,
+        },
+        "output": output,
+    }
+
+
+def _table(result: Any) -> str:
+    lines = []
+    lines.append(
+        f"{'vehicle':<8} {'path m':>9} {'max |v| m/s':>12} {'max |a| m/s2':>13} {'limits':>7}"
+    )
+    for lim in result.limits:
+        ok = "ok" if lim.ok else "VIOL"
+        lines.append(
+            f"{lim.name:<8} {lim.path_length_m:>9.2f} {lim.max_speed_m_s:>12.3f} "
+            f"{lim.max_acc_m_s2:>13.3f} {ok:>7}"
+        )
+    lines.append("")
+    clauses = sorted(result.clauses, key=lambda c: c.robustness)
+    shown = clauses[:_MAX_CLAUSE_ROWS]
+    width = min(70, max(len(c.text) for c in shown)) if shown else 10
+    lines.append(f"{'robustness':>11}  clause")
+    for c in shown:
+        text = c.text if len(c.text) <= width else c.text[: width - 3] + "..."
+        lines.append(f"{c.robustness:>11.4f}  {text}")
+    if len(clauses) > len(shown):
+        lines.append(f"{'':>11}  ... {len(clauses) - len(shown)} more clauses, all stronger")
+    lines.append("")
+    w = result.weakest
+    if w is not None:
+        lines.append(
+            f"weakest: {w.formula} = {w.robustness:.4f} at t = {w.t_s:g} s ({w.clause_key})"
+        )
+    s = result.stats
+    lines.append(
+        f"robustness {result.robustness:.4f} (planning grid {result.robustness_planning_grid:.4f}, "
+        f"smooth {result.smooth_robustness:.4f}); {result.iterations} iterations, "
+        f"{result.solve_time_s:.2f} s"
+        + (f" (build {s.build_s:.2f}, solver {s.solver_s:.2f}, check {s.check_s:.2f})" if s else "")
+    )
+    lines.append(("OK: " if result.success else "FAILED: ") + result.status)
+    return "\n".join(lines)
+
+
+class _Ticker:
+    """A progress line on stderr: the current stage and the elapsed time."""
+
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled
+        self.stage = "loading"
+        self.t0 = time.perf_counter()
+        self._stop = threading.Event()
+        self._tty = sys.stderr.isatty()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def __enter__(self) -> _Ticker:
+        if self.enabled and self._tty:
+            self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join()
+        if self.enabled and self._tty:
+            sys.stderr.write("\r\033[K")
+            sys.stderr.flush()
+
+    def set(self, stage: str) -> None:
+        self.stage = stage
+        if self.enabled and not self._tty:
+            print(f"gcs plan: {stage} ({time.perf_counter() - self.t0:.1f} s)", file=sys.stderr)
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.2):
+            sys.stderr.write(f"\r\033[K{self.stage} ... {time.perf_counter() - self.t0:.1f} s")
+            sys.stderr.flush()
+
+
+def run(args: argparse.Namespace) -> int:
+    """Plan; 0 on success, 1 when the plan fails its checks."""
+    from dataclasses import replace
+
+    from planner.optimize import plan
+    from planner.planfile import save_plan
+    from planner.scenario import SolverMethod, load_scenario
+
+    problem = load_scenario(args.scenario, vehicles=args.vehicles)
+    if args.print_spec:
+        print(problem.spec_text)
+        return 0
+    if args.solver:
+        problem = replace(problem, solver=replace(problem.solver, method=SolverMethod(args.solver)))
+    with _Ticker(enabled=True) as ticker:
+        result = plan(problem, progress=ticker.set)
+    out = Path(args.output)
+    save_plan(out, result, scenario_path=str(args.scenario))
+    if args.json:
+        print(json.dumps(summary(result, str(out))))
+    else:
+        print(_table(result))
+        print(f"plan written to {out}")
+    return 0 if result.success else 1

@@ -1,0 +1,1029 @@
+"""Problem -> PlanResult: maximise STL robustness with CasADi/IPOPT (or sqpmethod).
+
+Formulation (for vehicles ``i`` with decision matrices ``Z_i`` of the chosen
+:class:`~planner.dynamics.LinearModel` and start states ``X0_i``)::
+
+    maximise    r
+    subject to  c_l(Z) >= r                  every conjunctive leaf l (see below)
+                G Z_i + H X0_i <= h_i        continuous-time |v|, |a| limits per axis
+                v_i(horizon) = 0             every vehicle ends at rest (then holds)
+                lo_ws <= p_i(t_k) <= hi_ws   workspace, at the planning samples
+                [r >= epsilon + margin]      the paper's eq. (1) constraint, if asked for
+
+The spec is a conjunction; its robustness is the min over the clauses, and the min over
+time of an ``always``.  Instead of smoothing these mins (log-sum-exp over N^2 separation
+clauses times 121 samples would be both inaccurate and dense), they are handled *exactly*
+by the epigraph variable ``r``: the tree is walked from the root through ``and`` and
+``always`` nodes, collecting leaves with the set of sample steps at which they must hold.
+A leaf is then
+
+* a comparison of arithmetic over function values (``dist(a, b) >= 0.2``, ``x(d) <= 4``)
+  or a function atom (``outside(d, pole1)``): one constraint per step, with the smooth
+  predicate implementations of :mod:`planner.predicates` (never above the exact value);
+* ``inside(d, box)``: six *linear* constraints per step (the face margins; exact);
+* anything else (``eventually``, ``or``, ``until``, ``not``, ``implies``): the STL engine's
+  smooth robustness with sharpness ``k`` of that sub-formula at each step (one CasADi
+  expression per step, over only the samples its windows reach).
+
+So the separation pairs become sparse constraints (each touches two vehicles), the
+Hessian stays sparse, no term drowns another, and smoothing error remains only where
+there is a genuine max (a disjunction).  ``k`` is fitted to the problem: the engine's
+error bound of the smooth leaves (``smooth_error_bound``) is made 2 % of the smallest
+region half-size (at least ``K_MIN``); a continuation in ``k`` is available
+(:attr:`SolverOptions.continuation`) but measured not to pay off here (see
+``benchmarks/bench_planner.py``).
+
+IPOPT options (measured on reach-avoid N = 2..8 and power-line N = 2..4, see the
+benchmark): exact Hessian (CasADi's sparse SX Hessian is cheap here; L-BFGS needed 3-10x
+more iterations and ended at lower robustness), MUMPS, ``mu_strategy adaptive``.
+
+After the solve the trajectories are re-sampled every ``check_dt_s`` and evaluated with
+the *exact* semantics of the same formula tree (numpy predicates); the result reports
+that robustness, the weakest sub-formula (``Formula.weakest``), limits and workspace
+checked on the dense samples, and Mueller's thrust/body-rate test where the scenario
+gives those limits.  ``success`` means exact robustness >= epsilon with all of those
+checks passing; anything else is a ``success=False`` result with the best trajectories
+found, never an exception.
+
+Errors: bad scenarios are :class:`~planner.scenario.ScenarioError` (raised by
+:mod:`planner.scenario`); this module raises nothing else for bad input.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from planner.dynamics import DoubleIntegrator, MinimumJerkChain
+from planner.dynamics.feasibility import FeasibilityReport, InputLimits, check_input_feasibility
+from planner.planfile import Plan, PlannedVehicle
+from planner.predicates import (
+    build_registry,
+    ca_box_margins,
+    casadi_functions,
+    parse_clause,
+    predicate_sharpness,
+)
+from planner.scenario import DynamicsModel, Problem, SolverMethod
+from planner.stl import (
+    Always,
+    And,
+    BinOp,
+    BoolConst,
+    Call,
+    CmpOp,
+    Comparison,
+    Const,
+    Expr,
+    Formula,
+    Neg,
+    Not,
+    Or,
+    Predicate,
+    Signal,
+    conjunction,
+)
+from planner.trajectory import Trajectory
+
+__all__ = [
+    "K_MIN",
+    "ClauseReport",
+    "LimitReport",
+    "PlanResult",
+    "SolveStats",
+    "Weakest",
+    "check_trajectories",
+    "clear_cache",
+    "make_model",
+    "plan",
+]
+
+#: Lower bound of the fitted smoothing sharpness (1/m).
+K_MIN = 10.0
+#: Fraction of the smallest region half-size the smooth leaves may be off by.
+_K_TOLERANCE = 0.06
+#: Weight of the mean squared acceleration ((m/s^2)^2) subtracted from r in the objective.
+_REG_WEIGHT = 1e-3
+#: Upper bound of the epigraph variable r (m): keeps IPOPT bounded on trivial specs.
+_R_MAX = 1e3
+
+
+# ------------------------------------------------------------------------------ results
+
+
+@dataclass(frozen=True, slots=True)
+class Weakest:
+    """The sub-formula that decides the robustness, with its value and time (s)."""
+
+    formula: str
+    robustness: float
+    t_s: float
+    clause_key: str
+
+
+@dataclass(frozen=True, slots=True)
+class ClauseReport:
+    """Exact robustness of one top-level clause of the expanded spec (dense samples)."""
+
+    key_path: str
+    text: str
+    robustness: float
+
+
+@dataclass(frozen=True, slots=True)
+class LimitReport:
+    """Limits of one vehicle checked on the dense samples (ratios: 1 = at the limit)."""
+
+    name: str
+    max_speed_m_s: float
+    max_acc_m_s2: float
+    path_length_m: float
+    v_ratio: float
+    a_ratio: float
+    workspace_margin_m: float
+    feasibility: FeasibilityReport | None
+
+    @property
+    def ok(self) -> bool:
+        """Limits, workspace and (if checked) thrust/body rates all hold."""
+        tol = 1e-6
+        feas = self.feasibility is None or self.feasibility.feasible
+        return (
+            self.v_ratio <= 1 + tol
+            and self.a_ratio <= 1 + tol
+            and self.workspace_margin_m >= -tol
+            and feas
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class SolveStats:
+    """Where the time went (seconds) and the problem size."""
+
+    build_s: float
+    solver_s: float
+    function_eval_s: float
+    check_s: float
+    n_variables: int
+    n_constraints: int
+    n_smooth_leaves: int
+    k: float
+    solver: str
+    cached: bool
+
+
+@dataclass(frozen=True, slots=True)
+class PlanResult:
+    """Outcome of :func:`plan` (python-control style: a failed solve is a result).
+
+    Attributes:
+        success: exact robustness >= epsilon and every limit/workspace check passed.
+        status: solver status and the verdict, in words.
+        robustness: exact robustness (m) of the whole spec on the dense samples.
+        robustness_planning_grid: exact robustness on the planning samples (every Ts).
+        smooth_robustness: the optimiser's value r (min over the smooth leaves, m).
+        weakest: the deciding sub-formula.
+        clauses: per top-level clause robustness.
+        solve_time_s: wall time of build + solve + check.
+        iterations: NLP iterations (summed over a continuation).
+        trajectories: one per vehicle, in the problem's order.
+        limits: per vehicle dense checks.
+        decision: flat optimal decision vector (warm start for a re-solve).
+        stats: sizes and time breakdown.
+    """
+
+    problem: Problem
+    success: bool
+    status: str
+    robustness: float
+    robustness_planning_grid: float
+    smooth_robustness: float
+    weakest: Weakest | None
+    clauses: tuple[ClauseReport, ...]
+    solve_time_s: float
+    iterations: int
+    trajectories: tuple[Trajectory, ...]
+    limits: tuple[LimitReport, ...]
+    decision: np.ndarray = field(repr=False)
+    stats: SolveStats | None = None
+
+    def to_plan(self, scenario_path: str | None = None) -> Plan:
+        """The plan-file view of this result (:mod:`planner.planfile`)."""
+        p = self.problem
+        vehicles = tuple(
+            PlannedVehicle(
+                name=v.name,
+                sysid=v.sysid,
+                trajectory=tr,
+                start_enu_m=v.start_enu_m,
+                v_max_m_s=v.v_max_m_s,
+                a_max_m_s2=v.a_max_m_s2,
+                thrust_min_m_s2=v.thrust_min_m_s2,
+                thrust_max_m_s2=v.thrust_max_m_s2,
+                body_rate_max_rad_s=v.body_rate_max_rad_s,
+            )
+            for v, tr in zip(p.vehicles, self.trajectories, strict=True)
+        )
+        return Plan(
+            scenario=scenario_path if scenario_path is not None else p.source,
+            origin=p.origin,
+            spec=p.spec_text,
+            robustness=self.robustness,
+            smooth_robustness=self.smooth_robustness,
+            status=self.status,
+            success=self.success,
+            solve_time_s=self.solve_time_s,
+            vehicles=vehicles,
+            workspace=p.workspace,
+            regions=p.regions,
+            separation_m=p.separation_m,
+            epsilon=p.epsilon,
+            horizon_s=p.timing.horizon_s,
+            sample_dt_s=p.timing.sample_dt_s,
+            check_dt_s=p.timing.check_dt_s,
+        )
+
+
+# ------------------------------------------------------------------------------ models
+
+
+def make_model(problem: Problem) -> MinimumJerkChain | DoubleIntegrator:
+    """The linear model of the scenario (one for all vehicles: same timing)."""
+    t = problem.timing
+    if problem.model is DynamicsModel.MINIMUM_JERK:
+        return MinimumJerkChain(t.horizon_s, t.segment_s, t.sample_dt_s)
+    a_max = np.max([v.a_max_m_s2 for v in problem.vehicles], axis=0)
+    return DoubleIntegrator(t.horizon_s, t.segment_s, 3, a_max, sample_dt_s=t.sample_dt_s)
+
+
+def _x0(problem: Problem, model: Any) -> list[np.ndarray]:
+    """Start states (n_init, 3): position then zeros (at rest)."""
+    out = []
+    for v in problem.vehicles:
+        x0 = np.zeros((model.n_init, 3))
+        x0[0] = v.start_enu_m
+        out.append(x0)
+    return out
+
+
+# --------------------------------------------------------------------------- decompose
+
+
+def _decompose(node: Formula, steps: np.ndarray, dt: float, out: dict[Formula, set[int]]) -> None:
+    """Collect conjunctive leaves: walk ``and``/``always`` from the root, track steps."""
+    if isinstance(node, And):
+        for child in node.operands:
+            _decompose(child, steps, dt, out)
+    elif isinstance(node, Always):
+        lo, hi = node.steps(dt)
+        shifted = np.unique((steps[:, None] + np.arange(lo, hi + 1)[None, :]).ravel())
+        _decompose(node.child, shifted, dt, out)
+    elif isinstance(node, BoolConst) and node.value:
+        return
+    else:
+        out.setdefault(node, set()).update(int(s) for s in steps)
+
+
+def _is_direct(node: Formula) -> bool:
+    """Leaves evaluated directly (vectorised over steps) rather than through the engine."""
+    return isinstance(node, Comparison | Predicate)
+
+
+def _ca_expr(e: Expr, rows: Mapping[str, Any], fns: Mapping[str, Callable[..., Any]]) -> Any:
+    if isinstance(e, Const):
+        return e.value
+    if isinstance(e, Call):
+        return fns[e.name](e.args, rows)
+    if isinstance(e, Neg):
+        return -_ca_expr(e.operand, rows, fns)
+    if isinstance(e, BinOp):
+        a = _ca_expr(e.lhs, rows, fns)
+        b = _ca_expr(e.rhs, rows, fns)
+        return {"+": a + b, "-": a - b, "*": a * b, "/": a / b}[e.op.value]
+    if isinstance(e, Signal):
+        return rows[e.name]
+    raise TypeError(f"unsupported expression node {type(e).__name__}")
+
+
+# ------------------------------------------------------------------------------ build
+
+
+@dataclass(slots=True)
+class _Structure:
+    """A built NLP, reusable for any start states and limits of the same structure."""
+
+    solvers: list[tuple[float, Any]]  # (k, nlpsol) in continuation order
+    leaf_fn: Any  # ca.Function (w, p) -> leaf values (for r0)
+    n_w: int
+    n_z: int  # the first n_z entries of w are the Z matrices (vec, vehicle after vehicle)
+    n_g: int
+    lbx: np.ndarray
+    ubx: np.ndarray
+    lbg_fixed: np.ndarray
+    ubg_fixed: np.ndarray
+    lim_slices: list[slice]  # g rows of each vehicle's limits
+    leaves: dict[Formula, set[int]]
+    used_steps: list[int]  # planning steps whose positions are lifted into variables
+    n_smooth: int
+    k: float
+    margin: float
+    build_s: float
+
+
+_CACHE: dict[Any, _Structure] = {}
+_CACHE_SIZE = 8
+
+
+def clear_cache() -> None:
+    """Forget built solvers (tests and benchmarks measure cold builds with this)."""
+    _CACHE.clear()
+
+
+def _structure_key(problem: Problem) -> Any:
+    s = problem.solver
+    return (
+        problem.spec_text,
+        tuple((r.name, r.lo_enu_m, r.hi_enu_m) for r in problem.all_regions),
+        problem.timing,
+        problem.model,
+        tuple(v.name for v in problem.vehicles),
+        s,
+        problem.epsilon,
+    )
+
+
+def _fit_k(problem: Problem, smooth_leaves: Sequence[Formula], dt: float) -> tuple[float, float]:
+    """(k, error bound at k) for the smooth leaves: bound = 2 % of the smallest half-size."""
+    if problem.solver.k is not None:
+        k = problem.solver.k
+    elif not smooth_leaves:
+        k = K_MIN
+    else:
+        halves = [0.5 * (np.asarray(r.hi_enu_m) - r.lo_enu_m) for r in problem.all_regions]
+        tol = _K_TOLERANCE * float(min(np.min(h) for h in halves))
+        unit = max(leaf.smooth_error_bound(1.0, dt) for leaf in smooth_leaves)
+        k = max(K_MIN, unit / tol)
+    bound = max((leaf.smooth_error_bound(k, dt) for leaf in smooth_leaves), default=0.0)
+    return k, bound
+
+
+def _leaf_values(
+    leaf: Formula,
+    steps: list[int],
+    rows_of: Callable[[list[int]], Mapping[str, Any]],
+    pos_from_z: Mapping[str, Any],
+    dt: float,
+    k: float,
+    problem: Problem,
+    fns: Mapping[str, Callable[..., Any]],
+) -> Any:
+    """SX column of a leaf's (smooth) robustness at ``steps``."""
+    if _is_direct(leaf):
+        rows = rows_of(steps)
+        if isinstance(leaf, Predicate) and leaf.call.name == "inside":
+            region = problem.region(leaf.call.args[1])
+            return ca.vec(ca_box_margins(rows[leaf.call.args[0]], region))
+        if isinstance(leaf, Predicate):
+            return fns[leaf.call.name](leaf.call.args, rows)
+        assert isinstance(leaf, Comparison)
+        lhs = _ca_expr(leaf.lhs, rows, fns)
+        rhs = _ca_expr(leaf.rhs, rows, fns)
+        out = lhs - rhs if leaf.op in (CmpOp.GE, CmpOp.GT) else rhs - lhs
+        return out * ca.DM.ones(len(steps), 1) if not hasattr(out, "shape") else out
+    hz = leaf.horizon_steps(dt)
+    parts = []
+    for st in steps:
+        view = {nm: P[st : st + hz + 1, :] for nm, P in pos_from_z.items()}
+        parts.append(leaf.smooth_robustness(view, dt, k))
+    return ca.vertcat(*parts)
+
+
+def _build(problem: Problem, model: Any, formula: Formula) -> _Structure:
+    t0 = time.perf_counter()
+    dt = problem.timing.sample_dt_s
+    n = len(model.times_s)
+    names = [v.name for v in problem.vehicles]
+    nv = len(names)
+    opts = problem.solver
+
+    # Lifted formulation: the sampled positions P_i (n, 3) are variables tied to Z_i by
+    # linear equalities.  Row-wise leaves (separation, obstacles, boxes) then touch a few
+    # variables each, so the constraint Jacobian and the Lagrangian Hessian are very sparse
+    # and CasADi's symbolic derivatives need few directions (colouring) whatever N is.
+    # Smooth leaves couple many samples (a window's soft max): they are written in Z (the
+    # same positions through Mp), where their dense Hessian block is n_dec*3 wide, not n*3.
+    leaves: dict[Formula, set[int]] = {}
+    _decompose(formula, np.array([0]), dt, leaves)
+    smooth_leaves = [leaf for leaf in leaves if not _is_direct(leaf)]
+    k_final, margin = _fit_k(problem, smooth_leaves, dt)
+    k_list = [*[kk for kk in opts.continuation if kk < k_final], k_final]
+    fns = casadi_functions(problem, predicate_sharpness(problem))
+    c_dt = opts.constraint_dt_s if opts.constraint_dt_s is not None else max(dt, 0.1)
+    stride = max(1, round(c_dt / dt))
+    direct_steps: dict[Formula, list[int]] = {}
+    for leaf, steps_set in leaves.items():
+        if _is_direct(leaf):
+            steps = sorted(steps_set)
+            direct_steps[leaf] = sorted(set(steps[::stride]) | {steps[-1]})
+    used = sorted(set().union(*direct_steps.values())) if direct_steps else [0]
+    row_of = {st: i for i, st in enumerate(used)}
+
+    Z = [ca.SX.sym(f"Z_{nm}", model.n_dec, 3) for nm in names]
+    P = [ca.SX.sym(f"P_{nm}", len(used), 3) for nm in names]
+    X0 = [ca.SX.sym(f"X0_{nm}", model.n_init, 3) for nm in names]
+    r = ca.SX.sym("r")
+    w = ca.vertcat(*[ca.vec(z) for z in Z], *[ca.vec(q) for q in P], r)
+    p = ca.vertcat(*[ca.vec(x) for x in X0])
+    Mp, Np = ca.sparsify(ca.DM(model.Mp)), ca.sparsify(ca.DM(model.Np))
+    pos_from_z = {nm: ca.mtimes(Mp, Z[i]) + ca.mtimes(Np, X0[i]) for i, nm in enumerate(names)}
+    Pd = dict(zip(names, P, strict=True))
+
+    def rows_of(steps: list[int]) -> dict[str, Any]:
+        idx = [row_of[st] for st in steps]
+        return {nm: q[idx, :] for nm, q in Pd.items()}
+
+    direct_parts = [
+        _leaf_values(leaf, steps, rows_of, pos_from_z, dt, 0.0, problem, fns)
+        for leaf, steps in direct_steps.items()
+    ]
+    direct = ca.vertcat(*direct_parts) if direct_parts else ca.SX(0, 1)
+
+    def smooth_values(k: float) -> Any:
+        parts = [
+            _leaf_values(leaf, sorted(leaves[leaf]), rows_of, pos_from_z, dt, k, problem, fns)
+            for leaf in smooth_leaves
+        ]
+        return ca.vertcat(*parts) if parts else ca.SX(0, 1)
+
+    # Linear parts: lifting equalities, limits, rest at the end.
+    lift_g = [ca.vec(P[i] - pos_from_z[nm][used, :]) for i, nm in enumerate(names)]
+    n_lift = len(used) * 3 * nv
+    lim_g, lim_slices = [], []
+    row = n_lift
+    cons = model.limit_constraints(np.ones(3), np.ones(3))
+    G = ca.sparsify(ca.DM(cons.G))
+    H = ca.sparsify(ca.DM(cons.H))
+    for i in range(nv):
+        gi = ca.vec(ca.mtimes(G, Z[i]) + ca.mtimes(H, X0[i]))
+        lim_g.append(gi)
+        lim_slices.append(slice(row, row + gi.shape[0]))
+        row += gi.shape[0]
+    n_lim = row - n_lift
+    Mv_end = ca.DM(model.Mv[-1:, :])
+    Nv_end = ca.DM(model.Nv[-1:, :])
+    end_g = [ca.vec(ca.mtimes(Mv_end, Z[i]) + ca.mtimes(Nv_end, X0[i])) for i in range(nv)]
+
+    # A small acceleration penalty gives the NLP curvature in the directions r does not
+    # care about (the max-min objective is flat there); measured to cut iterations.
+    Ma, Na = ca.sparsify(ca.DM(model.Ma)), ca.sparsify(ca.DM(model.Na))
+    acc_sq = 0
+    for i in range(nv):
+        acc = ca.mtimes(Ma, Z[i]) + ca.mtimes(Na, X0[i])
+        acc_sq = acc_sq + ca.sumsqr(acc)
+    reg_term = _REG_WEIGHT * acc_sq / (n * nv)
+
+    # Workspace: simple bounds on the lifted positions.
+    ws = problem.workspace
+    n_z = model.n_dec * 3 * nv
+    m = len(used)
+    lbx = np.concatenate([np.full(n_z, -np.inf), np.tile(np.repeat(ws.lo_enu_m, m), nv), [-np.inf]])
+    ubx = np.concatenate([np.full(n_z, np.inf), np.tile(np.repeat(ws.hi_enu_m, m), nv), [_R_MAX]])
+
+    solvers = []
+    leaf_fn = None
+    n_g = 0
+    lbg_fixed = ubg_fixed = np.zeros(0)
+    for k in k_list:
+        leaf_all = ca.vertcat(direct, smooth_values(k))
+        n_leaf = leaf_all.shape[0]
+        g = ca.vertcat(*lift_g, *lim_g, *end_g, leaf_all - r)
+        n_g = g.shape[0]
+        lbg_fixed = np.concatenate(
+            [np.zeros(n_lift), np.full(n_lim, -np.inf), np.zeros(3 * nv), np.zeros(n_leaf)]
+        )
+        ubg_fixed = np.concatenate(
+            [np.zeros(n_lift), np.zeros(n_lim), np.zeros(3 * nv), np.full(n_leaf, np.inf)]
+        )
+        nlp = {"x": w, "p": p, "f": -r + reg_term, "g": g}
+        solvers.append((k, _nlpsol(nlp, problem)))
+        leaf_fn = ca.Function("leaves", [w, p], [leaf_all])
+    return _Structure(
+        solvers=solvers,
+        leaf_fn=leaf_fn,
+        n_w=int(w.shape[0]),
+        n_z=n_z,
+        n_g=n_g,
+        lbx=lbx,
+        ubx=ubx,
+        lbg_fixed=lbg_fixed,
+        ubg_fixed=ubg_fixed,
+        lim_slices=lim_slices,
+        leaves=leaves,
+        used_steps=used,
+        n_smooth=sum(len(leaves[leaf]) for leaf in smooth_leaves),
+        k=k_final,
+        margin=margin,
+        build_s=time.perf_counter() - t0,
+    )
+
+
+def _nlpsol(nlp: dict[str, Any], problem: Problem) -> Any:
+    s = problem.solver
+    if s.method is SolverMethod.SQP:
+        return ca.nlpsol(
+            "stl_sqp",
+            "sqpmethod",
+            nlp,
+            {
+                "qpsol": "qrqp",
+                "qpsol_options": {
+                    "print_iter": False,
+                    "print_header": False,
+                    "error_on_fail": False,
+                },
+                "max_iter": s.max_iter,
+                "print_header": False,
+                "print_iteration": s.print_level > 0,
+                "print_status": False,
+                "print_time": False,
+                "hessian_approximation": "exact" if s.hessian == "exact" else "limited-memory",
+                "error_on_fail": False,
+                "tol_pr": s.tol,
+                "tol_du": s.tol,
+            },
+        )
+    return ca.nlpsol(
+        "stl_ipopt",
+        "ipopt",
+        nlp,
+        {
+            "print_time": False,
+            "error_on_fail": False,
+            "ipopt": {
+                "print_level": s.print_level,
+                "sb": "yes",
+                "max_iter": s.max_iter,
+                "tol": s.tol,
+                "acceptable_tol": 1e-4,
+                "hessian_approximation": s.hessian,
+                "mu_strategy": "adaptive",
+            },
+        },
+    )
+
+
+# ------------------------------------------------------------------------ initial guess
+
+
+def _targets(formula: Formula, vehicle: str, problem: Problem) -> list[str]:
+    """Boxes ``vehicle`` must be inside somewhere (not under a negation), in spec order."""
+    out: list[str] = []
+
+    def walk(node: Formula, negated: bool) -> None:
+        if isinstance(node, Not):
+            walk(node.child, not negated)
+            return
+        if isinstance(node, Or):
+            walk(node.operands[0], negated)  # the guess takes the first alternative
+            return
+        if isinstance(node, Predicate) and node.call.name == "inside" and not negated:
+            v, reg = node.call.args
+            if v == vehicle and reg != problem.workspace.name and reg not in out:
+                out.append(reg)
+        for child in node.children:
+            walk(child, negated)
+
+    walk(formula, False)
+    return out
+
+
+def _avoided(leaves: Mapping[Formula, Any], vehicle: str, problem: Problem) -> list[Any]:
+    """Boxes the vehicle must always stay out of (``outside`` leaves of the conjunction)."""
+    out = []
+    for leaf in leaves:
+        if (
+            isinstance(leaf, Predicate)
+            and leaf.call.name == "outside"
+            and leaf.call.args[0] == vehicle
+        ):
+            out.append(problem.region(leaf.call.args[1]))
+    return out
+
+
+#: Cells of the initial-guess search grid (at most).
+_GRID_CELLS = 40_000
+
+
+def _grid_path(problem: Problem, avoid: Sequence[Any], points: Sequence[np.ndarray]) -> np.ndarray:
+    """Shortest polyline through ``points`` (in order) on a voxel grid, around ``avoid`` boxes.
+
+    A 26-connected grid over the workspace (cell size from the smallest avoided box and a
+    cell budget); cells whose centre lies in a box grown by half a cell are blocked.
+    Returns (m, 3) vertices; falls back to straight segments where no path exists.
+    """
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    lo = np.asarray(problem.workspace.lo_enu_m)
+    hi = np.asarray(problem.workspace.hi_enu_m)
+    ext = hi - lo
+    feature = min((float(np.min(np.subtract(b.hi_enu_m, b.lo_enu_m))) for b in avoid), default=1.0)
+    cell = max(feature / 2.0, float((np.prod(ext) / _GRID_CELLS) ** (1 / 3)))
+    shape = np.maximum(1, np.floor(ext / cell).astype(int))
+    axes = [lo[a] + (np.arange(shape[a]) + 0.5) * ext[a] / shape[a] for a in range(3)]
+    cx, cy, cz = np.meshgrid(*axes, indexing="ij")
+    centres = np.column_stack([cx.ravel(), cy.ravel(), cz.ravel()])
+    step = ext / shape
+    blocked = np.zeros(len(centres), dtype=bool)
+    for b in avoid:
+        grow = 0.5 * step + 0.05 * feature
+        inside = np.all(
+            (centres > np.asarray(b.lo_enu_m) - grow) & (centres < np.asarray(b.hi_enu_m) + grow),
+            axis=1,
+        )
+        blocked |= inside
+    idx = np.arange(len(centres)).reshape(shape)
+    rows, cols, wts = [], [], []
+    for off in (
+        np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij")).reshape(3, -1).T
+    ):
+        if not off.any():
+            continue
+        src = idx[
+            max(0, -off[0]) : shape[0] - max(0, off[0]),
+            max(0, -off[1]) : shape[1] - max(0, off[1]),
+            max(0, -off[2]) : shape[2] - max(0, off[2]),
+        ].ravel()
+        dst = src + off[0] * shape[1] * shape[2] + off[1] * shape[2] + off[2]
+        ok = ~blocked[src] & ~blocked[dst]
+        rows.append(src[ok])
+        cols.append(dst[ok])
+        wts.append(np.full(int(ok.sum()), float(np.linalg.norm(off * step))))
+    graph = csr_matrix(
+        (np.concatenate(wts), (np.concatenate(rows), np.concatenate(cols))),
+        shape=(len(centres), len(centres)),
+    )
+    free = np.nonzero(~blocked)[0]
+    if free.size == 0:
+        return np.asarray(points, dtype=float)
+
+    def nearest(pt: np.ndarray) -> int:
+        return int(free[np.argmin(np.linalg.norm(centres[free] - pt, axis=1))])
+
+    out = [np.asarray(points[0], dtype=float)]
+    for a, b in itertools.pairwise(points):
+        ia, ib = nearest(np.asarray(a)), nearest(np.asarray(b))
+        _, pred = dijkstra(graph, indices=ia, return_predecessors=True)
+        if ia != ib and pred[ib] < 0:
+            out.append(np.asarray(b, dtype=float))
+            continue
+        chain = [ib]
+        while chain[-1] != ia:
+            chain.append(int(pred[chain[-1]]))
+        out.extend(centres[i] for i in reversed(chain[:-1]))
+        out.append(np.asarray(b, dtype=float))
+    return np.asarray(out)
+
+
+def _initial_guess(
+    problem: Problem,
+    model: Any,
+    formula: Formula,
+    x0s: list[np.ndarray],
+    leaves: Mapping[Formula, Any],
+) -> np.ndarray:
+    """Shortest grid paths through each vehicle's target boxes around the boxes it must
+    avoid, timed in proportion to length over 5-85 % of the horizon with a dwell at each
+    target (for hovers), fitted to Z by least squares.  Vehicles sharing a target box get points spread along its longest
+    side, so the guess does not put them on top of each other.
+    """
+    times = np.asarray(model.times_s)
+    horizon = problem.timing.horizon_s
+    Mp, Np = np.asarray(model.Mp), np.asarray(model.Np)
+    per_vehicle = {v.name: _targets(formula, v.name, problem) for v in problem.vehicles}
+    sharing: dict[str, list[str]] = {}
+    for name, regs in per_vehicle.items():
+        for reg in regs:
+            sharing.setdefault(reg, []).append(name)
+
+    def point(reg: str, name: str) -> np.ndarray:
+        box = problem.region(reg)
+        lo, hi = np.asarray(box.lo_enu_m), np.asarray(box.hi_enu_m)
+        c = (lo + hi) / 2
+        users = sharing[reg]
+        if len(users) > 1:
+            a = int(np.argmax(hi - lo))
+            j = users.index(name)
+            c[a] = lo[a] + (hi[a] - lo[a]) * (j + 1) / (len(users) + 1)
+        return c
+
+    cols = []
+    for v, x0 in zip(problem.vehicles, x0s, strict=True):
+        pts = [np.asarray(v.start_enu_m), *(point(r, v.name) for r in per_vehicle[v.name])]
+        if len(pts) == 1:
+            path = np.tile(pts[0], (len(times), 1))
+        else:
+            # Legs between targets on the grid; a dwell at each target (the spec's hovers).
+            avoid = _avoided(leaves, v.name, problem)
+            legs = [_grid_path(problem, avoid, [a, b]) for a, b in itertools.pairwise(pts)]
+            dwell = min(0.08 * horizon, 2.0)
+            lengths = np.array([np.linalg.norm(np.diff(leg, axis=0), axis=1).sum() for leg in legs])
+            move = max(0.8 * horizon - dwell * len(legs), 0.3 * horizon)
+            knots_t: list[float] = [0.0]
+            knots_p: list[np.ndarray] = [pts[0]]
+            t_now = 0.05 * horizon
+            for leg, length in zip(legs, lengths, strict=True):
+                seg = np.linalg.norm(np.diff(leg, axis=0), axis=1)
+                cum = np.cumsum(seg) / max(seg.sum(), 1e-9)
+                leg_t = move * length / max(lengths.sum(), 1e-9)
+                knots_t.extend((t_now + leg_t * cum).tolist())
+                knots_p.extend(leg[1:])
+                t_now += leg_t + dwell
+                knots_t.append(t_now)
+                knots_p.append(leg[-1])
+            poly = np.asarray(knots_p)
+            path = np.column_stack(
+                [np.interp(times, np.asarray(knots_t), poly[:, a]) for a in range(3)]
+            )
+        rhs = path - Np @ x0
+        reg_m = 1e-6 * np.eye(model.n_dec)
+        Zv = np.linalg.solve(Mp.T @ Mp + reg_m, Mp.T @ rhs)
+        cols.append(Zv.reshape(-1, order="F"))
+    return np.concatenate(cols)
+
+
+# ------------------------------------------------------------------------------ checks
+
+
+def _dense_times(problem: Problem) -> np.ndarray:
+    t = problem.timing
+    n = round(t.horizon_s / t.check_dt_s) + 1
+    return np.arange(n) * t.check_dt_s
+
+
+def check_trajectories(
+    problem_like: Any,
+    trajectories: Sequence[Trajectory],
+    vehicles: Sequence[Any],
+    dt_s: float,
+    horizon_s: float,
+) -> tuple[LimitReport, ...]:
+    """Dense checks per vehicle: max speed/acc per axis vs limits, workspace, Mueller test.
+
+    ``problem_like`` has a ``workspace`` region; ``vehicles`` have the scenario's limit
+    fields (``v_max_m_s``, ``a_max_m_s2``, optional thrust/body-rate limits).
+    """
+    n = round(horizon_s / dt_s) + 1
+    t = np.arange(n) * dt_s
+    ws = problem_like.workspace
+    out = []
+    for v, tr in zip(vehicles, trajectories, strict=True):
+        pos = tr.position(t)
+        vel = tr.velocity(t)
+        acc = tr.acceleration(t)
+        v_ratio = float(np.max(np.abs(vel) / np.asarray(v.v_max_m_s)))
+        a_ratio = float(np.max(np.abs(acc) / np.asarray(v.a_max_m_s2)))
+        margin = float(
+            np.min(np.concatenate([pos - np.asarray(ws.lo_enu_m), np.asarray(ws.hi_enu_m) - pos]))
+        )
+        feas = None
+        if v.thrust_max_m_s2 is not None and v.body_rate_max_rad_s is not None:
+            feas = check_input_feasibility(
+                tr,
+                InputLimits(v.thrust_min_m_s2 or 0.0, v.thrust_max_m_s2, v.body_rate_max_rad_s),
+            )
+        out.append(
+            LimitReport(
+                name=v.name,
+                max_speed_m_s=float(np.max(np.linalg.norm(vel, axis=1))),
+                max_acc_m_s2=float(np.max(np.linalg.norm(acc, axis=1))),
+                path_length_m=float(np.sum(np.linalg.norm(np.diff(pos, axis=0), axis=1))),
+                v_ratio=v_ratio,
+                a_ratio=a_ratio,
+                workspace_margin_m=margin,
+                feasibility=feas,
+            )
+        )
+    return tuple(out)
+
+
+# ------------------------------------------------------------------------------- plan
+
+
+def plan(
+    problem: Problem,
+    *,
+    initial_guess: np.ndarray | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> PlanResult:
+    """Plan trajectories that maximise the robustness of ``problem``'s spec.
+
+    Args:
+        problem: a validated scenario (:func:`planner.scenario.load_scenario`).
+        initial_guess: flat decision vector (``PlanResult.decision`` of an earlier solve of
+            the same structure) to warm start from; default: straight lines through the
+            boxes each vehicle must visit.
+        progress: called with a short line at each stage (build, solve, check).
+
+    Returns:
+        :class:`PlanResult`; ``success=False`` (with the best trajectories) when the
+        exact robustness is below ``epsilon`` or a check fails.
+    """
+    say = progress or (lambda _msg: None)
+    t_start = time.perf_counter()
+    registry = build_registry(problem)
+    formulas = [parse_clause(problem, c, registry) for c in problem.clauses]
+    formula = conjunction(formulas)
+    model = make_model(problem)
+    x0s = _x0(problem, model)
+    p_val = np.concatenate([x.reshape(-1, order="F") for x in x0s])
+
+    key = _structure_key(problem)
+    cached = key in _CACHE
+    if not cached:
+        say(f"building the NLP for {len(problem.vehicles)} vehicle(s)")
+        struct = _build(problem, model, formula)
+        if len(_CACHE) >= _CACHE_SIZE:
+            _CACHE.pop(next(iter(_CACHE)))
+        _CACHE[key] = struct
+    struct = _CACHE[key]
+    build_s = struct.build_s if not cached else 0.0
+
+    # Numeric bounds: limits per vehicle into ubg, r bounds.
+    ubg = struct.ubg_fixed.copy()
+    cons_cache: dict[tuple[Any, Any], np.ndarray] = {}
+    for i, v in enumerate(problem.vehicles):
+        keyl = (v.v_max_m_s, v.a_max_m_s2)
+        if keyl not in cons_cache:
+            cons_cache[keyl] = model.limit_constraints(v.v_max_m_s, v.a_max_m_s2).h.reshape(
+                -1, order="F"
+            )
+        ubg[struct.lim_slices[i]] = cons_cache[keyl]
+    lbx = struct.lbx.copy()
+    ubx = struct.ubx.copy()
+    if problem.solver.robustness_constraint:
+        lbx[-1] = problem.epsilon + struct.margin
+
+    if initial_guess is None:
+        z0 = _initial_guess(problem, model, formula, x0s, struct.leaves)
+    else:
+        z0 = np.asarray(initial_guess, dtype=float).reshape(-1)[: struct.n_z]
+    Mp, Np = np.asarray(model.Mp), np.asarray(model.Np)
+    nd = model.n_dec * 3
+    used = struct.used_steps
+    p0 = [
+        (Mp @ z0[i * nd : (i + 1) * nd].reshape((model.n_dec, 3), order="F") + Np @ x0)[
+            used
+        ].reshape(-1, order="F")
+        for i, x0 in enumerate(x0s)
+    ]
+    w0 = np.concatenate([z0, *p0, [0.0]])
+    leaf0 = np.asarray(struct.leaf_fn(w0, p_val)).reshape(-1)
+    w0[-1] = float(np.min(leaf0)) if leaf0.size else 0.0
+    if problem.solver.robustness_constraint:
+        w0[-1] = max(w0[-1], lbx[-1])
+
+    iterations = 0
+    solver_s = 0.0
+    eval_s = 0.0
+    status = "not solved"
+    w_opt = w0
+    lam_x = lam_g = None
+    for k, solver in struct.solvers:
+        say(f"solving with {problem.solver.method.value} (k={k:.3g})")
+        args: dict[str, Any] = {
+            "x0": w_opt,
+            "p": p_val,
+            "lbx": lbx,
+            "ubx": ubx,
+            "lbg": struct.lbg_fixed,
+            "ubg": ubg,
+        }
+        if lam_x is not None:
+            args["lam_x0"] = lam_x
+            args["lam_g0"] = lam_g
+        t_s = time.perf_counter()
+        sol = solver(**args)
+        solver_s += time.perf_counter() - t_s
+        st = solver.stats()
+        iterations += int(st.get("iter_count", 0))
+        status = str(st.get("return_status", "unknown"))
+        eval_s += sum(
+            float(v)
+            for kk, v in st.items()
+            if kk.startswith("t_wall_nlp_") and isinstance(v, float)
+        )
+        w_new = np.asarray(sol["x"]).reshape(-1)
+        if np.all(np.isfinite(w_new)):
+            w_opt = w_new
+            lam_x = np.asarray(sol["lam_x"]).reshape(-1)
+            lam_g = np.asarray(sol["lam_g"]).reshape(-1)
+
+    say("checking on dense samples")
+    t_check = time.perf_counter()
+    trajectories = []
+    for i, (v, x0) in enumerate(zip(problem.vehicles, x0s, strict=True)):
+        Zi = w_opt[i * nd : (i + 1) * nd].reshape((model.n_dec, 3), order="F")
+        trajectories.append(model.trajectory(Zi, x0, v.name))
+    result = _evaluate(problem, formula, formulas, trajectories)
+    limits = check_trajectories(
+        problem, trajectories, problem.vehicles, problem.timing.check_dt_s, problem.timing.horizon_s
+    )
+    check_s = time.perf_counter() - t_check
+    rob, rob_grid, weakest, clauses = result
+    limits_ok = all(lim.ok for lim in limits)
+    success = bool(rob >= problem.epsilon and limits_ok)
+    if success:
+        verdict = f"robustness {rob:.4g} >= epsilon {problem.epsilon:g}"
+    elif rob < problem.epsilon:
+        w_txt = (
+            f" (weakest: {weakest.formula} = {weakest.robustness:.4g} at t={weakest.t_s:g} s)"
+            if weakest
+            else ""
+        )
+        verdict = f"robustness {rob:.4g} < epsilon {problem.epsilon:g}{w_txt}"
+    else:
+        bad = [lim.name for lim in limits if not lim.ok]
+        verdict = f"limits violated by {', '.join(bad)}"
+    total = time.perf_counter() - t_start
+    stats = SolveStats(
+        build_s=build_s,
+        solver_s=solver_s,
+        function_eval_s=eval_s,
+        check_s=check_s,
+        n_variables=struct.n_w,
+        n_constraints=struct.n_g,
+        n_smooth_leaves=struct.n_smooth,
+        k=struct.k,
+        solver=problem.solver.method.value,
+        cached=cached,
+    )
+    return PlanResult(
+        problem=problem,
+        success=success,
+        status=f"{status}; {verdict}",
+        robustness=rob,
+        robustness_planning_grid=rob_grid,
+        smooth_robustness=float(w_opt[-1]),
+        weakest=weakest,
+        clauses=clauses,
+        solve_time_s=total,
+        iterations=iterations,
+        trajectories=tuple(trajectories),
+        limits=limits,
+        decision=w_opt,
+        stats=stats,
+    )
+
+
+def _evaluate(
+    problem: Problem,
+    formula: Formula,
+    formulas: Sequence[Formula],
+    trajectories: Sequence[Trajectory],
+) -> tuple[float, float, Weakest | None, tuple[ClauseReport, ...]]:
+    """Exact robustness (dense and planning grid), weakest sub-formula, per clause."""
+    t_dense = _dense_times(problem)
+    sig = {tr.name: tr.position(t_dense) for tr in trajectories}
+    dt = problem.timing.check_dt_s
+    clause_rob = [f.robustness(sig, dt) for f in formulas]
+    clauses = tuple(
+        ClauseReport(c.key_path, c.text, r)
+        for c, r in zip(problem.clauses, clause_rob, strict=True)
+    )
+    rob = float(min(clause_rob)) if clause_rob else math.inf
+    ts = problem.timing.sample_dt_s
+    n = problem.timing.n_samples
+    sig_grid = {tr.name: tr.position(np.arange(n) * ts) for tr in trajectories}
+    rob_grid = float(formula.robustness(sig_grid, ts))
+    weakest = None
+    if formulas:
+        i = int(np.argmin(clause_rob))
+        chain = formulas[i].weakest(sig, dt)
+        leaf = chain[-1]
+        weakest = Weakest(
+            formula=str(_witness_formula(leaf)),
+            robustness=float(_witness_value(leaf)),
+            t_s=float(_witness_time(leaf, dt)),
+            clause_key=problem.clauses[i].key_path,
+        )
+    return rob, rob_grid, weakest, clauses
+
+
+def _witness_formula(w: Any) -> Any:
+    return w.formula
+
+
+def _witness_value(w: Any) -> float:
+    return w.robustness
+
+
+def _witness_time(w: Any, dt: float) -> float:
+    return w.t_s

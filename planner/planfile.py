@@ -1,0 +1,332 @@
+"""Plan files (DESIGN.md section 6, contract): JSON written by ``gcs plan``, read by the rest.
+
+Layout (the contract's keys, plus extensions that make a plan self-contained for
+``gcs verify``: ``success``, ``epsilon``, ``separation_m``, ``horizon_s``, ``check_dt_s``,
+``sample_dt_s``, ``workspace``, ``regions``, and per vehicle ``limits`` and ``start``)::
+
+    {"format": "stl-gcs-plan", "version": 1,
+     "scenario": "configs/reach_avoid.yaml", "origin": {"lat": .., "lon": .., "alt": ..},
+     "spec": "<expanded STL text>", "robustness": 0.12, "smooth_robustness": 0.10,
+     "status": "...", "success": true, "solve_time_s": 0.8, ...,
+     "vehicles": [{"name": "d1", "sysid": 1, "t": [...], "pos": [[x, y, z], ...],
+                   "vel": [...], "acc": [...], "yaw": [...],
+                   "segments": [...],      # Trajectory.to_segments(): lossless
+                   "limits": {"v_max_m_s": [..], "a_max_m_s2": [..]}, "start": [x, y, z]}]}
+
+The samples ``t/pos/vel/acc/yaw`` are for other tools (plots, spreadsheets); the source of
+truth is ``segments`` (floats are written with ``repr`` precision, so they round-trip).
+
+Errors::
+
+    PlanFileError(ValueError)   "<file>: <key path>: <problem>" for missing/malformed plans
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from planner.frames import GeodeticPoint
+from planner.scenario import Region, RegionKind
+from planner.trajectory import Trajectory, TrajectoryError
+
+__all__ = [
+    "FORMAT",
+    "VERSION",
+    "Plan",
+    "PlanFileError",
+    "PlannedVehicle",
+    "load_plan",
+    "plan_to_json",
+    "save_plan",
+]
+
+FORMAT = "stl-gcs-plan"
+VERSION = 1
+
+
+class PlanFileError(ValueError):
+    """A plan file that is missing, not JSON, or not a valid plan: names file and key."""
+
+    def __init__(self, source: str, key_path: str, problem: str) -> None:
+        self.source = source
+        self.key_path = key_path
+        self.problem = problem
+        where = f"{source}: {key_path}" if key_path else source
+        super().__init__(f"{where}: {problem}")
+
+
+@dataclass(frozen=True, slots=True)
+class PlannedVehicle:
+    """One vehicle of a plan: its trajectory (mission ENU frame) and limits."""
+
+    name: str
+    sysid: int
+    trajectory: Trajectory
+    start_enu_m: tuple[float, float, float]
+    v_max_m_s: tuple[float, float, float]
+    a_max_m_s2: tuple[float, float, float]
+    thrust_min_m_s2: float | None = None
+    thrust_max_m_s2: float | None = None
+    body_rate_max_rad_s: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Plan:
+    """A plan as stored in a plan file (what ``gcs verify``, ``fly``, ``upload`` consume)."""
+
+    scenario: str
+    origin: GeodeticPoint
+    spec: str
+    robustness: float
+    smooth_robustness: float
+    status: str
+    success: bool
+    solve_time_s: float
+    vehicles: tuple[PlannedVehicle, ...]
+    workspace: Region
+    regions: tuple[Region, ...]
+    separation_m: float
+    epsilon: float
+    horizon_s: float
+    sample_dt_s: float
+    check_dt_s: float
+
+    @property
+    def all_regions(self) -> tuple[Region, ...]:
+        """The workspace followed by the named regions."""
+        return (self.workspace, *self.regions)
+
+    def region(self, name: str) -> Region:
+        """The region called ``name`` (``workspace`` included); KeyError if unknown."""
+        for r in self.all_regions:
+            if r.name == name:
+                return r
+        raise KeyError(name)
+
+    def vehicle(self, name: str) -> PlannedVehicle:
+        """The vehicle called ``name``; KeyError if absent."""
+        for v in self.vehicles:
+            if v.name == name:
+                return v
+        raise KeyError(name)
+
+
+def _region_json(r: Region) -> dict[str, Any]:
+    return {"kind": r.kind.value, "min": list(r.lo_enu_m), "max": list(r.hi_enu_m)}
+
+
+def plan_to_json(plan: Plan) -> dict[str, Any]:
+    """The plan as the JSON object of DESIGN.md section 6 (plus extensions)."""
+    vehicles = []
+    for v in plan.vehicles:
+        sp = v.trajectory.sample(1.0 / plan.sample_dt_s)
+        limits: dict[str, Any] = {"v_max_m_s": list(v.v_max_m_s), "a_max_m_s2": list(v.a_max_m_s2)}
+        if v.thrust_min_m_s2 is not None and v.thrust_max_m_s2 is not None:
+            limits["thrust_m_s2"] = [v.thrust_min_m_s2, v.thrust_max_m_s2]
+        if v.body_rate_max_rad_s is not None:
+            limits["body_rate_max_rad_s"] = v.body_rate_max_rad_s
+        vehicles.append(
+            {
+                "name": v.name,
+                "sysid": v.sysid,
+                "t": np.asarray(sp.t_s).tolist(),
+                "pos": np.asarray(sp.pos_enu_m).tolist(),
+                "vel": np.asarray(sp.vel_enu_m_s).tolist(),
+                "acc": np.asarray(sp.acc_enu_m_s2).tolist(),
+                "yaw": np.asarray(sp.yaw_rad).tolist(),
+                "segments": v.trajectory.to_segments(),
+                "limits": limits,
+                "start": list(v.start_enu_m),
+            }
+        )
+    return {
+        "format": FORMAT,
+        "version": VERSION,
+        "scenario": plan.scenario,
+        "origin": {
+            "lat": plan.origin.lat_deg,
+            "lon": plan.origin.lon_deg,
+            "alt": plan.origin.alt_m,
+        },
+        "spec": plan.spec,
+        "robustness": _finite_or_none(plan.robustness),
+        "smooth_robustness": _finite_or_none(plan.smooth_robustness),
+        "status": plan.status,
+        "success": plan.success,
+        "solve_time_s": plan.solve_time_s,
+        "epsilon": plan.epsilon,
+        "separation_m": plan.separation_m,
+        "horizon_s": plan.horizon_s,
+        "sample_dt_s": plan.sample_dt_s,
+        "check_dt_s": plan.check_dt_s,
+        "workspace": _region_json(plan.workspace),
+        "regions": {r.name: _region_json(r) for r in plan.regions},
+        "vehicles": vehicles,
+    }
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def save_plan(path: str | Path, plan: Any, scenario_path: str | None = None) -> Path:
+    """Write a plan (a :class:`Plan` or a ``PlanResult``) as JSON; returns the path.
+
+    ``scenario_path`` overrides the scenario recorded in the file.
+    """
+    if not isinstance(plan, Plan):
+        plan = plan.to_plan()
+    data = plan_to_json(plan)
+    if scenario_path is not None:
+        data["scenario"] = str(scenario_path)
+    p = Path(path)
+    try:
+        p.write_text(json.dumps(data, indent=None, separators=(",", ":")) + "\n", encoding="utf-8")
+    except OSError as exc:
+        raise PlanFileError(str(p), "", f"cannot write: {exc.strerror or exc}") from None
+    return p
+
+
+class _Reader:
+    def __init__(self, source: str) -> None:
+        self.source = source
+
+    def fail(self, key: str, problem: str) -> PlanFileError:
+        return PlanFileError(self.source, key, problem)
+
+    def get(self, m: dict[str, Any], key: str, path: str, types: Any) -> Any:
+        full = f"{path}.{key}" if path else key
+        if key not in m:
+            raise self.fail(full, "missing")
+        v = m[key]
+        if types is float:
+            if isinstance(v, bool) or not isinstance(v, int | float):
+                raise self.fail(full, f"expected a number, got {type(v).__name__}")
+            return float(v)
+        if not isinstance(v, types):
+            raise self.fail(
+                full, f"expected {getattr(types, '__name__', types)}, got {type(v).__name__}"
+            )
+        return v
+
+    def vec3(self, v: Any, path: str) -> tuple[float, float, float]:
+        if (
+            not isinstance(v, list)
+            or len(v) != 3
+            or not all(isinstance(x, int | float) and not isinstance(x, bool) for x in v)
+        ):
+            raise self.fail(path, "expected [x, y, z] numbers")
+        return (float(v[0]), float(v[1]), float(v[2]))
+
+    def region(self, name: str, v: Any, path: str) -> Region:
+        if not isinstance(v, dict):
+            raise self.fail(path, "expected {kind, min, max}")
+        try:
+            kind = RegionKind(v.get("kind", "region"))
+        except ValueError:
+            raise self.fail(f"{path}.kind", f"unknown kind {v.get('kind')!r}") from None
+        lo = self.vec3(v.get("min"), f"{path}.min")
+        hi = self.vec3(v.get("max"), f"{path}.max")
+        if not all(a < b for a, b in zip(lo, hi, strict=True)):
+            raise self.fail(path, "empty box (min must be below max)")
+        return Region(name, kind, lo, hi)
+
+
+def load_plan(path: str | Path) -> Plan:
+    """Read and validate a plan file; trajectories are rebuilt from ``segments``."""
+    p = Path(path)
+    src = str(p)
+    rd = _Reader(src)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise PlanFileError(src, "", f"cannot read: {exc.strerror or exc}") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise PlanFileError(
+            src, f"line {exc.lineno}, column {exc.colno}", f"not JSON: {exc.msg}"
+        ) from None
+    if not isinstance(data, dict):
+        raise rd.fail("", "expected a JSON object")
+    if data.get("format") != FORMAT:
+        raise rd.fail("format", f"expected {FORMAT!r}, got {data.get('format')!r}")
+    if data.get("version") != VERSION:
+        raise rd.fail(
+            "version", f"unsupported version {data.get('version')!r} (this reads {VERSION})"
+        )
+    o = rd.get(data, "origin", "", dict)
+    origin = GeodeticPoint(
+        lat_deg=rd.get(o, "lat", "origin", float),
+        lon_deg=rd.get(o, "lon", "origin", float),
+        alt_m=rd.get(o, "alt", "origin", float),
+    )
+    regions_raw = rd.get(data, "regions", "", dict)
+    regions = tuple(rd.region(k, v, f"regions.{k}") for k, v in regions_raw.items())
+    workspace = rd.region("workspace", rd.get(data, "workspace", "", dict), "workspace")
+    rob = data.get("robustness")
+    srob = data.get("smooth_robustness")
+    vehicles = []
+    vlist = rd.get(data, "vehicles", "", list)
+    if not vlist:
+        raise rd.fail("vehicles", "no vehicles")
+    for i, v in enumerate(vlist):
+        vp = f"vehicles[{i}]"
+        if not isinstance(v, dict):
+            raise rd.fail(vp, "expected an object")
+        segs = rd.get(v, "segments", vp, list)
+        name = rd.get(v, "name", vp, str)
+        try:
+            traj = Trajectory.from_segments(segs, name=name, where=f"{vp}.segments")
+        except TrajectoryError as exc:
+            raise rd.fail("", str(exc)) from None
+        lim = rd.get(v, "limits", vp, dict)
+        thrust = lim.get("thrust_m_s2")
+        if thrust is not None and (not isinstance(thrust, list) or len(thrust) != 2):
+            raise rd.fail(f"{vp}.limits.thrust_m_s2", "expected [min, max]")
+        br = lim.get("body_rate_max_rad_s")
+        if br is not None and (isinstance(br, bool) or not isinstance(br, int | float)):
+            raise rd.fail(f"{vp}.limits.body_rate_max_rad_s", "expected a number")
+        sysid = rd.get(v, "sysid", vp, int)
+        if isinstance(sysid, bool) or not 1 <= sysid <= 255:
+            raise rd.fail(f"{vp}.sysid", f"expected 1..255, got {sysid!r}")
+        vehicles.append(
+            PlannedVehicle(
+                name=name,
+                sysid=sysid,
+                trajectory=traj,
+                start_enu_m=rd.vec3(v.get("start"), f"{vp}.start"),
+                v_max_m_s=rd.vec3(lim.get("v_max_m_s"), f"{vp}.limits.v_max_m_s"),
+                a_max_m_s2=rd.vec3(lim.get("a_max_m_s2"), f"{vp}.limits.a_max_m_s2"),
+                thrust_min_m_s2=None if thrust is None else float(thrust[0]),
+                thrust_max_m_s2=None if thrust is None else float(thrust[1]),
+                body_rate_max_rad_s=None if br is None else float(br),
+            )
+        )
+    for key, val in (("robustness", rob), ("smooth_robustness", srob)):
+        if val is not None and (isinstance(val, bool) or not isinstance(val, int | float)):
+            raise rd.fail(key, "expected a number or null")
+    return Plan(
+        scenario=rd.get(data, "scenario", "", str),
+        origin=origin,
+        spec=rd.get(data, "spec", "", str),
+        robustness=float("nan") if rob is None else float(rob),
+        smooth_robustness=float("nan") if srob is None else float(srob),
+        status=rd.get(data, "status", "", str),
+        success=bool(data.get("success", False)),
+        solve_time_s=rd.get(data, "solve_time_s", "", float),
+        vehicles=tuple(vehicles),
+        workspace=workspace,
+        regions=regions,
+        separation_m=rd.get(data, "separation_m", "", float),
+        epsilon=rd.get(data, "epsilon", "", float),
+        horizon_s=rd.get(data, "horizon_s", "", float),
+        sample_dt_s=rd.get(data, "sample_dt_s", "", float),
+        check_dt_s=rd.get(data, "check_dt_s", "", float),
+    )

@@ -1,0 +1,258 @@
+"""The scenario's function predicates: numpy (exact) and CasADi (smooth) implementations.
+
+A scenario's spec calls these functions (argument kinds in
+:data:`planner.scenario.FUNCTION_NAMES`); vehicle arguments are signal names whose values
+are positions, shape (n, 3) ENU metres; region arguments are names the function resolves
+from the :class:`~planner.scenario.Problem`.
+
+========================  ==========================================================
+``inside(d, box)``        Chebyshev (L-infinity) margin to the box boundary:
+                          ``min_i min(p_i - lo_i, hi_i - p_i)``; > 0 strictly inside,
+                          = distance to the nearest face; < 0 outside.
+``outside(d, box)``       ``max_i max(lo_i - p_i, p_i - hi_i)``; > 0 outside (the
+                          L-infinity distance to the box), < 0 inside (minus the depth).
+``dist(d1, d2)``          Euclidean distance between two vehicles (m).
+``alt(d)``, ``z(d)``      height above the mission origin (m); ``x(d)``, ``y(d)`` east, north.
+========================  ==========================================================
+
+Exact values (numpy) are what the checker uses, on dense samples.  The CasADi versions are
+smooth enough for IPOPT (twice differentiable everywhere) and *never above* the exact value,
+so a smooth margin >= 0 implies an exact margin >= 0:
+
+* ``inside``: soft-min by log-sum-exp over the six face margins,
+  ``-log(sum exp(-k m_j)) / k``, shifted by the exact min for stability; lies in
+  ``[exact - log(6)/k, exact]``.
+* ``outside``: soft-max minus its bound, ``log(sum exp(k m_j)) / k - log(6)/k``; lies in
+  ``[exact - log(6)/k, exact]``.
+* ``dist``: ``sqrt(|p1 - p2|^2 + delta^2) - delta`` with ``delta = 1e-4`` m; lies in
+  ``[exact - delta, exact]`` and is smooth where the exact distance is not (at 0).
+
+``k`` here is the *predicate* sharpness (1/m), fitted by :func:`predicate_sharpness` so that
+the bound ``log(6)/k`` is 10 % of the smallest region half-size (measured: 2 % made
+the obstacle margins so sharp that IPOPT stalled inside the obstacle on reach-avoid).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from typing import Any, Protocol
+
+import casadi as ca
+import numpy as np
+
+from planner.scenario import Clause, Problem, Region, ScenarioError
+from planner.stl import (
+    BinOp,
+    Comparison,
+    EvaluationError,
+    Expr,
+    Formula,
+    FunctionRegistry,
+    Neg,
+    Signal,
+    SpecError,
+    parse,
+)
+
+__all__ = [
+    "DIST_DELTA_M",
+    "box_margins",
+    "build_registry",
+    "ca_box_margins",
+    "casadi_functions",
+    "parse_clause",
+    "predicate_sharpness",
+]
+
+#: Smoothing offset of ``dist`` in metres (see module docstring).
+DIST_DELTA_M = 1e-4
+#: Fraction of the smallest region half-size the predicate soft-min/max may lose.
+_PRED_TOLERANCE = 0.1
+
+
+class RegionSource(Protocol):
+    """Where predicates look up boxes: a :class:`Problem` or a loaded plan."""
+
+    @property
+    def all_regions(self) -> tuple[Region, ...]: ...
+
+    def region(self, name: str) -> Region: ...
+
+
+def predicate_sharpness(problem: RegionSource) -> float:
+    """Sharpness k (1/m) of the smooth box margins: ``log(6)/k = 2 %`` of the smallest half-size."""
+    halves = [0.5 * (np.asarray(r.hi_enu_m) - np.asarray(r.lo_enu_m)) for r in problem.all_regions]
+    smallest = float(min(np.min(h) for h in halves))
+    return math.log(6.0) / (_PRED_TOLERANCE * smallest)
+
+
+def box_margins(pos_enu_m: np.ndarray, region: Region) -> np.ndarray:
+    """Signed face margins of points to a box, shape (n, 6): ``p - lo`` then ``hi - p``."""
+    p = np.asarray(pos_enu_m, dtype=float).reshape(-1, 3)
+    return np.concatenate([p - np.asarray(region.lo_enu_m), np.asarray(region.hi_enu_m) - p], 1)
+
+
+def ca_box_margins(pos: Any, region: Region) -> Any:
+    """CasADi (n, 6) face margins of an (n, 3) position expression."""
+    n = pos.shape[0]
+    lo = ca.repmat(ca.DM(region.lo_enu_m).T, n, 1)
+    hi = ca.repmat(ca.DM(region.hi_enu_m).T, n, 1)
+    return ca.horzcat(pos - lo, hi - pos)
+
+
+def _ca_softmin_rows(m: Any, k: float) -> Any:
+    """Row-wise soft-min (n, 1) by LSE, shifted by the row min; in [min - log(c)/k, min]."""
+    c = m.shape[1]
+    mn = m[:, 0]
+    for j in range(1, c):
+        mn = ca.fmin(mn, m[:, j])
+    s = 0
+    for j in range(c):
+        s = s + ca.exp(-k * (m[:, j] - mn))
+    return mn - ca.log(s) / k
+
+
+def _ca_softmax_rows_lower(m: Any, k: float) -> Any:
+    """Row-wise soft-max minus its bound (n, 1); in [max - log(c)/k, max]."""
+    c = m.shape[1]
+    mx = m[:, 0]
+    for j in range(1, c):
+        mx = ca.fmax(mx, m[:, j])
+    s = 0
+    for j in range(c):
+        s = s + ca.exp(k * (m[:, j] - mx))
+    return mx + ca.log(s) / k - math.log(c) / k
+
+
+def _vehicle_signal(signals: Mapping[str, Any], name: str) -> Any:
+    # The engine's signal views raise UnknownSignalError (naming the signal) themselves.
+    return signals[name]
+
+
+def _region(problem: RegionSource, name: str) -> Region:
+    try:
+        return problem.region(name)
+    except KeyError:
+        known = ", ".join(r.name for r in problem.all_regions)
+        raise EvaluationError(f"unknown region {name!r} (regions: {known})") from None
+
+
+def _np_functions(problem: RegionSource) -> dict[str, Callable[..., np.ndarray]]:
+    def inside(args: tuple[str, ...], signals: Mapping[str, Any]) -> np.ndarray:
+        m = box_margins(_vehicle_signal(signals, args[0]), _region(problem, args[1]))
+        return m.min(axis=1)
+
+    def outside(args: tuple[str, ...], signals: Mapping[str, Any]) -> np.ndarray:
+        m = box_margins(_vehicle_signal(signals, args[0]), _region(problem, args[1]))
+        return -m.min(axis=1)
+
+    def dist(args: tuple[str, ...], signals: Mapping[str, Any]) -> np.ndarray:
+        a = np.asarray(_vehicle_signal(signals, args[0]), dtype=float).reshape(-1, 3)
+        b = np.asarray(_vehicle_signal(signals, args[1]), dtype=float).reshape(-1, 3)
+        return np.linalg.norm(a - b, axis=1)
+
+    def axis(i: int) -> Callable[..., np.ndarray]:
+        def f(args: tuple[str, ...], signals: Mapping[str, Any]) -> np.ndarray:
+            return np.asarray(_vehicle_signal(signals, args[0]), dtype=float).reshape(-1, 3)[:, i]
+
+        return f
+
+    return {
+        "inside": inside,
+        "outside": outside,
+        "dist": dist,
+        "alt": axis(2),
+        "x": axis(0),
+        "y": axis(1),
+        "z": axis(2),
+    }
+
+
+def casadi_functions(problem: RegionSource, k_pred: float) -> dict[str, Callable[..., Any]]:
+    """The smooth CasADi implementations by name: ``f(args, signals) -> (m, 1)``."""
+
+    def inside(args: tuple[str, ...], signals: Mapping[str, Any]) -> Any:
+        m = ca_box_margins(_vehicle_signal(signals, args[0]), _region(problem, args[1]))
+        return _ca_softmin_rows(m, k_pred)
+
+    def outside(args: tuple[str, ...], signals: Mapping[str, Any]) -> Any:
+        m = ca_box_margins(_vehicle_signal(signals, args[0]), _region(problem, args[1]))
+        return _ca_softmax_rows_lower(-m, k_pred)
+
+    def dist(args: tuple[str, ...], signals: Mapping[str, Any]) -> Any:
+        d = _vehicle_signal(signals, args[0]) - _vehicle_signal(signals, args[1])
+        sq = d[:, 0] ** 2 + d[:, 1] ** 2 + d[:, 2] ** 2
+        return ca.sqrt(sq + DIST_DELTA_M**2) - DIST_DELTA_M
+
+    def axis(i: int) -> Callable[..., Any]:
+        def f(args: tuple[str, ...], signals: Mapping[str, Any]) -> Any:
+            return _vehicle_signal(signals, args[0])[:, i]
+
+        return f
+
+    return {
+        "inside": inside,
+        "outside": outside,
+        "dist": dist,
+        "alt": axis(2),
+        "x": axis(0),
+        "y": axis(1),
+        "z": axis(2),
+    }
+
+
+def build_registry(problem: RegionSource, k_pred: float | None = None) -> FunctionRegistry:
+    """The FunctionRegistry of the scenario's predicates (numpy exact + CasADi smooth).
+
+    ``k_pred`` is the predicate sharpness (1/m); default :func:`predicate_sharpness`.
+    """
+    from planner.scenario import FUNCTION_NAMES
+
+    k = predicate_sharpness(problem) if k_pred is None else k_pred
+    np_f = _np_functions(problem)
+    ca_f = casadi_functions(problem, k)
+    reg = FunctionRegistry()
+    for name, kinds in FUNCTION_NAMES.items():
+        signal_args = tuple(i for i, kind in enumerate(kinds) if kind == "v")
+        reg.register(name, len(kinds), np_f[name], ca_f[name], signal_args=signal_args)
+    return reg
+
+
+def parse_clause(
+    problem: Problem, clause: Clause, registry: FunctionRegistry | None = None
+) -> Formula:
+    """Parse one expanded clause; a SpecError becomes a ScenarioError naming the clause's key."""
+    try:
+        phi = parse(clause.text, functions=registry or build_registry(problem))
+    except SpecError as exc:
+        raise ScenarioError(problem.source, clause.key_path, f"{exc} in {clause.text!r}") from None
+    for node in phi.walk():
+        if isinstance(node, Comparison):
+            bare = _bare_signals(node.lhs) | _bare_signals(node.rhs)
+            if bare:
+                name = sorted(bare)[0]
+                raise ScenarioError(
+                    problem.source,
+                    clause.key_path,
+                    f"{name!r} is used as a number in {str(node)!r}; vehicles are positions: "
+                    f"use x({name}), y({name}), z({name}) or a function such as dist",
+                )
+    horizon = problem.timing.horizon_s
+    if phi.horizon > horizon * (1 + 1e-9):
+        raise ScenarioError(
+            problem.source,
+            clause.key_path,
+            f"the clause looks {phi.horizon:g} s ahead but the plan horizon is {horizon:g} s",
+        )
+    return phi
+
+
+def _bare_signals(e: Expr) -> set[str]:
+    if isinstance(e, Signal):
+        return {e.name}
+    if isinstance(e, Neg):
+        return _bare_signals(e.operand)
+    if isinstance(e, BinOp):
+        return _bare_signals(e.lhs) | _bare_signals(e.rhs)
+    return set()

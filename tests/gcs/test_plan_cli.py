@@ -1,0 +1,72 @@
+"""``gcs plan``: writes the plan file, prints the summary or JSON, prints the expanded spec."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from gcs import cli
+
+CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+
+
+def test_plan_writes_a_plan_file_and_a_summary_table(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "p.json"
+    code = cli.main(["plan", str(CONFIGS / "reach_avoid.yaml"), "--vehicles", "1", "-o", str(out)])
+    captured = capsys.readouterr()
+    assert code == 0, captured.out + captured.err
+    data = json.loads(out.read_text())
+    assert data["format"] == "stl-gcs-plan" and len(data["vehicles"]) == 1
+    table = captured.out
+    assert "max |v| m/s" in table and "d1" in table
+    assert "eventually[0, 6] inside(d1, goal)" in table
+    assert "OK: " in table and f"plan written to {out}" in table
+    assert "building the NLP" in captured.err  # progress (non-tty: one line per stage)
+
+
+def test_plan_json_summary(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "p.json"
+    code = cli.main(
+        ["plan", str(CONFIGS / "reach_avoid.yaml"), "--vehicles", "1", "-o", str(out), "--json"]
+    )
+    summary = json.loads(capsys.readouterr().out)
+    assert code == 0
+    assert summary["success"] is True and summary["robustness"] > 0
+    assert summary["output"] == str(out)
+    assert {c["key"] for c in summary["clauses"]} == {"spec[0].formula", "spec[1].formula"}
+    assert summary["stats"]["n_variables"] > 0
+
+
+def test_print_spec_prints_the_expanded_formula(capsys: pytest.CaptureFixture[str]) -> None:
+    code = cli.main(["plan", str(CONFIGS / "reach_avoid.yaml"), "--vehicles", "3", "--print-spec"])
+    text = capsys.readouterr().out
+    assert code == 0
+    assert "dist(d1, d3) >= 0.2" in text and "dist(d2, d3) >= 0.2" in text
+    assert "$" not in text and "each" not in text
+
+
+def test_bad_scenario_exits_2_with_one_line(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(
+        (CONFIGS / "reach_avoid.yaml").read_text().replace("v_max_m_s: 0.751", "v_max_m_s: -1")
+    )
+    proc = subprocess.run(
+        [sys.executable, "-m", "gcs.cli", "plan", str(bad)], capture_output=True, text=True
+    )
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1
+    assert f"{bad}: limits.v_max_m_s: must be > 0" in lines[0]
+    assert "Traceback" not in proc.stderr
+
+
+def test_vehicle_count_out_of_range_exits_2(capsys: pytest.CaptureFixture[str]) -> None:
+    code = cli.main(["plan", str(CONFIGS / "reach_avoid.yaml"), "--vehicles", "40"])
+    assert code == 2
+    assert "--vehicles 40 is outside 1..16" in capsys.readouterr().err

@@ -1,0 +1,90 @@
+"""``gcs verify``: re-checks a plan from its segments; exit 0 / 1 (failing check named) / 2."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gcs import cli
+from planner.optimize import plan
+from planner.planfile import save_plan
+from planner.scenario import load_scenario
+
+CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+
+
+@pytest.fixture(scope="module")
+def good_plan(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    result = plan(load_scenario(CONFIGS / "reach_avoid.yaml", vehicles=2))
+    assert result.success, result.status
+    path = tmp_path_factory.mktemp("verify") / "plan.json"
+    save_plan(path, result)
+    return path
+
+
+def _edited(src: Path, dst: Path, edit: object) -> Path:
+    data = json.loads(src.read_text())
+    edit(data)  # type: ignore[operator]
+    dst.write_text(json.dumps(data))
+    return dst
+
+
+def test_verify_accepts_the_planner_output(
+    good_plan: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert cli.main(["verify", str(good_plan)]) == 0
+    assert "OK:" in capsys.readouterr().out
+
+
+def test_verify_json_lists_every_check(good_plan: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["verify", str(good_plan), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    names = [c["name"] for c in report["checks"]]
+    assert report["ok"] is True
+    assert "separation d1-d2 m" in names
+    assert any(n.startswith("spec: eventually[0,6] inside(d1, goal)") for n in names)
+    assert "d2 velocity / v_max" in names
+
+
+def test_verify_names_the_failing_clause_when_the_goal_moves(
+    good_plan: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    def move_goal(d: dict) -> None:
+        d["regions"]["goal"] = {"kind": "goal", "min": [1.5, -2, 0.5], "max": [2, -1.5, 1]}
+
+    bad = _edited(good_plan, tmp_path / "moved.json", move_goal)
+    assert cli.main(["verify", str(bad)]) == 1
+    out = capsys.readouterr().out
+    assert "FAIL spec: eventually[0,6] inside(d1, goal)" in out
+    assert "FAILED:" in out
+
+
+def test_verify_catches_limits_and_separation_from_the_segments(
+    good_plan: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    def tighten(d: dict) -> None:
+        d["vehicles"][0]["limits"]["v_max_m_s"] = [0.3, 0.3, 0.3]
+        d["separation_m"] = 5.0
+        # The samples are ignored: only the segments count.
+        d["vehicles"][0]["pos"] = (np.asarray(d["vehicles"][0]["pos"]) * 0).tolist()
+
+    bad = _edited(good_plan, tmp_path / "tight.json", tighten)
+    assert cli.main(["verify", str(bad)]) == 1
+    out = capsys.readouterr().out
+    assert "FAIL d1 velocity / v_max" in out
+    assert "FAIL separation d1-d2 m" in out
+
+
+def test_bad_plan_file_exits_2_with_one_line(good_plan: Path, tmp_path: Path) -> None:
+    bad = _edited(good_plan, tmp_path / "broken.json", lambda d: d["vehicles"][1].pop("segments"))
+    proc = subprocess.run(
+        [sys.executable, "-m", "gcs.cli", "verify", str(bad)], capture_output=True, text=True
+    )
+    assert proc.returncode == 2
+    assert proc.stderr.strip().count("\n") == 0
+    assert "vehicles[1].segments: missing" in proc.stderr

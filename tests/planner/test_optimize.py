@@ -1,0 +1,113 @@
+"""The planner: paper scenarios plan with positive exact robustness, checked independently.
+
+The independent checks below do not use the planner's code: positions, velocities and
+accelerations come from the trajectories (piecewise polynomials) on a dense grid, and the
+mission properties (goal reached, obstacle avoided, workspace, separation, limits) are
+written out here directly with numpy, not through the STL engine or planner.predicates.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planner.optimize import PlanResult, plan
+from planner.scenario import Problem, load_scenario, parse_scenario
+
+CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+DT_CHECK_S = 0.002
+
+
+def _dense(result: PlanResult) -> tuple[np.ndarray, dict[str, tuple[np.ndarray, ...]]]:
+    t = np.arange(0.0, result.problem.timing.horizon_s + 1e-12, DT_CHECK_S)
+    out = {}
+    for tr in result.trajectories:
+        out[tr.name] = (tr.position(t), tr.velocity(t), tr.acceleration(t))
+    return t, out
+
+
+def _box_margin(p: np.ndarray, lo: tuple[float, ...], hi: tuple[float, ...]) -> np.ndarray:
+    """Chebyshev margin of points (n, 3) inside a box (positive inside)."""
+    return np.minimum(p - np.asarray(lo), np.asarray(hi) - p).min(axis=1)
+
+
+def _check_limits_and_separation(result: PlanResult) -> None:
+    problem = result.problem
+    _, dense = _dense(result)
+    for v in problem.vehicles:
+        pos, vel, acc = dense[v.name]
+        # Velocity/acceleration from the polynomials agree with finite differences of the
+        # positions (so the limit check below is about the flown path).
+        fd_vel = np.gradient(pos, DT_CHECK_S, axis=0)
+        assert np.max(np.abs(fd_vel[1:-1] - vel[1:-1])) < 1e-3
+        assert np.all(np.abs(vel) <= np.asarray(v.v_max_m_s) * (1 + 1e-6))
+        assert np.all(np.abs(acc) <= np.asarray(v.a_max_m_s2) * (1 + 1e-6))
+        ws = problem.workspace
+        assert _box_margin(pos, ws.lo_enu_m, ws.hi_enu_m).min() >= -1e-9
+        np.testing.assert_allclose(pos[0], v.start_enu_m, atol=1e-9)
+    for a, b in itertools.combinations(problem.vehicles, 2):
+        d = np.linalg.norm(dense[a.name][0] - dense[b.name][0], axis=1)
+        assert d.min() >= problem.separation_m
+
+
+def _replace_solver(problem: Problem, **kw: object) -> Problem:
+    return dataclasses.replace(problem, solver=dataclasses.replace(problem.solver, **kw))
+
+
+@pytest.mark.parametrize("n", [1, 2, 4])
+def test_reach_avoid_plans_with_positive_robustness(n: int) -> None:
+    problem = load_scenario(CONFIGS / "reach_avoid.yaml", vehicles=n)
+    result = plan(problem)
+    assert result.success, result.status
+    assert result.robustness > 0
+    assert len(result.trajectories) == n
+    # Independent mission check on a dense grid.
+    _, dense = _dense(result)
+    goal = problem.region("goal")
+    obstacle = problem.region("obstacle")
+    for v in problem.vehicles:
+        pos = dense[v.name][0]
+        assert _box_margin(pos, goal.lo_enu_m, goal.hi_enu_m).max() > 0, "goal never reached"
+        assert _box_margin(pos, obstacle.lo_enu_m, obstacle.hi_enu_m).max() < 0, "hit obstacle"
+    _check_limits_and_separation(result)
+    # The reported robustness is the exact one on the problem's check grid.
+    assert result.robustness <= result.smooth_robustness + 0.05
+    assert result.weakest is not None and result.weakest.robustness == pytest.approx(
+        result.robustness
+    )
+
+
+def test_double_integrator_scenario_plans() -> None:
+    problem = load_scenario(CONFIGS / "narrow_passage_di.yaml")
+    result = plan(problem)
+    assert result.success, result.status
+    _check_limits_and_separation(result)
+
+
+def test_unsatisfiable_scenario_is_a_failed_result_not_an_exception() -> None:
+    import yaml
+
+    data = yaml.safe_load((CONFIGS / "reach_avoid.yaml").read_text())
+    data["regions"]["goal"] = {"kind": "goal", "center": [0, 0, 0.75], "half_size": 0.25}
+    problem = _replace_solver(
+        parse_scenario(data, "goal_in_obstacle.yaml", vehicles=1), max_iter=60
+    )
+    result = plan(problem)
+    assert not result.success
+    assert result.robustness < 0
+    assert "robustness" in result.status and "< epsilon" in result.status
+    assert result.weakest is not None
+    assert len(result.trajectories) == 1  # the best trajectories found are still returned
+
+
+def test_warm_start_from_a_previous_solution_converges_at_once() -> None:
+    problem = load_scenario(CONFIGS / "reach_avoid.yaml", vehicles=1)
+    first = plan(problem)
+    again = plan(problem, initial_guess=first.decision)
+    assert again.stats is not None and again.stats.cached
+    assert again.iterations <= max(5, first.iterations // 3)
+    assert again.robustness == pytest.approx(first.robustness, abs=1e-3)
