@@ -109,7 +109,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="P",
         help="probability a vehicle->GCS datagram is lost",
     )
-    g.add_argument("--latency-ms", type=float, default=0.0, help="added one-way latency")
+    g.add_argument(
+        "--latency-ms",
+        type=float,
+        default=0.0,
+        help="latency added to each datagram, both directions",
+    )
     g.add_argument(
         "--jitter-ms", type=float, default=0.0, help="added uniform random latency [0, jitter]"
     )

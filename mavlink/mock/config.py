@@ -150,7 +150,8 @@ class MockVehicleConfig:
     """Set-up of one mock vehicle.
 
     ``spawn_enu_m``: spawn point in the mission ENU frame (x east, y north, z up)
-    relative to the fleet origin; the vehicle's EKF origin and home are there.
+    relative to the fleet origin; the vehicle's EKF origin and home are there, and
+    so is its ground: a spawn with z > 0 stands on a platform at that height.
     ``params``: PX4 parameter overrides by name (e.g. ``{"COM_OF_LOSS_T": 0.5}``).
     ``ready_after_s``: simulated EKF/GPS convergence time; arming is refused before.
     """
