@@ -258,14 +258,18 @@ async def mission_transfer(repeats: int) -> dict:
 async def main_async(args: argparse.Namespace) -> dict:
     rows = []
     largest_ok = 0
+    failures_in_a_row = 0
     for n in args.sizes:
         r = await stream_fleet(n, args.seconds)
         rows.append(r)
         _row(r)
         if r["ok"]:
             largest_ok = n
-        elif n > 32:
-            break  # past the first failing size above the target nothing new is learnt
+            failures_in_a_row = 0
+        else:
+            failures_in_a_row += 1
+            if failures_in_a_row == 2:
+                break  # two sizes in a row past the limit: larger ones will not pass
     wrapper = await stream_fleet(32, args.seconds, use_asyncio_wrapper=True)
     _row(wrapper)
     mission = await mission_transfer(args.mission_repeats)
