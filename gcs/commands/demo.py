@@ -1,0 +1,223 @@
+"""``gcs demo``: plan the power-line inspection for 4 drones, fly it on mock vehicles, report.
+
+Steps (each timed; ``benchmarks/bench_demo.py`` prints the split):
+
+1. **set-up**: find ``configs/powerline_inspection.yaml`` (next to the installed packages, i.e.
+   the repository of an editable install, else ``./configs``), load it for ``--vehicles``
+   drones;
+2. **planning**: :func:`planner.optimize.plan` (CasADi/IPOPT), written to ``<out>/plan.json``
+   and put through ``gcs verify``'s checks (a plan that fails them is not flown unless
+   ``--force``);
+3. **vehicles**: one mock PX4 vehicle per drone in this process, on the ground below its
+   planned start, on free loopback ports; connected over MAVLink/UDP through MAVSDK;
+4. **flight**: take-off to the starts and the plan flown in offboard mode
+   (:func:`gcs.flight.fly_plan`: shared start time, setpoints at 20 Hz against absolute
+   deadlines, the safety monitor), telemetry recorded to ``<out>/flight.tlog`` and
+   ``<out>/flight.csv``;
+5. **report**: the exact robustness of the flown tracks against the spec, the picture
+   (:func:`gcs.plot.plot_plan` with the flown tracks, ``<out>/demo.png``) and the report
+   (``<out>/report.md``).
+
+It prints a short summary: planned and flown robustness, planning and flight time, the files.
+Exit status 0 when the flight completed and the flown data satisfies the spec, 1 otherwise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, TextIO
+
+if TYPE_CHECKING:
+    from gcs.flight import FlightOutcome
+    from planner.planfile import Plan
+
+HELP = "plan the power-line inspection, fly it on 4 mock PX4 vehicles and write a report"
+
+#: The scenario the demo flies.
+SCENARIO = "powerline_inspection.yaml"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``gcs demo``."""
+    p.add_argument("--out", default="demo-out", metavar="DIR", help="output directory (demo-out)")
+    p.add_argument("--vehicles", type=int, default=4, metavar="N", help="number of drones (4)")
+    p.add_argument("--rate", type=float, default=20.0, metavar="HZ", help="setpoint rate (20)")
+    p.add_argument("--force", action="store_true", help="fly even if the plan fails verification")
+
+
+def find_config(name: str) -> Path:
+    """``configs/<name>`` of the repository next to the installed packages, else ``./configs``.
+
+    Raises:
+        UserError: not found in either place (both named).
+    """
+    import planner
+    from gcs.errors import UserError
+
+    here = Path(planner.__file__).resolve().parent.parent / "configs" / name
+    candidates = [here, Path.cwd() / "configs" / name]
+    for c in candidates:
+        if c.is_file():
+            return c
+    raise UserError(
+        f"scenario {name} not found (looked in {', '.join(str(c.parent) for c in candidates)})"
+    )
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class DemoResult:
+    """What :func:`run_demo` did.
+
+    Attributes:
+        plan: the plan flown (as written to ``plan.json``).
+        outcome: the flight.
+        timings_s: wall time by stage: set-up, planning, vehicles (mock start and
+            connection), flight, report.
+        files: written files by description.
+        refused: why the plan was not flown (empty when it was).
+    """
+
+    plan: Plan
+    outcome: FlightOutcome | None
+    timings_s: dict[str, float]
+    files: dict[str, Path]
+    refused: str = ""
+
+
+def run_demo(
+    out_dir: str | Path,
+    *,
+    vehicles: int = 4,
+    rate_hz: float = 20.0,
+    force: bool = False,
+    progress: TextIO | None = None,
+) -> DemoResult:
+    """Plan, fly on mock vehicles, evaluate and report (module docstring).
+
+    Args:
+        out_dir: directory for plan.json, flight.tlog, flight.csv, demo.png, report.md.
+        vehicles: number of drones.
+        rate_hz: offboard setpoint rate.
+        force: fly a plan that fails verification.
+        progress: where the flight's status line goes (``None``: silent).
+    """
+    from gcs.errors import InputFileError
+    from gcs.flight import (
+        FlightProgress,
+        FlightRefused,
+        FlyOptions,
+        fly_plan,
+        mock_vehicles,
+        preflight_interlock,
+        vehicle_specs,
+    )
+    from gcs.plot import FlownPath, Telemetry, plot_plan
+    from gcs.report import write_report
+    from planner.optimize import plan as solve
+    from planner.planfile import load_plan, save_plan
+    from planner.scenario import load_scenario
+
+    timings: dict[str, float] = {}
+    t = time.perf_counter()
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputFileError(f"--out {out}: cannot create: {exc.strerror or exc}") from None
+    scenario = find_config(SCENARIO)
+    problem = load_scenario(scenario, vehicles=vehicles)
+    timings["set-up"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    result = solve(problem)
+    files = {"plan": save_plan(out / "plan.json", result, scenario_path=str(scenario))}
+    plan = load_plan(files["plan"])  # what any other command would read
+    timings["planning"] = time.perf_counter() - t
+    try:
+        preflight_interlock(plan, force=force)
+    except FlightRefused as exc:
+        return DemoResult(plan, None, timings, files, refused=str(exc))
+
+    t = time.perf_counter()
+    view = FlightProgress(plan, progress) if progress is not None else None
+    options = FlyOptions(rate_hz=rate_hz, log_dir=out)
+    with mock_vehicles(plan) as dry:
+        t_mock = time.perf_counter() - t
+        outcome = asyncio.run(
+            fly_plan(plan, vehicle_specs(plan, list(dry.urls)), options, progress=view)
+        )
+    timings["vehicles"] = t_mock + outcome.connect_s
+    timings["flight"] = outcome.flight_s
+
+    t = time.perf_counter()
+    telemetry = Telemetry(
+        source=str(outcome.files.get("csv", "flight")),
+        vehicles={n: FlownPath(tr.t_s, tr.pos_enu_m) for n, tr in outcome.tracks.items()},
+    )
+    picture = plot_plan(plan, out / "demo.png", telemetry, name=f"{scenario.stem} (demo)").path
+    files["picture"] = picture
+    files.update(outcome.files)
+    timings["report"] = time.perf_counter() - t
+    files["report"] = write_report(
+        out / "report.md",
+        plan,
+        outcome,
+        title=f"{scenario.stem}, {len(plan.vehicles)} drones on mock PX4 vehicles",
+        timings_s=timings,
+        picture=picture,
+        files={"plan": files["plan"]},
+    )
+    return DemoResult(plan, outcome, timings, files)
+
+
+def summary(demo: DemoResult) -> str:
+    """The short summary ``gcs demo`` prints."""
+    plan, out = demo.plan, demo.outcome
+    lines = [f"planned robustness {plan.robustness:+.4f} ({plan.status.split(';')[0]})"]
+    if out is None:
+        lines.append(f"not flown: {demo.refused}")
+    else:
+        ev = out.evaluation
+        flown = (
+            "n/a" if ev is None or ev.flown_robustness is None else f"{ev.flown_robustness:+.4f}"
+        )
+        why = f" ({ev.coverage_problem})" if ev is not None and ev.coverage_problem else ""
+        lines.append(
+            f"flown robustness {flown}{why}; flight {'completed' if out.completed else 'NOT completed'}"
+        )
+        if out.safety_event is not None:
+            lines.append(f"safety stop: {out.safety_event.describe()}")
+    t = demo.timings_s
+    lines.append(
+        f"planning {t.get('planning', 0.0):.1f} s, flight {t.get('flight', 0.0):.1f} s, "
+        f"total {sum(t.values()):.1f} s (" + ", ".join(f"{k} {v:.1f}" for k, v in t.items()) + ")"
+    )
+    lines.append("files: " + ", ".join(str(p) for p in demo.files.values()))
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the demo; 0 when flown, completed and the flown data satisfies the spec."""
+    from gcs.errors import UserError
+
+    if not 1 <= args.vehicles <= 8:
+        raise UserError(f"--vehicles: must be 1..8, got {args.vehicles}")
+    if not (2.0 < args.rate <= 100.0):
+        raise UserError(f"--rate: must be in (2, 100] Hz, got {args.rate:g}")
+    print(
+        f"gcs demo: planning {SCENARIO} for {args.vehicles} drones (CasADi/IPOPT) ...", flush=True
+    )
+    demo = run_demo(
+        args.out, vehicles=args.vehicles, rate_hz=args.rate, force=args.force, progress=sys.stdout
+    )
+    print(summary(demo))
+    out = demo.outcome
+    if out is None or not out.completed or out.evaluation is None:
+        return 1
+    rho = out.evaluation.flown_robustness
+    return 0 if rho is not None and rho > 0 else 1

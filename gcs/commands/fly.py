@@ -1,0 +1,137 @@
+"""``gcs fly PLAN.json``: fly a plan on PX4 vehicles (or mock vehicles with ``--dry-run``).
+
+Vehicle ``i`` of the plan is reached at ``--connection`` number ``i`` (repeat the option, plan
+order), by default ``udpin://0.0.0.0:{14540+i}``, the ports PX4 SITL instance ``i`` sends to.
+``--dry-run`` starts one mock PX4 vehicle per plan vehicle in this process, on the ground below
+its planned start and on free loopback ports, and flies against them exactly as against SITL
+(arm, take off to the start, fly).
+
+Before anything is armed the plan goes through ``gcs verify``'s checks and each vehicle's
+position is compared with its planned start (``--tolerance``); a failed check refuses the
+flight (exit 1, the check named) unless ``--force`` (which overrides the plan checks only).
+While flying, a status line shows per vehicle its mode, its distance to the plan and the
+robustness of its clauses so far; Ctrl-C commands every vehicle to hold and exits (130).
+At the end: flown vs planned robustness (exact semantics), tracking errors, setpoint stream
+statistics, and with ``--log DIR`` the telemetry (``flight.tlog``) and tracks (``flight.csv``).
+
+Exit status: 0 flown and the flown data satisfies the spec, 1 refused / not completed / flown
+robustness negative, 2 bad input (plan file, URL, unreachable vehicle), 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import sys
+from pathlib import Path
+
+HELP = "fly a plan in offboard (or mission) mode on PX4 vehicles, or on mock ones with --dry-run"
+
+EXIT_INTERRUPTED = 130
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``gcs fly``."""
+    p.add_argument("plan", help="plan file written by gcs plan")
+    p.add_argument(
+        "--connection",
+        action="append",
+        metavar="URL",
+        help="connection URL of the next vehicle (repeat, plan order); default "
+        "udpin://0.0.0.0:14540+i (PX4 SITL)",
+    )
+    p.add_argument("--rate", type=float, default=20.0, metavar="HZ", help="setpoint rate (20)")
+    p.add_argument(
+        "--dry-run", action="store_true", help="fly against mock vehicles started in-process"
+    )
+    p.add_argument("--mode", choices=["offboard", "mission"], default="offboard")
+    p.add_argument("--log", metavar="DIR", help="write flight.tlog and flight.csv to DIR")
+    p.add_argument("--force", action="store_true", help="fly a plan that fails verification")
+    p.add_argument(
+        "--tolerance",
+        type=float,
+        default=1.0,
+        metavar="M",
+        help="refuse a vehicle farther than M metres from its planned start (1.0)",
+    )
+    p.add_argument("--end", choices=["hold", "land", "return"], default="hold")
+    p.add_argument(
+        "--timeout", type=float, default=10.0, metavar="S", help="connection timeout (10 s)"
+    )
+    p.add_argument("--json", action="store_true", help="print the outcome as JSON")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Fly; see the module docstring for the exit statuses."""
+    from gcs.errors import UserError
+    from gcs.flight import (
+        FlightMode,
+        FlightOutcome,
+        FlightProgress,
+        FlightRefused,
+        FlyOptions,
+        fly_plan,
+        format_outcome,
+        mock_vehicles,
+        outcome_json,
+        preflight_interlock,
+        vehicle_specs,
+    )
+    from mavlink.errors import PreflightError
+    from mavlink.offboard import EndAction
+    from planner.planfile import load_plan
+
+    if not (2.0 < args.rate <= 100.0):
+        raise UserError(f"--rate: must be in (2, 100] Hz, got {args.rate:g}")
+    if not (args.tolerance > 0):
+        raise UserError(f"--tolerance: must be > 0 m, got {args.tolerance:g}")
+    if not (args.timeout > 0):
+        raise UserError(f"--timeout: must be > 0 s, got {args.timeout:g}")
+    if args.dry_run and args.connection:
+        raise UserError("--dry-run and --connection exclude each other")
+    plan = load_plan(args.plan)
+    out = sys.stderr if args.json else sys.stdout
+    try:
+        preflight_interlock(plan, force=args.force)
+    except FlightRefused as exc:
+        print(f"gcs fly: {exc}", file=sys.stderr)
+        return 1
+    options = FlyOptions(
+        mode=FlightMode(args.mode),
+        rate_hz=args.rate,
+        tolerance_m=args.tolerance,
+        end=EndAction(args.end),
+        log_dir=Path(args.log) if args.log else None,
+        connect_timeout_s=args.timeout,
+    )
+    progress = FlightProgress(plan, out)
+
+    def fly(urls: list[str] | None) -> FlightOutcome:
+        specs = vehicle_specs(plan, urls)
+        return asyncio.run(fly_plan(plan, specs, options, progress=progress))
+
+    try:
+        if args.dry_run:
+            with mock_vehicles(plan) as dry:
+                print(
+                    f"dry run: {len(dry.urls)} mock vehicle(s) on the ground below their starts "
+                    f"({', '.join(dry.urls)})",
+                    file=out,
+                    flush=True,
+                )
+                outcome = fly(list(dry.urls))
+        else:
+            outcome = fly(args.connection)
+    except PreflightError as exc:
+        print(f"gcs fly: {exc}", file=sys.stderr)
+        return 1
+    if args.json:
+        print(json.dumps(outcome_json(plan, outcome)))
+    else:
+        print(format_outcome(plan, outcome))
+    if outcome.interrupted:
+        return EXIT_INTERRUPTED
+    ev = outcome.evaluation
+    flown_ok = ev is not None and ev.flown_robustness is not None and ev.flown_robustness >= 0
+    return 0 if outcome.completed and flown_ok else 1

@@ -1,0 +1,983 @@
+"""Flying a plan file: the orchestration shared by ``gcs fly`` and ``gcs demo``.
+
+:func:`fly_plan` does, in order:
+
+1. connects every vehicle of the plan (:class:`mavlink.fleet.Fleet`; vehicle ``i`` at the
+   URL given for it, by default ``udpin://0.0.0.0:{14540+i}``, the PX4 SITL ports);
+2. records everything the vehicles send to ``flight.tlog`` (:class:`mavlink.tlog.TlogRecorder`)
+   when a log directory is given;
+3. flies: in **offboard** mode :func:`mavlink.offboard.fly_offboard` (take-off to the plan's
+   start, one shared start time, setpoints against absolute deadlines, the safety monitor of
+   the spec's always-clauses), in **mission** mode the plan's PX4 mission conversion
+   (:func:`mavlink.mission.trajectory_to_mission`: uploaded, read back and compared, then
+   flown with :func:`mavlink.mission.fly_missions`);
+4. shows progress while flying (:class:`FlightProgress`): per vehicle its mode, its distance
+   to where the plan is at that instant, and the robustness of the clauses it takes part in
+   *so far* (exact semantics of the flown prefix completed by the plan for the rest of the
+   horizon, i.e. what the spec's value will be if the rest goes as planned);
+5. on Ctrl-C (task cancellation) stops every task of the flight and commands every vehicle
+   to hold where it is (:func:`mavlink.monitor.safe_stop`), and reports the modes it then has;
+6. writes the flown tracks (``flight.csv``, mission frame) and evaluates the flown data
+   against the spec with the exact semantics (:func:`evaluate_flight`), next to the planned
+   value, with per-vehicle tracking errors and the delay that best aligns flown and planned
+   positions (the first thing to look at when flown robustness falls short).
+
+The pre-flight interlock (:func:`preflight_interlock`) re-runs ``gcs verify``'s checks
+(:func:`gcs.commands.verify.verify_plan`) and refuses a plan that fails one.
+
+Dry runs (:func:`mock_vehicles`): mock PX4 vehicles (:class:`mavlink.mock.MockFleet`) in a
+background thread of this process, on free loopback ports, each spawned **on the ground
+directly below its planned start** (mission-frame ``z = 0``), as PX4 SITL spawns its vehicles;
+the flight then arms, takes off to the start and flies, exactly as against SITL.
+
+Errors::
+
+    FlightRefused(Exception)   a check before the flight failed (exit status 1): .check names it
+    (bad input is gcs.errors.UserError, planner.planfile.PlanFileError or
+     mavlink.errors.LinkError, e.g. an unreachable connection: exit status 2)
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import shutil
+import socket
+import sys
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from enum import Enum
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, TextIO
+
+import numpy as np
+
+from gcs.errors import InputFileError, UserError
+
+if TYPE_CHECKING:
+    from gcs.commands.verify import Check
+    from mavlink.fleet import Fleet, Vehicle, VehicleSpec
+    from mavlink.mission import MissionRun
+    from mavlink.mock import MockFleet
+    from mavlink.monitor import SafetyEvent
+    from mavlink.offboard import EndAction
+    from mavlink.stream import StreamStats
+    from mavlink.tlog import FlownTrack, TlogStats
+    from planner.frames import GeodeticPoint
+    from planner.planfile import Plan
+    from planner.stl import Formula
+
+__all__ = [
+    "ClauseOutcome",
+    "FlightClock",
+    "FlightMode",
+    "FlightOutcome",
+    "FlightProgress",
+    "FlightRefused",
+    "FlownEvaluation",
+    "FlyOptions",
+    "TrackingError",
+    "evaluate_flight",
+    "fly_plan",
+    "free_udp_ports",
+    "ground_spawns",
+    "mock_vehicles",
+    "plan_formula",
+    "preflight_interlock",
+    "vehicle_specs",
+]
+
+#: Seconds allowed for every vehicle's first heartbeat.
+DEFAULT_CONNECT_TIMEOUT_S = 10.0
+
+
+class FlightRefused(Exception):
+    """A check before the flight failed; nothing was armed.
+
+    Attributes:
+        check: the name of the (first) failed check.
+    """
+
+    def __init__(self, check: str, detail: str) -> None:
+        self.check = check
+        super().__init__(detail)
+
+
+class FlightMode(Enum):
+    """How the plan is flown."""
+
+    OFFBOARD = "offboard"  # setpoint streaming of the exact trajectories
+    MISSION = "mission"  # the PX4 mission conversion (straight legs, timed by speed changes)
+
+
+@dataclass(frozen=True, slots=True)
+class FlyOptions:
+    """Settings of :func:`fly_plan`.
+
+    Attributes:
+        mode: offboard or mission.
+        rate_hz: offboard setpoint rate (2 < rate <= 100).
+        tolerance_m: refuse a vehicle farther than this from its planned start.
+        end: what every vehicle does after the plan (hold, land, return).
+        log_dir: write ``flight.tlog`` and ``flight.csv`` here (``None``: no files).
+        connect_timeout_s: time allowed for every vehicle's first heartbeat.
+        monitor: run the online safety monitor of the always-clauses (offboard).
+    """
+
+    mode: FlightMode = FlightMode.OFFBOARD
+    rate_hz: float = 20.0
+    tolerance_m: float = 1.0
+    end: EndAction | None = None
+    log_dir: Path | None = None
+    connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S
+    monitor: bool = True
+
+
+# ---------------------------------------------------------------------------- before flight
+
+
+def plan_formula(plan: Plan) -> Formula:
+    """The plan's whole spec with the scenario's predicates (exact numpy semantics)."""
+    from planner.planfile import PlanFileError
+    from planner.predicates import build_registry
+    from planner.stl import SpecError, parse
+
+    try:
+        return parse(plan.spec, build_registry(plan))
+    except SpecError as exc:
+        raise PlanFileError(plan.scenario, "spec", str(exc)) from None
+
+
+def preflight_interlock(plan: Plan, *, force: bool = False) -> tuple[Check, ...]:
+    """``gcs verify``'s checks of ``plan``; refuse the flight if one fails (unless ``force``).
+
+    Returns:
+        Every check (failed ones included when ``force``).
+
+    Raises:
+        FlightRefused: naming the first failed check, its value and bound, and how many fail.
+    """
+    from gcs.commands.verify import verify_plan
+
+    checks = tuple(verify_plan(plan))
+    failed = [c for c in checks if not c.ok]
+    if failed and not force:
+        c = failed[0]
+        detail = f" ({c.detail})" if c.detail else ""
+        raise FlightRefused(
+            c.name,
+            f"refused: the plan fails verification: {c.name}: {c.value:.4g} "
+            f"(bound {c.bound:.4g}){detail}; {len(failed)} of {len(checks)} checks fail "
+            "(gcs verify lists them; --force flies anyway)",
+        )
+    return checks
+
+
+def vehicle_specs(plan: Plan, urls: Sequence[str] | None = None) -> tuple[VehicleSpec, ...]:
+    """How to reach each vehicle of ``plan``, in plan order.
+
+    Vehicle ``i`` uses ``urls[i]`` or, with no URLs, ``udpin://0.0.0.0:{14540+i}`` (PX4 SITL);
+    its system id is the plan's (``i + 1`` for plans written by ``gcs plan``).
+
+    Raises:
+        UserError: a number of URLs other than the number of vehicles.
+        mavlink.errors.UrlError: a malformed URL (names it and the vehicle).
+    """
+    from mavlink.fleet import VehicleSpec
+    from mavlink.urls import default_url, parse_url
+
+    n = len(plan.vehicles)
+    if urls and len(urls) != n:
+        raise UserError(
+            f"--connection: {len(urls)} URL(s) given for {n} vehicle(s) "
+            f"({', '.join(v.name for v in plan.vehicles)}); give one per vehicle in plan order, "
+            "or none for the PX4 SITL defaults udpin://0.0.0.0:14540+i"
+        )
+    out = []
+    for i, v in enumerate(plan.vehicles):
+        url = urls[i] if urls else default_url(i)
+        parse_url(url, vehicle=v.name)
+        out.append(VehicleSpec(v.name, url, v.sysid))
+    return tuple(out)
+
+
+def ground_spawns(plan: Plan) -> list[tuple[float, float, float]]:
+    """Spawn points for a dry run: on the ground (mission ``z = 0``) below each planned start."""
+    return [(float(v.start_enu_m[0]), float(v.start_enu_m[1]), 0.0) for v in plan.vehicles]
+
+
+def free_udp_ports(k: int) -> list[int]:
+    """``k`` distinct loopback UDP ports that were free a moment ago (bound to port 0)."""
+    socks = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(k)]
+    try:
+        for s in socks:
+            s.bind(("127.0.0.1", 0))
+        return [int(s.getsockname()[1]) for s in socks]
+    finally:
+        for s in socks:
+            s.close()
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class DryRun:
+    """Mock vehicles running for a dry run: their fleet and the URL of each (plan order)."""
+
+    mock: MockFleet
+    urls: tuple[str, ...]
+    sysids: tuple[int, ...]
+
+
+@contextlib.contextmanager
+def mock_vehicles(plan: Plan, *, seed: int = 0) -> Iterator[DryRun]:
+    """Mock PX4 vehicles on the ground below the plan's starts, in a background thread.
+
+    Vehicle ``i`` has system id ``i + 1`` and sends to a free loopback port, reached at
+    ``udpin://127.0.0.1:PORT`` (the URLs yielded, plan order).
+    """
+    from mavlink.mock import MockFleet
+
+    n = len(plan.vehicles)
+    ports = free_udp_ports(2 * n)
+    mock = MockFleet(
+        n=n,
+        origin=plan.origin,
+        spawns_enu_m=ground_spawns(plan),
+        gcs_ports=ports[:n],
+        vehicle_ports=ports[n:],
+        seed=seed,
+    )
+    with mock.running_in_thread():
+        yield DryRun(
+            mock=mock,
+            urls=tuple(f"udpin://127.0.0.1:{p}" for p in ports[:n]),
+            sysids=tuple(range(1, n + 1)),
+        )
+
+
+# ---------------------------------------------------------------------------- evaluation
+
+
+@dataclass(frozen=True, slots=True)
+class ClauseOutcome:
+    """One top-level clause: its text and its exact robustness planned and flown (m)."""
+
+    text: str
+    vehicles: tuple[str, ...]
+    planned: float
+    flown: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class TrackingError:
+    """How far one vehicle's reported positions were from its plan at the same instants.
+
+    Attributes:
+        vehicle: name.
+        samples: telemetry samples inside the horizon.
+        max_m, rms_m: largest and root-mean-square distance flown - planned (m).
+        t_at_max_s: when the largest distance occurred (s from the plan's start).
+        lag_s: the delay ``tau`` minimising the RMS distance between flown(t) and
+            planned(t - tau), searched in [-0.5, 1.0] s (0: flown in step with the plan).
+        rms_at_lag_m: that minimal RMS distance.
+    """
+
+    vehicle: str
+    samples: int
+    max_m: float
+    rms_m: float
+    t_at_max_s: float
+    lag_s: float
+    rms_at_lag_m: float
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class FlownEvaluation:
+    """The flown data judged against the spec (exact semantics, the plan's check grid).
+
+    Attributes:
+        dt_s: grid step (the plan's ``check_dt_s``).
+        planned_robustness: the spec's robustness on the planned trajectories.
+        flown_robustness: on the flown tracks (``None`` when a track does not cover the
+            horizon; ``coverage_problem`` says why).
+        clauses: per top-level clause, planned and flown.
+        tracking: per vehicle tracking error.
+        coverage_problem: why flown robustness could not be evaluated, else ``""``.
+    """
+
+    dt_s: float
+    planned_robustness: float
+    flown_robustness: float | None
+    clauses: tuple[ClauseOutcome, ...]
+    tracking: tuple[TrackingError, ...]
+    coverage_problem: str = ""
+
+    @property
+    def weakest_flown(self) -> ClauseOutcome | None:
+        """The flown clause with the smallest robustness."""
+        flown = [c for c in self.clauses if c.flown is not None]
+        return min(flown, key=lambda c: c.flown or 0.0) if flown else None
+
+
+def _tracking(
+    name: str, track: FlownTrack, plan_pos: Any, horizon_s: float, lags_s: np.ndarray
+) -> TrackingError:
+    inside = (track.t_s >= 0.0) & (track.t_s <= horizon_s)
+    t = track.t_s[inside]
+    p = track.pos_enu_m[inside]
+    if t.size == 0:
+        nan = math.nan
+        return TrackingError(name, 0, nan, nan, nan, nan, nan)
+    d = np.linalg.norm(p - plan_pos(t), axis=1)
+    i = int(np.argmax(d))
+    # planned(t - tau) for every candidate delay at once: (lags, samples, 3).
+    shifted = plan_pos(np.clip((t[None, :] - lags_s[:, None]).ravel(), 0.0, horizon_s))
+    err = np.linalg.norm(shifted.reshape(lags_s.size, t.size, 3) - p[None], axis=2)
+    rms = np.sqrt(np.mean(err**2, axis=1))
+    j = int(np.argmin(rms))
+    return TrackingError(
+        vehicle=name,
+        samples=int(t.size),
+        max_m=float(d[i]),
+        rms_m=float(np.sqrt(np.mean(d**2))),
+        t_at_max_s=float(t[i]),
+        lag_s=float(lags_s[j]),
+        rms_at_lag_m=float(rms[j]),
+    )
+
+
+def evaluate_flight(plan: Plan, tracks: Mapping[str, FlownTrack]) -> FlownEvaluation:
+    """Exact robustness of the flown tracks next to the plan's, per clause and overall.
+
+    Flown positions are resampled on the plan's check grid ``t = 0, dt, ..., horizon`` by
+    linear interpolation of the telemetry (:meth:`mavlink.tlog.FlownTrack.resample`, which
+    refuses a track that does not cover the horizon).
+    """
+    from mavlink.errors import LinkError
+
+    phi = plan_formula(plan)
+    dt = plan.check_dt_s
+    n = round(plan.horizon_s / dt) + 1
+    t = np.arange(n) * dt
+    planned = {v.name: v.trajectory.position(t) for v in plan.vehicles}
+    flown: dict[str, np.ndarray] | None = {}
+    problem = ""
+    for v in plan.vehicles:
+        tr = tracks.get(v.name)
+        if tr is None:
+            flown, problem = None, f"no telemetry from {v.name}"
+            break
+        try:
+            flown[v.name] = tr.resample(dt, plan.horizon_s)  # type: ignore[index]
+        except LinkError as exc:
+            flown, problem = None, str(exc)
+            break
+    clauses = []
+    for c in phi.clauses:
+        clauses.append(
+            ClauseOutcome(
+                text=str(c),
+                vehicles=tuple(sorted(c.signal_names() & planned.keys())),
+                planned=float(c.robustness(planned, dt)),
+                flown=None if flown is None else float(c.robustness(flown, dt)),
+            )
+        )
+    lags = np.round(np.arange(-0.5, 1.0 + 1e-9, 0.01), 6)
+    tracking = tuple(
+        _tracking(v.name, tracks[v.name], v.trajectory.position, plan.horizon_s, lags)
+        for v in plan.vehicles
+        if v.name in tracks
+    )
+    return FlownEvaluation(
+        dt_s=dt,
+        planned_robustness=float(phi.robustness(planned, dt)),
+        flown_robustness=None if flown is None else float(phi.robustness(flown, dt)),
+        clauses=tuple(clauses),
+        tracking=tracking,
+        coverage_problem=problem,
+    )
+
+
+# ---------------------------------------------------------------------------- progress
+
+
+@dataclass(slots=True)
+class FlightClock:
+    """The plan's start instant (``time.monotonic()``) per vehicle, once the flight has one."""
+
+    t0_monotonic_s: dict[str, float] = field(default_factory=dict)
+
+    def plan_time(self, name: str, now: float) -> float | None:
+        """Seconds since ``name``'s plan start, or ``None`` before it."""
+        t0 = self.t0_monotonic_s.get(name)
+        return None if t0 is None else now - t0
+
+
+class FlightProgress:
+    """Live view of a flight: per vehicle mode, distance to the plan, robustness so far.
+
+    On a terminal one status line is rewritten in place (4 times a second); otherwise a
+    plain line is printed every ``plain_interval_s``. "Robustness so far" of a vehicle is
+    the minimum over the clauses it appears in of their exact robustness on its flown
+    positions up to now followed by the plan for the rest of the horizon.
+
+    Args:
+        plan: the plan being flown.
+        stream: where to write (stdout, or stderr under ``--json``).
+        tty: rewrite one line (default: ``stream.isatty()``).
+        plain_interval_s: seconds between plain lines.
+    """
+
+    def __init__(
+        self,
+        plan: Plan,
+        stream: TextIO | None = None,
+        *,
+        tty: bool | None = None,
+        plain_interval_s: float = 2.0,
+    ) -> None:
+        self.plan = plan
+        self.stream = stream if stream is not None else sys.stdout
+        self.tty = self.stream.isatty() if tty is None else tty
+        self.plain_interval_s = plain_interval_s
+        self.phi = plan_formula(plan)
+        self.dt_s = max(plan.check_dt_s, 0.05)
+        n = round(plan.horizon_s / self.dt_s) + 1
+        self.t_grid = np.arange(n) * self.dt_s
+        self.planned = {v.name: v.trajectory.position(self.t_grid) for v in plan.vehicles}
+        names = [v.name for v in plan.vehicles]
+        self.clauses_of = {
+            name: [c for c in self.phi.clauses if name in c.signal_names()] for name in names
+        }
+        self._samples: dict[str, list[tuple[float, float, float, float]]] = {n: [] for n in names}
+        self.lines = 0
+        self.last_line = ""
+
+    def so_far(self, t_now_s: float) -> dict[str, float]:
+        """Robustness so far per vehicle (see class docstring) at plan time ``t_now_s``."""
+        signals = {}
+        for name, planned in self.planned.items():
+            rows = self._samples[name]
+            sig = planned.copy()
+            if rows:
+                a = np.asarray(rows)
+                done = self.t_grid <= min(t_now_s, a[-1, 0])
+                for ax in range(3):
+                    sig[done, ax] = np.interp(self.t_grid[done], a[:, 0], a[:, ax + 1])
+            signals[name] = sig
+        values = {}
+        cache: dict[int, float] = {}
+        for name, clauses in self.clauses_of.items():
+            vals = []
+            for c in clauses:
+                if id(c) not in cache:
+                    cache[id(c)] = float(c.robustness(signals, self.dt_s))
+                vals.append(cache[id(c)])
+            values[name] = min(vals) if vals else math.nan
+        return values
+
+    def record(self, name: str, t_s: float, pos_enu_m: np.ndarray) -> None:
+        """Add a position sample of ``name`` at plan time ``t_s``."""
+        rows = self._samples[name]
+        if not rows or t_s > rows[-1][0]:
+            rows.append((t_s, float(pos_enu_m[0]), float(pos_enu_m[1]), float(pos_enu_m[2])))
+
+    def line(self, fleet: Fleet, clock: FlightClock, origins: Mapping[str, GeodeticPoint]) -> str:
+        """One status line for the current instant (and record the positions it read)."""
+        from planner.frames import ned_to_enu
+
+        now = time.monotonic()
+        parts = []
+        t_plan: float | None = None
+        for v in self.plan.vehicles:
+            st = fleet[v.name].status(now)
+            mode = st.mode.label if st.mode is not None else str(st.custom_mode)
+            t = clock.plan_time(v.name, now)
+            where = ""
+            if st.pos_ned_m is not None and v.name in origins:
+                pos = ned_to_enu(np.asarray(st.pos_ned_m), self.plan.origin, origins[v.name])
+                ref_t = 0.0 if t is None else min(max(t, 0.0), v.trajectory.duration_s)
+                ref = v.trajectory.position(np.array([ref_t]))[0]
+                where = f" {float(np.linalg.norm(pos - ref)):5.2f} m"
+                if t is not None and t >= 0.0:
+                    self.record(v.name, t, pos)
+                    t_plan = t if t_plan is None else max(t_plan, t)
+            parts.append(f"{v.name} {mode}{where}")
+        if t_plan is not None:
+            rho = self.so_far(t_plan)
+            parts = [
+                f"{p} rho {rho[v.name]:+.3f}"
+                for p, v in zip(parts, self.plan.vehicles, strict=True)
+            ]
+            head = f"t {min(t_plan, self.plan.horizon_s):5.1f}/{self.plan.horizon_s:g} s"
+        else:
+            head = "preparing (distance to start)"
+        return head + " | " + " | ".join(parts)
+
+    def show(self, text: str) -> None:
+        """Write ``text``: rewrite the status line on a terminal, else a new line."""
+        self.last_line = text
+        self.lines += 1
+        if self.tty:
+            width = shutil.get_terminal_size((120, 20)).columns
+            self.stream.write("\r\033[K" + text[: width - 1])
+        else:
+            self.stream.write(text + "\n")
+        self.stream.flush()
+
+    def close(self) -> None:
+        """End the status line (terminal)."""
+        if self.tty and self.lines:
+            self.stream.write("\n")
+            self.stream.flush()
+
+    async def run(
+        self,
+        fleet: Fleet,
+        clock: FlightClock,
+        origins: Mapping[str, GeodeticPoint],
+        stop: asyncio.Event,
+    ) -> None:
+        """Sample positions every 0.1 s and show a line every 0.25 s (tty) or interval."""
+        show_every = 0.25 if self.tty else self.plain_interval_s
+        next_show = time.monotonic()
+        while not stop.is_set():
+            text = self.line(fleet, clock, origins)
+            if time.monotonic() >= next_show:
+                self.show(text)
+                next_show += show_every
+            await asyncio.sleep(0.1)  # no child task: an interruption cancels those
+
+
+# ---------------------------------------------------------------------------- the flight
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class FlightOutcome:
+    """What :func:`fly_plan` did.
+
+    Attributes:
+        mode: offboard or mission.
+        completed: the whole plan was flown, no safety stop, no failed end action.
+        interrupted: Ctrl-C stopped it (every vehicle was commanded to hold).
+        connect_s: wall time to connect every vehicle and learn its origin.
+        flight_s: wall time from then to the end action (take-off, flight, end).
+        t0_unix_s: Unix time of the plan's start (offboard; the earliest vehicle in mission mode).
+        tracks: flown tracks in the mission frame, times from each vehicle's plan start.
+        evaluation: flown vs planned robustness (``None`` when no track was recorded).
+        stats: offboard stream statistics per vehicle (empty in mission mode).
+        missions: mission runs per vehicle (mission mode).
+        safety_event: what the safety monitor stopped, if it did.
+        end_failures: vehicles whose end action (or hold on Ctrl-C) failed, with the reason.
+        final_modes: each vehicle's mode label at the end.
+        tlog: the recording's statistics (with a log directory).
+        files: what was written, by kind (``tlog``, ``csv``).
+    """
+
+    mode: FlightMode
+    completed: bool
+    interrupted: bool
+    connect_s: float
+    flight_s: float
+    t0_unix_s: float | None
+    tracks: dict[str, FlownTrack]
+    evaluation: FlownEvaluation | None
+    stats: dict[str, StreamStats] = field(default_factory=dict)
+    missions: dict[str, MissionRun] = field(default_factory=dict)
+    safety_event: SafetyEvent | None = None
+    end_failures: dict[str, str] = field(default_factory=dict)
+    final_modes: dict[str, str] = field(default_factory=dict)
+    tlog: TlogStats | None = None
+    files: dict[str, Path] = field(default_factory=dict)
+
+
+def _make_log_dir(log_dir: Path | None) -> None:
+    if log_dir is None:
+        return
+    try:
+        log_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputFileError(f"--log {log_dir}: cannot create: {exc.strerror or exc}") from None
+
+
+def _tracks_from_rows(
+    rows: Mapping[str, np.ndarray],
+    t0: Mapping[str, float],
+    mission_origin: GeodeticPoint,
+    origins: Mapping[str, GeodeticPoint],
+) -> dict[str, FlownTrack]:
+    """FlownTracks from :meth:`Vehicle.stop_track` rows ``(t, n, e, d, vn, ve, vd)``."""
+    from mavlink.tlog import FlownTrack
+    from planner.frames import ned_to_enu, ned_vector_to_enu
+
+    out = {}
+    for name, r in rows.items():
+        if r.shape[0] == 0 or name not in t0:
+            continue
+        out[name] = FlownTrack(
+            name=name,
+            t_s=r[:, 0] - t0[name],
+            pos_enu_m=ned_to_enu(r[:, 1:4], mission_origin, origins[name]),
+            vel_enu_m_s=ned_vector_to_enu(r[:, 4:7], mission_origin, origins[name]),
+            pos_ned_m=r[:, 1:4],
+        )
+    return out
+
+
+#: The PX4 mode each end action leads to.
+_END_MODE = {"hold": "AUTO.LOITER", "land": "AUTO.LAND", "return": "AUTO.RTL"}
+
+
+def cfg_end(opts: FlyOptions) -> str:
+    """The end action's name (``hold`` by default)."""
+    return "hold" if opts.end is None else str(opts.end.value)
+
+
+async def _show_mode(
+    fleet: Fleet, label: str, skip: Mapping[str, str], timeout_s: float = 3.0
+) -> None:
+    """Wait (bounded) until the vehicles report ``label``: PX4 heartbeats come at 1 Hz.
+
+    A vehicle that does not get there in time is reported by its final mode, not an error.
+    """
+    from mavlink.errors import LinkError
+
+    async def one(v: Vehicle) -> None:
+        with contextlib.suppress(LinkError):
+            await v.wait_for(
+                lambda s: s.mode is not None and s.mode.label == label, label, timeout_s=timeout_s
+            )
+
+    await asyncio.gather(*(one(v) for v in fleet if v.name not in skip))
+
+
+async def _hold_everyone(fleet: Fleet) -> dict[str, str]:
+    """Stop offboard / hold every vehicle; failures by name."""
+    from mavlink.monitor import SafetyAction, safe_stop
+
+    failed = await fleet.for_each(lambda v: safe_stop(v, SafetyAction.HOLD))
+    return {k: str(e) for k, e in failed.items()}
+
+
+async def _cancel_since(before: set[asyncio.Task[Any]]) -> None:
+    """Cancel every task of this loop created since ``before`` was taken (but this one).
+
+    Those are what an interrupted flight left running: ``fly_offboard`` does not cancel its
+    own pre-stream task when it is cancelled during the switch to offboard, and a setpoint
+    stream must not outlive the hold command.
+    """
+    current = asyncio.current_task()
+    others = [t for t in asyncio.all_tasks() - before if t is not current]
+    for t in others:
+        t.cancel()
+    if others:
+        await asyncio.gather(*others, return_exceptions=True)
+
+
+async def _fly_offboard(fleet: Fleet, plan: Plan, opts: FlyOptions, clock: FlightClock) -> Any:
+    from mavlink.monitor import SafetyMonitor, always_clauses
+    from mavlink.offboard import EndAction, OffboardConfig, fly_offboard
+
+    names = [v.name for v in plan.vehicles]
+
+    class ClockedMonitor(SafetyMonitor):
+        """The safety monitor; its start tells the progress view the shared start time."""
+
+        async def run(self, *args: Any, t0_monotonic_s: float, **kwargs: Any) -> Any:
+            clock.t0_monotonic_s.update(dict.fromkeys(names, t0_monotonic_s))
+            return await super().run(*args, t0_monotonic_s=t0_monotonic_s, **kwargs)
+
+    clauses = always_clauses(plan_formula(plan), names) if opts.monitor else ()
+    monitor = ClockedMonitor(clauses, horizon_s=0.5 if opts.monitor else 0.0)
+    cfg = OffboardConfig(
+        rate_hz=opts.rate_hz,
+        start_tolerance_m=opts.tolerance_m,
+        end_action=opts.end or EndAction.HOLD,
+    )
+    trajs = {v.name: v.trajectory for v in plan.vehicles}
+    return await fly_offboard(fleet, trajs, plan.origin, cfg, monitor=monitor)
+
+
+async def _fly_mission(
+    fleet: Fleet, plan: Plan, opts: FlyOptions, clock: FlightClock
+) -> dict[str, MissionRun]:
+    import json
+
+    from mavlink.mission import MissionEnd, fly_missions, trajectory_to_mission, upload_and_verify
+    from mavlink.offboard import check_start
+    from planner.frames import enu_to_ned
+
+    end = MissionEnd(opts.end.value) if opts.end is not None else MissionEnd.HOLD
+    vehicles = [fleet[v.name] for v in plan.vehicles]
+    origins = await fleet.origins()
+    await asyncio.gather(
+        *(
+            v.wait_for(lambda s: s.pos_ned_m is not None, "local position", timeout_s=5.0)
+            for v in vehicles
+        )
+    )
+    for pv, v in zip(plan.vehicles, vehicles, strict=True):
+        start_ned = enu_to_ned(np.asarray(pv.start_enu_m), plan.origin, origins[v.name])
+        st = v.status()
+        check_start(
+            st,
+            start_ned,
+            tolerance_m=opts.tolerance_m,
+            on_ground=not bool(st.in_air),
+            mission_origin=plan.origin,
+            vehicle_origin=origins[v.name],
+        )
+    missions = {
+        pv.name: trajectory_to_mission(pv.trajectory, plan.origin, end=end, name=pv.name)
+        for pv in plan.vehicles
+    }
+    await asyncio.gather(*(upload_and_verify(v, missions[v.name].items) for v in vehicles))
+    handles = []
+    for v in vehicles:
+
+        def on_reached(msg: Any, _ud: Any, name: str = v.name) -> None:
+            # Plan time 0 is the arrival at the start waypoint (item 1, after the takeoff).
+            if int(json.loads(msg.fields_json)["seq"]) == 1:
+                clock.t0_monotonic_s.setdefault(name, time.monotonic())
+
+        handles.append((v, v.direct.subscribe_message("MISSION_ITEM_REACHED", on_reached)))
+    try:
+        return await fly_missions(vehicles, timeout_s=plan.horizon_s + 60.0)
+    finally:
+        for v, h in handles:
+            v.direct.unsubscribe_message(h)
+
+
+async def fly_plan(
+    plan: Plan,
+    specs: Sequence[VehicleSpec],
+    options: FlyOptions | None = None,
+    *,
+    progress: FlightProgress | None = None,
+) -> FlightOutcome:
+    """Connect, fly, record and evaluate (module docstring); Ctrl-C holds every vehicle.
+
+    Args:
+        plan: a loaded plan (already through :func:`preflight_interlock`).
+        specs: how to reach each vehicle (:func:`vehicle_specs`), plan order.
+        options: :class:`FlyOptions`.
+        progress: live view to run during the flight (``None``: silent).
+
+    Returns:
+        :class:`FlightOutcome`; a safety stop or an interruption is an outcome, not an error.
+
+    Raises:
+        mavlink.errors.ConnectTimeoutError: a vehicle never answered (names its URL).
+        mavlink.errors.PreflightError: a vehicle too far from its start / cannot reach it.
+        mavlink.errors.LinkError: other link failures before the flight.
+    """
+    from mavlink.fleet import Fleet
+    from mavlink.tlog import TlogRecorder, write_tracks_csv
+
+    opts = options or FlyOptions()
+    _make_log_dir(opts.log_dir)
+    t_start = time.monotonic()
+    files: dict[str, Path] = {}
+    clock = FlightClock()
+    async with Fleet(specs, connect_timeout_s=opts.connect_timeout_s) as fleet:
+        origins = await fleet.origins()
+        t_connected = time.monotonic()
+        recorder = None
+        if opts.log_dir is not None:
+            files["tlog"] = opts.log_dir / "flight.tlog"
+            recorder = TlogRecorder(fleet, files["tlog"])
+            recorder.start()
+        stop_view = asyncio.Event()
+        view = (
+            asyncio.create_task(progress.run(fleet, clock, origins, stop_view))
+            if progress is not None
+            else None
+        )
+        interrupted = False
+        result: Any = None
+        missions: dict[str, MissionRun] = {}
+        end_failures: dict[str, str] = {}
+        for v in fleet:
+            v.start_track()
+        before = asyncio.all_tasks()
+        try:
+            if opts.mode is FlightMode.OFFBOARD:
+                result = await _fly_offboard(fleet, plan, opts, clock)
+            else:
+                missions = await _fly_mission(fleet, plan, opts, clock)
+        except asyncio.CancelledError:
+            # Ctrl-C: asyncio.run cancelled us. Take the cancellation back, stop what the
+            # flight left running and hold every vehicle before returning.
+            task = asyncio.current_task()
+            if task is not None:
+                task.uncancel()
+            interrupted = True
+            await _cancel_since(before)
+            end_failures = await _hold_everyone(fleet)
+        finally:
+            rows = {v.name: v.stop_track() for v in fleet}
+            stop_view.set()
+            if view is not None:
+                await view
+            if progress is not None:
+                progress.close()
+            tlog = recorder.stop() if recorder is not None else None
+        if interrupted or (result is not None and result.safety_event is not None):
+            await _show_mode(fleet, "AUTO.LOITER", end_failures)
+        elif result is not None:
+            await _show_mode(fleet, _END_MODE[cfg_end(opts)], end_failures)
+        final_modes = {
+            s.name: (s.mode.label if s.mode is not None else str(s.custom_mode))
+            for s in fleet.statuses()
+        }
+    flight_s = time.monotonic() - t_connected
+    connect_s = t_connected - t_start
+    t0 = dict(clock.t0_monotonic_s)
+    if result is not None:
+        # fly_offboard recorded the tracks itself (from just before the shared start).
+        tracks = dict(result.tracks)
+    else:
+        tracks = _tracks_from_rows(rows, t0, plan.origin, origins)
+    if opts.log_dir is not None:
+        files["csv"] = write_tracks_csv(opts.log_dir / "flight.csv", tracks)
+    evaluation = evaluate_flight(plan, tracks) if tracks else None
+    offset = time.time() - time.monotonic()
+    t0_unix = min(t0.values()) + offset if t0 else None
+    if result is not None:
+        end_failures = dict(result.end_failures)
+        completed = bool(result.completed) and not end_failures
+    else:
+        completed = (
+            not interrupted and bool(missions) and all(r.finished for r in missions.values())
+        )
+    return FlightOutcome(
+        mode=opts.mode,
+        completed=completed and not interrupted,
+        interrupted=interrupted,
+        connect_s=connect_s,
+        flight_s=flight_s,
+        t0_unix_s=t0_unix,
+        tracks=tracks,
+        evaluation=evaluation,
+        stats=dict(result.stats) if result is not None else {},
+        missions=missions,
+        safety_event=result.safety_event if result is not None else None,
+        end_failures=end_failures,
+        final_modes=final_modes,
+        tlog=tlog,
+        files=files,
+    )
+
+
+# ---------------------------------------------------------------------------- text
+
+
+def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
+    """The end-of-flight summary for the operator (several lines)."""
+    from mavlink.stream import STATS_HEADER
+
+    lines = []
+    if outcome.interrupted:
+        lines.append("interrupted: every vehicle was commanded to hold")
+    elif outcome.safety_event is not None:
+        lines.append(f"safety stop: {outcome.safety_event.describe()}")
+    verdict = "completed" if outcome.completed else "NOT completed"
+    lines.append(
+        f"flight {verdict} in {outcome.flight_s:.1f} s ({outcome.mode.value}, "
+        f"{len(plan.vehicles)} vehicle(s)); modes now: "
+        + ", ".join(f"{k} {m}" for k, m in outcome.final_modes.items())
+    )
+    for name, why in outcome.end_failures.items():
+        lines.append(f"  {name}: end action failed: {why}")
+    ev = outcome.evaluation
+    if ev is not None:
+        flown = "n/a" if ev.flown_robustness is None else f"{ev.flown_robustness:+.4f}"
+        lines.append(
+            f"robustness (exact, dt {ev.dt_s:g} s): planned {ev.planned_robustness:+.4f}, "
+            f"flown {flown}" + (f" ({ev.coverage_problem})" if ev.coverage_problem else "")
+        )
+        w = ev.weakest_flown
+        if w is not None:
+            lines.append(
+                f"  weakest flown clause {w.flown:+.4f} (planned {w.planned:+.4f}): {w.text}"
+            )
+        for te in ev.tracking:
+            lines.append(
+                f"  {te.vehicle}: tracking error max {te.max_m:.3f} m at t {te.t_at_max_s:.2f} s, "
+                f"rms {te.rms_m:.3f} m; best-fit delay {te.lag_s:+.2f} s (rms {te.rms_at_lag_m:.3f} m)"
+            )
+    if outcome.stats:
+        lines.append("setpoint stream (lateness of each send after its deadline):")
+        lines.append("  " + STATS_HEADER)
+        lines += ["  " + s.row() for s in outcome.stats.values()]
+    for name, run in outcome.missions.items():
+        lines.append(
+            f"  {name}: mission {'finished' if run.finished else 'NOT finished'} in "
+            f"{run.duration_s:.1f} s, {len(run.reached)} items reached"
+        )
+    if outcome.tlog is not None:
+        lines.append(f"telemetry: {outcome.tlog.path} ({outcome.tlog.messages} messages)")
+    if "csv" in outcome.files:
+        lines.append(f"tracks: {outcome.files['csv']}")
+    return "\n".join(lines)
+
+
+def outcome_json(plan: Plan, outcome: FlightOutcome) -> dict[str, Any]:
+    """The outcome as a JSON-ready dict (``gcs fly --json``)."""
+    ev = outcome.evaluation
+
+    def num(x: float | None) -> float | None:
+        return None if x is None or not math.isfinite(x) else float(x)
+
+    return {
+        "mode": outcome.mode.value,
+        "completed": outcome.completed,
+        "interrupted": outcome.interrupted,
+        "connect_s": outcome.connect_s,
+        "flight_s": outcome.flight_s,
+        "t0_unix_s": outcome.t0_unix_s,
+        "safety_event": None if outcome.safety_event is None else outcome.safety_event.describe(),
+        "end_failures": outcome.end_failures,
+        "final_modes": outcome.final_modes,
+        "planned_robustness": None if ev is None else num(ev.planned_robustness),
+        "flown_robustness": None if ev is None else num(ev.flown_robustness),
+        "coverage_problem": None if ev is None else ev.coverage_problem or None,
+        "clauses": []
+        if ev is None
+        else [
+            {"text": c.text, "planned": num(c.planned), "flown": num(c.flown)} for c in ev.clauses
+        ],
+        "tracking": []
+        if ev is None
+        else [
+            {
+                "vehicle": t.vehicle,
+                "samples": t.samples,
+                "max_m": num(t.max_m),
+                "rms_m": num(t.rms_m),
+                "lag_s": num(t.lag_s),
+                "rms_at_lag_m": num(t.rms_at_lag_m),
+            }
+            for t in ev.tracking
+        ],
+        "stream": {
+            name: {
+                "sent": s.sent,
+                "skipped": s.skipped,
+                "failed": s.failed,
+                "late": s.late,
+                "mean_lateness_s": num(s.mean_lateness_s),
+                "p99_lateness_s": num(s.p99_lateness_s),
+                "max_lateness_s": num(s.max_lateness_s),
+                "rate_hz": s.rate_hz,
+            }
+            for name, s in outcome.stats.items()
+        },
+        "missions": {
+            name: {"finished": r.finished, "duration_s": r.duration_s, "reached": len(r.reached)}
+            for name, r in outcome.missions.items()
+        },
+        "tlog_messages": None if outcome.tlog is None else outcome.tlog.messages,
+        "files": {k: str(p) for k, p in outcome.files.items()},
+    }

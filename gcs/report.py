@@ -1,0 +1,200 @@
+"""The flight report: a Markdown page of what was planned, what was flown and how well.
+
+Written by ``gcs demo`` (``<out>/report.md``, next to the picture) and by ``gcs fly --log DIR``
+(``DIR/report.md``). Sections: a summary table (planned and flown robustness, planning and
+flight time, completion), the wall-time split, the picture (``gcs.plot``'s figure with the
+flown tracks over the plan) when there is one, every top-level clause with its planned and
+flown robustness (weakest flown first), tracking errors per vehicle, the setpoint stream's
+timing, and the files written. Markdown reads as plain text in a terminal and renders with
+the picture in any Markdown viewer.
+
+Errors::
+
+    gcs.errors.InputFileError   the report cannot be written
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from gcs.errors import InputFileError
+
+if TYPE_CHECKING:
+    from gcs.flight import FlightOutcome
+    from planner.planfile import Plan
+
+__all__ = ["report_markdown", "write_report"]
+
+
+def _num(x: float | None, fmt: str = "+.4f") -> str:
+    if x is None or not math.isfinite(x):
+        return "n/a"
+    return format(x, fmt)
+
+
+def _cell(text: str) -> str:
+    return " ".join(text.split()).replace("|", "\\|")
+
+
+def report_markdown(
+    plan: Plan,
+    outcome: FlightOutcome,
+    *,
+    title: str,
+    base_dir: Path,
+    timings_s: Mapping[str, float] | None = None,
+    picture: Path | None = None,
+    files: Mapping[str, Path] | None = None,
+) -> str:
+    """The report as Markdown text.
+
+    Args:
+        plan: the plan flown.
+        outcome: what :func:`gcs.flight.fly_plan` returned.
+        title: the heading (scenario or plan name).
+        base_dir: links to files are written relative to this directory.
+        timings_s: wall-time split by stage, seconds (e.g. set-up, planning, flight).
+        picture: the figure to embed (PNG).
+        files: further files to list, by description.
+    """
+
+    def rel(p: Path) -> str:
+        try:
+            return Path(os.path.relpath(p, base_dir)).as_posix()
+        except ValueError:  # another drive (Windows)
+            return p.as_posix()
+
+    ev = outcome.evaluation
+    lines = [f"# stl-gcs flight report: {title}", ""]
+    lines += [
+        f"Scenario `{plan.scenario}`, {len(plan.vehicles)} vehicle(s) "
+        f"({', '.join(v.name for v in plan.vehicles)}), horizon {plan.horizon_s:g} s, "
+        f"flown in {outcome.mode.value} mode. Robustness is the exact STL semantics of the spec "
+        f"(metres of margin; > 0 means satisfied) on the plan's check grid"
+        + (f" (every {ev.dt_s:g} s)." if ev is not None else "."),
+        "",
+        "| | |",
+        "|---|---|",
+        f"| planned robustness | {_num(ev.planned_robustness if ev else None)} |",
+        f"| flown robustness | {_num(ev.flown_robustness if ev else None)} |",
+        f"| planner status | {_cell(plan.status)} |",
+        f"| planning time | {plan.solve_time_s:.2f} s |",
+        f"| connection | {outcome.connect_s:.2f} s |",
+        f"| flight (take-off to end action) | {outcome.flight_s:.2f} s |",
+        f"| completed | {'yes' if outcome.completed else 'no'} |",
+        f"| modes at the end | {', '.join(f'{k} {m}' for k, m in outcome.final_modes.items())} |",
+    ]
+    if ev is not None and ev.coverage_problem:
+        lines.append(f"| flown robustness not evaluated | {_cell(ev.coverage_problem)} |")
+    if outcome.safety_event is not None:
+        lines.append(f"| safety stop | {_cell(outcome.safety_event.describe())} |")
+    if outcome.interrupted:
+        lines.append("| interrupted | Ctrl-C: every vehicle was commanded to hold |")
+    for name, why in outcome.end_failures.items():
+        lines.append(f"| end action failed ({name}) | {_cell(why)} |")
+    lines.append("")
+    if timings_s:
+        total = sum(timings_s.values())
+        lines += ["## Wall time", "", "| stage | s | share |", "|---|---:|---:|"]
+        for stage, s in timings_s.items():
+            share = 100.0 * s / total if total > 0 else 0.0
+            lines.append(f"| {stage} | {s:.2f} | {share:.0f} % |")
+        lines += [f"| total | {total:.2f} | |", ""]
+    if picture is not None:
+        lines += [
+            "## Picture",
+            "",
+            "Regions and paths (flown dashed over planned), clause robustness over time, "
+            "per-axis velocity and acceleration against the limits.",
+            "",
+            f"![plan and flown tracks]({rel(picture)})",
+            "",
+        ]
+    if ev is not None:
+        lines += [
+            "## Clauses",
+            "",
+            "| flown ρ | planned ρ | clause |",
+            "|---:|---:|---|",
+        ]
+        order = sorted(
+            ev.clauses, key=lambda c: (c.flown if c.flown is not None else math.inf, c.planned)
+        )
+        for c in order:
+            lines.append(f"| {_num(c.flown)} | {_num(c.planned)} | `{_cell(c.text)}` |")
+        lines += [
+            "",
+            "## Tracking",
+            "",
+            "Distance between each vehicle's reported position and its plan at the same "
+            "instant, and the delay that best aligns the two (flown(t) against planned(t - delay)).",
+            "",
+            "| vehicle | samples | max m | at t s | rms m | best-fit delay s | rms at delay m |",
+            "|---|---:|---:|---:|---:|---:|---:|",
+        ]
+        for t in ev.tracking:
+            lines.append(
+                f"| {t.vehicle} | {t.samples} | {_num(t.max_m, '.3f')} | "
+                f"{_num(t.t_at_max_s, '.2f')} | {_num(t.rms_m, '.3f')} | {_num(t.lag_s, '+.2f')} | "
+                f"{_num(t.rms_at_lag_m, '.3f')} |"
+            )
+        lines.append("")
+    if outcome.stats:
+        lines += [
+            "## Setpoint stream",
+            "",
+            "Lateness of each setpoint send after its absolute deadline.",
+            "",
+            "| vehicle | rate Hz | sent | skipped | failed | late | mean ms | p99 ms | max ms |",
+            "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+        ]
+        for s in outcome.stats.values():
+            lines.append(
+                f"| {s.vehicle} | {s.rate_hz:g} | {s.sent} | {s.skipped} | {s.failed} | {s.late} "
+                f"| {_num(s.mean_lateness_s * 1e3, '.3f')} | {_num(s.p99_lateness_s * 1e3, '.3f')} "
+                f"| {_num(s.max_lateness_s * 1e3, '.3f')} |"
+            )
+        lines.append("")
+    if outcome.missions:
+        lines += [
+            "## Missions",
+            "",
+            "| vehicle | finished | s | items reached |",
+            "|---|---|---:|---:|",
+        ]
+        for name, r in outcome.missions.items():
+            lines.append(
+                f"| {name} | {'yes' if r.finished else 'no'} | {r.duration_s:.1f} | {len(r.reached)} |"
+            )
+        lines.append("")
+    listed = dict(files or {})
+    for kind, p in outcome.files.items():
+        listed.setdefault(
+            {"tlog": "telemetry (.tlog)", "csv": "flown tracks (CSV)"}.get(kind, kind), p
+        )
+    if outcome.tlog is not None:
+        lines.append(
+            f"The telemetry log holds {outcome.tlog.messages} messages "
+            f"({len(outcome.tlog.by_type)} types) from the vehicles."
+        )
+        lines.append("")
+    if listed:
+        lines += ["## Files", ""]
+        lines += [f"- {what}: [{rel(p)}]({rel(p)})" for what, p in listed.items()]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def write_report(path: str | Path, plan: Plan, outcome: FlightOutcome, **kwargs: object) -> Path:
+    """Write :func:`report_markdown` to ``path`` (links relative to its directory)."""
+    p = Path(path)
+    text = report_markdown(plan, outcome, base_dir=p.parent, **kwargs)  # type: ignore[arg-type]
+    try:
+        p.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise InputFileError(f"{p}: cannot write the report: {exc.strerror or exc}") from None
+    return p
