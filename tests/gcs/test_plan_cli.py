@@ -27,7 +27,8 @@ def test_plan_writes_a_plan_file_and_a_summary_table(
     assert "max |v| m/s" in table and "d1" in table
     assert "eventually[0, 6] inside(d1, goal)" in table
     assert "OK: " in table and f"plan written to {out}" in table
-    assert "building the NLP" in captured.err  # progress (non-tty: one line per stage)
+    assert "solving with ipopt" in captured.err  # progress (non-tty: one line per stage)
+    assert "checking on dense samples" in captured.err
 
 
 def test_plan_json_summary(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
