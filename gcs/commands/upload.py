@@ -1,0 +1,304 @@
+"""``gcs upload PLAN.json``: the plan's PX4 missions (and geofence) to each vehicle, read back.
+
+Each vehicle's trajectory becomes global ``*_INT`` mission items
+(:func:`mavlink.mission.trajectory_to_mission`: take-off to the start, timed straight legs,
+land / return / hold), the same items ``gcs export --format qgc`` writes. They are uploaded
+with the MAVLink mission protocol (MAVSDK ``mission_raw``), downloaded again and compared
+field by field at the wire's precision. With ``--fence`` the geofence goes too (the
+workspace's footprint as inclusion polygon, obstacles' and no-fly regions' footprints as
+exclusions: :func:`mavlink.mission.fence_boxes`, as ``gcs export`` writes it), also read back. ``--start`` then arms every vehicle and
+starts its mission (after checking each is within ``--tolerance`` of its planned start,
+horizontally).
+
+The table gives per vehicle the items sent, the times of upload and read-back, the verdict,
+and how far the mission's straight legs stray from the planned trajectory; below it, the
+spec's exact robustness if every vehicle flew its mission's path exactly (the price of the
+mission conversion against the plan's own robustness).
+
+Exit status: 0 every upload read back identical, 1 a read-back differs or a transfer
+failed, 2 bad input (plan file, URL, unreachable vehicle).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import math
+import sys
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from mavlink.fleet import Fleet, Vehicle, VehicleSpec
+    from mavlink.mission import MissionItem, MissionPlan
+    from planner.planfile import Plan
+
+HELP = "upload each vehicle's mission (and geofence) converted from a plan, read back and compare"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``gcs upload``."""
+    p.add_argument("plan", help="plan file written by gcs plan")
+    p.add_argument(
+        "--connection",
+        action="append",
+        metavar="URL",
+        help="connection URL of the next vehicle (repeat, plan order); default "
+        "udpin://0.0.0.0:14540+i (PX4 SITL)",
+    )
+    p.add_argument("--fence", action="store_true", help="upload the geofence too")
+    p.add_argument("--start", action="store_true", help="arm and start the missions afterwards")
+    p.add_argument("--end", choices=["land", "return", "hold"], default="land")
+    p.add_argument(
+        "--acceptance",
+        type=float,
+        default=0.3,
+        metavar="M",
+        help="waypoint acceptance radius (0.3 m)",
+    )
+    p.add_argument(
+        "--tolerance",
+        type=float,
+        default=1.0,
+        metavar="M",
+        help="with --start: refuse a vehicle farther than M m from its start (1.0)",
+    )
+    p.add_argument(
+        "--timeout", type=float, default=10.0, metavar="S", help="connection timeout (10 s)"
+    )
+    p.add_argument("--json", action="store_true", help="print the results as JSON")
+
+
+@dataclass(frozen=True, slots=True)
+class UploadRow:
+    """One vehicle's upload.
+
+    Attributes:
+        vehicle, sysid, url: the vehicle.
+        mission_items, fence_items: items sent (0 fence items without ``--fence``).
+        upload_s, readback_s: transfer times (mission + fence), seconds.
+        verified: every upload read back identical.
+        error: what failed (empty when verified).
+        max_deviation_m, rms_deviation_m: mission path vs planned trajectory.
+        started: the mission was started (``--start``).
+    """
+
+    vehicle: str
+    sysid: int
+    url: str
+    mission_items: int
+    fence_items: int
+    upload_s: float
+    readback_s: float
+    verified: bool
+    error: str
+    max_deviation_m: float
+    rms_deviation_m: float
+    started: bool = False
+
+
+async def _upload_one(
+    v: Vehicle, mission: MissionPlan, fence: tuple[MissionItem, ...], plan: Plan
+) -> UploadRow:
+    from mavlink.errors import LinkError
+    from mavlink.mission import MissionType, path_deviation, upload_and_verify
+
+    pv = plan.vehicle(v.name)
+    dev = path_deviation(pv.trajectory, mission.path)
+    up = back = 0.0
+    error = ""
+    try:
+        rep = await upload_and_verify(v, mission.items)
+        up, back = rep.upload_s, rep.download_s
+        if fence:
+            rep = await upload_and_verify(v, fence, MissionType.FENCE)
+            up, back = up + rep.upload_s, back + rep.download_s
+    except LinkError as exc:
+        error = exc.detail
+    return UploadRow(
+        vehicle=v.name,
+        sysid=v.spec.sysid,
+        url=v.url,
+        mission_items=len(mission.items),
+        fence_items=len(fence),
+        upload_s=up,
+        readback_s=back,
+        verified=not error,
+        error=error,
+        max_deviation_m=dev.max_m,
+        rms_deviation_m=dev.rms_m,
+    )
+
+
+async def _start(fleet: Fleet, plan: Plan, tolerance_m: float) -> None:
+    """Check every vehicle is near its start (horizontally), then arm and start all."""
+    import numpy as np
+    from mavsdk.plugins.mission_raw import MissionRawResult
+
+    from mavlink.errors import MissionError, MissionResult
+    from mavlink.fleet import mavsdk_call
+    from mavlink.offboard import check_start
+    from planner.frames import enu_to_ned
+
+    origins = await fleet.origins()
+    for pv in plan.vehicles:
+        v = fleet[pv.name]
+        st = await v.wait_for(lambda s: s.pos_ned_m is not None, "local position", timeout_s=5.0)
+        check_start(
+            st,
+            enu_to_ned(np.asarray(pv.start_enu_m), plan.origin, origins[v.name]),
+            tolerance_m=tolerance_m,
+            on_ground=not bool(st.in_air),
+            mission_origin=plan.origin,
+            vehicle_origin=origins[v.name],
+        )
+    await asyncio.gather(*(v.arm() for v in fleet))
+    for v in fleet:
+        result = await mavsdk_call(v.mission_raw.start_mission_async)
+        if result != MissionRawResult.SUCCESS:
+            raise MissionError(
+                MissionResult.TRANSFER_FAILED,
+                "start_mission",
+                mavsdk_result=result.name,
+                vehicle=v.name,
+                url=v.url,
+            )
+
+
+async def upload_plan(
+    plan: Plan,
+    specs: tuple[VehicleSpec, ...],
+    *,
+    fence: bool,
+    start: bool,
+    end: str,
+    acceptance_m: float,
+    tolerance_m: float,
+    connect_timeout_s: float,
+) -> list[UploadRow]:
+    """Convert, upload, read back (and start) every vehicle's mission; a row per vehicle.
+
+    Raises:
+        mavlink.errors.ConnectTimeoutError: a vehicle never answered.
+        mavlink.errors.PreflightError: with ``start``, a vehicle too far from its start.
+    """
+    from dataclasses import replace
+
+    from mavlink.fleet import Fleet
+    from mavlink.mission import MissionEnd, fence_boxes, geofence_items, trajectory_to_mission
+
+    missions = {
+        pv.name: trajectory_to_mission(
+            pv.trajectory,
+            plan.origin,
+            acceptance_radius_m=acceptance_m,
+            end=MissionEnd(end),
+            name=pv.name,
+        )
+        for pv in plan.vehicles
+    }
+    fence_items = geofence_items(fence_boxes(plan.workspace, plan.regions), plan.origin) if fence else ()
+    async with Fleet(specs, connect_timeout_s=connect_timeout_s, telemetry_rate_hz=None) as fleet:
+        rows = list(
+            await asyncio.gather(
+                *(_upload_one(v, missions[v.name], fence_items, plan) for v in fleet)
+            )
+        )
+        if start and all(r.verified for r in rows):
+            await _start(fleet, plan, tolerance_m)
+            rows = [replace(r, started=True) for r in rows]
+    return rows
+
+
+def mission_robustness(plan: Plan, acceptance_m: float, end: str) -> float:
+    """Exact robustness of the spec if every vehicle flew its mission's straight-leg path."""
+    from gcs.flight import plan_formula
+    from mavlink.mission import MissionEnd, path_robustness, trajectory_to_mission
+
+    paths = {
+        pv.name: trajectory_to_mission(
+            pv.trajectory, plan.origin, acceptance_radius_m=acceptance_m, end=MissionEnd(end)
+        ).path
+        for pv in plan.vehicles
+    }
+    return path_robustness(plan_formula(plan), paths, plan.check_dt_s, plan.horizon_s)
+
+
+def table(rows: list[UploadRow]) -> str:
+    """The text table."""
+    lines = [
+        f"{'vehicle':<8} {'sysid':>5} {'url':<26} {'items':>5} {'fence':>5} {'up s':>6} "
+        f"{'back s':>6} {'read-back':<9} {'max dev m':>9} {'rms dev m':>9}"
+    ]
+    for r in rows:
+        verdict = "identical" if r.verified else "FAILED"
+        lines.append(
+            f"{r.vehicle:<8} {r.sysid:>5} {r.url:<26} {r.mission_items:>5} {r.fence_items:>5} "
+            f"{r.upload_s:>6.2f} {r.readback_s:>6.2f} {verdict:<9} {r.max_deviation_m:>9.3f} "
+            f"{r.rms_deviation_m:>9.3f}"
+        )
+        if r.error:
+            lines.append(f"  {r.vehicle}: {r.error}")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Upload; 0 when every read-back is identical."""
+    from gcs.errors import UserError
+    from gcs.flight import vehicle_specs
+    from mavlink.errors import PreflightError
+    from planner.planfile import load_plan
+
+    for name in ("acceptance", "tolerance", "timeout"):
+        value = getattr(args, name)
+        if not (math.isfinite(value) and value > 0):
+            raise UserError(f"--{name}: must be a number > 0, got {value:g}")
+    plan = load_plan(args.plan)
+    specs = vehicle_specs(plan, args.connection)
+    rho_mission = mission_robustness(plan, args.acceptance, args.end)
+    try:
+        rows = asyncio.run(
+            upload_plan(
+                plan,
+                specs,
+                fence=args.fence,
+                start=args.start,
+                end=args.end,
+                acceptance_m=args.acceptance,
+                tolerance_m=args.tolerance,
+                connect_timeout_s=args.timeout,
+            )
+        )
+    except PreflightError as exc:
+        print(f"gcs upload: {exc}", file=sys.stderr)
+        return 1
+    ok = all(r.verified for r in rows)
+    if args.json:
+        out: dict[str, Any] = {
+            "ok": ok,
+            "planned_robustness": plan.robustness,
+            "mission_path_robustness": rho_mission,
+            "vehicles": [_row_json(r) for r in rows],
+        }
+        print(json.dumps(out))
+    else:
+        print(table(rows))
+        print(
+            f"spec robustness if flown along the mission legs: {rho_mission:+.4f} "
+            f"(plan: {plan.robustness:+.4f})"
+        )
+        if args.start and ok:
+            print("missions started on " + ", ".join(r.vehicle for r in rows))
+        print(
+            "OK: every upload read back identical"
+            if ok
+            else f"FAILED: {sum(not r.verified for r in rows)} vehicle(s)"
+        )
+    return 0 if ok else 1
+
+
+def _row_json(r: UploadRow) -> dict[str, Any]:
+    from dataclasses import asdict
+
+    return asdict(r)
