@@ -461,8 +461,11 @@ class Vehicle:
         """Take off (AUTO.TAKEOFF) straight up to ``alt_amsl_m`` (metres AMSL).
 
         MAV_CMD_NAV_TAKEOFF with param7 the altitude and NaN lat/lon (here),
-        as PX4 accepts it; unlike MAVSDK's ``takeoff`` it does not need to
-        write the MIS_TAKEOFF_ALT parameter first.
+        as PX4 accepts it. MAVSDK's ``Action.takeoff`` would first need
+        ``set_takeoff_altitude`` (the MIS_TAKEOFF_ALT parameter), whose
+        ``*_async`` form in MAVSDK 4.1.0 blocks the calling thread for the
+        whole parameter transaction (measured: 3 s, its timeout, when the
+        vehicle answers on the same event loop) - unusable from asyncio.
         """
         nan = float("nan")
         await self.command_long(
