@@ -12,7 +12,8 @@ flight (exit 1, the check named) unless ``--force`` (which overrides the plan ch
 While flying, a status line shows per vehicle its mode, its distance to the plan and the
 robustness of its clauses so far; Ctrl-C commands every vehicle to hold and exits (130).
 At the end: flown vs planned robustness (exact semantics), tracking errors, setpoint stream
-statistics, and with ``--log DIR`` the telemetry (``flight.tlog``) and tracks (``flight.csv``).
+statistics, and with ``--log DIR`` the telemetry (``flight.tlog``), the tracks (``flight.csv``)
+and a report (``report.md``, :mod:`gcs.report`).
 
 Exit status: 0 flown and the flown data satisfies the spec, 1 refused / not completed / flown
 robustness negative, 2 bad input (plan file, URL, unreachable vehicle), 130 interrupted.
@@ -126,6 +127,16 @@ def run(args: argparse.Namespace) -> int:
     except PreflightError as exc:
         print(f"gcs fly: {exc}", file=sys.stderr)
         return 1
+    if options.log_dir is not None:
+        from gcs.report import write_report
+
+        write_report(
+            options.log_dir / "report.md",
+            plan,
+            outcome,
+            title=Path(args.plan).name,
+            files={"plan": Path(args.plan)},
+        )
     if args.json:
         print(json.dumps(outcome_json(plan, outcome)))
     else:

@@ -1,0 +1,165 @@
+"""``gcs fly`` end to end on real files and real MAVLink over loopback UDP.
+
+The plan is made by ``gcs plan`` from configs/reach_avoid.yaml (2 drones), checked by
+``gcs verify``, exported, and flown with ``--dry-run`` (mock PX4 vehicles in-process, MAVSDK
+on the GCS side). The flight is judged on the telemetry the vehicles sent: the tracks the
+command reports, and independently the ``.tlog`` bytes re-read with pymavlink.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pymavlink import mavutil
+
+from gcs.cli import main
+from gcs.flight import free_udp_ports, plan_formula
+from mavlink.tlog import read_tracks_csv, tracks_from_tlog
+from planner.planfile import load_plan
+
+REPO = Path(__file__).resolve().parents[2]
+SCENARIO = REPO / "configs" / "reach_avoid.yaml"
+
+
+@pytest.fixture(scope="module")
+def plan_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 2-drone reach-avoid plan written by ``gcs plan``."""
+    path = tmp_path_factory.mktemp("fly") / "reach_avoid.json"
+    assert main(["plan", str(SCENARIO), "--vehicles", "2", "-o", str(path), "--json"]) == 0
+    return path
+
+
+def test_plan_verify_export_and_dry_run_flight_satisfy_the_spec(
+    plan_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["verify", str(plan_file)]) == 0
+    qgc = tmp_path / "qgc"
+    assert main(["export", str(plan_file), "--format", "qgc", "-o", str(qgc)]) == 0
+    assert sorted(p.name for p in qgc.iterdir()) == [
+        "reach_avoid-d1.plan",
+        "reach_avoid-d2.plan",
+    ]
+    capsys.readouterr()
+
+    log = tmp_path / "log"
+    rc = main(["fly", str(plan_file), "--dry-run", "--log", str(log), "--json"])
+    out, err = capsys.readouterr()
+    assert rc == 0, err
+    res = json.loads(out)
+    assert res["completed"] and not res["interrupted"] and res["safety_event"] is None
+    assert res["final_modes"] == {"d1": "AUTO.LOITER", "d2": "AUTO.LOITER"}
+    plan = load_plan(plan_file)
+    assert res["planned_robustness"] == pytest.approx(plan.robustness, abs=1e-9)
+    assert res["flown_robustness"] > 0
+    # Every setpoint of the 6 s plan (20 Hz) plus the 1 s hold was due and sent.
+    for s in res["stream"].values():
+        assert s["failed"] == 0 and s["sent"] + s["skipped"] == 6 * 20 + 1 + 20
+    # Progress went to stderr as plain lines (not a terminal), with the clause values.
+    assert "d1 OFFBOARD" in err and " rho +" in err
+
+    # Independent of the command's own tracks: the .tlog bytes through pymavlink.
+    names = {1: "d1", 2: "d2"}
+    tlog_tracks = tracks_from_tlog(log / "flight.tlog", names, plan.origin, res["t0_unix_s"])
+    phi = plan_formula(plan)
+    dt = plan.check_dt_s
+    signals = {n: tr.resample(dt, plan.horizon_s) for n, tr in tlog_tracks.items()}
+    assert phi.robustness(signals, dt) == pytest.approx(res["flown_robustness"], abs=0.02)
+    kinds = set()
+    reader = mavutil.mavlink_connection(str(log / "flight.tlog"), dialect="common")
+    while (m := reader.recv_match()) is not None:
+        kinds.add((m.get_srcSystem(), m.get_type()))
+    assert {(1, "HEARTBEAT"), (2, "HEARTBEAT"), (1, "LOCAL_POSITION_NED")} <= kinds
+    # The CSV holds the same flight, in the mission frame, close to the plan.
+    csv_tracks = read_tracks_csv(log / "flight.csv")
+    for v in plan.vehicles:
+        tr = csv_tracks[v.name]
+        inside = (tr.t_s >= 0) & (tr.t_s <= plan.horizon_s)
+        err_m = np.linalg.norm(tr.pos_enu_m[inside] - v.trajectory.position(tr.t_s[inside]), axis=1)
+        assert err_m.max() < 0.2, f"{v.name} strays {err_m.max():.3f} m from its plan"
+    report = (log / "report.md").read_text(encoding="utf-8")
+    assert "flown robustness" in report and "d1" in report
+
+
+def _edited(plan_file: Path, tmp_path: Path) -> Path:
+    data = json.loads(plan_file.read_text(encoding="utf-8"))
+    data["vehicles"][0]["limits"]["v_max_m_s"] = [0.2, 0.2, 0.2]  # the plan flies faster
+    path = tmp_path / "edited.json"
+    path.write_text(json.dumps(data), encoding="utf-8")
+    return path
+
+
+def test_plan_that_fails_verification_is_refused_before_connecting(
+    plan_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    edited = _edited(plan_file, tmp_path)
+    assert main(["verify", str(edited)]) == 1
+    capsys.readouterr()
+    assert main(["fly", str(edited), "--dry-run"]) == 1
+    out, err = capsys.readouterr()
+    assert out == ""  # no mock started, nothing flown
+    assert err.count("\n") == 1
+    assert "refused: the plan fails verification: d1 velocity / v_max" in err
+    assert "--force" in err
+
+    # --force passes the interlock and goes on to connect (here: nobody answers -> exit 2).
+    port = free_udp_ports(1)[0]
+    url = f"udpin://127.0.0.1:{port}"
+    args = ["fly", str(edited), "--force", "--timeout", "0.5"]
+    rc = main([*args, "--connection", url, "--connection", f"udpin://127.0.0.1:{port + 1}"])
+    out, err = capsys.readouterr()
+    assert rc == 2 and "refused" not in err
+
+
+def test_unreachable_connection_is_bad_input_in_one_line(
+    plan_file: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    p1, p2 = free_udp_ports(2)
+    url = f"udpin://127.0.0.1:{p1}"
+    rc = main(
+        [
+            "fly",
+            str(plan_file),
+            "--timeout",
+            "0.5",
+            "--connection",
+            url,
+            "--connection",
+            f"udpin://127.0.0.1:{p2}",
+        ]
+    )
+    _, err = capsys.readouterr()
+    assert rc == 2
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert err.startswith(f"gcs fly: error: vehicle d1 ({url}): no heartbeat from system id 1")
+    # A wrong number of URLs is bad input too, before anything is opened.
+    assert main(["fly", str(plan_file), "--connection", url]) == 2
+    _, err = capsys.readouterr()
+    assert "1 URL(s) given for 2 vehicle(s)" in err
+
+
+def test_ctrl_c_commands_every_vehicle_to_hold_and_exits_cleanly(plan_file: Path) -> None:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "gcs.cli", "fly", str(plan_file), "--dry-run"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=REPO,
+    )
+    assert proc.stdout is not None
+    seen = []
+    for line in proc.stdout:
+        seen.append(line)
+        if line.startswith("t ") and "OFFBOARD" in line:  # flying the plan
+            proc.send_signal(signal.SIGINT)
+            break
+    rest, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, (seen, rest, err)
+    assert "Traceback" not in err
+    assert "interrupted: every vehicle was commanded to hold" in rest
+    assert "modes now: d1 AUTO.LOITER, d2 AUTO.LOITER" in rest
