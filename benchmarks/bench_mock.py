@@ -7,7 +7,11 @@
    share of the core, and the datagrams sent per second; the capacity is the
    largest N whose real-time factor stays >= 0.99 with the simulation less than
    0.1 s behind its wall-clock deadlines at the end.
-2. Mission upload: 200 MISSION_ITEM_INT from MAVSDK (mission_raw) to one mock
+2. With a real client: 16 vehicles (``--client-vehicles``) flown by MAVSDK in a
+   separate process (on another core when there is one): each armed and in
+   offboard with MAVSDK streaming position setpoints at 20 Hz; the mock's
+   real-time factor, CPU share and setpoints handled per second.
+3. Mission upload: 200 MISSION_ITEM_INT from MAVSDK (mission_raw) to one mock
    vehicle over loopback, and the download back; median and best of repeats.
 
 Prints a table, then one JSON line.  Usage::
@@ -23,6 +27,7 @@ import json
 import os
 import socket
 import statistics
+import sys
 import time
 
 from mavlink.mock import MockFleet
@@ -62,6 +67,97 @@ async def _run_fleet(n: int, seconds: float) -> dict[str, float]:
         "cpu_share": (cpu1 - cpu0) / wall,
         "msgs_per_s": (sent1 - sent0) / wall,
         "lag_s": lag_s,
+    }
+
+
+async def _client(ports: list[int], seconds: float) -> None:
+    """MAVSDK side of figure 2 (runs in its own process): fly every vehicle in offboard."""
+    from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
+    from mavsdk.asyncio.plugins.action import ActionAsync
+    from mavsdk.asyncio.plugins.offboard import OffboardAsync, PositionNedYaw
+    from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
+
+    config = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
+    async with Mavsdk(config) as sdk:
+        for port in ports:
+            await sdk.add_any_connection(f"udpin://127.0.0.1:{port}")
+        systems: dict[int, object] = {}
+        while len(systems) < len(ports):
+            systems = {await s.get_system_id(): s for s in await sdk.get_systems()}
+            await asyncio.sleep(0.1)
+
+        async def fly(sysid: int, system: object) -> OffboardAsync:
+            telemetry, action, offboard = (
+                TelemetryAsync(system),
+                ActionAsync(system),
+                OffboardAsync(system),
+            )
+            async for health in telemetry.subscribe_health():
+                if health.is_armable:
+                    break
+            await offboard.set_position_ned(PositionNedYaw(2.0, 1.0 * sysid, -3.0, 0.0))
+            await asyncio.sleep(1.2)
+            await action.arm()
+            await offboard.start()
+            return offboard
+
+        # keep the plugins alive: MAVSDK stops streaming when an Offboard object is destroyed
+        plugins = await asyncio.gather(*(fly(i, s) for i, s in systems.items()))
+        print("ready", flush=True)
+        await asyncio.sleep(seconds)
+        del plugins
+
+
+async def _with_client(n: int, seconds: float) -> dict[str, float]:
+    ports = free_udp_ports(2 * n)
+    gcs_ports, vehicle_ports = ports[:n], ports[n:]
+    async with MockFleet(n=n, gcs_ports=gcs_ports, vehicle_ports=vehicle_ports, seed=2) as fleet:
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, __file__, "--client", ",".join(map(str, gcs_ports)),
+            "--seconds", str(seconds + 30.0),
+            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.DEVNULL,
+        )  # fmt: skip
+        try:
+            assert proc.stdout is not None
+
+            async def ready() -> None:
+                assert proc.stdout is not None
+                while True:  # MAVSDK logs on stdout too
+                    line = await proc.stdout.readline()
+                    if not line:
+                        raise RuntimeError("the MAVSDK client ended before its vehicles flew")
+                    if line.strip() == b"ready":
+                        return
+
+            await asyncio.wait_for(ready(), 90.0)
+            await asyncio.sleep(1.0)
+
+            def setpoints() -> int:
+                return sum(
+                    v.received.get("SET_POSITION_TARGET_LOCAL_NED", 0) for v in fleet.vehicles
+                )
+
+            sim0, wall0, cpu0 = fleet.time_s, time.perf_counter(), time.process_time()
+            sp0 = setpoints()
+            sent0 = sum(v.downlink.stats.offered for v in fleet.vehicles)
+            await asyncio.sleep(seconds)
+            sim1, wall1, cpu1 = fleet.time_s, time.perf_counter(), time.process_time()
+            sp1 = setpoints()
+            sent1 = sum(v.downlink.stats.offered for v in fleet.vehicles)
+            offboard = sum(v.mode.name == "OFFBOARD" and v.armed for v in fleet.vehicles)
+            lag_s = fleet.wall_elapsed_s - fleet.time_s
+        finally:
+            proc.kill()
+            await proc.wait()
+    wall = wall1 - wall0
+    return {
+        "vehicles": n,
+        "in_offboard": offboard,
+        "rtf": (sim1 - sim0) / wall,
+        "lag_s": lag_s,
+        "cpu_share": (cpu1 - cpu0) / wall,
+        "setpoints_per_s": (sp1 - sp0) / wall,
+        "msgs_per_s": (sent1 - sent0) / wall,
     }
 
 
@@ -121,7 +217,15 @@ def main() -> None:
     ap.add_argument("--max-vehicles", type=int, default=254)
     ap.add_argument("--repeats", type=int, default=5, help="mission uploads to time")
     ap.add_argument("--items", type=int, default=200)
+    ap.add_argument("--client-vehicles", type=int, default=16, help="vehicles of figure 2")
+    ap.add_argument("--client", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.client is not None:
+        cores = sorted(os.sched_getaffinity(0))
+        if len(cores) > 1:
+            os.sched_setaffinity(0, set(cores[1:]))  # leave the mock's core to the mock
+        asyncio.run(_client([int(p) for p in args.client.split(",")], args.seconds))
+        return
     try:
         core = min(os.sched_getaffinity(0))
         os.sched_setaffinity(0, {core})
@@ -150,6 +254,13 @@ def main() -> None:
             break
     print(f"real-time capacity: {capacity} vehicles (largest N with RTF >= 0.99, lag < 0.1 s)")
 
+    cl = asyncio.run(_with_client(args.client_vehicles, args.seconds))
+    print(
+        f"{cl['vehicles']} vehicles flown by MAVSDK (separate process), {cl['in_offboard']} in "
+        f"offboard: RTF {cl['rtf']:.3f}, lag {cl['lag_s']:.3f} s, CPU {cl['cpu_share']:.0%}, "
+        f"{cl['setpoints_per_s']:.0f} setpoints/s in, {cl['msgs_per_s']:.0f} msgs/s out"
+    )
+
     up = asyncio.run(_upload(args.repeats, args.items))
     print(
         f"MAVSDK mission_raw {up['items']} items: upload median {up['upload_median_s'] * 1e3:.0f} ms "
@@ -163,6 +274,7 @@ def main() -> None:
                 "pinned": pinned,
                 "realtime_capacity_vehicles": capacity,
                 "rows": [{k: round(v, 4) for k, v in r.items()} for r in rows],
+                "with_mavsdk": {k: round(v, 4) for k, v in cl.items()},
                 "mission": {k: round(v, 4) for k, v in up.items()},
             }
         )
