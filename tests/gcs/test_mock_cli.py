@@ -78,6 +78,28 @@ def test_bad_options_are_one_line_errors_with_status_2(argv, needle, capsys) -> 
     assert err.startswith("gcs mock: error:") and needle in err and "\n" not in err
 
 
+def test_options_reach_the_fleet() -> None:
+    from gcs.cli import build_parser
+    from gcs.commands.mock import build_fleet
+
+    args = build_parser().parse_args(
+        ["mock", "-n", "3", "--wind", "3,-1", "--gust", "0.5", "--param", "MPC_XY_VEL_MAX=4",
+         "--loss-in", "0.1", "--latency-ms", "20", "--outage", "5:7", "--fault-vehicles", "0,2",
+         "--seed", "9"]
+    )  # fmt: skip
+    fleet = build_fleet(args)
+    assert (
+        fleet.physics.wind.mean_ne_m_s == (3.0, -1.0) and fleet.physics.wind.gust_sigma_m_s == 0.5
+    )
+    assert [v.params["MPC_XY_VEL_MAX"] for v in fleet.vehicles] == [4.0] * 3
+    faults = [v.config.faults for v in fleet.vehicles]
+    assert faults[1].is_clean and not faults[0].is_clean and faults[0] == faults[2]
+    assert faults[0].loss_to_vehicle == 0.1 and faults[0].latency_s == pytest.approx(0.02)
+    assert faults[0].in_outage(6.0) and not faults[0].in_outage(7.0)
+    assert fleet.gcs_ports == [14540, 14541, 14542] and fleet.vehicle_ports == [14580, 14581, 14582]
+    assert fleet.seed == 9
+
+
 def test_port_in_use_is_a_user_error(capsys) -> None:  # type: ignore[no-untyped-def]
     vbase, socks = bound_block(1)
     try:
@@ -95,6 +117,7 @@ def test_vehicles_run_on_px4_style_ports_with_spawns(capsys) -> None:  # type: i
     argv = ["mock", "-n", "2", "--base-port", str(gbase), "--vehicle-base-port", str(vbase)]
     argv += ["--spawn", "0,0,0", "--spawn", "5,-3,0", "--origin", "46.5,7.25,600", "--json"]
     argv += ["--duration", "1.5", "--loss-out", "0.2", "--fault-vehicles", "1", "--seed", "3"]
+    argv += ["--wind", "3,-1", "--gust", "0.5", "--param", "MPC_XY_VEL_MAX=4"]
     result: dict[str, int] = {}
     runner = threading.Thread(target=lambda: result.setdefault("rc", main(argv)))
     runner.start()

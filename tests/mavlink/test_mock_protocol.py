@@ -774,3 +774,17 @@ def test_telemetry_noise_is_reproducible_for_a_seed() -> None:
     assert [a[t] for t in common] == [b[t] for t in common]  # same seed, same noise per tick
     assert [a[t] for t in common] != [c[t] for t in common]
     assert max(abs(v) for t in common for v in a[t]) < 0.1  # ~1 cm noise on a parked vehicle
+
+
+def test_faults_can_be_changed_while_running() -> None:
+    with mock_vehicles() as (fleet, (gcs,)):
+        assert gcs.recv("HEARTBEAT", 3.0) is not None
+        fleet.vehicles[0].set_faults(FaultConfig(loss_to_gcs=1.0))
+        t_change_ms = fleet.time_s * 1000.0
+        stamped = [m.time_boot_ms for m in gcs.messages(0.5) if hasattr(m, "time_boot_ms")]
+        # at most a message already on its way when the faults changed gets through
+        assert all(t <= t_change_ms + 20 for t in stamped)
+        fleet.vehicles[0].set_faults(FaultConfig())
+        back = gcs.recv("LOCAL_POSITION_NED", 3.0)
+        assert back is not None and back.time_boot_ms > t_change_ms + 400
+        assert fleet.link_stats()[0]["downlink"].dropped == 0  # the clean channel drops nothing
