@@ -241,6 +241,8 @@ class MockFleet:
         """Bind every vehicle's socket and start the simulation task."""
         if self._task is not None:
             raise MockConfigError("the fleet is already running")
+        if self._ticks:
+            raise MockConfigError("a MockFleet runs once: create a new one to run again")
         loop = asyncio.get_running_loop()
         self._loop = loop
         try:
