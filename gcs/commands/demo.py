@@ -48,6 +48,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vehicles", type=int, default=4, metavar="N", help="number of drones (4)")
     p.add_argument("--rate", type=float, default=20.0, metavar="HZ", help="setpoint rate (20)")
     p.add_argument("--force", action="store_true", help="fly even if the plan fails verification")
+    p.add_argument(
+        "--scenario",
+        metavar="YAML",
+        help=f"another scenario to plan and fly the same way (default configs/{SCENARIO})",
+    )
 
 
 def find_config(name: str) -> Path:
@@ -92,19 +97,21 @@ class DemoResult:
 def run_demo(
     out_dir: str | Path,
     *,
-    vehicles: int = 4,
+    vehicles: int | None = 4,
     rate_hz: float = 20.0,
     force: bool = False,
     progress: TextIO | None = None,
+    scenario: str | Path | None = None,
 ) -> DemoResult:
     """Plan, fly on mock vehicles, evaluate and report (module docstring).
 
     Args:
         out_dir: directory for plan.json, flight.tlog, flight.csv, demo.png, report.md.
-        vehicles: number of drones.
+        vehicles: number of drones (``None``: the scenario's default).
         rate_hz: offboard setpoint rate.
         force: fly a plan that fails verification.
         progress: where the flight's status line goes (``None``: silent).
+        scenario: the scenario file (default ``configs/powerline_inspection.yaml``).
     """
     from gcs.errors import InputFileError
     from gcs.flight import (
@@ -129,7 +136,7 @@ def run_demo(
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputFileError(f"--out {out}: cannot create: {exc.strerror or exc}") from None
-    scenario = find_config(SCENARIO)
+    scenario = Path(scenario) if scenario is not None else find_config(SCENARIO)
     problem = load_scenario(scenario, vehicles=vehicles)
     timings["set-up"] = time.perf_counter() - t
 
@@ -167,7 +174,7 @@ def run_demo(
         out / "report.md",
         plan,
         outcome,
-        title=f"{scenario.stem}, {len(plan.vehicles)} drones on mock PX4 vehicles",
+        title=f"{scenario.stem}, {len(plan.vehicles)} drone(s) on mock PX4 vehicles",
         timings_s=timings,
         picture=picture,
         files={"plan": files["plan"]},
@@ -209,11 +216,15 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--vehicles: must be 1..8, got {args.vehicles}")
     if not (2.0 < args.rate <= 100.0):
         raise UserError(f"--rate: must be in (2, 100] Hz, got {args.rate:g}")
-    print(
-        f"gcs demo: planning {SCENARIO} for {args.vehicles} drones (CasADi/IPOPT) ...", flush=True
-    )
+    name = Path(args.scenario).name if args.scenario else SCENARIO
+    print(f"gcs demo: planning {name} for {args.vehicles} drones (CasADi/IPOPT) ...", flush=True)
     demo = run_demo(
-        args.out, vehicles=args.vehicles, rate_hz=args.rate, force=args.force, progress=sys.stdout
+        args.out,
+        vehicles=args.vehicles,
+        rate_hz=args.rate,
+        force=args.force,
+        progress=sys.stdout,
+        scenario=args.scenario,
     )
     print(summary(demo))
     out = demo.outcome

@@ -1,0 +1,57 @@
+"""``gcs demo``: the whole pipeline (plan, mock vehicles, offboard flight, evaluation, picture,
+report) in one command.
+
+The default power-line demo plans 4 drones over a 30 s horizon (tens of seconds of IPOPT and
+30 s of flight): ``make demo`` and ``benchmarks/bench_demo.py`` run it. The suite runs the same
+pipeline on the 6 s reach-avoid scenario (``--scenario``), and checks that the default
+scenario is found.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from gcs.cli import main
+from gcs.commands.demo import SCENARIO, find_config
+from gcs.flight import plan_formula
+from mavlink.tlog import read_tracks_csv
+from planner.planfile import load_plan
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_demo_pipeline_flies_the_plan_and_reports_the_flown_robustness(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "demo"
+    scenario = REPO / "configs" / "reach_avoid.yaml"
+    rc = main(["demo", "--out", str(out), "--vehicles", "2", "--scenario", str(scenario)])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    names = {"plan.json", "flight.tlog", "flight.csv", "demo.png", "report.md"}
+    assert names <= {p.name for p in out.iterdir()}
+    assert (out / "demo.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    # The printed flown robustness is the spec's exact value on the recorded tracks.
+    flown = float(re.search(r"flown robustness ([+-]\d+\.\d+); flight completed", text)[1])  # type: ignore[index]
+    plan = load_plan(out / "plan.json")
+    tracks = read_tracks_csv(out / "flight.csv")
+    dt = plan.check_dt_s
+    signals = {n: tr.resample(dt, plan.horizon_s) for n, tr in tracks.items()}
+    assert plan_formula(plan).robustness(signals, dt) == pytest.approx(flown, abs=6e-5)
+    assert flown > 0
+    assert f"planned robustness {plan.robustness:+.4f}" in text
+    assert re.search(r"planning \d+\.\d s, flight \d+\.\d s, total \d+\.\d s", text)
+
+    report = (out / "report.md").read_text(encoding="utf-8")
+    assert f"| flown robustness | {flown:+.4f} |" in report
+    assert "![plan and flown tracks](demo.png)" in report
+    for stage in ("set-up", "planning", "vehicles", "flight", "report"):
+        assert f"| {stage} |" in report
+
+
+def test_the_demo_scenario_is_found_next_to_the_packages() -> None:
+    assert find_config(SCENARIO) == REPO / "configs" / SCENARIO
