@@ -145,6 +145,7 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("MPC_ACC_HOR_MAX", ParamType.REAL32, 5.0),
     ParamSpec("MPC_ACC_UP_MAX", ParamType.REAL32, 4.0),
     ParamSpec("MPC_LAND_SPEED", ParamType.REAL32, 0.7),
+    ParamSpec("MPC_THR_HOVER", ParamType.REAL32, 0.5),
     ParamSpec("MPC_TKO_SPEED", ParamType.REAL32, 1.5),
     ParamSpec("MPC_XY_CRUISE", ParamType.REAL32, 5.0),
     ParamSpec("MPC_XY_P", ParamType.REAL32, 0.95),

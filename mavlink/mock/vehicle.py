@@ -32,6 +32,7 @@ from mavlink.mock.config import FaultConfig, MockVehicleConfig
 from mavlink.mock.errors import MockConfigError
 from mavlink.mock.mission import MISSION, MissionItem, MissionServer
 from mavlink.mock.navigator import NavigatorMixin
+from mavlink.mock.physics import GRAVITY_M_S2
 from mavlink.mock.px4 import Px4Mode
 from mavlink.mock.telemetry import DEFAULT_RATES_HZ, TelemetryMixin
 
@@ -202,6 +203,7 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
             "COMMAND_INT": self._on_command_int,
             "SET_POSITION_TARGET_LOCAL_NED": self._on_set_position_target_local,
             "SET_POSITION_TARGET_GLOBAL_INT": self._on_set_position_target_global,
+            "SET_ATTITUDE_TARGET": self._on_set_attitude_target,
             "PARAM_REQUEST_LIST": self._on_param_request_list,
             "PARAM_REQUEST_READ": self._on_param_request_read,
             "PARAM_SET": self._on_param_set,
@@ -809,6 +811,31 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         vel = np.array([msg.vx, msg.vy, msg.vz], dtype=float)
         acc = np.array([msg.afx, msg.afy, msg.afz], dtype=float)
         self._store_setpoint(msg.type_mask, pos, vel, acc, msg.yaw, msg.yaw_rate)
+
+    def _on_set_attitude_target(self, msg: Msg) -> None:
+        """Attitude + collective thrust (PX4 offboard): the specific force it implies.
+
+        Thrust ``MPC_THR_HOVER`` with a level attitude hovers; the body z axis of
+        ``q`` (body -> NED) tilts the thrust.  Body-rate-only setpoints (attitude
+        ignored) keep offboard alive but are not flown.
+        """
+        if not self._for_me(msg):
+            return
+        if msg.type_mask & 128 or msg.type_mask & 64 or not math.isfinite(msg.thrust):
+            self._keepalive()
+            return
+        w, x, y, z = (float(c) for c in msg.q)
+        norm = math.sqrt(w * w + x * x + y * y + z * z)
+        if not (norm > 0.0 and math.isfinite(norm)):
+            self._keepalive()
+            return
+        w, x, y, z = w / norm, x / norm, y / norm, z / norm
+        body_z_ned = np.array([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)])
+        specific_force = max(0.0, float(msg.thrust)) / self.params["MPC_THR_HOVER"] * GRAVITY_M_S2
+        acc = np.array([0.0, 0.0, GRAVITY_M_S2]) - specific_force * body_z_ned
+        yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+        # type mask of SET_POSITION_TARGET_*: everything but the acceleration ignored
+        self._store_setpoint(0b0000_0011_1111, np.zeros(3), np.zeros(3), acc, yaw, 0.0)
 
     def _store_setpoint(
         self,

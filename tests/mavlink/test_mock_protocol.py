@@ -788,3 +788,35 @@ def test_faults_can_be_changed_while_running() -> None:
         back = gcs.recv("LOCAL_POSITION_NED", 3.0)
         assert back is not None and back.time_boot_ms > t_change_ms + 400
         assert fleet.link_stats()[0]["downlink"].dropped == 0  # the clean channel drops nothing
+
+
+def test_attitude_and_thrust_setpoints_fly_in_offboard() -> None:
+    with mock_vehicles() as (fleet, (gcs,)):
+        v = fleet.vehicles[0]
+        pitch = math.radians(-10.0)  # nose down: accelerate north
+        q = [math.cos(pitch / 2), 0.0, math.sin(pitch / 2), 0.0]
+
+        def attitude(thrust: float) -> None:
+            gcs.send(
+                mavlink2.MAVLink_set_attitude_target_message(
+                    0, 1, 1, 0b0000_0111, q, 0, 0, 0, thrust
+                )
+            )
+
+        t_end = time.monotonic() + 1.2
+        while time.monotonic() < t_end:
+            attitude(0.6)
+            time.sleep(0.05)
+        assert gcs.command(mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
+        assert gcs.set_mode(6).result == 0
+        t_end = time.monotonic() + 1.5
+        while time.monotonic() < t_end:
+            attitude(0.6)
+            time.sleep(0.05)
+        vn, ve, vd = v.state.vel_ned_m_s
+        # thrust 0.6 of hover 0.5 tilted 10 deg forward: climbs and accelerates north
+        assert vd < -1.0 and vn > 1.0 and abs(ve) < 0.1
+        attitude(0.6)
+        gcs.drain()
+        att = gcs.recv("ATTITUDE", 2.0)
+        assert att is not None and att.pitch == pytest.approx(pitch, abs=0.03)
