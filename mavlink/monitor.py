@@ -274,7 +274,8 @@ class SafetyMonitor:
         k = 0
         self.checks = 0
         while not stop.is_set():
-            deadline = t0_monotonic_s + k * period
+            # Half a period after the setpoint ticks, so an evaluation never delays a send.
+            deadline = t0_monotonic_s + (k + 0.5) * period
             delay = deadline - time.monotonic()
             if delay > 0:
                 try:
@@ -282,7 +283,7 @@ class SafetyMonitor:
                     break
                 except TimeoutError:
                     pass
-            k = max(k + 1, int((time.monotonic() - t0_monotonic_s) / period) + 1)
+            k = max(k + 1, int((time.monotonic() - t0_monotonic_s) / period - 0.5) + 1)
             now = time.monotonic()
             t_s = now - t0_monotonic_s
             statuses = {v.name: v.status(now) for v in vehicles}
