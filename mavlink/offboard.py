@@ -51,7 +51,15 @@ from mavlink.errors import CommandError, LinkError, LinkLostError, PreflightErro
 from mavlink.fleet import Fleet, Vehicle, VehicleStatus, mavsdk_call
 from mavlink.monitor import SafetyAction, SafetyEvent, SafetyMonitor, safe_stop
 from mavlink.px4_modes import Px4Mode
-from mavlink.stream import MAX_RATE_HZ, NedSetpoints, SetpointStreamer, StreamStats, StreamTarget
+from mavlink.stream import (
+    MAX_RATE_HZ,
+    NedSetpoints,
+    SetpointStreamer,
+    StreamStats,
+    StreamTarget,
+    auto_send_groups,
+    send_offsets,
+)
 from mavlink.tlog import FlownTrack, TlogRecorder, TlogStats, write_tracks_csv
 from planner.frames import (
     GeodeticPoint,
@@ -92,6 +100,11 @@ class OffboardConfig:
         hold_after_s: keep streaming the final setpoint this long.
         end_action: hold, land or return to launch afterwards.
         late_threshold_s: lateness that counts as late (default a quarter period).
+        send_groups: spread the vehicles over this many send instants per
+            period (:class:`~mavlink.stream.SetpointStreamer`); each vehicle's
+            setpoints are sampled at its own send times. ``None``: one group
+            per 16 vehicles (measured in ``benchmarks/bench_stream.py``:
+            bursts of more vehicles raise the p99 lateness); 1: all at the tick.
     """
 
     rate_hz: float = 20.0
@@ -105,8 +118,13 @@ class OffboardConfig:
     hold_after_s: float = 1.0
     end_action: EndAction = EndAction.HOLD
     late_threshold_s: float | None = None
+    send_groups: int | None = None
 
     def __post_init__(self) -> None:
+        if self.send_groups is not None and not (
+            isinstance(self.send_groups, int) and self.send_groups >= 1
+        ):
+            raise LinkError(f"send_groups must be an integer >= 1, got {self.send_groups!r}")
         if not (2.0 < self.rate_hz <= MAX_RATE_HZ):
             raise LinkError(f"offboard rate_hz {self.rate_hz!r} outside (2, {MAX_RATE_HZ:g}]")
         if not self.prestream_s >= 1.0:
@@ -131,6 +149,8 @@ def plan_setpoints_ned(
     rate_hz: float,
     mission_origin: GeodeticPoint,
     vehicle_origin: GeodeticPoint,
+    *,
+    t_offset_s: float = 0.0,
 ) -> NedSetpoints:
     """Sample ``trajectory`` at ``rate_hz`` and express it in the vehicle's local NED frame.
 
@@ -138,16 +158,24 @@ def plan_setpoints_ned(
     acceleration are rotated between the two tangent planes; yaw becomes a
     NED heading (planner.frames).
 
+    Args:
+        t_offset_s: sample at ``k / rate_hz + t_offset_s`` (the vehicle's send
+            offset within the period, :func:`mavlink.stream.send_offsets`).
+
     Returns:
-        :class:`NedSetpoints` with ``t_s = k / rate_hz``, ``k = 0 .. ceil(T*rate)``.
+        :class:`NedSetpoints` for ``k = 0 .. ceil(T * rate)`` (the trajectory
+        holds its end state past its duration).
     """
-    sp = trajectory.sample(rate_hz)
+    n = math.ceil(trajectory.duration_s * rate_hz - 1e-9) + 1  # as Trajectory.sample
+    t = np.arange(n) / rate_hz + t_offset_s
     return NedSetpoints(
-        t_s=sp.t_s,
-        pos_ned_m=enu_to_ned(sp.pos_enu_m, mission_origin, vehicle_origin),
-        vel_ned_m_s=enu_vector_to_ned(sp.vel_enu_m_s, mission_origin, vehicle_origin),
-        acc_ned_m_s2=enu_vector_to_ned(sp.acc_enu_m_s2, mission_origin, vehicle_origin),
-        yaw_ned_rad=np.asarray(yaw_enu_to_ned(sp.yaw_rad, mission_origin, vehicle_origin)),
+        t_s=t,
+        pos_ned_m=enu_to_ned(trajectory.position(t), mission_origin, vehicle_origin),
+        vel_ned_m_s=enu_vector_to_ned(trajectory.velocity(t), mission_origin, vehicle_origin),
+        acc_ned_m_s2=enu_vector_to_ned(trajectory.acceleration(t), mission_origin, vehicle_origin),
+        yaw_ned_rad=np.asarray(
+            yaw_enu_to_ned(trajectory.yaw_rad(t), mission_origin, vehicle_origin), dtype=float
+        ),
     )
 
 
@@ -404,11 +432,18 @@ async def _fly(
 ) -> FlightResult:
     vehicles = [fleet[name] for name in trajectories]
     origins = await fleet.origins()
+    groups = auto_send_groups(len(vehicles)) if cfg.send_groups is None else cfg.send_groups
+    groups = min(groups, len(vehicles))
+    offsets = send_offsets(len(vehicles), cfg.rate_hz, groups)
     setpoints = {
         v.name: plan_setpoints_ned(
-            trajectories[v.name], cfg.rate_hz, mission_origin, origins[v.name]
+            trajectories[v.name],
+            cfg.rate_hz,
+            mission_origin,
+            origins[v.name],
+            t_offset_s=float(offsets[i]),
         )
-        for v in vehicles
+        for i, v in enumerate(vehicles)
     }
     await asyncio.gather(
         *(
@@ -523,6 +558,7 @@ async def _fly(
         [StreamTarget(v.name, offboard_sender(v.offboard), setpoints[v.name]) for v in vehicles],
         cfg.rate_hz,
         late_threshold_s=cfg.late_threshold_s,
+        groups=groups,
     )
     for v in vehicles:
         v.start_track()

@@ -114,6 +114,20 @@ class StreamStats:
 STATS_HEADER = f"{'vehicle':>8} {'sent':>6} {'skip':>5} {'fail':>5} {'late':>5} {'mean ms':>8} {'p99 ms':>8} {'max ms':>8}"
 
 
+#: Vehicles per send instant when the grouping is automatic.
+VEHICLES_PER_GROUP = 16
+
+
+def auto_send_groups(n_vehicles: int) -> int:
+    """Send groups for ``n_vehicles``: one per :data:`VEHICLES_PER_GROUP` vehicles."""
+    return max(1, math.ceil(n_vehicles / VEHICLES_PER_GROUP))
+
+
+def send_offsets(n_vehicles: int, rate_hz: float, groups: int) -> np.ndarray:
+    """``(n_vehicles,)`` send delay of each vehicle after its tick: ``(i % groups) / groups / rate``."""
+    return (np.arange(n_vehicles) % groups) / groups / rate_hz
+
+
 @dataclass(frozen=True, slots=True)
 class StreamTarget:
     """What to stream to one vehicle.
@@ -140,10 +154,16 @@ class SetpointStreamer:
         rate_hz: stream rate (2 < rate <= 100).
         late_threshold_s: lateness above which a setpoint counts as late
             (default a quarter period).
+        groups: spread the vehicles over this many send instants per period
+            (vehicle ``i`` in group ``i % groups``, sent ``(i % groups) /
+            groups`` of a period after the tick), so a large fleet's
+            datagrams do not leave in one burst. Each vehicle's setpoints
+            must then be sampled at its own send times: ``t_k +`` its entry
+            of :attr:`offsets_s` (see :func:`send_offsets`).
         clock, sleep: the time source and the way to wait (tests replace
             both with a simulated clock).
 
-    The vehicles of one tick are sent back to back in a rotating order, so
+    The vehicles sent at one instant go back to back in a rotating order, so
     no vehicle is always last.
     """
 
@@ -153,6 +173,7 @@ class SetpointStreamer:
         rate_hz: float,
         *,
         late_threshold_s: float | None = None,
+        groups: int = 1,
         clock: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], Awaitable[None]] = asyncio.sleep,
     ) -> None:
@@ -167,6 +188,11 @@ class SetpointStreamer:
         self.targets = tuple(targets)
         self.rate_hz = float(rate_hz)
         self.period_s = 1.0 / self.rate_hz
+        if not 1 <= groups <= len(self.targets):
+            raise StreamError(f"send groups {groups!r} outside 1..{len(self.targets)} (vehicles)")
+        self.groups = int(groups)
+        #: Send time of each vehicle after its tick, seconds.
+        self.offsets_s = send_offsets(len(self.targets), self.rate_hz, self.groups)
         self.late_threshold_s = self.period_s / 4 if late_threshold_s is None else late_threshold_s
         self.n_ticks = max(len(t.setpoints) for t in self.targets)
         # Plain Python floats per setpoint: the hot loop must not touch numpy.
@@ -200,36 +226,44 @@ class SetpointStreamer:
             :class:`StreamStats` per vehicle name.
         """
         n_v = len(self.targets)
+        n_g = self.groups
         total = self.n_ticks + extra_ticks
         lateness = np.full((total, n_v), np.nan)
         failed = [0] * n_v
+        skipped = [0] * n_v
         errors: list[BaseException | None] = [None] * n_v
-        skipped = 0
+        members = [list(range(g, n_v, n_g)) for g in range(n_g)]
         sends = [t.send for t in self.targets]
         rows = self._rows
         last = [len(r) - 1 for r in rows]
         clock = self._clock
         sleep = self._sleep
         period = self.period_s
-        k = 0
-        while k < total:
+        step = period / n_g
+        total_steps = total * n_g
+        j = 0  # send instant: tick j // n_g, group j % n_g
+        while j < total_steps:
             if stop is not None and stop.is_set():
                 break
-            deadline = t0_s + k * period
+            deadline = t0_s + j * step
             delay = deadline - clock()
             if delay > 0:
                 await sleep(delay)
                 if stop is not None and stop.is_set():
                     break
             behind = int((clock() - deadline) // period)
-            if behind >= 1:  # more than a period late: skip to the current tick
-                behind = min(behind, total - 1 - k)
-                skipped += behind
-                k += behind
-                deadline = t0_s + k * period
-            start = k % n_v
-            for j in range(n_v):
-                i = (start + j) % n_v
+            if behind >= 1:  # more than a period late: skip to the current instant
+                jump = min(behind * n_g, total_steps - 1 - j)
+                for jj in range(j, j + jump):
+                    for i in members[jj % n_g]:
+                        skipped[i] += 1
+                j += jump
+                deadline = t0_s + j * step
+            k, g = divmod(j, n_g)
+            group = members[g]
+            start = k % len(group)
+            for m in range(len(group)):
+                i = group[(start + m) % len(group)]
                 r = rows[i][min(k, last[i])]
                 try:
                     sends[i](*r)
@@ -238,7 +272,7 @@ class SetpointStreamer:
                     errors[i] = exc
                     continue
                 lateness[k, i] = clock() - deadline
-            k += 1
+            j += 1
         out: dict[str, StreamStats] = {}
         for i, t in enumerate(self.targets):
             lat = lateness[:, i]
@@ -246,7 +280,7 @@ class SetpointStreamer:
             out[t.name] = StreamStats(
                 vehicle=t.name,
                 sent=int(lat.size),
-                skipped=skipped,
+                skipped=skipped[i],
                 failed=failed[i],
                 late=int(np.count_nonzero(lat > self.late_threshold_s)),
                 late_threshold_s=self.late_threshold_s,

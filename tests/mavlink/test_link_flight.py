@@ -82,7 +82,7 @@ def test_fleet_flies_planned_reach_avoid_and_the_flown_telemetry_satisfies_the_s
     names = [v.name for v in plan.vehicles]
     trajs = {v.name: v.trajectory for v in plan.vehicles}
     spawns = [(v.start_enu_m[0], v.start_enu_m[1], 0.0) for v in plan.vehicles]
-    cfg = OffboardConfig(rate_hz=rate_hz)
+    cfg = OffboardConfig(rate_hz=rate_hz, send_groups=2 if n == 4 else 1)
     monitor = SafetyMonitor(always_clauses(spec, names), horizon_s=0.5)
     tlog, csv = tmp_path / "flight.tlog", tmp_path / "flight.csv"
 

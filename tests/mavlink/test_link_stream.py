@@ -123,3 +123,38 @@ def test_rates_outside_px4_limits_are_refused(rate: float) -> None:
 def test_setpoint_shapes_are_checked() -> None:
     with pytest.raises(StreamError, match=r"vel_ned_m_s has shape \(2, 3\), expected \(3, 3\)"):
         NedSetpoints(np.zeros(3), np.zeros((3, 3)), np.zeros((2, 3)), np.zeros((3, 3)), np.zeros(3))
+
+
+def test_send_groups_spread_the_fleet_over_the_period() -> None:
+    clock = SimClock()
+    rate = 20.0
+    period = 1.0 / rate
+    log: list[tuple[str, float, float]] = []
+
+    def sender(name: str):
+        def send(n, *_):
+            log.append((name, clock.t, n))
+
+        return send
+
+    names = ["a", "b", "c", "d"]
+    targets = [StreamTarget(x, sender(x), ramp(6, rate)) for x in names]
+    streamer = SetpointStreamer(targets, rate, groups=2, clock=clock, sleep=clock.sleep)
+    np.testing.assert_allclose(streamer.offsets_s, [0.0, period / 2, 0.0, period / 2])
+    t0 = clock.t + 0.01
+    stats = asyncio.run(streamer.run(t0))
+    for i, name in enumerate(names):
+        times = np.array([t for who, t, _ in log if who == name])
+        np.testing.assert_allclose(times, t0 + np.arange(6) * period + streamer.offsets_s[i])
+        assert [n for who, _, n in log if who == name] == list(range(6))
+        assert stats[name].sent == 6 and stats[name].skipped == 0
+    # Group 0 (a, c) and group 1 (b, d) alternate: never all four in one burst.
+    order = [who for who, _, _ in log]
+    assert set(order[0:2]) == {"a", "c"} and set(order[2:4]) == {"b", "d"}
+
+
+def test_send_groups_are_validated() -> None:
+    with pytest.raises(StreamError, match=r"send groups 3 outside 1\.\.2"):
+        SetpointStreamer(
+            [StreamTarget(x, lambda *_: None, ramp(3, 20.0)) for x in "ab"], 20.0, groups=3
+        )

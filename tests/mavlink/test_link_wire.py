@@ -95,6 +95,16 @@ def test_setpoints_in_the_vehicles_own_ned_frame_match_pymap3d() -> None:
     n2, e2, d2 = pymap3d.geodetic2ned(lat2, lon2, alt2, *_lla(VEHICLE_ORIGIN))
     fd = (np.column_stack([n2, e2, d2]) - np.column_stack([n, e, d])) / h
     np.testing.assert_allclose(sp.vel_ned_m_s[:-1], fd[:-1], atol=2e-3)
+    # With a send offset the samples are taken at the vehicle's own send times.
+    shifted = plan_setpoints_ned(traj, 10.0, MISSION_ORIGIN, VEHICLE_ORIGIN, t_offset_s=0.025)
+    np.testing.assert_allclose(shifted.t_s, t + 0.025)
+    q = traj.position(t + 0.025)
+    lat3, lon3, alt3 = pymap3d.enu2geodetic(q[:, 0], q[:, 1], q[:, 2], *_lla(MISSION_ORIGIN))
+    np.testing.assert_allclose(
+        shifted.pos_ned_m,
+        np.column_stack(pymap3d.geodetic2ned(lat3, lon3, alt3, *_lla(VEHICLE_ORIGIN))),
+        atol=1e-6,
+    )
     # ENU yaw 0.7 rad (from east, counter-clockwise) is NED heading pi/2 - 0.7 (from north,
     # clockwise); the tangent planes 70 m apart differ by ~1e-5 rad.
     np.testing.assert_allclose(sp.yaw_ned_rad, np.pi / 2 - 0.7, atol=1e-4)
