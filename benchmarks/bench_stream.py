@@ -297,8 +297,8 @@ async def main_async(args: argparse.Namespace) -> dict:
             _row(r)
             if r["ok"]:
                 largest[kind] = n
-                if kind == "native":
-                    largest["grouped"] = max(largest["grouped"], n)
+                if kind == "native" and auto_send_groups(n) == 1:
+                    largest["grouped"] = n  # the same configuration
                 failing[kind] = 0
             else:
                 failing[kind] += 1
