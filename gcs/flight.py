@@ -743,7 +743,13 @@ async def _fly_mission(
 
         handles.append((v, v.direct.subscribe_message("MISSION_ITEM_REACHED", on_reached)))
     try:
-        return await fly_missions(vehicles, timeout_s=plan.horizon_s + 60.0)
+        runs = await fly_missions(vehicles, timeout_s=plan.horizon_s + 60.0)
+        # A mission may end before the plan's horizon: keep recording the vehicles (holding
+        # at their last waypoint) until the horizon is covered, so the spec can be judged.
+        if clock.t0_monotonic_s:
+            end = max(clock.t0_monotonic_s.values()) + plan.horizon_s + 0.5
+            await asyncio.sleep(max(0.0, end - time.monotonic()))
+        return runs
     finally:
         for v, h in handles:
             v.direct.unsubscribe_message(h)
