@@ -483,8 +483,18 @@ class FlightProgress:
         if not rows or t_s > rows[-1][0]:
             rows.append((t_s, float(pos_enu_m[0]), float(pos_enu_m[1]), float(pos_enu_m[2])))
 
-    def line(self, fleet: Fleet, clock: FlightClock, origins: Mapping[str, GeodeticPoint]) -> str:
-        """One status line for the current instant (and record the positions it read)."""
+    def line(
+        self,
+        fleet: Fleet,
+        clock: FlightClock,
+        origins: Mapping[str, GeodeticPoint],
+        *,
+        with_robustness: bool = True,
+    ) -> str:
+        """One status line for the current instant (and record the positions it read).
+
+        ``with_robustness=False`` only records (the robustness is the costly part).
+        """
         from planner.frames import ned_to_enu
 
         now = time.monotonic()
@@ -504,7 +514,7 @@ class FlightProgress:
                     self.record(v.name, t, pos)
                     t_plan = t if t_plan is None else max(t_plan, t)
             parts.append(f"{v.name} {mode}{where}")
-        if t_plan is not None:
+        if t_plan is not None and with_robustness:
             rho = self.so_far(t_plan)
             parts = [
                 f"{p} rho {rho[v.name]:+.3f}"
@@ -543,8 +553,9 @@ class FlightProgress:
         show_every = 0.25 if self.tty else self.plain_interval_s
         next_show = time.monotonic()
         while not stop.is_set():
-            text = self.line(fleet, clock, origins)
-            if time.monotonic() >= next_show:
+            due = time.monotonic() >= next_show
+            text = self.line(fleet, clock, origins, with_robustness=due)
+            if due:
                 self.show(text)
                 next_show += show_every
             await asyncio.sleep(0.1)  # no child task: an interruption cancels those

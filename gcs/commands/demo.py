@@ -149,6 +149,13 @@ def run_demo(
         preflight_interlock(plan, force=force)
     except FlightRefused as exc:
         return DemoResult(plan, None, timings, files, refused=str(exc))
+    if progress is not None:
+        print(
+            f"planned in {timings['planning']:.1f} s: robustness {plan.robustness:+.4f}; "
+            f"flying it on {len(plan.vehicles)} mock PX4 vehicles (offboard, {rate_hz:g} Hz)",
+            file=progress,
+            flush=True,
+        )
 
     t = time.perf_counter()
     view = FlightProgress(plan, progress) if progress is not None else None
