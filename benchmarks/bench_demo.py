@@ -37,7 +37,7 @@ def main() -> int:
     optimize.clear_cache()
     out = args.out or tempfile.mkdtemp(prefix="bench-demo-")
     t = time.perf_counter()
-    demo = run_demo(out, vehicles=args.vehicles, force=True, scenario=args.scenario)
+    demo = run_demo(out, vehicles=args.vehicles, scenario=args.scenario)
     wall_s = time.perf_counter() - t
 
     stages = {"imports": import_s, **demo.timings_s}
@@ -53,7 +53,9 @@ def main() -> int:
     flown = ev.flown_robustness if ev is not None else None
     print(f"planned robustness {planned:+.4f}  flown robustness ", end="")
     print("n/a" if flown is None else f"{flown:+.4f}", end="")
-    print(f"  ({demo.plan.status.split(';')[0]}; {demo.refused or 'flown'})")
+    print(
+        f"  ({demo.plan.status.split(';')[0]}; {'verification FAILED: ' + demo.verification if demo.verification else 'verifies'})"
+    )
     if ev is not None:
         for te in ev.tracking:
             print(

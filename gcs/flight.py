@@ -98,10 +98,12 @@ class FlightRefused(Exception):
 
     Attributes:
         check: the name of the (first) failed check.
+        summary: what failed, without the advice of the message.
     """
 
-    def __init__(self, check: str, detail: str) -> None:
+    def __init__(self, check: str, detail: str, summary: str = "") -> None:
         self.check = check
+        self.summary = summary or detail
         super().__init__(detail)
 
 
@@ -166,11 +168,12 @@ def preflight_interlock(plan: Plan, *, force: bool = False) -> tuple[Check, ...]
     if failed and not force:
         c = failed[0]
         detail = f" ({c.detail})" if c.detail else ""
+        summary = (
+            f"the plan fails verification: {c.name}: {c.value:.4g} "
+            f"(bound {c.bound:.4g}){detail}; {len(failed)} of {len(checks)} checks fail"
+        )
         raise FlightRefused(
-            c.name,
-            f"refused: the plan fails verification: {c.name}: {c.value:.4g} "
-            f"(bound {c.bound:.4g}){detail}; {len(failed)} of {len(checks)} checks fail "
-            "(gcs verify lists them; --force flies anyway)",
+            c.name, f"refused: {summary} (gcs verify lists them; --force flies anyway)", summary
         )
     return checks
 
@@ -758,8 +761,8 @@ async def _fly_mission(
         # A mission may end before the plan's horizon: keep recording the vehicles (holding
         # at their last waypoint) until the horizon is covered, so the spec can be judged.
         if clock.t0_monotonic_s:
-            end = max(clock.t0_monotonic_s.values()) + plan.horizon_s + 0.5
-            await asyncio.sleep(max(0.0, end - time.monotonic()))
+            t_end = max(clock.t0_monotonic_s.values()) + plan.horizon_s + 0.5
+            await asyncio.sleep(max(0.0, t_end - time.monotonic()))
         return runs
     finally:
         for v, h in handles:
