@@ -185,3 +185,30 @@ def test_mission_mode_flies_the_uploaded_missions_over_the_whole_horizon(
     assert res["flown_robustness"] is not None and res["coverage_problem"] is None
     assert len(res["tracking"]) == 2 and all(t["samples"] > 100 for t in res["tracking"])
     assert rc == (0 if res["flown_robustness"] >= 0 else 1)
+
+
+def test_evaluation_finds_the_delay_of_a_late_track_and_judges_it_exactly() -> None:
+    from gcs.flight import evaluate_flight
+    from mavlink.tlog import FlownTrack
+
+    plan = load_plan(
+        Path(__file__).resolve().parents[1] / "mavlink" / "data" / "reach_avoid_2.plan.json"
+    )
+    delay_s, t = 0.3, np.arange(-0.5, plan.horizon_s + 0.5, 0.02)  # 50 Hz telemetry
+    tracks = {}
+    for v in plan.vehicles:
+        pos = v.trajectory.position(np.clip(t - delay_s, 0.0, plan.horizon_s))
+        tracks[v.name] = FlownTrack(v.name, t, pos, np.zeros_like(pos), pos.copy())
+    ev = evaluate_flight(plan, tracks)
+    for te in ev.tracking:
+        assert te.lag_s == pytest.approx(delay_s, abs=0.011)
+        assert te.rms_at_lag_m < 0.01 < te.rms_m
+    # Reference: the spec on the delayed positions sampled directly on the check grid.
+    dt = plan.check_dt_s
+    grid = np.arange(round(plan.horizon_s / dt) + 1) * dt
+    ref = {
+        v.name: v.trajectory.position(np.clip(grid - delay_s, 0.0, plan.horizon_s))
+        for v in plan.vehicles
+    }
+    assert ev.flown_robustness == pytest.approx(plan_formula(plan).robustness(ref, dt), abs=2e-4)
+    assert ev.planned_robustness == pytest.approx(plan.robustness, abs=1e-9)
