@@ -358,7 +358,7 @@ def _row(r: dict) -> None:
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--sizes", type=int, nargs="+", default=[8, 16, 32, 64, 96, 128, 192, 256])
+    p.add_argument("--sizes", type=int, nargs="+", default=[8, 16, 32, 64, 96, 128, 160, 192])
     p.add_argument("--seconds", type=float, default=4.0)
     p.add_argument("--mission-repeats", type=int, default=5)
     p.add_argument(

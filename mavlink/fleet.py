@@ -60,6 +60,8 @@ from planner.frames import GeodeticPoint
 log = logging.getLogger(__name__)
 
 MAV_CMD_NAV_TAKEOFF = 22
+#: MAVSDK's system id as a ground station (component 190).
+GCS_SYSID = 245
 
 #: MAV_RESULT names, for COMMAND_ACK results reported through mavlink_direct.
 MAV_RESULT_NAMES = {
@@ -603,6 +605,12 @@ class Fleet:
                 )
             if not 1 <= s.sysid <= 255:
                 raise LinkError(f"system id {s.sysid} outside 1..255", vehicle=s.name, url=s.url)
+            if s.sysid == GCS_SYSID:
+                raise LinkError(
+                    f"system id {GCS_SYSID} is the ground station's own (MAVSDK)",
+                    vehicle=s.name,
+                    url=s.url,
+                )
             parse_url(s.url, vehicle=s.name)
         self.specs = tuple(specs)
         self.connect_timeout_s = connect_timeout_s

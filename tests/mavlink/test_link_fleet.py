@@ -44,6 +44,8 @@ def test_bad_specs_are_refused_before_opening_anything() -> None:
         Fleet(
             [VehicleSpec("d1", "udpin://0.0.0.0:1", 1), VehicleSpec("d2", "udpin://0.0.0.0:2", 1)]
         )
+    with pytest.raises(LinkError, match="system id 245 is the ground station's own"):
+        Fleet([VehicleSpec("d1", "udpin://0.0.0.0:1", 245)])
     with pytest.raises(LinkError, match="duplicate vehicle names: d1"):
         Fleet(
             [VehicleSpec("d1", "udpin://0.0.0.0:1", 1), VehicleSpec("d1", "udpin://0.0.0.0:2", 2)]
