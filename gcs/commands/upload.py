@@ -198,7 +198,9 @@ async def upload_plan(
         )
         for pv in plan.vehicles
     }
-    fence_items = geofence_items(fence_boxes(plan.workspace, plan.regions), plan.origin) if fence else ()
+    fence_items = (
+        geofence_items(fence_boxes(plan.workspace, plan.regions), plan.origin) if fence else ()
+    )
     async with Fleet(specs, connect_timeout_s=connect_timeout_s, telemetry_rate_hz=None) as fleet:
         rows = list(
             await asyncio.gather(
