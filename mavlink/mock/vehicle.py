@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
@@ -28,8 +28,8 @@ import pymap3d
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.mock import px4
-from mavlink.mock.config import FaultConfig, MockVehicleConfig
-from mavlink.mock.errors import MockConfigError
+from mavlink.mock.config import FaultConfig, MockVehicleConfig, Outage
+from mavlink.mock.errors import MockConfigError, MockError
 from mavlink.mock.mission import MISSION, MissionItem, MissionServer
 from mavlink.mock.navigator import NavigatorMixin
 from mavlink.mock.physics import GRAVITY_M_S2
@@ -260,6 +260,35 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
     def set_faults(self, faults: FaultConfig) -> None:
         """Replace the link faults of this vehicle (takes effect for the next datagram)."""
         self.fleet.configure_links(self, faults)
+
+    def reboot(self, silent_s: float) -> None:
+        """Simulate an autopilot reboot on the ground: silent, then back fresh.
+
+        For ``silent_s`` seconds of simulation time nothing passes the link in
+        either direction (no heartbeat); the vehicle then comes back disarmed
+        in AUTO_LOITER with no offboard setpoint, a new parser and its MAVLink
+        sequence restarted at 0.  Stored plans survive (PX4 keeps them on the
+        SD card).  A reboot in the air is refused (:class:`MockError`): PX4
+        refuses MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN when not landed.
+        """
+        if not self.landed:
+            raise MockError(f"vehicle {self.index}: no reboot in the air")
+        if not (silent_s > 0.0 and math.isfinite(silent_s)):
+            raise MockConfigError(f"reboot silent_s must be a finite number > 0, got {silent_s!r}")
+        now = self._now()
+        faults = self.config.faults
+        outage = Outage(now, now + silent_s)
+        self.fleet.configure_links(self, replace(faults, outages=(*faults.outages, outage)))
+        self.armed = False
+        self.phys.armed[self.index] = False
+        self.failsafe = False
+        self._sp = None
+        self._sp_last_s = -math.inf
+        self.mode = Px4Mode.AUTO_LOITER
+        self.phys.hold_here(self.index)
+        self._mav.seq = 0
+        self._rx = mavlink2.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
+        self._rx.robust_parsing = True
 
     def statustext(self, severity: int, text: str) -> None:
         """Send a STATUSTEXT (text cut to the 50 bytes MAVLink allows)."""
