@@ -174,6 +174,7 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         )
         self.received: dict[str, int] = {}
         self.remote_addr: tuple[str, int] = (fleet.gcs_host, fleet.gcs_ports[index])
+        self._rx_addr = self.remote_addr
         self._transport_send: Callable[[bytes, tuple[str, int]], None] | None = None
         self.uplink = None  # FaultyChannel, set by the fleet
         self.downlink = None
@@ -236,18 +237,33 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
             self._transport_send(data, self.remote_addr)
 
     def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-        """A datagram arrived on the vehicle port: remember the sender (as PX4 does), parse."""
-        self.remote_addr = addr
+        """A datagram arrived on the vehicle port: parse it (through the uplink's faults).
+
+        The sender becomes the telemetry destination (as PX4 does) only once a
+        valid message from it addressed to this vehicle (``target_system`` 0 or
+        its own) or a HEARTBEAT is decoded: junk, unknown messages or frames for
+        other systems must not redirect the link.
+        """
+        self._rx_addr = addr
         self.uplink.push(data)
 
     def _deliver_up(self, data: bytes) -> None:
-        msgs = self._rx.parse_buffer(data)
+        rx = self._rx
+        msgs = rx.parse_buffer(data)
+        # A datagram holds whole frames: drop what a truncated frame left in the
+        # parser, or it would swallow the start of the next (valid) datagram.
+        if rx.buf_len():
+            rx.buf = bytearray()
+            rx.buf_index = 0
+            rx.expected_length = mavlink2.HEADER_LEN_V1 + 2
         if not msgs:
             return
         for msg in msgs:
             kind = msg.get_type()
             if kind == "BAD_DATA":
                 continue
+            if getattr(msg, "target_system", None) in (0, self.sysid) or kind == "HEARTBEAT":
+                self.remote_addr = self._rx_addr
             self.received[kind] = self.received.get(kind, 0) + 1
             handler = self._handlers.get(kind)
             if handler is not None:
