@@ -7,7 +7,8 @@ vehicle and answers upload, download and clear transfers:
   ``MISSION_ACK``.  A request is re-sent every 250 ms until the item arrives; the
   transfer is abandoned (``MAV_MISSION_OPERATION_CANCELLED``) after 5 s with
   nothing received, as PX4's ``mavlink_mission.cpp`` does.  An item with an
-  unexpected sequence number is dropped and the expected one re-requested.  A
+  unexpected sequence number is dropped and the expected one re-requested (a
+  copy of the item just received is dropped silently, as PX4 does).  A
   repeated ``MISSION_COUNT`` while item 0 is outstanding re-sends the request;
   a repeated last item after completion is answered with the ACK again.  A
   client sending legacy ``MISSION_ITEM`` is answered with legacy
@@ -331,7 +332,11 @@ class MissionServer:
         if msg.get_type() == "MISSION_ITEM":
             up.legacy = True
         if msg.seq != up.next_seq:
-            self._request(up)
+            # A copy of the item just stored (a duplicated datagram) is ignored, as
+            # PX4 does; answering it with another request would make the client see
+            # a repeated request and spend one of its retries (MAVSDK gives up after 5).
+            if msg.seq != up.next_seq - 1:
+                self._request(up)
             return
         item = MissionItem.from_message(msg)
         result = validate_item(item, up.mission_type)
