@@ -289,8 +289,10 @@ class Trajectory:
         speed2 = v[:, 0] ** 2 + v[:, 1] ** 2
         fast = speed2 >= self.yaw_policy.min_speed_m_s**2
         ev_t, ev_yaw = self._events()
-        idx = np.searchsorted(ev_t, tc, side="right") - 1
-        held = np.where(idx >= 0, ev_yaw[np.maximum(idx, 0)], self.yaw_policy.yaw_rad)
+        held = np.full(tc.shape, self.yaw_policy.yaw_rad)
+        if ev_t.size:  # before the first slow/fast crossing the policy's yaw holds
+            idx = np.searchsorted(ev_t, tc, side="right") - 1
+            held = np.where(idx >= 0, ev_yaw[np.maximum(idx, 0)], held)
         return _wrap(np.where(fast, np.arctan2(v[:, 1], v[:, 0]), held))
 
     def yaw(self, t_s: ArrayLike) -> NDArray[np.float64]:

@@ -168,3 +168,14 @@ def test_constructor_validates_shapes() -> None:
     assert traj.jerk([0.5]).tolist() == [[0.0, 0.0, 0.0]]
     with pytest.raises(TrajectoryError, match="finite"):
         traj.position([np.nan])
+
+
+def test_velocity_yaw_without_a_threshold_crossing() -> None:
+    # Always fast (1 m/s east) or always slow (hovering): no crossing event exists.
+    zero = np.zeros(6)
+    east = np.stack([np.array([0.0, 1.0, 0.0, 0.0, 0.0, 0.0]), zero, zero])
+    policy = YawPolicy(YawMode.VELOCITY, yaw_rad=1.0, min_speed_m_s=0.1)
+    moving = Trajectory([0.0], [2.0], east[None], yaw_policy=policy)
+    assert moving.yaw_rad([0.5, 1.5]).tolist() == pytest.approx([0.0, 0.0], abs=1e-12)
+    hover = Trajectory([0.0], [2.0], np.zeros((1, 3, 6)), yaw_policy=policy)
+    assert hover.yaw_rad([0.0, 1.0, 3.0]).tolist() == pytest.approx([1.0, 1.0, 1.0])
