@@ -423,22 +423,33 @@ class FenceBox:
 
 
 def fence_boxes(
-    workspace: Any, regions: Sequence[Any], exclude_kinds: Sequence[str] = ("obstacle", "no_fly")
+    workspace: Any,
+    regions: Sequence[Any],
+    exclude_kinds: Sequence[str] = ("obstacle", "no_fly", "pole"),
 ) -> tuple[FenceBox, ...]:
-    """Fence boxes of a scenario: the workspace to stay in, obstacles and no-fly zones to stay out of.
+    """Fence boxes of a scenario: the workspace to stay in, full-height stay-out boxes to avoid.
+
+    PX4's fence polygons are vertical prisms without floor or ceiling. A stay-out box becomes an
+    exclusion polygon only when it spans the workspace's whole height: there its prism and the
+    box agree inside the workspace. A lower box (an obstacle the plan may legally fly over) is
+    left out, because its prism would forbid paths the spec allows; the plan's own checks cover
+    it. The workspace's height cannot be expressed by polygons either (PX4 bounds altitude with
+    the GF_MAX_VER_DIST parameter instead).
 
     Args:
         workspace: a :class:`planner.scenario.Region` (``name``, ``lo_enu_m``, ``hi_enu_m``).
         regions: the scenario's other regions; those whose ``kind.value`` is in
-            ``exclude_kinds`` become exclusion polygons.
+            ``exclude_kinds`` and that span the workspace's height become exclusion polygons.
     """
+    ws_lo_z, ws_hi_z = float(workspace.lo_enu_m[2]), float(workspace.hi_enu_m[2])
     out = [
         FenceBox(
             workspace.name, tuple(workspace.lo_enu_m), tuple(workspace.hi_enu_m), inclusion=True
         )
     ]
     for r in regions:
-        if r.kind.value in exclude_kinds:
+        full_height = r.lo_enu_m[2] <= ws_lo_z and r.hi_enu_m[2] >= ws_hi_z
+        if r.kind.value in exclude_kinds and full_height:
             out.append(FenceBox(r.name, tuple(r.lo_enu_m), tuple(r.hi_enu_m), inclusion=False))
     return tuple(out)
 

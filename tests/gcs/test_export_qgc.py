@@ -131,7 +131,8 @@ def test_mavsdk_importer_gives_back_exactly_the_uploaded_items(
         # lat/lon; autocontinue means nothing for a fence vertex). Every other field matches.
         assert {(f.frame, f.autocontinue) for f in fence_back} == {(MAV_FRAME_GLOBAL, 0)}
         assert compare_items([_as_imported(f) for f in fence_sent], fence_back) == []
-        # Workspace (inclusion), obstacle and no-fly box (exclusions): 3 polygons of 4 vertices.
+        # Workspace (inclusion), the full-height no-fly box and pole (exclusions; the low obstacle
+        # can be flown over, so it is no fence): 3 polygons of 4 vertices.
         assert len(fence_back) == 12
         assert list(data.rally_items) == []
 

@@ -202,3 +202,23 @@ def test_geofence_polygons_are_the_box_footprints() -> None:
     for item, (x, y) in zip(items, corners, strict=True):
         lat, lon, _ = pymap3d.enu2geodetic(x, y, 0.0, ORIGIN.lat_deg, ORIGIN.lon_deg, ORIGIN.alt_m)
         assert (item.x, item.y) == (round(lat * 1e7), round(lon * 1e7))
+
+
+def test_fence_excludes_only_stay_out_boxes_that_span_the_workspace_height() -> None:
+    from planner.scenario import Region, RegionKind
+
+    ws = Region("workspace", RegionKind.WORKSPACE, (-5.0, -5.0, 0.5), (5.0, 5.0, 20.0))
+    regions = [
+        # A fence prism has no ceiling: excluding this low obstacle would forbid flying over it.
+        Region("low", RegionKind.OBSTACLE, (-1.0, -1.0, 0.0), (1.0, 1.0, 12.0)),
+        Region("tower", RegionKind.POLE, (2.0, 2.0, 0.0), (2.5, 2.5, 25.0)),
+        Region("nofly", RegionKind.NO_FLY, (-4.0, 3.0, 0.0), (-3.0, 4.0, 20.0)),
+        Region("line", RegionKind.CONDUCTOR, (-5.0, -0.2, 0.0), (5.0, 0.2, 30.0)),
+        Region("goal", RegionKind.GOAL, (3.0, -4.0, 0.0), (4.0, -3.0, 30.0)),
+    ]
+    boxes = fence_boxes(ws, regions)
+    assert [(b.name, b.inclusion) for b in boxes] == [
+        ("workspace", True),
+        ("tower", False),
+        ("nofly", False),
+    ]
