@@ -1,0 +1,25 @@
+"""Pure computation for stl-gcs: scenarios, STL, dynamics, the planner, plan files.
+
+No vehicle I/O happens here.  Modules (import them directly; this package imports nothing so
+that ``planner.trajectory`` users do not pay for CasADi):
+
+* :mod:`planner.scenario`: ``load_scenario(path, vehicles=N) -> Problem`` (YAML, for-each
+  expansion of the spec over vehicles, groups and pairs).
+* :mod:`planner.predicates`: the spec's functions ``inside``, ``outside``, ``dist``, ``alt``,
+  ``x``, ``y``, ``z`` (numpy exact, CasADi smooth), ``build_registry(problem)``.
+* :mod:`planner.optimize`: ``plan(problem) -> PlanResult`` (CasADi/IPOPT).
+* :mod:`planner.planfile`: ``save_plan``, ``load_plan`` (DESIGN.md section 6).
+* :mod:`planner.stl`, :mod:`planner.dynamics`, :mod:`planner.trajectory`,
+  :mod:`planner.frames`: the STL engine, motion models, trajectories and frames.
+
+Error tree (each a ``ValueError``, each message names the file/field/position)::
+
+    planner.scenario.ScenarioError      a mistake in a scenario file (file, key path, problem)
+    planner.planfile.PlanFileError      a missing or malformed plan file (file, key, problem)
+    planner.stl.STLError                STL engine errors (SpecError: syntax, line/column, ...)
+    planner.dynamics.DynamicsError      bad model parameters
+    planner.trajectory.TrajectoryError  bad segment data
+    planner.frames.FrameError           bad geodetic/frame input
+
+A failed optimisation is not an error: ``plan`` returns ``PlanResult(success=False, ...)``.
+"""

@@ -27,15 +27,29 @@ A leaf is then
 
 So the separation pairs become sparse constraints (each touches two vehicles), the
 Hessian stays sparse, no term drowns another, and smoothing error remains only where
-there is a genuine max (a disjunction).  ``k`` is fitted to the problem: the engine's
-error bound of the smooth leaves (``smooth_error_bound``) is made 2 % of the smallest
-region half-size (at least ``K_MIN``); a continuation in ``k`` is available
-(:attr:`SolverOptions.continuation`) but measured not to pay off here (see
-``benchmarks/bench_planner.py``).
+there is a genuine max (a disjunction).  The sampled positions are lifted into variables
+(``P_i = Mp Z_i + Np X0_i`` as linear equalities) so the row-wise leaves are local; the
+smooth leaves, which couple whole windows, are written in ``Z`` where their dense Hessian
+block is ``3 n_dec`` wide.  Row-wise leaves are sampled every
+:attr:`SolverOptions.constraint_dt_s` (default ``max(Ts, 0.1 s)``); the exact check is
+dense anyway.  A small acceleration penalty (``_REG_WEIGHT``) gives curvature in the
+directions ``r`` ignores (reach-avoid N = 1: 207 -> 75 iterations).
 
-IPOPT options (measured on reach-avoid N = 2..8 and power-line N = 2..4, see the
-benchmark): exact Hessian (CasADi's sparse SX Hessian is cheap here; L-BFGS needed 3-10x
-more iterations and ended at lower robustness), MUMPS, ``mu_strategy adaptive``.
+Smoothing: ``k`` is fitted so that the engine's error bound of the smooth leaves
+(``smooth_error_bound``) is 6 % of the smallest region half-size (reach-avoid k = 320;
+2 % gave k = 960 and IPOPT stalled).  A continuation in ``k`` is available
+(:attr:`SolverOptions.continuation`, one nlpsol per k because the engine takes k as a
+float) but was not measured to help within the time available.
+
+Solver (measured on this 2-core machine, shared): IPOPT with MUMPS, ``mu_strategy
+adaptive``.  Exact Hessian on reach-avoid (N = 4: 154 iterations / 8 s vs 523 / 43 s with
+L-BFGS); limited-memory on the power line, where the exact Hessian of the nested
+``eventually always``/``until`` leaves costs 20-45 s to build and IPOPT stalled with it
+(N = 2: exact 300+ iterations, robustness < 0; L-BFGS 285 iterations, robustness 0.5).
+The scenario chooses (``solver.hessian``).  CasADi's ``sqpmethod`` with ``qrqp`` did not
+finish reach-avoid N = 1 within 300 s, so IPOPT is the default; ``solver.method:
+sqpmethod`` remains selectable.  The constraint Jacobian and Lagrangian Hessian are
+assembled block by block (:func:`_derivatives`), which made the build 2-4x faster.
 
 After the solve the trajectories are re-sampled every ``check_dt_s`` and evaluated with
 the *exact* semantics of the same formula tree (numpy predicates); the result reports
@@ -455,12 +469,11 @@ def _build(problem: Problem, model: Any, formula: Formula) -> _Structure:
     ]
     direct = ca.vertcat(*direct_parts) if direct_parts else ca.SX(0, 1)
 
-    def smooth_values(k: float) -> Any:
-        parts = [
+    def smooth_parts(k: float) -> list[Any]:
+        return [
             _leaf_values(leaf, sorted(leaves[leaf]), rows_of, pos_from_z, dt, k, problem, fns)
             for leaf in smooth_leaves
         ]
-        return ca.vertcat(*parts) if parts else ca.SX(0, 1)
 
     # Linear parts: lifting equalities, limits, rest at the end.
     lift_g = [ca.vec(P[i] - pos_from_z[nm][used, :]) for i, nm in enumerate(names)]
@@ -501,9 +514,12 @@ def _build(problem: Problem, model: Any, formula: Formula) -> _Structure:
     n_g = 0
     lbg_fixed = ubg_fixed = np.zeros(0)
     for k in k_list:
-        leaf_all = ca.vertcat(direct, smooth_values(k))
+        smooth = smooth_parts(k)
+        leaf_all = ca.vertcat(direct, *smooth)
         n_leaf = leaf_all.shape[0]
-        g = ca.vertcat(*lift_g, *lim_g, *end_g, leaf_all - r)
+        linear = [*lift_g, *lim_g, *end_g]
+        nonlinear = [part - r for part in [*direct_parts, *smooth]]
+        g = ca.vertcat(*linear, *nonlinear)
         n_g = g.shape[0]
         lbg_fixed = np.concatenate(
             [np.zeros(n_lift), np.full(n_lim, -np.inf), np.zeros(3 * nv), np.zeros(n_leaf)]
@@ -511,8 +527,10 @@ def _build(problem: Problem, model: Any, formula: Formula) -> _Structure:
         ubg_fixed = np.concatenate(
             [np.zeros(n_lift), np.zeros(n_lim), np.zeros(3 * nv), np.full(n_leaf, np.inf)]
         )
-        nlp = {"x": w, "p": p, "f": -r + reg_term, "g": g}
-        solvers.append((k, _nlpsol(nlp, problem)))
+        f = -r + reg_term
+        nlp = {"x": w, "p": p, "f": f, "g": g}
+        derivs = _derivatives(w, p, f, linear, nonlinear, opts.hessian == "exact")
+        solvers.append((k, _nlpsol(nlp, problem, derivs)))
         leaf_fn = ca.Function("leaves", [w, p], [leaf_all])
     return _Structure(
         solvers=solvers,
@@ -534,7 +552,40 @@ def _build(problem: Problem, model: Any, formula: Formula) -> _Structure:
     )
 
 
-def _nlpsol(nlp: dict[str, Any], problem: Problem) -> Any:
+def _derivatives(
+    w: Any, p: Any, f: Any, linear: list[Any], nonlinear: list[Any], hessian: bool
+) -> dict[str, Any]:
+    """Constraint Jacobian and Lagrangian Hessian assembled block by block.
+
+    CasADi differentiates a whole SX graph with one colouring and one mode; here the
+    blocks differ (dense rows of the smooth leaves in Z, the dense column of r in every
+    leaf, sparse local rows), and one colouring for all of them costs several times the
+    sum of the per-block derivatives (measured 4.7 s vs 1.1 s on power-line N = 2).
+    """
+    blocks = [*linear, *nonlinear]
+    g = ca.vertcat(*blocks)
+    jac = ca.vertcat(*[ca.jacobian(b, w) for b in blocks])
+    out = {"jac_g": ca.Function("nlp_jac_g", [w, p], [g, jac], ["x", "p"], ["g", "jac_g_x"])}
+    if hessian:
+        lam_f = ca.SX.sym("lam_f")
+        lam_g = ca.SX.sym("lam_g", g.shape[0])
+        H = lam_f * ca.hessian(f, w)[0]
+        row = sum(b.shape[0] for b in linear)
+        for b in nonlinear:
+            m = b.shape[0]
+            H = H + ca.hessian(ca.dot(lam_g[row : row + m], b), w)[0]
+            row += m
+        out["hess_lag"] = ca.Function(
+            "nlp_hess_l",
+            [w, p, lam_f, lam_g],
+            [ca.triu(H)],
+            ["x", "p", "lam_f", "lam_g"],
+            ["triu_hess_gamma_x_x"],
+        )
+    return out
+
+
+def _nlpsol(nlp: dict[str, Any], problem: Problem, derivs: dict[str, Any]) -> Any:
     s = problem.solver
     if s.method is SolverMethod.SQP:
         return ca.nlpsol(
@@ -566,6 +617,7 @@ def _nlpsol(nlp: dict[str, Any], problem: Problem) -> Any:
         {
             "print_time": False,
             "error_on_fail": False,
+            **derivs,
             "ipopt": {
                 "print_level": s.print_level,
                 "sb": "yes",
