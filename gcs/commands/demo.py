@@ -6,8 +6,8 @@ Steps (each timed; ``benchmarks/bench_demo.py`` prints the split):
    the repository of an editable install, else ``./configs``), load it for ``--vehicles``
    drones;
 2. **planning**: :func:`planner.optimize.plan` (CasADi/IPOPT), written to ``<out>/plan.json``
-   and put through ``gcs verify``'s checks (the result is reported; a plan that fails them is
-   still flown, since the vehicles are mock ones, so that the report shows what it would do);
+   and put through ``gcs verify``'s checks: a plan that fails them is drawn and reported but
+   not flown, as ``gcs fly`` would refuse it (``--force`` flies it on the mock vehicles anyway);
 3. **vehicles**: one mock PX4 vehicle per drone in this process, on the ground below its
    planned start, on free loopback ports; connected over MAVLink/UDP through MAVSDK;
 4. **flight**: take-off to the starts and the plan flown in offboard mode
@@ -49,6 +49,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vehicles", type=int, default=4, metavar="N", help="number of drones (4)")
     p.add_argument("--rate", type=float, default=20.0, metavar="HZ", help="setpoint rate (20)")
     p.add_argument(
+        "--force",
+        action="store_true",
+        help="fly the plan on the mock vehicles even if it fails verification",
+    )
+    p.add_argument(
         "--scenario",
         metavar="YAML",
         help=f"another scenario to plan and fly the same way (default configs/{SCENARIO})",
@@ -80,7 +85,7 @@ class DemoResult:
 
     Attributes:
         plan: the plan flown (as written to ``plan.json``).
-        outcome: the flight.
+        outcome: the flight (``None``: not flown, the plan failed verification).
         timings_s: wall time by stage: set-up, planning, vehicles (mock start and
             connection), flight, report.
         files: written files by description.
@@ -101,6 +106,7 @@ def run_demo(
     rate_hz: float = 20.0,
     progress: TextIO | None = None,
     scenario: str | Path | None = None,
+    force: bool = False,
 ) -> DemoResult:
     """Plan, fly on mock vehicles, evaluate and report (module docstring).
 
@@ -110,6 +116,7 @@ def run_demo(
         rate_hz: offboard setpoint rate.
         progress: where the flight's status line goes (``None``: silent).
         scenario: the scenario file (default ``configs/powerline_inspection.yaml``).
+        force: fly a plan that fails verification (mock vehicles only, for inspection).
     """
     from gcs.errors import InputFileError
     from gcs.flight import (
@@ -148,8 +155,17 @@ def run_demo(
         preflight_interlock(plan)
     except FlightRefused as exc:
         verification = exc.summary
+        if not force:
+            if progress is not None:
+                print(f"REFUSED: {verification}; not flown (--force flies it)", file=progress)
+            t = time.perf_counter()
+            files["picture"] = plot_plan(
+                plan, out / "demo.png", None, name=f"{scenario.stem} (demo, not flown)"
+            ).path
+            timings["report"] = time.perf_counter() - t
+            return DemoResult(plan, None, timings, files, verification)
         if progress is not None:
-            print(f"WARNING: {verification}; flying it anyway (mock vehicles)", file=progress)
+            print(f"WARNING: {verification}; flying it anyway (--force)", file=progress)
     if progress is not None:
         print(
             f"planned in {timings['planning']:.1f} s: robustness {plan.robustness:+.4f}; "
@@ -196,6 +212,8 @@ def summary(demo: DemoResult) -> str:
     lines = [f"planned robustness {plan.robustness:+.4f} ({plan.status.split(';')[0]})"]
     if demo.verification:
         lines.append(f"verification FAILED: {demo.verification}")
+    if out is None:
+        lines.append("not flown: the plan fails its checks (--force flies it on the mock vehicles)")
     if out is not None:
         ev = out.evaluation
         flown = (
@@ -233,6 +251,7 @@ def run(args: argparse.Namespace) -> int:
         rate_hz=args.rate,
         progress=sys.stdout,
         scenario=args.scenario,
+        force=args.force,
     )
     print(summary(demo))
     out = demo.outcome

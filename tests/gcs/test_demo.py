@@ -55,3 +55,38 @@ def test_demo_pipeline_flies_the_plan_and_reports_the_flown_robustness(
 
 def test_the_demo_scenario_is_found_next_to_the_packages() -> None:
     assert find_config(SCENARIO) == REPO / "configs" / SCENARIO
+
+
+UNSATISFIABLE = """\
+name: goal_in_obstacle
+origin: {lat: 47.3977, lon: 8.5456, alt: 488.0}
+workspace: {min: [-2, -2, 0], max: [2, 2, 2]}
+regions:
+  obstacle: {kind: obstacle, min: [-1, -1, 0], max: [1, 1, 1.5]}
+  goal: {kind: goal, center: [0, 0, 0.75], half_size: 0.25}
+limits: {v_max_m_s: 0.751, a_max_m_s2: 1.0}
+vehicles: {count: 1, name: "d{i}", starts: {grid: {min: [-1.5, -1.5, 0.75], max: [-1.5, -1.5, 0.75], shape: [1, 1, 1]}}}
+timing: {horizon_s: 4, segment_s: 1, Ts_s: 0.1}
+separation_m: 0.2
+epsilon: 0.01
+spec:
+  - each: d in all
+    formula: eventually[0, $horizon] inside(d, goal) and always[0, $horizon] outside(d, obstacle)
+"""
+
+
+def test_demo_does_not_fly_a_plan_that_fails_its_checks(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    scenario = tmp_path / "goal_in_obstacle.yaml"
+    scenario.write_text(UNSATISFIABLE, encoding="utf-8")
+    out = tmp_path / "demo"
+    rc = main(["demo", "--out", str(out), "--vehicles", "1", "--scenario", str(scenario)])
+    text = capsys.readouterr().out
+    assert rc == 1, text
+    assert "REFUSED" in text and "not flown" in text
+    # The plan and its picture are written for inspection; nothing was flown or recorded.
+    names = {p.name for p in out.iterdir()}
+    assert {"plan.json", "demo.png"} <= names
+    assert not names & {"flight.tlog", "flight.csv", "report.md"}
+    assert load_plan(out / "plan.json").robustness < 0
