@@ -30,6 +30,7 @@ from mavlink.mock import (
     Outage,
     WindConfig,
 )
+from mavlink.signing import load_key
 from planner.frames import FrameError, GeodeticPoint
 
 HELP = "run mock PX4 vehicles (MAVLink over UDP, PX4 SITL ports) until Ctrl-C"
@@ -164,6 +165,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="stop after S seconds (default: run until Ctrl-C)",
     )
     p.add_argument("--json", action="store_true", help="print the vehicle table and the final summary as JSON lines")  # fmt: skip
+    p.add_argument(
+        "--signing-key",
+        default=None,
+        metavar="FILE",
+        help="MAVLink 2 signing key (64 hex characters or 32 raw bytes): vehicles sign what "
+        "they send and refuse unsigned, wrongly signed or replayed frames",
+    )
 
 
 def _floats(text: str, n: int, flag: str) -> tuple[float, ...]:
@@ -254,6 +262,7 @@ def build_fleet(args: argparse.Namespace) -> MockFleet:
                 params[name.strip()] = float(value)
             except ValueError:
                 raise UserError(f"--param {item!r}: VALUE must be a number") from None
+        key = None if args.signing_key is None else load_key(args.signing_key)
         return MockFleet(
             n=n,
             origin=origin,
@@ -267,6 +276,7 @@ def build_fleet(args: argparse.Namespace) -> MockFleet:
             params=params,
             wind=wind,
             noise=noise,
+            signing_key=key,
         )
     except MockError as exc:
         raise UserError(str(exc)) from None

@@ -73,6 +73,9 @@ class MockFleet:
     wind, noise : environment; noise only affects reported telemetry.
     physics_rate_hz : simulation step rate (100 Hz like PX4's position controller).
     ready_after_s : simulated GPS/EKF convergence time before arming is allowed.
+    signing_key : 32-byte MAVLink 2 signing secret: vehicles sign what they send
+        and drop unsigned (except RADIO_STATUS), wrongly signed and replayed
+        frames (counted in ``MockVehicle.signing_rejected``).
     """
 
     def __init__(
@@ -92,12 +95,20 @@ class MockFleet:
         noise: NoiseConfig | None = None,
         physics_rate_hz: float = 100.0,
         ready_after_s: float = 0.5,
+        signing_key: bytes | None = None,
     ) -> None:
         if not isinstance(n, int) or n < 1 or n > 254:
             raise MockConfigError(f"n must be an integer in 1..254, got {n!r}")
         if not (physics_rate_hz > 0):
             raise MockConfigError(f"physics_rate_hz must be > 0, got {physics_rate_hz!r}")
         self.n = n
+        if signing_key is not None and (
+            not isinstance(signing_key, bytes | bytearray) or len(signing_key) != 32
+        ):
+            raise MockConfigError("signing_key must be 32 bytes (the MAVLink 2 key length)")
+        #: MAVLink 2 signing: with a key every vehicle signs what it sends and accepts
+        #: only frames signed with it (see :meth:`MockVehicle._new_parser`).
+        self.signing_key: bytes | None = None if signing_key is None else bytes(signing_key)
         if origin is None:
             origin = DEFAULT_ORIGIN
         elif not isinstance(origin, GeodeticPoint):

@@ -35,6 +35,7 @@ from mavlink.mock.navigator import NavigatorMixin
 from mavlink.mock.physics import GRAVITY_M_S2
 from mavlink.mock.px4 import Px4Mode
 from mavlink.mock.telemetry import DEFAULT_RATES_HZ, TelemetryMixin
+from mavlink.signing import signing_timestamp
 
 if TYPE_CHECKING:
     from mavlink.mock.fleet import MockFleet
@@ -127,8 +128,13 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         self.origin_lla = origin_lla
         self.phys = fleet.physics
         self._mav = mavlink2.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
-        self._rx = mavlink2.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
-        self._rx.robust_parsing = True
+        self.signing_rejected = 0
+        self._rx = self._new_parser()
+        if fleet.signing_key is not None:
+            self._mav.signing.secret_key = fleet.signing_key
+            self._mav.signing.sign_outgoing = True
+            self._mav.signing.link_id = 0
+            self._mav.signing.timestamp = signing_timestamp()
         self.params: dict[str, float] = {p.name: float(p.default) for p in px4.PARAM_SPECS}
         self._param_specs = {p.name: p for p in px4.PARAM_SPECS}
         self._param_names = [p.name for p in px4.PARAM_SPECS]
@@ -216,6 +222,24 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         self.phys.hold_here(index)
 
     # ================================================================ plumbing
+    def _new_parser(self) -> mavlink2.MAVLink:
+        """The uplink parser; with the fleet's signing key it accepts only signed frames.
+
+        As PX4 with ``MAV_SIGN_CFG`` set, only RADIO_STATUS may come unsigned;
+        wrong signatures and replays (a timestamp not newer than the last one
+        of the same link/system/component, or a minute older than the newest
+        seen) are dropped and counted in :attr:`signing_rejected`.
+        """
+        rx = mavlink2.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
+        rx.robust_parsing = True
+        key = self.fleet.signing_key
+        if key is not None:
+            rx.signing.secret_key = key
+            rx.signing.sign_outgoing = False
+            rx.signing.timestamp = signing_timestamp()
+            rx.signing.allow_unsigned_callback = _radio_status_only
+        return rx
+
     def _now(self) -> float:
         return self.fleet.time_s
 
@@ -261,6 +285,8 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         for msg in msgs:
             kind = msg.get_type()
             if kind == "BAD_DATA":
+                if "signature" in str(getattr(msg, "reason", "")):
+                    self.signing_rejected += 1
                 continue
             if getattr(msg, "target_system", None) in (0, self.sysid) or kind == "HEARTBEAT":
                 self.remote_addr = self._rx_addr
@@ -303,8 +329,7 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         self.mode = Px4Mode.AUTO_LOITER
         self.phys.hold_here(self.index)
         self._mav.seq = 0
-        self._rx = mavlink2.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
-        self._rx.robust_parsing = True
+        self._rx = self._new_parser()
 
     def statustext(self, severity: int, text: str) -> None:
         """Send a STATUSTEXT (text cut to the 50 bytes MAVLink allows)."""
@@ -1000,6 +1025,10 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
                 msg = stream.build()
                 if msg is not None:
                     self.send(msg)
+
+
+def _radio_status_only(_mav: mavlink2.MAVLink, msg_id: int) -> bool:
+    return msg_id == mavlink2.MAVLINK_MSG_ID_RADIO_STATUS
 
 
 def _param_name(raw: str | bytes) -> str:
