@@ -5,18 +5,22 @@ Each vehicle's trajectory becomes global ``*_INT`` mission items
 land / return / hold), the same items ``gcs export --format qgc`` writes. They are uploaded
 with the MAVLink mission protocol (MAVSDK ``mission_raw``), downloaded again and compared
 field by field at the wire's precision. With ``--fence`` the geofence goes too (the
-workspace's footprint as inclusion polygon, obstacles' and no-fly regions' footprints as
-exclusions: :func:`mavlink.mission.fence_boxes`, as ``gcs export`` writes it), also read back. ``--start`` then arms every vehicle and
-starts its mission (after checking each is within ``--tolerance`` of its planned start,
-horizontally).
+workspace's footprint as inclusion polygon, full-height stay-out regions as exclusions:
+:func:`mavlink.mission.fence_boxes`, as ``gcs export`` writes it), also read back. ``--start``
+then arms every vehicle and starts its mission (after checking each is within ``--tolerance``
+of its planned start, horizontally).
+
+Interlocks (before anything is sent): a plan that fails ``gcs verify``'s checks is refused, and
+with ``--start`` so is a mission whose straight-leg path has exact robustness below the plan's
+epsilon (the mission flies those legs, not the smooth plan); ``--force`` overrides both.
 
 The table gives per vehicle the items sent, the times of upload and read-back, the verdict,
 and how far the mission's straight legs stray from the planned trajectory; below it, the
 spec's exact robustness if every vehicle flew its mission's path exactly (the price of the
 mission conversion against the plan's own robustness).
 
-Exit status: 0 every upload read back identical, 1 a read-back differs or a transfer
-failed, 2 bad input (plan file, URL, unreachable vehicle).
+Exit status: 0 every upload read back identical, 1 refused by an interlock, a read-back
+differs or a transfer failed, 2 bad input (plan file, URL, unreachable vehicle).
 """
 
 from __future__ import annotations
@@ -66,6 +70,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--timeout", type=float, default=10.0, metavar="S", help="connection timeout (10 s)"
+    )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="upload (and start) a plan or mission path that fails its checks",
     )
     p.add_argument("--json", action="store_true", help="print the results as JSON")
 
@@ -248,7 +257,7 @@ def table(rows: list[UploadRow]) -> str:
 def run(args: argparse.Namespace) -> int:
     """Upload; 0 when every read-back is identical."""
     from gcs.errors import UserError
-    from gcs.flight import vehicle_specs
+    from gcs.flight import FlightRefused, preflight_interlock, vehicle_specs
     from mavlink.errors import PreflightError
     from planner.planfile import load_plan
 
@@ -259,6 +268,19 @@ def run(args: argparse.Namespace) -> int:
     plan = load_plan(args.plan)
     specs = vehicle_specs(plan, args.connection)
     rho_mission = mission_robustness(plan, args.acceptance, args.end)
+    try:
+        preflight_interlock(plan, force=args.force)
+    except FlightRefused as exc:
+        print(f"gcs upload: {exc}", file=sys.stderr)
+        return 1
+    if args.start and not args.force and not rho_mission >= plan.epsilon:
+        print(
+            f"gcs upload: refused to start: the mission's straight legs have robustness "
+            f"{rho_mission:+.4f} < epsilon {plan.epsilon:g} (the plan's own: "
+            f"{plan.robustness:+.4f}); fly the plan in offboard mode (gcs fly), or --force",
+            file=sys.stderr,
+        )
+        return 1
     try:
         rows = asyncio.run(
             upload_plan(

@@ -129,3 +129,41 @@ def test_status_of_a_connection_that_never_answers_names_it(
     assert url in err and "no heartbeat from system id 1 within 0.5 s" in err
     assert main(["status", "--connection", "udp://nowhere"]) == 2
     assert "bad connection URL 'udp://nowhere'" in capsys.readouterr().err
+
+
+def _edited_plan(tmp_path: Path, **changes: object) -> Path:
+    data = json.loads(PLAN.read_text(encoding="utf-8"))
+    data.update(changes)
+    out = tmp_path / "edited.plan.json"
+    out.write_text(json.dumps(data), encoding="utf-8")
+    return out
+
+
+def test_upload_refuses_a_plan_that_fails_verification_and_sends_nothing(
+    mock: tuple[MockFleet, list[str]], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    fleet, urls = mock
+    data = json.loads(PLAN.read_text(encoding="utf-8"))
+    data["vehicles"][0]["limits"]["v_max_m_s"] = [0.2, 0.2, 0.2]  # the plan flies faster
+    bad = tmp_path / "fast.plan.json"
+    bad.write_text(json.dumps(data), encoding="utf-8")
+    assert main(["upload", str(bad), "--start", *_connections(urls)]) == 1
+    err = capsys.readouterr().err
+    assert "refused: the plan fails verification: d1 velocity / v_max" in err
+    assert all(not v.mission_items(0) and not v.state.armed for v in fleet.vehicles)
+
+
+def test_upload_start_refuses_a_mission_path_below_epsilon_unless_forced(
+    mock: tuple[MockFleet, list[str]], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # The plan meets epsilon 0.51 (+0.538) but its straight-leg mission path does not (+0.484).
+    fleet, urls = mock
+    edited = _edited_plan(tmp_path, epsilon=0.51)
+    assert main(["upload", str(edited), "--start", *_connections(urls)]) == 1
+    err = capsys.readouterr().err
+    assert "refused to start: the mission's straight legs have robustness +0.4844" in err
+    assert all(not v.mission_items(0) and not v.state.armed for v in fleet.vehicles)
+    # Without --start the upload is only stored (nothing moves); --force starts it anyway.
+    assert main(["upload", str(edited), *_connections(urls)]) == 0
+    assert main(["upload", str(edited), "--start", "--force", *_connections(urls)]) == 0
+    assert all(v.state.armed for v in fleet.vehicles)
