@@ -18,6 +18,11 @@ the GCS signs through a local proxy between MAVSDK and the vehicle::
   component, or older than a minute before the newest seen) are dropped and
   counted; valid frames pass unchanged (MAVSDK ignores the signature).
 
+From a shell (one proxy per vehicle, PX4 SITL ports; Ctrl-C stops)::
+
+    python -m mavlink.signing --key fleet.key -n 2      # vehicle i: 14540+i <-> 14640+i
+    gcs fly plan.json --connection udpin://127.0.0.1:14640 --connection udpin://127.0.0.1:14641
+
 Use :func:`load_key` for a key file: 64 hexadecimal characters (32 bytes; the
 MAVLink key length) or exactly 32 raw bytes.  Point the vehicle's GCS port at
 the proxy's ``listen_port`` and the :class:`~mavlink.fleet.Fleet` at
@@ -274,3 +279,91 @@ class SigningProxy:
             self.stats.up_signed += len(out)
             for frame in out:
                 self._outer.sendto(frame, self.vehicle_addr)
+
+
+async def run_proxies(
+    key: bytes,
+    n: int,
+    *,
+    listen_base: int = 14540,
+    inner_base: int = 14640,
+    vehicle_host: str = "127.0.0.1",
+    vehicle_base: int = 14580,
+    stop: asyncio.Event | None = None,
+) -> list[ProxyStats]:
+    """Run one :class:`SigningProxy` per vehicle ``i`` (PX4 SITL ports) until ``stop`` is set.
+
+    Vehicle ``i`` sends to ``listen_base + i`` and listens on ``vehicle_base + i``
+    at ``vehicle_host``; MAVSDK reaches it at ``udpin://127.0.0.1:{inner_base + i}``.
+    """
+    proxies = [
+        SigningProxy(
+            key, listen_base + i, inner_base + i, vehicle_addr=(vehicle_host, vehicle_base + i)
+        )
+        for i in range(n)
+    ]
+    started: list[SigningProxy] = []
+    try:
+        for p in proxies:
+            await p.start()
+            started.append(p)
+        print(
+            "signing proxy: "
+            + ", ".join(
+                f"vehicle {i} -> udpin://127.0.0.1:{p.inner_port}" for i, p in enumerate(proxies)
+            ),
+            flush=True,
+        )
+        await (stop or asyncio.Event()).wait()
+    finally:
+        for p in started:
+            p.close()
+    return [p.stats for p in proxies]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m mavlink.signing --key FILE [-n N]``: signing proxies for a signed fleet.
+
+    Then fly with ``gcs fly PLAN --connection udpin://127.0.0.1:<inner_base + i> ...``.
+    Exit 0 on Ctrl-C/SIGTERM, 2 on a bad key or a busy port (one line).
+    """
+    import argparse
+    import signal
+    import sys
+
+    ap = argparse.ArgumentParser(prog="python -m mavlink.signing", description=main.__doc__)
+    ap.add_argument("--key", required=True, metavar="FILE", help="signing key file")
+    ap.add_argument("-n", "--vehicles", type=int, default=1)
+    ap.add_argument("--listen-base", type=int, default=14540, help="vehicles send here (+i)")
+    ap.add_argument("--inner-base", type=int, default=14640, help="MAVSDK listens here (+i)")
+    ap.add_argument("--vehicle-host", default="127.0.0.1")
+    ap.add_argument("--vehicle-base", type=int, default=14580, help="vehicles listen here (+i)")
+    args = ap.parse_args(argv)
+
+    async def serve() -> list[ProxyStats]:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, stop.set)
+        return await run_proxies(
+            load_key(args.key),
+            args.vehicles,
+            listen_base=args.listen_base,
+            inner_base=args.inner_base,
+            vehicle_host=args.vehicle_host,
+            vehicle_base=args.vehicle_base,
+            stop=stop,
+        )
+
+    try:
+        stats = asyncio.run(serve())
+    except LinkError as exc:
+        print(f"signing proxy: error: {exc}", file=sys.stderr)
+        return 2
+    for i, st in enumerate(stats):
+        print(f"vehicle {i}: {st}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -274,3 +274,65 @@ async def flight_run(
         gcs_modes,
         elapsed,
     )
+
+
+# --------------------------------------------------------------------------
+# A vehicle that reboots
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class RebootRunResult:
+    """Outcome of a reboot of d1 (of two) on the ground, with the GCS connected.
+
+    ``status_during``: connected flags by name while d1 is silent.
+    ``hold_failures``: the vehicles whose Hold failed while d1 was silent.
+    ``hold_s``: wall time of that Hold on the whole fleet (bounded by MAVSDK's
+    command timeout).  ``back``: d1 reported connected again, disarmed, and
+    answered a command.  ``mission_kept``: its stored mission survived.
+    """
+
+    status_during: dict[str, bool]
+    hold_failures: tuple[str, ...]
+    hold_s: float
+    back: bool
+    mission_kept: bool
+    elapsed_s: float
+
+
+async def reboot_run(seed: int, silent_s: float = 4.0) -> RebootRunResult:
+    """Upload a mission to d1, reboot it (``silent_s`` without any traffic), watch the GCS."""
+    plan = load_plan(PLAN_PATH)
+    items = plan_items(plan)
+    ports = free_udp_ports(4)
+    t0 = time.perf_counter()
+    async with MockFleet(
+        n=2, origin=plan.origin, gcs_ports=ports[:2], vehicle_ports=ports[2:], seed=seed
+    ) as mock:
+        specs = [VehicleSpec(f"d{i + 1}", f"udpin://127.0.0.1:{ports[i]}", i + 1) for i in (0, 1)]
+        async with Fleet(specs, link_timeout_s=1.5, telemetry_rate_hz=None) as fleet:
+            await upload_and_verify(fleet["d1"], items)
+            mock.vehicles[0].reboot(silent_s=silent_s)
+            async with asyncio.timeout(10.0):
+                while fleet["d1"].status().connected:
+                    await asyncio.sleep(0.05)
+            during = {s.name: s.connected for s in fleet.statuses()}
+            t_hold = time.perf_counter()
+            failures = await fleet.hold_all()
+            hold_s = time.perf_counter() - t_hold
+            async with asyncio.timeout(silent_s + 10.0):
+                while not (st := fleet["d1"].status()).connected:
+                    await asyncio.sleep(0.05)
+            await fleet["d1"].hold()
+            back = st.connected and st.armed is False
+            stored = [
+                MissionItem(**dataclasses.asdict(i)) for i in mock.vehicles[0].mission_items(0)
+            ]
+    return RebootRunResult(
+        during,
+        tuple(sorted(failures)),
+        hold_s,
+        back,
+        compare_items(items, stored) == [],
+        time.perf_counter() - t0,
+    )

@@ -207,3 +207,45 @@ def test_gcs_mock_signing_key_option(tmp_path: Path, capsys) -> None:  # type: i
     assert main(["mock", "--signing-key", str(bad), "--duration", "0.1"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("gcs mock: error:") and str(bad) in err and "\n" not in err
+
+
+def test_signing_proxy_process_lets_a_mavsdk_fleet_command_a_signed_vehicle(tmp_path: Path) -> None:
+    """The documented route: ``python -m mavlink.signing`` between MAVSDK and the vehicles."""
+    import signal
+    import subprocess
+    import sys
+
+    key_file = tmp_path / "fleet.key"
+    key_file.write_text(KEY.hex())
+    gcs, veh, inner = free_udp_ports(3)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "mavlink.signing", "--key", str(key_file), "-n", "1",
+         "--listen-base", str(gcs), "--inner-base", str(inner), "--vehicle-base", str(veh)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        assert f"udpin://127.0.0.1:{inner}" in proc.stdout.readline()
+
+        async def run():
+            async with MockFleet(
+                n=1, gcs_ports=[gcs], vehicle_ports=[veh], signing_key=KEY
+            ) as mock:
+                spec = VehicleSpec("d1", f"udpin://127.0.0.1:{inner}", 1)
+                async with Fleet([spec], telemetry_rate_hz=None) as fleet:
+                    await fleet["d1"].arm()
+                    return mock.vehicles[0].state.armed, mock.vehicles[0].signing_rejected
+
+        armed, rejected = asyncio.run(asyncio.wait_for(run(), 60.0))
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=10)
+    assert armed and rejected == 0
+    assert proc.returncode == 0 and "up_signed=" in out and err == ""
+    bad = tmp_path / "bad.key"
+    bad.write_text("x")
+    done = subprocess.run(
+        [sys.executable, "-m", "mavlink.signing", "--key", str(bad)],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 2 and done.stderr.count("\n") == 1 and str(bad) in done.stderr

@@ -1,0 +1,201 @@
+"""Fault matrix of the GCS link against the mock (issue 8): the whole table.
+
+Rows:
+
+1. Mission upload + read-back (:func:`mavlink.mission.upload_and_verify`,
+   MAVSDK mission_raw) of a 15-item plan under each link condition of
+   ``tests.reliability.harness.CONDITIONS`` (loss 10/30/50 % up, down and
+   both ways, duplication, reordering, 200 ms latency), ``--runs`` seeds each.
+   A run is a success when the GCS reports success; every run is also judged
+   on the vehicle's own stored copy: ``partial`` counts runs where the vehicle
+   holds neither its previous mission nor exactly the plan, ``silent`` runs
+   where the GCS said success but the vehicle does not hold the plan.
+2. Offboard flight of the two-vehicle reach-avoid plan: 10 % setpoint loss with
+   50 ms jitter (success: completed and flown robustness > 0); a 3 s outage
+   and a 1.5 s outage (shorter than the 2 s link timeout, longer than PX4's
+   1 s offboard-loss time); success: the GCS reports the event and streams
+   nothing to a vehicle after its failsafe.
+3. A vehicle that reboots on the ground (4 s without traffic) while the GCS is
+   connected to it and another: success when the GCS shows it (only it)
+   disconnected, a fleet Hold fails for it alone in bounded time, it comes
+   back disarmed and answers, and its mission survived.
+4. A vehicle that never answers: :class:`mavlink.fleet.Fleet` connect (success:
+   ``ConnectTimeoutError`` naming it).
+
+"worst s" is the worst wall time to complete or fail.  Prints a table, then one
+JSON line.  Usage::
+
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_faults.py [--runs 5] [--flights 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import time
+
+from mavlink.errors import ConnectTimeoutError
+from mavlink.fleet import Fleet, VehicleSpec
+from mavlink.mock import FaultConfig
+from mavlink.mock.testing import free_udp_ports
+from planner.planfile import load_plan
+from tests.reliability.harness import (
+    CONDITIONS,
+    PLAN_PATH,
+    flight_run,
+    mission_run,
+    plan_items,
+    reboot_run,
+)
+
+
+def mission_rows(runs: int) -> list[dict]:
+    plan = load_plan(PLAN_PATH)
+    items = plan_items(plan)
+    other = plan_items(plan_second(plan))
+    rows = []
+    for name, faults in CONDITIONS.items():
+        results = [
+            asyncio.run(mission_run(name, faults, seed, items, plan.origin, previous=other))
+            for seed in range(runs)
+        ]
+        errors = sorted({r.error.split(": ", 1)[-1] for r in results if not r.ok})
+        rows.append(
+            {
+                "kind": "mission",
+                "condition": name,
+                "runs": runs,
+                "successes": sum(r.ok for r in results),
+                "partial": sum(r.partial_on_vehicle for r in results),
+                "silent": sum(r.silent_partial for r in results),
+                "worst_s": max(r.elapsed_s for r in results),
+                "errors": errors,
+            }
+        )
+        print_row(rows[-1])
+    return rows
+
+
+def plan_second(plan):  # type: ignore[no-untyped-def]
+    """The plan with its vehicles swapped (its first vehicle's mission becomes d2's)."""
+    import dataclasses
+
+    return dataclasses.replace(plan, vehicles=plan.vehicles[::-1])
+
+
+def flight_rows(runs: int) -> list[dict]:
+    cases = [
+        ("offboard: loss 10% + jitter 50 ms", FaultConfig(loss_to_vehicle=0.1, jitter_s=0.05), {}),
+        ("offboard: 3 s outage", FaultConfig(), {"outage_after_start_s": 1.0, "outage_s": 3.0}),
+        ("offboard: 1.5 s outage", FaultConfig(), {"outage_after_start_s": 1.0, "outage_s": 1.5}),
+    ]
+    rows = []
+    for name, faults, kw in cases:
+        results = [asyncio.run(flight_run(name, faults, seed, **kw)) for seed in range(runs)]
+        if "outage" in name:
+            ok = [
+                (not r.completed) and r.verdict != "" and r.setpoints_after_failsafe[0] == 0
+                for r in results
+            ]
+        else:
+            ok = [r.completed and r.rho_flown > 0 for r in results]
+        rows.append(
+            {
+                "kind": "flight",
+                "condition": name,
+                "runs": runs,
+                "successes": sum(ok),
+                "worst_s": max(r.elapsed_s for r in results),
+                "rho_flown_min": min(r.rho_flown for r in results),
+                "completed": sum(r.completed for r in results),
+                "verdicts": sorted({r.verdict or "-" for r in results}),
+                "failsafe_seen": sum(r.failsafe_seen[0] for r in results),
+                "setpoints_after_failsafe_max": max(r.setpoints_after_failsafe[0] for r in results),
+            }
+        )
+        print_row(rows[-1])
+    return rows
+
+
+def silent_rows(runs: int) -> list[dict]:
+    times, ok = [], 0
+    for _ in range(runs):
+        (port,) = free_udp_ports(1)
+        t0 = time.perf_counter()
+        try:
+            asyncio.run(
+                Fleet(
+                    [VehicleSpec("d1", f"udpin://127.0.0.1:{port}", 1)], connect_timeout_s=3.0
+                ).connect()
+            )
+        except ConnectTimeoutError as exc:
+            ok += str(exc).startswith("vehicle d1 (udpin://127.0.0.1:")
+        times.append(time.perf_counter() - t0)
+    row = {
+        "kind": "silent",
+        "condition": "never answers (connect, 3 s timeout)",
+        "runs": runs,
+        "successes": ok,
+        "worst_s": max(times),
+    }
+    print_row(row)
+    return [row]
+
+
+def reboot_rows(runs: int) -> list[dict]:
+    results = [asyncio.run(reboot_run(seed)) for seed in range(runs)]
+    ok = [
+        r.status_during == {"d1": False, "d2": True}
+        and r.hold_failures == ("d1",)
+        and r.back
+        and r.mission_kept
+        for r in results
+    ]
+    row = {
+        "kind": "reboot",
+        "condition": "reboot d1 (4 s silent) of 2",
+        "runs": runs,
+        "successes": sum(ok),
+        "worst_s": max(r.elapsed_s for r in results),
+        "worst_hold_s": max(r.hold_s for r in results),
+    }
+    print_row(row)
+    return [row]
+
+
+def print_row(r: dict) -> None:
+    extra = ""
+    if r["kind"] == "mission":
+        extra = f"partial={r['partial']} silent={r['silent']} {'; '.join(r['errors'])}"
+    elif r["kind"] == "reboot":
+        extra = f"fleet Hold with d1 silent: worst {r['worst_hold_s']:.2f} s (d1 fails, d2 held)"
+    elif r["kind"] == "flight":
+        extra = (
+            f"completed={r['completed']} verdicts={','.join(r['verdicts'])} "
+            f"rho_min={r['rho_flown_min']:.3f} failsafe={r['failsafe_seen']} "
+            f"sp_after_failsafe={r['setpoints_after_failsafe_max']}"
+        )
+    print(
+        f"{r['condition']:<40} {r['runs']:>4} {r['successes']:>9} {r['worst_s']:>8.2f}  {extra}",
+        flush=True,
+    )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=int, default=5, help="seeds per mission condition")
+    ap.add_argument("--flights", type=int, default=2, help="runs per flight condition")
+    args = ap.parse_args()
+    print(f"{'condition':<40} {'runs':>4} {'successes':>9} {'worst s':>8}  notes")
+    rows = (
+        mission_rows(args.runs)
+        + flight_rows(args.flights)
+        + reboot_rows(args.flights)
+        + silent_rows(2)
+    )
+    print(json.dumps({"bench": "faults", "rows": rows}))
+
+
+if __name__ == "__main__":
+    main()
