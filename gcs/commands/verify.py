@@ -10,6 +10,12 @@ Rebuilds every trajectory from ``segments`` (not the samples), samples it every
 * workspace: every sample inside the workspace box;
 * starts: each trajectory starts at the vehicle's recorded start.
 
+With ``--telemetry LOG`` (a CSV of flown positions, or a ``.tlog`` with ``--t0``, as
+``gcs plot`` reads them) it also checks the flown data: the log must cover the plan's horizon
+for every vehicle without gaps longer than ``MAX_TELEMETRY_GAP_S`` (interpolating across a
+hole could hide a violation), and every top-level clause must hold on the flown positions
+(exact robustness >= 0 on the check grid).
+
 Exit 0 when all hold, 1 when one fails (each failure named, the failing clause included),
 2 for an unreadable or malformed plan file (one line).
 """
@@ -26,11 +32,21 @@ import numpy as np
 
 HELP = "re-check a plan file: spec robustness, limits, separation and workspace"
 
+#: Longest hole in a vehicle's flown telemetry that verification interpolates across (s).
+MAX_TELEMETRY_GAP_S = 1.0
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``gcs verify``."""
     p.add_argument("plan", help="plan file written by gcs plan")
     p.add_argument("--dt", type=float, help="check sample step in s (default: the plan's)")
+    p.add_argument(
+        "--telemetry",
+        metavar="LOG",
+        help="also check flown telemetry against the spec: CSV (t,vehicle,x,y,z or the link's "
+        "track CSV) or .tlog (with --t0)",
+    )
+    p.add_argument("--t0", type=float, metavar="UNIX_S", help="for a .tlog: Unix time of t = 0")
     p.add_argument("--json", action="store_true", help="print the checks as JSON")
 
 
@@ -118,12 +134,50 @@ def verify_plan(plan: Any, dt_s: float | None = None) -> list[Check]:
     return checks
 
 
+def verify_telemetry(plan: Any, telemetry: Any, dt_s: float | None = None) -> list[Check]:
+    """Checks of flown data (module docstring): coverage and gaps per vehicle, then each
+    top-level clause on the flown positions (bound 0: the flown data satisfies it).
+
+    Args:
+        plan: a loaded plan.
+        telemetry: a :class:`gcs.plot.Telemetry` (flown ENU paths by vehicle name).
+        dt_s: check step (default: the plan's ``check_dt_s``).
+    """
+    from gcs.flight import plan_formula
+
+    dt = plan.check_dt_s if dt_s is None else dt_s
+    t = np.arange(round(plan.horizon_s / dt) + 1) * dt
+    checks: list[Check] = []
+    flown: dict[str, np.ndarray] = {}
+    for v in plan.vehicles:
+        path = telemetry.vehicles.get(v.name)
+        if path is None or len(path.t_s) == 0:
+            checks.append(Check(f"flown {v.name} telemetry", 0.0, 1.0, False, "no samples"))
+            continue
+        ts = np.asarray(path.t_s, dtype=float)
+        gap = float(max(ts[0] - 0.0, plan.horizon_s - ts[-1], np.diff(ts).max(initial=0.0)))
+        ok = gap <= MAX_TELEMETRY_GAP_S
+        detail = f"samples {ts[0]:.2f}..{ts[-1]:.2f} s of 0..{plan.horizon_s:g} s"
+        checks.append(Check(f"flown {v.name} largest gap s", gap, MAX_TELEMETRY_GAP_S, ok, detail))
+        if ok:
+            flown[v.name] = path.position(t)
+    if len(flown) == len(plan.vehicles):
+        for clause in plan_formula(plan).clauses:
+            rho = float(clause.robustness(flown, dt))
+            checks.append(Check(f"flown spec: {clause}", rho, 0.0, rho >= 0.0))
+    return checks
+
+
 def run(args: argparse.Namespace) -> int:
     """Verify; 0 if every check holds, 1 otherwise."""
+    from gcs.plot import load_telemetry
     from planner.planfile import load_plan
 
     plan = load_plan(args.plan)
     checks = verify_plan(plan, args.dt)
+    if args.telemetry:
+        telemetry = load_telemetry(args.telemetry, plan, args.t0)
+        checks += verify_telemetry(plan, telemetry, args.dt)
     failed = [c for c in checks if not c.ok]
     if args.json:
         print(
