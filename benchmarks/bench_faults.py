@@ -15,7 +15,7 @@ Rows:
    and a 1.5 s outage (shorter than the 2 s link timeout, longer than PX4's
    1 s offboard-loss time); success: the GCS reports the event and streams
    nothing to a vehicle after its failsafe.
-3. A vehicle that reboots on the ground (4 s without traffic) while the GCS is
+3. A vehicle that reboots on the ground (6 s without traffic) while the GCS is
    connected to it and another: success when the GCS shows it (only it)
    disconnected, a fleet Hold fails for it alone in bounded time, it comes
    back disarmed and answers, and its mission survived.
@@ -154,7 +154,7 @@ def reboot_rows(runs: int) -> list[dict]:
     ]
     row = {
         "kind": "reboot",
-        "condition": "reboot d1 (4 s silent) of 2",
+        "condition": "reboot d1 (6 s silent) of 2",
         "runs": runs,
         "successes": sum(ok),
         "worst_s": max(r.elapsed_s for r in results),

@@ -300,7 +300,7 @@ class RebootRunResult:
     elapsed_s: float
 
 
-async def reboot_run(seed: int, silent_s: float = 4.0) -> RebootRunResult:
+async def reboot_run(seed: int, silent_s: float = 6.0) -> RebootRunResult:
     """Upload a mission to d1, reboot it (``silent_s`` without any traffic), watch the GCS."""
     plan = load_plan(PLAN_PATH)
     items = plan_items(plan)

@@ -34,9 +34,13 @@ HANG_S = 120.0  # far above any bounded failure (MAVSDK: 5 retries x 1.5 s per i
 @pytest.mark.parametrize(
     ("condition", "must_succeed"),
     [
-        ("reorder+loss 10%+latency 50 ms", True),
-        ("duplicate 30%", True),  # failed every time before the mock ignored copies
+        # Loss can drop the final MISSION_ACK, which MAVSDK 4.1 never recovers from (see
+        # bench_faults.py): a clean failure is allowed there, a partial mission never.
+        ("reorder+loss 10%+latency 50 ms", False),
         ("loss 50% both", False),
+        # Without loss nothing may fail.
+        ("duplicate 30%", True),  # failed every time before the mock ignored copies
+        ("reorder 30% (+30 ms)", True),
     ],
 )
 def test_mission_under_faults_is_complete_or_a_clear_error_never_partial(
