@@ -507,7 +507,8 @@ def _build(problem: Problem, model: Any, formula: Formula) -> _Structure:
     n_z = model.n_dec * 3 * nv
     m = len(used)
     lbx = np.concatenate([np.full(n_z, -np.inf), np.tile(np.repeat(ws.lo_enu_m, m), nv), [-np.inf]])
-    ubx = np.concatenate([np.full(n_z, np.inf), np.tile(np.repeat(ws.hi_enu_m, m), nv), [_R_MAX]])
+    r_hi = _R_MAX if opts.robustness_cap_m is None else opts.robustness_cap_m + margin
+    ubx = np.concatenate([np.full(n_z, np.inf), np.tile(np.repeat(ws.hi_enu_m, m), nv), [r_hi]])
 
     solvers = []
     leaf_fn = None
@@ -744,6 +745,61 @@ def _grid_path(problem: Problem, avoid: Sequence[Any], points: Sequence[np.ndarr
     return np.asarray(out)
 
 
+#: Fraction of the per-axis limits the initial guess's legs use (the Bezier bounds of the
+#: limit constraints are conservative, and the least-squares fit overshoots a little).
+_GUESS_LIMIT_FRACTION = 0.75
+#: Extra time (s) the guess stays in a target box beyond the spec's hover there.
+_GUESS_DWELL_MARGIN_S = 0.75
+
+
+def _hover_times(formula: Formula, vehicle: str) -> dict[str, float]:
+    """Longest ``always[a, b] inside(vehicle, box)`` window (b - a, s) per box."""
+    out: dict[str, float] = {}
+
+    def walk(node: Formula) -> None:
+        if isinstance(node, Always):
+            c = node.child
+            if isinstance(c, Predicate) and c.call.name == "inside" and c.call.args[0] == vehicle:
+                reg = c.call.args[1]
+                out[reg] = max(out.get(reg, 0.0), node.end_s - node.start_s)
+        for child in node.children:
+            walk(child)
+
+    walk(formula)
+    return out
+
+
+def _leg_profile(dist_m: np.ndarray, v_max: np.ndarray, a_max: np.ndarray) -> tuple[float, float]:
+    """(duration s, accelerating fraction of it) of the fastest rest-to-rest trapezoidal
+    profile over per-axis distances ``dist_m`` (3,) within per-axis ``v_max``/``a_max``.
+
+    Every axis is flown on the same normalised profile; the limiting axis decides.  With
+    an accelerating fraction ``phi`` of duration ``T`` the peak speed is ``d / (T (1-phi))``
+    and the acceleration ``d / (T^2 phi (1-phi))``.
+    """
+    d = np.abs(dist_m)
+    t_acc = v_max / a_max
+    tri = d <= v_max * t_acc  # never reaches v_max
+    t = np.where(tri, 2 * np.sqrt(d / a_max), d / v_max + t_acc)
+    i = int(np.argmax(t))
+    if t[i] <= 0:
+        return 0.0, 0.5
+    return float(t[i]), float(0.5 if tri[i] else t_acc[i] / t[i])
+
+
+def _trapezoid_s(t_s: np.ndarray, duration_s: float, phi: float) -> np.ndarray:
+    """Normalised path parameter in [0, 1] of a symmetric trapezoidal speed profile that
+    accelerates for a fraction ``phi`` (0 < phi <= 0.5) of ``duration_s``."""
+    u = np.clip(t_s / max(duration_s, 1e-9), 0.0, 1.0)
+    peak = 1.0 / (1.0 - phi)
+    acc = peak / phi
+    return np.where(
+        u < phi,
+        0.5 * acc * u**2,
+        np.where(u <= 1 - phi, 0.5 * acc * phi**2 + peak * (u - phi), 1 - 0.5 * acc * (1 - u) ** 2),
+    )
+
+
 def _initial_guess(
     problem: Problem,
     model: Any,
@@ -752,9 +808,17 @@ def _initial_guess(
     leaves: Mapping[Formula, Any],
 ) -> np.ndarray:
     """Shortest grid paths through each vehicle's target boxes around the boxes it must
-    avoid, timed in proportion to length over 5-85 % of the horizon with a dwell at each
-    target (for hovers), fitted to Z by least squares.  Vehicles sharing a target box get points spread along its longest
-    side, so the guess does not put them on top of each other.
+    avoid, fitted to Z by least squares.
+
+    Timing respects the vehicle's limits: each leg (between targets) is flown rest to rest
+    with a trapezoidal speed profile (a third accelerating, a third cruising, a third
+    braking) along its polyline, no shorter than the per-axis trapezoid time at
+    ``_GUESS_LIMIT_FRACTION`` of ``v_max``/``a_max`` over the leg's per-axis travel; at each
+    target the vehicle dwells for the spec's hover there (``always[a, b] inside``) plus
+    ``_GUESS_DWELL_MARGIN_S``.  The time left over in the horizon is split: half stretches
+    the legs (slower is easier on the limits), half lengthens the dwells.  Vehicles sharing
+    a target box get points spread along its longest side, so the guess does not put them on
+    top of each other.
     """
     times = np.asarray(model.times_s)
     horizon = problem.timing.horizon_s
@@ -776,39 +840,129 @@ def _initial_guess(
             c[a] = lo[a] + (hi[a] - lo[a]) * (j + 1) / (len(users) + 1)
         return c
 
-    cols = []
-    for v, x0 in zip(problem.vehicles, x0s, strict=True):
-        pts = [np.asarray(v.start_enu_m), *(point(r, v.name) for r in per_vehicle[v.name])]
+    sep = float(problem.separation_m or 0.0)
+    options: list[list[np.ndarray]] = []
+    avoids: list[list[Any]] = []
+    for v in problem.vehicles:
+        targets = per_vehicle[v.name]
+        pts = [np.asarray(v.start_enu_m), *(point(r, v.name) for r in targets)]
+        avoid = _avoided(leaves, v.name, problem)
+        avoids.append(avoid)
         if len(pts) == 1:
-            path = np.tile(pts[0], (len(times), 1))
-        else:
-            # Legs between targets on the grid; a dwell at each target (the spec's hovers).
-            avoid = _avoided(leaves, v.name, problem)
-            legs = [_grid_path(problem, avoid, [a, b]) for a, b in itertools.pairwise(pts)]
-            dwell = min(0.08 * horizon, 2.0)
-            lengths = np.array([np.linalg.norm(np.diff(leg, axis=0), axis=1).sum() for leg in legs])
-            move = max(0.8 * horizon - dwell * len(legs), 0.3 * horizon)
-            knots_t: list[float] = [0.0]
-            knots_p: list[np.ndarray] = [pts[0]]
-            t_now = 0.05 * horizon
-            for leg, length in zip(legs, lengths, strict=True):
-                seg = np.linalg.norm(np.diff(leg, axis=0), axis=1)
-                cum = np.cumsum(seg) / max(seg.sum(), 1e-9)
-                leg_t = move * length / max(lengths.sum(), 1e-9)
-                knots_t.extend((t_now + leg_t * cum).tolist())
-                knots_p.extend(leg[1:])
-                t_now += leg_t + dwell
-                knots_t.append(t_now)
-                knots_p.append(leg[-1])
-            poly = np.asarray(knots_p)
-            path = np.column_stack(
-                [np.interp(times, np.asarray(knots_t), poly[:, a]) for a in range(3)]
-            )
+            options.append([np.tile(pts[0], (len(times), 1))])
+            continue
+        legs = [_grid_path(problem, avoid, [a, b]) for a, b in itertools.pairwise(pts)]
+        v_lim = _GUESS_LIMIT_FRACTION * np.asarray(v.v_max_m_s, dtype=float)
+        a_lim = _GUESS_LIMIT_FRACTION * np.asarray(v.a_max_m_s2, dtype=float)
+        prof = [
+            _leg_profile(np.abs(np.diff(leg, axis=0)).sum(axis=0), v_lim, a_lim) for leg in legs
+        ]
+        leg_s = np.array([d for d, _ in prof])
+        phis = [ph for _, ph in prof]
+        hovers = _hover_times(formula, v.name)
+        dwell_s = np.array([hovers.get(r, 0.0) + _GUESS_DWELL_MARGIN_S for r in targets])
+        slack = horizon - leg_s.sum() - dwell_s.sum()
+        if slack > 0:
+            leg_s = leg_s + 0.5 * slack * leg_s / max(leg_s.sum(), 1e-9)
+            dwell_s = dwell_s + 0.5 * slack / len(dwell_s)
+        else:  # infeasible as timed: squeeze everything into the horizon
+            scale = horizon / (leg_s.sum() + dwell_s.sum())
+            leg_s, dwell_s = leg_s * scale, dwell_s * scale
+        options.append(
+            [
+                _timed_path(times, legs, leg_s, phis, dwell_s, lane * _GUESS_LANE_SEP * sep)
+                for lane in _GUESS_LANES
+            ]
+        )
+    # Lanes: a few rounds of each vehicle picking the first lane clear of all the others.
+    chosen = [opts[0] for opts in options]
+    for _ in range(3):
+        changed = False
+        for i, opts in enumerate(options):
+            others = [p for j, p in enumerate(chosen) if j != i]
+            pick = _pick_lane(opts, others, avoids[i], sep)
+            changed |= pick is not chosen[i]
+            chosen[i] = pick
+        if not changed:
+            break
+    cols = []
+    for path, x0 in zip(chosen, x0s, strict=True):
         rhs = path - Np @ x0
         reg_m = 1e-6 * np.eye(model.n_dec)
         Zv = np.linalg.solve(Mp.T @ Mp + reg_m, Mp.T @ rhs)
         cols.append(Zv.reshape(-1, order="F"))
     return np.concatenate(cols)
+
+
+#: Lateral lanes (multiples of ``_GUESS_LANE_SEP`` x separation) the guess may shift a
+#: vehicle's legs into, in order of preference.
+_GUESS_LANES = (0, -1, 1, -2, 2, -3, 3)
+_GUESS_LANE_SEP = 1.5
+
+
+def _timed_path(
+    times: np.ndarray,
+    legs: Sequence[np.ndarray],
+    leg_s: np.ndarray,
+    phis: Sequence[float],
+    dwell_s: np.ndarray,
+    lane_m: float,
+) -> np.ndarray:
+    """Positions (n, 3) at ``times``: each leg flown on its trapezoid, shifted sideways
+    (horizontally, left of the leg's direction) by ``lane_m`` away from its two ends."""
+    knots_t: list[float] = [0.0]
+    knots_p: list[np.ndarray] = [legs[0][0]]
+    t_now = 0.0
+    for leg, dur, phi, dwell in zip(legs, leg_s, phis, dwell_s, strict=True):
+        seg = np.linalg.norm(np.diff(leg, axis=0), axis=1)
+        cum = np.concatenate([[0.0], np.cumsum(seg)]) / max(seg.sum(), 1e-9)
+        tt = np.linspace(0.0, dur, 61)[1:]
+        arc = _trapezoid_s(tt, dur, phi)
+        pos = np.column_stack([np.interp(arc, cum, leg[:, a]) for a in range(3)])
+        if lane_m:
+            d = leg[-1] - leg[0]
+            left = np.array([-d[1], d[0], 0.0])
+            norm = float(np.linalg.norm(left))
+            if norm > 1e-9:
+                u = tt / max(dur, 1e-9)
+                bump = np.clip(np.minimum(u, 1 - u) / 0.3, 0.0, 1.0)
+                bump = bump * bump * (3 - 2 * bump)
+                pos = pos + np.outer(bump, left / norm * lane_m)
+        knots_t.extend((t_now + tt).tolist())
+        knots_p.extend(pos)
+        t_now += dur + dwell
+        knots_t.append(t_now)
+        knots_p.append(leg[-1])
+    poly = np.asarray(knots_p)
+    kt = np.asarray(knots_t)
+    return np.column_stack([np.interp(times, kt, poly[:, a]) for a in range(3)])
+
+
+def _pick_lane(
+    candidates: Sequence[np.ndarray], placed: Sequence[np.ndarray], avoid: Sequence[Any], sep: float
+) -> np.ndarray:
+    """The first candidate path clear of the avoided boxes (0.3 m) and 1.3 separations from
+    the paths already placed; else the clear one farthest from them."""
+    best, best_d = candidates[0], -np.inf
+    for path in candidates:
+        clear = all(
+            np.all(
+                np.max(
+                    np.maximum(np.asarray(b.lo_enu_m) - path, path - np.asarray(b.hi_enu_m)),
+                    axis=1,
+                )
+                >= 0.3
+            )
+            for b in avoid
+        )
+        if not clear:
+            continue
+        d = min((float(np.min(np.linalg.norm(path - q, axis=1))) for q in placed), default=np.inf)
+        if d >= 1.3 * sep:
+            return path
+        if d > best_d:
+            best, best_d = path, d
+    return best
 
 
 # ------------------------------------------------------------------------------ checks

@@ -192,6 +192,10 @@ class SolverOptions:
     #: Spacing (s) of the row-wise constraints (separation, obstacles, boxes) in the NLP;
     #: None: max(Ts, 0.1 s).  The exact check afterwards uses every check_dt_s regardless.
     constraint_dt_s: float | None = None
+    #: Upper bound (m) on the maximised robustness: once the spec holds with this margin
+    #: the NLP only has to settle (smoothness term), not squeeze out the last centimetres;
+    #: None: unbounded (the plain maximisation).
+    robustness_cap_m: float | None = None
     print_level: int = 0
 
 
@@ -886,6 +890,7 @@ def _solver(rd: _Reader, value: Any) -> SolverOptions:
         "continuation",
         "robustness_constraint",
         "constraint_dt_s",
+        "robustness_cap_m",
         "print_level",
     }
     m = rd.mapping(value, "solver", allowed)
@@ -921,6 +926,10 @@ def _solver(rd: _Reader, value: Any) -> SolverOptions:
     if "constraint_dt_s" in m:
         kw["constraint_dt_s"] = rd.number(
             m["constraint_dt_s"], "solver.constraint_dt_s", positive=True
+        )
+    if "robustness_cap_m" in m:
+        kw["robustness_cap_m"] = rd.number(
+            m["robustness_cap_m"], "solver.robustness_cap_m", positive=True
         )
     if "print_level" in m:
         kw["print_level"] = rd.integer(m["print_level"], "solver.print_level", minimum=0)

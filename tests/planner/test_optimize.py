@@ -82,8 +82,8 @@ def test_reach_avoid_plans_with_positive_robustness(n: int) -> None:
 
 
 def test_powerline_inspection_plans_with_positive_robustness() -> None:
-    # N = 4 does not reach robustness > 0 yet (see the report / benchmark); N = 2 does.
-    problem = load_scenario(CONFIGS / "powerline_inspection.yaml", vehicles=2)
+    # The flagship case of gcs demo: two groups of two.
+    problem = load_scenario(CONFIGS / "powerline_inspection.yaml", vehicles=4)
     result = plan(problem)
     assert result.success, result.status
     assert result.robustness > 0
