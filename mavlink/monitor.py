@@ -32,6 +32,7 @@ import numpy as np
 from mavsdk.plugins.offboard import OffboardResult
 
 from mavlink.errors import CommandError, LinkError
+from mavlink.px4_modes import Px4Mode
 from planner.frames import GeodeticPoint, ned_to_enu, ned_vector_to_enu
 from planner.stl.ast import Always, Formula
 
@@ -45,7 +46,9 @@ class Verdict(Enum):
 
     VIOLATED = "violated"  # the clause is false on the current telemetry
     PREDICTED = "predicted"  # it will be false within the horizon
-    LINK_LOST = "link_lost"  # a vehicle stopped sending heartbeats
+    LINK_LOST = "link_lost"  # a vehicle went silent (heartbeats, or telemetry for longer
+    # than the vehicle's offboard-loss time, after which PX4 has left offboard by itself)
+    LEFT_MODE = "left_mode"  # a vehicle left the flight's mode (its own failsafe took over)
 
 
 class SafetyAction(Enum):
@@ -104,8 +107,10 @@ class SafetyEvent:
         robustness: the clause's robustness now (violated) or its minimum
             over the prediction (predicted); ``None`` for a lost link.
         predicted_in_s: for a prediction, how far ahead the violation is.
-        action: what every vehicle was told.
+        action: what every vehicle was told (for a vehicle that left the flight's mode:
+            every other vehicle; its own failsafe action is not overridden).
         action_failures: vehicles that did not accept it, with the reason.
+        detail: for ``LEFT_MODE``, the mode each departed vehicle reported.
     """
 
     verdict: Verdict
@@ -116,12 +121,15 @@ class SafetyEvent:
     predicted_in_s: float | None
     action: SafetyAction
     action_failures: dict[str, str] = field(default_factory=dict)
+    detail: str = ""
 
     def describe(self) -> str:
         """One line for the operator."""
         who = ", ".join(self.vehicles)
         if self.verdict is Verdict.LINK_LOST:
             head = f"link lost to {who} at t={self.t_s:.2f} s"
+        elif self.verdict is Verdict.LEFT_MODE:
+            head = f"{who} left the flight mode at t={self.t_s:.2f} s ({self.detail})"
         elif self.verdict is Verdict.VIOLATED:
             head = (
                 f"clause {self.clause!r} violated by {who} at t={self.t_s:.2f} s "
@@ -172,6 +180,10 @@ class SafetyMonitor:
         action: hold or land on a stop.
         stale_after_s: telemetry older than this is not used for a clause
             (the vehicle's link check covers it).
+        offboard_loss_s: a vehicle whose position telemetry is older than this counts as
+            lost: PX4 leaves offboard by itself after COM_OF_LOSS_T (default 1 s) without
+            setpoints, and an outage that silences telemetry that long has most likely
+            starved it of setpoints too, so streaming to it must stop before the link returns.
     """
 
     def __init__(
@@ -183,6 +195,7 @@ class SafetyMonitor:
         rate_hz: float = 20.0,
         action: SafetyAction = SafetyAction.HOLD,
         stale_after_s: float = 0.5,
+        offboard_loss_s: float = 1.0,
     ) -> None:
         if not (math.isfinite(horizon_s) and horizon_s >= 0):
             raise LinkError(f"monitor horizon_s must be >= 0, got {horizon_s!r}")
@@ -196,6 +209,7 @@ class SafetyMonitor:
         self.rate_hz = float(rate_hz)
         self.action = action
         self.stale_after_s = stale_after_s
+        self.offboard_loss_s = offboard_loss_s
         self.checks = 0  # evaluations done in the last run (for tests and reports)
 
     def predict(
@@ -264,8 +278,15 @@ class SafetyMonitor:
         origins: Mapping[str, GeodeticPoint],
         stop: asyncio.Event,
         plans: Mapping[str, Trajectory] | None = None,
+        expected_mode: Px4Mode | None = None,
+        mode_grace_s: float = 0.5,
     ) -> SafetyEvent | None:
         """Monitor until ``stop`` is set; on a finding set ``stop``, command every vehicle, report.
+
+        With ``expected_mode`` (OFFBOARD for a setpoint stream), a heartbeat received more than
+        ``mode_grace_s`` after the start that shows another mode stops the flight: the vehicle's
+        own failsafe took over, and it must not be streamed to or re-engaged without the
+        operator.
 
         Returns:
             The :class:`SafetyEvent`, or ``None`` if the flight ended without one.
@@ -287,9 +308,32 @@ class SafetyMonitor:
             now = time.monotonic()
             t_s = now - t0_monotonic_s
             statuses = {v.name: v.status(now) for v in vehicles}
-            lost = tuple(sorted(n for n, st in statuses.items() if not st.connected))
+            lost = tuple(
+                sorted(
+                    n
+                    for n, st in statuses.items()
+                    if not st.connected
+                    or (st.position_age_s is not None and st.position_age_s > self.offboard_loss_s)
+                )
+            )
             if lost:
                 return await self._stop(fleet, stop, Verdict.LINK_LOST, None, lost, t_s, None, None)
+            if expected_mode is not None:
+                left = {
+                    n: st.mode
+                    for n, st in statuses.items()
+                    if st.mode is not None
+                    and st.mode is not expected_mode
+                    and st.heartbeat_age_s is not None
+                    and now - st.heartbeat_age_s > t0_monotonic_s + mode_grace_s
+                }
+                if left:
+                    names = tuple(sorted(left))
+                    detail = ", ".join(f"{n} now {left[n].name}" for n in names)
+                    return await self._stop(
+                        fleet, stop, Verdict.LEFT_MODE, None, names, t_s, None, None,
+                        exclude=names, detail=detail,
+                    )  # fmt: skip
             states: dict[str, tuple[np.ndarray, np.ndarray]] = {}
             for name, st in statuses.items():
                 if (
@@ -323,9 +367,13 @@ class SafetyMonitor:
         t_s: float,
         rho: float | None,
         ahead: float | None,
+        *,
+        exclude: tuple[str, ...] = (),
+        detail: str = "",
     ) -> SafetyEvent:
         stop.set()
-        failures = await fleet.for_each(lambda v: safe_stop(v, self.action))
+        others = [v for v in fleet if v.name not in exclude]
+        failures = await fleet.for_each(lambda v: safe_stop(v, self.action), others)
         return SafetyEvent(
             verdict=verdict,
             clause=clause,
@@ -335,4 +383,5 @@ class SafetyMonitor:
             predicted_in_s=None if verdict is not Verdict.PREDICTED else ahead,
             action=self.action,
             action_failures={k: str(e) for k, e in failures.items()},
+            detail=detail,
         )

@@ -577,6 +577,7 @@ async def _fly(
             origins=origins,
             stop=stop,
             plans=trajectories,
+            expected_mode=Px4Mode.OFFBOARD,
         )
     )
     extra = round(cfg.hold_after_s * cfg.rate_hz)

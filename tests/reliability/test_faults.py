@@ -102,6 +102,25 @@ def test_3s_outage_engages_failsafe_is_reported_and_streaming_never_resumes() ->
     assert "OFFBOARD" not in r.modes_after
 
 
+def test_outage_shorter_than_the_link_timeout_still_stops_the_stream_to_the_failsafed_vehicle() -> (
+    None
+):
+    # 1.5 s: longer than PX4's offboard-loss time (1 s), shorter than the 2 s heartbeat timeout.
+    # The vehicle leaves offboard by itself; the GCS must notice, stop, and never stream to it
+    # again (it went on streaming and reported a completed flight before the monitor knew).
+    r = asyncio.run(
+        asyncio.wait_for(
+            flight_run("outage 1.5 s", FaultConfig(), 5, outage_after_start_s=1.0, outage_s=1.5),
+            HANG_S,
+        )
+    )
+    assert r.failsafe_seen[0]
+    assert not r.completed and r.verdict in ("LINK_LOST", "LEFT_MODE")
+    assert r.setpoints_after_failsafe[0] == 0
+    assert r.setpoints_after_return == (0, 0)
+    assert "OFFBOARD" not in r.modes_after
+
+
 def test_rebooting_vehicle_gets_its_own_status_a_bounded_failure_and_comes_back() -> None:
     r = asyncio.run(asyncio.wait_for(reboot_run(seed=1), HANG_S))
     assert r.status_during == {"d1": False, "d2": True}  # per-vehicle status
