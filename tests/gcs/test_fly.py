@@ -23,6 +23,7 @@ from gcs.flight import free_udp_ports, plan_formula
 from mavlink.mission import MissionEnd, trajectory_to_mission
 from mavlink.tlog import read_tracks_csv, tracks_from_tlog
 from planner.planfile import load_plan
+from tests.procutil import interruptible
 
 REPO = Path(__file__).resolve().parents[2]
 SCENARIO = REPO / "configs" / "reach_avoid.yaml"
@@ -151,6 +152,7 @@ def test_ctrl_c_commands_every_vehicle_to_hold_and_exits_cleanly(plan_file: Path
         stderr=subprocess.PIPE,
         text=True,
         cwd=REPO,
+        preexec_fn=interruptible,
     )
     assert proc.stdout is not None
     seen = []

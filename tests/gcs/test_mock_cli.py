@@ -16,6 +16,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from gcs.cli import main
 from mavlink.mock.testing import free_udp_port
+from tests.procutil import interruptible
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -198,6 +199,7 @@ def test_ctrl_c_stops_cleanly() -> None:
         stderr=subprocess.PIPE,
         text=True,
         env=env,
+        preexec_fn=interruptible,
     )
     try:
         assert proc.stdout is not None

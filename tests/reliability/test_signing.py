@@ -215,13 +215,15 @@ def test_signing_proxy_process_lets_a_mavsdk_fleet_command_a_signed_vehicle(tmp_
     import subprocess
     import sys
 
+    from tests.procutil import interruptible
+
     key_file = tmp_path / "fleet.key"
     key_file.write_text(KEY.hex())
     gcs, veh, inner = free_udp_ports(3)
     proc = subprocess.Popen(
         [sys.executable, "-m", "mavlink.signing", "--key", str(key_file), "-n", "1",
          "--listen-base", str(gcs), "--inner-base", str(inner), "--vehicle-base", str(veh)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=interruptible,
     )  # fmt: skip
     try:
         assert proc.stdout is not None
