@@ -281,7 +281,9 @@ def tracks_from_tlog(
     Raises:
         LinkError: a vehicle has positions but never sent its origin.
     """
-    log = mavutil.mavlink_connection(str(path), dialect="common", robust_parsing=True)
+    # mavlogfile, not mavlink_connection: for a .tlog the latter picks pymavlink's
+    # memory-mapped reader, which raises AttributeError on a corrupted file.
+    log = mavutil.mavlogfile(str(path), robust_parsing=True)
     origins: dict[int, GeodeticPoint] = {}
     rows: dict[int, list[list[float]]] = {s: [] for s in names_by_sysid}
     while True:

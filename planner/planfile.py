@@ -247,8 +247,12 @@ def load_plan(path: str | Path) -> Plan:
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise PlanFileError(src, "", f"cannot read: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise PlanFileError(src, "", f"not UTF-8 text (byte {exc.start})") from None
     try:
         data = json.loads(text)
+    except RecursionError:
+        raise PlanFileError(src, "", "not JSON: nested too deeply") from None
     except json.JSONDecodeError as exc:
         raise PlanFileError(
             src, f"line {exc.lineno}, column {exc.colno}", f"not JSON: {exc.msg}"

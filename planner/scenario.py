@@ -84,6 +84,10 @@ FUNCTION_NAMES: dict[str, tuple[str, ...]] = {
 }
 
 
+#: Longest mission a scenario may plan (s): an hour is beyond any quad-rotor's battery.
+MAX_HORIZON_S = 3600.0
+
+
 class ScenarioError(ValueError):
     """A mistake in a scenario file: ``"<file>: <key path>: <problem>"``."""
 
@@ -196,6 +200,8 @@ class SolverOptions:
     #: the NLP only has to settle (smoothness term), not squeeze out the last centimetres;
     #: None: unbounded (the plain maximisation).
     robustness_cap_m: float | None = None
+    #: IPOPT limited_memory_max_history (pairs kept by L-BFGS; IPOPT's default 6).
+    lbfgs_history: int = 6
     print_level: int = 0
 
 
@@ -796,6 +802,8 @@ def parse_scenario(
         rd.require(top, "timing", ""), "timing", {"horizon_s", "segment_s", "Ts_s", "check_dt_s"}
     )
     horizon = rd.number(rd.require(t, "horizon_s", "timing"), "timing.horizon_s", positive=True)
+    if horizon > MAX_HORIZON_S:
+        raise rd.fail("timing.horizon_s", f"{horizon:g} s is longer than {MAX_HORIZON_S:g} s")
     seg = rd.number(rd.require(t, "segment_s", "timing"), "timing.segment_s", positive=True)
     ts = rd.number(rd.require(t, "Ts_s", "timing"), "timing.Ts_s", positive=True)
     for key, val in (("segment_s", seg), ("Ts_s", ts)):
@@ -891,6 +899,7 @@ def _solver(rd: _Reader, value: Any) -> SolverOptions:
         "robustness_constraint",
         "constraint_dt_s",
         "robustness_cap_m",
+        "lbfgs_history",
         "print_level",
     }
     m = rd.mapping(value, "solver", allowed)
@@ -931,6 +940,8 @@ def _solver(rd: _Reader, value: Any) -> SolverOptions:
         kw["robustness_cap_m"] = rd.number(
             m["robustness_cap_m"], "solver.robustness_cap_m", positive=True
         )
+    if "lbfgs_history" in m:
+        kw["lbfgs_history"] = rd.integer(m["lbfgs_history"], "solver.lbfgs_history", minimum=1)
     if "print_level" in m:
         kw["print_level"] = rd.integer(m["print_level"], "solver.print_level", minimum=0)
     return SolverOptions(**kw)
@@ -943,8 +954,12 @@ def load_scenario(path: str | Path, *, vehicles: int | None = None) -> Problem:
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise ScenarioError(str(p), "", f"cannot read: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(str(p), "", f"not UTF-8 text (byte {exc.start})") from None
     try:
         data = yaml.safe_load(text)
+    except RecursionError:
+        raise ScenarioError(str(p), "", "invalid YAML: nested too deeply") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else ""

@@ -92,11 +92,6 @@ def test_mavsdk_fleet_survives_hostile_frames_and_keeps_its_vehicle_state() -> N
     assert after.home == before.home and after.origin == before.origin
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="mavlink/tlog.py tracks_from_tlog: pymavlink's mavmmaplog raises AttributeError "
-    "on a corrupted .tlog instead of a LinkError (reported to the link owner)",
-)
 def test_tlog_reader_turns_hostile_files_into_tracks_or_a_link_error(tmp_path: Path) -> None:
     rep, tracks, valid = fuzz_tlog(tmp_path / "hostile.tlog", N_FRAMES, seed=14)
     assert rep.errors == {}, rep.errors

@@ -27,18 +27,7 @@ manifest: dict[str, dict[str, Any]] = {}
 
 #: Files the code does not yet handle as it must (a traceback instead of one line);
 #: the defect, its file and line are in the value.  Remove an entry once it is fixed.
-DEFECTS = {
-    "s_deep_yaml.yaml": "planner/scenario.py load_scenario: yaml.safe_load raises "
-    "RecursionError on deeply nested YAML (not caught)",
-    "s_not_utf8.yaml": "planner/scenario.py load_scenario: read_text raises "
-    "UnicodeDecodeError on a file that is not UTF-8 (not caught)",
-    "s_horizon_huge.yaml": "planner/scenario.py: timing.horizon_s 1e308 reaches an int() "
-    "of infinity: OverflowError (no upper bound on horizon_s)",
-    "p_deep_json.plan.json": "planner/planfile.py load_plan: json.loads raises "
-    "RecursionError on deeply nested JSON (not caught)",
-    "p_not_utf8.plan.json": "planner/planfile.py load_plan: read_text raises "
-    "UnicodeDecodeError on a file that is not UTF-8 (not caught)",
-}
+DEFECTS: dict[str, str] = {}  # files whose handling is a known, unfixed defect
 
 
 def put(name: str, text: str | bytes, cmd: str, code: int, needle: str) -> None:
