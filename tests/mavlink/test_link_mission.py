@@ -222,3 +222,32 @@ def test_fence_excludes_only_stay_out_boxes_that_span_the_workspace_height() -> 
         ("tower", False),
         ("nofly", False),
     ]
+
+
+def test_upload_whose_final_ack_is_lost_is_settled_by_the_read_back() -> None:
+    plan = stored_plan(2)
+    v1 = plan.vehicles[0]
+    mp = trajectory_to_mission(v1.trajectory, plan.origin, acceptance_radius_m=0.3)
+    spawn = (v1.start_enu_m[0], v1.start_enu_m[1], 0.0)
+
+    async def run():
+        async with mock_and_fleet(["d1"], plan.origin, [spawn]) as (mock, fleet):
+            vehicle = mock.vehicles[0]
+            send = vehicle.missions._send
+
+            def drop_mission_acks(msg):  # type: ignore[no-untyped-def]
+                # Every ACCEPTED ack of a MISSION upload is lost on the way to the GCS.
+                if msg.get_type() == "MISSION_ACK" and msg.type == 0 and msg.mission_type == 0:
+                    return
+                send(msg)
+
+            vehicle.missions._send = drop_mission_acks
+            with pytest.raises(MissionError) as plain:
+                await upload(fleet["d1"], mp.items)
+            report = await upload_and_verify(fleet["d1"], mp.items)
+            return plain.value, report, vehicle.mission_items(0)
+
+    plain, report, stored = asyncio.run(run())
+    assert plain.mavsdk_result == "TIMEOUT"  # what MAVSDK alone reports
+    assert report.items == len(mp.items)  # ... while the vehicle holds the whole mission
+    assert compare_items(mp.items, [MissionItem(**dataclasses.asdict(i)) for i in stored]) == []
