@@ -46,7 +46,7 @@ import shutil
 import socket
 import sys
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import AsyncIterator, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
@@ -204,6 +204,50 @@ def vehicle_specs(plan: Plan, urls: Sequence[str] | None = None) -> tuple[Vehicl
         parse_url(url, vehicle=v.name)
         out.append(VehicleSpec(v.name, url, v.sysid))
     return tuple(out)
+
+
+@contextlib.asynccontextmanager
+async def signed_links(
+    specs: Sequence[VehicleSpec], key_file: str | None
+) -> AsyncIterator[tuple[VehicleSpec, ...]]:
+    """Route every vehicle through a MAVLink 2 signing proxy when ``key_file`` is given.
+
+    MAVSDK has no signing API: for each ``udpin://HOST:PORT`` connection a
+    :class:`mavlink.signing.SigningProxy` takes the vehicle's traffic on ``HOST:PORT``
+    (verifying its signatures), signs what the GCS sends, and MAVSDK is pointed at the proxy on
+    a free loopback port. Yields the specs to connect with (the same specs without a key).
+
+    Raises:
+        UserError: a connection other than ``udpin://`` (the vehicle must send to the GCS).
+        mavlink.signing.SigningError: a bad key file.
+    """
+    if key_file is None:
+        yield tuple(specs)
+        return
+    from mavlink.fleet import VehicleSpec
+    from mavlink.signing import SigningProxy, load_key
+    from mavlink.urls import Scheme, parse_url
+
+    key = load_key(key_file)
+    proxies: list[SigningProxy] = []
+    try:
+        signed = []
+        inner_ports = free_udp_ports(len(specs))
+        for spec, inner in zip(specs, inner_ports, strict=True):
+            url = parse_url(spec.url, vehicle=spec.name)
+            if url.scheme is not Scheme.UDPIN:
+                raise UserError(
+                    f"--signing-key: vehicle {spec.name}: signing works with udpin:// "
+                    f"connections only, got {spec.url}"
+                )
+            proxy = SigningProxy(key, url.port, inner, host=url.host)
+            await proxy.start()
+            proxies.append(proxy)
+            signed.append(VehicleSpec(spec.name, f"udpin://127.0.0.1:{inner}", spec.sysid))
+        yield tuple(signed)
+    finally:
+        for proxy in proxies:
+            proxy.close()
 
 
 def ground_spawns(plan: Plan) -> list[tuple[float, float, float]]:

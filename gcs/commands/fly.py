@@ -60,6 +60,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--timeout", type=float, default=10.0, metavar="S", help="connection timeout (10 s)"
     )
+    p.add_argument(
+        "--signing-key",
+        metavar="FILE",
+        help="sign what the GCS sends (MAVLink 2 signing, through a local proxy; udpin only)",
+    )
     p.add_argument("--json", action="store_true", help="print the outcome as JSON")
 
 
@@ -77,6 +82,7 @@ def run(args: argparse.Namespace) -> int:
         mock_vehicles,
         outcome_json,
         preflight_interlock,
+        signed_links,
         vehicle_specs,
     )
     from mavlink.errors import PreflightError
@@ -110,7 +116,12 @@ def run(args: argparse.Namespace) -> int:
 
     def fly(urls: list[str] | None) -> FlightOutcome:
         specs = vehicle_specs(plan, urls)
-        return asyncio.run(fly_plan(plan, specs, options, progress=progress))
+
+        async def signed_flight() -> FlightOutcome:
+            async with signed_links(specs, args.signing_key) as links:
+                return await fly_plan(plan, links, options, progress=progress)
+
+        return asyncio.run(signed_flight())
 
     try:
         if args.dry_run:

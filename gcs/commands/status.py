@@ -44,6 +44,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--timeout", type=float, default=5.0, metavar="S", help="seconds to wait for each (5)"
     )
+    p.add_argument(
+        "--signing-key",
+        metavar="FILE",
+        help="sign what the GCS sends (MAVLink 2 signing, through a local proxy; udpin only)",
+    )
     p.add_argument("--json", action="store_true", help="print the vehicles as JSON")
 
 
@@ -216,7 +221,13 @@ def run(args: argparse.Namespace) -> int:
     if not (args.timeout > 0):
         raise UserError(f"--timeout: must be > 0 s, got {args.timeout:g}")
     specs = specs_for(args.connection, args.sysid, args.vehicles)
-    rows = asyncio.run(read_status(specs, args.timeout))
+    from gcs.flight import signed_links
+
+    async def signed_status() -> list[Any]:
+        async with signed_links(specs, args.signing_key) as links:
+            return await read_status(links, args.timeout)
+
+    rows = asyncio.run(signed_status())
     if args.json:
         print(json.dumps({"vehicles": [r.as_json() for r in rows]}))
     else:

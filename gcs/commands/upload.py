@@ -76,6 +76,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="upload (and start) a plan or mission path that fails its checks",
     )
+    p.add_argument(
+        "--signing-key",
+        metavar="FILE",
+        help="sign what the GCS sends (MAVLink 2 signing, through a local proxy; udpin only)",
+    )
     p.add_argument("--json", action="store_true", help="print the results as JSON")
 
 
@@ -257,7 +262,7 @@ def table(rows: list[UploadRow]) -> str:
 def run(args: argparse.Namespace) -> int:
     """Upload; 0 when every read-back is identical."""
     from gcs.errors import UserError
-    from gcs.flight import FlightRefused, preflight_interlock, vehicle_specs
+    from gcs.flight import FlightRefused, preflight_interlock, signed_links, vehicle_specs
     from mavlink.errors import PreflightError
     from planner.planfile import load_plan
 
@@ -281,11 +286,12 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 1
-    try:
-        rows = asyncio.run(
-            upload_plan(
+
+    async def signed_upload() -> list[UploadRow]:
+        async with signed_links(specs, args.signing_key) as links:
+            return await upload_plan(
                 plan,
-                specs,
+                links,
                 fence=args.fence,
                 start=args.start,
                 end=args.end,
@@ -293,7 +299,9 @@ def run(args: argparse.Namespace) -> int:
                 tolerance_m=args.tolerance,
                 connect_timeout_s=args.timeout,
             )
-        )
+
+    try:
+        rows = asyncio.run(signed_upload())
     except PreflightError as exc:
         print(f"gcs upload: {exc}", file=sys.stderr)
         return 1

@@ -1,0 +1,61 @@
+"""``--signing-key`` on the ground-station commands, against mock vehicles that require it."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from gcs.cli import main
+from gcs.flight import free_udp_ports, ground_spawns
+from mavlink.mock import MockFleet
+from planner.planfile import load_plan
+
+PLAN = Path(__file__).resolve().parents[1] / "mavlink" / "data" / "reach_avoid_2.plan.json"
+KEY = bytes(range(32))
+
+
+@pytest.fixture
+def signed_mock() -> Iterator[tuple[MockFleet, list[str]]]:
+    plan = load_plan(PLAN)
+    ports = free_udp_ports(4)
+    fleet = MockFleet(
+        n=2,
+        origin=plan.origin,
+        spawns_enu_m=ground_spawns(plan),
+        gcs_ports=ports[:2],
+        vehicle_ports=ports[2:],
+        signing_key=KEY,
+    )
+    with fleet.running_in_thread():
+        yield fleet, [a for p in ports[:2] for a in ("--connection", f"udpin://127.0.0.1:{p}")]
+
+
+def test_upload_reaches_signed_vehicles_only_with_the_key(
+    signed_mock: tuple[MockFleet, list[str]], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    fleet, connections = signed_mock
+    key_file = tmp_path / "fleet.key"
+    key_file.write_text(KEY.hex())
+    # Unsigned: the vehicles refuse the transfer; nothing is stored.
+    assert main(["upload", str(PLAN), "--timeout", "5", *connections]) == 1
+    assert all(not v.mission_items(0) for v in fleet.vehicles)
+    assert sum(v.signing_rejected for v in fleet.vehicles) > 0
+    capsys.readouterr()
+    rejected_before = [v.signing_rejected for v in fleet.vehicles]
+    # Signed through the proxies: stored and read back, nothing more rejected.
+    assert main(["upload", str(PLAN), "--signing-key", str(key_file), *connections]) == 0
+    assert all(v.mission_items(0) for v in fleet.vehicles)
+    assert [v.signing_rejected for v in fleet.vehicles] == rejected_before
+
+
+def test_signing_needs_a_connection_the_vehicle_sends_to(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    key_file = tmp_path / "fleet.key"
+    key_file.write_text(KEY.hex())
+    argv = ["status", "--signing-key", str(key_file), "--connection", "udpout://127.0.0.1:14580"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "udpin:// connections only" in err
