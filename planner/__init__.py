@@ -14,8 +14,9 @@ that ``planner.trajectory`` users do not pay for CasADi):
 
 Error tree (each a ``ValueError``, each message names the file/field/position)::
 
-    planner.scenario.ScenarioError      a mistake in a scenario file (file, key path, problem)
-    planner.planfile.PlanFileError      a missing or malformed plan file (file, key, problem)
+    planner.errors.FileFieldError       a mistake in an input file (file, key path, problem)
+      planner.scenario.ScenarioError    ... in a scenario file
+      planner.planfile.PlanFileError    ... in a plan file (missing, not JSON, not a plan)
     planner.stl.STLError                STL engine errors (SpecError: syntax, line/column, ...)
     planner.dynamics.DynamicsError      bad model parameters
     planner.trajectory.TrajectoryError  bad segment data

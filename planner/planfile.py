@@ -18,7 +18,7 @@ truth is ``segments`` (floats are written with ``repr`` precision, so they round
 
 Errors::
 
-    PlanFileError(ValueError)   "<file>: <key path>: <problem>" for missing/malformed plans
+    PlanFileError(FileFieldError)   "<file>: <key path>: <problem>" for missing/malformed plans
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from planner.errors import FileFieldError
 from planner.frames import GeodeticPoint
 from planner.scenario import Region, RegionKind
 from planner.trajectory import Trajectory, TrajectoryError
@@ -50,15 +51,8 @@ FORMAT = "stl-gcs-plan"
 VERSION = 1
 
 
-class PlanFileError(ValueError):
+class PlanFileError(FileFieldError):
     """A plan file that is missing, not JSON, or not a valid plan: names file and key."""
-
-    def __init__(self, source: str, key_path: str, problem: str) -> None:
-        self.source = source
-        self.key_path = key_path
-        self.problem = problem
-        where = f"{source}: {key_path}" if key_path else source
-        super().__init__(f"{where}: {problem}")
 
 
 @dataclass(frozen=True, slots=True)

@@ -36,7 +36,7 @@ own (``gcs plan --print-spec``).
 
 Errors (one tree, everything a user can get wrong in a file)::
 
-    ScenarioError(ValueError)    names the file, the key path (``vehicles[2].start``) and the problem
+    ScenarioError(FileFieldError)    names the file, the key path (``vehicles[2].start``) and the problem
 """
 
 from __future__ import annotations
@@ -53,6 +53,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from planner.errors import FileFieldError
 from planner.frames import GeodeticPoint
 
 __all__ = [
@@ -88,15 +89,8 @@ FUNCTION_NAMES: dict[str, tuple[str, ...]] = {
 MAX_HORIZON_S = 3600.0
 
 
-class ScenarioError(ValueError):
+class ScenarioError(FileFieldError):
     """A mistake in a scenario file: ``"<file>: <key path>: <problem>"``."""
-
-    def __init__(self, source: str, key_path: str, problem: str) -> None:
-        self.source = source
-        self.key_path = key_path
-        self.problem = problem
-        where = f"{source}: {key_path}" if key_path else source
-        super().__init__(f"{where}: {problem}")
 
 
 class RegionKind(enum.Enum):
