@@ -5,6 +5,8 @@ velocities at ``t_i = i * segment_s``, ``i = 1 .. n_seg``::
 
     Z[0 : n_seg]         waypoint positions p_1 .. p_n   (m)      rows ``pos_rows``
     Z[n_seg : 2 n_seg]   waypoint velocities v_1 .. v_n  (m/s)    rows ``vel_rows``
+    Z[2 n_seg : 3 n_seg] waypoint accelerations a_1 .. a_n (m/s^2) rows ``acc_rows``,
+                         only with ``explicit_acc`` (tied by ``equality_constraints``)
 
 and ``X0 = [p0; v0; a0]`` ``(3, 3)``. Segment ``i`` is Mueller's jerk-optimal primitive
 from the state reached at ``t_{i-1}`` to ``(p_i, v_i)`` with the **end acceleration free**
@@ -48,6 +50,14 @@ class MinimumJerkChain(PiecewisePolynomialModel):
         sample_dt_s: sample step ``Ts`` of the planner's matrices; ``horizon_s`` must be a
             whole multiple of it.
         final_acc_zero: last segment ends with zero acceleration (see module docstring).
+        explicit_acc: make the waypoint accelerations decision variables too (``Z`` gets
+            rows ``acc_rows``) tied to the chain by the linear equalities of
+            :meth:`equality_constraints`. The trajectories are the same family; what
+            changes is sparsity: each segment then depends only on its two waypoints, so
+            ``Mp``/``Mv``/``Ma`` and the limit rows are banded instead of dense lower
+            triangular (every sample otherwise depends on all earlier waypoints through
+            the acceleration recursion), which keeps the optimiser's KKT factorisation
+            small (reach-avoid N = 8: see :mod:`planner.optimize`).
         limit_subdivisions: Bezier pieces per segment for the limit constraints. Worst
             ratio of the true peak to the limit for plans on the constraint boundary
             (random zig-zag plans, 1 s segments): 0.23 / 0.56 / 0.84 / 0.90 / 0.94 / 0.97
@@ -67,6 +77,7 @@ class MinimumJerkChain(PiecewisePolynomialModel):
         sample_dt_s: float,
         *,
         final_acc_zero: bool = True,
+        explicit_acc: bool = False,
         limit_subdivisions: int = 3,
         yaw_policy: YawPolicy | None = None,
     ) -> None:
@@ -74,15 +85,19 @@ class MinimumJerkChain(PiecewisePolynomialModel):
         self.n_segments = n
         self.segment_s = float(segment_s)
         self.final_acc_zero = bool(final_acc_zero)
+        self.explicit_acc = bool(explicit_acc)
         self.pos_rows = slice(0, n)
         self.vel_rows = slice(n, 2 * n)
+        self.acc_rows = slice(2 * n, 3 * n) if self.explicit_acc else slice(2 * n, 2 * n)
         self.waypoint_times_s = np.arange(1, n + 1) * self.segment_s
-        m = 2 * n + 3
+        n_dec = 3 * n if self.explicit_acc else 2 * n
+        m = n_dec + 3
         eye = np.eye(m)
-        P, V, A = eye[2 * n], eye[2 * n + 1], eye[2 * n + 2]
+        P, V, A = eye[n_dec], eye[n_dec + 1], eye[n_dec + 2]
         T = self.segment_s
         Tarr = np.array(T)
         coef = np.empty((n, 6, m))
+        eq = np.zeros((n if self.explicit_acc else 0, m))
         for i in range(n):
             last = i == n - 1
             end = EndState.POS_VEL_ACC if (last and self.final_acc_zero) else EndState.POS_VEL
@@ -90,11 +105,17 @@ class MinimumJerkChain(PiecewisePolynomialModel):
             d = np.stack([Pf - P - V * T - 0.5 * A * T * T, Vf - V - A * T, -A])
             alpha, beta, gamma = _forms(Tarr, end) @ d
             coef[i] = np.stack([P, V, A / 2.0, gamma / 6.0, beta / 24.0, alpha / 120.0])
-            P, V, A = Pf, Vf, A + gamma * T + beta * T**2 / 2.0 + alpha * T**3 / 6.0
+            A_end = A + gamma * T + beta * T**2 / 2.0 + alpha * T**3 / 6.0
+            if self.explicit_acc:  # a_i (a variable) equals the segment's end acceleration
+                eq[i] = eye[2 * n + i] - A_end
+                A_end = eye[2 * n + i]
+            P, V, A = Pf, Vf, A_end
+        eq[np.abs(eq) < 1e-14] = 0.0
+        self._equalities = eq
         self._build(
             horizon_s=float(horizon_s),
             sample_dt_s=float(sample_dt_s),
-            n_dec=2 * n,
+            n_dec=n_dec,
             n_init=3,
             segment_t0_s=np.arange(n) * self.segment_s,
             segment_duration_s=np.full(n, self.segment_s),
@@ -102,6 +123,11 @@ class MinimumJerkChain(PiecewisePolynomialModel):
             limit_subdivisions=limit_subdivisions,
             yaw_policy=yaw_policy if yaw_policy is not None else YawPolicy(),
         )
+
+    def equality_constraints(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``(G, H)`` with ``G @ Z + H @ X0 = 0`` (per axis) for every valid ``Z``: the
+        acceleration chain when ``explicit_acc`` (``n_segments`` rows), else no rows."""
+        return self._equalities[:, : self.n_dec], self._equalities[:, self.n_dec :]
 
     def initial_guess(self, start: ArrayLike, goal: ArrayLike) -> NDArray[np.float64]:
         """Straight line from ``start`` to ``goal`` (ENU m, ``(3,)``) over the horizon.
@@ -123,4 +149,10 @@ class MinimumJerkChain(PiecewisePolynomialModel):
         Z = np.empty((self.n_dec, 3))
         Z[self.pos_rows] = p_a + s[:, None] * (p_b - p_a)
         Z[self.vel_rows] = ds[:, None] * (p_b - p_a)
+        if self.explicit_acc:  # the chain's accelerations: solve G_acc a = -(G_pv z + H x0)
+            G, H = self.equality_constraints()
+            x0 = np.zeros((3, 3))
+            x0[0] = p_a
+            pv = np.r_[self.pos_rows, self.vel_rows]
+            Z[self.acc_rows] = np.linalg.solve(G[:, self.acc_rows], -(G[:, pv] @ Z[pv] + H @ x0))
         return Z

@@ -235,6 +235,11 @@ class PiecewisePolynomialModel:
         first = np.sort(first)
         return A[first], kinds_arr[first]
 
+    def equality_constraints(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``(G, H)`` with ``G @ Z + H @ X0 = 0`` for every valid ``Z`` (none by default;
+        a model whose ``Z`` carries redundant variables ties them down here)."""
+        return np.zeros((0, self.n_dec)), np.zeros((0, self.n_init))
+
     def limit_constraints(self, v_max: ArrayLike, a_max: ArrayLike) -> LimitConstraints:
         """Sound continuous-time limits ``|v_i(t)| <= v_max[i]``, ``|a_i(t)| <= a_max[i]``.
 

@@ -187,6 +187,38 @@ def test_sample_matrices_match_exact_evaluation() -> None:
     np.testing.assert_allclose(traj.position([0.0])[0], X0[0], atol=1e-12)
 
 
+def test_explicit_acceleration_chain_is_the_same_family_with_banded_matrices() -> None:
+    rng = np.random.default_rng(RNG_SEED + 9)
+    dense = MinimumJerkChain(horizon_s=12.0, segment_s=1.5, sample_dt_s=0.05)
+    banded = MinimumJerkChain(horizon_s=12.0, segment_s=1.5, sample_dt_s=0.05, explicit_acc=True)
+    n = dense.n_segments
+    assert banded.n_dec == 3 * n and dense.equality_constraints()[0].shape == (0, 2 * n)
+    Z, X0 = _random_decision(dense, rng)
+    # The accelerations the chain implies: the dense trajectory's, at the waypoints.
+    acc = dense.trajectory(Z, X0).acceleration(dense.waypoint_times_s)
+    Zb = np.vstack([Z, acc])
+    G, H = banded.equality_constraints()
+    assert G.shape == (n, 3 * n) and H.shape == (n, 3)
+    np.testing.assert_allclose(G @ Zb + H @ X0, 0.0, atol=1e-9)
+    for order in "pva":
+        M, N = getattr(dense, f"M{order}"), getattr(dense, f"N{order}")
+        Mb, Nb = getattr(banded, f"M{order}"), getattr(banded, f"N{order}")
+        np.testing.assert_allclose(Mb @ Zb + Nb @ X0, M @ Z + N @ X0, atol=1e-9)
+    # Banded: a sample inside segment s depends on waypoints s-1 and s only.
+    seg = np.minimum((banded.times_s / 1.5 + 1e-9).astype(int), n - 1)
+    for row, s in zip(banded.Mp, seg, strict=True):
+        cols = np.nonzero(row)[0]
+        assert set(cols % n) <= {s - 1, s} - {-1}
+    # A trajectory from a Z violating the chain is caught by the equalities.
+    Zb[2 * n + 2] += 0.5
+    assert np.max(np.abs(G @ Zb + H @ X0)) > 0.4
+    # initial_guess fills the accelerations consistently.
+    Zg = banded.initial_guess([0, 0, 1], [5, -3, 2])
+    np.testing.assert_allclose(
+        G @ Zg + H @ np.array([[0, 0, 1], [0, 0, 0], [0, 0, 0]]), 0, atol=1e-9
+    )
+
+
 def test_sample_matrices_work_with_casadi_symbols() -> None:
     ca = pytest.importorskip("casadi")
     rng = np.random.default_rng(RNG_SEED + 5)
