@@ -897,16 +897,11 @@ def _initial_guess(
         for reg in regs:
             sharing.setdefault(reg, []).append(name)
 
+    starts = {v.name: np.asarray(v.start_enu_m, dtype=float) for v in problem.vehicles}
+    slots = {reg: _box_slots(problem.region(reg), users, starts) for reg, users in sharing.items()}
+
     def point(reg: str, name: str) -> np.ndarray:
-        box = problem.region(reg)
-        lo, hi = np.asarray(box.lo_enu_m), np.asarray(box.hi_enu_m)
-        c = (lo + hi) / 2
-        users = sharing[reg]
-        if len(users) > 1:
-            a = int(np.argmax(hi - lo))
-            j = users.index(name)
-            c[a] = lo[a] + (hi[a] - lo[a]) * (j + 1) / (len(users) + 1)
-        return c
+        return slots[reg][name]
 
     sep = float(problem.separation_m or 0.0)
     options: list[list[np.ndarray]] = []
@@ -1013,6 +1008,32 @@ def _guess_qp(n_dec: int, A: np.ndarray) -> Any:
             {"error_on_fail": False},
         )
     return _QP_CACHE[key]
+
+
+def _box_slots(
+    box: Any, users: Sequence[str], starts: Mapping[str, np.ndarray]
+) -> dict[str, np.ndarray]:
+    """Target points for the vehicles sharing ``box``: the centres of a k_x x k_y x k_z
+    lattice of cells (the counts that maximise the smallest cell side while giving every
+    vehicle its own cell), handed out greedily, each vehicle taking the free one nearest
+    its start.  A single vehicle gets the centre."""
+    lo, hi = np.asarray(box.lo_enu_m, dtype=float), np.asarray(box.hi_enu_m, dtype=float)
+    ext = hi - lo
+    n = len(users)
+    best: tuple[float, tuple[int, int, int]] = (-1.0, (1, 1, 1))
+    for k in itertools.product(range(1, n + 1), repeat=3):
+        if math.prod(k) >= n and math.prod(k) < 2 * n + 2:
+            side = float(np.min(np.where(ext > 0, ext / np.asarray(k), np.inf)))
+            if side > best[0] + 1e-12:
+                best = (side, k)
+    k = best[1]
+    axes = [lo[a] + (np.arange(k[a]) + 0.5) * ext[a] / k[a] for a in range(3)]
+    cells = [np.array(c) for c in itertools.product(*axes)]
+    out: dict[str, np.ndarray] = {}
+    for name in users:
+        i = int(np.argmin([np.linalg.norm(c - starts[name]) for c in cells]))
+        out[name] = cells.pop(i)
+    return out
 
 
 #: Lateral lanes (multiples of ``_GUESS_LANE_SEP`` x separation) the guess may shift a

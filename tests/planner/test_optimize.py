@@ -163,3 +163,27 @@ def test_local_hessian_equals_casadi_hessian_of_the_whole_vector() -> None:
         assert float(np.max(np.abs(np.asarray(diff(rng.normal(size=7)))))) < 1e-12
     # Linear-only dependence gives an all-zero (structurally empty) block.
     assert _local_hessian(w[0] + 2 * w[5], w).nnz() == 0
+
+
+def test_shared_target_slots_are_distinct_lattice_cells_nearest_each_start() -> None:
+    from types import SimpleNamespace
+
+    from planner.optimize import _box_slots
+
+    cube = SimpleNamespace(lo_enu_m=(1.5, 1.5, 0.5), hi_enu_m=(2.0, 2.0, 1.0))
+    names = [f"d{i}" for i in range(8)]
+    starts = {nm: np.array([-1.5, 1.5 - 0.4 * i, 0.75]) for i, nm in enumerate(names)}
+    slots = _box_slots(cube, names, starts)
+    pts = np.array([slots[nm] for nm in names])
+    gaps = np.linalg.norm(pts[:, None] - pts[None], axis=2)[np.triu_indices(8, 1)]
+    assert gaps.min() == pytest.approx(0.25)  # a 2 x 2 x 2 lattice of 0.25 m cells
+    assert np.all(pts > cube.lo_enu_m) and np.all(pts < cube.hi_enu_m)
+    # A long box shared by two: split along its length, the west start takes the west cell.
+    long_box = SimpleNamespace(lo_enu_m=(0.0, 0.0, 9.5), hi_enu_m=(5.0, 2.0, 12.5))
+    two = _box_slots(
+        long_box, ["a", "b"], {"a": np.array([9.0, 0, 9]), "b": np.array([-9.0, 0, 9])}
+    )
+    assert two["b"][0] == pytest.approx(1.25) and two["a"][0] == pytest.approx(3.75)
+    # One vehicle: the centre.
+    one = _box_slots(cube, ["x"], {"x": np.zeros(3)})
+    np.testing.assert_allclose(one["x"], [1.75, 1.75, 0.75])
