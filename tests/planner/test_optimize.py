@@ -81,9 +81,10 @@ def test_reach_avoid_plans_with_positive_robustness(n: int) -> None:
     )
 
 
-def test_powerline_inspection_plans_with_positive_robustness() -> None:
-    # The flagship case of gcs demo: two groups of two.
-    problem = load_scenario(CONFIGS / "powerline_inspection.yaml", vehicles=4)
+@pytest.mark.parametrize("n", [2, 4])
+def test_powerline_inspection_plans_with_positive_robustness(n: int) -> None:
+    # N = 4 is the flagship case of gcs demo (two groups of two); N = 2 one drone per group.
+    problem = load_scenario(CONFIGS / "powerline_inspection.yaml", vehicles=n)
     result = plan(problem)
     assert result.success, result.status
     assert result.robustness > 0
