@@ -53,11 +53,11 @@ What made it fast, in the order found:
   one-sided ones (reach-avoid N = 4: 17.3 -> 3.6 s of IPOPT);
 * the initial guess is fitted to the limits by a QP (below), so IPOPT starts feasible for
   every linear constraint (reach-avoid N = 4: 120 -> 84 iterations);
-* each block of the Lagrangian Hessian is differentiated only in the variables it depends
-  on (:func:`_local_hessian`), which makes the exact Hessian of the power line's nested
-  ``eventually always``/``until`` leaves affordable to build (N = 4: 19 iterations and
-  2.8 s of IPOPT with it, against 30-500 iterations with L-BFGS, whose speed depended
-  erratically on its history length).
+* the exact Hessian on the power line too (N = 4: 14-19 iterations and 2.2-2.8 s of
+  IPOPT, against 30-500 iterations with L-BFGS, whose speed depended erratically on its
+  history length).  Its price is the build: ~12 s cold for N = 4, mostly CasADi
+  differentiating the nested ``eventually always``/``until`` leaves; differentiating each
+  block only in the variables it depends on (:func:`_local_hessian`) took 13.5 -> 11.7 s.
 
 CasADi's ``sqpmethod`` with ``qrqp`` did not finish reach-avoid N = 1 within 300 s, so
 IPOPT is the default; ``solver.method: sqpmethod`` remains selectable.  The constraint
@@ -69,8 +69,11 @@ each box for the spec's hover + 0.75 s, the horizon's slack split between slower
 longer dwells, each vehicle shifted into a lateral lane where its path would pass
 another's, and the timed path fitted by the closest trajectory that respects the limits,
 ends at rest and stays in the workspace (:func:`_fit_within_limits`; the plain
-least-squares fit overshot the acceleration limit 2.4x on reach-avoid N = 4) (power-line N = 4: the guess satisfies every mission clause; without this it
-timed the west climb at ~3 m/s against 2 m/s and IPOPT ended at robustness -1 to -4).
+least-squares fit overshot the acceleration limit 2.4x on reach-avoid N = 4).  Without the
+timing and the lanes (power-line N = 4; the guess now satisfies every mission clause) it
+timed the west climb at ~3 m/s against 2 m/s and IPOPT ended at robustness -1 to -4.
+Vehicles sharing a target box aim at distinct cells of a lattice in it (:func:`_box_slots`;
+power-line N = 4: 19 -> 14 iterations, robustness 0.57 -> 0.77).
 ``solver.robustness_cap_m`` bounds r above: once the spec holds by that margin the NLP
 only settles (power-line N = 4: 72 instead of 300+ iterations).
 
@@ -642,8 +645,8 @@ def _local_hessian(expr: Any, w: Any) -> Any:
     entries of ``w`` it depends on and scattered into place.
 
     A smooth leaf touches one or two vehicles' decisions out of thousands; differentiating
-    it against the whole ``w`` made CasADi's sparsity detection the bulk of the build
-    (power-line N = 4, exact Hessian: 8.8 s in ``hessian`` for 39 blocks).
+    it against the whole ``w`` adds sparsity detection over all of them (power-line N = 4,
+    exact Hessian: build 13.5 -> 11.7 s).
     """
     dep = np.nonzero(np.asarray(ca.which_depends(expr, w, 2, False), dtype=bool))[0]
     n_w = w.shape[0]
@@ -964,7 +967,8 @@ def _fit_within_limits(
 
     The unconstrained fit of a timed polyline rings at its corners (reach-avoid N = 4:
     2.4x the acceleration limit), and IPOPT then spends its first iterations restoring
-    feasibility instead of raising the robustness.  Falls back to that fit if the QP fails.
+    feasibility instead of raising the robustness.  If the QP fails, falls back to the
+    least-squares fit with only the equalities (end at rest, the model's own).
     """
     Mp, Np = np.asarray(model.Mp), np.asarray(model.Np)
     cons = model.limit_constraints(vehicle.v_max_m_s, vehicle.a_max_m_s2)
