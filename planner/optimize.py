@@ -640,6 +640,14 @@ def _derivatives(
     return out
 
 
+def _limit_bounds(cons: Any, half: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(lo, hi)`` ``(half, 3)`` of the kept limit rows (:func:`_two_sided_rows`):
+    ``-h`` below each paired row, ``-inf`` when the rows are kept one-sided."""
+    h = cons.h
+    lo = -h[half:] if 2 * half == len(h) else np.full_like(h, -np.inf)
+    return lo, h[:half]
+
+
 def _local_hessian(expr: Any, w: Any) -> Any:
     """Hessian of the scalar ``expr`` w.r.t. ``w`` (n_w x n_w), differentiated only in the
     entries of ``w`` it depends on and scattered into place.
@@ -973,6 +981,7 @@ def _fit_within_limits(
     Mp, Np = np.asarray(model.Mp), np.asarray(model.Np)
     cons = model.limit_constraints(vehicle.v_max_m_s, vehicle.a_max_m_s2)
     half = _two_sided_rows(cons)
+    lo_all, hi_all = _limit_bounds(cons, half)
     Ge, He = model.equality_constraints()
     n_fix = 1 + len(Ge)  # rows held at 0: the end velocity, the model's equalities
     A = np.vstack([model.Mv[-1:], Ge, cons.G[:half], Mp])
@@ -982,8 +991,7 @@ def _fit_within_limits(
     for a in range(3):
         xa = x0[:, a]
         off = np.concatenate([model.Nv[-1:] @ xa, He @ xa, cons.H[:half] @ xa, Np @ xa])
-        hi_lim = cons.h[:half, a]
-        lo_lim = -cons.h[half:, a] if 2 * half == len(cons.h) else np.full(half, -np.inf)
+        lo_lim, hi_lim = lo_all[:, a], hi_all[:, a]
         lba = np.concatenate([np.zeros(n_fix), lo_lim, np.full(len(Mp), ws.lo_enu_m[a])]) - off
         uba = np.concatenate([np.zeros(n_fix), hi_lim, np.full(len(Mp), ws.hi_enu_m[a])]) - off
         g = -2 * Mp.T @ (path[:, a] - Np @ xa)
@@ -1216,9 +1224,8 @@ def plan(
     for i, v in enumerate(problem.vehicles):
         keyl = (v.v_max_m_s, v.a_max_m_s2)
         if keyl not in cons_cache:
-            h = model.limit_constraints(v.v_max_m_s, v.a_max_m_s2).h
-            lo = -h[half:] if 2 * half == len(h) else np.full_like(h, -np.inf)
-            cons_cache[keyl] = (lo.reshape(-1, order="F"), h[:half].reshape(-1, order="F"))
+            lo, hi = _limit_bounds(model.limit_constraints(v.v_max_m_s, v.a_max_m_s2), half)
+            cons_cache[keyl] = (lo.reshape(-1, order="F"), hi.reshape(-1, order="F"))
         lbg[struct.lim_slices[i]], ubg[struct.lim_slices[i]] = cons_cache[keyl]
     lbx = struct.lbx.copy()
     ubx = struct.ubx.copy()
