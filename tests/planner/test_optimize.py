@@ -166,25 +166,41 @@ def test_local_hessian_equals_casadi_hessian_of_the_whole_vector() -> None:
     assert _local_hessian(w[0] + 2 * w[5], w).nnz() == 0
 
 
-def test_shared_target_slots_are_distinct_lattice_cells_nearest_each_start() -> None:
+def test_shared_target_slots_are_lattice_points_with_equal_depth_and_spacing_margins() -> None:
     from types import SimpleNamespace
 
     from planner.optimize import _box_slots
 
     cube = SimpleNamespace(lo_enu_m=(1.5, 1.5, 0.5), hi_enu_m=(2.0, 2.0, 1.0))
-    names = [f"d{i}" for i in range(8)]
-    starts = {nm: np.array([-1.5, 1.5 - 0.4 * i, 0.75]) for i, nm in enumerate(names)}
-    slots = _box_slots(cube, names, starts)
-    pts = np.array([slots[nm] for nm in names])
-    gaps = np.linalg.norm(pts[:, None] - pts[None], axis=2)[np.triu_indices(8, 1)]
-    assert gaps.min() == pytest.approx(0.25)  # a 2 x 2 x 2 lattice of 0.25 m cells
-    assert np.all(pts > cube.lo_enu_m) and np.all(pts < cube.hi_enu_m)
-    # A long box shared by two: split along its length, the west start takes the west cell.
+
+    def margins(n: int, sep: float) -> tuple[float, float, np.ndarray]:
+        names = [f"d{i}" for i in range(n)]
+        starts = {nm: np.array([-1.5, 1.5 - 0.2 * i, 0.75]) for i, nm in enumerate(names)}
+        slots = _box_slots(cube, names, starts, sep)
+        pts = np.array([slots[nm] for nm in names])
+        gaps = np.linalg.norm(pts[:, None] - pts[None], axis=2)[np.triu_indices(n, 1)]
+        depth = np.min(np.minimum(pts - cube.lo_enu_m, np.subtract(cube.hi_enu_m, pts)))
+        return float(depth), float(gaps.min() - sep), pts
+
+    # 8 drones, 0.2 m apart: the cube's 2 x 2 x 2 lattice 0.1 m inside the faces, 0.3 m
+    # apart; 16 drones: 3 x 3 x 2, every margin 0.025 m (the cell centres of that lattice
+    # are 0.167 m apart, closer than the separation).
+    for n, expect in ((8, 0.1), (16, 0.025)):
+        depth, spare, pts = margins(n, 0.2)
+        assert depth == pytest.approx(expect) and spare == pytest.approx(expect)
+        assert len({tuple(p) for p in pts.round(9)}) == n
+    # Each start in turn takes the nearest free point: d0, west of the cube and level with
+    # its south-west column, gets that column.
+    _, _, pts = margins(8, 0.2)
+    np.testing.assert_allclose(pts[0][:2], [1.6, 1.6])
+    # A long box shared by two: split along its length, the west start takes the west point,
+    # (5 - 1.5) / 3 m from the ends; the short axes keep the middle.
     long_box = SimpleNamespace(lo_enu_m=(0.0, 0.0, 9.5), hi_enu_m=(5.0, 2.0, 12.5))
     two = _box_slots(
-        long_box, ["a", "b"], {"a": np.array([9.0, 0, 9]), "b": np.array([-9.0, 0, 9])}
+        long_box, ["a", "b"], {"a": np.array([9.0, 0, 9]), "b": np.array([-9.0, 0, 9])}, 1.5
     )
-    assert two["b"][0] == pytest.approx(1.25) and two["a"][0] == pytest.approx(3.75)
+    np.testing.assert_allclose(two["b"], [3.5 / 3, 1.0, 11.0])
+    np.testing.assert_allclose(two["a"], [5 - 3.5 / 3, 1.0, 11.0])
     # One vehicle: the centre.
     one = _box_slots(cube, ["x"], {"x": np.zeros(3)})
     np.testing.assert_allclose(one["x"], [1.75, 1.75, 0.75])
