@@ -148,7 +148,8 @@ def test_warm_start_from_a_previous_solution_converges_quickly() -> None:
     assert again.stats is not None and again.stats.cached
     # Primal warm start only (IPOPT re-grows its barrier from the bounds): about a third.
     assert again.iterations <= max(5, first.iterations // 2)
-    assert again.robustness == pytest.approx(first.robustness, abs=1e-3)
+    # Never worse; with tol 1e-4 the restart may polish a little further (0.2449 -> 0.2482).
+    assert again.robustness >= first.robustness - 1e-3
 
 
 def test_local_hessian_equals_casadi_hessian_of_the_whole_vector() -> None:
@@ -164,6 +165,44 @@ def test_local_hessian_equals_casadi_hessian_of_the_whole_vector() -> None:
         assert float(np.max(np.abs(np.asarray(diff(rng.normal(size=7)))))) < 1e-12
     # Linear-only dependence gives an all-zero (structurally empty) block.
     assert _local_hessian(w[0] + 2 * w[5], w).nnz() == 0
+
+
+def test_flat_blocks_keep_their_gradient_and_leave_the_hessian() -> None:
+    import casadi as ca
+
+    from planner.optimize import _derivatives
+
+    w, p = ca.SX.sym("w", 3), ca.SX.sym("p", 0)
+    sep = ca.vertcat(ca.norm_2(w[:2]) - w[2])  # a keep-apart row: dist - r >= 0
+    cur = ca.vertcat(w[0] ** 2 * w[1])
+    x = np.array([0.3, -0.4, 0.1])
+    lam = np.array([-2.0, 0.5])
+    hess = {}
+    for flat in ([False, False], [True, False]):
+        d = _derivatives(w, p, -w[2], [], [sep, cur], True, flat)
+        jac = np.asarray(d["jac_g"](x, [])[1])
+        np.testing.assert_allclose(jac[0], [0.6, -0.8, -1.0], atol=1e-12)  # exact either way
+        hess[tuple(flat)] = np.asarray(d["hess_lag"](x, [], 1.0, lam)).reshape(3, 3)
+    # Without the flat row: lam_0 * (I - u u^T) / |w| + lam_1 * d2(w0^2 w1), upper triangle.
+    u = x[:2] / np.linalg.norm(x[:2])
+    h_sep = lam[0] * (np.eye(2) - np.outer(u, u)) / np.linalg.norm(x[:2])
+    h_cur = lam[1] * np.array([[2 * x[1], 2 * x[0]], [2 * x[0], 0.0]])
+    np.testing.assert_allclose(hess[(False, False)][:2, :2], np.triu(h_sep + h_cur), atol=1e-12)
+    np.testing.assert_allclose(hess[(True, False)][:2, :2], np.triu(h_cur), atol=1e-12)
+
+
+def test_separation_without_curvature_reaches_the_exact_hessian_optimum() -> None:
+    from planner.optimize import _is_separation
+    from planner.predicates import build_registry, parse_clause
+
+    problem = load_scenario(CONFIGS / "reach_avoid.yaml", vehicles=2)
+    registry = build_registry(problem)
+    kinds = [_is_separation(parse_clause(problem, c, registry).child) for c in problem.clauses]
+    assert kinds == [False, False, False, False, True]  # reach x2, avoid x2, the pair
+    flat = plan(problem)
+    curved = plan(_replace_solver(problem, separation_curvature=True))
+    assert flat.success and curved.success
+    assert flat.robustness == pytest.approx(curved.robustness, abs=2e-3)
 
 
 def test_shared_target_slots_are_lattice_points_with_equal_depth_and_spacing_margins() -> None:

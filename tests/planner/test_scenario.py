@@ -139,6 +139,7 @@ _DELETE = object()
         (["vehicles", "count"], 0, "vehicles.count", ">= 1"),
         (["separation_m"], -0.2, "separation_m", ">= 0"),
         (["solver"], {"method": "snopt"}, "solver.method", "unknown method"),
+        (["solver"], {"separation_curvature": "yes"}, "solver.separation_curvature", "true"),
         (["colour"], "red", "colour", "unknown key"),
         (["origin", "lat"], 123.0, "origin.lat", "latitude"),
         (["model"], "bicycle", "model", "unknown model"),
