@@ -27,6 +27,8 @@ import json
 import sys
 from pathlib import Path
 
+from gcs.commands import add_link_arguments
+
 HELP = "fly a plan in offboard (or mission) mode on PX4 vehicles, or on mock ones with --dry-run"
 
 EXIT_INTERRUPTED = 130
@@ -35,13 +37,6 @@ EXIT_INTERRUPTED = 130
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``gcs fly``."""
     p.add_argument("plan", help="plan file written by gcs plan")
-    p.add_argument(
-        "--connection",
-        action="append",
-        metavar="URL",
-        help="connection URL of the next vehicle (repeat, plan order); default "
-        "udpin://0.0.0.0:14540+i (PX4 SITL)",
-    )
     p.add_argument("--rate", type=float, default=20.0, metavar="HZ", help="setpoint rate (20)")
     p.add_argument(
         "--dry-run", action="store_true", help="fly against mock vehicles started in-process"
@@ -57,14 +52,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="refuse a vehicle farther than M metres from its planned start (1.0)",
     )
     p.add_argument("--end", choices=["hold", "land", "return"], default="hold")
-    p.add_argument(
-        "--timeout", type=float, default=10.0, metavar="S", help="connection timeout (10 s)"
-    )
-    p.add_argument(
-        "--signing-key",
-        metavar="FILE",
-        help="sign what the GCS sends (MAVLink 2 signing, through a local proxy; udpin only)",
-    )
+    add_link_arguments(p, plan_order=True, timeout_s=10.0, timeout_help="connection timeout (10 s)")
     p.add_argument("--json", action="store_true", help="print the outcome as JSON")
 
 

@@ -21,6 +21,8 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from gcs.commands import add_link_arguments
+
 if TYPE_CHECKING:
     from mavlink.fleet import VehicleSpec, VehicleStatus
 
@@ -30,24 +32,13 @@ HELP = "show each vehicle: system id, autopilot, mode, armed, position, battery"
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``gcs status``."""
     p.add_argument(
-        "--connection",
-        action="append",
-        metavar="URL",
-        help="connection URL of the next vehicle (repeat); default udpin://0.0.0.0:14540+i",
-    )
-    p.add_argument(
         "--sysid", action="append", type=int, metavar="ID", help="system id per connection (i+1)"
     )
     p.add_argument(
         "--vehicles", type=int, default=1, metavar="N", help="without --connection: N SITL ports"
     )
-    p.add_argument(
-        "--timeout", type=float, default=5.0, metavar="S", help="seconds to wait for each (5)"
-    )
-    p.add_argument(
-        "--signing-key",
-        metavar="FILE",
-        help="sign what the GCS sends (MAVLink 2 signing, through a local proxy; udpin only)",
+    add_link_arguments(
+        p, plan_order=False, timeout_s=5.0, timeout_help="seconds to wait for each (5)"
     )
     p.add_argument("--json", action="store_true", help="print the vehicles as JSON")
 

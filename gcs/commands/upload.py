@@ -33,6 +33,8 @@ import sys
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from gcs.commands import add_link_arguments
+
 if TYPE_CHECKING:
     from mavlink.fleet import Fleet, Vehicle, VehicleSpec
     from mavlink.mission import MissionItem, MissionPlan
@@ -44,13 +46,6 @@ HELP = "upload each vehicle's mission (and geofence) converted from a plan, read
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``gcs upload``."""
     p.add_argument("plan", help="plan file written by gcs plan")
-    p.add_argument(
-        "--connection",
-        action="append",
-        metavar="URL",
-        help="connection URL of the next vehicle (repeat, plan order); default "
-        "udpin://0.0.0.0:14540+i (PX4 SITL)",
-    )
     p.add_argument("--fence", action="store_true", help="upload the geofence too")
     p.add_argument("--start", action="store_true", help="arm and start the missions afterwards")
     p.add_argument("--end", choices=["land", "return", "hold"], default="land")
@@ -69,18 +64,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="with --start: refuse a vehicle farther than M m from its start (1.0)",
     )
     p.add_argument(
-        "--timeout", type=float, default=10.0, metavar="S", help="connection timeout (10 s)"
-    )
-    p.add_argument(
         "--force",
         action="store_true",
         help="upload (and start) a plan or mission path that fails its checks",
     )
-    p.add_argument(
-        "--signing-key",
-        metavar="FILE",
-        help="sign what the GCS sends (MAVLink 2 signing, through a local proxy; udpin only)",
-    )
+    add_link_arguments(p, plan_order=True, timeout_s=10.0, timeout_help="connection timeout (10 s)")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
 
 
