@@ -60,8 +60,10 @@ What made it fast, in the order found:
   block only in the variables it depends on (:func:`_local_hessian`) took 13.5 -> 11.7 s;
 * the separation rows' curvature is left out of that Hessian (:func:`_derivatives`): it
   is negative, and IPOPT corrected the inertia with it in most iterations (reach-avoid
-  N = 8: 7.3 -> 6.0 s of IPOPT, N = 16: build 13.7 -> 9.3 s); leaving out the obstacle's
-  as well was faster still on reach-avoid but broke the power line (500+ iterations);
+  N = 8: 7.3 -> 6.0 s of IPOPT, N = 16: 144 -> 133 iterations and build 12.0 -> 9.3 s);
+  the power line keeps it (``solver.separation_curvature: true``: N = 8 took 189
+  iterations without it, 27 with); leaving out the obstacle's curvature as well was
+  faster still on reach-avoid but broke the power line (500+ iterations);
 * ``tol`` 1e-4 instead of 1e-6 (robustness is in metres): the last digits took a third of
   the iterations (reach-avoid N = 8: 91 -> 75; power-line N = 4: 17 -> 10).
 
