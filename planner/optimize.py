@@ -119,6 +119,13 @@ import numpy as np
 
 from planner.dynamics import DoubleIntegrator, MinimumJerkChain
 from planner.dynamics.feasibility import FeasibilityReport, InputLimits, check_input_feasibility
+from planner.leaf_templates import (
+    LeafInstance,
+    clear_templates,
+    instance,
+    local_hessian,
+    selection,
+)
 from planner.planfile import Plan, PlannedVehicle
 from planner.predicates import (
     build_registry,
@@ -399,8 +406,9 @@ _CACHE_SIZE = 8
 
 
 def clear_cache() -> None:
-    """Forget built solvers (tests and benchmarks measure cold builds with this)."""
+    """Forget built solvers and leaf templates (benchmarks measure cold builds with this)."""
     _CACHE.clear()
+    clear_templates()
 
 
 def _structure_key(problem: Problem) -> Any:
@@ -435,31 +443,21 @@ def _leaf_values(
     leaf: Formula,
     steps: list[int],
     rows_of: Callable[[list[int]], Mapping[str, Any]],
-    pos_from_z: Mapping[str, Any],
-    dt: float,
-    k: float,
     problem: Problem,
     fns: Mapping[str, Callable[..., Any]],
 ) -> Any:
-    """SX column of a leaf's (smooth) robustness at ``steps``."""
-    if _is_direct(leaf):
-        rows = rows_of(steps)
-        if isinstance(leaf, Predicate) and leaf.call.name == "inside":
-            region = problem.region(leaf.call.args[1])
-            return ca.vec(ca_box_margins(rows[leaf.call.args[0]], region))
-        if isinstance(leaf, Predicate):
-            return fns[leaf.call.name](leaf.call.args, rows)
-        assert isinstance(leaf, Comparison)
-        lhs = _ca_expr(leaf.lhs, rows, fns)
-        rhs = _ca_expr(leaf.rhs, rows, fns)
-        out = lhs - rhs if leaf.op in (CmpOp.GE, CmpOp.GT) else rhs - lhs
-        return out * ca.DM.ones(len(steps), 1) if not hasattr(out, "shape") else out
-    hz = leaf.horizon_steps(dt)
-    parts = []
-    for st in steps:
-        view = {nm: P[st : st + hz + 1, :] for nm, P in pos_from_z.items()}
-        parts.append(leaf.smooth_robustness(view, dt, k))
-    return ca.vertcat(*parts)
+    """SX column of a row-wise leaf's robustness at ``steps`` (from the lifted positions)."""
+    rows = rows_of(steps)
+    if isinstance(leaf, Predicate) and leaf.call.name == "inside":
+        region = problem.region(leaf.call.args[1])
+        return ca.vec(ca_box_margins(rows[leaf.call.args[0]], region))
+    if isinstance(leaf, Predicate):
+        return fns[leaf.call.name](leaf.call.args, rows)
+    assert isinstance(leaf, Comparison)
+    lhs = _ca_expr(leaf.lhs, rows, fns)
+    rhs = _ca_expr(leaf.rhs, rows, fns)
+    out = lhs - rhs if leaf.op in (CmpOp.GE, CmpOp.GT) else rhs - lhs
+    return out * ca.DM.ones(len(steps), 1) if not hasattr(out, "shape") else out
 
 
 def _build(problem: Problem, model: Any, formula: Formula) -> _Structure:
@@ -481,7 +479,8 @@ def _build(problem: Problem, model: Any, formula: Formula) -> _Structure:
     smooth_leaves = [leaf for leaf in leaves if not _is_direct(leaf)]
     k_final, margin = _fit_k(problem, smooth_leaves, dt)
     k_list = [*[kk for kk in opts.continuation if kk < k_final], k_final]
-    fns = casadi_functions(problem, predicate_sharpness(problem))
+    k_pred = predicate_sharpness(problem)
+    fns = casadi_functions(problem, k_pred)
     c_dt = opts.constraint_dt_s if opts.constraint_dt_s is not None else max(dt, 0.1)
     stride = max(1, round(c_dt / dt))
     direct_steps: dict[Formula, list[int]] = {}
@@ -489,7 +488,10 @@ def _build(problem: Problem, model: Any, formula: Formula) -> _Structure:
         if _is_direct(leaf):
             steps = sorted(steps_set)
             direct_steps[leaf] = sorted(set(steps[::stride]) | {steps[-1]})
-    used = sorted(set().union(*direct_steps.values())) if direct_steps else [0]
+    # The workspace bounds the lifted positions, so every constraint step of the horizon is
+    # lifted, whether or not the spec itself constrains it there.
+    grid = {*range(0, n, stride), n - 1}
+    used = sorted(grid.union(*direct_steps.values()))
     row_of = {st: i for i, st in enumerate(used)}
 
     Z = [ca.SX.sym(f"Z_{nm}", model.n_dec, 3) for nm in names]
@@ -507,16 +509,9 @@ def _build(problem: Problem, model: Any, formula: Formula) -> _Structure:
         return {nm: q[idx, :] for nm, q in Pd.items()}
 
     direct_parts = [
-        _leaf_values(leaf, steps, rows_of, pos_from_z, dt, 0.0, problem, fns)
-        for leaf, steps in direct_steps.items()
+        _leaf_values(leaf, steps, rows_of, problem, fns) for leaf, steps in direct_steps.items()
     ]
     direct = ca.vertcat(*direct_parts) if direct_parts else ca.SX(0, 1)
-
-    def smooth_parts(k: float) -> list[Any]:
-        return [
-            _leaf_values(leaf, sorted(leaves[leaf]), rows_of, pos_from_z, dt, k, problem, fns)
-            for leaf in smooth_leaves
-        ]
 
     # Linear parts: lifting equalities, limits, rest at the end.
     lift_g = [ca.vec(P[i] - pos_from_z[nm][used, :]) for i, nm in enumerate(names)]
@@ -558,31 +553,45 @@ def _build(problem: Problem, model: Any, formula: Formula) -> _Structure:
     r_hi = _R_MAX if opts.robustness_cap_m is None else opts.robustness_cap_m + margin
     ubx = np.concatenate([np.full(n_z, np.inf), np.tile(np.repeat(ws.hi_enu_m, m), nv), [r_hi]])
 
+    # The linear and row-wise blocks (SX, differentiated block by block) do not depend on
+    # the temporal sharpness k; the smooth leaves are calls of shared templates, assembled
+    # with them into MX functions per k (see :mod:`planner.leaf_templates`).
+    linear = [*lift_g, *lim_g, *end_g, *eq_g]
+    n_lin = sum(int(b.shape[0]) for b in linear)
+    nonlinear = [part - r for part in direct_parts]
+    f = -r + reg_term
+    # Separation rows enter the Hessian flat unless asked otherwise (see _derivatives).
+    flat = [_is_separation(leaf) and not opts.separation_curvature for leaf in direct_steps]
+    exact = opts.hessian == "exact"
+    sx_derivs = _derivatives(w, p, f, linear, nonlinear, exact, flat)
+    # Values and derivatives are separate functions: nlpsol differentiates the MX values once
+    # more (reverse mode, for the multipliers) and must not go through derivative outputs.
+    sx_derivs["f"] = ca.Function("nlp_f", [w, p], [f])
+    sx_derivs["grad_f"] = ca.Function("nlp_grad_f", [w, p], [f, ca.gradient(f, w)])
+    sx_derivs["g"] = ca.Function("nlp_g", [w, p], [ca.vertcat(*linear, *nonlinear)])
+    n_sx = n_lin + int(direct.shape[0])
+    vehicle_index = {nm: i for i, nm in enumerate(names)}
+    smooth_items = [(leaf, st) for leaf in smooth_leaves for st in sorted(leaves[leaf])]
+    wm = ca.MX.sym("w", w.shape[0])
+    pm = ca.MX.sym("p", p.shape[0])
+
     solvers = []
     leaf_fn = None
-    n_g = 0
-    lbg_fixed = ubg_fixed = np.zeros(0)
     for k in k_list:
-        smooth = smooth_parts(k)
-        leaf_all = ca.vertcat(direct, *smooth)
-        n_leaf = leaf_all.shape[0]
-        linear = [*lift_g, *lim_g, *end_g, *eq_g]
-        nonlinear = [part - r for part in [*direct_parts, *smooth]]
-        g = ca.vertcat(*linear, *nonlinear)
-        n_g = g.shape[0]
-        lbg_fixed = np.concatenate(
-            [np.zeros(n_lift), np.full(n_lim, -np.inf), np.zeros(3 * nv + n_eq), np.zeros(n_leaf)]
-        )  # the limit rows' bounds are set per vehicle in plan()
-        ubg_fixed = np.concatenate(
-            [np.zeros(n_lift), np.zeros(n_lim), np.zeros(3 * nv + n_eq), np.full(n_leaf, np.inf)]
-        )
-        f = -r + reg_term
-        nlp = {"x": w, "p": p, "f": f, "g": g}
-        # Separation rows enter the Hessian flat unless asked otherwise (see _derivatives).
-        flat = [_is_separation(leaf) and not opts.separation_curvature for leaf in direct_steps]
-        derivs = _derivatives(w, p, f, linear, nonlinear, opts.hessian == "exact", flat)
+        insts = [
+            instance(leaf, st, model, dt, k, k_pred, vehicle_index, problem.region)
+            for leaf, st in smooth_items
+        ]
+        nlp, derivs, leaf_fn = _assemble(wm, pm, sx_derivs, insts, n_lin, n_sx, exact)
         solvers.append((k, _nlpsol(nlp, problem, derivs)))
-        leaf_fn = ca.Function("leaves", [w, p], [leaf_all])
+    n_g = n_sx + len(smooth_items)
+    n_leaf = n_g - n_lin
+    lbg_fixed = np.concatenate(
+        [np.zeros(n_lift), np.full(n_lim, -np.inf), np.zeros(3 * nv + n_eq), np.zeros(n_leaf)]
+    )  # the limit rows' bounds are set per vehicle in plan()
+    ubg_fixed = np.concatenate(
+        [np.zeros(n_lift), np.zeros(n_lim), np.zeros(3 * nv + n_eq), np.full(n_leaf, np.inf)]
+    )
     return _Structure(
         solvers=solvers,
         leaf_fn=leaf_fn,
@@ -597,11 +606,69 @@ def _build(problem: Problem, model: Any, formula: Formula) -> _Structure:
         lim_half=half,
         leaves=leaves,
         used_steps=used,
-        n_smooth=sum(len(leaves[leaf]) for leaf in smooth_leaves),
+        n_smooth=len(smooth_items),
         k=k_final,
         margin=margin,
         build_s=time.perf_counter() - t0,
     )
+
+
+def _assemble(
+    wm: Any,
+    pm: Any,
+    sx: Mapping[str, Any],
+    insts: Sequence[LeafInstance],
+    n_lin: int,
+    n_sx: int,
+    exact: bool,
+) -> tuple[dict[str, Any], dict[str, Any], Any]:
+    """The NLP, its derivative functions and the leaf-value function, in MX.
+
+    ``g`` is the SX blocks' rows (linear, then row-wise leaves ``- r``) followed by one row
+    per smooth leaf instance (``value - r``); their Jacobian rows are the templates'
+    gradients scattered into ``w`` and ``-1`` in r's column, their Hessian the templates'
+    ``lam * H`` scattered (upper triangle, as IPOPT takes it).
+    """
+    n_w = wm.shape[0]
+    g_sx = sx["g"](wm, pm)
+    jac_sx = sx["jac_g"](wm, pm)[1]
+    vals, rows, calls = [], [], []
+    for inst in insts:
+        args = (wm[list(inst.z_index)], pm[list(inst.x0_index)], ca.DM(inst.bounds))
+        _, grad = inst.template.value_grad(*args)
+        sel = selection(inst.z_index, n_w)
+        vals.append(inst.template.value(*args))
+        rows.append(ca.mtimes(grad, sel))
+        calls.append((args, sel))
+    r = wm[n_w - 1]
+    n_s = len(insts)
+    if n_s:
+        e_r = ca.DM(ca.Sparsity.triplet(n_s, n_w, list(range(n_s)), [n_w - 1] * n_s), -1.0)
+        g = ca.vertcat(g_sx, ca.vertcat(*vals) - r)
+        jac = ca.vertcat(jac_sx, ca.vertcat(*rows) + e_r)
+        leaf_all = ca.vertcat(g_sx[n_lin:] + r, *vals)
+    else:
+        g, jac, leaf_all = g_sx, jac_sx, g_sx[n_lin:] + r
+    derivs = {"jac_g": ca.Function("nlp_jac_g", [wm, pm], [g, jac], ["x", "p"], ["g", "jac_g_x"])}
+    if exact:
+        lam_f = ca.MX.sym("lam_f")
+        lam_g = ca.MX.sym("lam_g", n_sx + n_s)
+        H = sx["hess_lag"](wm, pm, lam_f, lam_g[:n_sx])
+        for i, (inst, (args, sel)) in enumerate(zip(insts, calls, strict=True)):
+            h_i = inst.template.hess(*args, lam_g[n_sx + i])
+            H = H + ca.triu(ca.mtimes(ca.mtimes(sel.T, h_i), sel))
+        derivs["hess_lag"] = ca.Function(
+            "nlp_hess_l",
+            [wm, pm, lam_f, lam_g],
+            [H],
+            ["x", "p", "lam_f", "lam_g"],
+            ["triu_hess_gamma_x_x"],
+        )
+    derivs["grad_f"] = ca.Function(
+        "nlp_grad_f", [wm, pm], list(sx["grad_f"](wm, pm)), ["x", "p"], ["f", "grad_f_x"]
+    )
+    nlp = {"x": wm, "p": pm, "f": sx["f"](wm, pm), "g": g}
+    return nlp, derivs, ca.Function("leaves", [wm, pm], [leaf_all])
 
 
 def _is_separation(leaf: Formula) -> bool:
@@ -657,12 +724,12 @@ def _derivatives(
     if hessian:
         lam_f = ca.SX.sym("lam_f")
         lam_g = ca.SX.sym("lam_g", g.shape[0])
-        H = lam_f * _local_hessian(f, w)
+        H = lam_f * local_hessian(f, w)
         row = sum(b.shape[0] for b in linear)
         for ib, b in enumerate(nonlinear):
             m = b.shape[0]
             if ib >= len(flat) or not flat[ib]:
-                H = H + _local_hessian(ca.dot(lam_g[row : row + m], b), w)
+                H = H + local_hessian(ca.dot(lam_g[row : row + m], b), w)
             row += m
         out["hess_lag"] = ca.Function(
             "nlp_hess_l",
@@ -680,23 +747,6 @@ def _limit_bounds(cons: Any, half: int) -> tuple[np.ndarray, np.ndarray]:
     h = cons.h
     lo = -h[half:] if 2 * half == len(h) else np.full_like(h, -np.inf)
     return lo, h[:half]
-
-
-def _local_hessian(expr: Any, w: Any) -> Any:
-    """Hessian of the scalar ``expr`` w.r.t. ``w`` (n_w x n_w), differentiated only in the
-    entries of ``w`` it depends on and scattered into place.
-
-    A smooth leaf touches one or two vehicles' decisions out of thousands; differentiating
-    it against the whole ``w`` adds sparsity detection over all of them (power-line N = 4,
-    exact Hessian: build 13.5 -> 11.7 s).
-    """
-    dep = np.nonzero(np.asarray(ca.which_depends(expr, w, 2, False), dtype=bool))[0]
-    n_w = w.shape[0]
-    if dep.size == 0:
-        return ca.SX(n_w, n_w)
-    h_loc = ca.hessian(expr, w[dep.tolist()])[0]
-    sel = ca.DM(ca.Sparsity.triplet(dep.size, n_w, list(range(dep.size)), dep.tolist()), 1.0)
-    return ca.mtimes(ca.mtimes(sel.T, h_loc), sel)
 
 
 def _nlpsol(nlp: dict[str, Any], problem: Problem, derivs: dict[str, Any]) -> Any:

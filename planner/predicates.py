@@ -94,11 +94,15 @@ def box_margins(pos_enu_m: np.ndarray, region: Region) -> np.ndarray:
 
 
 def ca_box_margins(pos: Any, region: Region) -> Any:
-    """CasADi (n, 6) face margins of an (n, 3) position expression."""
+    """CasADi (n, 6) face margins of an (n, 3) position expression.
+
+    The bounds may be numbers or (3, 1) CasADi symbols (the planner's leaf templates,
+    :mod:`planner.leaf_templates`, take boxes as inputs)."""
     n = pos.shape[0]
-    lo = ca.repmat(ca.DM(region.lo_enu_m).T, n, 1)
-    hi = ca.repmat(ca.DM(region.hi_enu_m).T, n, 1)
-    return ca.horzcat(pos - lo, hi - pos)
+    lo, hi = (
+        b if isinstance(b, ca.SX | ca.MX) else ca.DM(b) for b in (region.lo_enu_m, region.hi_enu_m)
+    )
+    return ca.horzcat(pos - ca.repmat(lo.T, n, 1), ca.repmat(hi.T, n, 1) - pos)
 
 
 def _ca_softmin_rows(m: Any, k: float) -> Any:

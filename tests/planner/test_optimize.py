@@ -155,16 +155,16 @@ def test_warm_start_from_a_previous_solution_converges_quickly() -> None:
 def test_local_hessian_equals_casadi_hessian_of_the_whole_vector() -> None:
     import casadi as ca
 
-    from planner.optimize import _local_hessian
+    from planner.leaf_templates import local_hessian
 
     w = ca.SX.sym("w", 7)
     expr = w[1] ** 2 * w[3] + w[0] + ca.exp(w[4] * w[6]) + ca.log(1 + w[1] ** 2)
-    diff = ca.Function("d", [w], [ca.hessian(expr, w)[0] - _local_hessian(expr, w)])
+    diff = ca.Function("d", [w], [ca.hessian(expr, w)[0] - local_hessian(expr, w)])
     rng = np.random.default_rng(3)
     for _ in range(5):
         assert float(np.max(np.abs(np.asarray(diff(rng.normal(size=7)))))) < 1e-12
     # Linear-only dependence gives an all-zero (structurally empty) block.
-    assert _local_hessian(w[0] + 2 * w[5], w).nnz() == 0
+    assert local_hessian(w[0] + 2 * w[5], w).nnz() == 0
 
 
 def test_flat_blocks_keep_their_gradient_and_leave_the_hessian() -> None:
@@ -243,3 +243,25 @@ def test_shared_target_slots_are_lattice_points_with_equal_depth_and_spacing_mar
     # One vehicle: the centre.
     one = _box_slots(cube, ["x"], {"x": np.zeros(3)})
     np.testing.assert_allclose(one["x"], [1.75, 1.75, 0.75])
+
+
+def test_workspace_holds_even_when_the_spec_does_not_mention_it() -> None:
+    # Specs that never name the workspace and have no row-wise leaf: the planner still keeps
+    # the vehicle inside it (its bounds are constraints of their own).  When the bounds were
+    # only applied where the spec's own rows sampled positions, these plans left the
+    # workspace by 0.27 m and 1.82 m.
+    base = {
+        "origin": {"lat": 47.4, "lon": 8.5, "alt": 488.0},
+        "workspace": {"min": [-2, -2, 0], "max": [2, 2, 2]},
+        "regions": {"goal": {"center": [1.5, 1.5, 1], "half_size": 0.25}},
+        "limits": {"v_max_m_s": 1, "a_max_m_s2": 1},
+        "vehicles": [{"name": "d1", "start": [-1.5, -1.5, 1]}],
+        "timing": {"horizon_s": 6, "segment_s": 1, "Ts_s": 0.05},
+    }
+    for spec in (
+        "not eventually[0, 6] inside(d1, goal)",
+        "always[0, 6] (x(d1) >= 0 implies y(d1) >= 0)",
+    ):
+        result = plan(parse_scenario({**base, "spec": spec}, "no_workspace_in_spec.yaml"))
+        assert result.success, (spec, result.status)
+        _check_limits_and_separation(result)

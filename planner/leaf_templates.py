@@ -1,0 +1,290 @@
+"""Smooth leaves as shared CasADi templates: one symbolic Hessian per leaf *shape*.
+
+The planner (:mod:`planner.optimize`) keeps the temporal sub-formulas it cannot handle by
+constraints (``eventually``, ``until``, ``or``, ...) as smooth robustness expressions, and
+IPOPT wants their exact Hessian.  Differentiating such a leaf twice is the expensive part of
+building the NLP: ``eventually[0, 29] always[0, 1] inside(d, insp1)`` of the power-line
+scenario is ~3,500 soft-min terms whose Hessian in the vehicle's 132 decision variables is
+dense, 0.75 s of CasADi per leaf, and a scenario has one per vehicle and box.
+
+Those leaves differ only in *which* vehicle and *which* box they name.  Here a leaf is
+renamed to a canonical shape (vehicles ``v0, v1, ...`` and regions ``r0, r1, ...`` in order
+of appearance: the text above becomes ``eventually[0, 29] always[0, 1] inside(v0, r0)``), and
+one :class:`LeafTemplate` per shape, sample step and sharpness holds two CasADi functions:
+
+``value_grad(z, x0, b) -> (value, d value / d z)``
+``hess(z, x0, b, lam) -> lam * d2 value / d z2``
+
+with ``z`` the stacked decision matrices of the leaf's vehicles (``vec(Z_v)``, column-major,
+``n_dec * 3`` each), ``x0`` their start states (``vec(X0_v)``) and ``b`` the boxes' bounds
+(``lo_enu_m`` then ``hi_enu_m`` per region).  Every leaf of that shape is then a *call* of
+the same functions with its own arguments, so the symbolic work is done once per shape, not
+once per vehicle (power-line N = 4: 8 leaves, 2 shapes), and it is cached for the process:
+re-planning with another fleet size or other boxes reuses it.
+
+The box bounds entering as inputs rather than constants changes nothing in the values: the
+predicates (:func:`planner.predicates.casadi_functions`) are the same code, fed symbols.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from planner.predicates import build_registry
+from planner.scenario import Region, RegionKind
+from planner.stl import Call, Expr, Formula
+
+__all__ = ["LeafInstance", "LeafTemplate", "canonical_leaf", "clear_templates", "local_hessian"]
+
+
+def local_hessian(expr: Any, w: Any) -> Any:
+    """Hessian of the scalar ``expr`` w.r.t. ``w`` (n_w x n_w), differentiated only in the
+    entries of ``w`` it depends on and scattered into place.
+
+    A smooth leaf touches one or two vehicles' decisions out of thousands; differentiating
+    it against the whole ``w`` adds sparsity detection over all of them (power-line N = 4,
+    exact Hessian: build 13.5 -> 11.7 s).
+    """
+    dep = np.nonzero(np.asarray(ca.which_depends(expr, w, 2, False), dtype=bool))[0]
+    n_w = w.shape[0]
+    if dep.size == 0:
+        return ca.SX(n_w, n_w)
+    h_loc = ca.hessian(expr, w[dep.tolist()])[0]
+    sel = ca.DM(ca.Sparsity.triplet(dep.size, n_w, list(range(dep.size)), dep.tolist()), 1.0)
+    return ca.mtimes(ca.mtimes(sel.T, h_loc), sel)
+
+
+# ----------------------------------------------------------------------- canonical shape
+
+
+def _rebuild(node: Any, on_call: Callable[[Call], Call]) -> Any:
+    """A copy of a formula/expression tree with every :class:`Call` replaced by ``on_call``
+    (fields visited in declaration order, so the traversal order is fixed)."""
+    if isinstance(node, Call):
+        return on_call(node)
+    if not isinstance(node, Formula | Expr):
+        return node
+    changes: dict[str, Any] = {}
+    for f in dataclasses.fields(node):
+        value = getattr(node, f.name)
+        if isinstance(value, Formula | Expr):
+            new = _rebuild(value, on_call)
+        elif isinstance(value, tuple) and any(isinstance(v, Formula | Expr) for v in value):
+            new = tuple(_rebuild(v, on_call) for v in value)
+        else:
+            continue
+        if new is not value:
+            changes[f.name] = new
+    return dataclasses.replace(node, **changes) if changes else node
+
+
+def _canonical_tree(
+    leaf: Formula, registry: Any = None
+) -> tuple[Formula, tuple[str, ...], tuple[str, ...]]:
+    """The renamed tree (its calls bound to ``registry``'s functions when given), and the
+    original vehicle and region names in placeholder order."""
+    vehicles: list[str] = []
+    regions: list[str] = []
+
+    def rename(call: Call) -> Call:
+        signal = set(call.function.signal_names(call.args))
+        args = []
+        for a in call.args:
+            names, prefix = (vehicles, "v") if a in signal else (regions, "r")
+            if a not in names:
+                names.append(a)
+            args.append(f"{prefix}{names.index(a)}")
+        fn = call.function if registry is None else registry[call.name]
+        return dataclasses.replace(call, args=tuple(args), function=fn)
+
+    shape = _rebuild(leaf, rename)
+    return shape, tuple(vehicles), tuple(regions)
+
+
+def canonical_leaf(leaf: Formula) -> tuple[str, tuple[str, ...], tuple[str, ...]]:
+    """``(shape text, vehicles, regions)``: the leaf with its vehicle arguments renamed
+    ``v0, v1, ...`` and its other (region) arguments ``r0, r1, ...`` in order of first
+    appearance, and the original names in that order."""
+    shape, vehicles, regions = _canonical_tree(leaf)
+    return str(shape), vehicles, regions
+
+
+# ------------------------------------------------------------------------------ templates
+
+
+@dataclass(frozen=True, slots=True)
+class _SymbolicRegions:
+    """A region source (:class:`planner.predicates.RegionSource`) whose boxes are symbols."""
+
+    all_regions: tuple[Any, ...]
+
+    def region(self, name: str) -> Any:
+        for r in self.all_regions:
+            if r.name == name:
+                return r
+        raise KeyError(name)
+
+
+@dataclass(frozen=True, slots=True)
+class LeafTemplate:
+    """The CasADi functions of one leaf shape at one sample step (see module docstring).
+
+    Attributes:
+        value: ``(z, x0, b) -> value (1, 1)`` (the constraint row; its reverse derivative,
+            which nlpsol builds for the multipliers, is first order only).
+        value_grad: ``(z, x0, b) -> (value (1, 1), gradient (1, n_z))``.
+        hess: ``(z, x0, b, lam) -> lam * Hessian (n_z, n_z)``, nonzero only in the entries
+            of ``z`` the leaf depends on twice.
+        n_vehicles: vehicles the shape names (``z`` holds ``n_vehicles`` decision blocks).
+        n_regions: boxes the shape names (``b`` has ``6 n_regions`` entries).
+    """
+
+    value: Any
+    value_grad: Any
+    hess: Any
+    n_vehicles: int
+    n_regions: int
+
+
+_TEMPLATES: dict[Any, LeafTemplate] = {}
+
+
+def clear_templates() -> None:
+    """Forget every built template (benchmarks measure cold builds with this)."""
+    _TEMPLATES.clear()
+
+
+def _model_key(model: Any) -> tuple[Any, ...]:
+    digest = hashlib.sha1()
+    for m in (model.Mp, model.Np):
+        a = np.ascontiguousarray(m, dtype=float)
+        digest.update(repr(a.shape).encode())
+        digest.update(a.tobytes())
+    return (type(model).__name__, model.n_dec, model.n_init, digest.hexdigest())
+
+
+def template(
+    leaf: Formula, step: int, model: Any, dt: float, k: float, k_pred: float
+) -> tuple[LeafTemplate, tuple[str, ...], tuple[str, ...]]:
+    """The template of ``leaf`` evaluated at sample ``step`` (built or from the cache), and
+    the leaf's vehicles and regions in the template's argument order.
+
+    Args:
+        leaf: a sub-formula whose robustness is a smooth expression of vehicle positions.
+        step: the planning sample the leaf is evaluated at (its window starts there).
+        model: the linear model (``Mp``, ``Np`` map decisions and start to sampled positions).
+        dt: planning sample step (s); k: temporal sharpness; k_pred: predicate sharpness.
+    """
+    shape_text, vehicles, regions = canonical_leaf(leaf)
+    key = (shape_text, step, dt, k, k_pred, _model_key(model))
+    tpl = _TEMPLATES.get(key)
+    if tpl is None:
+        tpl = _build_template(leaf, step, model, dt, k, k_pred, len(vehicles), len(regions))
+        _TEMPLATES[key] = tpl
+    return tpl, vehicles, regions
+
+
+def _build_template(
+    leaf: Formula,
+    step: int,
+    model: Any,
+    dt: float,
+    k: float,
+    k_pred: float,
+    n_veh: int,
+    n_reg: int,
+) -> LeafTemplate:
+    nd, ni = model.n_dec * 3, model.n_init * 3
+    z = ca.SX.sym("z", nd * n_veh)
+    x0 = ca.SX.sym("x0", ni * n_veh)
+    b = ca.SX.sym("b", 6 * n_reg)
+    sym_regions = tuple(
+        Region(f"r{j}", RegionKind.REGION, b[6 * j : 6 * j + 3], b[6 * j + 3 : 6 * j + 6])  # type: ignore[arg-type]
+        for j in range(n_reg)
+    )
+    registry = build_registry(_SymbolicRegions(sym_regions), k_pred)
+    shape, _, _ = _canonical_tree(leaf, registry)
+    hz = shape.horizon_steps(dt)
+    rows = list(range(step, step + hz + 1))
+    Mp = ca.sparsify(ca.DM(np.asarray(model.Mp)[rows]))
+    Np = ca.sparsify(ca.DM(np.asarray(model.Np)[rows]))
+    view = {}
+    for j in range(n_veh):
+        Zj = ca.reshape(z[j * nd : (j + 1) * nd], model.n_dec, 3)
+        X0j = ca.reshape(x0[j * ni : (j + 1) * ni], model.n_init, 3)
+        view[f"v{j}"] = ca.mtimes(Mp, Zj) + ca.mtimes(Np, X0j)
+    value = shape.smooth_robustness(view, dt, k)
+    grad = ca.jacobian(value, z)
+    lam = ca.SX.sym("lam")
+    return LeafTemplate(
+        value=ca.Function("leaf_value", [z, x0, b], [value], ["z", "x0", "b"], ["value"]),
+        value_grad=ca.Function(
+            "leaf_value_grad", [z, x0, b], [value, grad], ["z", "x0", "b"], ["value", "grad"]
+        ),
+        hess=ca.Function(
+            "leaf_hess",
+            [z, x0, b, lam],
+            [lam * local_hessian(value, z)],
+            ["z", "x0", "b", "lam"],
+            ["hess"],
+        ),
+        n_vehicles=n_veh,
+        n_regions=n_reg,
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class LeafInstance:
+    """One smooth leaf at one step: a template and where its arguments come from.
+
+    Attributes:
+        template: the shape's functions.
+        z_index: entries of the NLP vector ``w`` forming the template's ``z``.
+        x0_index: entries of the NLP parameter ``p`` forming its ``x0``.
+        bounds: the template's ``b`` (numbers: the named boxes' bounds).
+    """
+
+    template: LeafTemplate
+    z_index: tuple[int, ...]
+    x0_index: tuple[int, ...]
+    bounds: np.ndarray
+
+
+def instance(
+    leaf: Formula,
+    step: int,
+    model: Any,
+    dt: float,
+    k: float,
+    k_pred: float,
+    vehicle_index: dict[str, int],
+    region_of: Callable[[str], Region],
+) -> LeafInstance:
+    """The :class:`LeafInstance` of ``leaf`` at ``step`` in an NLP whose ``w`` starts with
+    the vehicles' ``vec(Z)`` blocks and whose ``p`` is their ``vec(X0)`` blocks, in the
+    order of ``vehicle_index``."""
+    tpl, vehicles, regions = template(leaf, step, model, dt, k, k_pred)
+    nd, ni = model.n_dec * 3, model.n_init * 3
+    z_index: list[int] = []
+    x0_index: list[int] = []
+    for name in vehicles:
+        i = vehicle_index[name]
+        z_index.extend(range(i * nd, (i + 1) * nd))
+        x0_index.extend(range(i * ni, (i + 1) * ni))
+    bounds = np.concatenate(
+        [np.concatenate([region_of(r).lo_enu_m, region_of(r).hi_enu_m]) for r in regions]
+        or [np.zeros(0)]
+    )
+    return LeafInstance(tpl, tuple(z_index), tuple(x0_index), bounds.astype(float))
+
+
+def selection(index: Sequence[int], n: int) -> Any:
+    """The (len(index), n) 0/1 matrix picking ``index`` out of a length-n vector."""
+    return ca.DM(ca.Sparsity.triplet(len(index), n, list(range(len(index))), list(index)), 1.0)
