@@ -13,6 +13,11 @@ Exit statuses (DESIGN.md section 9): 0 ok, 1 a check failed, 2 bad user
 input.  User errors are exceptions derived from :class:`gcs.errors.UserError`
 (or the packages' own input errors, see :data:`gcs.errors.USER_ERRORS`); they
 are printed as one line, without a traceback unless ``--debug`` is given.
+
+A reader that closes standard output early (``gcs plan --print-spec | head -1``) ends the
+command quietly with status 141 (128 + SIGPIPE), as a Unix tool killed by SIGPIPE does; the
+SIGPIPE signal itself stays ignored (Python's default), so a broken *socket* is still an error
+the link layer sees, not a silent death in flight.
 """
 
 from __future__ import annotations
@@ -20,6 +25,8 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
+import os
+import select
 import sys
 from collections.abc import Sequence
 
@@ -41,6 +48,8 @@ COMMAND_NAMES: tuple[str, ...] = (
 EXIT_OK = 0
 EXIT_CHECK_FAILED = 1
 EXIT_BAD_INPUT = 2
+#: Standard output closed by its reader: 128 + SIGPIPE, what a shell shows for ``yes | head``.
+EXIT_STDOUT_CLOSED = 141
 
 
 def available_commands() -> list[str]:
@@ -71,6 +80,47 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``gcs`` console script; returns the exit status."""
+    try:
+        try:
+            code = _main(argv)
+        except SystemExit:  # argparse after --help or a usage error
+            _flush_stdout()
+            raise
+        _flush_stdout()  # a reader that went away shows here, not at interpreter exit
+        return code
+    except BrokenPipeError:
+        if not _stdout_closed():
+            raise
+        # Later writes, and the interpreter's own flush at exit, go nowhere instead of failing.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+        return EXIT_STDOUT_CLOSED
+
+
+def _flush_stdout() -> None:
+    if sys.stdout is not None:
+        sys.stdout.flush()
+
+
+def _stdout_closed() -> bool:
+    """Whether standard output is a pipe or socket whose reader has gone.
+
+    Tells a closed stdout from a BrokenPipeError of some other stream (a MAVLink TCP link),
+    which stays an error.
+    """
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):  # None, or replaced by a stream without fd
+        return False
+    if not hasattr(select, "poll"):  # Windows: no poll(); EPIPE there is stdout's in practice
+        return True
+    poller = select.poll()
+    poller.register(fd, select.POLLOUT)
+    return any(events & (select.POLLERR | select.POLLHUP) for _, events in poller.poll(0))
+
+
+def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if getattr(args, "_run", None) is None:

@@ -9,6 +9,12 @@ Errors raised by the packages for bad user input are treated alike (one
 line, exit status 2): they are collected in :data:`USER_ERRORS`, which grows
 as the packages define their error trees (``planner.stl.SpecError``,
 ``planner.scenario.ScenarioError``, ``mavlink.LinkError``, ...).
+
+Errors that cannot name the file themselves stay out of :data:`USER_ERRORS` and are converted
+where the file is known: ``planner.stl.EvaluationError`` (unknown signal or region, trace too
+short, ...) from a plan's spec becomes a ``PlanFileError`` naming the plan file
+(``planner.planfile.plan_formula`` and ``spec_errors``); one that still reaches the command is
+a bug, and its traceback is what a bug report needs.
 """
 
 from __future__ import annotations

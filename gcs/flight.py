@@ -141,15 +141,12 @@ class FlyOptions:
 
 
 def plan_formula(plan: Plan) -> Formula:
-    """The plan's whole spec with the scenario's predicates (exact numpy semantics)."""
-    from planner.planfile import PlanFileError
-    from planner.predicates import build_registry
-    from planner.stl import SpecError, parse
+    """The plan's whole spec with the scenario's predicates (exact numpy semantics), checked
+    against the plan: :func:`planner.planfile.plan_formula` (PlanFileError naming the plan file).
+    """
+    from planner.planfile import plan_formula as checked_formula
 
-    try:
-        return parse(plan.spec, build_registry(plan))
-    except SpecError as exc:
-        raise PlanFileError(plan.scenario, "spec", str(exc)) from None
+    return checked_formula(plan)
 
 
 def preflight_interlock(plan: Plan, *, force: bool = False) -> tuple[Check, ...]:

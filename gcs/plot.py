@@ -278,17 +278,6 @@ def plan_grid(plan: Plan, dt_s: float | None = None) -> tuple[NDArray[np.float64
     return np.arange(n) * dt, dt
 
 
-def _parse_spec(plan: Plan) -> Formula:
-    from planner.planfile import PlanFileError
-    from planner.predicates import build_registry
-    from planner.stl import SpecError, parse
-
-    try:
-        return parse(plan.spec, build_registry(plan))
-    except SpecError as exc:
-        raise PlanFileError(plan.scenario, "spec", str(exc)) from None
-
-
 def _curve(clause: Formula, signals: Mapping[str, Any], dt: float) -> tuple[str, NDArray]:
     """``("body", trace of the body)`` for a top-level always/eventually, else the clause's."""
     from planner.stl import Always, Eventually
@@ -324,10 +313,9 @@ def clause_traces(
     The planned curves come from the trajectories' exact positions on :func:`plan_grid`; the
     flown ones from the telemetry on the same grid (module docstring).
     """
-    from planner.planfile import PlanFileError
-    from planner.stl import EvaluationError
+    from planner.planfile import plan_formula, spec_errors
 
-    phi = _parse_spec(plan)
+    phi = plan_formula(plan)
     t, dt = plan_grid(plan, dt_s)
     planned = {v.name: v.trajectory.position(t) for v in plan.vehicles}
     flown: dict[str, NDArray[np.float64]] | None = None
@@ -341,7 +329,7 @@ def clause_traces(
         flown = {name: path.position(t) for name, path in telemetry.vehicles.items()}
     out: list[ClauseTrace] = []
     for i, clause in enumerate(phi.clauses):
-        try:
+        with spec_errors(plan, f"spec clause {i + 1} ({clause})"):
             # The clause's own value (planner.stl), which also rejects a plan too short for it.
             value = float(clause.robustness(planned, dt))
             shown, rho = _curve(clause, planned, dt)
@@ -350,10 +338,6 @@ def clause_traces(
             if flown is not None and clause.signal_names() <= flown.keys():
                 _, flown_rho = _curve(clause, flown, dt)
                 flown_value = float(clause.robustness(flown, dt))
-        except EvaluationError as exc:
-            raise PlanFileError(
-                plan.scenario, f"spec clause {i + 1} ({clause})", str(exc)
-            ) from None
         k, op, window = _witness(clause, rho, dt)
         out.append(
             ClauseTrace(

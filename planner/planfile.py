@@ -16,25 +16,38 @@ Layout (the contract's keys, plus extensions that make a plan self-contained for
 The samples ``t/pos/vel/acc/yaw`` are for other tools (plots, spreadsheets); the source of
 truth is ``segments`` (floats are written with ``repr`` precision, so they round-trip).
 
+The spec is checked against the plan it belongs to by :func:`plan_formula` (every name it
+uses is a vehicle or region of the plan, it looks no further ahead than ``horizon_s``), not by
+:func:`load_plan`, which stays free of the STL engine and its CasADi predicates.
+
 Errors::
 
-    PlanFileError(FileFieldError)   "<file>: <key path>: <problem>" for missing/malformed plans
+    PlanFileError(FileFieldError)   "<file>: <key path>: <problem>" for missing/malformed plans,
+                                    a spec that does not fit the plan, or a spec that cannot
+                                    be evaluated on it (:func:`spec_errors`)
 """
 
 from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+import os
+import stat
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from planner.errors import FileFieldError
 from planner.frames import GeodeticPoint
-from planner.scenario import Region, RegionKind
+from planner.scenario import FUNCTION_NAMES, MAX_HORIZON_S, Region, RegionKind
 from planner.trajectory import Trajectory, TrajectoryError
+
+if TYPE_CHECKING:
+    from planner.stl import Expr, Formula
 
 __all__ = [
     "FORMAT",
@@ -42,13 +55,19 @@ __all__ = [
     "Plan",
     "PlanFileError",
     "PlannedVehicle",
+    "check_writable",
     "load_plan",
+    "plan_formula",
     "plan_to_json",
     "save_plan",
+    "spec_errors",
 ]
 
 FORMAT = "stl-gcs-plan"
 VERSION = 1
+#: Most check samples (``horizon_s / check_dt_s``) a plan may ask for: an hour at 1 ms is
+#: 3.6e6, and ten million (n, 3) float samples already take 240 MB per vehicle.
+MAX_CHECK_SAMPLES = 10_000_000
 
 
 class PlanFileError(FileFieldError):
@@ -90,6 +109,13 @@ class Plan:
     horizon_s: float
     sample_dt_s: float
     check_dt_s: float
+    #: The file the plan was read from; ``""`` for a plan made in memory (``PlanResult.to_plan``).
+    source: str = field(default="", compare=False)
+
+    @property
+    def input_file(self) -> str:
+        """The file to name in errors about the plan: its plan file, else its scenario."""
+        return self.source or self.scenario
 
     @property
     def all_regions(self) -> tuple[Region, ...]:
@@ -187,6 +213,38 @@ def save_plan(path: str | Path, plan: Any, scenario_path: str | None = None) -> 
     return p
 
 
+def check_writable(path: str | Path) -> None:
+    """Fail now, not after a long solve, if :func:`save_plan` could not write ``path``.
+
+    Leaves the file system as it was: an existing file is opened for appending and closed
+    untouched; a missing one is created exclusively and removed again. A FIFO or device is
+    only checked for write permission (opening a FIFO would wait for a reader).
+
+    Raises:
+        PlanFileError: ``"<path>: cannot write: <reason>"``, as :func:`save_plan` words it.
+    """
+    p = Path(path)
+    try:
+        try:
+            mode = p.stat().st_mode
+        except FileNotFoundError:
+            if p.is_symlink():  # dangling: save_plan creates its target, O_EXCL would refuse
+                return
+            fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+            os.close(fd)
+            p.unlink()
+            return
+        if stat.S_ISDIR(mode):
+            raise IsADirectoryError(21, "Is a directory")
+        if not stat.S_ISREG(mode):
+            if not os.access(p, os.W_OK):
+                raise PermissionError(13, "Permission denied")
+            return
+        os.close(os.open(p, os.O_WRONLY | os.O_APPEND))
+    except OSError as exc:
+        raise PlanFileError(str(p), "", f"cannot write: {exc.strerror or exc}") from None
+
+
 class _Reader:
     def __init__(self, source: str) -> None:
         self.source = source
@@ -230,6 +288,19 @@ class _Reader:
         if not all(a < b for a, b in zip(lo, hi, strict=True)):
             raise self.fail(path, "empty box (min must be below max)")
         return Region(name, kind, lo, hi)
+
+    def number(
+        self, m: dict[str, Any], key: str, *, positive: bool = False, nonnegative: bool = False
+    ) -> float:
+        """A finite number (``json`` reads ``NaN`` and ``Infinity``), optionally > 0 or >= 0."""
+        x = self.get(m, key, "", float)
+        if not math.isfinite(x):
+            raise self.fail(key, f"expected a finite number, got {x!r}")
+        if positive and not x > 0:
+            raise self.fail(key, f"must be > 0, got {x:g}")
+        if nonnegative and not x >= 0:
+            raise self.fail(key, f"must be >= 0, got {x:g}")
+        return x
 
 
 def load_plan(path: str | Path) -> Plan:
@@ -310,6 +381,16 @@ def load_plan(path: str | Path) -> Plan:
     for key, val in (("robustness", rob), ("smooth_robustness", srob)):
         if val is not None and (isinstance(val, bool) or not isinstance(val, int | float)):
             raise rd.fail(key, "expected a number or null")
+    horizon_s = rd.number(data, "horizon_s", positive=True)
+    if horizon_s > MAX_HORIZON_S:
+        raise rd.fail("horizon_s", f"{horizon_s:g} s is longer than {MAX_HORIZON_S:g} s")
+    check_dt_s = rd.number(data, "check_dt_s", positive=True)
+    if horizon_s / check_dt_s > MAX_CHECK_SAMPLES:
+        raise rd.fail(
+            "check_dt_s",
+            f"{check_dt_s:g} s gives more than {MAX_CHECK_SAMPLES:g} check samples "
+            f"over the {horizon_s:g} s horizon",
+        )
     return Plan(
         scenario=rd.get(data, "scenario", "", str),
         origin=origin,
@@ -322,9 +403,96 @@ def load_plan(path: str | Path) -> Plan:
         vehicles=tuple(vehicles),
         workspace=workspace,
         regions=regions,
-        separation_m=rd.get(data, "separation_m", "", float),
-        epsilon=rd.get(data, "epsilon", "", float),
-        horizon_s=rd.get(data, "horizon_s", "", float),
-        sample_dt_s=rd.get(data, "sample_dt_s", "", float),
-        check_dt_s=rd.get(data, "check_dt_s", "", float),
+        separation_m=rd.number(data, "separation_m", nonnegative=True),
+        epsilon=rd.number(data, "epsilon", nonnegative=True),
+        horizon_s=horizon_s,
+        sample_dt_s=rd.number(data, "sample_dt_s", positive=True),
+        check_dt_s=check_dt_s,
+        source=src,
     )
+
+
+def plan_formula(plan: Plan) -> Formula:
+    """The plan's whole spec with the scenario's predicates (exact numpy semantics).
+
+    Besides parsing it, checks the spec against the plan, so that evaluating it on the plan's
+    trajectories cannot fail on a name or a length: every function argument names a vehicle or
+    a region of the plan (by the argument's kind in
+    :data:`planner.scenario.FUNCTION_NAMES`), a bare name in a comparison is not a vehicle
+    (vehicles are positions), and the spec looks no further ahead than ``horizon_s``.
+
+    Raises:
+        PlanFileError: naming :attr:`Plan.input_file` and ``spec`` (or ``horizon_s``).
+    """
+    from planner.predicates import build_registry
+    from planner.stl import BinOp, Call, Comparison, Neg, Predicate, Signal, SpecError, parse
+
+    def fail(problem: str, key: str = "spec") -> PlanFileError:
+        return PlanFileError(plan.input_file, key, problem)
+
+    def atoms(e: Expr) -> Iterator[Expr]:
+        if isinstance(e, BinOp):
+            yield from atoms(e.lhs)
+            yield from atoms(e.rhs)
+        elif isinstance(e, Neg):
+            yield from atoms(e.operand)
+        elif isinstance(e, Signal | Call):
+            yield e
+
+    try:
+        phi = parse(plan.spec, build_registry(plan))
+    except SpecError as exc:
+        raise fail(f"line {exc.line}, column {exc.column}: {exc.detail}") from None
+    known = {
+        "v": ("vehicle", [v.name for v in plan.vehicles]),
+        "r": ("region", [r.name for r in plan.all_regions]),
+    }
+    for node in phi.walk():
+        if isinstance(node, Predicate):
+            exprs: tuple[Expr, ...] = (node.call,)
+        elif isinstance(node, Comparison):
+            exprs = (node.lhs, node.rhs)
+        else:
+            continue
+        for atom in (a for e in exprs for a in atoms(e)):
+            if isinstance(atom, Signal):
+                if atom.name in known["v"][1]:
+                    raise fail(
+                        f"{atom.name!r} is used as a number in {str(node)!r}; vehicles are "
+                        f"positions: use x({atom.name}), y({atom.name}), z({atom.name}) or a "
+                        "function such as dist"
+                    )
+                raise fail(
+                    f"unknown name {atom.name!r} in {str(node)!r} "
+                    f"(vehicles: {', '.join(known['v'][1])})"
+                )
+            assert isinstance(atom, Call)
+            for arg, kind in zip(atom.args, FUNCTION_NAMES[atom.name], strict=True):
+                what, names = known[kind]
+                if arg not in names:
+                    raise fail(
+                        f"unknown {what} {arg!r} in {str(atom)!r} ({what}s: {', '.join(names)})"
+                    )
+    for i, clause in enumerate(phi.clauses, start=1):
+        if clause.horizon > plan.horizon_s * (1 + 1e-9):
+            raise fail(
+                f"{plan.horizon_s:g} s is shorter than spec clause {i} ({clause}), which looks "
+                f"{clause.horizon:g} s ahead",
+                "horizon_s",
+            )
+    return phi
+
+
+@contextmanager
+def spec_errors(plan: Plan, key: str = "spec") -> Iterator[None]:
+    """Turn an STL error raised while evaluating ``plan``'s spec into a :class:`PlanFileError`.
+
+    What :func:`plan_formula` cannot rule out depends on the check step, e.g. an interval
+    holding no sample step at the ``dt`` given; the error names ``plan.input_file`` and ``key``.
+    """
+    from planner.stl import STLError
+
+    try:
+        yield
+    except STLError as exc:
+        raise PlanFileError(plan.input_file, key, str(exc)) from None

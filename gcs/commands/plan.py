@@ -4,7 +4,7 @@ Prints a progress line while solving, then a summary table (per vehicle: path le
 speed, max acceleration, limits; per top-level clause: robustness), or with ``--json`` one
 JSON object.  Exit status 0 when the plan succeeds (exact robustness >= epsilon and all
 checks pass), 1 when it does not (the plan file is still written, for inspection), 2 for
-bad input (scenario errors).
+bad input (scenario errors, or an output file that cannot be written: checked before solving).
 """
 
 from __future__ import annotations
@@ -164,18 +164,19 @@ def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from planner.optimize import plan
-    from planner.planfile import save_plan
+    from planner.planfile import check_writable, save_plan
     from planner.scenario import SolverMethod, load_scenario
 
     problem = load_scenario(args.scenario, vehicles=args.vehicles)
     if args.print_spec:
         print(problem.spec_text)
         return 0
+    out = Path(args.output)
+    check_writable(out)  # before the solve, which may take minutes
     if args.solver:
         problem = replace(problem, solver=replace(problem.solver, method=SolverMethod(args.solver)))
     with _Ticker(enabled=True) as ticker:
         result = plan(problem, progress=ticker.set)
-    out = Path(args.output)
     save_plan(out, result, scenario_path=str(args.scenario))
     if args.json:
         print(json.dumps(summary(result, str(out))))

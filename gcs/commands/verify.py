@@ -17,7 +17,8 @@ hole could hide a violation), and every top-level clause must hold on the flown 
 (exact robustness >= 0 on the check grid).
 
 Exit 0 when all hold, 1 when one fails (each failure named, the failing clause included),
-2 for an unreadable or malformed plan file (one line).
+2 for an unreadable or malformed plan file, or a spec that does not fit the plan (an unknown
+vehicle or region, a horizon shorter than the spec), in one line naming the plan file and field.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -61,33 +63,54 @@ class Check:
     detail: str = ""
 
 
-def verify_plan(plan: Any, dt_s: float | None = None) -> list[Check]:
-    """All checks of a loaded plan (see module docstring)."""
-    from planner.optimize import check_trajectories
-    from planner.planfile import PlanFileError
-    from planner.predicates import build_registry
-    from planner.stl.errors import SpecError
-    from planner.stl.parser import parse
+def check_step_s(plan: Any, dt_s: float | None) -> float:
+    """The check step: ``dt_s`` (``--dt``) if given, else the plan's ``check_dt_s``.
 
-    dt = plan.check_dt_s if dt_s is None else dt_s
-    if not dt > 0:
-        raise PlanFileError("--dt", "", f"must be > 0, got {dt}")
+    Raises:
+        UserError: ``--dt`` not a positive number, or so small that the plan's horizon would
+            take more than :data:`planner.planfile.MAX_CHECK_SAMPLES` samples.
+    """
+    from gcs.errors import UserError
+    from planner.planfile import MAX_CHECK_SAMPLES
+
+    if dt_s is None:
+        return float(plan.check_dt_s)  # load_plan checked it
+    if not (math.isfinite(dt_s) and dt_s > 0):
+        raise UserError(f"--dt: must be a positive number of seconds, got {dt_s:g}")
+    if plan.horizon_s / dt_s > MAX_CHECK_SAMPLES:
+        raise UserError(
+            f"--dt: {dt_s:g} s gives more than {MAX_CHECK_SAMPLES:g} check samples over the "
+            f"plan's {plan.horizon_s:g} s horizon"
+        )
+    return float(dt_s)
+
+
+def verify_plan(plan: Any, dt_s: float | None = None) -> list[Check]:
+    """All checks of a loaded plan (see module docstring).
+
+    Raises:
+        PlanFileError: the plan's spec does not fit the plan or cannot be evaluated on it
+            (:func:`planner.planfile.plan_formula`, :func:`planner.planfile.spec_errors`).
+        UserError: a bad ``dt_s`` (:func:`check_step_s`).
+    """
+    from planner.optimize import check_trajectories
+    from planner.planfile import plan_formula, spec_errors
+
+    dt = check_step_s(plan, dt_s)
     n = round(plan.horizon_s / dt) + 1
     t = np.arange(n) * dt
     trajs = [v.trajectory for v in plan.vehicles]
     pos = {v.name: v.trajectory.position(t) for v in plan.vehicles}
     checks: list[Check] = []
 
-    try:
-        phi = parse(plan.spec, build_registry(plan))
-    except SpecError as exc:
-        raise PlanFileError(plan.scenario, "spec", str(exc)) from None
+    phi = plan_formula(plan)
     for clause in phi.clauses:
-        rho = clause.robustness(pos, dt)
-        detail = ""
-        if rho < plan.epsilon:
-            w = clause.weakest(pos, dt)[-1]
-            detail = f"weakest {w.formula} = {w.robustness:.4g} at t = {w.t_s:g} s"
+        with spec_errors(plan):
+            rho = clause.robustness(pos, dt)
+            detail = ""
+            if rho < plan.epsilon:
+                w = clause.weakest(pos, dt)[-1]
+                detail = f"weakest {w.formula} = {w.robustness:.4g} at t = {w.t_s:g} s"
         checks.append(Check(f"spec: {clause}", rho, plan.epsilon, rho >= plan.epsilon, detail))
 
     for lim in check_trajectories(plan, trajs, plan.vehicles, dt, plan.horizon_s):
@@ -143,9 +166,9 @@ def verify_telemetry(plan: Any, telemetry: Any, dt_s: float | None = None) -> li
         telemetry: a :class:`gcs.plot.Telemetry` (flown ENU paths by vehicle name).
         dt_s: check step (default: the plan's ``check_dt_s``).
     """
-    from gcs.flight import plan_formula
+    from planner.planfile import plan_formula
 
-    dt = plan.check_dt_s if dt_s is None else dt_s
+    dt = check_step_s(plan, dt_s)
     t = np.arange(round(plan.horizon_s / dt) + 1) * dt
     checks: list[Check] = []
     flown: dict[str, np.ndarray] = {}

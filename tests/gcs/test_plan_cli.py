@@ -27,6 +27,7 @@ def test_plan_writes_a_plan_file_and_a_summary_table(
     assert "max |v| m/s" in table and "d1" in table
     assert "eventually[0, 6] inside(d1, goal)" in table
     assert "OK: " in table and f"plan written to {out}" in table
+    assert sorted(tmp_path.iterdir()) == [out]  # the early write check left nothing behind
     assert "solving with ipopt" in captured.err  # progress (non-tty: one line per stage)
     assert "checking on dense samples" in captured.err
 
@@ -71,3 +72,44 @@ def test_vehicle_count_out_of_range_exits_2(capsys: pytest.CaptureFixture[str]) 
     code = cli.main(["plan", str(CONFIGS / "reach_avoid.yaml"), "--vehicles", "40"])
     assert code == 2
     assert "--vehicles 40 is outside 1..16" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("output", "reason"),
+    [
+        ("missing-dir/p.json", "No such file or directory"),
+        (".", "Is a directory"),
+        ("a-file/p.json", "Not a directory"),
+    ],
+)
+def test_unwritable_output_is_refused_before_solving(
+    tmp_path: Path, output: str, reason: str
+) -> None:
+    (tmp_path / "a-file").write_text("not a directory\n")
+    before = sorted(tmp_path.rglob("*"))
+    out = tmp_path / output
+    argv = ["plan", str(CONFIGS / "reach_avoid.yaml"), "-o", str(out)]
+    proc = subprocess.run(
+        [sys.executable, "-m", "gcs.cli", *argv],
+        capture_output=True,
+        text=True,
+    )
+    assert proc.returncode == 2
+    # One line, and no progress line: the solve never started.
+    assert proc.stderr.splitlines() == [f"gcs plan: error: {out}: cannot write: {reason}"]
+    assert "Traceback" not in proc.stderr
+    assert sorted(tmp_path.rglob("*")) == before
+
+
+def test_writable_output_check_leaves_an_existing_file_alone(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from planner.planfile import check_writable
+
+    old = tmp_path / "old.json"
+    old.write_text("previous plan\n")
+    mtime_ns = old.stat().st_mtime_ns
+    check_writable(old)
+    check_writable(tmp_path / "new.json")
+    assert old.read_text() == "previous plan\n" and old.stat().st_mtime_ns == mtime_ns
+    assert sorted(tmp_path.iterdir()) == [old]

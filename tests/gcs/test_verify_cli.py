@@ -88,3 +88,95 @@ def test_bad_plan_file_exits_2_with_one_line(good_plan: Path, tmp_path: Path) ->
     assert proc.returncode == 2
     assert proc.stderr.strip().count("\n") == 0
     assert "vehicles[1].segments: missing" in proc.stderr
+
+
+def _set(key: str, value: object):  # type: ignore[no-untyped-def]
+    return lambda d: d.update({key: value})
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (
+            _set("spec", "eventually[0,6] inside(d1, gaol)"),
+            "spec: unknown region 'gaol' in 'inside(d1, gaol)' "
+            "(regions: workspace, obstacle, goal)",
+        ),
+        (
+            _set("spec", "always[0,6] dist(d1, d9) >= 0.2"),
+            "spec: unknown vehicle 'd9' in 'dist(d1, d9)' (vehicles: d1, d2)",
+        ),
+        (
+            _set("spec", "always[0,6] alt >= 0.2"),
+            "spec: unknown name 'alt' in 'alt >= 0.2' (vehicles: d1, d2)",
+        ),
+        (
+            _set("horizon_s", 3.0),
+            "horizon_s: 3 s is shorter than spec clause 1 (eventually[0,6] inside(d1, goal)), "
+            "which looks 6 s ahead",
+        ),
+        # The spec's own line and column; the file is the plan, not the scenario it came from.
+        (
+            _set("spec", "always[0,6] dist(d1, d2 >= 0.2"),
+            "spec: line 1, column 25: expected ')', found '>='",
+        ),
+        (_set("check_dt_s", 0), "check_dt_s: must be > 0, got 0"),
+        (_set("check_dt_s", float("nan")), "check_dt_s: expected a finite number, got nan"),
+        # Only the check step can tell: an interval without a sample step at dt = 0.01 s.
+        (
+            _set("spec", "eventually[0.111,0.115] inside(d1, goal)"),
+            "spec: interval [0.111,0.115] holds no sample at dt=0.01 s (steps 12..11)",
+        ),
+    ],
+    ids=[
+        "unknown-region",
+        "unknown-vehicle",
+        "unknown-name",
+        "short-horizon",
+        "syntax",
+        "zero-check-dt",
+        "nan-check-dt",
+        "interval-between-samples",
+    ],
+)
+def test_spec_that_does_not_fit_the_plan_names_the_plan_file(
+    good_plan: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    edit: object,
+    message: str,
+) -> None:
+    bad = _edited(good_plan, tmp_path / "p.json", edit)
+    assert cli.main(["verify", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert err.splitlines() == [f"gcs verify: error: {bad}: {message}"], err
+
+
+def test_unknown_region_in_a_real_process_is_one_line_without_traceback(
+    good_plan: Path, tmp_path: Path
+) -> None:
+    bad = _edited(good_plan, tmp_path / "p.json", _set("spec", "eventually[0,6] inside(d1, gaol)"))
+    proc = subprocess.run(
+        [sys.executable, "-m", "gcs.cli", "verify", str(bad)], capture_output=True, text=True
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.splitlines() == [
+        f"gcs verify: error: {bad}: spec: unknown region 'gaol' in 'inside(d1, gaol)' "
+        "(regions: workspace, obstacle, goal)"
+    ]
+    assert proc.stdout == ""
+
+
+@pytest.mark.parametrize(
+    ("dt", "message"),
+    [
+        ("0", "--dt: must be a positive number of seconds, got 0"),
+        ("inf", "--dt: must be a positive number of seconds, got inf"),
+        ("1e-9", "--dt: 1e-09 s gives more than 1e+07 check samples over the plan's 6 s horizon"),
+    ],
+)
+def test_bad_dt_option_names_the_option(
+    good_plan: Path, capsys: pytest.CaptureFixture[str], dt: str, message: str
+) -> None:
+    assert cli.main(["verify", str(good_plan), "--dt", dt]) == 2
+    assert capsys.readouterr().err.splitlines() == [f"gcs verify: error: {message}"]

@@ -203,6 +203,31 @@ plan(
     COEFF,
     cmd="fly",
 )
+# ---- plan files whose spec or timing does not fit the plan (named as the plan's, not the
+# scenario's, and before any evaluation)
+plan("p_spec_syntax.plan.json", setv("spec", "always[0, 6] dist(d1, d2 >= 0.5"), "spec: line 1")
+plan(
+    "p_spec_unknown_region.plan.json",
+    setv("spec", "eventually[0, 6] inside(d1, gaol)"),
+    "spec: unknown region 'gaol'",
+)
+plan(
+    "p_spec_unknown_region_fly.plan.json",
+    setv("spec", "eventually[0, 6] inside(d1, gaol)"),
+    "spec: unknown region 'gaol'",
+    cmd="fly",
+)
+plan(
+    "p_spec_unknown_vehicle.plan.json",
+    setv("spec", "always[0, 6] dist(d1, d9) >= 0.5"),
+    "spec: unknown vehicle 'd9'",
+)
+plan("p_spec_vehicle_as_number.plan.json", setv("spec", "always[0, 6] d1 >= 1"), "'d1'")
+plan("p_horizon_short.plan.json", setv("horizon_s", 3.0), "horizon_s: 3 s is shorter")
+plan("p_horizon_huge.plan.json", setv("horizon_s", 1e308), "horizon_s")
+plan("p_check_dt_zero.plan.json", setv("check_dt_s", 0), "check_dt_s: must be > 0")
+plan("p_check_dt_nan.plan.json", setv("check_dt_s", float("nan")), "check_dt_s")
+plan("p_check_dt_tiny.plan.json", setv("check_dt_s", 1e-12), "check_dt_s")
 
 
 # ---- plan files edited by hand: valid files that violate the plan's own rules (exit 1)
