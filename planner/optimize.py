@@ -583,7 +583,7 @@ def _build(problem: Problem, model: Any, formula: Formula) -> _Structure:
             for leaf, st in smooth_items
         ]
         nlp, derivs, leaf_fn = _assemble(wm, pm, sx_derivs, insts, n_lin, n_sx, exact)
-        solvers.append((k, _nlpsol(nlp, problem, derivs)))
+        solvers.append((k, _nlpsol(nlp, problem, derivs, warm=bool(solvers))))
     n_g = n_sx + len(smooth_items)
     n_leaf = n_g - n_lin
     lbg_fixed = np.concatenate(
@@ -749,31 +749,27 @@ def _limit_bounds(cons: Any, half: int) -> tuple[np.ndarray, np.ndarray]:
     return lo, h[:half]
 
 
-def _nlpsol(nlp: dict[str, Any], problem: Problem, derivs: dict[str, Any]) -> Any:
+#: IPOPT options of a warm-started stage: start from the given multipliers with a small
+#: barrier and pushes, instead of re-centring (which undoes the earlier stage).
+_IPOPT_WARM: dict[str, Any] = {
+    "warm_start_init_point": "yes",
+    "mu_init": 1e-4,
+    "warm_start_bound_push": 1e-6,
+    "warm_start_bound_frac": 1e-6,
+    "warm_start_slack_bound_push": 1e-6,
+    "warm_start_slack_bound_frac": 1e-6,
+    "warm_start_mult_bound_push": 1e-6,
+}
+
+
+def _nlpsol(
+    nlp: dict[str, Any], problem: Problem, derivs: dict[str, Any], warm: bool = False
+) -> Any:
+    """The solver; ``warm``: it starts from an earlier solve's primal-dual point (a later
+    stage of the k continuation), so IPOPT keeps the multipliers and a small barrier."""
     s = problem.solver
     if s.method is SolverMethod.SQP:
-        return ca.nlpsol(
-            "stl_sqp",
-            "sqpmethod",
-            nlp,
-            {
-                "qpsol": "qrqp",
-                "qpsol_options": {
-                    "print_iter": False,
-                    "print_header": False,
-                    "error_on_fail": False,
-                },
-                "max_iter": s.max_iter,
-                "print_header": False,
-                "print_iteration": s.print_level > 0,
-                "print_status": False,
-                "print_time": False,
-                "hessian_approximation": "exact" if s.hessian == "exact" else "limited-memory",
-                "error_on_fail": False,
-                "tol_pr": s.tol,
-                "tol_du": s.tol,
-            },
-        )
+        return _sqpsol(nlp, s, derivs)
     return ca.nlpsol(
         "stl_ipopt",
         "ipopt",
@@ -791,9 +787,62 @@ def _nlpsol(nlp: dict[str, Any], problem: Problem, derivs: dict[str, Any]) -> An
                 "hessian_approximation": s.hessian,
                 "limited_memory_max_history": s.lbfgs_history,
                 "mu_strategy": "adaptive",
+                **(_IPOPT_WARM if warm else {}),
             },
         },
     )
+
+
+def _sqpsol(nlp: dict[str, Any], s: Any, derivs: dict[str, Any]) -> Any:
+    """CasADi's ``sqpmethod`` on the same NLP and derivatives, with a QP solver of the wheel.
+
+    sqpmethod takes the objective gradient and the constraint Jacobian as one function
+    (``jac_fg``) and the full symmetric Hessian; an exact Hessian, indefinite here, is
+    convexified by regularisation (CasADi's ``eigen-clip`` failed before the first
+    iteration).  Measured (benchmarks/bench_solvers.py): IPOPT is faster on every scenario.
+    """
+    x, p = nlp["x"], nlp["p"]
+    f, grad_f = derivs["grad_f"](x, p)
+    g, jac_g = derivs["jac_g"](x, p)
+    jac_fg = ca.Function(
+        "nlp_jac_fg", [x, p], [f, grad_f.T, g, jac_g], ["x", "p"], ["f", "jac_f_x", "g", "jac_g_x"]
+    )
+    opts: dict[str, Any] = {
+        "jac_fg": jac_fg,
+        "qpsol": s.qpsol,
+        "qpsol_options": {"error_on_fail": False, **_QPSOL_QUIET.get(s.qpsol, {})},
+        "max_iter": s.max_iter,
+        "print_header": False,
+        "print_iteration": s.print_level > 0,
+        "print_status": False,
+        "print_time": False,
+        "error_on_fail": False,
+        "tol_pr": s.tol,
+        "tol_du": s.tol,
+    }
+    if s.hessian == "exact":
+        lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", g.shape[0])
+        upper = derivs["hess_lag"](x, p, lam_f, lam_g)
+        opts["hess_lag"] = ca.Function(
+            "nlp_hess_l",
+            [x, p, lam_f, lam_g],
+            [upper + ca.triu(upper, False).T],
+            ["x", "p", "lam_f", "lam_g"],
+            ["hess_gamma_x_x"],
+        )
+        opts["convexify_strategy"] = "regularize"
+    else:
+        opts["hessian_approximation"] = "limited-memory"
+    return ca.nlpsol("stl_sqp", "sqpmethod", nlp, opts)
+
+
+#: Options that keep the QP solvers quiet (their banners and per-iteration output).
+_QPSOL_QUIET: dict[str, dict[str, Any]] = {
+    "qpoases": {"printLevel": "none"},
+    "osqp": {"osqp": {"verbose": False}},
+    "qrqp": {"print_iter": False, "print_header": False},
+    "highs": {"highs": {"output_flag": False}},
+}
 
 
 # ------------------------------------------------------------------------ initial guess
@@ -1352,25 +1401,164 @@ def plan(
     w0 = np.concatenate([z0, *p0, [0.0]])
     leaf0 = np.asarray(struct.leaf_fn(w0, p_val)).reshape(-1)
     w0[-1] = float(np.min(leaf0)) if leaf0.size else 0.0
-    if problem.solver.robustness_constraint:
-        w0[-1] = max(w0[-1], lbx[-1])
+    bounds = {"p": p_val, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg}
 
+    def trajectories_of(w: np.ndarray) -> list[Trajectory]:
+        return [
+            model.trajectory(
+                w[i * nd : (i + 1) * nd].reshape((model.n_dec, 3), order="F"), x0, v.name
+            )
+            for i, (v, x0) in enumerate(zip(problem.vehicles, x0s, strict=True))
+        ]
+
+    def exact_of(w: np.ndarray) -> float:
+        return _evaluate(problem, formula, formulas, trajectories_of(w))[0]
+
+    run = _run_solvers(struct, w0, bounds, say, problem.solver.method.value)
+    w_opt, status = run.w, run.status
+    check_s = 0.0
+    if problem.solver.robustness_constraint:
+        # The paper's eq. (1): smooth robustness >= epsilon + margin as a constraint.  The
+        # margin starts at the smooth leaves' error bound; if the exact robustness on the
+        # dense samples still falls short (dips between constraint samples), the margin
+        # grows by the deficit and the solve resumes from where it ended.
+        eps = problem.epsilon
+        margin = struct.margin
+        t_check = time.perf_counter()
+        rob = exact_of(w_opt)
+        check_s += time.perf_counter() - t_check
+        for _ in range(_EPS_ROUNDS):
+            if rob >= eps or not _solved(status):
+                break
+            margin += eps - rob + _EPS_MARGIN_STEP_M
+            lbx[-1] = eps + margin
+            w_start = w_opt.copy()
+            w_start[-1] = max(w_start[-1], lbx[-1])
+            run = run.then(_run_solvers(struct, w_start, bounds, say, "eq. (1) margin"))
+            w_opt, status = run.w, run.status
+            t_check = time.perf_counter()
+            rob = exact_of(w_opt)
+            check_s += time.perf_counter() - t_check
+        if rob < eps:
+            # Infeasible as constrained: the plain maximisation from the same start finds
+            # the best trajectories there are (a failed result carries the best found).
+            lbx[-1] = -np.inf
+            plain = _run_solvers(struct, w0, bounds, say, "plain maximisation")
+            t_check = time.perf_counter()
+            if exact_of(plain.w) > rob:
+                w_opt = plain.w
+                status = (
+                    f"eq. (1) constraint not met ({status}); plain maximisation: {plain.status}"
+                )
+            check_s += time.perf_counter() - t_check
+            run = run.then(plain)
+
+    say("checking on dense samples")
+    t_check = time.perf_counter()
+    trajectories = trajectories_of(w_opt)
+    result = _evaluate(problem, formula, formulas, trajectories)
+    limits = check_trajectories(
+        problem, trajectories, problem.vehicles, problem.timing.check_dt_s, problem.timing.horizon_s
+    )
+    check_s += time.perf_counter() - t_check
+    rob, rob_grid, weakest, clauses = result
+    limits_ok = all(lim.ok for lim in limits)
+    success = bool(rob >= problem.epsilon and limits_ok)
+    if success:
+        verdict = f"robustness {rob:.4g} >= epsilon {problem.epsilon:g}"
+    elif rob < problem.epsilon:
+        w_txt = (
+            f" (weakest: {weakest.formula} = {weakest.robustness:.4g} at t={weakest.t_s:g} s)"
+            if weakest
+            else ""
+        )
+        verdict = f"robustness {rob:.4g} < epsilon {problem.epsilon:g}{w_txt}"
+    else:
+        bad = [lim.name for lim in limits if not lim.ok]
+        verdict = f"limits violated by {', '.join(bad)}"
+    total = time.perf_counter() - t_start
+    stats = SolveStats(
+        build_s=build_s,
+        solver_s=run.solver_s,
+        function_eval_s=run.eval_s,
+        check_s=check_s,
+        n_variables=struct.n_w,
+        n_constraints=struct.n_g,
+        n_smooth_leaves=struct.n_smooth,
+        k=struct.k,
+        solver=problem.solver.method.value,
+        cached=cached,
+    )
+    return PlanResult(
+        problem=problem,
+        success=success,
+        status=f"{status}; {verdict}",
+        robustness=rob,
+        robustness_planning_grid=rob_grid,
+        smooth_robustness=float(w_opt[-1]),
+        weakest=weakest,
+        clauses=clauses,
+        solve_time_s=total,
+        iterations=run.iterations,
+        trajectories=tuple(trajectories),
+        limits=limits,
+        decision=w_opt,
+        stats=stats,
+    )
+
+
+#: Rounds of margin growth for the eq. (1) constraint, and the extra step (m) per round.
+_EPS_ROUNDS = 3
+_EPS_MARGIN_STEP_M = 2e-3
+
+
+def _solved(status: str) -> bool:
+    return status in (
+        "Solve_Succeeded",
+        "Solved_To_Acceptable_Level",
+        "Search_Direction_Becomes_Too_Small",
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class _Run:
+    """The end point of one or more solver runs and what they cost."""
+
+    w: np.ndarray
+    status: str
+    iterations: int
+    solver_s: float
+    eval_s: float
+
+    def then(self, later: _Run) -> _Run:
+        """``later``'s end point, with the costs of both."""
+        return _Run(
+            later.w,
+            later.status,
+            self.iterations + later.iterations,
+            self.solver_s + later.solver_s,
+            self.eval_s + later.eval_s,
+        )
+
+
+def _run_solvers(
+    struct: _Structure,
+    w0: np.ndarray,
+    bounds: Mapping[str, np.ndarray],
+    say: Callable[[str], None],
+    what: str,
+) -> _Run:
+    """Run the structure's solvers in turn (the k continuation), each warm started from the
+    previous one's primal-dual point.  ``bounds`` are read at call time (``lbx`` may change
+    between calls)."""
     iterations = 0
-    solver_s = 0.0
-    eval_s = 0.0
+    solver_s = eval_s = 0.0
     status = "not solved"
     w_opt = w0
     lam_x = lam_g = None
     for k, solver in struct.solvers:
-        say(f"solving with {problem.solver.method.value} (k={k:.3g})")
-        args: dict[str, Any] = {
-            "x0": w_opt,
-            "p": p_val,
-            "lbx": lbx,
-            "ubx": ubx,
-            "lbg": lbg,
-            "ubg": ubg,
-        }
+        say(f"solving with {what} (k={k:.3g})")
+        args: dict[str, Any] = {"x0": w_opt, **bounds}
         if lam_x is not None:
             args["lam_x0"] = lam_x
             args["lam_g0"] = lam_g
@@ -1390,62 +1578,7 @@ def plan(
             w_opt = w_new
             lam_x = np.asarray(sol["lam_x"]).reshape(-1)
             lam_g = np.asarray(sol["lam_g"]).reshape(-1)
-
-    say("checking on dense samples")
-    t_check = time.perf_counter()
-    trajectories = []
-    for i, (v, x0) in enumerate(zip(problem.vehicles, x0s, strict=True)):
-        Zi = w_opt[i * nd : (i + 1) * nd].reshape((model.n_dec, 3), order="F")
-        trajectories.append(model.trajectory(Zi, x0, v.name))
-    result = _evaluate(problem, formula, formulas, trajectories)
-    limits = check_trajectories(
-        problem, trajectories, problem.vehicles, problem.timing.check_dt_s, problem.timing.horizon_s
-    )
-    check_s = time.perf_counter() - t_check
-    rob, rob_grid, weakest, clauses = result
-    limits_ok = all(lim.ok for lim in limits)
-    success = bool(rob >= problem.epsilon and limits_ok)
-    if success:
-        verdict = f"robustness {rob:.4g} >= epsilon {problem.epsilon:g}"
-    elif rob < problem.epsilon:
-        w_txt = (
-            f" (weakest: {weakest.formula} = {weakest.robustness:.4g} at t={weakest.t_s:g} s)"
-            if weakest
-            else ""
-        )
-        verdict = f"robustness {rob:.4g} < epsilon {problem.epsilon:g}{w_txt}"
-    else:
-        bad = [lim.name for lim in limits if not lim.ok]
-        verdict = f"limits violated by {', '.join(bad)}"
-    total = time.perf_counter() - t_start
-    stats = SolveStats(
-        build_s=build_s,
-        solver_s=solver_s,
-        function_eval_s=eval_s,
-        check_s=check_s,
-        n_variables=struct.n_w,
-        n_constraints=struct.n_g,
-        n_smooth_leaves=struct.n_smooth,
-        k=struct.k,
-        solver=problem.solver.method.value,
-        cached=cached,
-    )
-    return PlanResult(
-        problem=problem,
-        success=success,
-        status=f"{status}; {verdict}",
-        robustness=rob,
-        robustness_planning_grid=rob_grid,
-        smooth_robustness=float(w_opt[-1]),
-        weakest=weakest,
-        clauses=clauses,
-        solve_time_s=total,
-        iterations=iterations,
-        trajectories=tuple(trajectories),
-        limits=limits,
-        decision=w_opt,
-        stats=stats,
-    )
+    return _Run(w_opt, status, iterations, solver_s, eval_s)
 
 
 def _evaluate(

@@ -114,7 +114,7 @@ class DynamicsModel(enum.Enum):
 
 
 class SolverMethod(enum.Enum):
-    """NLP method: interior point (IPOPT) or CasADi's SQP with the qrqp QP solver."""
+    """NLP method: interior point (IPOPT) or CasADi's SQP (``solver.qpsol`` for its QPs)."""
 
     IPOPT = "ipopt"
     SQP = "sqpmethod"
@@ -172,12 +172,17 @@ class Timing:
         return round(self.horizon_s / self.sample_dt_s) + 1
 
 
+#: QP solvers of CasADi's wheel that sqpmethod can use here (convex QPs, sparse or dense).
+QP_SOLVERS: tuple[str, ...] = ("piqp", "qpoases", "osqp", "proxqp", "highs", "qrqp")
+
+
 @dataclass(frozen=True, slots=True)
 class SolverOptions:
     """How to solve; every field has a measured default (see planner.optimize)."""
 
     method: SolverMethod = SolverMethod.IPOPT
-    #: "exact" or "limited-memory" (IPOPT hessian_approximation).
+    #: "exact" or "limited-memory" (IPOPT hessian_approximation; BFGS for sqpmethod, whose
+    #: default in a scenario is limited-memory).
     hessian: str = "exact"
     max_iter: int = 300
     #: IPOPT's tolerance on the scaled NLP error.  Robustness is in metres, so 1e-4 is
@@ -197,6 +202,8 @@ class SolverOptions:
     #: the NLP only has to settle (smoothness term), not squeeze out the last centimetres;
     #: None: unbounded (the plain maximisation).
     robustness_cap_m: float | None = None
+    #: QP solver of ``sqpmethod`` (one that ships with CasADi's wheel).
+    qpsol: str = "piqp"
     #: IPOPT limited_memory_max_history (pairs kept by L-BFGS; IPOPT's default 6).
     lbfgs_history: int = 6
     #: Keep the curvature of the separation rows ``dist(a, b) >= s`` in the exact
@@ -497,9 +504,15 @@ def _vehicles(
     max_count = rd.integer(m.get("max_count", 16), _join(p, "max_count"), minimum=1)
     count = rd.integer(rd.require(m, "count", p), _join(p, "count"), minimum=1)
     if vehicles_override is not None:
-        if not 1 <= vehicles_override <= max_count:
+        # Every group needs a vehicle: the fewest a grouped scenario takes is its groups.
+        g_count = len(m["groups"]) if isinstance(m.get("groups"), list) else 0
+        min_count = max(1, g_count)
+        if not min_count <= vehicles_override <= max_count:
+            why = f" ({g_count} groups)" if g_count > 1 else ""
             raise rd.fail(
-                p, f"--vehicles {vehicles_override} is outside 1..{max_count} for this scenario"
+                p,
+                f"--vehicles {vehicles_override} is outside {min_count}..{max_count} "
+                f"for this scenario{why}",
             )
         count = vehicles_override
     if count > max_count:
@@ -832,7 +845,12 @@ def parse_scenario(
     solver = _solver(rd, top.get("solver", {}) or {})
 
     for i, v in enumerate(vlist):
-        p = f"vehicles[{i}].start" if isinstance(top["vehicles"], list) else "vehicles.starts"
+        if isinstance(top["vehicles"], list):
+            p = f"vehicles[{i}].start"
+        elif "positions" in (top["vehicles"].get("starts") or {}):
+            p = f"vehicles.starts.positions[{i}]"
+        else:
+            p = "vehicles.starts.grid"
         if not bool(workspace.contains(np.asarray(v.start_enu_m))):
             raise rd.fail(p, f"start {list(v.start_enu_m)} of {v.name} is outside the workspace")
     starts = np.array([v.start_enu_m for v in vlist])
@@ -901,6 +919,7 @@ def _solver(rd: _Reader, value: Any) -> SolverOptions:
         "constraint_dt_s",
         "robustness_cap_m",
         "lbfgs_history",
+        "qpsol",
         "separation_curvature",
         "print_level",
     }
@@ -917,6 +936,10 @@ def _solver(rd: _Reader, value: Any) -> SolverOptions:
         if m["hessian"] not in ("exact", "limited-memory"):
             raise rd.fail("solver.hessian", "expected 'exact' or 'limited-memory'")
         kw["hessian"] = m["hessian"]
+    elif kw.get("method") is SolverMethod.SQP:
+        # sqpmethod's measured default: an exact (indefinite) Hessian has to be regularised
+        # into crawling steps (benchmarks/bench_solvers.py); BFGS converges.
+        kw["hessian"] = "limited-memory"
     if "max_iter" in m:
         kw["max_iter"] = rd.integer(m["max_iter"], "solver.max_iter", minimum=1)
     if "tol" in m:
@@ -942,6 +965,12 @@ def _solver(rd: _Reader, value: Any) -> SolverOptions:
         kw["robustness_cap_m"] = rd.number(
             m["robustness_cap_m"], "solver.robustness_cap_m", positive=True
         )
+    if "qpsol" in m:
+        if m["qpsol"] not in QP_SOLVERS:
+            raise rd.fail(
+                "solver.qpsol", f"unknown QP solver {m['qpsol']!r} ({', '.join(QP_SOLVERS)})"
+            )
+        kw["qpsol"] = m["qpsol"]
     if "lbfgs_history" in m:
         kw["lbfgs_history"] = rd.integer(m["lbfgs_history"], "solver.lbfgs_history", minimum=1)
     if "separation_curvature" in m:

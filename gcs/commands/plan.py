@@ -31,7 +31,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--print-spec", action="store_true", help="print the expanded STL spec and exit")
     p.add_argument(
-        "--solver", choices=["ipopt", "sqpmethod"], help="override the scenario's NLP method"
+        "--solver",
+        choices=["ipopt", "sqpmethod"],
+        help="override the scenario's NLP method (sqpmethod: with BFGS and solver.qpsol)",
     )
 
 
@@ -174,7 +176,9 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.output)
     check_writable(out)  # before the solve, which may take minutes
     if args.solver:
-        problem = replace(problem, solver=replace(problem.solver, method=SolverMethod(args.solver)))
+        method = SolverMethod(args.solver)
+        hessian = "limited-memory" if method is SolverMethod.SQP else problem.solver.hessian
+        problem = replace(problem, solver=replace(problem.solver, method=method, hessian=hessian))
     with _Ticker(enabled=True) as ticker:
         result = plan(problem, progress=ticker.set)
     save_plan(out, result, scenario_path=str(args.scenario))

@@ -265,3 +265,47 @@ def test_workspace_holds_even_when_the_spec_does_not_mention_it() -> None:
         result = plan(parse_scenario({**base, "spec": spec}, "no_workspace_in_spec.yaml"))
         assert result.success, (spec, result.status)
         _check_limits_and_separation(result)
+
+
+def test_robustness_constraint_makes_the_exact_robustness_reach_epsilon() -> None:
+    # The paper's eq. (1): smooth robustness >= epsilon + margin as a constraint.  With the
+    # cap just above it, the plan settles near epsilon and the *exact* value still holds.
+    problem = _replace_solver(
+        load_scenario(CONFIGS / "reach_avoid.yaml", vehicles=2),
+        robustness_constraint=True,
+        robustness_cap_m=0.02,
+    )
+    result = plan(problem)
+    assert result.success, result.status
+    assert problem.epsilon <= result.robustness < 0.1  # met, and not maximised far beyond
+    assert result.smooth_robustness >= problem.epsilon
+    _check_limits_and_separation(result)
+
+
+def test_robustness_constraint_that_cannot_hold_returns_the_best_plain_plan() -> None:
+    import yaml
+
+    data = yaml.safe_load((CONFIGS / "reach_avoid.yaml").read_text())
+    data["regions"]["goal"] = {"kind": "goal", "center": [0, 0, 0.75], "half_size": 0.25}
+    plain = plan(parse_scenario(data, "goal_in_obstacle.yaml", vehicles=1))
+    constrained = plan(
+        _replace_solver(
+            parse_scenario(data, "goal_in_obstacle.yaml", vehicles=1), robustness_constraint=True
+        )
+    )
+    assert not constrained.success
+    assert "eq. (1) constraint not met" in constrained.status
+    # Not the last infeasible iterate (about -0.8 before): the plain maximisation's optimum.
+    assert constrained.robustness == pytest.approx(plain.robustness, abs=5e-3)
+
+
+def test_sqpmethod_plans_the_same_scenario_as_ipopt() -> None:
+    from planner.scenario import SolverMethod
+
+    problem = load_scenario(CONFIGS / "reach_avoid.yaml", vehicles=1)
+    ipopt = plan(problem)
+    sqp = plan(_replace_solver(problem, method=SolverMethod.SQP, hessian="limited-memory"))
+    assert sqp.success, sqp.status
+    assert sqp.stats is not None and sqp.stats.solver == "sqpmethod"
+    assert sqp.robustness == pytest.approx(ipopt.robustness, abs=5e-3)
+    _check_limits_and_separation(sqp)

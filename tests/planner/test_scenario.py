@@ -111,7 +111,7 @@ _DELETE = object()
         (
             ["vehicles", "starts", "positions", 0],
             [-3, 1.5, 0.75],
-            "vehicles.starts",
+            "vehicles.starts.positions[0]",
             "outside the workspace",
         ),
         (["regions", "goal", "half_size"], 0, "regions.goal.half_size", "> 0"),
@@ -140,6 +140,7 @@ _DELETE = object()
         (["separation_m"], -0.2, "separation_m", ">= 0"),
         (["solver"], {"method": "snopt"}, "solver.method", "unknown method"),
         (["solver"], {"separation_curvature": "yes"}, "solver.separation_curvature", "true"),
+        (["solver"], {"qpsol": "gurobi"}, "solver.qpsol", "unknown QP solver"),
         (["colour"], "red", "colour", "unknown key"),
         (["origin", "lat"], 123.0, "origin.lat", "latitude"),
         (["model"], "bicycle", "model", "unknown model"),
@@ -159,6 +160,8 @@ def test_bad_scenario_names_file_and_key_path(
 def test_vehicle_override_outside_range_is_an_error() -> None:
     with pytest.raises(ScenarioError, match=r"vehicles: --vehicles 17 is outside 1\.\.16"):
         load_scenario(CONFIGS / "reach_avoid.yaml", vehicles=17)
+    with pytest.raises(ScenarioError, match=r"--vehicles 1 is outside 2\.\.8 .*\(2 groups\)"):
+        load_scenario(CONFIGS / "powerline_inspection.yaml", vehicles=1)
     with pytest.raises(ScenarioError, match="lists its vehicles"):
         load_scenario(CONFIGS / "narrow_passage_di.yaml", vehicles=3)
 
@@ -201,3 +204,13 @@ def test_product_binding_and_literal_lists() -> None:
         "eventually[0, 6] inside(d2, goal)",
         "eventually[0, 6] inside(d2, obstacle)",
     ]
+
+
+def test_sqpmethod_defaults_to_bfgs_and_a_shipped_qp_solver() -> None:
+    data = _yaml("reach_avoid.yaml")
+    data["solver"] = {"method": "sqpmethod"}
+    solver = parse_scenario(data, "x.yaml").solver
+    assert (solver.hessian, solver.qpsol) == ("limited-memory", "piqp")
+    data["solver"] = {"method": "sqpmethod", "hessian": "exact", "qpsol": "osqp"}
+    solver = parse_scenario(data, "x.yaml").solver
+    assert (solver.hessian, solver.qpsol) == ("exact", "osqp")
