@@ -7,7 +7,7 @@ Formulation (for vehicles ``i`` with decision matrices ``Z_i`` of the chosen
     subject to  c_l(Z) >= r                  every conjunctive leaf l (see below)
                 G Z_i + H X0_i <= h_i        continuous-time |v|, |a| limits per axis
                 v_i(horizon) = 0             every vehicle ends at rest (then holds)
-                lo_ws <= p_i(t_k) <= hi_ws   workspace, at the planning samples
+                lo_ws <= p_i(t_k) <= hi_ws   workspace, at every constraint sample
                 [r >= epsilon + margin]      the paper's eq. (1) constraint, if asked for
 
 The spec is a conjunction; its robustness is the min over the clauses, and the min over
@@ -23,7 +23,8 @@ A leaf is then
 * ``inside(d, box)``: six *linear* constraints per step (the face margins; exact);
 * anything else (``eventually``, ``or``, ``until``, ``not``, ``implies``): the STL engine's
   smooth robustness with sharpness ``k`` of that sub-formula at each step (one CasADi
-  expression per step, over only the samples its windows reach).
+  expression per step, over only the samples its windows reach), built as a call of a
+  template shared by every leaf of the same shape (:mod:`planner.leaf_templates`).
 
 So the separation pairs become sparse constraints (each touches two vehicles), the
 Hessian stays sparse, no term drowns another, and smoothing error remains only where
@@ -36,10 +37,17 @@ dense anyway.  A small acceleration penalty (``_REG_WEIGHT``) gives curvature in
 directions ``r`` ignores (reach-avoid N = 1: 207 -> 75 iterations).
 
 Smoothing: ``k`` is fitted so that the engine's error bound of the smooth leaves
-(``smooth_error_bound``) is 6 % of the smallest region half-size (reach-avoid k = 320;
-2 % gave k = 960 and IPOPT stalled).  A continuation in ``k`` is available
-(:attr:`SolverOptions.continuation`, one nlpsol per k because the engine takes k as a
-float) but was not measured to help within the time available.
+(``smooth_error_bound``) is 6 % of the smallest region half-size (reach-avoid k = 320,
+power line k = 410; 2 % gave k = 960 and IPOPT stalled).  Measured against k/2, 2k and a
+continuation k/3 -> k (benchmarks/bench_solvers.py): no variant is better on every case.
+k/2 gained a few millimetres of exact robustness on reach-avoid N = 2 to 8 but failed the
+power line (N = 4: -11 after 580 iterations) and reach-avoid N = 16 (-0.04); 2k cost up to
+twice the iterations for +-2 mm; the continuation (later stages warm started: multipliers
+kept, small barrier) added iterations on reach-avoid N = 2 (38 -> 155) and gained 0.03 on
+the power line N = 4 at 1.5x the time.  So the fitted k is the default, and
+``solver.k``/``solver.continuation`` stay available.  Scale and arity do not need the
+smoothing to fit them: mins over clauses and time are exact (the epigraph above), so the
+N^2 separation rows do not drown the reach terms whatever N is.
 
 Solver (measured on this 2-core machine): IPOPT with MUMPS, ``mu_strategy adaptive``,
 exact Hessian by default (the scenario may choose ``solver.hessian: limited-memory``).
@@ -55,9 +63,10 @@ What made it fast, in the order found:
   every linear constraint (reach-avoid N = 4: 120 -> 84 iterations);
 * the exact Hessian on the power line too (N = 4: 14-19 iterations and 2.2-2.8 s of
   IPOPT, against 30-500 iterations with L-BFGS, whose speed depended erratically on its
-  history length).  Its price is the build: ~12 s cold for N = 4, mostly CasADi
-  differentiating the nested ``eventually always``/``until`` leaves; differentiating each
-  block only in the variables it depends on (:func:`_local_hessian`) took 13.5 -> 11.7 s;
+  history length).  Its price was the build (~12 s cold for N = 4, CasADi differentiating
+  the nested ``eventually always``/``until`` leaves), until the smooth leaves became calls
+  of shared templates, differentiated once per shape (:mod:`planner.leaf_templates`;
+  power-line N = 4: 9.8 -> 1.6 s, N = 8: 20.8 -> 5.5 s; reach-avoid N = 16: 8.5 -> 2.3 s);
 * the separation rows' curvature is left out of that Hessian (:func:`_derivatives`): it
   is negative, and IPOPT corrected the inertia with it in most iterations (reach-avoid
   N = 8: 7.3 -> 6.0 s of IPOPT, N = 16: 144 -> 133 iterations and build 12.0 -> 9.3 s);
@@ -67,9 +76,23 @@ What made it fast, in the order found:
 * ``tol`` 1e-4 instead of 1e-6 (robustness is in metres): the last digits took a third of
   the iterations (reach-avoid N = 8: 91 -> 75; power-line N = 4: 17 -> 10).
 
-CasADi's ``sqpmethod`` with ``qrqp`` did not finish reach-avoid N = 1 within 300 s, so
-IPOPT is the default; ``solver.method: sqpmethod`` remains selectable.  The constraint
+The paper solves with SQP.  CasADi's ``sqpmethod`` runs on the same NLP and derivatives
+(:func:`_sqpsol`; ``solver.method: sqpmethod``, ``solver.qpsol``): with the exact
+Hessian regularised to convexity it crawls (150 iterations of ~1 mm steps on reach-avoid
+N = 1); with BFGS it converges, to the same robustness, 60x slower than IPOPT with PIQP on
+reach-avoid N = 1 (3.0 s against 0.05 s of solver), 100x on N = 2 (20 s), 200 s on N = 4;
+qpOASES was slower than PIQP.  IPOPT is the default.  L-BFGS in IPOPT took 2-7x the
+iterations of the exact Hessian and failed reach-avoid N = 8 (-0.03).  The constraint
 Jacobian and Lagrangian Hessian are assembled block by block (:func:`_derivatives`).
+
+Where the time goes now (benchmarks/bench_planner.py): the build is 0.3-3 s; reach-avoid
+is IPOPT's linear algebra (N = 16: ~150 iterations of ~270 ms, most of it MUMPS
+factorising a KKT system in which the 7,320 separation rows couple every vehicle's
+decisions at every segment: without them an iteration takes 65 ms; a second thread did
+not help); function evaluations are 10-20 %.  IPOPT's iteration count on reach-avoid is
+chaotic (N = 8: 45-85 for rounding-level changes; 9 from the optimum, 148 from it
+perturbed by 5 cm), and it finds different local optima (N = 8: 0.047 by default, 0.106
+with a monotone barrier from mu = 0.01, which fails N = 16).
 
 Initial guess (:func:`_initial_guess`): grid paths through each vehicle's target boxes,
 each leg timed rest to rest by a trapezoid within 75 % of the per-axis limits, dwelling in
@@ -425,7 +448,7 @@ def _structure_key(problem: Problem) -> Any:
 
 
 def _fit_k(problem: Problem, smooth_leaves: Sequence[Formula], dt: float) -> tuple[float, float]:
-    """(k, error bound at k) for the smooth leaves: bound = 2 % of the smallest half-size."""
+    """(k, error bound at k) for the smooth leaves: bound = 6 % of the smallest half-size."""
     if problem.solver.k is not None:
         k = problem.solver.k
     elif not smooth_leaves:
