@@ -86,7 +86,7 @@ iterations of the exact Hessian and failed reach-avoid N = 8 (-0.03).  The const
 Jacobian and Lagrangian Hessian are assembled block by block (:func:`_derivatives`).
 
 Where the time goes now (benchmarks/bench_planner.py): the build is 0.3-3 s; reach-avoid
-is IPOPT's linear algebra (N = 16: ~150 iterations of ~270 ms, most of it MUMPS
+is IPOPT's linear algebra (N = 16: 89 iterations of ~230 ms with eq. (1), most of it MUMPS
 factorising a KKT system in which the 7,320 separation rows couple every vehicle's
 decisions at every segment: without them an iteration takes 65 ms; a second thread did
 not help); function evaluations are 10-20 %.  IPOPT's iteration count on reach-avoid is
