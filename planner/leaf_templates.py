@@ -19,8 +19,10 @@ with ``z`` the stacked decision matrices of the leaf's vehicles (``vec(Z_v)``, c
 ``n_dec * 3`` each), ``x0`` their start states (``vec(X0_v)``) and ``b`` the boxes' bounds
 (``lo_enu_m`` then ``hi_enu_m`` per region).  Every leaf of that shape is then a *call* of
 the same functions with its own arguments, so the symbolic work is done once per shape, not
-once per vehicle (power-line N = 4: 8 leaves, 2 shapes), and it is cached for the process:
-re-planning with another fleet size or other boxes reuses it.
+once per vehicle (power-line N = 4: 8 leaves, 2 shapes), and it is cached for the process
+(the latest ``_TEMPLATES_MAX``): re-planning with another fleet size, or with boxes moved,
+reuses it; a change of the smallest box's size changes the fitted sharpness and so the
+templates.
 
 The box bounds entering as inputs rather than constants changes nothing in the values: the
 predicates (:func:`planner.predicates.casadi_functions`) are the same code, fed symbols.
@@ -154,6 +156,9 @@ class LeafTemplate:
 
 
 _TEMPLATES: dict[Any, LeafTemplate] = {}
+#: Templates kept per process (oldest forgotten first): a ground station re-planning with
+#: other boxes must not grow without bound.
+_TEMPLATES_MAX = 64
 
 
 def clear_templates() -> None:
@@ -187,6 +192,8 @@ def template(
     tpl = _TEMPLATES.get(key)
     if tpl is None:
         tpl = _build_template(leaf, step, model, dt, k, k_pred, len(vehicles), len(regions))
+        while len(_TEMPLATES) >= _TEMPLATES_MAX:
+            _TEMPLATES.pop(next(iter(_TEMPLATES)))
         _TEMPLATES[key] = tpl
     return tpl, vehicles, regions
 
@@ -220,6 +227,10 @@ def _build_template(
         Zj = ca.reshape(z[j * nd : (j + 1) * nd], model.n_dec, 3)
         X0j = ca.reshape(x0[j * ni : (j + 1) * ni], model.n_init, 3)
         view[f"v{j}"] = ca.mtimes(Mp, Zj) + ca.mtimes(Np, X0j)
+    if not view:
+        # A leaf of constants only (``eventually[0, 1] (1 >= 0)``): the engine still needs
+        # a trace to tell the window's length.
+        view["_"] = ca.SX.zeros(hz + 1, 1)
     value = shape.smooth_robustness(view, dt, k)
     grad = ca.jacobian(value, z)
     lam = ca.SX.sym("lam")

@@ -81,7 +81,7 @@ class RegionSource(Protocol):
 
 
 def predicate_sharpness(problem: RegionSource) -> float:
-    """Sharpness k (1/m) of the smooth box margins: ``log(6)/k = 2 %`` of the smallest half-size."""
+    """Sharpness k (1/m) of the smooth box margins: ``log(6)/k = 10 %`` of the smallest half-size."""
     halves = [0.5 * (np.asarray(r.hi_enu_m) - np.asarray(r.lo_enu_m)) for r in problem.all_regions]
     smallest = float(min(np.min(h) for h in halves))
     return math.log(6.0) / (_PRED_TOLERANCE * smallest)

@@ -46,6 +46,8 @@ def test_leaves_naming_other_vehicles_and_boxes_share_one_shape() -> None:
     assert template(b, 0, model, dt, k, kp)[0] is first
     near = template(d, 0, model, dt, k, kp)[0]
     assert template(d, 1, model, dt, k, kp)[0] is not near  # another step, another window
+    assert template(a, 0, model, dt, 2 * k, kp)[0] is not first  # another sharpness
+    assert template(a, 0, model, dt, k, 2 * kp)[0] is not first
 
 
 def test_template_value_gradient_and_hessian_equal_the_leaf_written_out() -> None:
@@ -56,11 +58,23 @@ def test_template_value_gradient_and_hessian_equal_the_leaf_written_out() -> Non
     z_all = ca.SX.sym("z", nd * len(names))
     x0_all = ca.SX.sym("x0", ni * len(names))
     rng = np.random.default_rng(7)
-    for text, step in (
-        ("eventually[0, 29] always[0, 1] inside(d3, insp4)", 0),
-        ("(not inside(d2, insp3)) until[0, 15] (always[0, 1] inside(d2, insp2))", 0),
-        ("eventually[0, 2] dist(d4, d1) <= 3", 6),
+    clear_templates()
+    for text, built_from, step in (
+        (
+            "eventually[0, 29] always[0, 1] inside(d3, insp4)",
+            "eventually[0, 29] always[0, 1] inside(d1, insp1)",
+            0,
+        ),
+        (
+            "(not inside(d2, insp3)) until[0, 15] (always[0, 1] inside(d2, insp2))",
+            "(not inside(d4, insp2)) until[0, 15] (always[0, 1] inside(d4, insp3))",
+            0,
+        ),
+        ("eventually[0, 2] dist(d4, d1) <= 3", "eventually[0, 2] dist(d2, d3) <= 3", 6),
     ):
+        # The template is built from another leaf of the same shape (other vehicles and
+        # boxes, roles swapped), then used for this one.
+        first = template(parse(built_from, reg), step, model, dt, k, kp)[0]
         leaf = parse(text, reg)
         # Reference: the leaf over the whole fleet's decisions, boxes as constants.
         pos = {}
@@ -76,6 +90,7 @@ def test_template_value_gradient_and_hessian_equal_the_leaf_written_out() -> Non
         inst = instance(
             leaf, step, model, dt, k, kp, {nm: i for i, nm in enumerate(names)}, problem.region
         )
+        assert inst.template is first
         zi, xi = list(inst.z_index), list(inst.x0_index)
         for _ in range(3):
             z = rng.normal(scale=5.0, size=nd * len(names))

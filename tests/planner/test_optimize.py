@@ -289,7 +289,11 @@ def test_robustness_constraint_that_cannot_hold_returns_the_best_plain_plan() ->
 
     data = yaml.safe_load((CONFIGS / "reach_avoid.yaml").read_text())
     data["regions"]["goal"] = {"kind": "goal", "center": [0, 0, 0.75], "half_size": 0.25}
-    plain = plan(parse_scenario(data, "goal_in_obstacle.yaml", vehicles=1))
+    plain = plan(
+        _replace_solver(
+            parse_scenario(data, "goal_in_obstacle.yaml", vehicles=1), robustness_constraint=False
+        )
+    )
     constrained = plan(
         _replace_solver(
             parse_scenario(data, "goal_in_obstacle.yaml", vehicles=1), robustness_constraint=True
@@ -311,3 +315,31 @@ def test_sqpmethod_plans_the_same_scenario_as_ipopt() -> None:
     assert sqp.stats is not None and sqp.stats.solver == "sqpmethod"
     assert sqp.robustness == pytest.approx(ipopt.robustness, abs=5e-3)
     _check_limits_and_separation(sqp)
+
+
+def test_robustness_constraint_above_the_cap_is_a_result_not_an_exception() -> None:
+    # epsilon + margin above robustness_cap_m: the cap gives way (the bounds on r stayed
+    # crossed before, and CasADi raised "Ill-posed problem detected: LBX <= UBX").
+    problem = _replace_solver(
+        load_scenario(CONFIGS / "reach_avoid.yaml", vehicles=1),
+        robustness_constraint=True,
+        robustness_cap_m=0.005,
+    )
+    result = plan(problem)
+    assert result.success, result.status
+    assert problem.epsilon <= result.robustness < 0.1
+
+
+def test_a_leaf_of_constants_only_plans() -> None:
+    base = {
+        "origin": {"lat": 47.4, "lon": 8.5, "alt": 488.0},
+        "workspace": {"min": [-2, -2, 0], "max": [2, 2, 2]},
+        "regions": {"goal": {"center": [1.5, 1.5, 1], "half_size": 0.25}},
+        "limits": {"v_max_m_s": 1, "a_max_m_s2": 1},
+        "vehicles": [{"name": "d1", "start": [-1.5, -1.5, 1]}],
+        "timing": {"horizon_s": 6, "segment_s": 1, "Ts_s": 0.05},
+        "spec": ["eventually[0, 1] (1 >= 0)", "eventually[0, 6] inside(d1, goal)"],
+    }
+    result = plan(parse_scenario(base, "constants.yaml"))
+    assert result.success, result.status
+    assert result.robustness == pytest.approx(0.25, abs=0.01)  # the goal's half-size
