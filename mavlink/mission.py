@@ -626,6 +626,11 @@ class MissionRun:
     duration_s: float
 
 
+#: How long (s) fly_missions keeps listening after a vehicle reports its mission finished,
+#: for the last MISSION_CURRENT progress update.
+_FINISH_GRACE_S = 1.0
+
+
 async def fly_missions(
     vehicles: Sequence[Vehicle], *, timeout_s: float, poll_s: float = 0.1
 ) -> dict[str, MissionRun]:
@@ -643,6 +648,7 @@ async def fly_missions(
     t_start = time.monotonic()
     reached: dict[str, list[tuple[int, float]]] = {v.name: [] for v in vehicles}
     current: dict[str, list[tuple[int, float]]] = {v.name: [] for v in vehicles}
+    totals: dict[str, int] = {}
     unsubscribe: list[tuple[Any, Any]] = []
     for v in vehicles:
 
@@ -652,6 +658,7 @@ async def fly_missions(
 
         def on_progress(progress: Any, _ud: Any, name: str = v.name) -> None:
             seq = int(progress.current)
+            totals[name] = int(progress.total)
             if not current[name] or current[name][-1][0] != seq:
                 current[name].append((seq, time.monotonic() - t_start))
 
@@ -681,6 +688,13 @@ async def fly_missions(
             for v in vehicles:
                 if v.name not in done and v.mission_raw.is_mission_finished():
                     done[v.name] = time.monotonic() - t_start
+        # MAVSDK can report the mission finished before its progress callback has delivered
+        # the final current == total (seen under load): keep listening a moment for it.
+        t_grace = time.monotonic()
+        while time.monotonic() - t_grace < _FINISH_GRACE_S and any(
+            not current[n] or current[n][-1][0] < totals.get(n, 0) for n in done
+        ):
+            await asyncio.sleep(poll_s)
     finally:
         for unsub, handle in unsubscribe:
             unsub(handle)
