@@ -93,6 +93,16 @@ not help); function evaluations are 10-20 %.  IPOPT's iteration count on reach-a
 chaotic (N = 8: 45-85 for rounding-level changes; 9 from the optimum, 148 from it
 perturbed by 5 cm), and it finds different local optima (N = 8: 0.047 by default, 0.106
 with a monotone barrier from mu = 0.01, which fails N = 16).
+Tried on reach-avoid N = 16 and not kept: MUMPS without scaling or permutation, pivot
+tolerance 1e-8, the PORD ordering, less memory slack, slack-based scaling, no mmap in
+malloc (75-89 iterations of 220-245 ms: the changes only reshuffled the iteration count);
+the ``probing``/``loqo`` barrier oracles (271-300 iterations); lifting each ``eventually``
+leaf into a chain of per-segment log-sum-exp variables (the same value, exactly, by
+associativity), so no row couples a vehicle across the horizon: largest front 1,130 -> 897,
+8.7e8 -> 7.2e8 flops, but 110 iterations instead of 89.  The front is set by the separation
+rows, which tie all vehicles at every sample.  Caching the templates on disk was not worth
+it either: CasADi serialises the power-line N = 4 templates to 198 MB and reads them back
+in 3.8 s, slower than building them.
 
 Initial guess (:func:`_initial_guess`): grid paths through each vehicle's target boxes,
 each leg timed rest to rest by a trapezoid within 75 % of the per-axis limits, dwelling in
