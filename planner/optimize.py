@@ -101,11 +101,11 @@ leaf into a chain of per-segment log-sum-exp variables (the same value, exactly,
 associativity), so no row couples a vehicle across the horizon: largest front 1,130 -> 897,
 8.7e8 -> 7.2e8 flops, but 110 iterations instead of 89.  The front is set by the separation
 rows, which tie all vehicles at every sample; keeping only the pairs that pass within 1 m
-of each other in the optimum found (3,163 of the 7,320 rows) made an iteration 153 ms
+of each other in the optimum found (3,193 of the 7,320 rows) made an iteration 153 ms
 instead of 230, but IPOPT then took 685 iterations and let unconstrained pairs collide, so
-row selection would need re-solves with the violated rows added, each a new build.  Caching the templates on disk was not worth
-it either: CasADi serialises the power-line N = 4 templates to 198 MB and reads them back
-in 3.8 s, slower than building them.
+row selection would need re-solves with the violated rows added, each a new build.
+Caching the templates on disk was not worth it either: CasADi serialises the power-line
+N = 4 templates to 198 MB and reads them back in 3.8 s, slower than building them.
 
 Initial guess (:func:`_initial_guess`): grid paths through each vehicle's target boxes,
 each leg timed rest to rest by a trapezoid within 75 % of the per-axis limits, dwelling in
