@@ -126,10 +126,9 @@ only settles (power-line N = 4: 72 instead of 300+ iterations).
 smooth leaves' error bound, a margin grown by the shortfall (up to three re-solves, each
 from the point the last one reached, the best kept) if the exact robustness still misses
 ``epsilon``; a constraint that cannot hold falls back to the plain maximisation from the
-same start.  With it IPOPT satisfies the spec
-before widening the margin: reach-avoid N = 4 / 8 / 16 took 65 / 30 / 89 iterations instead
-of 95 / 65 / 153 for the same robustness, so reach_avoid.yaml sets it; the power line
-did not gain (N = 8: 74 against 27).
+same start.  With it IPOPT satisfies the spec before widening the margin: reach-avoid
+N = 4 / 8 / 16 took 65 / 30 / 89 iterations instead of 95 / 65 / 153 for the same
+robustness, so reach_avoid.yaml sets it; the power line did not gain (N = 8: 74 against 27).
 
 After the solve the trajectories are re-sampled every ``check_dt_s`` and evaluated with
 the *exact* semantics of the same formula tree (numpy predicates); the result reports
@@ -1443,8 +1442,7 @@ def plan(
         for i, x0 in enumerate(x0s)
     ]
     w0 = np.concatenate([z0, *p0, [0.0]])
-    leaf0 = np.asarray(struct.leaf_fn(w0, p_val)).reshape(-1)
-    w0[-1] = float(np.min(leaf0)) if leaf0.size else 0.0
+    w0[-1] = _min_leaf(struct, w0, p_val, default=0.0)
     bounds = {"p": p_val, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg}
 
     def trajectories_of(w: np.ndarray) -> list[Trajectory]:
@@ -1503,9 +1501,8 @@ def plan(
             run = run.then(plain)
 
     say("checking on dense samples")
-    leaf_opt = np.asarray(struct.leaf_fn(w_opt, p_val)).reshape(-1)
     # The smooth value at the point returned (r itself may sit on a bound, eq. (1)).
-    smooth = float(np.min(leaf_opt)) if leaf_opt.size else float(w_opt[-1])
+    smooth = _min_leaf(struct, w_opt, p_val, default=float(w_opt[-1]))
     t_check = time.perf_counter()
     trajectories = trajectories_of(w_opt)
     result = _evaluate(problem, formula, formulas, trajectories)
@@ -1562,6 +1559,13 @@ def plan(
 #: Rounds of margin growth for the eq. (1) constraint, and the extra step (m) per round.
 _EPS_ROUNDS = 3
 _EPS_MARGIN_STEP_M = 2e-3
+
+
+def _min_leaf(struct: _Structure, w: np.ndarray, p: np.ndarray, default: float) -> float:
+    """The smallest leaf value (the smooth robustness the NLP sees) at ``w``; ``default``
+    when the spec has no leaves."""
+    values = np.asarray(struct.leaf_fn(w, p)).reshape(-1)
+    return float(np.min(values)) if values.size else default
 
 
 def _lower_r(lbx: np.ndarray, ubx: np.ndarray, value: float) -> None:
