@@ -274,11 +274,18 @@ class DryRun:
 
 
 @contextlib.contextmanager
-def mock_vehicles(plan: Plan, *, seed: int = 0) -> Iterator[DryRun]:
+def mock_vehicles(
+    plan: Plan,
+    *,
+    seed: int = 0,
+    profile: str = "px4",
+    params: Mapping[str, float] | None = None,
+) -> Iterator[DryRun]:
     """Mock PX4 vehicles on the ground below the plan's starts, in a background thread.
 
     Vehicle ``i`` has system id ``i + 1`` and sends to a free loopback port, reached at
-    ``udpin://127.0.0.1:PORT`` (the URLs yielded, plan order).
+    ``udpin://127.0.0.1:PORT`` (the URLs yielded, plan order).  ``profile`` and
+    ``params`` choose the vehicle (:mod:`mavlink.mock.profiles`: ``px4`` by default).
     """
     from mavlink.mock import MockFleet
 
@@ -291,6 +298,8 @@ def mock_vehicles(plan: Plan, *, seed: int = 0) -> Iterator[DryRun]:
         gcs_ports=ports[:n],
         vehicle_ports=ports[n:],
         seed=seed,
+        profile=profile,
+        params=params,
     )
     with mock.running_in_thread():
         yield DryRun(

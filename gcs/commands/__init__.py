@@ -24,3 +24,52 @@ def add_link_arguments(
         metavar="FILE",
         help="sign what the GCS sends (MAVLink 2 signing, through a local proxy; udpin only)",
     )
+
+
+def add_mock_vehicle_arguments(p: argparse.ArgumentParser, *, param_flag: str) -> None:
+    """``--profile``, ``--seed`` and the parameter override flag of the mock vehicles.
+
+    Declared once for ``gcs mock`` (``--param``) and the dry runs of ``gcs fly`` and
+    ``gcs demo`` (``--mock-param``).
+    """
+    from mavlink.mock.profiles import DEFAULT_PROFILE, PROFILES
+
+    p.add_argument(
+        "--profile",
+        choices=list(PROFILES),
+        default=DEFAULT_PROFILE,
+        help="mock vehicle: px4 (PX4 v1.17 SITL with SIH: drag, estimator, PX4's navigator; "
+        "the default) or ideal (an exact vehicle)",
+    )
+    p.add_argument(
+        "--seed", type=int, default=0, help="seed of the mock vehicles (estimator, noise, wind)"
+    )
+    p.add_argument(
+        param_flag,
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="mock vehicle parameter over the profile, e.g. SIH_KDV=0 (repeatable)",
+    )
+
+
+def parse_param_overrides(items: list[str], flag: str) -> dict[str, float]:
+    """``NAME=VALUE`` strings -> a dict; a malformed one raises :class:`gcs.errors.UserError`
+    naming the flag, and so does a name the mock vehicle does not have."""
+    from gcs.errors import UserError
+    from mavlink.mock.px4 import PARAM_SPECS
+
+    known = {p.name for p in PARAM_SPECS}
+    params: dict[str, float] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        if not sep:
+            raise UserError(f"{flag} {item!r}: expected NAME=VALUE")
+        if name not in known:
+            raise UserError(f"{flag} {item!r}: the mock vehicle has no parameter {name!r}")
+        try:
+            params[name] = float(value)
+        except ValueError:
+            raise UserError(f"{flag} {item!r}: VALUE must be a number") from None
+    return params

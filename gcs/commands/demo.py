@@ -33,6 +33,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
 
+from gcs.commands import add_mock_vehicle_arguments, parse_param_overrides
+
 if TYPE_CHECKING:
     from gcs.flight import FlightOutcome
     from planner.planfile import Plan
@@ -53,6 +55,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="fly the plan on the mock vehicles even if it fails verification",
     )
+    add_mock_vehicle_arguments(p, param_flag="--mock-param")
     p.add_argument(
         "--scenario",
         metavar="YAML",
@@ -107,6 +110,9 @@ def run_demo(
     progress: TextIO | None = None,
     scenario: str | Path | None = None,
     force: bool = False,
+    profile: str = "px4",
+    seed: int = 0,
+    mock_params: dict[str, float] | None = None,
 ) -> DemoResult:
     """Plan, fly on mock vehicles, evaluate and report (module docstring).
 
@@ -117,6 +123,7 @@ def run_demo(
         progress: where the flight's status line goes (``None``: silent).
         scenario: the scenario file (default ``configs/powerline_inspection.yaml``).
         force: fly a plan that fails verification (mock vehicles only, for inspection).
+        profile, seed, mock_params: the mock vehicles (:func:`gcs.flight.mock_vehicles`).
     """
     from gcs.errors import InputFileError
     from gcs.flight import (
@@ -177,7 +184,7 @@ def run_demo(
     t = time.perf_counter()
     view = FlightProgress(plan, progress) if progress is not None else None
     options = FlyOptions(rate_hz=rate_hz, log_dir=out)
-    with mock_vehicles(plan) as dry:
+    with mock_vehicles(plan, seed=seed, profile=profile, params=mock_params) as dry:
         t_mock = time.perf_counter() - t
         outcome = asyncio.run(
             fly_plan(plan, vehicle_specs(plan, list(dry.urls)), options, progress=view)
@@ -252,6 +259,9 @@ def run(args: argparse.Namespace) -> int:
         progress=sys.stdout,
         scenario=args.scenario,
         force=args.force,
+        profile=args.profile,
+        seed=args.seed,
+        mock_params=parse_param_overrides(args.mock_param, "--mock-param"),
     )
     print(summary(demo))
     out = demo.outcome

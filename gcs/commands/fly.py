@@ -27,7 +27,7 @@ import json
 import sys
 from pathlib import Path
 
-from gcs.commands import add_link_arguments
+from gcs.commands import add_link_arguments, add_mock_vehicle_arguments, parse_param_overrides
 
 HELP = "fly a plan in offboard (or mission) mode on PX4 vehicles, or on mock ones with --dry-run"
 
@@ -54,6 +54,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--end", choices=["hold", "land", "return"], default="hold")
     add_link_arguments(p, plan_order=True, timeout_s=10.0, timeout_help="connection timeout (10 s)")
     p.add_argument("--json", action="store_true", help="print the outcome as JSON")
+    add_mock_vehicle_arguments(p, param_flag="--mock-param")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -113,9 +114,15 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         if args.dry_run:
-            with mock_vehicles(plan) as dry:
+            with mock_vehicles(
+                plan,
+                seed=args.seed,
+                profile=args.profile,
+                params=parse_param_overrides(args.mock_param, "--mock-param"),
+            ) as dry:
                 print(
-                    f"dry run: {len(dry.urls)} mock vehicle(s) on the ground below their starts "
+                    f"dry run: {len(dry.urls)} mock vehicle(s) ({args.profile} profile) on the "
+                    "ground below their starts "
                     f"({', '.join(dry.urls)})",
                     file=out,
                     flush=True,

@@ -4,8 +4,10 @@ Vehicle ``i`` has system id ``i + 1``, listens on ``--vehicle-base-port + i``
 (default ``--base-port + 40``, i.e. 14580 + i) and sends to ``--base-port + i``
 on ``--gcs-host`` (14540 + i), as PX4 SITL does.  Spawn points come from
 ``--spawn`` (mission ENU metres relative to ``--origin``) or from the vehicle
-starts and origin of ``--scenario``; each vehicle's EKF origin and home are its
-spawn point.
+starts and origin of ``--scenario``.  ``--profile`` chooses the vehicle: ``px4``
+(the default: PX4 v1.17 SITL with SIH, whose EKF origin and home are a noisy first
+GPS fix near the spawn, different for every ``--seed``) or ``ideal`` (origin and home
+exactly at the spawn); ``--param NAME=VALUE`` overrides any of its parameters.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
+from gcs.commands import add_mock_vehicle_arguments, parse_param_overrides
 from gcs.errors import UserError
 from mavlink.mock import (
     DEFAULT_ORIGIN,
@@ -87,14 +90,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="spawn on the ground below the given points (z = 0), e.g. under a scenario's airborne starts",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of noise, wind and link faults")
-    p.add_argument(
-        "--param",
-        action="append",
-        default=[],
-        metavar="NAME=VALUE",
-        help="PX4 parameter override (repeatable)",
-    )
+    add_mock_vehicle_arguments(p, param_flag="--param")
     g = p.add_argument_group("link faults (all vehicles, or those in --fault-vehicles)")
     g.add_argument(
         "--loss-in",
@@ -253,15 +249,7 @@ def build_fleet(args: argparse.Namespace) -> MockFleet:
             gust_sigma_m_s=args.gust,
         )
         noise = NoiseConfig(pos_m=args.pos_noise_m, vel_m_s=args.vel_noise_m_s)
-        params: dict[str, float] = {}
-        for item in args.param:
-            name, sep, value = item.partition("=")
-            if not sep:
-                raise UserError(f"--param {item!r}: expected NAME=VALUE")
-            try:
-                params[name.strip()] = float(value)
-            except ValueError:
-                raise UserError(f"--param {item!r}: VALUE must be a number") from None
+        params = parse_param_overrides(args.param, "--param")
         key = None if args.signing_key is None else load_key(args.signing_key)
         return MockFleet(
             n=n,
@@ -277,22 +265,29 @@ def build_fleet(args: argparse.Namespace) -> MockFleet:
             wind=wind,
             noise=noise,
             signing_key=key,
+            profile=args.profile,
         )
     except MockError as exc:
         raise UserError(str(exc)) from None
 
 
 def vehicle_table(fleet: MockFleet) -> list[dict[str, Any]]:
-    """One row per vehicle: ids, ports, spawn and EKF origin."""
+    """One row per vehicle: ids, ports, spawn (mission ENU and geodetic) and EKF origin.
+
+    With the px4 profile the EKF origin is the vehicle's first noisy GPS fix, a few
+    tenths of a metre from its spawn (different every boot, as on PX4).
+    """
     rows = []
     for v in fleet.vehicles:
         lat, lon, alt = v.origin_lla
+        slat, slon, salt = v.spawn_lla
         rows.append(
             {
                 "sysid": v.sysid,
                 "listen": f"{fleet.bind_host}:{fleet.vehicle_ports[v.index]}",
                 "gcs": f"{fleet.gcs_host}:{fleet.gcs_ports[v.index]}",
                 "spawn_enu_m": list(v.config.spawn_enu_m),
+                "spawn": {"lat": slat, "lon": slon, "alt": salt},
                 "origin": {"lat": lat, "lon": lon, "alt": alt},
             }
         )

@@ -154,12 +154,15 @@ class MockVehicleConfig:
     so is its ground: a spawn with z > 0 stands on a platform at that height.
     ``params``: PX4 parameter overrides by name (e.g. ``{"COM_OF_LOSS_T": 0.5}``).
     ``ready_after_s``: simulated EKF/GPS convergence time; arming is refused before.
+    ``profile``: ``"px4"`` (PX4 v1.17 with SIH, the default) or ``"ideal"``
+    (:mod:`mavlink.mock.profiles`); ``params`` apply on top of it.
     """
 
     spawn_enu_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     faults: FaultConfig = field(default_factory=FaultConfig)
     params: tuple[tuple[str, float], ...] = ()
     ready_after_s: float = 0.5
+    profile: str = "px4"
 
     def __post_init__(self) -> None:
         spawn = tuple(float(v) for v in self.spawn_enu_m)
@@ -171,3 +174,6 @@ class MockVehicleConfig:
         params = self.params.items() if isinstance(self.params, dict) else self.params
         object.__setattr__(self, "params", tuple((str(k), float(v)) for k, v in params))
         _non_negative("ready_after_s", self.ready_after_s)
+        from mavlink.mock.profiles import profile_params
+
+        profile_params(self.profile)  # names the choices when unknown

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import random
 import threading
 from collections.abc import Iterator, Mapping, Sequence
@@ -32,6 +33,7 @@ from mavlink.mock.config import FaultConfig, MockVehicleConfig, NoiseConfig, Win
 from mavlink.mock.errors import MockConfigError, MockStartError
 from mavlink.mock.faults import FaultyChannel
 from mavlink.mock.physics import FleetPhysics
+from mavlink.mock.profiles import DEFAULT_PROFILE, profile_params
 from mavlink.mock.vehicle import MockVehicle
 from planner.frames import GeodeticPoint, enu_to_geodetic
 
@@ -76,6 +78,9 @@ class MockFleet:
     signing_key : 32-byte MAVLink 2 signing secret: vehicles sign what they send
         and drop unsigned (except RADIO_STATUS), wrongly signed and replayed
         frames (counted in ``MockVehicle.signing_rejected``).
+    profile : ``"px4"`` (default: PX4 v1.17 with SIH, drag, estimator, PX4's
+        navigator) or ``"ideal"`` (the exact vehicle); see :mod:`mavlink.mock.profiles`.
+        ``params`` apply on top of it.
     """
 
     def __init__(
@@ -96,6 +101,7 @@ class MockFleet:
         physics_rate_hz: float = 100.0,
         ready_after_s: float = 0.5,
         signing_key: bytes | None = None,
+        profile: str = DEFAULT_PROFILE,
     ) -> None:
         if not isinstance(n, int) or n < 1 or n > 254:
             raise MockConfigError(f"n must be an integer in 1..254, got {n!r}")
@@ -124,8 +130,10 @@ class MockFleet:
         self.seed = seed
         self.dt_s = 1.0 / physics_rate_hz
         self.time_s = 0.0
+        profile_params(profile)
+        self.profile = profile
         self.configs = self._configs(
-            n, spawns_enu_m, faults, params, vehicle_configs, ready_after_s
+            n, spawns_enu_m, faults, params, vehicle_configs, ready_after_s, profile
         )
         seeds = np.random.SeedSequence(seed)
         phys_seed, link_seed = seeds.spawn(2)
@@ -136,8 +144,8 @@ class MockFleet:
         self.vehicles: list[MockVehicle] = []
         for i, cfg in enumerate(self.configs):
             uid = (0x5354_4C00_0000_0000 | (seed & 0xFFFF) << 8 | (i + 1)) & 0xFFFF_FFFF_FFFF_FFFF
-            origin_lla = (float(lat[i]), float(lon[i]), float(alt[i]))
-            self.vehicles.append(MockVehicle(self, i, cfg, origin_lla, uid))
+            spawn_lla = (float(lat[i]), float(lon[i]), float(alt[i]))
+            self.vehicles.append(MockVehicle(self, i, cfg, spawn_lla, uid))
         self._origins_np()
         self._geo_tick = -1
         self._geo: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
@@ -168,6 +176,7 @@ class MockFleet:
         params: Mapping[str, float] | None,
         vehicle_configs: Sequence[MockVehicleConfig] | None,
         ready_after_s: float,
+        profile: str,
     ) -> list[MockVehicleConfig]:
         if vehicle_configs is not None:
             if len(vehicle_configs) != n:
@@ -202,11 +211,14 @@ class MockFleet:
                 faults=per_vehicle[i],
                 params=prm,
                 ready_after_s=ready_after_s,
+                profile=profile,
             )
             for i in range(n)
         ]
 
     def _origins_np(self) -> None:
+        s = np.array([v.spawn_lla for v in self.vehicles])
+        self._spawn_lat, self._spawn_lon, self._spawn_h = s[:, 0], s[:, 1], s[:, 2]
         o = np.array([v.origin_lla for v in self.vehicles])
         self._lat0, self._lon0, self._h0 = o[:, 0], o[:, 1], o[:, 2]
 
@@ -229,6 +241,20 @@ class MockFleet:
             self._geo_tick = self._ticks
         lat, lon, alt = self._geo
         return float(lat[i]), float(lon[i]), float(alt[i])
+
+    def truth_enu_m(self) -> np.ndarray:
+        """(n, 3) true positions in the fleet's mission ENU frame (m): what really happened.
+
+        The vehicles report (and fly on) their estimates; this is the simulator's ground
+        truth, for tests and assessments that compare the two.
+        """
+        p = self.physics.true_pos_ned_m
+        lat, lon, alt = pymap3d.ned2geodetic(
+            p[:, 0], p[:, 1], p[:, 2], self._spawn_lat, self._spawn_lon, self._spawn_h
+        )
+        o = self.origin
+        e, n, u = pymap3d.geodetic2enu(lat, lon, alt, o.lat_deg, o.lon_deg, o.alt_m)
+        return np.column_stack([e, n, u])
 
     def configure_links(self, vehicle: MockVehicle, faults: FaultConfig) -> None:
         """(Re)build the fault channels of ``vehicle``; usable before or while running."""
@@ -410,9 +436,4 @@ class MockFleet:
 
 
 def _replace_faults(cfg: MockVehicleConfig, faults: FaultConfig) -> MockVehicleConfig:
-    return MockVehicleConfig(
-        spawn_enu_m=cfg.spawn_enu_m,
-        faults=faults,
-        params=cfg.params,
-        ready_after_s=cfg.ready_after_s,
-    )
+    return dataclasses.replace(cfg, faults=faults)

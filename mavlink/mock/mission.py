@@ -19,17 +19,26 @@ vehicle and answers upload, download and clear transfers:
   ``MAV_MISSION_INVALID_SEQUENCE``.
 * ``MISSION_CLEAR_ALL`` and ``MISSION_COUNT(0)`` clear a plan.
 
-Items are kept exactly as received (legacy float lat/lon are converted to
-``*_INT`` degE7), so a download returns what was uploaded.
+Items are kept as received (legacy float lat/lon are converted to ``*_INT`` degE7).
+With ``px4_storage`` a download returns what PX4 v1.17 stores
+(``mavlink_mission.cpp``, ``shared/PX4-BEHAVIOUR.md``): waypoint and take-off yaw
+(param4) as float32 radians wrapped to [0, 2 pi), returned in degrees; FENCE items
+with autocontinue 0, param2-4 zero, param1 the rounded vertex count or the radius
+and the frame rewritten to GLOBAL_INT (GLOBAL for a legacy download); RALLY items
+with param1-4 zero and the same frame rewrite; ``current`` taken from the
+mission's current item for every plan type.  Without it a download returns
+exactly what was uploaded.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar
 
+import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 MISSION = mavlink2.MAV_MISSION_TYPE_MISSION
@@ -175,6 +184,53 @@ class MissionItem:
         )
 
 
+_YAW_COMMANDS = frozenset(
+    {
+        mavlink2.MAV_CMD_NAV_WAYPOINT,
+        mavlink2.MAV_CMD_NAV_TAKEOFF,
+        mavlink2.MAV_CMD_NAV_LOITER_TIME,
+        mavlink2.MAV_CMD_NAV_LOITER_UNLIM,
+        mavlink2.MAV_CMD_NAV_LAND,
+        mavlink2.MAV_CMD_NAV_VTOL_TAKEOFF,
+        mavlink2.MAV_CMD_NAV_VTOL_LAND,
+    }
+)
+_VERTEX_COMMANDS = frozenset(
+    {
+        mavlink2.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
+        mavlink2.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION,
+    }
+)
+
+
+def px4_stored(item: MissionItem, current: int, legacy: bool) -> MissionItem:
+    """``item`` as PX4 v1.17 returns it on download (see the module docstring).
+
+    ``current`` is the vehicle's current mission item; ``legacy``: a MISSION_REQUEST
+    (float) download, whose frames PX4 reports without ``_INT``.
+    """
+    f32 = np.float32
+    mtype = item.mission_type
+    if mtype == MISSION:
+        p4 = item.param4
+        if item.command in _YAW_COMMANDS and math.isfinite(p4):
+            rad = f32(math.radians(p4)) % f32(2.0 * math.pi)  # wrap_2pi in float32
+            p4 = float(f32(math.degrees(float(rad))))
+        return dataclasses.replace(item, param4=p4, current=int(item.seq == current))
+    frame = mavlink2.MAV_FRAME_GLOBAL if legacy else mavlink2.MAV_FRAME_GLOBAL_INT
+    z = float(f32(item.z))
+    if mtype == FENCE:
+        p1 = float(int(item.param1 + 0.5)) if item.command in _VERTEX_COMMANDS else item.param1
+        return dataclasses.replace(
+            item, frame=frame, autocontinue=0, param1=float(f32(p1)), param2=0.0,
+            param3=0.0, param4=0.0, z=z, current=int(item.seq == current),
+        )  # fmt: skip
+    return dataclasses.replace(
+        item, frame=frame, param1=0.0, param2=0.0, param3=0.0, param4=0.0, z=z,
+        current=int(item.seq == current),
+    )  # fmt: skip
+
+
 def _deg_to_e7(value_deg: float) -> int:
     if not math.isfinite(value_deg):
         return 0
@@ -241,7 +297,9 @@ class MissionServer:
         on_changed: Callable[[int], None],
         current_seq: Callable[[], int],
         statustext: Callable[[int, str], None],
+        px4_storage: Callable[[], bool] = lambda: False,
     ) -> None:
+        self._px4_storage = px4_storage
         self._send = send
         self._clock_s = clock_s
         self._on_changed = on_changed
@@ -411,8 +469,13 @@ class MissionServer:
             self._ack(partner, mavlink2.MAV_MISSION_INVALID_SEQUENCE, mtype)
             return
         it = plan[msg.seq]
-        current = int(mtype == MISSION and it.seq == self._current_seq())
-        if msg.get_type() == "MISSION_REQUEST":
+        legacy = msg.get_type() == "MISSION_REQUEST"
+        if self._px4_storage():
+            it = px4_stored(it, self._current_seq(), legacy)
+            current = it.current
+        else:
+            current = int(mtype == MISSION and it.seq == self._current_seq())
+        if legacy:
             frame = _INT_TO_LEGACY_FRAME.get(it.frame, it.frame)
             positional = it.command in POSITION_COMMANDS and it.frame in GLOBAL_FRAMES
             x = it.x / 1e7 if positional else float(it.x)

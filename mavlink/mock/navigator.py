@@ -8,11 +8,30 @@ time (takeoff vertically, waypoints accepted within ``param2`` or NAV_ACC_RAD
 horizontally and NAV_MC_ALT_RAD vertically, then held ``param1`` s), DO items
 run at once (DO_CHANGE_SPEED, DO_JUMP with repeat counts, DO_SET_HOME, camera
 and gimbal items are accepted and skipped), a mission started on the ground
-without a takeoff item first climbs to MIS_TAKEOFF_ALT, MISSION_ITEM_REACHED is
-sent for each NAV item reached and MISSION_CURRENT on every change.  Return to
-launch climbs to RTL_RETURN_ALT unless within 10 m of home (RTL_MIN_DIST),
-flies home and lands.  Geofence inclusion/exclusion polygons and circles are
-checked while flying; a breach triggers GF_ACTION.
+without a takeoff item first climbs to MIS_TAKEOFF_ALT, MISSION_CURRENT is sent
+on every change.  Return to launch climbs to RTL_RETURN_ALT unless within 10 m of
+home (RTL_MIN_DIST), flies home and lands.  Geofence inclusion/exclusion polygons
+and circles are checked while flying; a breach triggers GF_ACTION.
+
+With ``MOCK_PX4_NAV`` (the ``px4`` profile) the navigator is PX4 v1.17's
+(``shared/PX4-BEHAVIOUR.md``, PX4's ``navigator/`` and ``FlightTaskAuto``):
+
+* waypoints are flown along a trajectory setpoint limited by the cruise speed,
+  MPC_ACC_HOR and MPC_JERK_AUTO, arriving at the corner speed
+  ``min(sqrt(MPC_XY_TRAJ_P * MPC_ACC_HOR * R * tan(alpha / 2)), exit speed, cruise)``
+  (0 before a hold, at the last waypoint or when the next one is within R); a
+  vehicle that misses the acceptance circle sees its setpoint pass the waypoint
+  and turn back for it;
+* MISSION_ITEM_REACHED reports the last item *processed*: a DO item that
+  follows a waypoint overwrites the waypoint's report before it is sent; the
+  latest is re-sent about once a second, up to 10 times;
+* a take-off item climbs only when the first position item is more than
+  NAV_MC_ALT_RAD above the vehicle (``MissionBase::checkClimbRequired``);
+  otherwise it is a waypoint, and on the ground a waypoint less than 0.2 m
+  above the estimate never spins the vehicle up (auto-disarm after
+  COM_DISARM_PRFLT);
+* the geofence is predictive (GF_PREDICT): it fires when the braking distance
+  ``v * (v / (2 MPC_ACC_HOR) + 0.6)`` ahead would cross it.
 """
 
 from __future__ import annotations
@@ -27,6 +46,47 @@ from mavlink.mock.mission import FENCE, MISSION, RALLY
 from mavlink.mock.px4 import Px4Mode
 
 _RTL_MIN_DIST_M = 10.0
+_REACHED_RESENDS = 10  # PX4 re-sends the last reached item up to 10 times, once a second
+_GF_DELAY_FACTOR = 0.6  # PX4's braking-distance delay: accel_delay_max = 0.6 * MPC_JERK_AUTO
+
+
+def max_speed_from_distance(jerk: float, accel: float, dist_m: float, final_m_s: float) -> float:
+    """PX4's ``computeMaxSpeedFromDistance`` (TrajMath.hpp): the speed from which a
+    jerk- and acceleration-limited stop ends at ``final_m_s`` after ``dist_m``."""
+    b = 4.0 * accel * accel / jerk
+    c = -2.0 * accel * max(dist_m, 0.0) - final_m_s * final_m_s
+    return 0.5 * (-b + math.sqrt(b * b - 4.0 * c))
+
+
+def corner_speed(
+    prev: np.ndarray, target: np.ndarray, nxt: np.ndarray | None, radius_m: float, p: dict
+) -> float:
+    """PX4's speed at ``target`` heading for ``nxt`` (TrajectoryConstraints.hpp), m/s.
+
+    ``alpha`` is the angle at the waypoint between the legs (pi: straight on); the speed
+    is 0 without a next waypoint or when the next one lies within the acceptance radius.
+    """
+    if nxt is None:
+        return 0.0
+    out = nxt - target
+    d_next = float(np.linalg.norm(out))
+    if d_next < radius_m:
+        return 0.0
+    inc = prev - target
+    n_in = float(np.linalg.norm(inc))
+    if n_in < 1e-6:
+        alpha = math.pi
+    else:
+        cos_a = float(np.dot(inc, out)) / (n_in * d_next)
+        alpha = math.acos(max(-1.0, min(1.0, cos_a)))
+    acc, jerk = p["MPC_ACC_HOR"], p["MPC_JERK_AUTO"]
+    half = alpha / 2.0
+    turn = (
+        math.inf
+        if half >= math.pi / 2 - 1e-9
+        else math.sqrt(max(0.0, p["MPC_XY_TRAJ_P"] * acc * radius_m * math.tan(half)))
+    )
+    return min(turn, max_speed_from_distance(jerk, acc, d_next, 0.0))
 
 
 class NavigatorMixin:
@@ -78,6 +138,9 @@ class NavigatorMixin:
             self.mission_finished = False
             self._jump_counts.clear()
             self._mis_reached_sent = -1
+            self._seq_reached = -1
+            self._traj_active = False
+            self._mission_valid_s = self._now()
             if self.mode is Px4Mode.AUTO_MISSION:
                 if self.missions.plans[MISSION]:
                     self._mission_start_item(0)
@@ -107,6 +170,9 @@ class NavigatorMixin:
                 else:
                     seq += 1
                 continue
+            if cmd not in _NAV_COMMANDS and self.px4_nav:
+                # PX4: a DO item "completes instantaneously" and becomes the reached item
+                self._seq_reached = seq
             if cmd == mavlink2.MAV_CMD_DO_CHANGE_SPEED:
                 if item.param2 > 0:
                     self.cruise_speed_m_s = float(item.param2)
@@ -134,6 +200,10 @@ class NavigatorMixin:
         changed = seq != self.mission_seq
         self.mission_seq = seq
         self._mis_hold_until_s = math.inf
+        if cmd not in (mavlink2.MAV_CMD_NAV_WAYPOINT, mavlink2.MAV_CMD_NAV_LOITER_TIME,
+                       mavlink2.MAV_CMD_NAV_LOITER_UNLIM, mavlink2.MAV_CMD_NAV_TAKEOFF,
+                       mavlink2.MAV_CMD_NAV_VTOL_TAKEOFF):  # fmt: skip
+            self._traj_active = False
         pos = self.phys.pos_ned_m[i].copy()
         if cmd == mavlink2.MAV_CMD_NAV_RETURN_TO_LAUNCH:
             self.set_mode(Px4Mode.AUTO_RTL)
@@ -145,16 +215,34 @@ class NavigatorMixin:
             self._mis_hold_until_s = self._now() + max(0.0, item.param1)
         else:
             target = self._item_target_ned(item.frame, item.x, item.y, item.z, pos)
-            if cmd in (mavlink2.MAV_CMD_NAV_TAKEOFF, mavlink2.MAV_CMD_NAV_VTOL_TAKEOFF):
+            alt_rad = self.params["NAV_MC_ALT_RAD"]
+            if cmd in (mavlink2.MAV_CMD_NAV_TAKEOFF, mavlink2.MAV_CMD_NAV_VTOL_TAKEOFF) and (
+                self.px4_nav and pos[2] - target[2] <= alt_rad
+            ):
+                # PX4 climbs only when the item is more than NAV_MC_ALT_RAD above the
+                # vehicle; otherwise the take-off is flown as a waypoint
+                target[:2] = pos[:2]
+                self._mis_phase = "goto"
+                self._mis_target = target
+                self._traj_begin(target)
+                self.phys.set_position(i, target)
+            elif cmd in (mavlink2.MAV_CMD_NAV_TAKEOFF, mavlink2.MAV_CMD_NAV_VTOL_TAKEOFF):
                 target[:2] = pos[:2]
                 target[2] = min(target[2], pos[2])
                 self._mis_phase = "takeoff"
+                self._traj_active = False
             elif cmd in (mavlink2.MAV_CMD_NAV_LAND, mavlink2.MAV_CMD_NAV_VTOL_LAND):
                 target[2] = pos[2]
                 self._mis_phase = "land_approach"
             else:
                 self._mis_phase = "goto"
-            if self.landed and self._mis_phase == "goto":
+            climb = not self.px4_nav or pos[2] - target[2] > alt_rad
+            if self._mis_phase == "goto" and cmd in (
+                mavlink2.MAV_CMD_NAV_TAKEOFF,
+                mavlink2.MAV_CMD_NAV_VTOL_TAKEOFF,
+            ):
+                pass  # a take-off flown as a waypoint (set up above)
+            elif self.landed and self._mis_phase == "goto" and climb:
                 # PX4 takes off first when a mission starts on the ground without a takeoff
                 target_to = pos.copy()
                 target_to[2] = min(
@@ -162,15 +250,19 @@ class NavigatorMixin:
                 )
                 self._mis_target = target
                 self._mis_phase = "pre_takeoff"
+                self._traj_active = False
                 self.phys.set_position(i, target_to)
             else:
                 self._mis_target = target
                 self.phys.set_position(i, target)
                 self._face(target)
+                if self._mis_phase == "goto":
+                    self._traj_begin(target)
         if changed or self._mis_phase:
             self.send(self._msg_mission_current())
 
     def _mission_finish(self) -> None:
+        self._traj_active = False
         plan = self.missions.plans[MISSION]
         self.mission_finished = True
         self.mission_seq = max(0, len(plan) - 1)
@@ -180,9 +272,96 @@ class NavigatorMixin:
         self.send(self._msg_mission_current())
 
     def _item_reached(self, seq: int) -> None:
-        if self._mis_reached_sent != seq:
+        if self.px4_nav:
+            self._seq_reached = seq  # sent at the end of the tick (reached_tick)
+        elif self._mis_reached_sent != seq:
             self._mis_reached_sent = seq
             self.send(mavlink2.MAVLink_mission_item_reached_message(seq))
+
+    def _reached_tick(self, now: float) -> None:
+        """MISSION_ITEM_REACHED as PX4's mavlink_mission.cpp: on change, then once a second
+        up to 10 times (only the last processed item: see the module docstring)."""
+        seq = self._seq_reached
+        if seq < 0:
+            return
+        if seq != self._mis_reached_sent:
+            self._mis_reached_sent = seq
+            self._reached_resends = 0
+        elif self._reached_resends >= _REACHED_RESENDS or now < self._reached_next_s:
+            return
+        else:
+            self._reached_resends += 1
+        self._reached_next_s = now + 1.0
+        self.send(mavlink2.MAVLink_mission_item_reached_message(seq))
+
+    # ---------------------------------------------------------------- PX4 trajectory
+    def _traj_begin(self, target: np.ndarray) -> None:
+        """Start the leg to ``target`` from the current trajectory setpoint (PX4 nav only)."""
+        if not self.px4_nav:
+            return
+        i = self.index
+        if not self._traj_active:
+            self._traj_pos = self.phys.pos_ned_m[i].copy()
+            self._traj_vel = np.zeros(3)
+            self._traj_active = True
+        self._traj_from = self._traj_pos.copy()
+        plan = self.missions.plans[MISSION]
+        item = plan[self.mission_seq]
+        radius = item.param2 if item.param2 > 0 else self.params["NAV_ACC_RAD"]
+        hold = item.command == mavlink2.MAV_CMD_NAV_WAYPOINT and item.param1 > 0
+        nxt = None if hold else self._next_position(self.mission_seq)
+        self._traj_exit_m_s = min(
+            corner_speed(self._traj_from, target, nxt, radius, self.params),
+            self.cruise_speed_m_s,
+        )
+
+    def _next_position(self, seq: int) -> np.ndarray | None:
+        """Local position of the next waypoint-like item after ``seq`` (DO items skipped)."""
+        plan = self.missions.plans[MISSION]
+        for it in plan[seq + 1 :]:
+            if it.command in _NAV_COMMANDS:
+                if it.command in (
+                    mavlink2.MAV_CMD_NAV_WAYPOINT,
+                    mavlink2.MAV_CMD_NAV_LOITER_TIME,
+                    mavlink2.MAV_CMD_NAV_LOITER_UNLIM,
+                ):
+                    return self._item_target_ned(it.frame, it.x, it.y, it.z, self._mis_target)
+                return None
+            if it.command == mavlink2.MAV_CMD_DO_JUMP:
+                return None
+        return None
+
+    def _traj_step(self, target: np.ndarray) -> None:
+        """Advance PX4's trajectory setpoint one step toward ``target`` and command it.
+
+        The setpoint heads for the target at the speed from which it can still slow to
+        the exit (corner) speed there, within the cruise speed, turning at MPC_ACC_HOR;
+        having passed the target it comes back for it, as PX4 does when the vehicle
+        misses the acceptance circle.
+        """
+        dt = self.fleet.dt_s
+        prm = self.params
+        acc, jerk = prm["MPC_ACC_HOR"], prm["MPC_JERK_AUTO"]
+        to = target - self._traj_pos
+        dist = float(np.linalg.norm(to))
+        passed = float(np.dot(target - self._traj_from, to)) < 0.0
+        v_exit = 0.0 if passed else self._traj_exit_m_s
+        speed = min(self.cruise_speed_m_s, max_speed_from_distance(jerk, acc, dist, v_exit))
+        if dist < 1e-3 and v_exit == 0.0:
+            self._traj_pos = target.copy()
+            self._traj_vel[:] = 0.0
+            a = np.zeros(3)
+        else:
+            v_des = to / max(dist, 1e-9) * speed
+            up, dn = prm["MPC_Z_VEL_MAX_UP"], prm["MPC_Z_VEL_MAX_DN"]
+            if v_des[2] < -up or v_des[2] > dn:
+                v_des *= (up if v_des[2] < 0 else dn) / abs(v_des[2])
+            dv = v_des - self._traj_vel
+            n = float(np.linalg.norm(dv))
+            a = dv / dt if n <= acc * dt else dv / n * acc
+            self._traj_vel = self._traj_vel + a * dt
+            self._traj_pos = self._traj_pos + self._traj_vel * dt
+        self.phys.set_position(self.index, self._traj_pos.copy(), self._traj_vel.copy(), a)
 
     def _mission_tick(self) -> None:
         if not self.armed or self.mission_finished:
@@ -209,6 +388,8 @@ class NavigatorMixin:
                 self._advance()
             return
         if phase == "goto":
+            if self._traj_active:
+                self._traj_step(tgt)
             acc_rad = item.param2 if item.param2 > 0 else self.params["NAV_ACC_RAD"]
             if (
                 math.hypot(pos[0] - tgt[0], pos[1] - tgt[1]) < acc_rad
@@ -229,8 +410,10 @@ class NavigatorMixin:
                 self._mis_hold_until_s = now + max(0.0, hold_s)
                 self._mis_phase = "hold"
             return
-        if phase in ("hold", "delay"):
-            if now >= self._mis_hold_until_s:
+        if phase in ("hold", "delay", "loiter"):
+            if self._traj_active and phase != "delay":
+                self._traj_step(tgt)  # brake to the waypoint
+            if phase != "loiter" and now >= self._mis_hold_until_s:
                 self._advance()
             return
         if phase == "land_approach":
@@ -287,14 +470,40 @@ class NavigatorMixin:
                 return True
         return False
 
+    def predicted_stop_ned_m(self) -> np.ndarray:
+        """Where PX4's geofence expects the vehicle to stop: the braking distance ahead.
+
+        ``computeBrakingDistanceFromVelocity(v, MPC_JERK_AUTO, MPC_ACC_HOR,
+        0.6 * MPC_JERK_AUTO)`` = ``v * (v / (2 MPC_ACC_HOR) + 0.6)`` along the horizontal
+        velocity (estimate), as PX4's geofence breach avoidance computes it.
+        """
+        i = self.index
+        pos = self.phys.pos_ned_m[i].copy()
+        vel = self.phys.vel_ned_m_s[i]
+        speed = math.hypot(vel[0], vel[1])
+        if speed > 1e-3:
+            acc = self.params["MPC_ACC_HOR"]
+            dist = speed * (speed / (2.0 * acc) + _GF_DELAY_FACTOR)
+            pos[:2] += vel[:2] / speed * dist
+        return pos
+
     def _fence_tick(self) -> None:
         if not self._fence or not self.armed or self.landed:
             return
-        violated = self.fence_violated(self.phys.pos_ned_m[self.index])
+        pos = self.phys.pos_ned_m[self.index]
+        predict = self.params["GF_PREDICT"] >= 0.5
+        violated = self.fence_violated(pos) or (
+            predict and self.fence_violated(self.predicted_stop_ned_m())
+        )
         if violated and not self._fence_breached:
             self._fence_breached = True
             action = int(self.params["GF_ACTION"])
-            self.statustext(mavlink2.MAV_SEVERITY_CRITICAL, "Geofence violated")
+            if predict:
+                self.statustext(
+                    mavlink2.MAV_SEVERITY_CRITICAL, "Geofence: approaching or outside geofence"
+                )
+            else:
+                self.statustext(mavlink2.MAV_SEVERITY_CRITICAL, "Geofence violated")
             if action == 4:
                 self.failsafe = True
                 self._do_disarm("Flight termination: geofence")
@@ -302,6 +511,8 @@ class NavigatorMixin:
             mode = px4.GF_ACTION_MODES.get(action)
             if mode is not None:
                 self.failsafe = True
+                if predict:
+                    self.statustext(mavlink2.MAV_SEVERITY_CRITICAL, "Failsafe activated")
                 self.set_mode(mode)
         elif not violated:
             self._fence_breached = False

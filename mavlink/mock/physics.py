@@ -10,8 +10,17 @@ point, ground at ``down = 0``) driven by a PX4-like cascaded controller:
 * velocity loop (PI): ``a_cmd = a_ff + Kp_vel * (v_cmd - v) + Ki_vel * int(v_cmd - v)``,
   limited to ``acc_xy_max_m_s2`` horizontally and ``acc_up_max_m_s2`` /
   ``acc_dn_max_m_s2`` vertically;
-* the airframe follows ``a_cmd`` with a first-order lag (``thrust_tau_s``);
-  wind pushes with ``drag_per_s * wind`` (the controller's integrator rejects it).
+* the airframe follows ``a_cmd`` with a first-order lag (``thrust_tau_s``) and feels
+  linear aerodynamic drag ``-kdv * (v - wind)`` (SIH_KDV, 1/s for SIH's 1 kg quad), which
+  the controller does not model: at a steady speed ``v`` it trails its setpoint by
+  ``kdv / (Kp_pos * Kp_vel)`` seconds until the velocity integrator catches up, as PX4
+  does on SIH.  With ``kdv = 0`` (the ideal profile) wind pushes with
+  ``WindConfig.drag_per_s * wind`` instead.
+
+The controller closes its loops on the *estimate* (:mod:`mavlink.mock.estimator`):
+``pos_ned_m`` / ``vel_ned_m_s`` are what the vehicle believes, in its local frame (origin
+at its EKF origin); ``true_pos_ned_m`` / ``true_vel_ned_m_s`` are the truth in the spawn
+frame (origin at the spawn point, ground at ``down = 0``).
 
 Per axis, a setpoint may carry a position, a velocity and an acceleration
 (``m_pos``/``m_vel``/``m_acc`` masks, 0 or 1): position (+ optional velocity and
@@ -26,6 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from mavlink.mock.config import NoiseConfig, WindConfig
+from mavlink.mock.estimator import FleetEstimator
 
 GRAVITY_M_S2 = 9.80665
 _GROUND_D_M = 0.0
@@ -50,13 +60,18 @@ class FleetPhysics:
         self.wind = wind or WindConfig()
         self.noise = noise or NoiseConfig()
         self._alpha = min(1.0, dt_s / thrust_tau_s)
-        # true state
+        # true state (spawn frame) and the estimate the controller flies on (local frame)
+        self.true_pos_ned_m = np.zeros((n, 3))
+        self.true_vel_ned_m_s = np.zeros((n, 3))
         self.pos_ned_m = np.zeros((n, 3))
         self.vel_ned_m_s = np.zeros((n, 3))
+        self.estimator = FleetEstimator(n, dt_s, rng)
         self.acc_ned_m_s2 = np.zeros((n, 3))
         self.yaw_rad = np.zeros(n)
         self.yaw_rate_rad_s = np.zeros(n)
         self.armed = np.zeros(n, dtype=bool)
+        #: armed but idling on the ground (PX4 spins up only when a take-off is wanted)
+        self.idle = np.zeros(n, dtype=bool)
         self._vel_int = np.zeros((n, 3))
         # setpoints
         self.sp_pos_ned_m = np.zeros((n, 3))
@@ -80,6 +95,9 @@ class FleetPhysics:
         self.kp_pos = np.tile([0.95, 0.95, 1.0], (n, 1))
         self.kp_vel = np.tile([1.8, 1.8, 4.0], (n, 1))
         self.ki_vel = np.tile([0.4, 0.4, 2.0], (n, 1))
+        self.kd_vel = np.zeros((n, 3))
+        self.kdv_per_s = np.zeros(n)
+        self.yaw_p = np.full(n, 2.0)
         # wind and telemetry noise
         self._gust_ne_m_s = np.zeros((n, 2))
         self.noise_pos_m = np.zeros((n, 3))
@@ -88,6 +106,13 @@ class FleetPhysics:
         self.pitch_rad = np.zeros(n)
         self.roll_rate_rad_s = np.zeros(n)
         self.pitch_rate_rad_s = np.zeros(n)
+
+    def update_estimate(self) -> None:
+        """Recompute the estimate from the truth without advancing time (after a reset)."""
+        self.estimator.step(
+            self.true_pos_ned_m, self.true_vel_ned_m_s, np.zeros(self.n),
+            np.zeros(self.n, dtype=bool), self.pos_ned_m, self.vel_ned_m_s,
+        )  # fmt: skip
 
     def hold_here(self, i: int) -> None:
         """Make vehicle ``i`` hold its current position (and yaw)."""
@@ -138,7 +163,7 @@ class FleetPhysics:
     def step(self) -> None:
         """Advance every vehicle by ``dt_s``."""
         dt = self.dt_s
-        pos, vel = self.pos_ned_m, self.vel_ned_m_s
+        pos, vel = self.pos_ned_m, self.vel_ned_m_s  # the estimate: PX4 flies on it
         # position loop
         err_pos = self.m_pos * (self.sp_pos_ned_m - pos)
         p_term = self.kp_pos * err_pos
@@ -163,24 +188,32 @@ class FleetPhysics:
         # only carry an acceleration
         vel_ctl = np.maximum(self.m_pos, self.m_vel)
         err = (v_cmd - vel) * vel_ctl
-        a_cmd = self.kp_vel * err + self._vel_int + self.m_acc * self.sp_acc_ned_m_s2
+        a_cmd = (
+            self.kp_vel * err
+            + self._vel_int
+            + self.m_acc * self.sp_acc_ned_m_s2
+            - self.kd_vel * self.acc_ned_m_s2 * vel_ctl
+        )
         a_unsat = a_cmd.copy()
         a_h = np.hypot(a_cmd[:, 0], a_cmd[:, 1])
         scale = np.minimum(1.0, self.acc_xy_max_m_s2 / np.maximum(a_h, 1e-9))
         a_cmd[:, 0] *= scale
         a_cmd[:, 1] *= scale
         np.clip(a_cmd[:, 2], -self.acc_up_max_m_s2, self.acc_dn_max_m_s2, out=a_cmd[:, 2])
-        armed_col = self.armed[:, None]
+        thrusting = self.armed & ~self.idle
+        armed_col = thrusting[:, None]
         err_arw = err - (2.0 / self.kp_vel) * (a_unsat - a_cmd)
         self._vel_int += err_arw * self.ki_vel * dt * armed_col
-        self._vel_int *= vel_ctl
+        self._vel_int *= vel_ctl * armed_col  # PX4 resets the integrators on the ground
         a_cmd *= armed_col
         # airframe: thrust lag, wind, gravity when disarmed
         acc = self.acc_ned_m_s2
         acc += (a_cmd - acc) * self._alpha
         a_total = acc.copy()
+        pos, vel = self.true_pos_ned_m, self.true_vel_ned_m_s
         airborne = pos[:, 2] < _GROUND_D_M - 1e-3
         w = self.wind
+        wind_ne = np.zeros((self.n, 2))
         if w.gust_sigma_m_s > 0.0 or w.mean_ne_m_s != (0.0, 0.0):
             if w.gust_sigma_m_s > 0.0:
                 decay = dt / w.gust_tau_s
@@ -188,9 +221,17 @@ class FleetPhysics:
                     2.0 * decay
                 ) * self.rng.standard_normal((self.n, 2))
             wind_ne = np.asarray(w.mean_ne_m_s) + self._gust_ne_m_s
-            a_total[:, :2] += w.drag_per_s * wind_ne * (airborne & self.armed)[:, None]
-        falling = ~self.armed & airborne
-        a_total[falling] = (0.0, 0.0, GRAVITY_M_S2)
+        kdv = self.kdv_per_s
+        has_drag = kdv > 0.0
+        # ideal profile: wind as a force through WindConfig.drag_per_s, no drag on motion
+        a_total[:, :2] += w.drag_per_s * wind_ne * (airborne & self.armed & ~has_drag)[:, None]
+        # drag on the air-relative velocity (SIH: F = -KDV * v)
+        air = vel.copy()
+        air[:, :2] -= wind_ne
+        a_total -= (kdv * airborne)[:, None] * air
+        falling = ~thrusting & airborne
+        a_total[falling, 2] = GRAVITY_M_S2 - kdv[falling] * vel[falling, 2]
+        a_total[falling, :2] = -(kdv[falling])[:, None] * air[falling, :2]
         vel += a_total * dt
         pos += vel * dt
         # ground contact: no penetration, no sliding
@@ -203,7 +244,7 @@ class FleetPhysics:
         # yaw
         err_yaw = np.angle(np.exp(1j * (self.sp_yaw_rad - self.yaw_rad)))
         rate = np.where(
-            self.m_yaw, 2.0 * err_yaw, np.where(self.m_yaw_rate, self.sp_yaw_rate_rad_s, 0.0)
+            self.m_yaw, self.yaw_p * err_yaw, np.where(self.m_yaw_rate, self.sp_yaw_rate_rad_s, 0.0)
         )
         rate = np.clip(rate, -self.yaw_rate_max_rad_s, self.yaw_rate_max_rad_s) * (
             self.armed & airborne
@@ -220,6 +261,9 @@ class FleetPhysics:
         self.roll_rate_rad_s = (roll - self.roll_rad) / dt
         self.pitch_rate_rad_s = (pitch - self.pitch_rad) / dt
         self.roll_rad, self.pitch_rad = roll, pitch
+        # what the vehicle believes (its controller's input in the next step)
+        # (the ground-effect creep runs whenever the motors spin: armed, idling or not)
+        self.estimator.step(pos, vel, rate, self.armed, self.pos_ned_m, self.vel_ned_m_s)
         # telemetry noise for this tick
         nz = self.noise
         if nz.pos_m > 0.0 or nz.vel_m_s > 0.0:

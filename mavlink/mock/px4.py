@@ -5,14 +5,18 @@ PX4 packs its flight mode into ``HEARTBEAT.custom_mode`` as
 pair arrives in ``MAV_CMD_DO_SET_MODE`` as param2 (main) and param3 (sub), with
 ``MAV_MODE_FLAG_CUSTOM_MODE_ENABLED`` in param1.
 
-The parameter table is a small subset of a PX4 v1.14 multicopter (SITL
-``4001_quad_x`` airframe) with PX4's defaults; integer parameters travel with
-PX4's byte-wise encoding (the int32 bits reinterpreted as the float field).
+The parameter table is a small subset of a PX4 v1.17 multicopter (SITL SIH
+``sihsim_quadx`` airframe) with PX4's defaults, plus the mock's own ``MOCK_*``
+parameters (the estimator's error magnitudes and which PX4 behaviours are
+modelled; :mod:`mavlink.mock.profiles` sets them per profile).  Integer
+parameters travel with PX4's byte-wise encoding (the int32 bits reinterpreted
+as the float field).
 """
 
 from __future__ import annotations
 
 import enum
+import math
 import struct
 from dataclasses import dataclass
 
@@ -124,14 +128,22 @@ class ParamType(enum.IntEnum):
 
 @dataclass(frozen=True, slots=True)
 class ParamSpec:
-    """One parameter: name (<= 16 chars), type and PX4 default."""
+    """One parameter: name (<= 16 chars), type, PX4 default and, where the mock needs one to
+    stay stable, the range a set must fall in (PX4's metadata range where PX4 has one)."""
 
     name: str
     type: ParamType
     default: float
+    min: float = -math.inf
+    max: float = math.inf
+
+    def accepts(self, value: float) -> bool:
+        """True if ``value`` is finite and within ``[min, max]``."""
+        return math.isfinite(value) and self.min <= value <= self.max
 
 
-#: The parameters the mock exposes, with PX4 v1.14 multicopter defaults.
+#: The parameters the mock exposes, with PX4 v1.17 multicopter (SIH quad) defaults; these
+#: defaults are the ``px4`` profile.  ``MOCK_*`` parameters are the mock's own.
 PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("COM_DISARM_LAND", ParamType.REAL32, 2.0),
     ParamSpec("COM_DISARM_PRFLT", ParamType.REAL32, 10.0),
@@ -139,21 +151,30 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("COM_OF_LOSS_T", ParamType.REAL32, 1.0),
     ParamSpec("COM_RC_IN_MODE", ParamType.INT32, 3),
     ParamSpec("GF_ACTION", ParamType.INT32, 2),
+    ParamSpec("GF_PREDICT", ParamType.INT32, 1, 0.0, 1.0),
+    ParamSpec("MC_YAWRATE_MAX", ParamType.REAL32, 200.0, 0.0, 1800.0),
+    ParamSpec("MC_YAW_P", ParamType.REAL32, 2.8, 0.0, 5.0),
     ParamSpec("MIS_TAKEOFF_ALT", ParamType.REAL32, 2.5),
     ParamSpec("MPC_ACC_DOWN_MAX", ParamType.REAL32, 3.0),
-    ParamSpec("MPC_ACC_HOR", ParamType.REAL32, 3.0),
+    ParamSpec("MPC_ACC_HOR", ParamType.REAL32, 3.0, 2.0, 15.0),
     ParamSpec("MPC_ACC_HOR_MAX", ParamType.REAL32, 5.0),
     ParamSpec("MPC_ACC_UP_MAX", ParamType.REAL32, 4.0),
+    ParamSpec("MPC_JERK_AUTO", ParamType.REAL32, 4.0, 1.0, 80.0),
     ParamSpec("MPC_LAND_SPEED", ParamType.REAL32, 0.7),
     ParamSpec("MPC_THR_HOVER", ParamType.REAL32, 0.5),
+    ParamSpec("MPC_TILTMAX_AIR", ParamType.REAL32, 45.0, 20.0, 89.0),
+    ParamSpec("MPC_TKO_RAMP_T", ParamType.REAL32, 3.0, 0.0, 10.0),
     ParamSpec("MPC_TKO_SPEED", ParamType.REAL32, 1.5),
     ParamSpec("MPC_XY_CRUISE", ParamType.REAL32, 5.0),
     ParamSpec("MPC_XY_P", ParamType.REAL32, 0.95),
+    ParamSpec("MPC_XY_TRAJ_P", ParamType.REAL32, 0.5, 0.1, 1.0),
+    ParamSpec("MPC_XY_VEL_D_ACC", ParamType.REAL32, 0.2, 0.0, 2.0),
     ParamSpec("MPC_XY_VEL_I_ACC", ParamType.REAL32, 0.4),
     ParamSpec("MPC_XY_VEL_MAX", ParamType.REAL32, 12.0),
     ParamSpec("MPC_XY_VEL_P_ACC", ParamType.REAL32, 1.8),
     ParamSpec("MPC_YAWRAUTO_MAX", ParamType.REAL32, 45.0),
     ParamSpec("MPC_Z_P", ParamType.REAL32, 1.0),
+    ParamSpec("MPC_Z_VEL_D_ACC", ParamType.REAL32, 0.0, 0.0, 2.0),
     ParamSpec("MPC_Z_VEL_I_ACC", ParamType.REAL32, 2.0),
     ParamSpec("MPC_Z_VEL_MAX_DN", ParamType.REAL32, 1.5),
     ParamSpec("MPC_Z_VEL_MAX_UP", ParamType.REAL32, 3.0),
@@ -161,7 +182,26 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("NAV_ACC_RAD", ParamType.REAL32, 2.0),
     ParamSpec("NAV_MC_ALT_RAD", ParamType.REAL32, 0.8),
     ParamSpec("RTL_RETURN_ALT", ParamType.REAL32, 60.0),
-    ParamSpec("SYS_AUTOSTART", ParamType.INT32, 4001),
+    ParamSpec("SIH_KDV", ParamType.REAL32, 1.0, 0.0, 2.0),
+    ParamSpec("SYS_AUTOSTART", ParamType.INT32, 10040),
+    # --- the mock's own: estimator error magnitudes (mavlink.mock.estimator) ---
+    ParamSpec("MOCK_ORG_XY_MIN", ParamType.REAL32, 0.2, 0.0, 5.0),
+    ParamSpec("MOCK_ORG_XY_MAX", ParamType.REAL32, 0.4, 0.0, 5.0),
+    ParamSpec("MOCK_ORG_Z_MIN", ParamType.REAL32, 0.1, 0.0, 5.0),
+    ParamSpec("MOCK_ORG_Z_MAX", ParamType.REAL32, 0.6, 0.0, 5.0),
+    ParamSpec("MOCK_EST_SLOW_B", ParamType.REAL32, 0.08, 0.0, 5.0),
+    ParamSpec("MOCK_EST_B_TAU", ParamType.REAL32, 20.0, 0.1, 1000.0),
+    ParamSpec("MOCK_EST_P_N", ParamType.REAL32, 0.02, 0.0, 1.0),
+    ParamSpec("MOCK_EST_V_N", ParamType.REAL32, 0.12, 0.0, 2.0),
+    ParamSpec("MOCK_EST_V_TAU", ParamType.REAL32, 0.3, 0.01, 10.0),
+    ParamSpec("MOCK_EST_YAW_V", ParamType.REAL32, 0.2, 0.0, 2.0),
+    ParamSpec("MOCK_GE_HGT", ParamType.REAL32, 1.0, 0.0, 5.0),
+    ParamSpec("MOCK_GE_RATE", ParamType.REAL32, 0.25, 0.0, 5.0),
+    ParamSpec("MOCK_GE_MIN", ParamType.REAL32, 0.5, 0.0, 5.0),
+    ParamSpec("MOCK_GE_MAX", ParamType.REAL32, 1.2, 0.0, 5.0),
+    # --- the mock's own: which PX4 v1.17 behaviours are modelled (1) or idealised (0) ---
+    ParamSpec("MOCK_PX4_NAV", ParamType.INT32, 1, 0.0, 1.0),
+    ParamSpec("MOCK_MIS_RDY_T", ParamType.REAL32, 0.09, 0.0, 5.0),
 )
 
 #: COM_OBL_RC_ACT values (offboard loss action).  Without an RC link the
@@ -201,7 +241,7 @@ def decode_param_value(wire: float, ptype: ParamType) -> float:
     return float(wire)
 
 
-#: AUTOPILOT_VERSION.capabilities of the mock (what PX4 v1.14 reports, minus FTP).
+#: AUTOPILOT_VERSION.capabilities of the mock (what PX4 v1.17 reports, minus FTP).
 CAPABILITIES: int = (
     mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
     | mavlink2.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
@@ -216,5 +256,5 @@ CAPABILITIES: int = (
     | mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY
 )
 
-#: PX4 v1.14.0 release as AUTOPILOT_VERSION.flight_sw_version (major, minor, patch, type 0xFF).
-FLIGHT_SW_VERSION: int = (1 << 24) | (14 << 16) | (0 << 8) | 0xFF
+#: PX4 v1.17.0 release as AUTOPILOT_VERSION.flight_sw_version (major, minor, patch, type 0xFF).
+FLIGHT_SW_VERSION: int = (1 << 24) | (17 << 16) | (0 << 8) | 0xFF

@@ -11,6 +11,7 @@ from __future__ import annotations
 import enum
 import math
 
+import pymap3d
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.mock import px4
@@ -34,7 +35,19 @@ DEFAULT_RATES_HZ: dict[int, float] = {
     mavlink2.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: 10.0,
     mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 50.0,
     mavlink2.MAVLINK_MSG_ID_ATTITUDE: 50.0,
+    mavlink2.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 1.0,
 }
+
+_EST_FLAGS = (
+    mavlink2.ESTIMATOR_ATTITUDE
+    | mavlink2.ESTIMATOR_VELOCITY_HORIZ
+    | mavlink2.ESTIMATOR_VELOCITY_VERT
+    | mavlink2.ESTIMATOR_POS_HORIZ_REL
+    | mavlink2.ESTIMATOR_POS_HORIZ_ABS
+    | mavlink2.ESTIMATOR_POS_VERT_ABS
+    | mavlink2.ESTIMATOR_PRED_POS_HORIZ_REL
+    | mavlink2.ESTIMATOR_PRED_POS_HORIZ_ABS
+)
 
 _SENSORS = (
     mavlink2.MAV_SYS_STATUS_SENSOR_3D_GYRO
@@ -242,6 +255,46 @@ class TelemetryMixin:
             self._boot_ms(), mavlink2.MAV_FRAME_LOCAL_NED, mask,
             sp[0], sp[1], sp[2], sv[0], sv[1], sv[2], sa[0], sa[1], sa[2],
             p.sp_yaw_rad[i], p.sp_yaw_rate_rad_s[i],
+        )  # fmt: skip
+
+    def _msg_estimator_status(self) -> Msg:
+        """ESTIMATOR_STATUS: flags and the position accuracy the estimator claims (1 sigma).
+
+        Like EKF2's, the accuracies come from the error model (the configured bias and
+        noise magnitudes, the current ground-effect creep), not from the truth.
+        """
+        prm = self.params
+        eph = math.hypot(
+            prm["MOCK_ORG_XY_MAX"], math.sqrt(2.0) * prm["MOCK_EST_SLOW_B"], prm["MOCK_EST_P_N"]
+        )
+        epv = math.hypot(prm["MOCK_ORG_Z_MAX"], prm["MOCK_EST_SLOW_B"]) + float(
+            self.phys.estimator.creep_m[self.index]
+        )
+        return mavlink2.MAVLink_estimator_status_message(
+            self._usec(), _EST_FLAGS, 0.1, 0.1, 0.1, 0.0, 0.0, 0.0, max(eph, 0.01),
+            max(epv, 0.01),
+        )  # fmt: skip
+
+    def _msg_truth(self) -> Msg:
+        """HIL_STATE_QUATERNION with the simulator's ground truth (on request only).
+
+        Position and velocity are what really happened, not the estimate: a ``truth``
+        track in the telemetry log for comparing estimate and truth (PX4 SIH publishes
+        its ground truth the same way).
+        """
+        i, p = self.index, self.phys
+        pos = p.true_pos_ned_m[i]
+        lat, lon, alt = pymap3d.ned2geodetic(pos[0], pos[1], pos[2], *self.spawn_lla)
+        v = p.true_vel_ned_m_s[i]
+        a = p.acc_ned_m_s2[i]
+        q = _euler_to_quaternion(p.roll_rad[i], p.pitch_rad[i], p.yaw_rad[i])
+        mg = 1000.0 / 9.80665
+        return mavlink2.MAVLink_hil_state_quaternion_message(
+            self._usec(), list(q), p.roll_rate_rad_s[i], p.pitch_rate_rad_s[i],
+            p.yaw_rate_rad_s[i], round(float(lat) * 1e7), round(float(lon) * 1e7),
+            round(float(alt) * 1000), round(v[0] * 100), round(v[1] * 100), round(v[2] * 100),
+            round(math.hypot(v[0], v[1]) * 100), round(math.hypot(v[0], v[1]) * 100),
+            round(a[0] * mg), round(a[1] * mg), round((a[2] - 9.80665) * mg),
         )  # fmt: skip
 
     def _msg_autopilot_version(self) -> Msg:

@@ -30,9 +30,11 @@ from pymavlink.dialects.v20 import common as mavlink2
 from mavlink.mock import px4
 from mavlink.mock.config import FaultConfig, MockVehicleConfig, Outage
 from mavlink.mock.errors import MockConfigError, MockError
+from mavlink.mock.estimator import EstimatorParams
 from mavlink.mock.mission import MISSION, MissionItem, MissionServer
 from mavlink.mock.navigator import NavigatorMixin
 from mavlink.mock.physics import GRAVITY_M_S2
+from mavlink.mock.profiles import profile_params
 from mavlink.mock.px4 import Px4Mode
 from mavlink.mock.telemetry import DEFAULT_RATES_HZ, TelemetryMixin
 from mavlink.signing import signing_timestamp
@@ -62,14 +64,18 @@ _GLOBAL_FRAMES = frozenset(
 _FORCE_MAGIC = 21196.0
 _STREAM_GAP_S = 0.5  # setpoints at >= 2 Hz
 _STREAM_MIN_S = 1.0  # ... for at least 1 s before offboard is allowed
+_CLOSE_TO_GROUND_M = 1.0
+_MAX_ORIGIN_MOVE_M = 50_000.0  # the land detector's "close to ground" height (estimate)
 
 
 @dataclass(frozen=True, slots=True)
 class VehicleState:
-    """A snapshot of one vehicle's true state (for tests and status displays).
+    """A snapshot of one vehicle's state (for tests and status displays).
 
-    Positions/velocities are in the vehicle's local NED frame (m, m/s), the
-    origin at its spawn point.
+    ``pos_ned_m`` / ``vel_ned_m_s`` are the *true* position and velocity, and
+    ``est_pos_ned_m`` / ``est_vel_ned_m_s`` what the vehicle believes (and reports,
+    and flies on), all in its local NED frame (m, m/s) whose origin is its EKF origin
+    (with the ideal profile: exactly its spawn point, and estimate = truth).
     """
 
     sysid: int
@@ -83,6 +89,8 @@ class VehicleState:
     failsafe: bool
     mission_seq: int
     home_ned_m: tuple[float, float, float]
+    est_pos_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    est_vel_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 @dataclass(slots=True)
@@ -117,7 +125,7 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         fleet: MockFleet,
         index: int,
         config: MockVehicleConfig,
-        origin_lla: tuple[float, float, float],
+        spawn_lla: tuple[float, float, float],
         uid: int,
     ) -> None:
         self.fleet = fleet
@@ -125,7 +133,8 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         self.sysid = index + 1
         self.config = config
         self.uid = uid
-        self.origin_lla = origin_lla
+        #: where the vehicle really stands at boot (lat, lon, alt AMSL)
+        self.spawn_lla = spawn_lla
         self.phys = fleet.physics
         self._mav = mavlink2.MAVLink(None, srcSystem=self.sysid, srcComponent=1)
         self.signing_rejected = 0
@@ -138,10 +147,24 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         self.params: dict[str, float] = {p.name: float(p.default) for p in px4.PARAM_SPECS}
         self._param_specs = {p.name: p for p in px4.PARAM_SPECS}
         self._param_names = [p.name for p in px4.PARAM_SPECS]
+        self.params.update(profile_params(config.profile))
         for name, value in config.params:
-            if name not in self.params:
+            spec = self._param_specs.get(name)
+            if spec is None:
                 raise MockConfigError(f"vehicle {index}: unknown parameter {name!r}")
+            if not spec.accepts(value):
+                raise MockConfigError(
+                    f"vehicle {index}: parameter {name} = {value!r} outside "
+                    f"[{spec.min:g}, {spec.max:g}]"
+                )
             self.params[name] = value
+        # the EKF origin: the first (noisy) GPS fix, drawn anew at every boot
+        est = self.phys.estimator
+        est.configure(index, EstimatorParams.from_params(self.params), new_boot=True)
+        o = est.origin_ned_m[index]
+        lat, lon, alt = pymap3d.ned2geodetic(o[0], o[1], o[2], *spawn_lla)
+        #: the EKF origin (lat, lon, alt AMSL): GPS_GLOBAL_ORIGIN, the local frame's origin
+        self.origin_lla = (float(lat), float(lon), float(alt))
         self.mode = Px4Mode.AUTO_LOITER
         self.armed = False
         self.landed = True
@@ -167,7 +190,20 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         self._mis_target = np.zeros(3)
         self._mis_hold_until_s = 0.0
         self._mis_reached_sent = -1
+        self._seq_reached = -1
+        self._reached_resends = 0
+        self._reached_next_s = 0.0
+        self._mission_valid_s = -math.inf
         self._jump_counts: dict[int, int] = {}
+        # PX4's auto-mode trajectory setpoint (MOCK_PX4_NAV)
+        self._traj_active = False
+        self._traj_pos = np.zeros(3)
+        self._traj_vel = np.zeros(3)
+        self._traj_from = np.zeros(3)
+        self._traj_exit_m_s = 0.0
+        # (due time, action) run by tick: PX4's late second COMMAND_ACK
+        self._deferred: list[tuple[float, Callable[[], None]]] = []
+        self._cmd_partner: tuple[int, int, int] = (0, 0, 0)
         # geofence in local NE (m): list of (kind, inclusion, data)
         self._fence: list[tuple[str, bool, np.ndarray, float]] = []
         self._fence_breached = False
@@ -177,6 +213,7 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
             on_changed=self._on_plan_changed,
             current_seq=lambda: self.mission_seq,
             statustext=self.statustext,
+            px4_storage=lambda: self.px4_nav,
         )
         self.received: dict[str, int] = {}
         self.remote_addr: tuple[str, int] = (fleet.gcs_host, fleet.gcs_ports[index])
@@ -202,6 +239,8 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
             mavlink2.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self._msg_autopilot_version,
             mavlink2.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: self._msg_attitude_quaternion,
             mavlink2.MAVLINK_MSG_ID_ALTITUDE: self._msg_altitude,
+            mavlink2.MAVLINK_MSG_ID_ESTIMATOR_STATUS: self._msg_estimator_status,
+            mavlink2.MAVLINK_MSG_ID_HIL_STATE_QUATERNION: self._msg_truth,
         }
         for msg_id, rate_hz in DEFAULT_RATES_HZ.items():
             self._streams[msg_id] = _Stream(msg_id, 1.0 / rate_hz, 0.0, self._builders[msg_id])
@@ -218,7 +257,9 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
             "MISSION_SET_CURRENT": self._on_mission_set_current,
             "SET_GPS_GLOBAL_ORIGIN": self._on_set_gps_global_origin,
         }
+        self._takeoff_wanted_s = math.nan
         self._apply_params()
+        self.phys.update_estimate()
         self.phys.hold_here(index)
 
     # ================================================================ plumbing
@@ -341,11 +382,12 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         """Snapshot of the true state (thread-safe enough for tests: values are copied)."""
         i = self.index
         p = self.phys
+        true_local = p.true_pos_ned_m[i] - p.estimator.origin_ned_m[i]
         return VehicleState(
             sysid=self.sysid,
             time_s=self.fleet.time_s,
-            pos_ned_m=tuple(float(v) for v in p.pos_ned_m[i]),
-            vel_ned_m_s=tuple(float(v) for v in p.vel_ned_m_s[i]),
+            pos_ned_m=tuple(float(v) for v in true_local),
+            vel_ned_m_s=tuple(float(v) for v in p.true_vel_ned_m_s[i]),
             yaw_rad=float(p.yaw_rad[i]),
             mode=self.mode,
             armed=self.armed,
@@ -353,6 +395,8 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
             failsafe=self.failsafe,
             mission_seq=self.mission_seq,
             home_ned_m=tuple(float(v) for v in self.home_ned_m),
+            est_pos_ned_m=tuple(float(v) for v in p.pos_ned_m[i]),
+            est_vel_ned_m_s=tuple(float(v) for v in p.vel_ned_m_s[i]),
         )
 
     def mission_items(self, mission_type: int = MISSION) -> tuple[MissionItem, ...]:
@@ -406,8 +450,16 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         p.kp_pos[i] = (prm["MPC_XY_P"], prm["MPC_XY_P"], prm["MPC_Z_P"])
         p.kp_vel[i] = (prm["MPC_XY_VEL_P_ACC"], prm["MPC_XY_VEL_P_ACC"], prm["MPC_Z_VEL_P_ACC"])
         p.ki_vel[i] = (prm["MPC_XY_VEL_I_ACC"], prm["MPC_XY_VEL_I_ACC"], prm["MPC_Z_VEL_I_ACC"])
-        p.yaw_rate_max_rad_s[i] = math.radians(prm["MPC_YAWRAUTO_MAX"])
+        p.kd_vel[i] = (prm["MPC_XY_VEL_D_ACC"], prm["MPC_XY_VEL_D_ACC"], prm["MPC_Z_VEL_D_ACC"])
+        p.kdv_per_s[i] = prm["SIH_KDV"]
+        p.yaw_p[i] = prm["MC_YAW_P"]
+        p.estimator.configure(i, EstimatorParams.from_params(prm), new_boot=False)
         self._apply_limits()
+
+    @property
+    def px4_nav(self) -> bool:
+        """True when PX4 v1.17's navigator, take-off and storage are modelled (MOCK_PX4_NAV)."""
+        return self.params["MOCK_PX4_NAV"] >= 0.5
 
     def _apply_limits(self) -> None:
         """Speed/acceleration limits of the current mode from the parameters."""
@@ -416,13 +468,23 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         p.vel_xy_max_m_s[i] = (
             min(self.cruise_speed_m_s, prm["MPC_XY_VEL_MAX"]) if auto else prm["MPC_XY_VEL_MAX"]
         )
-        p.vel_up_max_m_s[i] = (
+        self._vel_up_base = (
             prm["MPC_TKO_SPEED"] if self.mode is Px4Mode.AUTO_TAKEOFF else prm["MPC_Z_VEL_MAX_UP"]
         )
+        p.vel_up_max_m_s[i] = self._vel_up_base
         p.vel_dn_max_m_s[i] = prm["MPC_Z_VEL_MAX_DN"]
-        p.acc_xy_max_m_s2[i] = prm["MPC_ACC_HOR"] if auto else prm["MPC_ACC_HOR_MAX"]
+        if self.px4_nav:
+            # PX4's position controller limits the acceleration only by the tilt; the
+            # trajectory generators of the auto modes respect MPC_ACC_HOR themselves
+            p.acc_xy_max_m_s2[i] = GRAVITY_M_S2 * math.tan(math.radians(prm["MPC_TILTMAX_AIR"]))
+        else:
+            p.acc_xy_max_m_s2[i] = prm["MPC_ACC_HOR"] if auto else prm["MPC_ACC_HOR_MAX"]
         p.acc_up_max_m_s2[i] = prm["MPC_ACC_UP_MAX"]
         p.acc_dn_max_m_s2[i] = prm["MPC_ACC_DOWN_MAX"]
+        yaw_max = (
+            prm["MC_YAWRATE_MAX"] if self.mode is Px4Mode.OFFBOARD else prm["MPC_YAWRAUTO_MAX"]
+        )
+        p.yaw_rate_max_rad_s[i] = math.radians(yaw_max)
 
     def _param_value_msg(self, name: str) -> Msg:
         spec = self._param_specs[name]
@@ -464,7 +526,11 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
             self.statustext(mavlink2.MAV_SEVERITY_WARNING, f"Parameter {name} not found")
             return
         value = px4.decode_param_value(msg.param_value, spec.type)
-        if math.isfinite(value):
+        if not spec.accepts(value):
+            self.statustext(
+                mavlink2.MAV_SEVERITY_WARNING, f"Parameter {name}: {value:g} out of range"
+            )
+        else:
             self.params[name] = value
             if name == "MPC_XY_CRUISE":
                 self.cruise_speed_m_s = value
@@ -492,6 +558,7 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         self, msg: Msg, command: int, p: tuple[float, ...], frame: int, is_int: bool
     ) -> None:
         handler = self._COMMANDS.get(command)
+        self._cmd_partner = (command, msg.get_srcSystem(), msg.get_srcComponent())
         if handler is None:
             result = UNSUPPORTED
             after = None
@@ -522,6 +589,8 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
                 return TEMPORARILY_REJECTED
         self.armed = True
         self.phys.armed[self.index] = True
+        # PX4 idles on the ground until a climb is wanted (see _takeoff_gate)
+        self.phys.idle[self.index] = self.landed and self.px4_nav
         self._armed_at_s = self._now()
         self.has_flown = not self.landed
         if self.landed:
@@ -585,9 +654,34 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         if mode is Px4Mode.AUTO_MISSION and not self.missions.plans[MISSION]:
             self.statustext(mavlink2.MAV_SEVERITY_CRITICAL, "Mission rejected: no mission")
             return TEMPORARILY_REJECTED
+        if mode is Px4Mode.AUTO_MISSION and self._mission_not_ready():
+            return ACCEPTED  # and a late TEMPORARILY_REJECTED, as PX4 (_mission_not_ready)
         self.failsafe = False
         self.set_mode(mode)
         return ACCEPTED
+
+    def _mission_not_ready(self) -> bool:
+        """PX4's window after a mission upload in which the commander still flags the mission
+        missing (``auto_mission_missing``, ~90 ms on SITL): the mode switch is acknowledged
+        ACCEPTED by the MAVLink receiver, then TEMPORARILY_REJECTED ~12 ms later by the
+        commander, and the vehicle stays in its mode.  True (and the late ACK scheduled)
+        inside that window."""
+        window_s = self.params["MOCK_MIS_RDY_T"]
+        now = self._now()
+        if not (window_s > 0 and now - self._mission_valid_s < window_s):
+            return False
+        command, sysid, compid = self._cmd_partner
+
+        def reject() -> None:
+            self.statustext(mavlink2.MAV_SEVERITY_CRITICAL, "Mission rejected: mission invalid")
+            self.send(
+                mavlink2.MAVLink_command_ack_message(
+                    command, TEMPORARILY_REJECTED, 0, 0, sysid, compid
+                )
+            )
+
+        self._deferred.append((now + 0.012, reject))
+        return True
 
     def set_mode(self, mode: Px4Mode, takeoff_down_m: float | None = None) -> None:
         """Enter ``mode`` (no checks) and set up its controller targets."""
@@ -595,6 +689,7 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         phys = self.phys
         was_mission = self.mode is Px4Mode.AUTO_MISSION
         self.mode = mode
+        self._traj_active = False
         self._apply_limits()
         pos = phys.pos_ned_m[i]
         if mode is Px4Mode.AUTO_LOITER:
@@ -660,6 +755,8 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         if not plan:
             self.statustext(mavlink2.MAV_SEVERITY_CRITICAL, "Mission rejected: no mission")
             return DENIED, None
+        if self._mission_not_ready():
+            return ACCEPTED, None
         first = int(p[0]) if math.isfinite(p[0]) else 0
         if 0 <= first < len(plan) and first != self.mission_seq:
             self.mission_seq = first
@@ -811,10 +908,18 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         if not self.landed:
             return
         new = (msg.latitude / 1e7, msg.longitude / 1e7, msg.altitude / 1e3)
-        shift = self.global_to_ned(*new)
+        shift = self.global_to_ned(*new) if abs(new[0]) <= 90.0 and abs(new[1]) <= 180.0 else None
+        if shift is None or not (np.all(np.abs(shift) < _MAX_ORIGIN_MOVE_M)):
+            # the mock's local frame is a flat tangent plane: it keeps the EKF origin within
+            # 50 km of the vehicle (and degE7 / mm fields from overflowing)
+            self.statustext(mavlink2.MAV_SEVERITY_WARNING, "EKF origin rejected: too far")
+            return
         self.origin_lla = new
         i = self.index
-        self.phys.pos_ned_m[i] -= shift
+        lat0, lon0, h0 = self.spawn_lla
+        n, e, d = pymap3d.geodetic2ned(*new, lat0, lon0, h0)
+        self.phys.estimator.set_origin(i, np.array([float(n), float(e), float(d)]))
+        self.phys.update_estimate()
         self.phys.sp_pos_ned_m[i] -= shift
         self.home_ned_m = self.home_ned_m - shift
         self.fleet.origins_changed()
@@ -968,19 +1073,58 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         self.set_mode(mode)
 
     # ================================================================ tick
+    def _takeoff_gate(self, now: float, est_d: float) -> None:
+        """PX4's take-off state machine: spin up only when a climb is wanted, then ramp.
+
+        On the ground an armed PX4 idles until its setpoint asks for a climb (a position
+        more than 0.2 m above the estimate, or an upward velocity); the climb speed then
+        ramps up over MPC_TKO_RAMP_T (``TakeoffHandling`` in mc_pos_control).
+        """
+        i, phys = self.index, self.phys
+        if self.landed:
+            want = bool(
+                (phys.m_pos[i, 2] and phys.sp_pos_ned_m[i, 2] < est_d - 0.2)
+                or (phys.m_vel[i, 2] and phys.sp_vel_ned_m_s[i, 2] < -0.3)
+                or (
+                    phys.m_acc[i, 2]
+                    and not phys.m_pos[i, 2]
+                    and not phys.m_vel[i, 2]
+                    and phys.sp_acc_ned_m_s2[i, 2] < -0.3
+                )
+            )
+            if want and phys.idle[i]:
+                self._takeoff_wanted_s = now
+            phys.idle[i] = not want
+        ramp_s = self.params["MPC_TKO_RAMP_T"]
+        since = now - self._takeoff_wanted_s
+        if ramp_s > 0 and since < ramp_s:
+            phys.vel_up_max_m_s[i] = self._vel_up_base * max(0.05, since / ramp_s)
+        elif since < ramp_s + 0.1:
+            phys.vel_up_max_m_s[i] = self._vel_up_base
+
     def tick(self, now: float) -> None:
         """Mode logic, protocol timers and telemetry for simulation time ``now``."""
         i = self.index
         phys = self.phys
         d = phys.pos_ned_m[i, 2]
-        vd = phys.vel_ned_m_s[i, 2]
+        true_d = phys.true_pos_ned_m[i, 2]
+        true_vd = phys.true_vel_ned_m_s[i, 2]
+        px4_nav = self.px4_nav
         if self.landed:
-            if d < -0.3:
+            if true_d < -0.3:
                 self.landed = False
                 self.has_flown = True
-        elif d > -0.05 and abs(vd) < 0.3:
+        elif (
+            true_d > -0.05
+            and abs(true_vd) < 0.3
+            and (not px4_nav or float(self.home_ned_m[2]) - d < _CLOSE_TO_GROUND_M)
+        ):
+            # PX4's land detector also needs the *estimate* close to the ground: with the
+            # ground-effect creep a vehicle sitting on the ground can stay "in air"
             self.landed = True
             self._landed_since_s = now
+        if px4_nav and self.armed:
+            self._takeoff_gate(now, d)
         mode = self.mode
         if self.armed:
             if mode is Px4Mode.OFFBOARD:
@@ -995,7 +1139,12 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
                 else:
                     self._mission_tick()
             elif mode is Px4Mode.AUTO_TAKEOFF:
-                if abs(d - self._takeoff_d_m) < 0.1 * self.params["MIS_TAKEOFF_ALT"] + 0.05:
+                reached_m = (
+                    self.params["NAV_MC_ALT_RAD"]
+                    if px4_nav
+                    else 0.1 * self.params["MIS_TAKEOFF_ALT"] + 0.05
+                )
+                if abs(d - self._takeoff_d_m) < reached_m:
                     # PX4 holds at the takeoff altitude once it is (nearly) reached
                     self.set_mode(Px4Mode.AUTO_LOITER)
                     phys.sp_pos_ned_m[i, 2] = self._takeoff_d_m
@@ -1015,6 +1164,13 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         elif mode is Px4Mode.OFFBOARD and now - self._sp_last_s > self.params["COM_OF_LOSS_T"]:
             # PX4 leaves offboard on the ground too when the stream stops
             self.set_mode(Px4Mode.AUTO_LOITER)
+        if px4_nav:
+            self._reached_tick(now)
+        if self._deferred:
+            due = [a for a in self._deferred if a[0] <= now]
+            self._deferred = [a for a in self._deferred if a[0] > now]
+            for _, action in due:
+                action()
         if self.missions.busy:
             self.missions.tick()
         for stream in list(self._streams.values()):

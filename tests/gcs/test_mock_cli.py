@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import socket
@@ -11,6 +12,7 @@ import sys
 import threading
 from pathlib import Path
 
+import pymap3d
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
@@ -136,8 +138,12 @@ def test_vehicles_run_on_px4_style_ports_with_spawns(capsys) -> None:  # type: i
     assert [r["listen"] for r in table] == [f"127.0.0.1:{vbase}", f"127.0.0.1:{vbase + 1}"]
     assert [r["gcs"] for r in table] == [f"127.0.0.1:{gbase}", f"127.0.0.1:{gbase + 1}"]
     assert table[1]["spawn_enu_m"] == [5.0, -3.0, 0.0]
-    assert table[0]["origin"] == pytest.approx({"lat": 46.5, "lon": 7.25, "alt": 600.0}, abs=1e-6)
-    assert table[1]["origin"]["lon"] > 7.25 and table[1]["origin"]["lat"] < 46.5
+    assert table[0]["spawn"] == pytest.approx({"lat": 46.5, "lon": 7.25, "alt": 600.0}, abs=1e-6)
+    assert table[1]["spawn"]["lon"] > 7.25 and table[1]["spawn"]["lat"] < 46.5
+    # the px4 profile: each EKF origin is a noisy first fix, 0.2-0.4 m / 0.1-0.6 m off the spawn
+    for row in table:
+        n, e, d = pymap3d.geodetic2ned(*row["origin"].values(), *row["spawn"].values())
+        assert 0.2 - 1e-6 <= math.hypot(n, e) <= 0.4 + 1e-6 and 0.1 - 1e-6 <= abs(d) <= 0.6 + 1e-6
     assert summary["sim_time_s"] >= 1.0
 
 
@@ -173,7 +179,12 @@ def test_scenario_gives_origin_and_starts(tmp_path, capsys) -> None:  # type: ig
     assert [r["spawn_enu_m"] for r in table] == [[0.0, 0.0, 0.0], [3.0, -2.0, 1.0]]
     for row in table:
         lat, lon, alt = pymap3d.enu2geodetic(*row["spawn_enu_m"], 46.9, 7.4, 540.0)
-        assert row["origin"] == pytest.approx({"lat": lat, "lon": lon, "alt": alt}, abs=1e-6)
+        assert row["spawn"] == pytest.approx({"lat": lat, "lon": lon, "alt": alt}, abs=1e-6)
+    # --profile ideal: the EKF origin exactly at the spawn (px4 scatters it per boot)
+    assert main([*argv, "--profile", "ideal"]) == 0
+    table = json.loads(capsys.readouterr().out.splitlines()[0])["vehicles"]
+    for row in table:
+        assert row["origin"] == pytest.approx(row["spawn"], abs=1e-9)
     # --ground-spawn puts the airborne start on the ground below it
     assert main([*argv, "--ground-spawn"]) == 0
     table = json.loads(capsys.readouterr().out.splitlines()[0])["vehicles"]

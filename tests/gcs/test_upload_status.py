@@ -7,10 +7,12 @@ protocol (not what MAVSDK read back), their true state and their configured spaw
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
+import pymap3d
 import pytest
 
 from gcs.cli import main
@@ -25,8 +27,12 @@ PLAN = DATA / "reach_avoid_2.plan.json"
 
 
 @pytest.fixture
-def mock() -> Iterator[tuple[MockFleet, list[str]]]:
-    """Two mock vehicles on the ground below the stored plan's starts, and their URLs."""
+def mock(request: pytest.FixtureRequest) -> Iterator[tuple[MockFleet, list[str]]]:
+    """Two mock vehicles on the ground below the stored plan's starts, and their URLs.
+
+    The px4 profile unless a test says ``@pytest.mark.parametrize("mock", ["ideal"],
+    indirect=True)``.
+    """
     plan = load_plan(PLAN)
     ports = free_udp_ports(4)
     fleet = MockFleet(
@@ -35,6 +41,7 @@ def mock() -> Iterator[tuple[MockFleet, list[str]]]:
         spawns_enu_m=ground_spawns(plan),
         gcs_ports=ports[:2],
         vehicle_ports=ports[2:],
+        profile=getattr(request, "param", "px4"),
     )
     with fleet.running_in_thread():
         yield fleet, [f"udpin://127.0.0.1:{p}" for p in ports[:2]]
@@ -66,6 +73,22 @@ def _wire(items) -> list[tuple]:  # type: ignore[no-untyped-def]
     ]
 
 
+@pytest.mark.parametrize(
+    "mock",
+    [
+        "ideal",
+        pytest.param(
+            "px4",
+            marks=pytest.mark.xfail(
+                strict=True,
+                reason="issue 16: gcs upload --fence compares autocontinue on read-back, and "
+                "PX4 returns fence items with autocontinue 0 (it stores no such field); the "
+                "mission start right after the upload falls in PX4's rejection window",
+            ),
+        ),
+    ],
+    indirect=True,
+)
 def test_upload_stores_the_mission_and_fence_on_each_vehicle_and_starts_them(
     mock: tuple[MockFleet, list[str]], capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -107,10 +130,18 @@ def test_status_shows_each_vehicle_as_it_is(
         assert fleet.vehicles[i].state.mode is Px4Mode.AUTO_LOITER
         assert r["mode"] == "AUTO.LOITER"
         assert r["armed"] is False and r["in_air"] is False
-        # On the ground where it was spawned (the mock's telemetry noise is ~1 cm).
-        assert r["lat_deg"] == pytest.approx(lat[i], abs=1e-6)
-        assert r["lon_deg"] == pytest.approx(lon[i], abs=1e-6)
-        assert r["alt_amsl_m"] == pytest.approx(alt[i], abs=0.1)
+        # What the vehicle believes (its EKF estimate, telemetry noise ~1 cm), which on PX4
+        # is off its true spawn point by the EKF origin's error: 0.2-0.4 m horizontally,
+        # 0.1-0.6 m vertically, plus a slowly varying bias.
+        v = fleet.vehicles[i]
+        elat, elon, ealt = v.ned_to_global(np.array(v.state.est_pos_ned_m))
+        assert r["lat_deg"] == pytest.approx(elat, abs=1e-6)
+        assert r["lon_deg"] == pytest.approx(elon, abs=1e-6)
+        assert r["alt_amsl_m"] == pytest.approx(ealt, abs=0.1)
+        n, e, d = pymap3d.geodetic2ned(
+            r["lat_deg"], r["lon_deg"], r["alt_amsl_m"], lat[i], lon[i], alt[i]
+        )
+        assert 0.05 < math.hypot(n, e) < 0.7 and abs(d) < 1.0
         assert 0.9 <= r["battery_remaining"] <= 1.0 and r["battery_voltage_v"] > 10
 
     assert main(["status", *_connections(urls)]) == 0

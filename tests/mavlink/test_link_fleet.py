@@ -92,7 +92,11 @@ def test_status_matches_the_vehicle_and_mavsdks_own_mode_decoding() -> None:
     spawns = [(0.0, 0.0, 0.0), (3.0, -2.0, 0.0)]
 
     async def run():
-        async with mock_and_fleet(["d1", "d2"], ORIGIN, spawns) as (mock, fleet):
+        # the ideal profile: compares with the exact spawn and a take-off to exactly 2 m
+        async with mock_and_fleet(["d1", "d2"], ORIGIN, spawns, profile="ideal") as (
+            mock,
+            fleet,
+        ):
             theirs: list[FlightMode] = []
             ours: list[Px4Mode | None] = []
             v = fleet["d2"]

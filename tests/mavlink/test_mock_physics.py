@@ -12,7 +12,8 @@ from mavlink.mock.physics import FleetPhysics
 def airborne_fleet(n: int, seed: int = 0, wind: WindConfig | None = None, noise: NoiseConfig | None = None) -> FleetPhysics:  # fmt: skip
     p = FleetPhysics(n, 0.01, np.random.default_rng(seed), wind, noise or NoiseConfig(0.0, 0.0))
     p.armed[:] = True
-    p.pos_ned_m[:, 2] = -5.0
+    p.true_pos_ned_m[:, 2] = -5.0
+    p.update_estimate()  # bare physics: no estimator errors, the estimate is the truth
     for i in range(n):
         p.hold_here(i)
     return p
@@ -61,8 +62,9 @@ def test_feed_forward_tracks_a_circle_better_than_position_alone() -> None:
 
     def track(feed_forward: bool) -> float:
         p = airborne_fleet(1)
-        p.pos_ned_m[0] = (radius_m, 0.0, -5.0)
-        p.vel_ned_m_s[0] = (0.0, radius_m * omega, 0.0)
+        p.true_pos_ned_m[0] = (radius_m, 0.0, -5.0)
+        p.true_vel_ned_m_s[0] = (0.0, radius_m * omega, 0.0)
+        p.update_estimate()
         errors = []
         for k in range(len(t)):
             if feed_forward:

@@ -288,7 +288,8 @@ def test_set_message_interval_changes_and_disables_streams() -> None:
 
 def test_global_position_is_spawn_origin_plus_local_offset() -> None:
     spawn = (30.0, -20.0, 0.0)
-    with mock_vehicles(spawns_enu_m=[spawn]) as (_fleet, (gcs,)):
+    # the ideal profile: the EKF origin exactly at the spawn (px4 scatters it per boot)
+    with mock_vehicles(spawns_enu_m=[spawn], profile="ideal") as (_fleet, (gcs,)):
         import pymap3d
 
         lat0, lon0, alt0 = pymap3d.enu2geodetic(*spawn, *ORIGIN)
@@ -338,7 +339,7 @@ def _offboard_flight_then_silence(gcs: GcsEndpoint) -> None:
 
 
 def test_offboard_stream_loss_triggers_hold_failsafe() -> None:
-    with mock_vehicles(params={"COM_OF_LOSS_T": 0.3}) as (fleet, (gcs,)):
+    with mock_vehicles(params={"COM_OF_LOSS_T": 0.3}, profile="ideal") as (fleet, (gcs,)):
         _offboard_flight_then_silence(gcs)
         v = fleet.vehicles[0]
         assert v.state.mode is Px4Mode.OFFBOARD and not v.state.landed
@@ -378,7 +379,7 @@ def test_offboard_loss_action_land_from_parameter() -> None:
 
 
 def test_offboard_tracks_position_velocity_and_acceleration_setpoints() -> None:
-    with mock_vehicles() as (fleet, (gcs,)):
+    with mock_vehicles(profile="ideal") as (fleet, (gcs,)):
         v = fleet.vehicles[0]
 
         # velocity-only setpoint (type mask ignores position and acceleration)
@@ -570,7 +571,8 @@ def test_mission_upload_completes_under_30_percent_loss_each_way() -> None:
 
 def test_mission_runs_in_auto_mission_with_items_reached() -> None:
     params = {"MPC_TKO_SPEED": 3.0, "MPC_LAND_SPEED": 2.5, "MPC_XY_CRUISE": 6.0}
-    with mock_vehicles(params=params) as (fleet, (gcs,)):
+    # the ideal navigator reports every NAV item once (PX4's reports: test_mock_px4.py)
+    with mock_vehicles(params=params, profile="ideal") as (fleet, (gcs,)):
         v = fleet.vehicles[0]
         lat0, lon0 = v.origin_lla[0], v.origin_lla[1]
         import pymap3d
@@ -608,7 +610,8 @@ def test_mission_runs_in_auto_mission_with_items_reached() -> None:
 
 
 def test_geofence_breach_triggers_hold() -> None:
-    with mock_vehicles() as (fleet, (gcs,)):
+    # an actual breach (the ideal profile; PX4's predictive fence: test_mock_px4.py)
+    with mock_vehicles(profile="ideal") as (fleet, (gcs,)):
         v = fleet.vehicles[0]
         lat0, lon0, _ = v.origin_lla
         circle = item_int(0, command=mavlink2.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, p1=4.0,
@@ -760,7 +763,9 @@ def test_telemetry_noise_is_reproducible_for_a_seed() -> None:
     def samples(seed: int) -> dict[int, tuple[float, float, float]]:
         vports = free_udp_ports(1)
         with GcsEndpoint(vports[0]) as gcs:
-            fleet = MockFleet(n=1, gcs_ports=[gcs.port], vehicle_ports=vports, seed=seed)
+            fleet = MockFleet(
+                n=1, gcs_ports=[gcs.port], vehicle_ports=vports, seed=seed, profile="ideal"
+            )
             with fleet.running_in_thread():
                 return {
                     m.time_boot_ms: (m.x, m.y, m.z)
