@@ -73,9 +73,25 @@ def check_stream(result: FlightResult, duration_s: float, cfg: OffboardConfig) -
         assert s.sent > 0.9 * ticks
 
 
-@pytest.mark.parametrize(("n", "rate_hz"), [(2, 20.0), (4, 50.0)])
+@pytest.mark.parametrize(
+    ("n", "rate_hz", "profile"),
+    [
+        (2, 20.0, "ideal"),
+        (4, 50.0, "ideal"),
+        pytest.param(
+            2,
+            20.0,
+            "px4",
+            marks=pytest.mark.xfail(
+                reason="issue 16: on PX4's drag lag (0.585 s before the integrator) and EKF "
+                "origin error the offboard flight ends in the tool's own safety stop or with a "
+                "negative flown robustness (4 of 5 reach-avoid flights on PX4 SITL)",
+            ),
+        ),
+    ],
+)
 def test_fleet_flies_planned_reach_avoid_and_the_flown_telemetry_satisfies_the_spec(
-    n: int, rate_hz: float, tmp_path
+    n: int, rate_hz: float, profile: str, tmp_path
 ) -> None:
     rho_plan, plan, problem, spec = planned_robustness(n)
     assert rho_plan > 0.3  # the stored plan is a real, robust solution of this spec
@@ -87,7 +103,7 @@ def test_fleet_flies_planned_reach_avoid_and_the_flown_telemetry_satisfies_the_s
     tlog, csv = tmp_path / "flight.tlog", tmp_path / "flight.csv"
 
     async def run():
-        async with mock_and_fleet(names, plan.origin, spawns) as (mock, fleet):
+        async with mock_and_fleet(names, plan.origin, spawns, profile=profile) as (mock, fleet):
             truth: list = []
             stop = asyncio.Event()
             sampler = asyncio.create_task(sample_truth(mock, stop, truth))
@@ -151,7 +167,8 @@ def test_vehicle_spawned_5_m_from_its_start_is_refused_before_anything_arms() ->
     spawns[1] = (spawns[1][0] + 5.0, spawns[1][1], 0.0)  # d2 five metres east of its start
 
     async def run():
-        async with mock_and_fleet(names, plan.origin, spawns) as (mock, fleet):
+        # ideal: the distance is exact (px4's EKF origin error would add up to 0.4 m)
+        async with mock_and_fleet(names, plan.origin, spawns, profile="ideal") as (mock, fleet):
             with pytest.raises(PreflightError) as info:
                 await fly_offboard(fleet, trajs, plan.origin)
             return info.value, [v.state for v in mock.vehicles]

@@ -138,7 +138,22 @@ def test_mission_path_of_the_stored_plan_keeps_its_robustness_close() -> None:
     assert rho_plan - 2 * worst - 1e-9 <= rho <= rho_plan + 2 * worst + 1e-9
 
 
-def test_upload_read_back_identical_then_fly_the_mission_on_the_mock() -> None:
+@pytest.mark.parametrize(
+    "profile",
+    [
+        "ideal",
+        pytest.param(
+            "px4",
+            marks=pytest.mark.xfail(
+                strict=True,
+                reason="issue 16: the fence read-back compares autocontinue, which PX4 returns "
+                "as 0 for fence items; fly_missions expects every waypoint reported, PX4 "
+                "reports only the last item processed",
+            ),
+        ),
+    ],
+)
+def test_upload_read_back_identical_then_fly_the_mission_on_the_mock(profile: str) -> None:
     plan = stored_plan(2)
     v1 = plan.vehicles[0]
     mp = trajectory_to_mission(v1.trajectory, plan.origin, acceptance_radius_m=0.3)
@@ -148,7 +163,7 @@ def test_upload_read_back_identical_then_fly_the_mission_on_the_mock() -> None:
     spawn = (v1.start_enu_m[0], v1.start_enu_m[1], 0.0)
 
     async def run():
-        async with mock_and_fleet(["d1"], plan.origin, [spawn]) as (mock, fleet):
+        async with mock_and_fleet(["d1"], plan.origin, [spawn], profile=profile) as (mock, fleet):
             v = fleet["d1"]
             report = await upload_and_verify(v, mp.items)
             fence_report = await upload_and_verify(v, fence, MissionType.FENCE)

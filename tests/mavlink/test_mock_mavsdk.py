@@ -116,8 +116,12 @@ async def fly(system: System, fleet: MockFleet, index: int, target_ned: tuple[fl
         ),
         20.0,
     )
-    truth = vehicle.state.pos_ned_m
-    assert math.dist(truth, target_ned) < 0.35
+    # PX4 flies to where it *believes* the target is: the estimate is there, the truth is
+    # off by the estimator's error (px4 profile: EKF origin 0.2-0.4 m / 0.1-0.6 m off the
+    # spawn, plus a slow bias and the ground-effect creep's remains)
+    st = vehicle.state
+    assert math.dist(st.est_pos_ned_m, target_ned) < 0.35
+    assert math.dist(st.pos_ned_m, target_ned) < 1.2
     await offboard.stop()
     assert vehicle.state.mode is Px4Mode.AUTO_LOITER
 
@@ -126,7 +130,9 @@ async def fly(system: System, fleet: MockFleet, index: int, target_ned: tuple[fl
     await first(telemetry.subscribe_armed(), lambda armed: not armed, 10.0)
     st = vehicle.state
     assert st.landed and not st.armed
-    assert math.hypot(st.pos_ned_m[0] - n, st.pos_ned_m[1] - e) < 0.5
+    # landed below the target as the vehicle believes it, the truth off by its EKF error
+    assert math.hypot(st.est_pos_ned_m[0] - n, st.est_pos_ned_m[1] - e) < 0.5
+    assert math.hypot(st.pos_ned_m[0] - n, st.pos_ned_m[1] - e) < 1.0
 
 
 def test_mavsdk_uploads_mission_arms_takes_off_flies_offboard_and_lands() -> None:
@@ -184,7 +190,7 @@ def test_mavsdk_flies_four_vehicles_on_their_own_ports() -> None:
                         for i in range(n)
                     )
                 )
-                # each vehicle kept to its own EKF origin: GPS_GLOBAL_ORIGIN = its spawn
+                # each vehicle kept to its own EKF origin (GPS_GLOBAL_ORIGIN near its spawn)
                 origins = {v.origin_lla for v in fleet.vehicles}
                 assert len(origins) == n
 
