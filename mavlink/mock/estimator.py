@@ -3,8 +3,8 @@
 PX4 flies on its EKF2 estimate, not on the truth, and on PX4 v1.17 SITL with the SIH
 quad-rotor that estimate is measurably off (``shared/PX4-BEHAVIOUR.md``):
 
-* the local origin is the first GPS fix, 0.2-0.4 m horizontally and 0.1-0.6 m vertically
-  away from where the vehicle really stands, different at every boot, and the estimate
+* the local origin is the first GPS fix, 0.2-0.4 m horizontally and 0.1-0.6 m below
+  where the vehicle really stands, different at every boot, and the estimate
   keeps that offset: the vehicle believes it is at its origin when it boots, so in the
   mission frame everything it reports (and flies to) is off by the origin's error;
 * on top of that a slowly varying bias and noise; the velocity estimate is off by up
@@ -47,8 +47,10 @@ class EstimatorParams:
 
     Attributes:
         origin_xy_m: (min, max) horizontal distance of the EKF origin from the spawn.
-        origin_z_m: (min, max) vertical distance of the EKF origin from the true ground,
-            either sign (the estimate reads high when the origin is above the ground).
+        origin_z_m: (min, max) depth of the EKF origin below the true ground.  On PX4 SITL
+            the in-flight estimate read about 0.26 m low (NED +0.26) and no 0.75 m start
+            ever came out less than 0.3 m above home: the origin (and home) lay below the
+            ground, so the vehicle flies that much higher than it believes.
         bias_slow_m: std of the slowly varying bias, per axis (correlation ``bias_tau_s``).
         bias_tau_s: correlation time of the slow bias.
         pos_noise_m: white noise on the position estimate, per axis.
@@ -125,8 +127,8 @@ class FleetEstimator:
             r = rng.uniform(lo, hi) if hi > 0 else 0.0
             ang = rng.uniform(0.0, 2.0 * np.pi)
             lo, hi = prm.origin_z_m
-            dz = (rng.uniform(lo, hi) if hi > 0 else 0.0) * rng.choice((-1.0, 1.0))
-            self.origin_ned_m[i] = (r * np.cos(ang), r * np.sin(ang), dz)
+            below = rng.uniform(lo, hi) if hi > 0 else 0.0
+            self.origin_ned_m[i] = (r * np.cos(ang), r * np.sin(ang), below)
             self.boot_origin_ned_m[i] = self.origin_ned_m[i]
             self.bias_slow_m[i] = rng.standard_normal(3) * prm.bias_slow_m
             lo, hi = prm.creep_max_m

@@ -344,6 +344,34 @@ class MockFleet:
             delay = t0 + self._ticks * dt - loop.time()
             await sleep(delay if delay > 0.0 else 0.0)
 
+    def advance(self, seconds: float) -> None:
+        """Simulate ``seconds`` as fast as the CPU goes, without sockets or an event loop.
+
+        For tests and batch simulations of the vehicle model: the fleet must not be
+        running.  Nothing goes on the wire; what each vehicle sends is kept as MAVLink
+        bytes and decoded by :meth:`MockVehicle.sent_messages`.  Commands reach the
+        vehicles through their Python API (``arm``, ``request_mode``, ...) or
+        :meth:`MockVehicle.receive`.
+        """
+        if self.running:
+            raise MockConfigError("advance() is for a fleet that is not running")
+        self.offline_links()
+        physics, vehicles, dt = self.physics, self.vehicles, self.dt_s
+        for _ in range(round(seconds / dt)):
+            physics.step()
+            self._ticks += 1
+            now = self._ticks * dt
+            self.time_s = now
+            for v in vehicles:
+                v.tick(now)
+
+    def offline_links(self) -> None:
+        """Give every vehicle in-memory links (no sockets), for :meth:`advance`."""
+        for v in self.vehicles:
+            if not isinstance(v.downlink, _OfflineLink):
+                v.downlink = _OfflineLink()
+                v.uplink = _OfflineUplink(v)
+
     @property
     def running(self) -> bool:
         """True while the simulation task runs."""
@@ -433,6 +461,26 @@ class MockFleet:
                 }
             )
         return out
+
+
+class _OfflineLink:
+    """Downlink of an offline fleet (:meth:`MockFleet.advance`): keeps the bytes sent."""
+
+    def __init__(self) -> None:
+        self.sent: list[bytes] = []
+
+    def push(self, data: bytes) -> None:
+        self.sent.append(data)
+
+
+class _OfflineUplink:
+    """Uplink of an offline fleet: hands datagrams straight to the vehicle's parser."""
+
+    def __init__(self, vehicle: MockVehicle) -> None:
+        self._vehicle = vehicle
+
+    def push(self, data: bytes) -> None:
+        self._vehicle._deliver_up(data)
 
 
 def _replace_faults(cfg: MockVehicleConfig, faults: FaultConfig) -> MockVehicleConfig:

@@ -214,8 +214,12 @@ def px4_stored(item: MissionItem, current: int, legacy: bool) -> MissionItem:
     if mtype == MISSION:
         p4 = item.param4
         if item.command in _YAW_COMMANDS and math.isfinite(p4):
-            rad = f32(math.radians(p4)) % f32(2.0 * math.pi)  # wrap_2pi in float32
-            p4 = float(f32(math.degrees(float(rad))))
+            # PX4's float math: radians(x) = x * (pi / 180), wrap_2pi, degrees(r) = r * (180 / pi)
+            pi, two_pi = f32(math.pi), f32(2.0 * math.pi)
+            rad = f32(p4) * (pi / f32(180.0))
+            if not (f32(0.0) <= rad < two_pi):
+                rad = rad - two_pi * f32(math.floor(rad / two_pi))
+            p4 = float(rad * (f32(180.0) / pi))
         return dataclasses.replace(item, param4=p4, current=int(item.seq == current))
     frame = mavlink2.MAV_FRAME_GLOBAL if legacy else mavlink2.MAV_FRAME_GLOBAL_INT
     z = float(f32(item.z))

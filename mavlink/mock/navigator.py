@@ -409,6 +409,10 @@ class NavigatorMixin:
                 )
                 self._mis_hold_until_s = now + max(0.0, hold_s)
                 self._mis_phase = "hold"
+                if self.px4_nav and hold_s <= 0.0:
+                    # PX4 moves on in the same cycle: a following DO item is processed (and
+                    # becomes the reached item) before MAVLink sends the waypoint's report
+                    self._advance()
             return
         if phase in ("hold", "delay", "loiter"):
             if self._traj_active and phase != "delay":

@@ -96,6 +96,7 @@ class FleetPhysics:
         self.kp_vel = np.tile([1.8, 1.8, 4.0], (n, 1))
         self.ki_vel = np.tile([0.4, 0.4, 2.0], (n, 1))
         self.kd_vel = np.zeros((n, 3))
+        self._vel_dot = np.zeros((n, 3))  # the velocity's derivative (PX4's D term input)
         self.kdv_per_s = np.zeros(n)
         self.yaw_p = np.full(n, 2.0)
         # wind and telemetry noise
@@ -192,7 +193,7 @@ class FleetPhysics:
             self.kp_vel * err
             + self._vel_int
             + self.m_acc * self.sp_acc_ned_m_s2
-            - self.kd_vel * self.acc_ned_m_s2 * vel_ctl
+            - self.kd_vel * self._vel_dot * vel_ctl
         )
         a_unsat = a_cmd.copy()
         a_h = np.hypot(a_cmd[:, 0], a_cmd[:, 1])
@@ -234,6 +235,7 @@ class FleetPhysics:
         a_total[falling, :2] = -(kdv[falling])[:, None] * air[falling, :2]
         vel += a_total * dt
         pos += vel * dt
+        self._vel_dot = a_total
         # ground contact: no penetration, no sliding
         grounded = pos[:, 2] >= _GROUND_D_M
         if grounded.any():

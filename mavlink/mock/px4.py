@@ -194,7 +194,7 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("MOCK_EST_P_N", ParamType.REAL32, 0.02, 0.0, 1.0),
     ParamSpec("MOCK_EST_V_N", ParamType.REAL32, 0.12, 0.0, 2.0),
     ParamSpec("MOCK_EST_V_TAU", ParamType.REAL32, 0.3, 0.01, 10.0),
-    ParamSpec("MOCK_EST_YAW_V", ParamType.REAL32, 0.2, 0.0, 2.0),
+    ParamSpec("MOCK_EST_YAW_V", ParamType.REAL32, 0.05, 0.0, 2.0),
     ParamSpec("MOCK_GE_HGT", ParamType.REAL32, 1.0, 0.0, 5.0),
     ParamSpec("MOCK_GE_RATE", ParamType.REAL32, 0.25, 0.0, 5.0),
     ParamSpec("MOCK_GE_MIN", ParamType.REAL32, 0.5, 0.0, 5.0),

@@ -340,6 +340,25 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
                 if tgt in (0, self.sysid):
                     self.missions.handle(msg)
 
+    def receive(self, msg: Msg, sysid: int = 255, compid: int = 190) -> None:
+        """Hand ``msg`` to the vehicle as if it arrived from (sysid, compid) over its link."""
+        if self.uplink is None:
+            self.fleet.offline_links()
+        mav = mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        self.datagram_received(msg.pack(mav), self._rx_addr)
+
+    def sent_messages(self) -> list[Msg]:
+        """Decode and forget what an offline vehicle sent (:meth:`MockFleet.advance`)."""
+        link = self.downlink
+        sent: list[bytes] = getattr(link, "sent", [])
+        parser = mavlink2.MAVLink(None)
+        parser.robust_parsing = True
+        out: list[Msg] = []
+        for data in sent:
+            out.extend(m for m in parser.parse_buffer(data) or [] if m.get_type() != "BAD_DATA")
+        sent.clear()
+        return out
+
     def set_faults(self, faults: FaultConfig) -> None:
         """Replace the link faults of this vehicle (takes effect for the next datagram)."""
         self.fleet.configure_links(self, faults)

@@ -23,12 +23,27 @@ from planner.planfile import load_plan
 REPO = Path(__file__).resolve().parents[2]
 
 
+@pytest.mark.parametrize(
+    "profile",
+    [
+        "ideal",
+        pytest.param(
+            "px4",
+            marks=pytest.mark.xfail(
+                reason="issue 16: reach-avoid's 0.75 m starts on the px4 mock (as on PX4 "
+                "SITL): EKF origin height error, ground-effect creep, drag lag over a 0.22 m "
+                "margin",
+            ),
+        ),
+    ],
+)
 def test_demo_pipeline_flies_the_plan_and_reports_the_flown_robustness(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], profile: str
 ) -> None:
     out = tmp_path / "demo"
     scenario = REPO / "configs" / "reach_avoid.yaml"
-    rc = main(["demo", "--out", str(out), "--vehicles", "2", "--scenario", str(scenario)])
+    argv = ["demo", "--out", str(out), "--vehicles", "2", "--scenario", str(scenario)]
+    rc = main([*argv, "--profile", profile])
     text = capsys.readouterr().out
     assert rc == 0, text
     names = {"plan.json", "flight.tlog", "flight.csv", "demo.png", "report.md"}

@@ -37,8 +37,22 @@ def plan_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+@pytest.mark.parametrize(
+    "profile",
+    [
+        "ideal",
+        pytest.param(
+            "px4",
+            marks=pytest.mark.xfail(
+                reason="issue 16: on the px4 mock (as on PX4 SITL) the reach-avoid starts sit "
+                "within the EKF origin's height error of home, the take-off to 0.75 m meets "
+                "the ground-effect creep, and the drag lag eats the 0.22 m margin",
+            ),
+        ),
+    ],
+)
 def test_plan_verify_export_and_dry_run_flight_satisfy_the_spec(
-    plan_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    plan_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], profile: str
 ) -> None:
     assert main(["verify", str(plan_file)]) == 0
     qgc = tmp_path / "qgc"
@@ -50,7 +64,9 @@ def test_plan_verify_export_and_dry_run_flight_satisfy_the_spec(
     capsys.readouterr()
 
     log = tmp_path / "log"
-    rc = main(["fly", str(plan_file), "--dry-run", "--log", str(log), "--json"])
+    rc = main(
+        ["fly", str(plan_file), "--dry-run", "--profile", profile, "--log", str(log), "--json"]
+    )
     out, err = capsys.readouterr()
     assert rc == 0, err
     res = json.loads(out)
@@ -147,7 +163,8 @@ def test_unreachable_connection_is_bad_input_in_one_line(
 
 def test_ctrl_c_commands_every_vehicle_to_hold_and_exits_cleanly(plan_file: Path) -> None:
     proc = subprocess.Popen(
-        [sys.executable, "-m", "gcs.cli", "fly", str(plan_file), "--dry-run"],
+        # the ideal vehicle: what is tested is the GCS's interrupt, on a flight under way
+        [sys.executable, "-m", "gcs.cli", "fly", str(plan_file), "--dry-run", "--profile", "ideal"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -168,10 +185,26 @@ def test_ctrl_c_commands_every_vehicle_to_hold_and_exits_cleanly(plan_file: Path
     assert "modes now: d1 AUTO.LOITER, d2 AUTO.LOITER" in rest
 
 
+@pytest.mark.parametrize(
+    "profile",
+    [
+        "ideal",
+        pytest.param(
+            "px4",
+            marks=pytest.mark.xfail(
+                reason="issue 16: gcs fly --mode mission waits for MISSION_ITEM_REACHED of "
+                "each waypoint, PX4 reports only the last item processed; the take-off to "
+                "0.75 m meets the ground-effect creep",
+            ),
+        ),
+    ],
+)
 def test_mission_mode_flies_the_uploaded_missions_over_the_whole_horizon(
-    plan_file: Path, capsys: pytest.CaptureFixture[str]
+    plan_file: Path, capsys: pytest.CaptureFixture[str], profile: str
 ) -> None:
-    rc = main(["fly", str(plan_file), "--dry-run", "--mode", "mission", "--json"])
+    rc = main(
+        ["fly", str(plan_file), "--dry-run", "--profile", profile, "--mode", "mission", "--json"]
+    )
     out, err = capsys.readouterr()
     res = json.loads(out)
     assert res["mode"] == "mission" and res["completed"], err

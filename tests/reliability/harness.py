@@ -178,8 +178,13 @@ async def flight_run(
     outage_s: float = 3.0,
     link_timeout_s: float = 2.0,
     settle_after_s: float = 1.5,
+    profile: str = "ideal",
 ) -> FlightRunResult:
     """Fly the stored two-vehicle plan with ``faults`` on vehicle d1's link from the start.
+
+    The vehicles are the mock's ``ideal`` profile by default: the fault matrix measures
+    what the *link* does to a flight, so the link is the only cause of a difference
+    (what PX4's own drag lag and estimator do to a reach-avoid flight is issue 16's).
 
     With ``outage_after_start_s``, d1's link also goes silent (both ways) for
     ``outage_s`` that long after both vehicles report OFFBOARD.  After the
@@ -233,7 +238,7 @@ async def flight_run(
             await asyncio.sleep(0.02)
 
     async with mock_and_fleet(
-        names, plan.origin, spawns, link_timeout_s=link_timeout_s, seed=seed
+        names, plan.origin, spawns, link_timeout_s=link_timeout_s, seed=seed, profile=profile
     ) as (mock, fleet):
         mock.vehicles[0].set_faults(faults)
         stop = asyncio.Event()
