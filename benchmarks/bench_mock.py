@@ -1,5 +1,12 @@
 """Figures of the mock PX4 fleet (mavlink.mock).
 
+0. Calibration of the ``px4`` profile against PX4 v1.17 SITL (SIH): the reach-avoid
+   2-vehicle and power-line 4-vehicle plans flown offboard by ``gcs fly --dry-run``
+   (``--seeds`` boots each), the best-fit lag and tracking rms side by side with PX4's
+   figures (``mavlink.mock.calibration``); reach-avoid's tracking with the ground-effect
+   creep off (PX4's figures are of vehicles that flew), then drag-free, then the whole
+   vehicle (how many flights end in a safety stop or below zero, as 5 of 5 did on PX4);
+   and ``gcs demo`` (power line, 4 vehicles): planned against flown robustness.
 1. Real-time capacity: N vehicles in this one process, pinned to one CPU core,
    telemetry at the default rates (LOCAL_POSITION_NED and ATTITUDE 50 Hz, ...),
    physics at 100 Hz, each vehicle sending to a bound (never read) GCS socket.
@@ -16,7 +23,7 @@
 
 Prints a table, then one JSON line.  Usage::
 
-    .venv/bin/python benchmarks/bench_mock.py [--seconds 4] [--max-vehicles 254]
+    .venv/bin/python benchmarks/bench_mock.py [--seconds 4] [--max-vehicles 254] [--seeds 3]
 """
 
 from __future__ import annotations
@@ -27,11 +34,18 @@ import json
 import os
 import socket
 import statistics
+import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 from mavlink.mock import MockFleet
+from mavlink.mock import calibration as px4
 from mavlink.mock.testing import free_udp_ports
+
+REPO = Path(__file__).resolve().parents[1]
+GCS = [sys.executable, "-m", "gcs.cli"]
 
 
 def _sinks(n: int) -> tuple[list[int], list[socket.socket]]:
@@ -44,11 +58,13 @@ def _sinks(n: int) -> tuple[list[int], list[socket.socket]]:
     return [s.getsockname()[1] for s in socks], socks
 
 
-async def _run_fleet(n: int, seconds: float) -> dict[str, float]:
+async def _run_fleet(n: int, seconds: float, profile: str) -> dict[str, float]:
     gcs_ports, socks = _sinks(n)
     vehicle_ports = free_udp_ports(n)
     try:
-        fleet = MockFleet(n=n, gcs_ports=gcs_ports, vehicle_ports=vehicle_ports, seed=1)
+        fleet = MockFleet(
+            n=n, gcs_ports=gcs_ports, vehicle_ports=vehicle_ports, seed=1, profile=profile
+        )
         async with fleet:
             await asyncio.sleep(0.5)  # warm-up
             sim0, wall0, cpu0 = fleet.time_s, time.perf_counter(), time.process_time()
@@ -211,6 +227,99 @@ async def _upload(repeats: int, n_items: int) -> dict[str, float]:
     }
 
 
+def _gcs_json(args: list[str]) -> dict:  # type: ignore[type-arg]
+    """Run ``gcs ARGS --json`` on every core (the capacity figures pin this process)."""
+    cores = os.sched_getaffinity(0) | set(range(os.cpu_count() or 1))
+    proc = subprocess.run(
+        [*GCS, *args, "--json"], cwd=REPO, capture_output=True, text=True, check=False,
+        preexec_fn=lambda: os.sched_setaffinity(0, cores),
+    )  # fmt: skip
+    return json.loads(proc.stdout)
+
+
+def _calibration(seeds: int) -> dict:  # type: ignore[type-arg]
+    """Figure 0: fly the calibration plans on the px4 mock; rows of (what, mock, PX4)."""
+    out: dict = {}  # type: ignore[type-arg]
+    with tempfile.TemporaryDirectory() as tmp:
+        plans = {}
+        for name, scenario, n in (
+            ("reach_avoid", "configs/reach_avoid.yaml", 2),
+            ("powerline", "configs/powerline_inspection.yaml", 4),
+        ):
+            plans[name] = str(Path(tmp) / f"{name}.json")
+            _gcs_json(["plan", scenario, "--vehicles", str(n), "-o", plans[name]])
+
+        def runs(plan: str, *params: str) -> list[dict]:  # type: ignore[type-arg]
+            res = []
+            for seed in range(seeds):
+                argv = ["fly", plan, "--dry-run", "--seed", str(seed)]
+                for p in params:
+                    argv += ["--mock-param", p]
+                res.append(_gcs_json(argv))
+            return res
+
+        def spread(results: list[dict], key: str) -> list[float]:  # type: ignore[type-arg]
+            return [t[key] for r in results for t in r["tracking"] if t[key] is not None]
+
+        ra = runs(plans["reach_avoid"], "MOCK_GE_RATE=0")
+        free = runs(plans["reach_avoid"], "MOCK_GE_RATE=0", "SIH_KDV=0")
+        whole = runs(plans["reach_avoid"])
+        pl = runs(plans["powerline"])
+        failed = sum(
+            1 for r in whole
+            if r["safety_event"] or r["flown_robustness"] is None or r["flown_robustness"] < 0
+        )  # fmt: skip
+        out["rows"] = [
+            (px4.REACH_AVOID_LAG, spread(ra, "lag_s")),
+            (px4.REACH_AVOID_RMS, spread(ra, "rms_m")),
+            (px4.DRAG_FREE_LAG, spread(free, "lag_s")),
+            (px4.POWERLINE_LAG, spread(pl, "lag_s")),
+            (px4.POWERLINE_RMS, spread(pl, "rms_m")),
+            (px4.POWERLINE_FLOWN, [r["flown_robustness"] for r in pl]),
+        ]
+        out["reach_avoid_failed"] = (failed, len(whole))
+        out["safety_stops"] = sum(1 for r in whole if r["safety_event"])
+        demo_dir = Path(tmp) / "demo"
+        proc = subprocess.run(
+            [*GCS, "demo", "--out", str(demo_dir)], cwd=REPO, capture_output=True, text=True,
+            check=False,
+        )  # fmt: skip
+        text = proc.stdout
+        import re
+
+        planned = re.search(r"planned robustness ([+-]\d+\.\d+)", text)
+        flown = re.search(r"flown robustness ([+-]\d+\.\d+)", text)
+        out["demo"] = {
+            "planned": float(planned[1]) if planned else None,
+            "flown": float(flown[1]) if flown else None,
+            "exit": proc.returncode,
+        }
+    return out
+
+
+def _print_calibration(cal: dict) -> None:  # type: ignore[type-arg]
+    print("Calibration: px4 mock (gcs fly --dry-run) against PX4 v1.17 SITL with SIH")
+    print(f"{'figure':<32} {'mock px4':>17} {'PX4 SITL':>15} {'band +-25%':>15}  in band")
+    for fig, values in cal["rows"]:
+        lo, hi = fig.band(px4.TOLERANCE)
+        if fig is px4.DRAG_FREE_LAG:
+            lo, hi = -0.2, 0.2
+        ok = bool(values) and all(lo <= v <= hi for v in values)
+        mock = f"{min(values):+.2f}..{max(values):+.2f}" if values else "n/a"
+        print(
+            f"{fig.what:<32} {mock:>14} {fig.unit:<2} {fig.lo:+.2f}..{fig.hi:+.2f} "
+            f"{lo:+.2f}..{hi:+.2f}  {'yes' if ok else 'NO'}"
+        )
+    failed, total = cal["reach_avoid_failed"]
+    print(
+        f"reach-avoid with the whole px4 vehicle: {failed} of {total} flights failed "
+        f"({cal['safety_stops']} safety stops); PX4 SITL: 5 of 5 (4 safety stops)"
+    )
+    d = cal["demo"]
+    print(f"gcs demo (px4 profile): planned {d['planned']:+.4f}, flown {d['flown']:+.4f} "
+          "(PX4 SITL, same plan: flown +0.3989)")  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=4.0, help="measuring time per fleet size")
@@ -219,6 +328,8 @@ def main() -> None:
     ap.add_argument("--items", type=int, default=200)
     ap.add_argument("--client-vehicles", type=int, default=16, help="vehicles of figure 2")
     ap.add_argument("--client", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--seeds", type=int, default=3, help="boots per calibration flight (0: skip)")
+    ap.add_argument("--profiles", default="px4,ideal", help="profiles of the capacity figure")
     args = ap.parse_args()
     if args.client is not None:
         cores = sorted(os.sched_getaffinity(0))
@@ -226,6 +337,10 @@ def main() -> None:
             os.sched_setaffinity(0, set(cores[1:]))  # leave the mock's core to the mock
         asyncio.run(_client([int(p) for p in args.client.split(",")], args.seconds))
         return
+    cal = None
+    if args.seeds > 0:
+        cal = _calibration(args.seeds)
+        _print_calibration(cal)
     try:
         core = min(os.sched_getaffinity(0))
         os.sched_setaffinity(0, {core})
@@ -234,25 +349,35 @@ def main() -> None:
         pinned = "not pinned"
 
     sizes = [1, 4, 8, 16, 24, 32, 48, 64, 96, 128, 160, 192, 254]
-    rows = []
-    capacity = 0
-    print(f"Mock fleet in one process ({pinned}), physics 100 Hz, default telemetry rates")
-    print(f"{'vehicles':>8} {'RTF':>7} {'lag s':>7} {'CPU':>6} {'msgs/s':>9}")
-    for n in sizes:
-        if n > args.max_vehicles:
-            break
-        row = asyncio.run(_run_fleet(n, args.seconds))
-        rows.append(row)
+    rows: dict[str, list[dict[str, float]]] = {}
+    capacities: dict[str, int] = {}
+    for profile in args.profiles.split(","):
+        rows[profile] = []
+        capacity = 0
         print(
-            f"{n:>8} {row['rtf']:>7.3f} {row['lag_s']:>7.3f} {row['cpu_share']:>6.0%} "
-            f"{row['msgs_per_s']:>9.0f}"
+            f"Mock fleet, {profile} profile, in one process ({pinned}), physics 100 Hz, "
+            "default telemetry rates"
         )
-        # real time: the window kept pace and the simulation is not behind its deadlines
-        if row["rtf"] >= 0.99 and row["lag_s"] < 0.1:
-            capacity = n
-        else:
-            break
-    print(f"real-time capacity: {capacity} vehicles (largest N with RTF >= 0.99, lag < 0.1 s)")
+        print(f"{'vehicles':>8} {'RTF':>7} {'lag s':>7} {'CPU':>6} {'msgs/s':>9}")
+        for n in sizes:
+            if n > args.max_vehicles:
+                break
+            row = asyncio.run(_run_fleet(n, args.seconds, profile))
+            rows[profile].append(row)
+            print(
+                f"{n:>8} {row['rtf']:>7.3f} {row['lag_s']:>7.3f} {row['cpu_share']:>6.0%} "
+                f"{row['msgs_per_s']:>9.0f}"
+            )
+            # real time: the window kept pace and the simulation is not behind its deadlines
+            if row["rtf"] >= 0.99 and row["lag_s"] < 0.1:
+                capacity = n
+            else:
+                break
+        capacities[profile] = capacity
+        print(
+            f"real-time capacity ({profile}): {capacity} vehicles "
+            "(largest N with RTF >= 0.99, lag < 0.1 s)"
+        )
 
     cl = asyncio.run(_with_client(args.client_vehicles, args.seconds))
     print(
@@ -272,8 +397,25 @@ def main() -> None:
             {
                 "bench": "mock",
                 "pinned": pinned,
-                "realtime_capacity_vehicles": capacity,
-                "rows": [{k: round(v, 4) for k, v in r.items()} for r in rows],
+                "realtime_capacity_vehicles": capacities,
+                "rows": {
+                    p: [{k: round(v, 4) for k, v in r.items()} for r in rs]
+                    for p, rs in rows.items()
+                },
+                "calibration": None
+                if cal is None
+                else {
+                    "figures": [
+                        {
+                            "what": f.what,
+                            "px4": [f.lo, f.hi],
+                            "mock": [min(v), max(v)] if v else None,
+                        }
+                        for f, v in cal["rows"]
+                    ],
+                    "reach_avoid_failed": list(cal["reach_avoid_failed"]),
+                    "demo": cal["demo"],
+                },
                 "with_mavsdk": {k: round(v, 4) for k, v in cl.items()},
                 "mission": {k: round(v, 4) for k, v in up.items()},
             }

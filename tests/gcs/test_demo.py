@@ -23,20 +23,10 @@ from planner.planfile import load_plan
 REPO = Path(__file__).resolve().parents[2]
 
 
-@pytest.mark.parametrize(
-    "profile",
-    [
-        "ideal",
-        pytest.param(
-            "px4",
-            marks=pytest.mark.xfail(
-                reason="issue 16: reach-avoid's 0.75 m starts on the px4 mock (as on PX4 "
-                "SITL): EKF origin height error, ground-effect creep, drag lag over a 0.22 m "
-                "margin",
-            ),
-        ),
-    ],
-)
+# The ideal vehicle: the pipeline is under test here.  On the px4 vehicle the same
+# reach-avoid dry run fails as on PX4 SITL (tests/gcs/test_fly.py and
+# tests/gcs/test_px4_calibration.py fly it), and the default demo (power line) flies well.
+@pytest.mark.parametrize("profile", ["ideal"])
 def test_demo_pipeline_flies_the_plan_and_reports_the_flown_robustness(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], profile: str
 ) -> None:
