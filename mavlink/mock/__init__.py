@@ -6,11 +6,21 @@ ports and system ids (vehicle ``i``: sysid ``i + 1``, listens on ``14580 + i``,
 sends to ``14540 + i``), so MAVSDK, QGroundControl and MAVProxy treat each one
 as a PX4 autopilot.  See DESIGN.md section 8 for what it implements.
 
+By default the vehicles behave like PX4 v1.17 SITL with its SIH quad-rotor (the ``px4``
+profile: drag, PX4's cascade on a biased estimate, PX4's take-off, navigator, mission
+storage and predictive geofence); ``profile="ideal"`` gives the exact vehicle
+(:mod:`mavlink.mock.profiles`).  Modules: ``physics`` (vectorised dynamics and
+controller), ``estimator`` (what the vehicles believe), ``navigator`` (missions, RTL,
+geofence), ``mission`` (the mission protocol and storage), ``telemetry``, ``vehicle``
+(one MAVLink endpoint), ``fleet``, ``calibration`` (PX4 SITL's figures).
+
 Public API::
 
     from mavlink.mock import MockFleet, MockVehicleConfig, FaultConfig, Outage
     async with MockFleet(n=4, origin=GeodeticPoint(...), seed=0) as fleet: ...
     with MockFleet(n=1).running_in_thread() as fleet: fleet.vehicles[0].state
+    fleet = MockFleet(n=2, profile="ideal"); fleet.advance(5.0)   # offline, no sockets
+    fleet.truth_enu_m()                                            # ground truth, (n, 3)
 
 Errors (one tree)::
 
@@ -28,11 +38,14 @@ from mavlink.mock.config import FaultConfig, MockVehicleConfig, NoiseConfig, Out
 from mavlink.mock.errors import MockConfigError, MockError, MockStartError
 from mavlink.mock.fleet import DEFAULT_ORIGIN, MockFleet
 from mavlink.mock.mission import MissionItem
+from mavlink.mock.profiles import DEFAULT_PROFILE, PROFILES
 from mavlink.mock.px4 import Px4Mode
 from mavlink.mock.vehicle import MockVehicle, VehicleState
 
 __all__ = [
     "DEFAULT_ORIGIN",
+    "DEFAULT_PROFILE",
+    "PROFILES",
     "FaultConfig",
     "MissionItem",
     "MockConfigError",
