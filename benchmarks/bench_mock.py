@@ -234,6 +234,9 @@ def _gcs_json(args: list[str]) -> dict:  # type: ignore[type-arg]
         [*GCS, *args, "--json"], cwd=REPO, capture_output=True, text=True, check=False,
         preexec_fn=lambda: os.sched_setaffinity(0, cores),
     )  # fmt: skip
+    if not proc.stdout.strip():  # refused before flying (exit 1 or 2): the reason
+        lines = proc.stderr.strip().splitlines()
+        return {"refused": lines[-1] if lines else f"exit {proc.returncode}", "tracking": []}
     return json.loads(proc.stdout)
 
 
@@ -267,7 +270,8 @@ def _calibration(seeds: int) -> dict:  # type: ignore[type-arg]
         pl = runs(plans["powerline"])
         failed = sum(
             1 for r in whole
-            if r["safety_event"] or r["flown_robustness"] is None or r["flown_robustness"] < 0
+            if "refused" in r or r["safety_event"] or r["flown_robustness"] is None
+            or r["flown_robustness"] < 0
         )  # fmt: skip
         out["rows"] = [
             (px4.REACH_AVOID_LAG, spread(ra, "lag_s")),
@@ -275,10 +279,10 @@ def _calibration(seeds: int) -> dict:  # type: ignore[type-arg]
             (px4.DRAG_FREE_LAG, spread(free, "lag_s")),
             (px4.POWERLINE_LAG, spread(pl, "lag_s")),
             (px4.POWERLINE_RMS, spread(pl, "rms_m")),
-            (px4.POWERLINE_FLOWN, [r["flown_robustness"] for r in pl]),
+            (px4.POWERLINE_FLOWN, [r["flown_robustness"] for r in pl if r.get("flown_robustness")]),
         ]
         out["reach_avoid_failed"] = (failed, len(whole))
-        out["safety_stops"] = sum(1 for r in whole if r["safety_event"])
+        out["safety_stops"] = sum(1 for r in whole if r.get("safety_event"))
         demo_dir = Path(tmp) / "demo"
         proc = subprocess.run(
             [*GCS, "demo", "--out", str(demo_dir)], cwd=REPO, capture_output=True, text=True,
@@ -305,10 +309,13 @@ def _print_calibration(cal: dict) -> None:  # type: ignore[type-arg]
         if fig is px4.DRAG_FREE_LAG:
             lo, hi = -0.2, 0.2
         ok = bool(values) and all(lo <= v <= hi for v in values)
+        verdict = "yes" if ok else "NO"
+        if fig is px4.POWERLINE_FLOWN:
+            verdict = "(one PX4 flight: for information)"
         mock = f"{min(values):+.2f}..{max(values):+.2f}" if values else "n/a"
         print(
             f"{fig.what:<32} {mock:>14} {fig.unit:<2} {fig.lo:+.2f}..{fig.hi:+.2f} "
-            f"{lo:+.2f}..{hi:+.2f}  {'yes' if ok else 'NO'}"
+            f"{lo:+.2f}..{hi:+.2f}  {verdict}"
         )
     failed, total = cal["reach_avoid_failed"]
     print(

@@ -59,17 +59,21 @@ def parse_param_overrides(items: list[str], flag: str) -> dict[str, float]:
     from gcs.errors import UserError
     from mavlink.mock.px4 import PARAM_SPECS
 
-    known = {p.name for p in PARAM_SPECS}
+    specs = {p.name: p for p in PARAM_SPECS}
     params: dict[str, float] = {}
     for item in items:
         name, sep, value = item.partition("=")
         name = name.strip()
         if not sep:
             raise UserError(f"{flag} {item!r}: expected NAME=VALUE")
-        if name not in known:
+        spec = specs.get(name)
+        if spec is None:
             raise UserError(f"{flag} {item!r}: the mock vehicle has no parameter {name!r}")
         try:
-            params[name] = float(value)
+            number = float(value)
         except ValueError:
             raise UserError(f"{flag} {item!r}: VALUE must be a number") from None
+        if not spec.accepts(number):
+            raise UserError(f"{flag} {item!r}: {name} must be in [{spec.min:g}, {spec.max:g}]")
+        params[name] = number
     return params

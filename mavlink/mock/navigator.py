@@ -20,8 +20,9 @@ With ``MOCK_PX4_NAV`` (the ``px4`` profile) the navigator is PX4 v1.17's
   MPC_ACC_HOR and MPC_JERK_AUTO, arriving at the corner speed
   ``min(sqrt(MPC_XY_TRAJ_P * MPC_ACC_HOR * R * tan(alpha / 2)), exit speed, cruise)``
   (0 before a hold, at the last waypoint or when the next one is within R); a
-  vehicle that misses the acceptance circle sees its setpoint pass the waypoint
-  and turn back for it;
+  vehicle that misses the acceptance circle (drag lag, wind) is not let go: the
+  setpoint waits at the waypoint, past it if it overshot, until the vehicle's
+  estimate is inside (PX4 SITL lost 18-35 s on such a waypoint at R = 0.3 m);
 * MISSION_ITEM_REACHED reports the last item *processed*: a DO item that
   follows a waypoint overwrites the waypoint's report before it is sent; the
   latest is re-sent about once a second, up to 10 times;
@@ -336,8 +337,8 @@ class NavigatorMixin:
 
         The setpoint heads for the target at the speed from which it can still slow to
         the exit (corner) speed there, within the cruise speed, turning at MPC_ACC_HOR;
-        having passed the target it comes back for it, as PX4 does when the vehicle
-        misses the acceptance circle.
+        having passed the target (the vehicle not yet accepted) it comes back and waits
+        there, as PX4 does when the vehicle misses the acceptance circle.
         """
         dt = self.fleet.dt_s
         prm = self.params

@@ -161,6 +161,24 @@ def test_unreachable_connection_is_bad_input_in_one_line(
     assert "1 URL(s) given for 2 vehicle(s)" in err
 
 
+@pytest.mark.parametrize(
+    ("item", "message"),
+    [
+        ("FOO=1", "--mock-param 'FOO=1': the mock vehicle has no parameter 'FOO'"),
+        ("SIH_KDV=9", "--mock-param 'SIH_KDV=9': SIH_KDV must be in [0, 2]"),
+        ("SIH_KDV", "--mock-param 'SIH_KDV': expected NAME=VALUE"),
+        ("SIH_KDV=x", "--mock-param 'SIH_KDV=x': VALUE must be a number"),
+    ],
+)
+def test_bad_mock_parameter_is_bad_input_in_one_line(
+    plan_file: Path, capsys: pytest.CaptureFixture[str], item: str, message: str
+) -> None:
+    capsys.readouterr()
+    assert main(["fly", str(plan_file), "--dry-run", "--mock-param", item]) == 2
+    _, err = capsys.readouterr()
+    assert err == f"gcs fly: error: {message}\n"
+
+
 def test_ctrl_c_commands_every_vehicle_to_hold_and_exits_cleanly(plan_file: Path) -> None:
     proc = subprocess.Popen(
         # the ideal vehicle: what is tested is the GCS's interrupt, on a flight under way
