@@ -192,9 +192,3 @@ class FleetEstimator:
         out_pos_ned_m += self.boot_origin_ned_m + self.bias_slow_m + self.drift_m + white
         out_pos_ned_m[:, 2] -= self.creep_m
         np.add(true_vel_ned_m_s, self.vel_err_m_s, out=out_vel_ned_m_s)
-
-    def error_ned_m(self) -> np.ndarray:
-        """(n, 3) the estimate's current error against the truth (without the white noise)."""
-        err = self.boot_origin_ned_m + self.bias_slow_m + self.drift_m
-        err[:, 2] -= self.creep_m
-        return err

@@ -331,18 +331,20 @@ class MockFleet:
         loop = asyncio.get_running_loop()
         dt = self.dt_s
         t0 = self._t0_wall
-        vehicles = self.vehicles
-        physics = self.physics
         sleep = asyncio.sleep
         while True:
-            physics.step()
-            self._ticks += 1
-            now = self._ticks * dt
-            self.time_s = now
-            for v in vehicles:
-                v.tick(now)
+            self._tick()
             delay = t0 + self._ticks * dt - loop.time()
             await sleep(delay if delay > 0.0 else 0.0)
+
+    def _tick(self) -> None:
+        """One physics step, then every vehicle's mode logic, protocol timers and telemetry."""
+        self.physics.step()
+        self._ticks += 1
+        now = self._ticks * self.dt_s
+        self.time_s = now
+        for v in self.vehicles:
+            v.tick(now)
 
     def advance(self, seconds: float) -> None:
         """Simulate ``seconds`` as fast as the CPU goes, without sockets or an event loop.
@@ -356,14 +358,8 @@ class MockFleet:
         if self.running:
             raise MockConfigError("advance() is for a fleet that is not running")
         self.offline_links()
-        physics, vehicles, dt = self.physics, self.vehicles, self.dt_s
-        for _ in range(round(seconds / dt)):
-            physics.step()
-            self._ticks += 1
-            now = self._ticks * dt
-            self.time_s = now
-            for v in vehicles:
-                v.tick(now)
+        for _ in range(round(seconds / self.dt_s)):
+            self._tick()
 
     def offline_links(self) -> None:
         """Give every vehicle in-memory links (no sockets), for :meth:`advance`."""

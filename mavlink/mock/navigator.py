@@ -221,12 +221,10 @@ class NavigatorMixin:
                 self.px4_nav and pos[2] - target[2] <= alt_rad
             ):
                 # PX4 climbs only when the item is more than NAV_MC_ALT_RAD above the
-                # vehicle; otherwise the take-off is flown as a waypoint
+                # vehicle; otherwise the take-off is flown as a waypoint (below: never a
+                # climb first, since it is within NAV_MC_ALT_RAD)
                 target[:2] = pos[:2]
                 self._mis_phase = "goto"
-                self._mis_target = target
-                self._traj_begin(target)
-                self.phys.set_position(i, target)
             elif cmd in (mavlink2.MAV_CMD_NAV_TAKEOFF, mavlink2.MAV_CMD_NAV_VTOL_TAKEOFF):
                 target[:2] = pos[:2]
                 target[2] = min(target[2], pos[2])
@@ -238,12 +236,7 @@ class NavigatorMixin:
             else:
                 self._mis_phase = "goto"
             climb = not self.px4_nav or pos[2] - target[2] > alt_rad
-            if self._mis_phase == "goto" and cmd in (
-                mavlink2.MAV_CMD_NAV_TAKEOFF,
-                mavlink2.MAV_CMD_NAV_VTOL_TAKEOFF,
-            ):
-                pass  # a take-off flown as a waypoint (set up above)
-            elif self.landed and self._mis_phase == "goto" and climb:
+            if self.landed and self._mis_phase == "goto" and climb:
                 # PX4 takes off first when a mission starts on the ground without a takeoff
                 target_to = pos.copy()
                 target_to[2] = min(

@@ -271,9 +271,16 @@ def test_vehicles_boot_facing_north_and_a_90_degree_turn_takes_px4s_time_and_sha
 
 
 def takeoff(v: MockVehicle, above_home_m: float) -> None:
-    alt = v.origin_lla[2] - float(v.home_ned_m[2]) + above_home_m
+    alt = v._home_alt_amsl() + above_home_m
     nan = math.nan
     cmd(v, mavlink2.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, nan, nan, nan, alt)
+
+
+def airborne(f: MockFleet, v: MockVehicle, above_home_m: float, settle_s: float) -> None:
+    """Arm, take off to ``above_home_m`` and let ``settle_s`` pass."""
+    v.arm()
+    takeoff(v, above_home_m)
+    f.advance(settle_s)
 
 
 def test_takeoff_below_nav_mc_alt_rad_is_reached_at_once_and_creep_keeps_it_on_the_ground() -> None:  # fmt: skip
@@ -295,9 +302,7 @@ def test_takeoff_below_nav_mc_alt_rad_is_reached_at_once_and_creep_keeps_it_on_t
     # without the creep it hovers 0.75 m above home (and the origin's depth above that)
     f = fleet(seed=4, **NO_CREEP)
     v = f.vehicles[0]
-    v.arm()
-    takeoff(v, 0.75)
-    f.advance(12.0)
+    airborne(f, v, 0.75, 12.0)
     agl = -f.physics.true_pos_ned_m[0, 2]
     assert agl == pytest.approx(0.75, abs=0.2)  # above home, which is the ground
 
@@ -305,9 +310,7 @@ def test_takeoff_below_nav_mc_alt_rad_is_reached_at_once_and_creep_keeps_it_on_t
 def test_takeoff_to_2_5_m_climbs_through_the_creep_and_settles() -> None:
     f = fleet(seed=5)
     v = f.vehicles[0]
-    v.arm()
-    takeoff(v, 2.5)
-    f.advance(15.0)
+    airborne(f, v, 2.5, 15.0)
     est_above_home = float(v.home_ned_m[2]) - v.state.est_pos_ned_m[2]
     assert v.mode is Px4Mode.AUTO_LOITER and est_above_home == pytest.approx(2.5, abs=0.2)
     assert f.physics.estimator.creep_m[0] < 0.05  # out of ground effect the baro is back
@@ -319,7 +322,7 @@ def test_takeoff_to_2_5_m_climbs_through_the_creep_and_settles() -> None:
 def mission_items(v: MockVehicle, legs_ne_m, alt_above_home_m: float, radius_m: float,
                   hold_s: float = 0.0, speed_m_s: float | None = None,
                   takeoff_m: float | None = None) -> list:  # type: ignore[no-untyped-def]  # fmt: skip
-    home_alt = v.origin_lla[2] - float(v.home_ned_m[2])
+    home_alt = v._home_alt_amsl()
     items = []
     if takeoff_m is not None:
         items.append(
@@ -374,9 +377,7 @@ def test_missions_slow_at_every_waypoint_and_a_small_circle_missed_in_wind_costs
                       wind=WindConfig(mean_ne_m_s=(0.0, wind_e_m_s), gust_sigma_m_s=wind_e_m_s / 2))  # fmt: skip
         f.offline_links()
         v = f.vehicles[0]
-        v.arm()
-        takeoff(v, 5.0)
-        f.advance(10.0)
+        airborne(f, v, 5.0, 10.0)
         upload(f, v, mission_items(v, legs, 5.0, radius))
         start_mission(f, v)
         t0, seq, switches = f.time_s, v.mission_seq, [f.time_s]
@@ -401,13 +402,11 @@ def test_missions_slow_at_every_waypoint_and_a_small_circle_missed_in_wind_costs
 def test_mission_item_reached_is_the_last_item_processed_and_resent_up_to_ten_times() -> None:
     f = fleet(seed=7)
     v = f.vehicles[0]
-    v.arm()
-    takeoff(v, 4.0)
-    f.advance(10.0)
+    airborne(f, v, 4.0, 10.0)
     # wp 0, DO_CHANGE_SPEED 1, wp 2, DO_CHANGE_SPEED 3, wp 4 (last)
     items = mission_items(v, [(0.0, 0.0), (6.0, 0.0)], 4.0, 1.0, speed_m_s=2.0)
     items.append(item(len(items), mavlink2.MAV_CMD_NAV_WAYPOINT, *ne_to_e7(v, 6.0, 6.0),
-                      v.origin_lla[2] - float(v.home_ned_m[2]) + 4.0, p2=1.0))  # fmt: skip
+                      v._home_alt_amsl() + 4.0, p2=1.0))  # fmt: skip
     upload(f, v, items)
     start_mission(f, v)
     _, msgs = fly_until_done(f, v, 60.0)
@@ -426,9 +425,7 @@ def test_mission_item_reached_is_the_last_item_processed_and_resent_up_to_ten_ti
 def test_do_change_speed_sets_the_cruise_speed_of_what_follows() -> None:
     f = fleet(seed=8)
     v = f.vehicles[0]
-    v.arm()
-    takeoff(v, 4.0)
-    f.advance(10.0)
+    airborne(f, v, 4.0, 10.0)
     upload(f, v, mission_items(v, [(0.0, 0.0), (40.0, 0.0)], 4.0, 1.0, speed_m_s=2.0))
     start_mission(f, v)
     top = 0.0
