@@ -63,6 +63,11 @@ MAV_CMD_NAV_TAKEOFF = 22
 #: MAVSDK's system id as a ground station (component 190).
 GCS_SYSID = 245
 
+#: STATUSTEXTs kept per vehicle (the latest).
+_KEPT_TEXTS = 50
+#: MAV_PARAM_TYPE values of integer parameters (UINT8 .. INT64).
+_INT_PARAM_TYPES = frozenset(range(1, 9))
+
 #: MAV_RESULT names, for COMMAND_ACK results reported through mavlink_direct.
 MAV_RESULT_NAMES = {
     0: "ACCEPTED",
@@ -261,6 +266,10 @@ class Vehicle:
         self._t_heartbeat: float | None = None
         self._t_position: float | None = None
         self._track: list[tuple[float, ...]] | None = None
+        self._texts: list[tuple[float, int, str]] = []
+        self._pos_accuracy: tuple[float, float] | None = None
+        self._params: dict[str, float] = {}
+        self._param_waiters: dict[str, list[asyncio.Future[float]]] = {}
         self._handles: list[tuple[Callable[[Any], None], Any]] = []
         self._subscribe()
 
@@ -284,6 +293,18 @@ class Vehicle:
             (
                 self.direct.unsubscribe_message,
                 self.direct.subscribe_message("GPS_GLOBAL_ORIGIN", self._on_origin),
+            ),
+            (
+                self.direct.unsubscribe_message,
+                self.direct.subscribe_message("STATUSTEXT", self._on_statustext),
+            ),
+            (
+                self.direct.unsubscribe_message,
+                self.direct.subscribe_message("ESTIMATOR_STATUS", self._on_estimator_status),
+            ),
+            (
+                self.direct.unsubscribe_message,
+                self.direct.subscribe_message("PARAM_VALUE", self._on_param_value),
             ),
         ]
 
@@ -341,6 +362,88 @@ class Vehicle:
         point = GeodeticPoint(f["latitude"] * 1e-7, f["longitude"] * 1e-7, f["altitude"] * 1e-3)
         with self._lock:
             self._origin = point
+
+    def _on_statustext(self, msg: MavlinkMessage, _ud: Any) -> None:
+        if msg.system_id != self.spec.sysid:
+            return
+        f = json.loads(msg.fields_json)
+        text = f.get("text", "")
+        if isinstance(text, list):  # a char array may come as its codes
+            text = "".join(chr(c) for c in text if c)
+        with self._lock:
+            self._texts.append((time.monotonic(), int(f.get("severity", 6)), str(text)))
+            del self._texts[:-_KEPT_TEXTS]
+
+    def _on_estimator_status(self, msg: MavlinkMessage, _ud: Any) -> None:
+        f = json.loads(msg.fields_json)
+        acc = (
+            float(f.get("pos_horiz_accuracy", math.nan)),
+            float(f.get("pos_vert_accuracy", math.nan)),
+        )
+        with self._lock:
+            self._pos_accuracy = acc
+
+    def _on_param_value(self, msg: MavlinkMessage, _ud: Any) -> None:
+        f = json.loads(msg.fields_json)
+        name = f.get("param_id", "")
+        if isinstance(name, list):
+            name = "".join(chr(c) for c in name if c)
+        name = str(name).rstrip("\x00")
+        value = float(f.get("param_value", math.nan))
+        if int(f.get("param_type", 9)) in _INT_PARAM_TYPES:
+            # PX4 sends integer parameters bit-cast into the float field (MAV_PARAM_TYPE).
+            value = float(np.frombuffer(np.float32(value).tobytes(), dtype=np.int32)[0])
+        with self._lock:
+            self._params[name] = value
+            waiters = self._param_waiters.pop(name, [])
+        for fut in waiters:
+            fut.get_loop().call_soon_threadsafe(_resolve, fut, value)
+
+    def statustexts(self, since_monotonic_s: float = 0.0) -> list[tuple[int, str]]:
+        """STATUSTEXTs heard since ``since_monotonic_s`` (severity, text), oldest first."""
+        with self._lock:
+            return [(sev, text) for t, sev, text in self._texts if t >= since_monotonic_s]
+
+    @property
+    def position_accuracy_m(self) -> tuple[float, float] | None:
+        """The estimator's reported (horizontal, vertical) position accuracy, 1-sigma metres
+        (ESTIMATOR_STATUS), ``None`` before one arrived."""
+        with self._lock:
+            return self._pos_accuracy
+
+    async def param(self, name: str, *, timeout_s: float = 1.0, retries: int = 3) -> float | None:
+        """The vehicle's parameter ``name`` (PARAM_REQUEST_READ; integers as their value).
+
+        Sent through mavlink_direct, so it never blocks the event loop (MAVSDK's param
+        plugin does); ``None`` if the vehicle did not answer (unknown name, lossy link).
+        """
+        with self._lock:
+            if name in self._params:
+                return self._params[name]
+        loop = asyncio.get_running_loop()
+        for _ in range(retries):
+            fut: asyncio.Future[float] = loop.create_future()
+            with self._lock:
+                self._param_waiters.setdefault(name, []).append(fut)
+            fields = {
+                "target_system": self.spec.sysid,
+                "target_component": 1,
+                "param_id": name,
+                "param_index": -1,
+            }
+            self.direct.send_message(
+                MavlinkMessage(
+                    message_name="PARAM_REQUEST_READ",
+                    target_system_id=self.spec.sysid,
+                    target_component_id=1,
+                    fields_json=json.dumps(fields),
+                )
+            )
+            try:
+                return await asyncio.wait_for(fut, timeout_s)
+            except TimeoutError:
+                continue
+        return None
 
     def status(self, now: float | None = None) -> VehicleStatus:
         """A consistent snapshot of the vehicle's state."""

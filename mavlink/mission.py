@@ -31,12 +31,14 @@ those from the ``GF_MAX_VER_DIST`` parameter).
 Upload and download go through MAVSDK's ``mission_raw`` plugin (the
 MISSION_COUNT / MISSION_REQUEST_INT / MISSION_ITEM_INT / MISSION_ACK
 transactions with their retries); :func:`compare_items` checks a read-back
-item by item, field by field, at the wire's precision (float32 params).
+item by item, field by field, at the wire's precision (float32 params) and as PX4 stores
+items (fence items without autocontinue, yaw wrapped to [0, 360), ...).
 """
 
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import json
 import math
 import time
@@ -54,7 +56,7 @@ from planner.frames import GeodeticPoint, enu_to_geodetic, yaw_enu_to_ned
 from planner.trajectory import Trajectory
 
 if TYPE_CHECKING:
-    from mavlink.fleet import Vehicle
+    from mavlink.fleet import Vehicle, VehicleStatus
     from planner.stl.ast import Formula
 
 
@@ -126,6 +128,15 @@ class MissionItem:
 COMPARED_FIELDS = tuple(f.name for f in fields(MissionItem) if f.name != "current")
 _FLOAT_FIELDS = frozenset({"param1", "param2", "param3", "param4", "z"})
 
+#: Commands whose param4 PX4 stores as a yaw (radians wrapped to [0, 2 pi), float32).
+_YAW_COMMANDS = frozenset({16, 17, 19, 21, 22})  # WAYPOINT, LOITER_UNLIM/TIME, LAND, TAKEOFF
+_VERTEX_COMMANDS = frozenset({5001, 5002})  # fence polygon vertices: param1 = vertex count
+_CIRCLE_COMMANDS = frozenset({5003, 5004})  # fence circles: param1 = radius
+#: One frame spelled for the int and the float transfer (PX4 answers in the transfer's own).
+_SAME_FRAME = {0: 0, 5: 0, 3: 3, 6: 3}
+#: Float32 radians of a yaw near 2 pi carry ~2.7e-5 deg: a few of those is still "the same".
+_YAW_TOLERANCE_DEG = 1e-4
+
 
 def _same_value(name: str, a: float, b: float) -> bool:
     if name in _FLOAT_FIELDS:
@@ -134,11 +145,46 @@ def _same_value(name: str, a: float, b: float) -> bool:
     return int(a) == int(b)
 
 
-def compare_items(sent: Sequence[MissionItem], back: Sequence[MissionItem]) -> list[str]:
+def _same_yaw(a: float, b: float) -> bool:
+    if math.isnan(a) or math.isnan(b):
+        return math.isnan(a) and math.isnan(b)
+    return abs((a - b + 180.0) % 360.0 - 180.0) <= _YAW_TOLERANCE_DEG
+
+
+def _stored_alike(sent: MissionItem, name: str, a: float, b: float) -> bool:
+    """Whether field ``name`` read back as ``b`` is what PX4 stores for ``a`` (PX4-BEHAVIOUR.md).
+
+    PX4 v1.17 (``mavlink_mission.cpp``) keeps of a FENCE item only command, frame, position
+    and the vertex count (``(uint16_t)(param1 + 0.5)``) or radius; of a RALLY item no params;
+    it answers with autocontinue 0 for fence items and the frame of the transfer; and stores
+    a waypoint's yaw as float32 radians wrapped to [0, 2 pi).
+    """
+    mtype, cmd = int(sent.mission_type), int(sent.command)
+    if name == "frame":
+        return _SAME_FRAME.get(int(a), int(a)) == _SAME_FRAME.get(int(b), int(b))
+    if mtype == MissionType.FENCE:
+        if name in ("autocontinue", "param2", "param3", "param4"):
+            return True
+        if name == "param1" and cmd in _VERTEX_COMMANDS:
+            return int(a + 0.5) == int(b + 0.5)
+    elif mtype == MissionType.RALLY:
+        if name in ("param1", "param2", "param3", "param4"):
+            return True
+    elif name == "param4" and cmd in _YAW_COMMANDS:
+        return _same_yaw(float(a), float(b))
+    return _same_value(name, a, b)
+
+
+def compare_items(
+    sent: Sequence[MissionItem], back: Sequence[MissionItem], *, exact: bool = False
+) -> list[str]:
     """Differences between two item lists, one line per differing field (empty: identical).
 
-    Floats are compared at float32 precision (what MISSION_ITEM_INT carries),
-    NaN equal to NaN; ``current`` is ignored.
+    Floats are compared at float32 precision (what MISSION_ITEM_INT carries), NaN equal to
+    NaN; ``current`` is ignored. Unless ``exact``, a field also counts as equal when it reads
+    back as PX4 stores it (:func:`_stored_alike`: fence autocontinue and params, rally params,
+    the frame's int/float spelling, yaw modulo 360 at float32-radian precision); a position,
+    command, count or any value PX4 keeps still has to match.
     """
     out: list[str] = []
     if len(sent) != len(back):
@@ -146,7 +192,8 @@ def compare_items(sent: Sequence[MissionItem], back: Sequence[MissionItem]) -> l
     for i, (a, b) in enumerate(zip(sent, back, strict=False)):
         for name in COMPARED_FIELDS:
             va, vb = getattr(a, name), getattr(b, name)
-            if not _same_value(name, va, vb):
+            same = _same_value(name, va, vb) if exact else _stored_alike(a, name, va, vb)
+            if not same:
                 out.append(f"item {i}: {name} sent {va!r}, read back {vb!r}")
     return out
 
@@ -607,16 +654,181 @@ async def verify(
         )
 
 
+# --------------------------------------------------------------------------
+# Starting a mission, confirmed
+# --------------------------------------------------------------------------
+
+#: MAV_CMD_DO_SET_MODE and MAV_CMD_MISSION_START: the commands a mission start is made of.
+_START_COMMANDS = frozenset({176, 300})
+
+
 @dataclass(frozen=True, slots=True)
-class MissionRun:
-    """What a vehicle reported while flying its mission.
+class MissionStart:
+    """What became of one vehicle's mission start (:func:`start_mission_confirmed`).
 
     Attributes:
         vehicle: name.
-        current: ``(seq, t_s)`` each time MISSION_CURRENT changed, seconds from the start command.
-        reached: ``(seq, t_s)`` for each MISSION_ITEM_REACHED.
+        started: the vehicle is in AUTO.MISSION, armed (and climbing, when asked).
+        attempts: start commands sent.
+        detail: what was seen: the confirmation, or why not (mode, acks, PX4's STATUSTEXT).
+        t_accepted_monotonic_s: when the start that took effect was sent (``nan`` if none).
+    """
+
+    vehicle: str
+    started: bool
+    attempts: int
+    detail: str
+    t_accepted_monotonic_s: float = math.nan
+
+
+async def start_mission_confirmed(
+    v: Vehicle,
+    *,
+    timeout_s: float = 10.0,
+    climb_m: float | None = 0.3,
+    climb_timeout_s: float = 15.0,
+    mode_wait_s: float = 1.6,
+    retry_after_s: float = 0.3,
+) -> MissionStart:
+    """Start ``v``'s uploaded mission and confirm it took effect, retrying a refused start.
+
+    PX4 acknowledges a mode change before its commander decides on it: right after an upload
+    it answers ACCEPTED and ~12 ms later TEMPORARILY_REJECTED, and stays in its mode
+    (PX4-BEHAVIOUR.md). So a start counts only when the heartbeat shows AUTO.MISSION and
+    armed; a late rejection or a mode that does not change within ``mode_wait_s`` (PX4
+    heartbeats come at 1 Hz) is retried until ``timeout_s`` (re-arming a vehicle that
+    disarmed meanwhile). With ``climb_m`` the vehicle must also leave the ground: in air
+    (EXTENDED_SYS_STATE) and ``climb_m`` above where it started, within ``climb_timeout_s``
+    (PX4 skips the take-off of a mission whose first waypoint is within NAV_MC_ALT_RAD of the
+    vehicle, and auto-disarms it on the ground).
+
+    Never raises for a refusal: the result says what happened, with PX4's STATUSTEXTs.
+    """
+    from mavlink.errors import CommandError
+    from mavlink.fleet import mavsdk_call
+    from mavlink.px4_modes import Px4Mode
+
+    t_begin = time.monotonic()
+    deadline = t_begin + timeout_s
+    late: list[tuple[float, int]] = []
+
+    def on_ack(msg: Any, _ud: Any) -> None:
+        if msg.system_id != v.spec.sysid:
+            return
+        f = json.loads(msg.fields_json)
+        if int(f.get("command", -1)) in _START_COMMANDS and int(f.get("result", 0)) != 0:
+            late.append((time.monotonic(), int(f["result"])))
+
+    def texts() -> str:
+        said = [t for sev, t in v.statustexts(t_begin) if sev <= 4]
+        return f"; PX4 said: {' / '.join(dict.fromkeys(said))}" if said else ""
+
+    st0 = v.status()
+    alt0 = -st0.pos_ned_m[2] if st0.pos_ned_m is not None else math.nan
+    handle = v.direct.subscribe_message("COMMAND_ACK", on_ack)
+    attempts, why = 0, "no start command was accepted"
+    t_ok = math.nan
+    try:
+        while time.monotonic() < deadline:
+            if attempts:
+                await asyncio.sleep(retry_after_s)
+            attempts += 1
+            st = v.status()
+            if not st.armed:
+                try:
+                    await v.arm()
+                except CommandError as exc:
+                    why = f"arm: {exc.result}"
+                    continue
+            t_cmd = time.monotonic()
+            try:
+                result = await mavsdk_call(v.mission_raw.start_mission_async)
+            except TimeoutError:
+                result = "TIMEOUT"
+            name = getattr(result, "name", str(result))
+            if name != "SUCCESS":
+                why = f"start refused: {name}"
+                continue
+            # Accepted: wait for the heartbeat's mode, or PX4's late rejection.
+            t_wait = time.monotonic() + mode_wait_s
+            while time.monotonic() < t_wait and not any(t >= t_cmd for t, _ in late):
+                st = v.status()
+                if st.mode is Px4Mode.AUTO_MISSION and st.armed:
+                    break
+                await asyncio.sleep(0.02)
+            rejected = [r for t, r in late if t >= t_cmd]
+            st = v.status()
+            if st.mode is Px4Mode.AUTO_MISSION and st.armed and not rejected:
+                t_ok = t_cmd
+                break
+            mode = st.mode.label if st.mode is not None else str(st.custom_mode)
+            if rejected:
+                from mavlink.fleet import MAV_RESULT_NAMES
+
+                why = (
+                    f"start ACCEPTED, then {MAV_RESULT_NAMES.get(rejected[-1], rejected[-1])} "
+                    f"(mode {mode}, armed {st.armed})"
+                )
+            else:
+                why = f"start ACCEPTED but the vehicle stayed in {mode} (armed {st.armed})"
+        else:
+            return MissionStart(
+                v.name, False, attempts, f"not started after {attempts} attempt(s): {why}{texts()}"
+            )
+    finally:
+        v.direct.unsubscribe_message(handle)
+    if climb_m is None:
+        return MissionStart(v.name, True, attempts, "AUTO.MISSION", t_ok)
+
+    def climbing(s: VehicleStatus) -> bool:
+        up = -s.pos_ned_m[2] - alt0 if s.pos_ned_m is not None else -math.inf
+        return bool(s.in_air and up >= climb_m)
+
+    def gave_up(s: VehicleStatus) -> bool:
+        return not s.armed or s.mode is not Px4Mode.AUTO_MISSION
+
+    t_climb = time.monotonic() + climb_timeout_s
+    while time.monotonic() < t_climb:
+        s = v.status()
+        if climbing(s):
+            up = -s.pos_ned_m[2] - alt0 if s.pos_ned_m is not None else math.nan
+            return MissionStart(
+                v.name, True, attempts, f"AUTO.MISSION, climbing ({up:.1f} m up)", t_ok
+            )
+        if gave_up(s):
+            mode = s.mode.label if s.mode is not None else str(s.custom_mode)
+            return MissionStart(
+                v.name,
+                False,
+                attempts,
+                f"AUTO.MISSION accepted but the vehicle never left the ground (now {mode}, "
+                f"armed {s.armed}){texts()}",
+            )
+        await asyncio.sleep(0.05)
+    return MissionStart(
+        v.name,
+        False,
+        attempts,
+        f"AUTO.MISSION accepted but the vehicle did not climb {climb_m:.1f} m in "
+        f"{climb_timeout_s:.0f} s{texts()}",
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class MissionRun:
+    """What a vehicle reported while flying its mission (PX4's way: PX4-BEHAVIOUR.md).
+
+    PX4 reports in MISSION_ITEM_REACHED the last item *processed* (a DO item that follows a
+    waypoint overwrites the waypoint's report) and re-sends it about once a second; progress
+    is therefore read from MISSION_CURRENT, and each reached seq is kept once.
+
+    Attributes:
+        vehicle: name.
+        current: ``(seq, t_s)`` each time MISSION_CURRENT changed, seconds from ``t_start``.
+        reached: ``(seq, t_s)`` the first MISSION_ITEM_REACHED of each seq (re-sends dropped).
         finished: the vehicle reported the mission finished in time.
-        duration_s: time from the start command to the end (or the timeout).
+        duration_s: time from ``t_start`` to the end (or the timeout).
+        start: the confirmed start (:func:`start_mission_confirmed`), if this call started it.
     """
 
     vehicle: str
@@ -624,6 +836,18 @@ class MissionRun:
     reached: tuple[tuple[int, float], ...]
     finished: bool
     duration_s: float
+    start: MissionStart | None = None
+
+    def left_s(self, seq: int) -> float | None:
+        """When the vehicle moved on past item ``seq`` (MISSION_CURRENT above it, or a reached
+        report of a later item), seconds from ``t_start``; ``None`` if it never did."""
+        times = [t for s, t in self.current if s > seq] + [t for s, t in self.reached if s > seq]
+        return min(times) if times else None
+
+    def passed(self, seqs: Sequence[int]) -> list[int]:
+        """The items of ``seqs`` the vehicle has left behind or reached, in mission order."""
+        done = {s for s, _ in self.reached}
+        return [s for s in seqs if s in done or self.left_s(s) is not None]
 
 
 #: How long (s) fly_missions keeps listening after a vehicle reports its mission finished,
@@ -631,81 +855,128 @@ class MissionRun:
 _FINISH_GRACE_S = 1.0
 
 
-async def fly_missions(
-    vehicles: Sequence[Vehicle], *, timeout_s: float, poll_s: float = 0.1
-) -> dict[str, MissionRun]:
-    """Arm, start the uploaded missions together and follow them until finished or timeout.
+class MissionFollower:
+    """Records MISSION_CURRENT and MISSION_ITEM_REACHED of some vehicles (see MissionRun).
 
-    Progress comes from MISSION_CURRENT (MAVSDK's mission progress),
-    MISSION_ITEM_REACHED (mavlink_direct) and MAVSDK's ``is_mission_finished``.
-
-    Raises:
-        CommandError: a vehicle refused to arm.
-        MissionError: a vehicle refused to start its mission.
+    Subscribe with :meth:`attach` before the start, read with :meth:`runs`, :meth:`detach`
+    at the end. Times are seconds from :attr:`t_start` (``time.monotonic()``; settable).
     """
-    from mavlink.fleet import mavsdk_call
 
-    t_start = time.monotonic()
-    reached: dict[str, list[tuple[int, float]]] = {v.name: [] for v in vehicles}
-    current: dict[str, list[tuple[int, float]]] = {v.name: [] for v in vehicles}
-    totals: dict[str, int] = {}
-    unsubscribe: list[tuple[Any, Any]] = []
-    for v in vehicles:
+    def __init__(self, vehicles: Sequence[Vehicle]) -> None:
+        self.vehicles = list(vehicles)
+        self.t_start = time.monotonic()
+        self._reached: dict[str, dict[int, float]] = {v.name: {} for v in vehicles}
+        self._current: dict[str, list[tuple[int, float]]] = {v.name: [] for v in vehicles}
+        self.totals: dict[str, int] = {}
+        self._handles: list[tuple[Any, Any]] = []
 
-        def on_reached(msg: Any, _ud: Any, name: str = v.name) -> None:
-            seq = int(json.loads(msg.fields_json)["seq"])
-            reached[name].append((seq, time.monotonic() - t_start))
+    def attach(self) -> None:
+        for v in self.vehicles:
 
-        def on_progress(progress: Any, _ud: Any, name: str = v.name) -> None:
-            seq = int(progress.current)
-            totals[name] = int(progress.total)
-            if not current[name] or current[name][-1][0] != seq:
-                current[name].append((seq, time.monotonic() - t_start))
+            def on_reached(
+                msg: Any, _ud: Any, name: str = v.name, sysid: int = v.spec.sysid
+            ) -> None:
+                if msg.system_id != sysid:
+                    return
+                seq = int(json.loads(msg.fields_json)["seq"])
+                self._reached[name].setdefault(seq, time.monotonic() - self.t_start)
 
-        unsubscribe.append(
-            (
-                v.direct.unsubscribe_message,
-                v.direct.subscribe_message("MISSION_ITEM_REACHED", on_reached),
+            def on_progress(progress: Any, _ud: Any, name: str = v.name) -> None:
+                seq = int(progress.current)
+                self.totals[name] = int(progress.total)
+                cur = self._current[name]
+                if not cur or cur[-1][0] != seq:
+                    cur.append((seq, time.monotonic() - self.t_start))
+
+            self._handles.append(
+                (
+                    v.direct.unsubscribe_message,
+                    v.direct.subscribe_message("MISSION_ITEM_REACHED", on_reached),
+                )
             )
-        )
-        unsubscribe.append(
-            (
-                v.mission_raw.unsubscribe_mission_progress,
-                v.mission_raw.subscribe_mission_progress(on_progress),
+            self._handles.append(
+                (
+                    v.mission_raw.unsubscribe_mission_progress,
+                    v.mission_raw.subscribe_mission_progress(on_progress),
+                )
             )
+
+    def detach(self) -> None:
+        handles, self._handles = self._handles, []
+        for unsub, handle in handles:
+            unsub(handle)
+
+    def current_seq(self, name: str) -> int | None:
+        cur = self._current[name]
+        return cur[-1][0] if cur else None
+
+    def run(self, name: str, *, finished: bool, duration_s: float) -> MissionRun:
+        return MissionRun(
+            vehicle=name,
+            current=tuple(self._current[name]),
+            reached=tuple(sorted(self._reached[name].items(), key=lambda kv: kv[1])),
+            finished=finished,
+            duration_s=duration_s,
         )
-    done: dict[str, float] = {}
-    try:
-        await asyncio.gather(*(v.arm() for v in vehicles))
-        t_start = time.monotonic()
-        results = await asyncio.gather(
-            *(mavsdk_call(v.mission_raw.start_mission_async) for v in vehicles)
-        )
-        for v, result in zip(vehicles, results, strict=True):
-            _raise_for(result, "start_mission", v)
-        while len(done) < len(vehicles) and time.monotonic() - t_start < timeout_s:
+
+    async def until_finished(
+        self, *, timeout_s: float, poll_s: float = 0.1, stop: asyncio.Event | None = None
+    ) -> dict[str, float]:
+        """Wait until every vehicle reports its mission finished (MAVSDK), ``timeout_s`` from
+        now or ``stop``; the finish time of each that did (s from :attr:`t_start`)."""
+        done: dict[str, float] = {}
+        t_end = time.monotonic() + timeout_s
+        while len(done) < len(self.vehicles) and time.monotonic() < t_end:
+            if stop is not None and stop.is_set():
+                break
             await asyncio.sleep(poll_s)
-            for v in vehicles:
+            for v in self.vehicles:
                 if v.name not in done and v.mission_raw.is_mission_finished():
-                    done[v.name] = time.monotonic() - t_start
+                    done[v.name] = time.monotonic() - self.t_start
         # MAVSDK can report the mission finished before its progress callback has delivered
         # the final current == total (seen under load): keep listening a moment for it.
         t_grace = time.monotonic()
         while time.monotonic() - t_grace < _FINISH_GRACE_S and any(
-            not current[n] or current[n][-1][0] < totals.get(n, 0) for n in done
+            (self.current_seq(n) or 0) < self.totals.get(n, 0) for n in done
         ):
             await asyncio.sleep(poll_s)
+        return done
+
+
+async def fly_missions(
+    vehicles: Sequence[Vehicle], *, timeout_s: float, poll_s: float = 0.1
+) -> dict[str, MissionRun]:
+    """Arm, start the uploaded missions together (each start confirmed) and follow them
+    until finished or timeout.
+
+    Progress comes from MISSION_CURRENT (MAVSDK's mission progress),
+    MISSION_ITEM_REACHED (mavlink_direct, each seq once) and MAVSDK's ``is_mission_finished``.
+
+    Raises:
+        CommandError: a vehicle refused to arm.
+        MissionError: a vehicle's start did not take effect (names it and what PX4 said).
+    """
+    follower = MissionFollower(vehicles)
+    follower.attach()
+    try:
+        await asyncio.gather(*(v.arm() for v in vehicles))
+        follower.t_start = time.monotonic()
+        starts = await asyncio.gather(*(start_mission_confirmed(v, climb_m=None) for v in vehicles))
+        for v, st in zip(vehicles, starts, strict=True):
+            if not st.started:
+                raise MissionError(
+                    MissionResult.TRANSFER_FAILED,
+                    "start_mission",
+                    st.detail,
+                    vehicle=v.name,
+                    url=v.url,
+                )
+        done = await follower.until_finished(timeout_s=timeout_s, poll_s=poll_s)
     finally:
-        for unsub, handle in unsubscribe:
-            unsub(handle)
-    now = time.monotonic() - t_start
-    return {
-        v.name: MissionRun(
-            vehicle=v.name,
-            current=tuple(current[v.name]),
-            reached=tuple(reached[v.name]),
-            finished=v.name in done,
-            duration_s=done.get(v.name, now),
-        )
-        for v in vehicles
-    }
+        follower.detach()
+    now = time.monotonic() - follower.t_start
+    out = {}
+    for v, st in zip(vehicles, starts, strict=True):
+        run = follower.run(v.name, finished=v.name in done, duration_s=done.get(v.name, now))
+        out[v.name] = dataclasses.replace(run, start=st)
+    return out

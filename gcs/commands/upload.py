@@ -8,7 +8,7 @@ field by field at the wire's precision. With ``--fence`` the geofence goes too (
 workspace's footprint as inclusion polygon, full-height stay-out regions as exclusions:
 :func:`mavlink.mission.fence_boxes`, as ``gcs export`` writes it), also read back. ``--start``
 then arms every vehicle and starts its mission (after checking each is within ``--tolerance``
-of its planned start, horizontally).
+of its planned start, horizontally), and confirms each start.
 
 Interlocks (before anything is sent): a plan that fails ``gcs verify``'s checks is refused, and
 with ``--start`` so is a mission whose straight-leg path has exact robustness below the plan's
@@ -19,8 +19,15 @@ and how far the mission's straight legs stray from the planned trajectory; below
 spec's exact robustness if every vehicle flew its mission's path exactly (the price of the
 mission conversion against the plan's own robustness).
 
-Exit status: 0 every upload read back identical, 1 refused by an interlock, a read-back
-differs or a transfer failed, 2 bad input (plan file, URL, unreachable vehicle).
+Read-back compares each item as PX4 stores it (fence items come back without autocontinue,
+yaw wrapped to [0, 360): :func:`mavlink.mission.compare_items`); a position, command or count
+that differs is a failure. A start is reported only when it happened: PX4 in AUTO.MISSION,
+armed and climbing (a start PX4 rejects 12 ms after accepting it is retried); a start too low
+for PX4's mission take-off (NAV_MC_ALT_RAD) is refused before anything is armed.
+
+Exit status: 0 every upload read back as sent (and, with ``--start``, every mission started),
+1 refused by an interlock, a read-back differs, a transfer failed or a start did not happen,
+2 bad input (plan file, URL, unreachable vehicle).
 """
 
 from __future__ import annotations
@@ -37,7 +44,7 @@ from gcs.commands import add_link_arguments
 
 if TYPE_CHECKING:
     from mavlink.fleet import Fleet, Vehicle, VehicleSpec
-    from mavlink.mission import MissionItem, MissionPlan
+    from mavlink.mission import MissionItem, MissionPlan, MissionStart
     from planner.planfile import Plan
 
 HELP = "upload each vehicle's mission (and geofence) converted from a plan, read back and compare"
@@ -83,7 +90,10 @@ class UploadRow:
         verified: every upload read back identical.
         error: what failed (empty when verified).
         max_deviation_m, rms_deviation_m: mission path vs planned trajectory.
-        started: the mission was started (``--start``).
+        started: the mission was started: PX4 reported AUTO.MISSION, armed, and the vehicle
+            climbed (``--start``).
+        start_detail: what the start confirmation saw (or why it failed).
+        start_attempts: start commands sent (a TEMPORARILY_REJECTED start is retried).
     """
 
     vehicle: str
@@ -98,6 +108,8 @@ class UploadRow:
     max_deviation_m: float
     rms_deviation_m: float
     started: bool = False
+    start_detail: str = ""
+    start_attempts: int = 0
 
 
 async def _upload_one(
@@ -133,15 +145,46 @@ async def _upload_one(
     )
 
 
-async def _start(fleet: Fleet, plan: Plan, tolerance_m: float) -> None:
-    """Check every vehicle is near its start (horizontally), then arm and start all."""
-    import numpy as np
-    from mavsdk.plugins.mission_raw import MissionRawResult
+#: Margin (m) above NAV_MC_ALT_RAD a mission's start must be for PX4 to fly its take-off.
+TAKEOFF_MARGIN_M = 0.2
 
-    from mavlink.errors import MissionError, MissionResult
-    from mavlink.fleet import mavsdk_call
+
+async def takeoff_height_check(v: Vehicle, start_alt_amsl_m: float) -> None:
+    """Refuse a mission PX4 would not take off for.
+
+    PX4 climbs for a mission's take-off only when its first position item is more than
+    NAV_MC_ALT_RAD above the vehicle (``MissionBase::checkClimbRequired``); otherwise the
+    vehicle stays on the ground and is auto-disarmed (PX4-BEHAVIOUR.md).
+
+    Raises:
+        PreflightError: the start is less than NAV_MC_ALT_RAD + TAKEOFF_MARGIN_M above it.
+    """
+    from mavlink.errors import PreflightError
+
+    st = await v.wait_for(lambda s: s.position is not None, "global position", timeout_s=5.0)
+    assert st.position is not None
+    alt_rad = await v.param("NAV_MC_ALT_RAD")
+    said = "" if alt_rad is not None else " (PX4's default; the vehicle did not report it)"
+    alt_rad = 0.8 if alt_rad is None else alt_rad
+    above = start_alt_amsl_m - st.position.alt_m
+    if above <= alt_rad + TAKEOFF_MARGIN_M:
+        raise PreflightError(
+            f"refused: the mission starts {above:.2f} m above the vehicle; PX4 takes off only "
+            f"to a first waypoint more than NAV_MC_ALT_RAD = {alt_rad:g} m{said} above it "
+            f"(this check keeps {TAKEOFF_MARGIN_M:g} m more): plan a higher start",
+            vehicle=v.name,
+            url=v.url,
+        )
+
+
+async def _start(fleet: Fleet, plan: Plan, tolerance_m: float) -> dict[str, MissionStart]:
+    """Check every vehicle (near its start horizontally, start high enough for PX4's take-off),
+    then arm and start all; each start confirmed (:func:`start_mission_confirmed`)."""
+    import numpy as np
+
+    from mavlink.mission import start_mission_confirmed
     from mavlink.offboard import check_start
-    from planner.frames import enu_to_ned
+    from planner.frames import enu_to_geodetic, enu_to_ned
 
     origins = await fleet.origins()
     for pv in plan.vehicles:
@@ -155,17 +198,12 @@ async def _start(fleet: Fleet, plan: Plan, tolerance_m: float) -> None:
             mission_origin=plan.origin,
             vehicle_origin=origins[v.name],
         )
+        if not st.in_air:
+            alt = float(np.ravel(enu_to_geodetic(np.asarray(pv.start_enu_m), plan.origin)[2])[0])
+            await takeoff_height_check(v, alt)
     await asyncio.gather(*(v.arm() for v in fleet))
-    for v in fleet:
-        result = await mavsdk_call(v.mission_raw.start_mission_async)
-        if result != MissionRawResult.SUCCESS:
-            raise MissionError(
-                MissionResult.TRANSFER_FAILED,
-                "start_mission",
-                mavsdk_result=result.name,
-                vehicle=v.name,
-                url=v.url,
-            )
+    starts = await asyncio.gather(*(start_mission_confirmed(v) for v in fleet))
+    return {s.vehicle: s for s in starts}
 
 
 async def upload_plan(
@@ -210,8 +248,16 @@ async def upload_plan(
             )
         )
         if start and all(r.verified for r in rows):
-            await _start(fleet, plan, tolerance_m)
-            rows = [replace(r, started=True) for r in rows]
+            starts = await _start(fleet, plan, tolerance_m)
+            rows = [
+                replace(
+                    r,
+                    started=starts[r.vehicle].started,
+                    start_detail=starts[r.vehicle].detail,
+                    start_attempts=starts[r.vehicle].attempts,
+                )
+                for r in rows
+            ]
     return rows
 
 
@@ -293,7 +339,7 @@ def run(args: argparse.Namespace) -> int:
     except PreflightError as exc:
         print(f"gcs upload: {exc}", file=sys.stderr)
         return 1
-    ok = all(r.verified for r in rows)
+    ok = all(r.verified for r in rows) and (not args.start or all(r.started for r in rows))
     if args.json:
         out: dict[str, Any] = {
             "ok": ok,
@@ -308,13 +354,18 @@ def run(args: argparse.Namespace) -> int:
             f"spec robustness if flown along the mission legs: {rho_mission:+.4f} "
             f"(plan: {plan.robustness:+.4f})"
         )
-        if args.start and ok:
-            print("missions started on " + ", ".join(r.vehicle for r in rows))
-        print(
-            "OK: every upload read back identical"
-            if ok
-            else f"FAILED: {sum(not r.verified for r in rows)} vehicle(s)"
-        )
+        for r in rows:
+            if args.start and r.start_detail:
+                verdict = "started" if r.started else "NOT started"
+                print(f"  {r.vehicle}: mission {verdict}: {r.start_detail}")
+        if ok:
+            print(
+                "OK: every upload read back as sent"
+                + (", every mission started" if args.start else "")
+            )
+        else:
+            failed = [r.vehicle for r in rows if not r.verified or (args.start and not r.started)]
+            print(f"FAILED: {len(failed)} vehicle(s): {', '.join(failed)}")
     return 0 if ok else 1
 
 

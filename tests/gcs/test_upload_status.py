@@ -73,22 +73,7 @@ def _wire(items) -> list[tuple]:  # type: ignore[no-untyped-def]
     ]
 
 
-@pytest.mark.parametrize(
-    "mock",
-    [
-        "ideal",
-        pytest.param(
-            "px4",
-            marks=pytest.mark.xfail(
-                strict=True,
-                reason="issue 16: gcs upload --fence compares autocontinue on read-back, and "
-                "PX4 returns fence items with autocontinue 0 (it stores no such field); the "
-                "mission start right after the upload falls in PX4's rejection window",
-            ),
-        ),
-    ],
-    indirect=True,
-)
+@pytest.mark.parametrize("mock", ["ideal", "px4"], indirect=True)
 def test_upload_stores_the_mission_and_fence_on_each_vehicle_and_starts_them(
     mock: tuple[MockFleet, list[str]], capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -114,6 +99,31 @@ def test_upload_stores_the_mission_and_fence_on_each_vehicle_and_starts_them(
         assert state.armed and state.mode is Px4Mode.AUTO_MISSION
     # The price of the conversion, in the spec's own terms, stays a satisfied spec here.
     assert 0 < res["mission_path_robustness"] <= plan.robustness + 0.05
+
+
+def test_upload_start_refuses_a_start_too_low_for_px4_to_take_off_to(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # The plan starts 1.5 m above the ground; with NAV_MC_ALT_RAD 2 m PX4 would treat the
+    # mission's take-off as reached on the ground and auto-disarm: refused before arming.
+    plan = load_plan(PLAN)
+    ports = free_udp_ports(4)
+    fleet = MockFleet(
+        n=2,
+        origin=plan.origin,
+        spawns_enu_m=ground_spawns(plan),
+        gcs_ports=ports[:2],
+        vehicle_ports=ports[2:],
+        params={"NAV_MC_ALT_RAD": 2.0},
+    )
+    with fleet.running_in_thread():
+        urls = [f"udpin://127.0.0.1:{p}" for p in ports[:2]]
+        rc = main(["upload", str(PLAN), "--start", *_connections(urls)])
+        _out, err = capsys.readouterr()
+        assert rc == 1
+        assert "above the vehicle; PX4 takes off only" in err and "NAV_MC_ALT_RAD = 2 m" in err
+        assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+        assert not any(v.state.armed for v in fleet.vehicles)
 
 
 def test_status_shows_each_vehicle_as_it_is(

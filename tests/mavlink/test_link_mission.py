@@ -23,11 +23,13 @@ from mavlink.mission import (
     geofence_items,
     path_deviation,
     path_robustness,
+    start_mission_confirmed,
     trajectory_to_mission,
     upload,
     upload_and_verify,
     verify,
 )
+from mavlink.mock import Px4Mode
 from planner.frames import GeodeticPoint
 from planner.trajectory import Trajectory
 from tests.mavlink.linkutil import mock_and_fleet, scenario, spec_formula, stored_plan
@@ -138,21 +140,7 @@ def test_mission_path_of_the_stored_plan_keeps_its_robustness_close() -> None:
     assert rho_plan - 2 * worst - 1e-9 <= rho <= rho_plan + 2 * worst + 1e-9
 
 
-@pytest.mark.parametrize(
-    "profile",
-    [
-        "ideal",
-        pytest.param(
-            "px4",
-            marks=pytest.mark.xfail(
-                strict=True,
-                reason="issue 16: the fence read-back compares autocontinue, which PX4 returns "
-                "as 0 for fence items; fly_missions expects every waypoint reported, PX4 "
-                "reports only the last item processed",
-            ),
-        ),
-    ],
-)
+@pytest.mark.parametrize("profile", ["ideal", "px4"])
 def test_upload_read_back_identical_then_fly_the_mission_on_the_mock(profile: str) -> None:
     plan = stored_plan(2)
     v1 = plan.vehicles[0]
@@ -190,9 +178,15 @@ def test_upload_read_back_identical_then_fly_the_mission_on_the_mock(profile: st
     )
     run = runs["d1"]
     assert run.finished
+    assert run.start is not None and run.start.started
     wp_seqs = [i.seq for i in mp.items if i.command == Cmd.NAV_WAYPOINT]
+    assert run.passed(wp_seqs) == wp_seqs  # every waypoint
+    # ... left in order (read from MISSION_CURRENT: PX4 reports only the last item processed)
+    left = [run.left_s(s) for s in wp_seqs[:-1]]
+    assert all(t is not None for t in left) and left == sorted(left)
+    # each reached seq counted once, whatever PX4 re-sends
     reached = [seq for seq, _ in run.reached]
-    assert [s for s in reached if s in wp_seqs] == wp_seqs  # every waypoint, in order
+    assert len(reached) == len(set(reached))
     seqs = [seq for seq, _ in run.current]
     # MISSION_CURRENT walked through the items in order; MAVSDK reports current == total at the end.
     assert seqs == sorted(seqs) and seqs[-1] == len(mp.items)
@@ -266,3 +260,50 @@ def test_upload_whose_final_ack_is_lost_is_settled_by_the_read_back() -> None:
     assert plain.mavsdk_result == "TIMEOUT"  # what MAVSDK alone reports
     assert report.items == len(mp.items)  # ... while the vehicle holds the whole mission
     assert compare_items(mp.items, [MissionItem(**dataclasses.asdict(i)) for i in stored]) == []
+
+
+# ------------------------------------------------------------------ starts, confirmed
+
+
+def _start_case(params: dict[str, float], climb_m: float | None, ground_m: float = 0.0):  # type: ignore[no-untyped-def]  # fmt: skip
+    """Upload d1's mission to a px4 mock with ``params`` (standing on ground ``ground_m`` m
+    up in the mission frame) and start it at once, confirmed."""
+    plan = stored_plan(2)
+    v1 = plan.vehicles[0]
+    mp = trajectory_to_mission(v1.trajectory, plan.origin, acceptance_radius_m=1.0)
+    spawn = (v1.start_enu_m[0], v1.start_enu_m[1], ground_m)
+
+    async def run():  # type: ignore[no-untyped-def]
+        async with mock_and_fleet(["d1"], plan.origin, [spawn], params=params) as (mock, fleet):
+            v = fleet["d1"]
+            await upload(v, mp.items)
+            result = await start_mission_confirmed(v, climb_m=climb_m, timeout_s=3.0)
+            return result, mock.vehicles[0].state, float(-mock.physics.true_pos_ned_m[0, 2])
+
+    return asyncio.run(run())
+
+
+def test_a_start_px4_rejects_right_after_the_upload_is_retried_until_it_takes_effect() -> None:
+    # PX4: ACCEPTED, then TEMPORARILY_REJECTED 12 ms later while the commander still flags
+    # the mission missing; here that window is 0.5 s, so the first start surely falls in it.
+    result, state, _agl = _start_case({"MOCK_MIS_RDY_T": 0.5}, climb_m=0.3)
+    assert result.started and result.attempts >= 2, result
+    assert "climbing" in result.detail
+    assert state.mode is Px4Mode.AUTO_MISSION and state.armed
+
+
+def test_a_start_px4_keeps_rejecting_is_reported_as_not_started_with_the_reason() -> None:
+    result, state, _agl = _start_case({"MOCK_MIS_RDY_T": 5.0}, climb_m=0.3)
+    assert not result.started and result.attempts >= 2
+    assert "TEMPORARILY_REJECTED" in result.detail
+    assert state.mode is not Px4Mode.AUTO_MISSION
+
+
+def test_a_mission_whose_takeoff_px4_skips_is_not_reported_as_started() -> None:
+    # The start is 0.4 m above the vehicle (1.5 m in a frame whose ground is at 1.1 m): within
+    # NAV_MC_ALT_RAD (0.8 m) PX4 treats the take-off as a waypoint already reached, never spins
+    # up, and auto-disarms after COM_DISARM_PRFLT (1 s here), as PX4 SITL did with 0.32 m.
+    result, state, agl = _start_case({"COM_DISARM_PRFLT": 1.0, "MOCK_GE_RATE": 0.0}, 0.3, 1.1)
+    assert not result.started, result
+    assert "never left the ground" in result.detail or "did not climb" in result.detail
+    assert not state.armed and agl < 0.05, (state, agl)  # on the ground, disarmed
