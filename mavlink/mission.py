@@ -239,6 +239,7 @@ class MissionPlan:
         arrival_t_s: ``(k,)`` planned arrival time at each waypoint.
         hold_s: ``(k,)`` hold time at each waypoint.
         leg_speed_m_s: ``(k-1,)`` commanded speed of each leg.
+        acceptance_m: ``(k,)`` acceptance radius of each waypoint (param2).
         path: the piecewise-linear path the mission flies.
     """
 
@@ -248,6 +249,7 @@ class MissionPlan:
     arrival_t_s: np.ndarray
     hold_s: np.ndarray
     leg_speed_m_s: np.ndarray
+    acceptance_m: np.ndarray
     path: PiecewiseLinearPath
 
 
@@ -263,6 +265,8 @@ def trajectory_to_mission(
     hover_speed_m_s: float = 0.05,
     end: MissionEnd = MissionEnd.LAND,
     name: str | None = None,
+    leg_speed_m_s: Sequence[float] | None = None,
+    pass_lag_s: float = 0.0,
 ) -> MissionPlan:
     """Convert one mission-frame trajectory into PX4 mission items (module docstring).
 
@@ -273,9 +277,18 @@ def trajectory_to_mission(
         hover_speed_m_s: segments slower than this everywhere are hovers.
         end: land, return to launch, or hold at the last waypoint.
         name: vehicle name (default the trajectory's).
+        leg_speed_m_s: the DO_CHANGE_SPEED of each leg instead of its length / duration
+            (:func:`gcs.missions.convert_plan` times them so PX4 keeps the plan's clock);
+            the path and the planned arrival times stay the plan's.
+        pass_lag_s: the vehicle's lag behind its setpoint (s). A waypoint flown through
+            (no hold, a turn under 30 degrees) gets the radius ``lag * speed + R / 2`` if
+            larger (at most 45 % of its shorter leg): PX4 accepts a waypoint by where the
+            vehicle is, which trails its setpoint by the drag lag, so with a radius
+            smaller than that trail the setpoint stops at the waypoint and waits.
 
     Raises:
-        MissionError: ``INVALID_ITEM`` for a non-positive acceptance radius.
+        MissionError: ``INVALID_ITEM`` for a non-positive acceptance radius or a speed
+            list of the wrong length or with a non-positive speed.
     """
     vname = name if name is not None else trajectory.name
     if not (math.isfinite(acceptance_radius_m) and acceptance_radius_m > 0):
@@ -311,7 +324,31 @@ def trajectory_to_mission(
             leg_index.append(s)
         else:
             hold[-1] += float(dur[s])
+    if leg_speed_m_s is not None:
+        given = [float(x) for x in leg_speed_m_s]
+        if len(given) != len(leg_speed) or not all(math.isfinite(x) and x > 0 for x in given):
+            raise MissionError(
+                MissionResult.INVALID_ITEM,
+                "trajectory_to_mission",
+                f"leg_speed_m_s: {len(leg_speed)} speeds > 0 wanted, got {given!r}",
+                vehicle=vname,
+            )
+        commanded = given
+    else:
+        commanded = leg_speed
     wp = np.asarray(waypoints)
+    radius = np.full(wp.shape[0], float(acceptance_radius_m))
+    if pass_lag_s > 0:
+        for j in range(1, wp.shape[0] - 1):
+            a_in, a_out = wp[j] - wp[j - 1], wp[j + 1] - wp[j]
+            l_in, l_out = float(np.linalg.norm(a_in)), float(np.linalg.norm(a_out))
+            if hold[j] > 0 or l_in < 1e-6 or l_out < 1e-6:
+                continue
+            if float(np.dot(a_in, a_out)) / (l_in * l_out) < math.cos(math.radians(30.0)):
+                continue
+            v = min(commanded[j - 1], commanded[j])
+            want = pass_lag_s * v + 0.5 * acceptance_radius_m
+            radius[j] = max(radius[j], min(want, 0.45 * min(l_in, l_out)))
     lat, lon, alt = enu_to_geodetic(wp, origin)
     yaw_deg = np.degrees(
         np.asarray(yaw_enu_to_ned(trajectory.yaw_rad(np.asarray(arrival))), dtype=float)
@@ -372,12 +409,12 @@ def trajectory_to_mission(
         float(alt[0]),
     )
     for j in range(1, wp.shape[0]):
-        add(Cmd.DO_CHANGE_SPEED, Frame.MISSION, 1.0, leg_speed[j - 1], -1.0, 0.0, 0, 0, 0.0)
+        add(Cmd.DO_CHANGE_SPEED, Frame.MISSION, 1.0, commanded[j - 1], -1.0, 0.0, 0, 0, 0.0)
         add(
             Cmd.NAV_WAYPOINT,
             g,
             hold[j],
-            acceptance_radius_m,
+            float(radius[j]),
             0.0,
             float(yaw_deg[j]),
             _e7(lat[j]),
@@ -404,7 +441,8 @@ def trajectory_to_mission(
         waypoints_enu_m=wp,
         arrival_t_s=np.asarray(arrival),
         hold_s=np.asarray(hold),
-        leg_speed_m_s=np.asarray(leg_speed),
+        leg_speed_m_s=np.asarray(commanded),
+        acceptance_m=radius,
         path=path,
     )
 

@@ -19,9 +19,9 @@ global positions are that origin's geodetic coordinates plus the local offset
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import pymap3d
@@ -421,6 +421,18 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
     def mission_items(self, mission_type: int = MISSION) -> tuple[MissionItem, ...]:
         """The stored plan of ``mission_type`` (MAV_MISSION_TYPE_*)."""
         return self.missions.plans[mission_type]
+
+    def store_plan(self, items: Sequence[Any], mission_type: int = MISSION) -> None:
+        """Store ``items`` (anything with MISSION_ITEM_INT's fields) as if uploaded.
+
+        For offline use (prediction, tests): no transfer, the vehicle reacts as to a
+        completed upload.
+        """
+        self.missions.plans[mission_type] = tuple(
+            MissionItem(**{f: getattr(it, f) for f in MissionItem.__dataclass_fields__})
+            for it in items
+        )
+        self._on_plan_changed(mission_type)
 
     # ================================================================ geodesy
     def ned_to_global(self, pos_ned_m: np.ndarray) -> tuple[float, float, float]:

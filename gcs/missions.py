@@ -1,0 +1,220 @@
+"""A plan as PX4 missions that keep the plan's clock, and what PX4 will make of them.
+
+:func:`mavlink.mission.trajectory_to_mission` turns a trajectory into straight legs, each
+commanded at its average speed. PX4 does not fly those at constant speed: it accelerates
+and brakes within MPC_ACC_HOR / MPC_JERK_AUTO, slows for corners and stops before holds,
+and lags its own setpoint by the drag (PX4-BEHAVIOUR.md: with a 1 m acceptance radius the
+power-line missions finished 5.5-8.5 s late). :func:`convert_plan`
+
+1. chooses the acceptance radius (:func:`auto_acceptance_m`) unless the user gave one;
+2. predicts the flight with the mock's PX4 vehicle (:mod:`mavlink.mock.predict`: PX4's
+   navigator laws and the drag, no estimator noise);
+3. re-times the legs: each leg's commanded speed is scaled by how much longer PX4 took for
+   it than the plan allows, and the prediction repeated (``iterations``), keeping the
+   conversion whose predicted spec robustness is best;
+4. reports the predicted flight: per vehicle the finish time against the plan's, and the
+   spec's exact robustness on the predicted tracks (the honest "mission robustness"),
+   next to the straight-leg figure, which assumes constant leg speeds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from mavlink.mission import MissionEnd, MissionPlan
+    from mavlink.mock.predict import PredictedMissions
+    from planner.planfile import Plan
+
+#: PX4 v1.17 defaults the conversion assumes where the vehicle's own are not known.
+PX4_DEFAULTS = {"NAV_ACC_RAD": 2.0, "NAV_MC_ALT_RAD": 0.8, "MPC_XY_CRUISE": 5.0}
+#: Cross-track error PX4 (SIH) showed per m/s of cruise: 0.3-0.5 m at 3.4 m/s (R = 0.3 m
+#: was missed, 1.0 m never); twice this is the smallest radius the conversion picks.
+XTRACK_S = 0.15
+MIN_ACCEPTANCE_M = 0.6
+#: A leg is never commanded faster than this multiple of its average speed (a
+#: minimum-jerk segment peaks at 1.875 times its average).
+MAX_SPEEDUP = 2.0
+#: Seconds flown after the plan's horizon in a prediction (late missions are seen finishing).
+PREDICT_EXTRA_S = 20.0
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class MissionConversion:
+    """The missions of a plan and their predicted flight.
+
+    Attributes:
+        missions: per vehicle the mission (items, waypoints, planned times, leg speeds).
+        acceptance_m: the acceptance radius used (param2 of every waypoint).
+        acceptance_auto: chosen by :func:`auto_acceptance_m` (not given by the user).
+        prediction: the predicted flight of the chosen conversion (t = 0 at the release).
+        predicted_robustness: the spec's exact robustness on the predicted tracks.
+        straight_leg_robustness: on the constant-speed straight legs (the plan's clock).
+        late_s: per vehicle, predicted finish minus the plan's last arrival (s; ``inf``
+            when the prediction did not see it finish).
+        iterations: predictions run.
+        retimed: the leg speeds were changed from the legs' average speeds.
+    """
+
+    missions: dict[str, MissionPlan]
+    acceptance_m: float
+    acceptance_auto: bool
+    prediction: PredictedMissions
+    predicted_robustness: float
+    straight_leg_robustness: float
+    late_s: dict[str, float]
+    iterations: int
+    retimed: bool
+
+
+def auto_acceptance_m(plan: Plan, nav_acc_rad_m: float = PX4_DEFAULTS["NAV_ACC_RAD"]) -> float:
+    """The waypoint acceptance radius for ``plan`` on PX4 (m).
+
+    Large enough that PX4 does not miss the circle at the plan's fastest leg (twice the
+    cross-track error PX4 showed, :data:`XTRACK_S` per m/s, at least
+    :data:`MIN_ACCEPTANCE_M`: a missed circle costs 18-35 s), and no larger than
+    NAV_ACC_RAD, PX4's own default radius. Corner cutting that a larger radius brings is
+    judged by the prediction, not here.
+    """
+    from mavlink.mission import trajectory_to_mission
+
+    fastest = 0.0
+    for pv in plan.vehicles:
+        m = trajectory_to_mission(pv.trajectory, plan.origin, acceptance_radius_m=0.05)
+        if m.leg_speed_m_s.size:
+            fastest = max(fastest, float(m.leg_speed_m_s.max()))
+    return float(min(nav_acc_rad_m, max(MIN_ACCEPTANCE_M, 2.0 * XTRACK_S * fastest)))
+
+
+def expected_lag_s(params: Mapping[str, float]) -> float:
+    """The steady lag of a PX4 vehicle behind its setpoint from drag (s):
+    ``c / (MPC_XY_P * MPC_XY_VEL_P_ACC)`` (PX4-BEHAVIOUR.md; 0.585 s on SIH's quad).
+
+    ``c`` is the drag per unit mass, 1/s: ``DRAG`` (the user's), else SIH's SIH_KDV / mass.
+    """
+    c = params.get("DRAG", params.get("SIH_KDV", 1.0))
+    p = params.get("MPC_XY_P", 0.95)
+    d = params.get("MPC_XY_VEL_P_ACC", 1.8)
+    return float(c / (p * d)) if p > 0 and d > 0 else 0.0
+
+
+def convert_plan(
+    plan: Plan,
+    *,
+    end: MissionEnd,
+    acceptance_m: float | None = None,
+    params: Mapping[str, float] | None = None,
+    iterations: int = 4,
+    retime: bool = True,
+) -> MissionConversion:
+    """Missions for every vehicle of ``plan``, timed so PX4 keeps the plan's clock.
+
+    Args:
+        end: what each mission ends with.
+        acceptance_m: waypoint acceptance radius; ``None`` chooses it
+            (:func:`auto_acceptance_m` with the vehicles' NAV_ACC_RAD).
+        params: the vehicles' PX4 parameters where known (NAV_ACC_RAD, MPC_XY_CRUISE,
+            MPC_ACC_HOR, SIH_KDV ...), used by the prediction.
+        iterations: predictions at most (1: no re-timing, just the prediction).
+        retime: re-time the legs (False: the legs' average speeds, predicted once).
+    """
+    from gcs.flight import plan_formula
+    from mavlink.mission import Cmd, path_robustness, trajectory_to_mission
+    from mavlink.mock.predict import predict_missions
+
+    prm = dict(params or {})
+    auto = acceptance_m is None
+    radius = (
+        auto_acceptance_m(plan, prm.get("NAV_ACC_RAD", PX4_DEFAULTS["NAV_ACC_RAD"]))
+        if acceptance_m is None
+        else float(acceptance_m)
+    )
+    lag_s = expected_lag_s(prm)
+    dt = plan.check_dt_s
+    t = np.arange(round(plan.horizon_s / dt) + 1) * dt
+    starts = {pv.name: tuple(float(x) for x in pv.start_enu_m) for pv in plan.vehicles}
+
+    def build(speeds: Mapping[str, np.ndarray] | None) -> dict[str, MissionPlan]:
+        return {
+            pv.name: trajectory_to_mission(
+                pv.trajectory,
+                plan.origin,
+                acceptance_radius_m=radius,
+                end=end,
+                name=pv.name,
+                leg_speed_m_s=None if speeds is None else speeds[pv.name],
+                pass_lag_s=lag_s,
+            )
+            for pv in plan.vehicles
+        }
+
+    missions = build(None)
+    base = {n: m.leg_speed_m_s.copy() for n, m in missions.items()}
+    phi = plan_formula(plan)
+    straight = path_robustness(phi, {n: m.path for n, m in missions.items()}, dt, plan.horizon_s)
+    best: tuple[float, dict[str, MissionPlan], PredictedMissions] | None = None
+    speeds = {n: s.copy() for n, s in base.items()}
+    runs = 0
+    for k in range(max(1, iterations if retime else 1)):
+        pred = predict_missions(
+            {n: m.items for n, m in missions.items()},
+            starts,
+            plan.origin,
+            duration_s=plan.horizon_s + PREDICT_EXTRA_S,
+            start_yaw_deg={n: float(m.items[1].param4) for n, m in missions.items()},
+            params=prm,
+            sample_dt_s=dt if dt >= 0.02 else 0.02,
+        )
+        runs += 1
+        rho = float(phi.robustness({n: pred.position(n, t) for n in missions}, dt))
+        if best is None or rho > best[0]:
+            best = (rho, missions, pred)
+        if k + 1 >= iterations or not retime:
+            break
+        changed = False
+        for name, m in missions.items():
+            wp_seqs = [it.seq for it in m.items if it.command == Cmd.NAV_WAYPOINT]
+            left = pred.left_s[name]
+            new = speeds[name].copy()
+            for j in range(1, len(wp_seqs)):
+                t_dep = left.get(wp_seqs[j - 1])
+                t_left = left.get(wp_seqs[j])
+                if t_dep is None or t_left is None:
+                    continue
+                flown = (t_left - float(m.hold_s[j])) - t_dep
+                planned = float(m.arrival_t_s[j]) - float(m.arrival_t_s[j - 1] + m.hold_s[j - 1])
+                if planned <= 0 or flown <= 0:
+                    continue
+                ratio = min(1.6, max(0.7, flown / planned))
+                new[j - 1] = min(new[j - 1] * ratio, MAX_SPEEDUP * base[name][j - 1])
+            if not np.allclose(new, speeds[name], rtol=0.01):
+                changed = True
+            speeds[name] = new
+        if not changed:
+            break
+        missions = build(speeds)
+    assert best is not None
+    rho, chosen, pred = best
+    late = {}
+    for name, m in chosen.items():
+        fin = pred.finished_s[name]
+        late[name] = math.inf if fin is None else fin - float(m.arrival_t_s[-1] + m.hold_s[-1])
+    retimed = any(
+        not np.allclose(chosen[n].leg_speed_m_s, base[n]) for n in chosen
+    )
+    return MissionConversion(
+        missions=chosen,
+        acceptance_m=radius,
+        acceptance_auto=auto,
+        prediction=pred,
+        predicted_robustness=rho,
+        straight_leg_robustness=float(straight),
+        late_s=late,
+        iterations=runs,
+        retimed=retimed,
+    )
