@@ -204,9 +204,7 @@ def convert_plan(
     for name, m in chosen.items():
         fin = pred.finished_s[name]
         late[name] = math.inf if fin is None else fin - float(m.arrival_t_s[-1] + m.hold_s[-1])
-    retimed = any(
-        not np.allclose(chosen[n].leg_speed_m_s, base[n]) for n in chosen
-    )
+    retimed = any(not np.allclose(chosen[n].leg_speed_m_s, base[n]) for n in chosen)
     return MissionConversion(
         missions=chosen,
         acceptance_m=radius,

@@ -110,15 +110,10 @@ def predict_missions(
     fleet.offline_links()
     vs = fleet.vehicles
     for name, v in zip(names, vs, strict=True):
-        start = starts_enu_m[name]
-        lat, lon, alt = _geodetic(fleet, start)
+        alt = _geodetic(fleet, starts_enu_m[name])[2]
         yaw = (start_yaw_deg or {}).get(name, math.nan)
         v.arm(force=True)
         _command_int(v, mavlink2.MAV_CMD_NAV_TAKEOFF, 0.0, 0.0, 0.0, yaw, alt=alt)
-    fleet.advance(0.5)
-    for name, v in zip(names, vs, strict=True):
-        lat, lon, alt = _geodetic(fleet, starts_enu_m[name])
-        yaw = (start_yaw_deg or {}).get(name, math.nan)
         v.store_plan(missions[name])
     # Wait for the take-offs, then move each onto its start.
     _settle(fleet, names, starts_enu_m, settle_s, reposition=True, yaw=start_yaw_deg or {})
