@@ -58,6 +58,8 @@ from gcs.errors import InputFileError, UserError
 
 if TYPE_CHECKING:
     from gcs.commands.verify import Check
+    from gcs.mission_flight import MissionFlight
+    from gcs.tuning import VehicleTuning
     from mavlink.fleet import Fleet, Vehicle, VehicleSpec
     from mavlink.mission import MissionRun
     from mavlink.mock import MockFleet
@@ -125,7 +127,15 @@ class FlyOptions:
         end: what every vehicle does after the plan (hold, land, return).
         log_dir: write ``flight.tlog`` and ``flight.csv`` here (``None``: no files).
         connect_timeout_s: time allowed for every vehicle's first heartbeat.
-        monitor: run the online safety monitor of the always-clauses (offboard).
+        monitor: run the online safety monitor of the always-clauses.
+        drag_per_s: the vehicles' drag per unit mass for the feed-forward (1/s); ``None``:
+            the simulator's own (SIH_KDV / SIH_MASS) where the vehicle has it, else 0
+            (:mod:`gcs.tuning`).
+        arrive_m: the arrival gate at the starts (m); ``None``: from the plan's margin
+            (:func:`gcs.mission_flight.arrive_gate_m`).
+        acceptance_m: mission mode's waypoint acceptance radius; ``None``: chosen
+            (:func:`gcs.missions.auto_acceptance_m`).
+        force: fly missions whose predicted robustness is below epsilon.
     """
 
     mode: FlightMode = FlightMode.OFFBOARD
@@ -135,6 +145,10 @@ class FlyOptions:
     log_dir: Path | None = None
     connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S
     monitor: bool = True
+    drag_per_s: float | None = None
+    arrive_m: float | None = None
+    acceptance_m: float | None = None
+    force: bool = False
 
 
 # ---------------------------------------------------------------------------- before flight
@@ -637,6 +651,9 @@ class FlightOutcome:
         final_modes: each vehicle's mode label at the end.
         tlog: the recording's statistics (with a log directory).
         files: what was written, by kind (``tlog``, ``csv``).
+        mission: mission mode's conversion, prediction, clock skews and lateness.
+        tuning: each vehicle's tracking model (drag fed forward, gains, estimator accuracy).
+        warnings: margin warnings shown before the flight.
     """
 
     mode: FlightMode
@@ -654,6 +671,9 @@ class FlightOutcome:
     final_modes: dict[str, str] = field(default_factory=dict)
     tlog: TlogStats | None = None
     files: dict[str, Path] = field(default_factory=dict)
+    mission: MissionFlight | None = None
+    tuning: dict[str, VehicleTuning] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
 
 
 def _make_log_dir(log_dir: Path | None) -> None:
@@ -739,7 +759,14 @@ async def _cancel_since(before: set[asyncio.Task[Any]]) -> None:
         await asyncio.gather(*others, return_exceptions=True)
 
 
-async def _fly_offboard(fleet: Fleet, plan: Plan, opts: FlyOptions, clock: FlightClock) -> Any:
+async def _fly_offboard(
+    fleet: Fleet,
+    plan: Plan,
+    opts: FlyOptions,
+    clock: FlightClock,
+    tuning: Mapping[str, VehicleTuning],
+) -> Any:
+    from gcs.mission_flight import arrive_gate_m
     from mavlink.monitor import SafetyMonitor, always_clauses
     from mavlink.offboard import EndAction, OffboardConfig, fly_offboard
 
@@ -757,66 +784,12 @@ async def _fly_offboard(fleet: Fleet, plan: Plan, opts: FlyOptions, clock: Fligh
     cfg = OffboardConfig(
         rate_hz=opts.rate_hz,
         start_tolerance_m=opts.tolerance_m,
+        arrive_m=opts.arrive_m or arrive_gate_m(plan),
         end_action=opts.end or EndAction.HOLD,
+        drag_per_s={n: t.drag_per_s for n, t in tuning.items()},
     )
     trajs = {v.name: v.trajectory for v in plan.vehicles}
     return await fly_offboard(fleet, trajs, plan.origin, cfg, monitor=monitor)
-
-
-async def _fly_mission(
-    fleet: Fleet, plan: Plan, opts: FlyOptions, clock: FlightClock
-) -> dict[str, MissionRun]:
-    import json
-
-    from mavlink.mission import MissionEnd, fly_missions, trajectory_to_mission, upload_and_verify
-    from mavlink.offboard import check_start
-    from planner.frames import enu_to_ned
-
-    end = MissionEnd(opts.end.value) if opts.end is not None else MissionEnd.HOLD
-    vehicles = [fleet[v.name] for v in plan.vehicles]
-    origins = await fleet.origins()
-    await asyncio.gather(
-        *(
-            v.wait_for(lambda s: s.pos_ned_m is not None, "local position", timeout_s=5.0)
-            for v in vehicles
-        )
-    )
-    for pv, v in zip(plan.vehicles, vehicles, strict=True):
-        start_ned = enu_to_ned(np.asarray(pv.start_enu_m), plan.origin, origins[v.name])
-        st = v.status()
-        check_start(
-            st,
-            start_ned,
-            tolerance_m=opts.tolerance_m,
-            on_ground=not bool(st.in_air),
-            mission_origin=plan.origin,
-            vehicle_origin=origins[v.name],
-        )
-    missions = {
-        pv.name: trajectory_to_mission(pv.trajectory, plan.origin, end=end, name=pv.name)
-        for pv in plan.vehicles
-    }
-    await asyncio.gather(*(upload_and_verify(v, missions[v.name].items) for v in vehicles))
-    handles = []
-    for v in vehicles:
-
-        def on_reached(msg: Any, _ud: Any, name: str = v.name) -> None:
-            # Plan time 0 is the arrival at the start waypoint (item 1, after the takeoff).
-            if int(json.loads(msg.fields_json)["seq"]) == 1:
-                clock.t0_monotonic_s.setdefault(name, time.monotonic())
-
-        handles.append((v, v.direct.subscribe_message("MISSION_ITEM_REACHED", on_reached)))
-    try:
-        runs = await fly_missions(vehicles, timeout_s=plan.horizon_s + 60.0)
-        # A mission may end before the plan's horizon: keep recording the vehicles (holding
-        # at their last waypoint) until the horizon is covered, so the spec can be judged.
-        if clock.t0_monotonic_s:
-            t_end = max(clock.t0_monotonic_s.values()) + plan.horizon_s + 0.5
-            await asyncio.sleep(max(0.0, t_end - time.monotonic()))
-        return runs
-    finally:
-        for v, h in handles:
-            v.direct.unsubscribe_message(h)
 
 
 async def fly_plan(
@@ -842,6 +815,8 @@ async def fly_plan(
         mavlink.errors.PreflightError: a vehicle too far from its start / cannot reach it.
         mavlink.errors.LinkError: other link failures before the flight.
     """
+    from gcs.mission_flight import fly_mission_plan
+    from gcs.tuning import expected_error_m, margin_warnings, read_tuning
     from mavlink.fleet import Fleet
     from mavlink.tlog import TlogRecorder, write_tracks_csv
 
@@ -866,16 +841,23 @@ async def fly_plan(
         )
         interrupted = False
         result: Any = None
-        missions: dict[str, MissionRun] = {}
+        mission: MissionFlight | None = None
         end_failures: dict[str, str] = {}
         for v in fleet:
             v.start_track()
         before = asyncio.all_tasks()
+        names = [v.name for v in plan.vehicles]
+        tuning = await read_tuning(fleet, names, opts.drag_per_s)
+        # offboard feeds the drag forward; a mission's timing is judged by its prediction
+        warnings = margin_warnings(plan, expected_error_m(plan, tuning, fed_forward=True))
+        if progress is not None:
+            for w in warnings:
+                print(w, file=progress.stream, flush=True)
         try:
             if opts.mode is FlightMode.OFFBOARD:
-                result = await _fly_offboard(fleet, plan, opts, clock)
+                result = await _fly_offboard(fleet, plan, opts, clock, tuning)
             else:
-                missions = await _fly_mission(fleet, plan, opts, clock)
+                mission = await fly_mission_plan(fleet, plan, opts, clock, tuning)
         except asyncio.CancelledError:
             # Ctrl-C: asyncio.run cancelled us. Take the cancellation back, stop what the
             # flight left running and hold every vehicle before returning.
@@ -893,7 +875,12 @@ async def fly_plan(
             if progress is not None:
                 progress.close()
             tlog = recorder.stop() if recorder is not None else None
-        if interrupted or (result is not None and result.safety_event is not None):
+        safety_event = (
+            result.safety_event
+            if result is not None
+            else (mission.safety_event if mission is not None else None)
+        )
+        if interrupted or safety_event is not None:
             await _show_mode(fleet, "AUTO.LOITER", end_failures)
         elif result is not None:
             await _show_mode(fleet, _END_MODE[cfg_end(opts)], end_failures)
@@ -914,12 +901,16 @@ async def fly_plan(
     evaluation = evaluate_flight(plan, tracks) if tracks else None
     offset = time.time() - time.monotonic()
     t0_unix = min(t0.values()) + offset if t0 else None
+    missions = dict(mission.runs) if mission is not None else {}
     if result is not None:
         end_failures = dict(result.end_failures)
         completed = bool(result.completed) and not end_failures
     else:
         completed = (
-            not interrupted and bool(missions) and all(r.finished for r in missions.values())
+            not interrupted
+            and safety_event is None
+            and bool(missions)
+            and all(r.finished for r in missions.values())
         )
     return FlightOutcome(
         mode=opts.mode,
@@ -932,11 +923,14 @@ async def fly_plan(
         evaluation=evaluation,
         stats=dict(result.stats) if result is not None else {},
         missions=missions,
-        safety_event=result.safety_event if result is not None else None,
+        safety_event=safety_event,
         end_failures=end_failures,
         final_modes=final_modes,
         tlog=tlog,
         files=files,
+        mission=mission,
+        tuning=tuning,
+        warnings=tuple(warnings),
     )
 
 
@@ -981,16 +975,61 @@ def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
         lines.append("setpoint stream (lateness of each send after its deadline):")
         lines.append("  " + STATS_HEADER)
         lines += ["  " + s.row() for s in outcome.stats.values()]
+    lines += _tuning_lines(outcome)
+    m = outcome.mission
+    if m is not None:
+        c = m.conversion
+        how = "chosen" if c.acceptance_auto else "given"
+        lines.append(
+            f"missions: acceptance radius {c.acceptance_m:.2f} m ({how}), legs "
+            f"{'re-timed' if c.retimed else 'at their average speeds'}; robustness predicted "
+            f"{c.predicted_robustness:+.4f} (straight legs {c.straight_leg_robustness:+.4f})"
+        )
     for name, run in outcome.missions.items():
+        extra = ""
+        if m is not None:
+            late = m.late_s.get(name, math.inf)
+            dep = m.departure_skew_s.get(name)
+            extra = (
+                f", {'+' if late >= 0 else ''}{late:.1f} s against the plan"
+                if math.isfinite(late)
+                else ""
+            )
+            extra += f"; start skew {m.start_skew_s.get(name, 0.0) * 1000:+.0f} ms"
+            if dep is not None:
+                extra += f", left the start waypoint {dep:+.2f} s off the prediction"
+        items = len(m.conversion.missions[name].items) if m is not None else None
         lines.append(
             f"  {name}: mission {'finished' if run.finished else 'NOT finished'} in "
-            f"{run.duration_s:.1f} s, {len(run.reached)} items reached"
+            f"{run.duration_s:.1f} s{extra}; "
+            + (f"at item {run.current[-1][0]} of {items}" if run.current and items else "")
         )
     if outcome.tlog is not None:
         lines.append(f"telemetry: {outcome.tlog.path} ({outcome.tlog.messages} messages)")
     if "csv" in outcome.files:
         lines.append(f"tracks: {outcome.files['csv']}")
     return "\n".join(lines)
+
+
+def _tuning_lines(outcome: FlightOutcome) -> list[str]:
+    """Drag fed forward per vehicle, the lag it still showed, and the drag to set."""
+    from gcs.tuning import LAG_NOISE_S, drag_from_lag
+
+    ev = outcome.evaluation
+    lags = {t.vehicle: t.lag_s for t in ev.tracking} if ev is not None else {}
+    lines = []
+    for name, tu in outcome.tuning.items():
+        lag = lags.get(name, math.nan)
+        acc = f", estimator accuracy {tu.accuracy_m:.2f} m" if tu.accuracy_m is not None else ""
+        how = "fed forward" if outcome.mode is FlightMode.OFFBOARD else "in the prediction"
+        text = f"  {name}: drag {tu.drag_per_s:.2f} /s {how} ({tu.drag_source}){acc}"
+        if math.isfinite(lag) and outcome.mode is FlightMode.OFFBOARD:
+            c = drag_from_lag(lag, tu)
+            text += f"; flown lag {lag:+.2f} s -> drag {c:.2f} /s"
+            if abs(lag) > LAG_NOISE_S:
+                text += f" (set --drag {c:.2f})"
+        lines.append(text)
+    return lines
 
 
 def outcome_json(plan: Plan, outcome: FlightOutcome) -> dict[str, Any]:
@@ -1045,9 +1084,40 @@ def outcome_json(plan: Plan, outcome: FlightOutcome) -> dict[str, Any]:
             for name, s in outcome.stats.items()
         },
         "missions": {
-            name: {"finished": r.finished, "duration_s": r.duration_s, "reached": len(r.reached)}
+            name: {
+                "finished": r.finished,
+                "duration_s": r.duration_s,
+                "reached": len(r.reached),
+                "late_s": None if outcome.mission is None else num(outcome.mission.late_s[name]),
+                "start_skew_s": None
+                if outcome.mission is None
+                else num(outcome.mission.start_skew_s[name]),
+                "departure_skew_s": None
+                if outcome.mission is None
+                else num(outcome.mission.departure_skew_s[name]),
+            }
             for name, r in outcome.missions.items()
         },
+        "mission_prediction": None
+        if outcome.mission is None
+        else {
+            "acceptance_m": outcome.mission.conversion.acceptance_m,
+            "acceptance_auto": outcome.mission.conversion.acceptance_auto,
+            "retimed": outcome.mission.conversion.retimed,
+            "predicted_robustness": num(outcome.mission.conversion.predicted_robustness),
+            "straight_leg_robustness": num(outcome.mission.conversion.straight_leg_robustness),
+            "predicted_late_s": {k: num(v) for k, v in outcome.mission.conversion.late_s.items()},
+        },
+        "tuning": {
+            name: {
+                "drag_per_s": t.drag_per_s,
+                "drag_source": t.drag_source,
+                "expected_lag_s": t.expected_lag_s,
+                "accuracy_m": t.accuracy_m,
+            }
+            for name, t in outcome.tuning.items()
+        },
+        "warnings": list(outcome.warnings),
         "tlog_messages": None if outcome.tlog is None else outcome.tlog.messages,
         "files": {k: str(p) for k, p in outcome.files.items()},
     }

@@ -204,6 +204,7 @@ class VehicleStatus:
         battery_voltage_v: volts.
         heartbeat_age_s: seconds since the last heartbeat.
         position_age_s: seconds since the last local position.
+        heading_deg: heading, degrees clockwise from north (GLOBAL_POSITION_INT.hdg).
     """
 
     name: str
@@ -224,6 +225,7 @@ class VehicleStatus:
     battery_voltage_v: float | None
     heartbeat_age_s: float | None
     position_age_s: float | None
+    heading_deg: float | None = None
 
 
 # --------------------------------------------------------------------------
@@ -263,6 +265,7 @@ class Vehicle:
         self._home: GeodeticPoint | None = None
         self._origin: GeodeticPoint | None = None
         self._battery: tuple[float, float] | None = None
+        self._heading: float | None = None
         self._t_heartbeat: float | None = None
         self._t_position: float | None = None
         self._track: list[tuple[float, ...]] | None = None
@@ -286,6 +289,7 @@ class Vehicle:
             (tel.unsubscribe_home, tel.subscribe_home(self._on_home)),
             (tel.unsubscribe_battery, tel.subscribe_battery(self._on_battery)),
             (tel.unsubscribe_in_air, tel.subscribe_in_air(self._on_in_air)),
+            (tel.unsubscribe_heading, tel.subscribe_heading(self._on_heading)),
             (
                 self.direct.unsubscribe_message,
                 self.direct.subscribe_message("HEARTBEAT", self._on_heartbeat),
@@ -337,6 +341,10 @@ class Vehicle:
         # MAVSDK reports percent (0..100) from SYS_STATUS / BATTERY_STATUS.
         with self._lock:
             self._battery = (remaining / 100.0, float(b.voltage_v))
+
+    def _on_heading(self, h: Any, _ud: Any) -> None:
+        with self._lock:
+            self._heading = float(h.heading_deg)
 
     def _on_in_air(self, in_air: bool, _ud: Any) -> None:
         with self._lock:
@@ -470,6 +478,7 @@ class Vehicle:
                 battery_voltage_v=None if self._battery is None else self._battery[1],
                 heartbeat_age_s=hb_age,
                 position_age_s=pos_age,
+                heading_deg=self._heading,
             )
 
     # -- recording of the flown track ----------------------------------
@@ -562,10 +571,11 @@ class Vehicle:
             f"set mode {mode.label}", MAV_CMD_DO_SET_MODE, *set_mode_params(mode)
         )
 
-    async def takeoff_to(self, alt_amsl_m: float) -> None:
-        """Take off (AUTO.TAKEOFF) straight up to ``alt_amsl_m`` (metres AMSL).
+    async def takeoff_to(self, alt_amsl_m: float, yaw_deg: float = math.nan) -> None:
+        """Take off (AUTO.TAKEOFF) straight up to ``alt_amsl_m`` (metres AMSL), turning to
+        ``yaw_deg`` (NED heading, degrees; NaN keeps the heading) on the way.
 
-        MAV_CMD_NAV_TAKEOFF with param7 the altitude and NaN lat/lon (here),
+        MAV_CMD_NAV_TAKEOFF with param7 the altitude, param4 the yaw and NaN lat/lon (here),
         as PX4 accepts it. MAVSDK's ``Action.takeoff`` would first need
         ``set_takeoff_altitude`` (the MIS_TAKEOFF_ALT parameter), whose
         ``*_async`` form in MAVSDK 4.1.0 blocks the calling thread for the
@@ -574,8 +584,34 @@ class Vehicle:
         """
         nan = float("nan")
         await self.command_long(
-            "takeoff", MAV_CMD_NAV_TAKEOFF, 0.0, 0.0, 0.0, nan, nan, nan, float(alt_amsl_m)
+            "takeoff",
+            MAV_CMD_NAV_TAKEOFF,
+            0.0,
+            0.0,
+            0.0,
+            float(yaw_deg),
+            nan,
+            nan,
+            float(alt_amsl_m),
         )
+
+    async def goto(self, lat_deg: float, lon_deg: float, alt_amsl_m: float, yaw_deg: float) -> None:
+        """Fly to a point and hold there (MAV_CMD_DO_REPOSITION as COMMAND_INT, via MAVSDK's
+        ``goto_location``: lat/lon at 1e-7 degrees, not float32)."""
+        await self._action(
+            "go to", self.action.goto_location_async, lat_deg, lon_deg, alt_amsl_m, yaw_deg
+        )
+
+    async def set_current_item(self, seq: int) -> None:
+        """Make mission item ``seq`` the current one (where AUTO.MISSION starts)."""
+        from mavsdk.plugins.mission_raw import MissionRawResult
+
+        try:
+            result = await mavsdk_call(self.mission_raw.set_current_mission_item_async, int(seq))
+        except TimeoutError:
+            result = "TIMEOUT"
+        if result != MissionRawResult.SUCCESS:
+            raise self._fail(f"set current mission item {seq}", result)
 
     async def request_origin(self, timeout_s: float = 5.0) -> GeodeticPoint:
         """The EKF origin of the vehicle's local frame (GPS_GLOBAL_ORIGIN).

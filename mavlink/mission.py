@@ -862,7 +862,7 @@ class MissionRun:
 
     Attributes:
         vehicle: name.
-        current: ``(seq, t_s)`` each time MISSION_CURRENT changed, seconds from ``t_start``.
+        current: ``(seq, t_s)`` each time MISSION_CURRENT's seq changed, s from ``t_start``.
         reached: ``(seq, t_s)`` the first MISSION_ITEM_REACHED of each seq (re-sends dropped).
         finished: the vehicle reported the mission finished in time.
         duration_s: time from ``t_start`` to the end (or the timeout).
@@ -906,6 +906,7 @@ class MissionFollower:
         self._reached: dict[str, dict[int, float]] = {v.name: {} for v in vehicles}
         self._current: dict[str, list[tuple[int, float]]] = {v.name: [] for v in vehicles}
         self.totals: dict[str, int] = {}
+        self._progress: dict[str, int] = {}
         self._handles: list[tuple[Any, Any]] = []
 
     def attach(self) -> None:
@@ -919,17 +920,31 @@ class MissionFollower:
                 seq = int(json.loads(msg.fields_json)["seq"])
                 self._reached[name].setdefault(seq, time.monotonic() - self.t_start)
 
-            def on_progress(progress: Any, _ud: Any, name: str = v.name) -> None:
-                seq = int(progress.current)
-                self.totals[name] = int(progress.total)
+            def on_current(
+                msg: Any, _ud: Any, name: str = v.name, sysid: int = v.spec.sysid
+            ) -> None:
+                # MISSION_CURRENT itself: MAVSDK's mission progress mixes in reached items
+                if msg.system_id != sysid:
+                    return
+                seq = int(json.loads(msg.fields_json)["seq"])
                 cur = self._current[name]
                 if not cur or cur[-1][0] != seq:
                     cur.append((seq, time.monotonic() - self.t_start))
+
+            def on_progress(progress: Any, _ud: Any, name: str = v.name) -> None:
+                self.totals[name] = int(progress.total)
+                self._progress[name] = int(progress.current)
 
             self._handles.append(
                 (
                     v.direct.unsubscribe_message,
                     v.direct.subscribe_message("MISSION_ITEM_REACHED", on_reached),
+                )
+            )
+            self._handles.append(
+                (
+                    v.direct.unsubscribe_message,
+                    v.direct.subscribe_message("MISSION_CURRENT", on_current),
                 )
             )
             self._handles.append(
@@ -975,7 +990,7 @@ class MissionFollower:
         # the final current == total (seen under load): keep listening a moment for it.
         t_grace = time.monotonic()
         while time.monotonic() - t_grace < _FINISH_GRACE_S and any(
-            (self.current_seq(n) or 0) < self.totals.get(n, 0) for n in done
+            self._progress.get(n, 0) < self.totals.get(n, 0) for n in done
         ):
             await asyncio.sleep(poll_s)
         return done

@@ -90,10 +90,24 @@ class OffboardConfig:
         prestream_s: how long the start setpoint is streamed before the
             switch to offboard (>= 1 s; PX4 needs a live stream; a denied
             switch is retried twice, 0.5 s apart, while the stream goes on).
-        start_tolerance_m: refuse a vehicle farther than this from its planned start.
+        start_tolerance_m: refuse a vehicle farther than this from its planned start
+            (before anything is armed; horizontally on the ground, in 3-D in the air).
+        arrive_m: the arrival gate: the plan starts only when every vehicle (its estimate)
+            is this close to its start in 3-D, slower than ``settle_speed_m_s`` and on the
+            plan's heading (``yaw_tolerance_deg``), for ``dwell_s`` without a break.
+            ``gcs fly`` sets it from the plan's margin.
+        dwell_s: how long the arrival gate must hold.
+        arrive_timeout_s: time allowed for the gate after the switch to offboard.
+        yaw_tolerance_deg: heading error the gate accepts.
         takeoff: take off to the start altitude if a vehicle is on the ground
             (otherwise a vehicle must already hover at its start).
-        takeoff_timeout_s: time allowed to reach the start after takeoff.
+        takeoff_margin_m: a start must be this much more than NAV_MC_ALT_RAD above the
+            vehicle for a take-off: PX4 counts a take-off within NAV_MC_ALT_RAD as reached
+            at once, and below ~1 m the ground-effect creep of its altitude estimate keeps
+            the vehicle on the ground (PX4-BEHAVIOUR.md).
+        takeoff_timeout_s: time allowed to be airborne near the start after takeoff.
+        drag_per_s: the vehicles' drag per unit mass (1/s; one for all or per vehicle name),
+            added to the acceleration feed-forward (:func:`plan_setpoints_ned`); 0: none.
         settle_speed_m_s: a vehicle counts as hovering below this speed.
         mode_timeout_s: time allowed for all vehicles to report OFFBOARD.
         start_delay_s: the shared start time is this long after the switch.
@@ -110,8 +124,14 @@ class OffboardConfig:
     rate_hz: float = 20.0
     prestream_s: float = 1.2
     start_tolerance_m: float = 1.0
+    arrive_m: float = 0.3
+    dwell_s: float = 1.0
+    arrive_timeout_s: float = 20.0
+    yaw_tolerance_deg: float = 10.0
     takeoff: bool = True
+    takeoff_margin_m: float = 0.2
     takeoff_timeout_s: float = 30.0
+    drag_per_s: float | Mapping[str, float] = 0.0
     settle_speed_m_s: float = 0.3
     mode_timeout_s: float = 5.0
     start_delay_s: float = 0.3
@@ -119,6 +139,12 @@ class OffboardConfig:
     end_action: EndAction = EndAction.HOLD
     late_threshold_s: float | None = None
     send_groups: int | None = None
+
+    def drag_of(self, name: str) -> float:
+        """The drag fed forward for vehicle ``name`` (1/s)."""
+        if isinstance(self.drag_per_s, Mapping):
+            return float(self.drag_per_s.get(name, 0.0))
+        return float(self.drag_per_s)
 
     def __post_init__(self) -> None:
         if self.send_groups is not None and not (
@@ -131,6 +157,9 @@ class OffboardConfig:
             raise LinkError(f"prestream_s {self.prestream_s!r} must be >= 1 s (PX4 offboard rule)")
         for name in (
             "start_tolerance_m",
+            "arrive_m",
+            "arrive_timeout_s",
+            "yaw_tolerance_deg",
             "takeoff_timeout_s",
             "mode_timeout_s",
             "settle_speed_m_s",
@@ -138,7 +167,12 @@ class OffboardConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise LinkError(f"{name} must be a finite number > 0, got {value!r}")
-        for name in ("start_delay_s", "hold_after_s"):
+        drags = (
+            self.drag_per_s.values() if isinstance(self.drag_per_s, Mapping) else [self.drag_per_s]
+        )
+        if not all(math.isfinite(c) and c >= 0 for c in drags):
+            raise LinkError(f"drag_per_s must be finite numbers >= 0, got {self.drag_per_s!r}")
+        for name in ("start_delay_s", "hold_after_s", "dwell_s", "takeoff_margin_m"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise LinkError(f"{name} must be a finite number >= 0, got {value!r}")
@@ -151,6 +185,7 @@ def plan_setpoints_ned(
     vehicle_origin: GeodeticPoint,
     *,
     t_offset_s: float = 0.0,
+    drag_per_s: float | Mapping[str, float] = 0.0,
 ) -> NedSetpoints:
     """Sample ``trajectory`` at ``rate_hz`` and express it in the vehicle's local NED frame.
 
@@ -161,6 +196,11 @@ def plan_setpoints_ned(
     Args:
         t_offset_s: sample at ``k / rate_hz + t_offset_s`` (the vehicle's send
             offset within the period, :func:`mavlink.stream.send_offsets`).
+        drag_per_s: the vehicle's linear drag per unit mass ``c`` (1/s). PX4's position
+            controller does not model drag, so without help the vehicle settles
+            ``c / (MPC_XY_P * MPC_XY_VEL_P_ACC)`` seconds behind a moving setpoint
+            (0.585 s on SIH's quad); the acceleration feed-forward then carries the force
+            the drag takes: ``a_ff = a_plan + c * v_plan``.
 
     Returns:
         :class:`NedSetpoints` for ``k = 0 .. ceil(T * rate)`` (the trajectory
@@ -168,11 +208,13 @@ def plan_setpoints_ned(
     """
     n = math.ceil(trajectory.duration_s * rate_hz - 1e-9) + 1  # as Trajectory.sample
     t = np.arange(n) / rate_hz + t_offset_s
+    vel = trajectory.velocity(t)
+    acc = trajectory.acceleration(t) + drag_per_s * vel
     return NedSetpoints(
         t_s=t,
         pos_ned_m=enu_to_ned(trajectory.position(t), mission_origin, vehicle_origin),
-        vel_ned_m_s=enu_vector_to_ned(trajectory.velocity(t), mission_origin, vehicle_origin),
-        acc_ned_m_s2=enu_vector_to_ned(trajectory.acceleration(t), mission_origin, vehicle_origin),
+        vel_ned_m_s=enu_vector_to_ned(vel, mission_origin, vehicle_origin),
+        acc_ned_m_s2=enu_vector_to_ned(acc, mission_origin, vehicle_origin),
         yaw_ned_rad=np.asarray(
             yaw_enu_to_ned(trajectory.yaw_rad(t), mission_origin, vehicle_origin), dtype=float
         ),
@@ -286,28 +328,130 @@ def check_start(
         )
 
 
+async def check_takeoff_height(v: Vehicle, start_alt_amsl_m: float, margin_m: float) -> None:
+    """Refuse a take-off to a start PX4 would not leave the ground for.
+
+    PX4 counts a take-off (and a mission's take-off item: ``MissionBase::checkClimbRequired``)
+    within NAV_MC_ALT_RAD of the vehicle as reached at once, and below about 1 m its altitude
+    estimate creeps up in ground effect while the vehicle sits on the ground
+    (PX4-BEHAVIOUR.md: such starts stayed on the ground, then were auto-disarmed).
+
+    Raises:
+        PreflightError: the start is less than NAV_MC_ALT_RAD + ``margin_m`` above the
+            vehicle (its altitude estimate), naming both figures.
+    """
+    st = await v.wait_for(lambda s: s.position is not None, "global position", timeout_s=5.0)
+    assert st.position is not None
+    alt_rad = await v.param("NAV_MC_ALT_RAD")
+    said = "" if alt_rad is not None else " (PX4's default; the vehicle did not report it)"
+    alt_rad = 0.8 if alt_rad is None else alt_rad
+    above = start_alt_amsl_m - st.position.alt_m
+    if above <= alt_rad + margin_m:
+        raise PreflightError(
+            f"refused: the plan starts {above:.2f} m above the vehicle; PX4 takes off only "
+            f"to a first waypoint more than NAV_MC_ALT_RAD = {alt_rad:g} m{said} above it "
+            f"(this check keeps {margin_m:g} m more): plan a higher start, or take off by "
+            "hand and fly from the air",
+            vehicle=v.name,
+            url=v.url,
+        )
+
+
+def _heading_error_deg(st: VehicleStatus, yaw_deg: float) -> float:
+    if not math.isfinite(yaw_deg):
+        return 0.0
+    if st.heading_deg is None:
+        return math.inf
+    return abs((st.heading_deg - yaw_deg + 180.0) % 360.0 - 180.0)
+
+
+async def wait_settled(
+    v: Vehicle,
+    target_ned_m: np.ndarray,
+    *,
+    arrive_m: float,
+    settle_speed_m_s: float,
+    dwell_s: float,
+    timeout_s: float,
+    yaw_deg: float = math.nan,
+    yaw_tolerance_deg: float = 10.0,
+    poll_s: float = 0.05,
+) -> VehicleStatus:
+    """Wait until ``v`` has settled on ``target_ned_m``: the arrival gate of a start.
+
+    Settled means, over the last ``dwell_s``: the mean of its position estimate within
+    ``arrive_m`` of the target (3-D), the mean velocity below ``settle_speed_m_s``, no
+    sample farther than ``arrive_m`` + 0.3 m, and the heading on ``yaw_deg`` (NED, if
+    finite). Means, because PX4's estimate is noisy (velocity noise of 0.1-0.3 m/s on SIH):
+    a vehicle holding its start still jitters around it.
+
+    Raises:
+        PreflightError: not settled within ``timeout_s`` (names the distance, speed, heading).
+        LinkLostError: the link was lost meanwhile.
+    """
+    t_end = time.monotonic() + timeout_s
+    window: list[tuple[float, np.ndarray, np.ndarray]] = []
+    dist = speed = math.inf
+    yaw_err = 0.0
+    while True:
+        st = v.status()
+        if st.heartbeat_age_s is not None and not st.connected:
+            raise LinkLostError("link lost while waiting at the start", vehicle=v.name, url=v.url)
+        now = time.monotonic()
+        if st.pos_ned_m is not None and st.vel_ned_m_s is not None:
+            window.append((now, np.asarray(st.pos_ned_m, float), np.asarray(st.vel_ned_m_s, float)))
+            while window and window[0][0] < now - dwell_s:
+                window.pop(0)
+            pos = np.array([w[1] for w in window])
+            vel = np.array([w[2] for w in window])
+            dist = float(np.linalg.norm(pos.mean(axis=0) - target_ned_m))
+            speed = float(np.linalg.norm(vel.mean(axis=0)))
+            worst = float(np.linalg.norm(pos - target_ned_m, axis=1).max())
+            yaw_err = _heading_error_deg(st, yaw_deg)
+            spans = now - window[0][0] >= dwell_s * 0.9 or dwell_s == 0.0
+            if (
+                spans
+                and dist <= arrive_m
+                and worst <= arrive_m + 0.3
+                and speed <= settle_speed_m_s
+                and yaw_err <= yaw_tolerance_deg
+            ):
+                return st
+        if now >= t_end:
+            raise PreflightError(
+                f"did not settle at its start in {timeout_s:.0f} s: {dist:.2f} m away on average "
+                f"(gate {arrive_m:.2f} m), {speed:.2f} m/s, heading off by {yaw_err:.0f} deg",
+                vehicle=v.name,
+                url=v.url,
+            )
+        await asyncio.sleep(poll_s)
+
+
 async def _takeoff_to_start(
     v: Vehicle,
     start_ned_m: np.ndarray,
     start_alt_amsl_m: float,
+    yaw_deg: float,
     cfg: OffboardConfig,
     mission_origin: GeodeticPoint,
     vehicle_origin: GeodeticPoint,
 ) -> None:
+    """Arm, take off to the start's altitude on the plan's heading, and wait until airborne
+    (EXTENDED_SYS_STATE in air) near the start altitude and hovering."""
     await v.arm()
-    await v.takeoff_to(start_alt_amsl_m)
+    await v.takeoff_to(start_alt_amsl_m, yaw_deg)
 
-    def arrived(s: VehicleStatus) -> bool:
+    def airborne(s: VehicleStatus) -> bool:
         return (
             s.pos_ned_m is not None
-            and float(np.linalg.norm(np.asarray(s.pos_ned_m) - start_ned_m))
-            <= cfg.start_tolerance_m
+            and bool(s.in_air)
+            and abs(float(s.pos_ned_m[2]) - float(start_ned_m[2])) <= cfg.start_tolerance_m
             and _is_hovering(s, cfg.settle_speed_m_s)
         )
 
     try:
         await v.wait_for(
-            arrived, "reaching the start after takeoff", timeout_s=cfg.takeoff_timeout_s
+            airborne, "airborne near the start after takeoff", timeout_s=cfg.takeoff_timeout_s
         )
     except (PreflightError, LinkLostError):
         raise
@@ -442,6 +586,7 @@ async def _fly(
             mission_origin,
             origins[v.name],
             t_offset_s=float(offsets[i]),
+            drag_per_s=cfg.drag_of(v.name),
         )
         for i, v in enumerate(vehicles)
     }
@@ -483,16 +628,9 @@ async def _fly(
     start_alt: dict[str, float] = {}
     for v in needs_takeoff:
         alt = float(enu_to_geodetic(trajectories[v.name].position(0.0), mission_origin)[2][0])
-        st = await v.wait_for(lambda s: s.home is not None, "HOME_POSITION", timeout_s=5.0)
-        assert st.home is not None
-        if alt - st.home.alt_m < 0.3:
-            raise PreflightError(
-                f"refused: planned start is {alt - st.home.alt_m:.2f} m above home; "
-                "an offboard plan must start in the air (>= 0.3 m)",
-                vehicle=v.name,
-                url=v.url,
-            )
+        await check_takeoff_height(v, alt, cfg.takeoff_margin_m)
         start_alt[v.name] = alt
+    yaw0 = {v.name: math.degrees(float(setpoints[v.name].yaw_ned_rad[0])) for v in vehicles}
 
     # Take off together; every vehicle finishes (or fails) before the first failure is raised.
     results = await asyncio.gather(
@@ -501,6 +639,7 @@ async def _fly(
                 v,
                 setpoints[v.name].pos_ned_m[0],
                 start_alt[v.name],
+                yaw0[v.name],
                 cfg,
                 mission_origin,
                 origins[v.name],
@@ -515,8 +654,11 @@ async def _fly(
             errors[0].add_note(f"also: {other}")
         raise errors[0]
 
-    # Pre-stream the start setpoint, then switch everyone to offboard.
-    n_pre = math.ceil((cfg.prestream_s + cfg.mode_timeout_s + 1.0) * cfg.rate_hz)
+    # Pre-stream the start setpoint, switch everyone to offboard, wait at the starts.
+    n_pre = math.ceil(
+        (cfg.prestream_s + cfg.mode_timeout_s + cfg.arrive_timeout_s + cfg.dwell_s + 2.0)
+        * cfg.rate_hz
+    )
     hover = SetpointStreamer(
         [
             StreamTarget(v.name, offboard_sender(v.offboard), setpoints[v.name].constant(0, n_pre))
@@ -540,6 +682,23 @@ async def _fly(
                     lambda s: s.mode is Px4Mode.OFFBOARD,
                     "mode OFFBOARD",
                     timeout_s=cfg.mode_timeout_s,
+                )
+                for v in vehicles
+            )
+        )
+        # The arrival gate: PX4 holds the streamed start in offboard; the plan starts once
+        # every vehicle is on it (a fraction of the plan's margin), still and on heading.
+        await asyncio.gather(
+            *(
+                wait_settled(
+                    v,
+                    setpoints[v.name].pos_ned_m[0],
+                    arrive_m=cfg.arrive_m,
+                    settle_speed_m_s=cfg.settle_speed_m_s,
+                    dwell_s=cfg.dwell_s,
+                    timeout_s=cfg.arrive_timeout_s,
+                    yaw_deg=yaw0[v.name],
+                    yaw_tolerance_deg=cfg.yaw_tolerance_deg,
                 )
                 for v in vehicles
             )

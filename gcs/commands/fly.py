@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -43,13 +44,39 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--mode", choices=["offboard", "mission"], default="offboard")
     p.add_argument("--log", metavar="DIR", help="write flight.tlog and flight.csv to DIR")
-    p.add_argument("--force", action="store_true", help="fly a plan that fails verification")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="fly a plan that fails verification (or, in mission mode, whose predicted "
+        "mission robustness is below epsilon)",
+    )
     p.add_argument(
         "--tolerance",
         type=float,
         default=1.0,
         metavar="M",
         help="refuse a vehicle farther than M metres from its planned start (1.0)",
+    )
+    p.add_argument(
+        "--arrive",
+        type=float,
+        metavar="M",
+        help="start the plan when every vehicle is within M m of its start, still and on "
+        "heading for 1 s (default: half the plan's margin, 0.1-0.3 m)",
+    )
+    p.add_argument(
+        "--drag",
+        type=float,
+        metavar="C",
+        help="the vehicles' drag per unit mass (1/s), fed forward as c * v (default: "
+        "SIH_KDV / SIH_MASS where the vehicle has them, else 0; the report says what to set)",
+    )
+    p.add_argument(
+        "--acceptance",
+        type=float,
+        metavar="M",
+        help="--mode mission: waypoint acceptance radius (default: from the plan's speeds, "
+        "at most NAV_ACC_RAD)",
     )
     p.add_argument("--end", choices=["hold", "land", "return"], default="hold")
     add_link_arguments(p, plan_order=True, timeout_s=10.0, timeout_help="connection timeout (10 s)")
@@ -74,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
         signed_links,
         vehicle_specs,
     )
+    from gcs.mission_flight import MissionRefused
     from mavlink.errors import PreflightError
     from mavlink.offboard import EndAction
     from planner.planfile import load_plan
@@ -84,6 +112,12 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--tolerance: must be > 0 m, got {args.tolerance:g}")
     if not (args.timeout > 0):
         raise UserError(f"--timeout: must be > 0 s, got {args.timeout:g}")
+    for name in ("arrive", "acceptance"):
+        value = getattr(args, name)
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise UserError(f"--{name}: must be a number > 0 m, got {value:g}")
+    if args.drag is not None and not (math.isfinite(args.drag) and 0 <= args.drag <= 10):
+        raise UserError(f"--drag: must be a number in [0, 10] 1/s, got {args.drag:g}")
     if args.dry_run and args.connection:
         raise UserError("--dry-run and --connection exclude each other")
     plan = load_plan(args.plan)
@@ -100,6 +134,10 @@ def run(args: argparse.Namespace) -> int:
         end=EndAction(args.end),
         log_dir=Path(args.log) if args.log else None,
         connect_timeout_s=args.timeout,
+        drag_per_s=args.drag,
+        arrive_m=args.arrive,
+        acceptance_m=args.acceptance,
+        force=args.force,
     )
     progress = FlightProgress(plan, out)
 
@@ -130,7 +168,7 @@ def run(args: argparse.Namespace) -> int:
                 outcome = fly(list(dry.urls))
         else:
             outcome = fly(args.connection)
-    except PreflightError as exc:
+    except (PreflightError, MissionRefused) as exc:
         print(f"gcs fly: {exc}", file=sys.stderr)
         return 1
     if options.log_dir is not None:

@@ -52,6 +52,8 @@ _IDEAL: dict[str, float] = {
     "MOCK_PX4_NAV": 0,
     "MOCK_MIS_RDY_T": 0.0,
     "SYS_AUTOSTART": 4001,
+    # takes off exactly to any height: take-offs count as reached 0.2 m from the target
+    "NAV_MC_ALT_RAD": 0.2,
 }
 
 #: Profile name -> parameter values over the PX4 defaults.

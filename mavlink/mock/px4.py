@@ -183,6 +183,7 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("NAV_MC_ALT_RAD", ParamType.REAL32, 0.8),
     ParamSpec("RTL_RETURN_ALT", ParamType.REAL32, 60.0),
     ParamSpec("SIH_KDV", ParamType.REAL32, 1.0, 0.0, 2.0),
+    ParamSpec("SIH_MASS", ParamType.REAL32, 1.0, 0.1, 100.0),
     ParamSpec("SYS_AUTOSTART", ParamType.INT32, 10040),
     # --- the mock's own: estimator error magnitudes (mavlink.mock.estimator) ---
     ParamSpec("MOCK_ORG_XY_MIN", ParamType.REAL32, 0.2, 0.0, 5.0),

@@ -482,7 +482,7 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         p.kp_vel[i] = (prm["MPC_XY_VEL_P_ACC"], prm["MPC_XY_VEL_P_ACC"], prm["MPC_Z_VEL_P_ACC"])
         p.ki_vel[i] = (prm["MPC_XY_VEL_I_ACC"], prm["MPC_XY_VEL_I_ACC"], prm["MPC_Z_VEL_I_ACC"])
         p.kd_vel[i] = (prm["MPC_XY_VEL_D_ACC"], prm["MPC_XY_VEL_D_ACC"], prm["MPC_Z_VEL_D_ACC"])
-        p.kdv_per_s[i] = prm["SIH_KDV"]
+        p.kdv_per_s[i] = prm["SIH_KDV"] / prm["SIH_MASS"]  # SIH: force per m/s over mass
         p.yaw_p[i] = prm["MC_YAW_P"]
         p.estimator.configure(i, EstimatorParams.from_params(prm), new_boot=False)
         self._apply_limits()
@@ -768,6 +768,8 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         if not self.landed and self.mode is not Px4Mode.AUTO_TAKEOFF and down is None:
             return ACCEPTED, None
         self.failsafe = False
+        # PX4 v1.17 ignores param4 (yaw) here: navigator_main.cpp sets the take-off's yaw to
+        # NaN ("Navigator doesn't handle the yaw reset"), so the vehicle keeps its heading.
         self.set_mode(Px4Mode.AUTO_TAKEOFF, takeoff_down_m=down)
         return ACCEPTED, None
 
@@ -841,7 +843,9 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         self.set_mode(Px4Mode.AUTO_LOITER)
         self.phys.set_position(i, target)
         if math.isfinite(p[3]):
-            self.phys.sp_yaw_rad[i] = math.radians(p[3])
+            # radians: PX4 copies param4 into the setpoint's yaw unconverted
+            # (navigator_main.cpp), and MAVSDK's goto_location sends radians
+            self.phys.sp_yaw_rad[i] = float(p[3])
         return ACCEPTED, None
 
     def _cmd_change_speed(self, p, frame, is_int):  # type: ignore[no-untyped-def]
@@ -1176,9 +1180,12 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
                     else 0.1 * self.params["MIS_TAKEOFF_ALT"] + 0.05
                 )
                 if abs(d - self._takeoff_d_m) < reached_m:
-                    # PX4 holds at the takeoff altitude once it is (nearly) reached
+                    # PX4 holds at the takeoff altitude once it is (nearly) reached, on
+                    # the take-off's heading
+                    yaw = phys.sp_yaw_rad[i]
                     self.set_mode(Px4Mode.AUTO_LOITER)
                     phys.sp_pos_ned_m[i, 2] = self._takeoff_d_m
+                    phys.sp_yaw_rad[i] = yaw
             elif mode is Px4Mode.AUTO_RTL:
                 self._rtl_tick()
             if self.landed:

@@ -20,7 +20,6 @@ from pymavlink import mavutil
 
 from gcs.cli import main
 from gcs.flight import free_udp_ports, plan_formula
-from mavlink.mission import MissionEnd, trajectory_to_mission
 from mavlink.tlog import read_tracks_csv, tracks_from_tlog
 from planner.planfile import load_plan
 from tests.procutil import interruptible
@@ -37,20 +36,7 @@ def plan_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-@pytest.mark.parametrize(
-    "profile",
-    [
-        "ideal",
-        pytest.param(
-            "px4",
-            marks=pytest.mark.xfail(
-                reason="issue 16: on the px4 mock (as on PX4 SITL) the reach-avoid starts sit "
-                "within the EKF origin's height error of home, the take-off to 0.75 m meets "
-                "the ground-effect creep, and the drag lag eats the 0.22 m margin",
-            ),
-        ),
-    ],
-)
+@pytest.mark.parametrize("profile", ["ideal"])
 def test_plan_verify_export_and_dry_run_flight_satisfy_the_spec(
     plan_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], profile: str
 ) -> None:
@@ -102,6 +88,25 @@ def test_plan_verify_export_and_dry_run_flight_satisfy_the_spec(
         assert err_m.max() < 0.2, f"{v.name} strays {err_m.max():.3f} m from its plan"
     report = (log / "report.md").read_text(encoding="utf-8")
     assert "flown robustness" in report and "d1" in report
+
+
+def test_reach_avoid_starts_too_low_for_px4_to_take_off_are_refused_before_arming(
+    plan_file: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # The reach-avoid plan starts 0.75 m up: PX4 counts a take-off within NAV_MC_ALT_RAD
+    # (0.8 m) as reached on the ground, and its altitude estimate creeps up in ground
+    # effect; PX4 SITL's vehicles stayed on the ground. Refused, one line, nothing armed.
+    # (The check is PX4's own, on the vehicle's altitude estimate: here an EKF origin within
+    # 0.2 m of the ground, so that no vehicle believes itself lower than 0.2 m.)
+    origin = ["--mock-param", "MOCK_ORG_Z_MIN=0.0", "--mock-param", "MOCK_ORG_Z_MAX=0.2"]
+    for mode in ("offboard", "mission"):
+        capsys.readouterr()
+        rc = main(["fly", str(plan_file), "--dry-run", "--mode", mode, "--force", *origin])
+        _out, err = capsys.readouterr()
+        assert rc == 1, err
+        line = err.strip().splitlines()[-1]
+        assert line.startswith("gcs fly: vehicle d") and "PX4 takes off only" in line, err
+        assert "NAV_MC_ALT_RAD = 0.8 m" in line and "Traceback" not in err
 
 
 def _edited(plan_file: Path, tmp_path: Path) -> Path:
@@ -203,29 +208,52 @@ def test_ctrl_c_commands_every_vehicle_to_hold_and_exits_cleanly(plan_file: Path
     assert "modes now: d1 AUTO.LOITER, d2 AUTO.LOITER" in rest
 
 
-# On the px4 vehicle this flight fails until issue 16 (gcs fly --mode mission waits for a
-# MISSION_ITEM_REACHED per waypoint, PX4 reports only the last item processed; the take-off
-# to 0.75 m meets the ground-effect creep) and then runs into its own 60 s timeouts: the
-# expected failure is tests/mavlink/test_link_mission.py's strict one, which fails fast.
-@pytest.mark.parametrize("profile", ["ideal"])
-def test_mission_mode_flies_the_uploaded_missions_over_the_whole_horizon(
-    plan_file: Path, capsys: pytest.CaptureFixture[str], profile: str
+LINK_PLAN = REPO / "tests" / "mavlink" / "data" / "reach_avoid_2.plan.json"
+
+
+def test_mission_mode_on_px4_is_predicted_refused_and_with_force_flown_as_predicted(
+    capsys: pytest.CaptureFixture[str],
 ) -> None:
-    rc = main(
-        ["fly", str(plan_file), "--dry-run", "--profile", profile, "--mode", "mission", "--json"]
-    )
+    # A 6 s reach-avoid plan (starts 1.5 m up) as PX4 missions: PX4's acceleration limits and
+    # stops make the missions late, so the predicted robustness is below epsilon: refused.
+    rc = main(["fly", str(LINK_PLAN), "--dry-run", "--mode", "mission"])
+    out, err = capsys.readouterr()
+    assert rc == 1 and "refused: PX4 is predicted to fly these missions with robustness" in err
+    assert "Traceback" not in err and "mission" not in out.split("refused")[0].lower()
+    # --force flies it: one shared start, tracks judged on that clock, against the prediction.
+    rc = main(["fly", str(LINK_PLAN), "--dry-run", "--mode", "mission", "--force", "--json"])
     out, err = capsys.readouterr()
     res = json.loads(out)
     assert res["mode"] == "mission" and res["completed"], err
-    plan = load_plan(plan_file)
+    pred = res["mission_prediction"]
+    assert pred["acceptance_auto"] and pred["acceptance_m"] >= 0.6
+    assert res["flown_robustness"] is not None and res["coverage_problem"] is None
+    # the prediction is what PX4 (here the px4 mock) flies: within 0.3 m of robustness
+    assert abs(res["flown_robustness"] - pred["predicted_robustness"]) < 0.3, res
+    assert rc == (0 if res["flown_robustness"] >= 0 else 1)
+    plan = load_plan(LINK_PLAN)
     for pv in plan.vehicles:
         m = res["missions"][pv.name]
-        mission = trajectory_to_mission(pv.trajectory, plan.origin, end=MissionEnd.HOLD)
-        # the take-off and every waypoint (start, then one per moving segment) reached
-        assert m["finished"] and m["reached"] == 1 + len(mission.waypoints_enu_m)
-    # Plan time 0 is the arrival at the start waypoint; the recording covers the horizon,
-    # so the flown data is judged. (Straight legs at constant speed, waypoints accepted within
-    # PX4's vertical radius: a looser track than offboard, so no sign is asserted here.)
+        assert m["finished"] and 0 <= m["late_s"] < 10.0  # PX4 is late, never early
+        assert abs(m["late_s"] - pred["predicted_late_s"][pv.name]) < 1.5
+        assert abs(m["start_skew_s"]) < 0.5  # one shared release
+    assert all(t["samples"] > 100 for t in res["tracking"])
+
+
+def test_mission_mode_flies_the_uploaded_missions_over_the_whole_horizon(
+    plan_file: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # The exact vehicle, whose 0.75 m starts fly (the prediction is PX4's, which would be
+    # late on this 6 s plan: --force).
+    argv = ["fly", str(plan_file), "--dry-run", "--profile", "ideal", "--mode", "mission"]
+    rc = main([*argv, "--force", "--json"])
+    out, err = capsys.readouterr()
+    res = json.loads(out)
+    assert res["mode"] == "mission" and res["completed"], err
+    for m in res["missions"].values():
+        assert m["finished"] and abs(m["start_skew_s"]) < 0.5
+    # Plan time 0 is the shared release at the start waypoints; the recording covers the
+    # horizon, so the flown data is judged.
     assert res["flown_robustness"] is not None and res["coverage_problem"] is None
     assert len(res["tracking"]) == 2 and all(t["samples"] > 100 for t in res["tracking"])
     assert rc == (0 if res["flown_robustness"] >= 0 else 1)

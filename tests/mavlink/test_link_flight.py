@@ -196,7 +196,9 @@ def test_lost_link_mid_flight_is_reported_and_the_hold_reaches_the_other_vehicle
     async def run():
         async with mock_and_fleet(names, plan.origin, spawns, link_timeout_s=1.5) as (mock, fleet):
             cutter = asyncio.create_task(cut_link_of_d2(mock, fleet))
-            result = await fly_offboard(fleet, trajs, plan.origin, OffboardConfig(rate_hz=20.0))
+            # no dwell at the start: the cut falls at a known plan time
+            cfg = OffboardConfig(rate_hz=20.0, dwell_s=0.0, arrive_m=1.0, yaw_tolerance_deg=180.0)
+            result = await fly_offboard(fleet, trajs, plan.origin, cfg)
             t_cut = await cutter
             await asyncio.sleep(0.3)
             return result, t_cut, [v.state for v in mock.vehicles]

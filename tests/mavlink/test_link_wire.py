@@ -108,6 +108,13 @@ def test_setpoints_in_the_vehicles_own_ned_frame_match_pymap3d() -> None:
     # ENU yaw 0.7 rad (from east, counter-clockwise) is NED heading pi/2 - 0.7 (from north,
     # clockwise); the tangent planes 70 m apart differ by ~1e-5 rad.
     np.testing.assert_allclose(sp.yaw_ned_rad, np.pi / 2 - 0.7, atol=1e-4)
+    # The drag feed-forward: acceleration + c * velocity, same frame; nothing else changes.
+    dragged = plan_setpoints_ned(traj, 10.0, MISSION_ORIGIN, VEHICLE_ORIGIN, drag_per_s=0.8)
+    np.testing.assert_allclose(
+        dragged.acc_ned_m_s2, sp.acc_ned_m_s2 + 0.8 * sp.vel_ned_m_s, atol=1e-9
+    )
+    np.testing.assert_array_equal(dragged.pos_ned_m, sp.pos_ned_m)
+    np.testing.assert_array_equal(dragged.vel_ned_m_s, sp.vel_ned_m_s)
 
 
 def _lla(g: GeodeticPoint) -> tuple[float, float, float]:

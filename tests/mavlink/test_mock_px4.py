@@ -165,6 +165,30 @@ def test_steady_lag_emerges_as_drag_over_the_cascade_gains(
     assert np.mean(lags[-300:]) == pytest.approx(closed_form, rel=0.02)
 
 
+@pytest.mark.parametrize("kdv", [0.5, 1.0, 1.5])
+def test_drag_fed_forward_as_acceleration_takes_the_steady_lag_out(kdv: float) -> None:
+    # The ground station's remedy (mavlink.offboard.plan_setpoints_ned, drag_per_s): the
+    # acceleration feed-forward carries the drag force, a_ff = c * v, so PX4's cascade
+    # needs no position error to hold the speed. Integrator off, as above.
+    speed = 3.0
+    for c_ff, lag_max in ((0.0, None), (kdv, 0.02)):
+        f = fleet(**QUIET, **NO_CREEP, SIH_KDV=kdv, MPC_XY_VEL_I_ACC=0.0)
+        v = f.vehicles[0]
+        offboard_hover(f, v)
+        y0 = f.physics.pos_ned_m[0, 1]
+        lags = []
+        for k in range(1200):
+            y = y0 + speed * k * 0.01
+            stream(v, (0.0, y, -3.0), (0.0, speed, 0.0), (0.0, c_ff * speed, 0.0))
+            f.advance(0.01)
+            lags.append((y + speed * 0.01 - f.physics.pos_ned_m[0, 1]) / speed)
+        steady = float(np.mean(lags[-300:]))
+        if lag_max is None:
+            assert steady == pytest.approx(kdv / (0.95 * 1.8), rel=0.02)
+        else:
+            assert abs(steady) < lag_max, steady
+
+
 def test_velocity_integrator_and_no_drag_remove_the_lag() -> None:
     def lag_after(seconds: float, **params: float) -> float:
         f = fleet(**QUIET, **NO_CREEP, **params)
@@ -548,3 +572,28 @@ def test_geofence_is_predictive_and_fires_before_a_goal_near_the_wall() -> None:
     assert "Geofence: approaching or outside geofence" in texts and "Failsafe activated" in texts
     mode, texts, _ = approach(GF_PREDICT=0)  # only an actual breach counts
     assert mode is Px4Mode.OFFBOARD and not any("eofence" in t for t in texts)
+
+
+def test_takeoff_ignores_its_yaw_and_reposition_takes_its_yaw_in_radians() -> None:
+    # PX4 v1.17 navigator_main.cpp: the take-off's yaw is set to NaN ("Navigator doesn't
+    # handle the yaw reset"); DO_REPOSITION copies param4 into the setpoint's yaw unconverted
+    # (radians; MAVSDK's goto_location sends radians).
+    f = fleet(seed=2, **QUIET)
+    v = f.vehicles[0]
+    v.arm()
+    alt = v._home_alt_amsl() + 3.0
+    cmd(v, mavlink2.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 90.0, math.nan, math.nan, alt)
+    f.advance(12.0)
+    assert v.mode is Px4Mode.AUTO_LOITER
+    assert abs(math.degrees(f.physics.yaw_rad[0])) < 6.0  # still facing north, as booted
+    lat, lon, alt = v.ned_to_global(np.array([2.0, 1.0, -3.0]))
+    v.receive(
+        mavlink2.MAVLink_command_int_message(
+            v.sysid, 1, mavlink2.MAV_FRAME_GLOBAL_INT, mavlink2.MAV_CMD_DO_REPOSITION, 0, 0,
+            -1.0, 1.0, 0.0, math.pi / 2, round(lat * 1e7), round(lon * 1e7), alt,
+        )
+    )  # fmt: skip
+    f.advance(6.0)
+    assert acks(v, mavlink2.MAV_CMD_DO_REPOSITION) == [mavlink2.MAV_RESULT_ACCEPTED]
+    assert abs(math.degrees(f.physics.yaw_rad[0]) - 90.0) < 3.0
+    assert math.dist(v.state.est_pos_ned_m, (2.0, 1.0, -3.0)) < 0.2

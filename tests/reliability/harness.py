@@ -245,7 +245,10 @@ async def flight_run(
         watcher = asyncio.create_task(watch(mock, stop))
         t_start = time.perf_counter()
         try:
-            result = await fly_offboard(fleet, trajs, plan.origin, OffboardConfig(rate_hz=20.0))
+            # the link is under test: the plan starts as soon as OFFBOARD is confirmed (no dwell
+            # at the start), so the outage falls at a known plan time
+            cfg = OffboardConfig(rate_hz=20.0, dwell_s=0.0, arrive_m=1.0, yaw_tolerance_deg=180.0)
+            result = await fly_offboard(fleet, trajs, plan.origin, cfg)
         finally:
             stop.set()
             await watcher
