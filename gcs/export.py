@@ -2,13 +2,15 @@
 
 QGroundControl plan (one file per vehicle)
 ------------------------------------------
-The mission items are exactly those ``gcs upload`` sends: :func:`mavlink.mission.trajectory_to_mission`
-converts the vehicle's trajectory (takeoff, waypoints with hold times, a speed change per leg,
-land/return/hold), and this module only writes each item in QGC's JSON form, so QGC (and
+The mission items are those ``gcs upload`` sends to a vehicle with PX4's default parameters:
+:func:`gcs.missions.convert_plan` converts the vehicles' trajectories (takeoff, waypoints with
+hold times, a speed change per leg, land/return/hold; the acceptance radius chosen and the legs
+timed against PX4's predicted flight, as ``gcs upload`` does with the vehicles' own
+parameters), and this module only writes each item in QGC's JSON form, so QGC (and
 MAVSDK's importer, ``mission_raw.import_qgroundcontrol_mission``) read back the same
 ``MISSION_ITEM_INT`` fields. The geofence polygons are the link's fence items
-(:func:`mavlink.mission.geofence_items`) of the link's
-:func:`mavlink.mission.fence_boxes` of the plan's regions. Layout (QGC plan format,
+of ``gcs upload --fence`` (:func:`gcs.missions.fence_plan`: the workspace moved out by
+PX4's braking distance, full-height stay-out regions exact). Layout (QGC plan format,
 ``fileType`` "Plan" version 1)::
 
     {"fileType": "Plan", "version": 1, "groundStation": "stl-gcs",
@@ -37,9 +39,9 @@ Choices and why:
   ``z = 0``, the origin's AMSL altitude), where the vehicle is armed.
 * ``hoverSpeed`` / ``cruiseSpeed`` (QGC's defaults for time estimates) are the mean commanded
   leg speed; the legs themselves carry their own ``DO_CHANGE_SPEED``.
-* The fence is what ``gcs upload --fence`` sends: the link's choice of boxes
-  (:func:`mavlink.mission.fence_boxes`: the workspace's footprint as inclusion, obstacles' and
-  no-fly zones' footprints as exclusions), one 4-vertex polygon each.
+* The fence is what ``gcs upload --fence`` sends (:func:`gcs.missions.fence_plan`): the
+  workspace's footprint moved out by PX4's braking distance as inclusion, the full-height
+  obstacles' and no-fly zones' footprints as exclusions, one 4-vertex polygon each.
 
 Setpoints (CSV and JSON)
 ------------------------
@@ -76,7 +78,7 @@ import numpy as np
 from gcs.errors import InputFileError, UserError
 
 if TYPE_CHECKING:
-    from mavlink.mission import MissionEnd, MissionItem
+    from mavlink.mission import MissionEnd, MissionItem, MissionPlan
     from planner.planfile import Plan, PlannedVehicle
 
 __all__ = [
@@ -123,6 +125,7 @@ class ExportFormat(enum.Enum):
     QGC = "qgc"
     CSV = "csv"
     JSON = "json"
+    HOMES = "homes"
 
     @classmethod
     def parse(cls, text: str | None) -> ExportFormat:
@@ -141,12 +144,13 @@ class QgcOptions:
     """Mission conversion options (the same defaults as ``gcs upload``).
 
     Attributes:
-        acceptance_radius_m: NAV_WAYPOINT acceptance radius (param2), > 0.
+        acceptance_radius_m: NAV_WAYPOINT acceptance radius (param2), > 0; ``None``: chosen
+            (:func:`gcs.missions.auto_acceptance_m`).
         end: what the mission ends with (land, return, hold).
         fence: write the geofence polygons.
     """
 
-    acceptance_radius_m: float = 0.3
+    acceptance_radius_m: float | None = None
     end: MissionEnd | None = None
     fence: bool = True
 
@@ -214,24 +218,38 @@ def _fence_polygons(items: Sequence[MissionItem]) -> list[dict[str, Any]]:
     return polygons
 
 
-def qgc_plan(plan: Plan, vehicle: PlannedVehicle, options: QgcOptions | None = None) -> dict:
-    """The QGroundControl plan (a JSON-ready dict) of one vehicle of ``plan``."""
-    from mavlink.mission import fence_boxes, geofence_items, trajectory_to_mission
+def qgc_missions(plan: Plan, options: QgcOptions | None = None) -> dict[str, MissionPlan]:
+    """Every vehicle's mission as ``gcs upload`` converts it for PX4's default parameters."""
+    from gcs.missions import convert_plan
+    from mavlink.mission import MissionEnd
+
+    opts = options if options is not None else QgcOptions()
+    conv = convert_plan(
+        plan, end=opts.end or MissionEnd.LAND, acceptance_m=opts.acceptance_radius_m
+    )
+    return conv.missions
+
+
+def qgc_plan(
+    plan: Plan,
+    vehicle: PlannedVehicle,
+    options: QgcOptions | None = None,
+    missions: dict[str, MissionPlan] | None = None,
+) -> dict:
+    """The QGroundControl plan (a JSON-ready dict) of one vehicle of ``plan`` (``missions``:
+    :func:`qgc_missions`, computed here when not given)."""
+    from gcs.missions import fence_plan
     from planner.frames import enu_to_geodetic
 
     opts = options if options is not None else QgcOptions()
-    kwargs: dict[str, Any] = {"acceptance_radius_m": opts.acceptance_radius_m}
-    if opts.end is not None:
-        kwargs["end"] = opts.end
-    mission = trajectory_to_mission(vehicle.trajectory, plan.origin, name=vehicle.name, **kwargs)
+    mission = (missions if missions is not None else qgc_missions(plan, opts))[vehicle.name]
     x0, y0, _ = vehicle.trajectory.position(np.array([0.0]))[0]
     home_lat, home_lon, home_alt = enu_to_geodetic(np.array([x0, y0, 0.0]), plan.origin)
     legs = np.asarray(mission.leg_speed_m_s, dtype=float)
     speed = float(legs.mean()) if legs.size else float(min(vehicle.v_max_m_s[:2]))
     fence = []
     if opts.fence:
-        boxes = fence_boxes(plan.workspace, plan.regions)
-        fence = _fence_polygons(geofence_items(boxes, plan.origin))
+        fence = _fence_polygons(fence_plan(plan).items)  # as gcs upload --fence sends it
     return {
         "fileType": QGC_FILE_TYPE,
         "version": QGC_PLAN_VERSION,
@@ -274,11 +292,38 @@ def write_qgc_plans(
     except OSError as exc:
         raise InputFileError(f"{d}: cannot create directory: {exc.strerror or exc}") from None
     paths = []
+    missions = qgc_missions(plan, options)
     for v in plan.vehicles:
         p = d / f"{stem}-{_safe_name(v.name)}.plan"
-        _write_text(p, json.dumps(qgc_plan(plan, v, options), indent=2, allow_nan=False) + "\n")
+        text = json.dumps(qgc_plan(plan, v, options, missions), indent=2, allow_nan=False)
+        _write_text(p, text + "\n")
         paths.append(p)
     return paths
+
+
+def homes_text(plan: Plan) -> str:
+    """Where each vehicle must stand for the plan: the ground point below its start (mission
+    ``z = 0``), as PX4's home variables, one line per vehicle (SITL instance ``i`` = line
+    ``i``): ``NAME PX4_HOME_LAT=.. PX4_HOME_LON=.. PX4_HOME_ALT=..`` (degrees, m AMSL).
+
+    PX4 v1.17's SIH takes them at start-up (``PX4_HOME_*`` become SIH_LOC_LAT0 / LON0 / H0,
+    float32 parameters: about 0.4 m of quantisation at mid latitudes).
+    """
+    from planner.frames import enu_to_geodetic
+
+    lines = [
+        "# vehicle, then the environment of PX4 SITL instance i (line i): the ground below "
+        "its planned start"
+    ]
+    for v in plan.vehicles:
+        x, y, _ = (float(c) for c in v.start_enu_m)
+        lat, lon, alt = (
+            float(np.ravel(c)[0]) for c in enu_to_geodetic(np.array([x, y, 0.0]), plan.origin)
+        )
+        lines.append(
+            f"{v.name} PX4_HOME_LAT={lat:.8f} PX4_HOME_LON={lon:.8f} PX4_HOME_ALT={alt:.3f}"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def _check_rate(rate_hz: float) -> float:
@@ -365,6 +410,12 @@ def write_export(
     stem = src.stem
     if fmt is ExportFormat.QGC:
         return write_qgc_plans(plan, output if output is not None else src.parent, stem, qgc)
+    if fmt is ExportFormat.HOMES:
+        target = Path(output) if output is not None else src.with_name(stem + ".homes")
+        if target.is_dir():
+            raise InputFileError(f"{target}: -o for --format homes must be a file")
+        _write_text(target, homes_text(plan))
+        return [target]
     _check_rate(rate_hz)
     suffix = ".setpoints.csv" if fmt is ExportFormat.CSV else ".setpoints.json"
     target = Path(output) if output is not None else src.with_name(stem + suffix)

@@ -654,6 +654,11 @@ class FlightOutcome:
         mission: mission mode's conversion, prediction, clock skews and lateness.
         tuning: each vehicle's tracking model (drag fed forward, gains, estimator accuracy).
         warnings: margin warnings shown before the flight.
+        accuracy_m: per vehicle the worst (horizontal, vertical) position accuracy its
+            estimator reported during the flight (ESTIMATOR_STATUS, 1-sigma).
+        flown_lower_bound: flown robustness minus twice the worst 3-D accuracy: what the
+            spec is worth at least if every estimate was within its reported accuracy of
+            the truth (flown robustness is computed on the estimates).
     """
 
     mode: FlightMode
@@ -674,6 +679,8 @@ class FlightOutcome:
     mission: MissionFlight | None = None
     tuning: dict[str, VehicleTuning] = field(default_factory=dict)
     warnings: tuple[str, ...] = ()
+    accuracy_m: dict[str, tuple[float, float]] = field(default_factory=dict)
+    flown_lower_bound: float | None = None
 
 
 def _make_log_dir(log_dir: Path | None) -> None:
@@ -868,6 +875,7 @@ async def fly_plan(
             await _cancel_since(before)
             end_failures = await _hold_everyone(fleet)
         finally:
+            accuracy = {v.name: v.track_accuracy_m for v in fleet}
             rows = {v.name: v.stop_track() for v in fleet}
             stop_view.set()
             if view is not None:
@@ -899,6 +907,13 @@ async def fly_plan(
     if opts.log_dir is not None:
         files["csv"] = write_tracks_csv(opts.log_dir / "flight.csv", tracks)
     evaluation = evaluate_flight(plan, tracks) if tracks else None
+    lower = None
+    if evaluation is not None and evaluation.flown_robustness is not None:
+        errs = [math.hypot(*a) for a in accuracy.values() if a is not None]
+        if len(errs) == len(accuracy):
+            # every predicate moves by at most its vehicles' position error (a distance
+            # between two vehicles by both): flown - 2 * worst 3-D accuracy
+            lower = evaluation.flown_robustness - 2.0 * max(errs)
     offset = time.time() - time.monotonic()
     t0_unix = min(t0.values()) + offset if t0 else None
     missions = dict(mission.runs) if mission is not None else {}
@@ -931,6 +946,8 @@ async def fly_plan(
         mission=mission,
         tuning=tuning,
         warnings=tuple(warnings),
+        accuracy_m={k: v for k, v in accuracy.items() if v is not None},
+        flown_lower_bound=lower,
     )
 
 
@@ -961,6 +978,13 @@ def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
             f"robustness (exact, dt {ev.dt_s:g} s): planned {ev.planned_robustness:+.4f}, "
             f"flown {flown}" + (f" ({ev.coverage_problem})" if ev.coverage_problem else "")
         )
+        if outcome.flown_lower_bound is not None:
+            acc = max(outcome.accuracy_m.values(), key=lambda a: math.hypot(*a))
+            lines.append(
+                f"  flown robustness is on the vehicles' estimates; at least "
+                f"{outcome.flown_lower_bound:+.4f} if each was within the accuracy its "
+                f"estimator reported (worst {acc[0]:.2f} m horizontal, {acc[1]:.2f} m vertical)"
+            )
         w = ev.weakest_flown
         if w is not None:
             lines.append(
@@ -1118,6 +1142,8 @@ def outcome_json(plan: Plan, outcome: FlightOutcome) -> dict[str, Any]:
             for name, t in outcome.tuning.items()
         },
         "warnings": list(outcome.warnings),
+        "flown_lower_bound": num(outcome.flown_lower_bound),
+        "estimator_accuracy_m": {k: list(v) for k, v in outcome.accuracy_m.items()},
         "tlog_messages": None if outcome.tlog is None else outcome.tlog.messages,
         "files": {k: str(p) for k, p in outcome.files.items()},
     }

@@ -80,7 +80,10 @@ def report_markdown(
         "| | |",
         "|---|---|",
         f"| planned robustness | {_num(ev.planned_robustness if ev else None)} |",
-        f"| flown robustness | {_num(ev.flown_robustness if ev else None)} |",
+        f"| flown robustness (on the vehicles' estimates) | "
+        f"{_num(ev.flown_robustness if ev else None)} |",
+        f"| flown robustness, at least, within the estimators' reported accuracy | "
+        f"{_num(outcome.flown_lower_bound)} |",
         f"| planner status | {_cell(plan.status)} |",
         f"| planning time | {plan.solve_time_s:.2f} s |",
         f"| connection | {outcome.connect_s:.2f} s |",
@@ -170,6 +173,36 @@ def report_markdown(
             lines.append(
                 f"| {name} | {'yes' if r.finished else 'no'} | {r.duration_s:.1f} | {len(r.reached)} |"
             )
+        lines.append("")
+        m = outcome.mission
+        if m is not None:
+            c = m.conversion
+            lines += [
+                f"Acceptance radius {c.acceptance_m:.2f} m; robustness predicted "
+                f"{c.predicted_robustness:+.4f} (straight legs on time "
+                f"{c.straight_leg_robustness:+.4f}).",
+                "",
+                "| vehicle | s after the plan | predicted | start skew ms |",
+                "|---|---:|---:|---:|",
+            ]
+            for name in outcome.missions:
+                lines.append(
+                    f"| {name} | {_num(m.late_s.get(name), '+.1f')} | "
+                    f"{_num(c.late_s.get(name), '+.1f')} | "
+                    f"{_num(m.start_skew_s.get(name, 0.0) * 1e3, '+.0f')} |"
+                )
+            lines.append("")
+    if outcome.tuning:
+        lines += [
+            "## Drag and estimator",
+            "",
+            "| vehicle | drag 1/s | from | estimator accuracy m (h / v) |",
+            "|---|---:|---|---|",
+        ]
+        for name, t in outcome.tuning.items():
+            acc = outcome.accuracy_m.get(name)
+            accs = f"{acc[0]:.2f} / {acc[1]:.2f}" if acc is not None else "n/a"
+            lines.append(f"| {name} | {t.drag_per_s:.2f} | {t.drag_source} | {accs} |")
         lines.append("")
     listed = dict(files or {})
     for kind, p in outcome.files.items():

@@ -128,3 +128,32 @@ def margin_warnings(plan: Plan, expected_m: Mapping[str, float]) -> list[str]:
                 "flight can violate the spec while flying the plan correctly"
             )
     return out
+
+
+#: NAV_MC_ALT_RAD (PX4 default) plus the margin the ground station keeps for a take-off.
+TAKEOFF_MIN_M = 0.8 + 0.2
+
+
+def px4_notes(plan: Plan) -> list[str]:
+    """What to expect of ``plan`` on PX4 before any vehicle is known (``gcs plan``): the
+    margin against PX4-on-SIH's position errors with the drag fed forward, and starts too
+    low for PX4's take-off from the mission frame's ground (z = 0)."""
+    speed = peak_speed_m_s(plan)
+    notes = []
+    worst = max(speed, key=lambda n: speed[n])
+    err = DEFAULT_ACCURACY_M + LAG_NOISE_S * speed[worst]
+    if err > plan.robustness:
+        notes.append(
+            f"note: on PX4 expect position errors of about {err:.2f} m (estimator ~"
+            f"{DEFAULT_ACCURACY_M:g} m, residual lag at {speed[worst]:.1f} m/s), more than the "
+            f"plan's margin {plan.robustness:+.3f} m: a flight can violate the spec while "
+            "tracking the plan"
+        )
+    low = [pv.name for pv in plan.vehicles if float(pv.start_enu_m[2]) <= TAKEOFF_MIN_M]
+    if low:
+        notes.append(
+            f"note: {', '.join(low)} start at or below {TAKEOFF_MIN_M:g} m above z = 0: PX4 "
+            "takes off only to more than NAV_MC_ALT_RAD (0.8 m) above the vehicle, so from the "
+            "ground there gcs fly / upload --start refuse them (start in the air, or higher)"
+        )
+    return notes

@@ -271,6 +271,7 @@ class Vehicle:
         self._track: list[tuple[float, ...]] | None = None
         self._texts: list[tuple[float, int, str]] = []
         self._pos_accuracy: tuple[float, float] | None = None
+        self._track_accuracy: tuple[float, float] | None = None
         self._params: dict[str, float] = {}
         self._param_waiters: dict[str, list[asyncio.Future[float]]] = {}
         self._handles: list[tuple[Callable[[Any], None], Any]] = []
@@ -453,6 +454,44 @@ class Vehicle:
                 continue
         return None
 
+    async def set_param_int(self, name: str, value: int, *, timeout_s: float = 1.0) -> None:
+        """Set an INT32 parameter (PARAM_SET, the integer bit-cast into the float field as
+        PX4 expects) and require the vehicle's PARAM_VALUE echo to carry it.
+
+        Raises:
+            CommandError: no echo, or the vehicle kept another value.
+        """
+        raw = float(np.frombuffer(np.int32(value).tobytes(), dtype=np.float32)[0])
+        loop = asyncio.get_running_loop()
+        for _ in range(3):
+            fut: asyncio.Future[float] = loop.create_future()
+            with self._lock:
+                self._params.pop(name, None)
+                self._param_waiters.setdefault(name, []).append(fut)
+            fields = {
+                "target_system": self.spec.sysid,
+                "target_component": 1,
+                "param_id": name,
+                "param_value": raw,
+                "param_type": 6,  # MAV_PARAM_TYPE_INT32
+            }
+            self.direct.send_message(
+                MavlinkMessage(
+                    message_name="PARAM_SET",
+                    target_system_id=self.spec.sysid,
+                    target_component_id=1,
+                    fields_json=json.dumps(fields),
+                )
+            )
+            try:
+                got = await asyncio.wait_for(fut, timeout_s)
+            except TimeoutError:
+                continue
+            if int(got) != int(value):
+                raise self._fail(f"set {name} = {value}", f"the vehicle kept {int(got)}")
+            return
+        raise self._fail(f"set {name} = {value}", "TIMEOUT")
+
     def status(self, now: float | None = None) -> VehicleStatus:
         """A consistent snapshot of the vehicle's state."""
         now = time.monotonic() if now is None else now
@@ -484,9 +523,18 @@ class Vehicle:
     # -- recording of the flown track ----------------------------------
 
     def start_track(self) -> None:
-        """Start recording every LOCAL_POSITION_NED sample (receive time, pos, vel)."""
+        """Start recording every LOCAL_POSITION_NED sample (receive time, pos, vel), and the
+        worst estimator accuracy reported meanwhile (:attr:`track_accuracy_m`)."""
         with self._lock:
             self._track = []
+            self._track_accuracy = self._pos_accuracy
+
+    @property
+    def track_accuracy_m(self) -> tuple[float, float] | None:
+        """The worst (horizontal, vertical) position accuracy ESTIMATOR_STATUS reported while
+        the track was recorded (1-sigma, m); ``None`` if none was reported."""
+        with self._lock:
+            return self._track_accuracy
 
     def stop_track(self) -> np.ndarray:
         """Stop recording; ``(k, 7)`` rows ``(t_monotonic_s, n, e, d, vn, ve, vd)``."""

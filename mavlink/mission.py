@@ -507,10 +507,19 @@ class FenceBox:
     inclusion: bool
 
 
+def braking_distance_m(speed_m_s: float, acc_hor_m_s2: float = 3.0) -> float:
+    """The braking distance PX4's predictive geofence looks ahead at ``speed_m_s``:
+    ``v * (v / (2 MPC_ACC_HOR) + 0.6)`` (as :mod:`mavlink.mock.navigator` models it)."""
+    v = max(0.0, float(speed_m_s))
+    return v * (v / (2.0 * acc_hor_m_s2) + 0.6)
+
+
 def fence_boxes(
     workspace: Any,
     regions: Sequence[Any],
     exclude_kinds: Sequence[str] = ("obstacle", "no_fly", "pole"),
+    *,
+    inflate_m: float = 0.0,
 ) -> tuple[FenceBox, ...]:
     """Fence boxes of a scenario: the workspace to stay in, full-height stay-out boxes to avoid.
 
@@ -525,13 +534,15 @@ def fence_boxes(
         workspace: a :class:`planner.scenario.Region` (``name``, ``lo_enu_m``, ``hi_enu_m``).
         regions: the scenario's other regions; those whose ``kind.value`` is in
             ``exclude_kinds`` and that span the workspace's height become exclusion polygons.
+        inflate_m: widen the workspace's polygon by this much on every side: PX4's fence is
+            predictive (it fires when the braking distance would cross it), so a fence on
+            the workspace's edge stops a plan that flies towards the edge at speed
+            (:func:`braking_distance_m`). Exclusions are never shrunk (they stay exact).
     """
     ws_lo_z, ws_hi_z = float(workspace.lo_enu_m[2]), float(workspace.hi_enu_m[2])
-    out = [
-        FenceBox(
-            workspace.name, tuple(workspace.lo_enu_m), tuple(workspace.hi_enu_m), inclusion=True
-        )
-    ]
+    lo = tuple(float(c) - (inflate_m if a < 2 else 0.0) for a, c in enumerate(workspace.lo_enu_m))
+    hi = tuple(float(c) + (inflate_m if a < 2 else 0.0) for a, c in enumerate(workspace.hi_enu_m))
+    out = [FenceBox(workspace.name, lo, hi, inclusion=True)]
     for r in regions:
         full_height = r.lo_enu_m[2] <= ws_lo_z and r.hi_enu_m[2] >= ws_hi_z
         if r.kind.value in exclude_kinds and full_height:

@@ -3,7 +3,9 @@
 * ``qgc``: one QGroundControl ``.plan`` per vehicle (the mission items ``gcs upload`` sends,
   and the geofence), written to a directory (default: beside the plan file);
 * ``csv``: setpoints ``t,vehicle,x,y,z,vx,vy,vz,ax,ay,az,yaw`` (mission ENU, SI units);
-* ``json``: the same setpoints as JSON.
+* ``json``: the same setpoints as JSON;
+* ``homes``: where each vehicle must stand (the ground below its start) as PX4's
+  ``PX4_HOME_LAT/LON/ALT``, one line per vehicle, for PX4 SITL's spawn points.
 
 See :mod:`gcs.export` for the exact layouts.
 """
@@ -12,13 +14,17 @@ from __future__ import annotations
 
 import argparse
 
-HELP = "export a plan: QGroundControl .plan files, setpoint CSV or JSON"
+HELP = "export a plan: QGroundControl .plan files, setpoint CSV or JSON, SITL home positions"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``gcs export``."""
     p.add_argument("plan", help="plan file written by gcs plan")
-    p.add_argument("--format", help="qgc (QGroundControl .plan per vehicle), csv or json")
+    p.add_argument(
+        "--format",
+        help="qgc (QGroundControl .plan per vehicle), csv or json (setpoints), homes (the "
+        "ground below each start as PX4_HOME_LAT/LON/ALT, for PX4 SITL)",
+    )
     p.add_argument(
         "-o",
         "--output",
@@ -32,7 +38,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=float,
         default=None,
         metavar="M",
-        help="qgc: waypoint acceptance radius in m (default: as gcs upload, 0.3)",
+        help="qgc: waypoint acceptance radius in m (default: as gcs upload chooses it for "
+        "PX4's defaults, from the plan's speeds)",
     )
     p.add_argument(
         "--end",
@@ -61,13 +68,13 @@ def run(args: argparse.Namespace) -> int:
                 raise UserError(
                     f"--end: unknown {args.end!r} (choose land, return or hold)"
                 ) from None
-        radius = 0.3 if args.acceptance_radius is None else args.acceptance_radius
-        if not radius > 0:
+        radius = args.acceptance_radius
+        if radius is not None and not radius > 0:
             raise UserError(f"--acceptance-radius: must be > 0 m, got {radius!r}")
         qgc = QgcOptions(acceptance_radius_m=radius, end=end, fence=not args.no_fence)
     elif args.end is not None or args.acceptance_radius is not None or args.no_fence:
         raise UserError("--end, --acceptance-radius and --no-fence apply to --format qgc only")
-    if fmt is ExportFormat.QGC and args.rate is not None:
+    if fmt in (ExportFormat.QGC, ExportFormat.HOMES) and args.rate is not None:
         raise UserError("--rate applies to --format csv and json only")
     plan = load_plan(args.plan)
     rate = DEFAULT_RATE_HZ if args.rate is None else args.rate

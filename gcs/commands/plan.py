@@ -182,9 +182,15 @@ def run(args: argparse.Namespace) -> int:
     with _Ticker(enabled=True) as ticker:
         result = plan(problem, progress=ticker.set)
     save_plan(out, result, scenario_path=str(args.scenario))
+    from gcs.tuning import px4_notes
+    from planner.planfile import load_plan
+
+    notes = px4_notes(load_plan(out)) if result.success else []
     if args.json:
-        print(json.dumps(summary(result, str(out))))
+        print(json.dumps({**summary(result, str(out)), "px4_notes": notes}))
     else:
         print(_table(result))
+        for note in notes:
+            print(note)
         print(f"plan written to {out}")
     return 0 if result.success else 1

@@ -43,9 +43,13 @@ from typing import TYPE_CHECKING, Any
 from gcs.commands import add_link_arguments
 
 if TYPE_CHECKING:
+    from gcs.missions import FencePlan, MissionConversion
     from mavlink.fleet import Fleet, Vehicle, VehicleSpec
     from mavlink.mission import MissionItem, MissionPlan, MissionStart
     from planner.planfile import Plan
+
+#: GF_ACTION values (PX4 v1.17 geofence breach action).
+FENCE_ACTIONS = {"none": 0, "warn": 1, "hold": 2, "return": 3, "terminate": 4, "land": 5}
 
 HELP = "upload each vehicle's mission (and geofence) converted from a plan, read back and compare"
 
@@ -54,14 +58,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``gcs upload``."""
     p.add_argument("plan", help="plan file written by gcs plan")
     p.add_argument("--fence", action="store_true", help="upload the geofence too")
+    p.add_argument(
+        "--fence-action",
+        choices=list(FENCE_ACTIONS),
+        help="with --fence: set the vehicles' breach action GF_ACTION (default: leave it)",
+    )
     p.add_argument("--start", action="store_true", help="arm and start the missions afterwards")
     p.add_argument("--end", choices=["land", "return", "hold"], default="land")
     p.add_argument(
         "--acceptance",
         type=float,
-        default=0.3,
         metavar="M",
-        help="waypoint acceptance radius (0.3 m)",
+        help="waypoint acceptance radius (default: from the plan's speeds, at most the "
+        "vehicle's NAV_ACC_RAD; pass-through waypoints widened by the drag lag)",
+    )
+    p.add_argument(
+        "--drag",
+        type=float,
+        metavar="C",
+        help="the vehicles' drag per unit mass (1/s) for the mission prediction (default: "
+        "SIH_KDV / SIH_MASS where the vehicle has them, else 0)",
     )
     p.add_argument(
         "--tolerance",
@@ -213,40 +229,60 @@ async def upload_plan(
     fence: bool,
     start: bool,
     end: str,
-    acceptance_m: float,
+    acceptance_m: float | None,
     tolerance_m: float,
     connect_timeout_s: float,
-) -> list[UploadRow]:
-    """Convert, upload, read back (and start) every vehicle's mission; a row per vehicle.
+    drag_per_s: float | None = None,
+    force: bool = False,
+    fence_action: str | None = None,
+) -> tuple[list[UploadRow], MissionConversion, FencePlan | None]:
+    """Convert (with the vehicles' parameters), upload, read back (and start) every
+    vehicle's mission; a row per vehicle, and the conversion with its predicted flight.
 
     Raises:
         mavlink.errors.ConnectTimeoutError: a vehicle never answered.
         mavlink.errors.PreflightError: with ``start``, a vehicle too far from its start.
+        gcs.mission_flight.MissionRefused: with ``start``, the predicted mission robustness
+            is below epsilon (and not ``force``); nothing was uploaded.
     """
     from dataclasses import replace
 
+    from gcs.mission_flight import MissionRefused, prediction_params, read_nav_params
+    from gcs.missions import convert_plan, fence_plan
+    from gcs.tuning import read_tuning
     from mavlink.fleet import Fleet
-    from mavlink.mission import MissionEnd, fence_boxes, geofence_items, trajectory_to_mission
+    from mavlink.mission import MissionEnd
 
-    missions = {
-        pv.name: trajectory_to_mission(
-            pv.trajectory,
-            plan.origin,
-            acceptance_radius_m=acceptance_m,
-            end=MissionEnd(end),
-            name=pv.name,
-        )
-        for pv in plan.vehicles
-    }
-    fence_items = (
-        geofence_items(fence_boxes(plan.workspace, plan.regions), plan.origin) if fence else ()
-    )
+    names = [pv.name for pv in plan.vehicles]
     async with Fleet(specs, connect_timeout_s=connect_timeout_s, telemetry_rate_hz=None) as fleet:
+        tuning = await read_tuning(fleet, names, drag_per_s)
+        known = await read_nav_params(fleet, names[0])
+        fp = fence_plan(plan, acc_hor_m_s2=known.get("MPC_ACC_HOR", 3.0)) if fence else None
+        fence_items = fp.items if fp is not None else ()
+        conv = await asyncio.to_thread(
+            convert_plan,
+            plan,
+            end=MissionEnd(end),
+            acceptance_m=acceptance_m,
+            params=prediction_params(tuning, known),
+        )
+        if start and not force and not conv.predicted_robustness >= plan.epsilon:
+            raise MissionRefused(
+                f"refused to start: PX4 is predicted to fly these missions with robustness "
+                f"{conv.predicted_robustness:+.4f} < epsilon {plan.epsilon:g} (the plan's own "
+                f"{plan.robustness:+.4f}; straight legs {conv.straight_leg_robustness:+.4f}; up "
+                f"to {max(conv.late_s.values()):.1f} s late); fly the plan in offboard mode "
+                "(gcs fly), or --force; nothing was uploaded"
+            )
         rows = list(
             await asyncio.gather(
-                *(_upload_one(v, missions[v.name], fence_items, plan) for v in fleet)
+                *(_upload_one(v, conv.missions[v.name], fence_items, plan) for v in fleet)
             )
         )
+        if fence and fence_action is not None and all(r.verified for r in rows):
+            await asyncio.gather(
+                *(v.set_param_int("GF_ACTION", FENCE_ACTIONS[fence_action]) for v in fleet)
+            )
         if start and all(r.verified for r in rows):
             starts = await _start(fleet, plan, tolerance_m)
             rows = [
@@ -258,21 +294,7 @@ async def upload_plan(
                 )
                 for r in rows
             ]
-    return rows
-
-
-def mission_robustness(plan: Plan, acceptance_m: float, end: str) -> float:
-    """Exact robustness of the spec if every vehicle flew its mission's straight-leg path."""
-    from gcs.flight import plan_formula
-    from mavlink.mission import MissionEnd, path_robustness, trajectory_to_mission
-
-    paths = {
-        pv.name: trajectory_to_mission(
-            pv.trajectory, plan.origin, acceptance_radius_m=acceptance_m, end=MissionEnd(end)
-        ).path
-        for pv in plan.vehicles
-    }
-    return path_robustness(plan_formula(plan), paths, plan.check_dt_s, plan.horizon_s)
+    return rows, conv, fp
 
 
 def table(rows: list[UploadRow]) -> str:
@@ -294,34 +316,33 @@ def table(rows: list[UploadRow]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Upload; 0 when every read-back is identical."""
+    """Upload; 0 when every read-back is as sent (and, with --start, every start happened)."""
     from gcs.errors import UserError
     from gcs.flight import FlightRefused, preflight_interlock, signed_links, vehicle_specs
-    from mavlink.errors import PreflightError
+    from gcs.mission_flight import MissionRefused
+    from mavlink.errors import CommandError, PreflightError
     from planner.planfile import load_plan
 
-    for name in ("acceptance", "tolerance", "timeout"):
+    for name in ("tolerance", "timeout"):
         value = getattr(args, name)
         if not (math.isfinite(value) and value > 0):
             raise UserError(f"--{name}: must be a number > 0, got {value:g}")
+    if args.acceptance is not None and not (math.isfinite(args.acceptance) and args.acceptance > 0):
+        raise UserError(f"--acceptance: must be a number > 0, got {args.acceptance:g}")
+    if args.drag is not None and not (math.isfinite(args.drag) and 0 <= args.drag <= 10):
+        raise UserError(f"--drag: must be a number in [0, 10] 1/s, got {args.drag:g}")
     plan = load_plan(args.plan)
     specs = vehicle_specs(plan, args.connection)
-    rho_mission = mission_robustness(plan, args.acceptance, args.end)
     try:
         preflight_interlock(plan, force=args.force)
     except FlightRefused as exc:
         print(f"gcs upload: {exc}", file=sys.stderr)
         return 1
-    if args.start and not args.force and not rho_mission >= plan.epsilon:
-        print(
-            f"gcs upload: refused to start: the mission's straight legs have robustness "
-            f"{rho_mission:+.4f} < epsilon {plan.epsilon:g} (the plan's own: "
-            f"{plan.robustness:+.4f}); fly the plan in offboard mode (gcs fly), or --force",
-            file=sys.stderr,
-        )
-        return 1
 
-    async def signed_upload() -> list[UploadRow]:
+    if args.fence_action is not None and not args.fence:
+        raise UserError("--fence-action: applies with --fence only")
+
+    async def signed_upload() -> tuple[list[UploadRow], MissionConversion, FencePlan | None]:
         async with signed_links(specs, args.signing_key) as links:
             return await upload_plan(
                 plan,
@@ -332,11 +353,14 @@ def run(args: argparse.Namespace) -> int:
                 acceptance_m=args.acceptance,
                 tolerance_m=args.tolerance,
                 connect_timeout_s=args.timeout,
+                drag_per_s=args.drag,
+                force=args.force,
+                fence_action=args.fence_action,
             )
 
     try:
-        rows = asyncio.run(signed_upload())
-    except PreflightError as exc:
+        rows, conv, fp = asyncio.run(signed_upload())
+    except (PreflightError, MissionRefused, CommandError) as exc:
         print(f"gcs upload: {exc}", file=sys.stderr)
         return 1
     ok = all(r.verified for r in rows) and (not args.start or all(r.started for r in rows))
@@ -344,16 +368,31 @@ def run(args: argparse.Namespace) -> int:
         out: dict[str, Any] = {
             "ok": ok,
             "planned_robustness": plan.robustness,
-            "mission_path_robustness": rho_mission,
+            "mission_path_robustness": conv.straight_leg_robustness,
+            "predicted_mission_robustness": conv.predicted_robustness,
+            "predicted_late_s": conv.late_s,
+            "acceptance_m": conv.acceptance_m,
+            "acceptance_auto": conv.acceptance_auto,
+            "retimed": conv.retimed,
+            "fence_inflate_m": None if fp is None else fp.inflate_m,
+            "fence_notes": [] if fp is None else list(fp.notes),
+            "fence_action": args.fence_action,
             "vehicles": [_row_json(r) for r in rows],
         }
         print(json.dumps(out))
     else:
         print(table(rows))
+        how = "chosen" if conv.acceptance_auto else "given"
         print(
-            f"spec robustness if flown along the mission legs: {rho_mission:+.4f} "
-            f"(plan: {plan.robustness:+.4f})"
+            f"acceptance radius {conv.acceptance_m:.2f} m ({how}); PX4 is predicted to fly "
+            f"these missions with robustness {conv.predicted_robustness:+.4f}, up to "
+            f"{max(conv.late_s.values()):.1f} s late (plan {plan.robustness:+.4f}; along the "
+            f"straight legs on time {conv.straight_leg_robustness:+.4f})"
         )
+        for note in fp.notes if fp is not None else ():
+            print(note)
+        if args.fence_action is not None:
+            print(f"fence: GF_ACTION set to {args.fence_action} on every vehicle")
         for r in rows:
             if args.start and r.start_detail:
                 verdict = "started" if r.started else "NOT started"

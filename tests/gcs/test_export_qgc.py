@@ -1,7 +1,7 @@
 """QGroundControl export: golden structure, and a round trip through MAVSDK's QGC importer.
 
 The reference for the mission items is the link's own conversion
-(:func:`mavlink.mission.trajectory_to_mission`, what ``gcs upload`` sends); the reader is the
+(:func:`gcs.missions.convert_plan`, what ``gcs upload`` sends for PX4 defaults); the reader is the
 real MAVSDK 4.1 C++ importer (``mission_raw.import_qgroundcontrol_mission_from_string``),
 reached in-process: a ``raw://`` connection is fed one PX4 HEARTBEAT (encoded by pymavlink),
 which makes MAVSDK discover a System that the mission_raw plugin can be created on. No
@@ -22,14 +22,12 @@ import pytest
 
 from gcs import cli
 from gcs.export import QgcOptions, qgc_plan
+from gcs.missions import convert_plan, fence_plan
 from mavlink.mission import (
     Cmd,
     MissionEnd,
     MissionItem,
     compare_items,
-    fence_boxes,
-    geofence_items,
-    trajectory_to_mission,
 )
 from planner.planfile import load_plan
 from tests.gcs.test_export_support import ORIGIN, reach_avoid_plan, write_plan
@@ -101,12 +99,12 @@ def test_mavsdk_importer_gives_back_exactly_the_uploaded_items(
     plan = reach_avoid_plan(velocity_yaw=velocity_yaw)
     files = _export(tmp_path, *extra, plan=plan)
     loaded = load_plan(tmp_path / "p.json")
-    radius = 0.15 if "--acceptance-radius" in extra else 0.3
+    radius = 0.15 if "--acceptance-radius" in extra else None
     assert sorted(files) == ["d1", "d2"]
+    # what gcs upload sends to vehicles with PX4's defaults: the same conversion
+    sent_missions = convert_plan(loaded, end=end, acceptance_m=radius).missions
     for v in loaded.vehicles:
-        sent = trajectory_to_mission(
-            v.trajectory, loaded.origin, acceptance_radius_m=radius, end=end
-        ).items
+        sent = sent_missions[v.name].items
         data = importer.load(files[v.name])
         back = _items(data.mission_items)
         # Every field but `current` (the importer marks the first item current, as QGC does).
@@ -124,7 +122,7 @@ def test_mavsdk_importer_gives_back_exactly_the_uploaded_items(
             yaws = {round(it.param4, 3) for it in back if it.command == Cmd.NAV_WAYPOINT}
             assert len(yaws) > 1
 
-        fence_sent = geofence_items(fence_boxes(loaded.workspace, loaded.regions), loaded.origin)
+        fence_sent = fence_plan(loaded).items
         fence_back = _items(data.geofence_items)
         # QGC's fence polygons carry only lat/lon and inclusion: the importer sets the frame to
         # MAV_FRAME_GLOBAL and autocontinue to 0 where the link sends GLOBAL_INT and 1 (same
@@ -240,8 +238,10 @@ def test_home_and_fence_vertices_are_the_geodetic_points_of_the_plan() -> None:
     lat, lon, alt = pymap3d.enu2geodetic(x0, y0, 0.0, ORIGIN.lat_deg, ORIGIN.lon_deg, ORIGIN.alt_m)
     assert doc["mission"]["plannedHomePosition"] == pytest.approx([lat, lon, alt], abs=1e-9)
     ws = plan.workspace
-    corners = [(ws.lo_enu_m[0], ws.lo_enu_m[1]), (ws.hi_enu_m[0], ws.lo_enu_m[1])]
-    corners += [(ws.hi_enu_m[0], ws.hi_enu_m[1]), (ws.lo_enu_m[0], ws.hi_enu_m[1])]
+    d = fence_plan(plan).inflate_m  # the workspace moved out by PX4's braking distance
+    assert d > 0.5
+    lo, hi = (ws.lo_enu_m[0] - d, ws.lo_enu_m[1] - d), (ws.hi_enu_m[0] + d, ws.hi_enu_m[1] + d)
+    corners = [(lo[0], lo[1]), (hi[0], lo[1]), (hi[0], hi[1]), (lo[0], hi[1])]
     polygon = doc["geoFence"]["polygons"][0]["polygon"]
     for (x, y), (plat, plon) in zip(corners, polygon, strict=True):
         rlat, rlon, _ = pymap3d.enu2geodetic(x, y, 0.0, ORIGIN.lat_deg, ORIGIN.lon_deg, 488.0)
@@ -309,15 +309,29 @@ def test_planned_scenario_plots_verifies_and_exports_round_trip(
     assert "data:image/png;base64," in (tmp_path / "e2e.html").read_text()
 
     assert cli.main(["export", str(plan_path), "--format", "qgc"]) == 0
+    sent_missions = convert_plan(plan, end=MissionEnd.LAND).missions
     for v in plan.vehicles:
         text = (tmp_path / f"e2e-{v.name}.plan").read_text()
         data = importer.load(text)
-        sent = trajectory_to_mission(v.trajectory, plan.origin).items
+        sent = sent_missions[v.name].items
         assert compare_items(sent, _items(data.mission_items)) == []
-        fence = [
-            _as_imported(f)
-            for f in geofence_items(fence_boxes(plan.workspace, plan.regions), plan.origin)
-        ]
+        fence = [_as_imported(f) for f in fence_plan(plan).items]
         assert compare_items(fence, _items(data.geofence_items)) == []
         polygons = json.loads(text)["geoFence"]["polygons"]
         assert [p["inclusion"] for p in polygons] == [True, False, False]
+
+
+def test_homes_are_the_ground_below_each_start_as_px4_home_variables(tmp_path: Path) -> None:
+    plan = reach_avoid_plan(velocity_yaw=False)
+    path = tmp_path / "p.json"
+    write_plan(path, plan)
+    assert cli.main(["export", str(path), "--format", "homes"]) == 0
+    lines = (tmp_path / "p.homes").read_text().splitlines()[1:]
+    assert [ln.split()[0] for ln in lines] == [v.name for v in plan.vehicles]
+    for line, v in zip(lines, plan.vehicles, strict=True):
+        env = dict(kv.split("=") for kv in line.split()[1:])
+        e, n, u = pymap3d.geodetic2enu(
+            float(env["PX4_HOME_LAT"]), float(env["PX4_HOME_LON"]), float(env["PX4_HOME_ALT"]),
+            plan.origin.lat_deg, plan.origin.lon_deg, plan.origin.alt_m,
+        )  # fmt: skip
+        assert (e, n, u) == pytest.approx((v.start_enu_m[0], v.start_enu_m[1], 0.0), abs=0.01)

@@ -17,7 +17,8 @@ import pytest
 
 from gcs.cli import main
 from gcs.flight import free_udp_ports, ground_spawns
-from mavlink.mission import fence_boxes, geofence_items, trajectory_to_mission
+from gcs.missions import fence_plan
+from mavlink.mission import trajectory_to_mission
 from mavlink.mock import MockFleet, Px4Mode
 from planner.frames import enu_to_geodetic
 from planner.planfile import load_plan
@@ -79,26 +80,49 @@ def test_upload_stores_the_mission_and_fence_on_each_vehicle_and_starts_them(
 ) -> None:
     fleet, urls = mock
     plan = load_plan(PLAN)
-    rc = main(["upload", str(PLAN), "--fence", "--start", "--json", *_connections(urls)])
+    # This 6 s plan's missions are predicted late on PX4 (its acceleration limits and stops):
+    # the start is refused before anything is sent.
+    rc = main(["upload", str(PLAN), "--fence", "--start", *_connections(urls)])
+    _out, err = capsys.readouterr()
+    assert rc == 1 and "refused to start: PX4 is predicted to fly these missions" in err, err
+    assert all(not v.mission_items(0) and not v.mission_items(1) for v in fleet.vehicles)
+    argv = ["upload", str(PLAN), "--fence", "--fence-action", "land", "--start", "--force"]
+    rc = main([*argv, "--json", *_connections(urls)])
     out, err = capsys.readouterr()
     assert rc == 0, err
     res = json.loads(out)
     assert res["ok"] and [r["vehicle"] for r in res["vehicles"]] == ["d1", "d2"]
-    fence = geofence_items(fence_boxes(plan.workspace, plan.regions), plan.origin)
+    assert res["acceptance_auto"] and res["acceptance_m"] >= 0.6
+    fence = fence_plan(plan).items  # the workspace moved out by PX4's braking distance
+    assert res["fence_inflate_m"] > 2.0 and any("obstacle" in n for n in res["fence_notes"])
     for i, pv in enumerate(plan.vehicles):
-        mission = trajectory_to_mission(pv.trajectory, plan.origin, name=pv.name)
+        mission = trajectory_to_mission(
+            pv.trajectory, plan.origin, name=pv.name, acceptance_radius_m=res["acceptance_m"]
+        )
         row = res["vehicles"][i]
         assert row["verified"] and row["started"]
         assert row["mission_items"] == len(mission.items) and row["fence_items"] == len(fence)
         stored = fleet.vehicles[i].mission_items(0)
-        assert _wire(stored) == _wire(mission.items)
+        # The conversion's items and positions; its radii and leg speeds are its own timing.
+        f32 = np.float32
+        assert [(s.command, s.x, s.y, f32(s.z), f32(s.param1)) for s in stored] == [
+            (m.command, m.x, m.y, f32(m.z), f32(m.param1)) for m in mission.items
+        ]
+        radii = [s.param2 for s in stored if s.command == 16]
+        assert min(radii) >= f32(res["acceptance_m"]) - 1e-6
+        speeds = [s.param2 for s in stored if s.command == 178]
+        assert all(
+            0 < a <= 2 * b + 1e-5 for a, b in zip(speeds, mission.leg_speed_m_s, strict=True)
+        )
         assert _wire(fleet.vehicles[i].mission_items(1)) == _wire(fence)
         # The mission path stays close to the plan: straight legs between its waypoints.
         assert 0 < row["max_deviation_m"] < 0.5
         state = fleet.vehicles[i].state
         assert state.armed and state.mode is Px4Mode.AUTO_MISSION
-    # The price of the conversion, in the spec's own terms, stays a satisfied spec here.
+        assert fleet.vehicles[i].params["GF_ACTION"] == 5  # land, read back from the vehicle
+    # Along the straight legs on time the spec would hold; PX4 cannot fly them on time.
     assert 0 < res["mission_path_robustness"] <= plan.robustness + 0.05
+    assert res["predicted_mission_robustness"] < plan.epsilon
 
 
 def test_upload_start_refuses_a_start_too_low_for_px4_to_take_off_to(
