@@ -166,6 +166,7 @@ def convert_plan(
             starts,
             plan.origin,
             duration_s=plan.horizon_s + PREDICT_EXTRA_S,
+            min_duration_s=plan.horizon_s,
             start_yaw_deg={n: float(m.items[1].param4) for n, m in missions.items()},
             params=prm,
             sample_dt_s=dt if dt >= 0.02 else 0.02,

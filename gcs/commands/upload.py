@@ -193,12 +193,11 @@ async def takeoff_height_check(v: Vehicle, start_alt_amsl_m: float) -> None:
         )
 
 
-async def _start(fleet: Fleet, plan: Plan, tolerance_m: float) -> dict[str, MissionStart]:
-    """Check every vehicle (near its start horizontally, start high enough for PX4's take-off),
-    then arm and start all; each start confirmed (:func:`start_mission_confirmed`)."""
+async def _check_starts(fleet: Fleet, plan: Plan, tolerance_m: float) -> None:
+    """Refuse (before anything is sent or armed) a vehicle away from its start horizontally,
+    or on the ground below a start too low for PX4's mission take-off."""
     import numpy as np
 
-    from mavlink.mission import start_mission_confirmed
     from mavlink.offboard import check_start
     from planner.frames import enu_to_geodetic, enu_to_ned
 
@@ -217,6 +216,13 @@ async def _start(fleet: Fleet, plan: Plan, tolerance_m: float) -> dict[str, Miss
         if not st.in_air:
             alt = float(np.ravel(enu_to_geodetic(np.asarray(pv.start_enu_m), plan.origin)[2])[0])
             await takeoff_height_check(v, alt)
+
+
+async def _start(fleet: Fleet) -> dict[str, MissionStart]:
+    """Arm and start every vehicle's mission, each start confirmed
+    (:func:`start_mission_confirmed`)."""
+    from mavlink.mission import start_mission_confirmed
+
     await asyncio.gather(*(v.arm() for v in fleet))
     starts = await asyncio.gather(*(start_mission_confirmed(v) for v in fleet))
     return {s.vehicle: s for s in starts}
@@ -255,6 +261,8 @@ async def upload_plan(
 
     names = [pv.name for pv in plan.vehicles]
     async with Fleet(specs, connect_timeout_s=connect_timeout_s, telemetry_rate_hz=None) as fleet:
+        if start:
+            await _check_starts(fleet, plan, tolerance_m)
         tuning = await read_tuning(fleet, names, drag_per_s)
         known = await read_nav_params(fleet, names[0])
         fp = fence_plan(plan, acc_hor_m_s2=known.get("MPC_ACC_HOR", 3.0)) if fence else None
@@ -284,7 +292,7 @@ async def upload_plan(
                 *(v.set_param_int("GF_ACTION", FENCE_ACTIONS[fence_action]) for v in fleet)
             )
         if start and all(r.verified for r in rows):
-            starts = await _start(fleet, plan, tolerance_m)
+            starts = await _start(fleet)
             rows = [
                 replace(
                     r,

@@ -248,13 +248,20 @@ class MockFleet:
         The vehicles report (and fly on) their estimates; this is the simulator's ground
         truth, for tests and assessments that compare the two.
         """
-        p = self.physics.true_pos_ned_m
-        lat, lon, alt = pymap3d.ned2geodetic(
-            p[:, 0], p[:, 1], p[:, 2], self._spawn_lat, self._spawn_lon, self._spawn_h
-        )
+        return self.spawn_ned_to_enu(self.physics.true_pos_ned_m)
+
+    def spawn_ned_to_enu(self, p: np.ndarray) -> np.ndarray:
+        """Positions in each vehicle's spawn NED frame (the physics' frame), ``(..., n, 3)``,
+        as mission-frame ENU, same shape (vectorised over any leading axes)."""
+        shape = p.shape
+        q = p.reshape(-1, self.n, 3)
+        lat0 = np.broadcast_to(self._spawn_lat, q.shape[:2])
+        lon0 = np.broadcast_to(self._spawn_lon, q.shape[:2])
+        h0 = np.broadcast_to(self._spawn_h, q.shape[:2])
+        lat, lon, alt = pymap3d.ned2geodetic(q[..., 0], q[..., 1], q[..., 2], lat0, lon0, h0)
         o = self.origin
         e, n, u = pymap3d.geodetic2enu(lat, lon, alt, o.lat_deg, o.lon_deg, o.alt_m)
-        return np.column_stack([e, n, u])
+        return np.stack([e, n, u], axis=-1).reshape(shape)
 
     def configure_links(self, vehicle: MockVehicle, faults: FaultConfig) -> None:
         """(Re)build the fault channels of ``vehicle``; usable before or while running."""

@@ -88,6 +88,7 @@ def predict_missions(
     params: Mapping[str, float] | None = None,
     sample_dt_s: float = 0.01,
     settle_s: float = 30.0,
+    min_duration_s: float | None = None,
 ) -> PredictedMissions:
     """Fly ``missions`` (name -> items with MISSION_ITEM_INT's fields) on offline px4 mocks.
 
@@ -99,7 +100,11 @@ def predict_missions(
     Args:
         params: PX4 parameters over the px4 profile (e.g. the vehicles' own NAV_ACC_RAD,
             MPC_XY_CRUISE, SIH_KDV); the estimator stays quiet (:data:`QUIET_ESTIMATOR`).
+        min_duration_s: stop early once this much has been flown and every mission has
+            finished (positions are held after the run); default: fly ``duration_s``.
     """
+    if min_duration_s is None:
+        min_duration_s = duration_s
     names = list(missions)
     prm = dict(params or {})
     prm.update(QUIET_ESTIMATOR)
@@ -122,14 +127,16 @@ def predict_missions(
         v.request_mode(Px4Mode.AUTO_MISSION)
     steps = math.ceil(duration_s / sample_dt_s)
     t = np.arange(steps + 1) * sample_dt_s
-    pos = np.empty((steps + 1, len(names), 3))
-    pos[0] = fleet.truth_enu_m()
+    ned = np.empty((steps + 1, len(names), 3))  # the physics' (spawn) frame: cheap to copy
+    ned[0] = fleet.physics.true_pos_ned_m
     seq_prev = [v.mission_seq for v in vs]
     left: dict[str, dict[int, float]] = {n: {} for n in names}
     finished: dict[str, float | None] = dict.fromkeys(names)
+    last = steps
+    k = 0
     for k in range(1, steps + 1):
         fleet.advance(sample_dt_s)
-        pos[k] = fleet.truth_enu_m()
+        ned[k] = fleet.physics.true_pos_ned_m
         for j, v in enumerate(vs):
             seq = v.mission_seq
             if seq > seq_prev[j]:
@@ -139,6 +146,14 @@ def predict_missions(
             if v.mission_finished and finished[names[j]] is None:
                 finished[names[j]] = float(t[k])
                 left[names[j]].setdefault(seq, float(t[k]))
+        done = t[k] >= min_duration_s and all(f is not None for f in finished.values())
+        if done and last == steps:
+            last = min(steps, k + round(1.0 / sample_dt_s))  # a second more, then held
+        if k >= last:
+            break
+    stop = k
+    pos = fleet.spawn_ned_to_enu(ned[: stop + 1])
+    t = t[: stop + 1]
     return PredictedMissions(
         t_s=t,
         pos_enu_m={n: pos[:, j] for j, n in enumerate(names)},

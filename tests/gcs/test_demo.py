@@ -52,7 +52,7 @@ def test_demo_pipeline_flies_the_plan_and_reports_the_flown_robustness(
     assert re.search(r"planning \d+\.\d s, flight \d+\.\d s, total \d+\.\d s", text)
 
     report = (out / "report.md").read_text(encoding="utf-8")
-    assert f"| flown robustness | {flown:+.4f} |" in report
+    assert f"| flown robustness (on the vehicles' estimates) | {flown:+.4f} |" in report
     assert "![plan and flown tracks](demo.png)" in report
     for stage in ("set-up", "planning", "vehicles", "flight", "report"):
         assert f"| {stage} |" in report

@@ -218,15 +218,17 @@ def test_upload_refuses_a_plan_that_fails_verification_and_sends_nothing(
     assert all(not v.mission_items(0) and not v.state.armed for v in fleet.vehicles)
 
 
-def test_upload_start_refuses_a_mission_path_below_epsilon_unless_forced(
+def test_upload_start_refuses_a_mission_predicted_below_epsilon_unless_forced(
     mock: tuple[MockFleet, list[str]], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    # The plan meets epsilon 0.51 (+0.538) but its straight-leg mission path does not (+0.484).
+    # The plan meets epsilon 0.51 (+0.538); PX4 is predicted to fly its missions late, far
+    # below it (and even on time the straight legs would miss it: +0.484).
     fleet, urls = mock
     edited = _edited_plan(tmp_path, epsilon=0.51)
     assert main(["upload", str(edited), "--start", *_connections(urls)]) == 1
     err = capsys.readouterr().err
-    assert "refused to start: the mission's straight legs have robustness +0.4844" in err
+    assert "refused to start: PX4 is predicted to fly these missions with robustness" in err
+    assert "< epsilon 0.51" in err and "straight legs +0.4844" in err and "s late" in err
     assert all(not v.mission_items(0) and not v.state.armed for v in fleet.vehicles)
     # Without --start the upload is only stored (nothing moves); --force starts it anyway.
     assert main(["upload", str(edited), *_connections(urls)]) == 0
