@@ -86,7 +86,11 @@ def test_json_setpoints_hold_the_same_samples(tmp_path: Path) -> None:
             ["--format", "csv"],
             r"bad\.json: origin: missing",
         ),
-        ("ok", ["--format", "kml"], r"--format: unknown format 'kml' \(choose qgc, csv, json, homes\)"),
+        (
+            "ok",
+            ["--format", "kml"],
+            r"--format: unknown format 'kml' \(choose qgc, csv, json, homes\)",
+        ),
         ("ok", [], r"--format: required"),
         ("ok", ["--format", "csv", "--rate", "0"], r"--rate: must be in \(0, 1000\] Hz"),
         ("ok", ["--format", "csv", "--rate", "nan"], r"--rate: must be in"),
