@@ -112,7 +112,7 @@ async def fly_mission_plan(
             off, not settling at its start, or refusing its mission start.
         mavlink.errors.LinkError: a transfer or link failure before the flight.
     """
-    from gcs.missions import convert_plan
+    from gcs.missions import convert_plan_apart
     from mavlink.errors import PreflightError
     from mavlink.mission import (
         MissionEnd,
@@ -146,9 +146,8 @@ async def fly_mission_plan(
     )
     known = await read_nav_params(fleet, names[0])
     end = MissionEnd(opts.end.value) if opts.end is not None else MissionEnd.HOLD
-    # On a thread: the event loop (and MAVSDK's callbacks) go on meanwhile.
-    conv = await asyncio.to_thread(
-        convert_plan,
+    # In a child process: the link's callbacks go on meanwhile.
+    conv = await convert_plan_apart(
         plan,
         end=end,
         acceptance_m=opts.acceptance_m,

@@ -283,3 +283,50 @@ def fence_plan(plan: Plan, *, acc_hor_m_s2: float = 3.0, allowance_m: float = 0.
                     f"m/s, braking distance {braking_distance_m(speed[k], acc_hor_m_s2):.2f} m)"
                 )
     return FencePlan(geofence_items(boxes, plan.origin), inflate, tuple(notes))
+
+
+async def convert_plan_apart(plan: Plan, **kwargs: Any) -> MissionConversion:
+    """:func:`convert_plan` in a child Python process, awaited.
+
+    The prediction is seconds of pure Python; on a thread of a process that is also
+    talking to vehicles it holds the GIL and MAVSDK drops telemetry callbacks meanwhile
+    (seen on PX4 SITL: thousands during a 4-vehicle conversion). The child gets the plan and
+    the arguments pickled on stdin and answers the conversion pickled on stdout.
+
+    Raises:
+        RuntimeError: the child failed (its last line of stderr).
+    """
+    import asyncio
+    import pickle
+    import sys
+
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable,
+        "-m",
+        "gcs.missions",
+        stdin=asyncio.subprocess.PIPE,
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
+    )
+    out, err = await proc.communicate(pickle.dumps((plan, kwargs)))
+    if proc.returncode != 0:
+        lines = err.decode(errors="replace").strip().splitlines()
+        raise RuntimeError(f"mission conversion failed: {lines[-1] if lines else proc.returncode}")
+    result: MissionConversion = pickle.loads(out)
+    return result
+
+
+def _child() -> None:
+    """``python -m gcs.missions``: the child of :func:`convert_plan_apart`."""
+    import pickle
+    import sys
+
+    plan, kwargs = pickle.loads(sys.stdin.buffer.read())
+    sys.stdout.buffer.write(pickle.dumps(convert_plan(plan, **kwargs)))
+
+
+if __name__ == "__main__":
+    # Through the imported module, so that what is pickled names gcs.missions, not __main__.
+    from gcs.missions import _child as child
+
+    child()

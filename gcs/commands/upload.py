@@ -254,7 +254,7 @@ async def upload_plan(
     from dataclasses import replace
 
     from gcs.mission_flight import MissionRefused, prediction_params, read_nav_params
-    from gcs.missions import convert_plan, fence_plan
+    from gcs.missions import convert_plan_apart, fence_plan
     from gcs.tuning import read_tuning
     from mavlink.fleet import Fleet
     from mavlink.mission import MissionEnd
@@ -267,8 +267,7 @@ async def upload_plan(
         known = await read_nav_params(fleet, names[0])
         fp = fence_plan(plan, acc_hor_m_s2=known.get("MPC_ACC_HOR", 3.0)) if fence else None
         fence_items = fp.items if fp is not None else ()
-        conv = await asyncio.to_thread(
-            convert_plan,
+        conv = await convert_plan_apart(
             plan,
             end=MissionEnd(end),
             acceptance_m=acceptance_m,
