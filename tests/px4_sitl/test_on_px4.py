@@ -68,14 +68,19 @@ def plan_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def _land_and_wait() -> None:
+    """Wait until the vehicle is back home and disarmed (every flight here ends in RTL)."""
     from mavlink.fleet import Fleet, VehicleSpec
 
     async def land() -> None:
         async with Fleet([VehicleSpec("d1", URL, 1)], connect_timeout_s=15.0) as fleet:
             v = fleet["d1"]
-            if v.status().armed:
-                await v.land()
-            await v.wait_for(lambda s: s.armed is False, "disarmed after landing", timeout_s=60.0)
+            if (
+                v.status().armed
+                and v.status().mode is not None
+                and "RTL" not in v.status().mode.label
+            ):
+                await v.return_to_launch()
+            await v.wait_for(lambda s: s.armed is False, "disarmed at home", timeout_s=120.0)
 
     asyncio.run(land())
 
@@ -84,7 +89,18 @@ def test_upload_fence_and_start_are_read_back_and_confirmed_as_px4_does_them(
     plan_file: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     rc = main(
-        ["upload", str(plan_file), "--fence", "--start", "--force", "--json", "--connection", URL]
+        [
+            "upload",
+            str(plan_file),
+            "--fence",
+            "--start",
+            "--force",
+            "--end",
+            "return",
+            "--json",
+            "--connection",
+            URL,
+        ]
     )
     out, _err = capsys.readouterr()
     res = json.loads(out)
@@ -98,7 +114,7 @@ def test_upload_fence_and_start_are_read_back_and_confirmed_as_px4_does_them(
 def test_offboard_with_the_drag_fed_forward_keeps_the_margin(
     plan_file: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    rc = main(["fly", str(plan_file), "--json", "--end", "land", "--connection", URL])
+    rc = main(["fly", str(plan_file), "--json", "--end", "return", "--connection", URL])
     out, err = capsys.readouterr()
     res = json.loads(out)
     assert res["completed"] and res["safety_event"] is None, err
@@ -110,8 +126,10 @@ def test_offboard_with_the_drag_fed_forward_keeps_the_margin(
 def test_mission_mode_flies_on_one_clock_as_predicted(
     plan_file: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    main(["fly", str(plan_file), "--json", "--mode", "mission", "--force", "--connection", URL])
+    argv = ["fly", str(plan_file), "--json", "--mode", "mission", "--force", "--end", "return"]
+    main([*argv, "--connection", URL])
     out, err = capsys.readouterr()
+    assert out, err
     res = json.loads(out)
     m = res["missions"]["d1"]
     assert m["finished"] and m["late_s"] < 10.0, (m, err)
