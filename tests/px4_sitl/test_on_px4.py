@@ -45,22 +45,25 @@ spec:
 """
 
 
-def _home() -> tuple[float, float, float]:
+def _here() -> tuple[float, float, float]:
+    """Where the vehicle stands now (its estimate; a landing ends up to ~1 m from home)."""
     from mavlink.fleet import Fleet, VehicleSpec
 
     async def read() -> tuple[float, float, float]:
         async with Fleet([VehicleSpec("d1", URL, 1)], connect_timeout_s=15.0) as fleet:
-            st = await fleet["d1"].wait_for(lambda s: s.home is not None, "home", timeout_s=15.0)
-            assert st.home is not None
-            return st.home.lat_deg, st.home.lon_deg, st.home.alt_m
+            st = await fleet["d1"].wait_for(
+                lambda s: s.position is not None and s.home is not None, "position", timeout_s=15.0
+            )
+            assert st.position is not None and st.home is not None
+            return st.position.lat_deg, st.position.lon_deg, st.home.alt_m
 
     return asyncio.run(read())
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture
 def plan_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A 10 s hop planned around the vehicle's own home (its start 3 m above it)."""
-    lat, lon, alt = _home()
+    """A 10 s hop planned around where the vehicle stands (its start 3 m above home)."""
+    lat, lon, alt = _here()
     d = tmp_path_factory.mktemp("px4")
     (d / "hop.yaml").write_text(SCENARIO.format(lat=lat, lon=lon, alt=alt), encoding="utf-8")
     assert main(["plan", str(d / "hop.yaml"), "-o", str(d / "hop.json"), "--json"]) == 0
@@ -102,7 +105,8 @@ def test_upload_fence_and_start_are_read_back_and_confirmed_as_px4_does_them(
             URL,
         ]
     )
-    out, _err = capsys.readouterr()
+    out, err = capsys.readouterr()
+    assert out, err
     res = json.loads(out)
     row = res["vehicles"][0]
     assert row["verified"], row  # fence autocontinue 0, yaw wrapped: still "as sent"
@@ -116,6 +120,7 @@ def test_offboard_with_the_drag_fed_forward_keeps_the_margin(
 ) -> None:
     rc = main(["fly", str(plan_file), "--json", "--end", "return", "--connection", URL])
     out, err = capsys.readouterr()
+    assert out, err
     res = json.loads(out)
     assert res["completed"] and res["safety_event"] is None, err
     assert abs(res["tracking"][0]["lag_s"]) < 0.2  # SIH's 0.585 s drag lag fed forward
