@@ -122,6 +122,7 @@ async def fly_mission_plan(
     )
     from mavlink.monitor import SafetyAction, SafetyMonitor, always_clauses, safe_stop
     from mavlink.offboard import (
+        TAKEOFF_MARGIN_M,
         check_start,
         check_takeoff_height,
         wait_settled,
@@ -179,7 +180,7 @@ async def fly_mission_plan(
         )
         if not airborne:
             alt = float(np.ravel(enu_to_geodetic(starts[v.name], plan.origin)[2])[0])
-            await check_takeoff_height(v, alt, 0.2)
+            await check_takeoff_height(v, alt, TAKEOFF_MARGIN_M)
             on_ground.append(v)
     await asyncio.gather(*(upload_and_verify(v, conv.missions[v.name].items) for v in vehicles))
 

@@ -131,7 +131,7 @@ def margin_warnings(plan: Plan, expected_m: Mapping[str, float]) -> list[str]:
 
 
 #: NAV_MC_ALT_RAD (PX4 default) plus the margin the ground station keeps for a take-off.
-TAKEOFF_MIN_M = 0.8 + 0.2
+TAKEOFF_MIN_M = 0.8 + 0.2  # mavlink.offboard.TAKEOFF_MARGIN_M
 
 
 def px4_notes(plan: Plan) -> list[str]:

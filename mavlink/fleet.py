@@ -420,6 +420,18 @@ class Vehicle:
         with self._lock:
             return self._pos_accuracy
 
+    def _send_param_message(self, message: str, name: str, **fields: float | int) -> None:
+        """Send PARAM_REQUEST_READ / PARAM_SET for parameter ``name`` to the autopilot."""
+        body = {"target_system": self.spec.sysid, "target_component": 1, "param_id": name}
+        self.direct.send_message(
+            MavlinkMessage(
+                message_name=message,
+                target_system_id=self.spec.sysid,
+                target_component_id=1,
+                fields_json=json.dumps({**body, **fields}),
+            )
+        )
+
     async def param(self, name: str, *, timeout_s: float = 1.0, retries: int = 3) -> float | None:
         """The vehicle's parameter ``name`` (PARAM_REQUEST_READ; integers as their value).
 
@@ -434,20 +446,7 @@ class Vehicle:
             fut: asyncio.Future[float] = loop.create_future()
             with self._lock:
                 self._param_waiters.setdefault(name, []).append(fut)
-            fields = {
-                "target_system": self.spec.sysid,
-                "target_component": 1,
-                "param_id": name,
-                "param_index": -1,
-            }
-            self.direct.send_message(
-                MavlinkMessage(
-                    message_name="PARAM_REQUEST_READ",
-                    target_system_id=self.spec.sysid,
-                    target_component_id=1,
-                    fields_json=json.dumps(fields),
-                )
-            )
+            self._send_param_message("PARAM_REQUEST_READ", name, param_index=-1)
             try:
                 return await asyncio.wait_for(fut, timeout_s)
             except TimeoutError:
@@ -468,21 +467,7 @@ class Vehicle:
             with self._lock:
                 self._params.pop(name, None)
                 self._param_waiters.setdefault(name, []).append(fut)
-            fields = {
-                "target_system": self.spec.sysid,
-                "target_component": 1,
-                "param_id": name,
-                "param_value": raw,
-                "param_type": 6,  # MAV_PARAM_TYPE_INT32
-            }
-            self.direct.send_message(
-                MavlinkMessage(
-                    message_name="PARAM_SET",
-                    target_system_id=self.spec.sysid,
-                    target_component_id=1,
-                    fields_json=json.dumps(fields),
-                )
-            )
+            self._send_param_message("PARAM_SET", name, param_value=raw, param_type=6)  # INT32
             try:
                 got = await asyncio.wait_for(fut, timeout_s)
             except TimeoutError:

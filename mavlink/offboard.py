@@ -72,6 +72,10 @@ from planner.frames import (
 )
 from planner.trajectory import Trajectory
 
+#: How far above NAV_MC_ALT_RAD a start must be for a take-off from the ground (m): PX4
+#: counts a take-off within NAV_MC_ALT_RAD as reached at once (PX4-BEHAVIOUR.md).
+TAKEOFF_MARGIN_M = 0.2
+
 
 class EndAction(Enum):
     """What every vehicle does after the last setpoint has been held."""
@@ -129,7 +133,7 @@ class OffboardConfig:
     arrive_timeout_s: float = 20.0
     yaw_tolerance_deg: float = 10.0
     takeoff: bool = True
-    takeoff_margin_m: float = 0.2
+    takeoff_margin_m: float = TAKEOFF_MARGIN_M
     takeoff_timeout_s: float = 30.0
     drag_per_s: float | Mapping[str, float] = 0.0
     settle_speed_m_s: float = 0.3

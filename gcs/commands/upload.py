@@ -161,44 +161,12 @@ async def _upload_one(
     )
 
 
-#: Margin (m) above NAV_MC_ALT_RAD a mission's start must be for PX4 to fly its take-off.
-TAKEOFF_MARGIN_M = 0.2
-
-
-async def takeoff_height_check(v: Vehicle, start_alt_amsl_m: float) -> None:
-    """Refuse a mission PX4 would not take off for.
-
-    PX4 climbs for a mission's take-off only when its first position item is more than
-    NAV_MC_ALT_RAD above the vehicle (``MissionBase::checkClimbRequired``); otherwise the
-    vehicle stays on the ground and is auto-disarmed (PX4-BEHAVIOUR.md).
-
-    Raises:
-        PreflightError: the start is less than NAV_MC_ALT_RAD + TAKEOFF_MARGIN_M above it.
-    """
-    from mavlink.errors import PreflightError
-
-    st = await v.wait_for(lambda s: s.position is not None, "global position", timeout_s=5.0)
-    assert st.position is not None
-    alt_rad = await v.param("NAV_MC_ALT_RAD")
-    said = "" if alt_rad is not None else " (PX4's default; the vehicle did not report it)"
-    alt_rad = 0.8 if alt_rad is None else alt_rad
-    above = start_alt_amsl_m - st.position.alt_m
-    if above <= alt_rad + TAKEOFF_MARGIN_M:
-        raise PreflightError(
-            f"refused: the mission starts {above:.2f} m above the vehicle; PX4 takes off only "
-            f"to a first waypoint more than NAV_MC_ALT_RAD = {alt_rad:g} m{said} above it "
-            f"(this check keeps {TAKEOFF_MARGIN_M:g} m more): plan a higher start",
-            vehicle=v.name,
-            url=v.url,
-        )
-
-
 async def _check_starts(fleet: Fleet, plan: Plan, tolerance_m: float) -> None:
     """Refuse (before anything is sent or armed) a vehicle away from its start horizontally,
     or on the ground below a start too low for PX4's mission take-off."""
     import numpy as np
 
-    from mavlink.offboard import check_start
+    from mavlink.offboard import TAKEOFF_MARGIN_M, check_start, check_takeoff_height
     from planner.frames import enu_to_geodetic, enu_to_ned
 
     origins = await fleet.origins()
@@ -215,7 +183,7 @@ async def _check_starts(fleet: Fleet, plan: Plan, tolerance_m: float) -> None:
         )
         if not st.in_air:
             alt = float(np.ravel(enu_to_geodetic(np.asarray(pv.start_enu_m), plan.origin)[2])[0])
-            await takeoff_height_check(v, alt)
+            await check_takeoff_height(v, alt, TAKEOFF_MARGIN_M)
 
 
 async def _start(fleet: Fleet) -> dict[str, MissionStart]:

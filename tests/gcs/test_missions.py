@@ -18,29 +18,15 @@ from mavlink.mission import Cmd, MissionEnd, trajectory_to_mission
 from mavlink.mock.predict import predict_missions
 from planner.frames import GeodeticPoint
 from planner.planfile import load_plan
-from planner.trajectory import Trajectory
+from tests.mavlink.test_link_mission import min_jerk
 
 ORIGIN = GeodeticPoint(47.397742, 8.545594, 488.0)
 LINK_PLAN = Path(__file__).resolve().parents[1] / "mavlink" / "data" / "reach_avoid_2.plan.json"
 
 
-def rest_to_rest(waypoints: list[tuple[float, float, float]], seg_s: float) -> Trajectory:
-    """Quintic rest-to-rest segments between consecutive waypoints (repeats hover)."""
-    w = np.asarray(waypoints, dtype=float)
-    k = w.shape[0] - 1
-    c = np.zeros((k, 3, 6))  # (segment, axis, power)
-    for s in range(k):
-        d = w[s + 1] - w[s]
-        c[s, :, 0] = w[s]
-        c[s, :, 3] = 10 * d / seg_s**3
-        c[s, :, 4] = -15 * d / seg_s**4
-        c[s, :, 5] = 6 * d / seg_s**5
-    return Trajectory(list(np.arange(k) * seg_s), [seg_s] * k, c, name="d1")
-
-
 def test_a_leg_takes_at_least_its_acceleration_limited_time_and_a_hold_is_held() -> None:
     # 10 m in 5 s (2 m/s average) then a 3 s hover at the end, then 10 m back.
-    traj = rest_to_rest([(0, 0, 3), (10, 0, 3), (10, 0, 3), (10, 0, 3), (0, 0, 3)], 5.0)
+    traj = min_jerk([(0, 0, 3), (10, 0, 3), (10, 0, 3), (10, 0, 3), (0, 0, 3)], 5.0)
     mp = trajectory_to_mission(traj, ORIGIN, acceptance_radius_m=0.6, end=MissionEnd.HOLD)
     wps = [i.seq for i in mp.items if i.command == Cmd.NAV_WAYPOINT]
     assert mp.hold_s.tolist() == [0.0, 10.0, 0.0]
