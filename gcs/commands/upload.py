@@ -345,7 +345,10 @@ def run(args: argparse.Namespace) -> int:
             "planned_robustness": plan.robustness,
             "mission_path_robustness": conv.straight_leg_robustness,
             "predicted_mission_robustness": conv.predicted_robustness,
-            "predicted_late_s": conv.late_s,
+            # inf (never seen finishing in the prediction) is not JSON: null
+            "predicted_late_s": {
+                k: (v if math.isfinite(v) else None) for k, v in conv.late_s.items()
+            },
             "acceptance_m": conv.acceptance_m,
             "acceptance_auto": conv.acceptance_auto,
             "retimed": conv.retimed,
