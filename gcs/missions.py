@@ -32,7 +32,7 @@ if TYPE_CHECKING:
     from planner.planfile import Plan
 
 #: PX4 v1.17 defaults the conversion assumes where the vehicle's own are not known.
-PX4_DEFAULTS = {"NAV_ACC_RAD": 2.0, "NAV_MC_ALT_RAD": 0.8, "MPC_XY_CRUISE": 5.0}
+PX4_DEFAULTS = {"NAV_ACC_RAD": 2.0}
 #: Cross-track error PX4 (SIH) showed per m/s of cruise: 0.3-0.5 m at 3.4 m/s (R = 0.3 m
 #: was missed, 1.0 m never); twice this is the smallest radius the conversion picks.
 XTRACK_S = 0.15
@@ -92,15 +92,16 @@ def auto_acceptance_m(plan: Plan, nav_acc_rad_m: float = PX4_DEFAULTS["NAV_ACC_R
 
 
 def expected_lag_s(params: Mapping[str, float]) -> float:
-    """The steady lag of a PX4 vehicle behind its setpoint from drag (s):
-    ``c / (MPC_XY_P * MPC_XY_VEL_P_ACC)`` (PX4-BEHAVIOUR.md; 0.585 s on SIH's quad).
+    """The lag of a vehicle with PX4 parameters ``params`` behind its setpoint (s):
+    :func:`gcs.tuning.drag_lag_s` of SIH_KDV (the drag the prediction flies with) and the
+    position/velocity gains, PX4's defaults where absent."""
+    from gcs.tuning import PX4_GAINS, drag_lag_s
 
-    ``c`` is the drag per unit mass, 1/s: ``DRAG`` (the user's), else SIH's SIH_KDV / mass.
-    """
-    c = params.get("DRAG", params.get("SIH_KDV", 1.0))
-    p = params.get("MPC_XY_P", 0.95)
-    d = params.get("MPC_XY_VEL_P_ACC", 1.8)
-    return float(c / (p * d)) if p > 0 and d > 0 else 0.0
+    return drag_lag_s(
+        params.get("SIH_KDV", 1.0),
+        params.get("MPC_XY_P", PX4_GAINS["MPC_XY_P"]),
+        params.get("MPC_XY_VEL_P_ACC", PX4_GAINS["MPC_XY_VEL_P_ACC"]),
+    )
 
 
 def convert_plan(

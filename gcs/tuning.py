@@ -55,7 +55,13 @@ class VehicleTuning:
     @property
     def expected_lag_s(self) -> float:
         """Lag from the drag the vehicle really has, were it not fed forward (s)."""
-        return self.drag_per_s / (self.xy_p * self.vel_p)
+        return drag_lag_s(self.drag_per_s, self.xy_p, self.vel_p)
+
+
+def drag_lag_s(drag_per_s: float, xy_p: float, vel_p: float) -> float:
+    """PX4's steady lag behind a moving setpoint from drag: ``c / (MPC_XY_P *
+    MPC_XY_VEL_P_ACC)`` (0.585 s for SIH's quad); 0 for non-positive gains."""
+    return float(drag_per_s / (xy_p * vel_p)) if xy_p > 0 and vel_p > 0 else 0.0
 
 
 def drag_from_lag(lag_s: float, tuning: VehicleTuning) -> float:

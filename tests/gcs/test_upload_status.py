@@ -6,6 +6,7 @@ protocol (not what MAVSDK read back), their true state and their configured spaw
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 from collections.abc import Iterator
@@ -27,13 +28,11 @@ DATA = Path(__file__).resolve().parents[1] / "mavlink" / "data"
 PLAN = DATA / "reach_avoid_2.plan.json"
 
 
-@pytest.fixture
-def mock(request: pytest.FixtureRequest) -> Iterator[tuple[MockFleet, list[str]]]:
-    """Two mock vehicles on the ground below the stored plan's starts, and their URLs.
-
-    The px4 profile unless a test says ``@pytest.mark.parametrize("mock", ["ideal"],
-    indirect=True)``.
-    """
+@contextlib.contextmanager
+def _running_mock(
+    profile: str = "px4", params: dict[str, float] | None = None
+) -> Iterator[tuple[MockFleet, list[str]]]:
+    """Two mock vehicles on the ground below the stored plan's starts, and their URLs."""
     plan = load_plan(PLAN)
     ports = free_udp_ports(4)
     fleet = MockFleet(
@@ -42,10 +41,20 @@ def mock(request: pytest.FixtureRequest) -> Iterator[tuple[MockFleet, list[str]]
         spawns_enu_m=ground_spawns(plan),
         gcs_ports=ports[:2],
         vehicle_ports=ports[2:],
-        profile=getattr(request, "param", "px4"),
+        profile=profile,
+        params=params,
     )
     with fleet.running_in_thread():
         yield fleet, [f"udpin://127.0.0.1:{p}" for p in ports[:2]]
+
+
+@pytest.fixture
+def mock(request: pytest.FixtureRequest) -> Iterator[tuple[MockFleet, list[str]]]:
+    """:func:`_running_mock`: the px4 profile unless a test says
+    ``@pytest.mark.parametrize("mock", ["ideal"], indirect=True)``.
+    """
+    with _running_mock(getattr(request, "param", "px4")) as running:
+        yield running
 
 
 def _connections(urls: list[str]) -> list[str]:
@@ -130,18 +139,7 @@ def test_upload_start_refuses_a_start_too_low_for_px4_to_take_off_to(
 ) -> None:
     # The plan starts 1.5 m above the ground; with NAV_MC_ALT_RAD 2 m PX4 would treat the
     # mission's take-off as reached on the ground and auto-disarm: refused before arming.
-    plan = load_plan(PLAN)
-    ports = free_udp_ports(4)
-    fleet = MockFleet(
-        n=2,
-        origin=plan.origin,
-        spawns_enu_m=ground_spawns(plan),
-        gcs_ports=ports[:2],
-        vehicle_ports=ports[2:],
-        params={"NAV_MC_ALT_RAD": 2.0},
-    )
-    with fleet.running_in_thread():
-        urls = [f"udpin://127.0.0.1:{p}" for p in ports[:2]]
+    with _running_mock(params={"NAV_MC_ALT_RAD": 2.0}) as (fleet, urls):
         rc = main(["upload", str(PLAN), "--start", *_connections(urls)])
         _out, err = capsys.readouterr()
         assert rc == 1
