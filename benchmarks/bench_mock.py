@@ -279,6 +279,7 @@ def _calibration(seeds: int) -> dict:  # type: ignore[type-arg]
         free = runs(plans["reach_avoid"], *low, "SIH_KDV=0")
         whole = runs(plans["reach_avoid"], gcs=())  # today's ground station, whole vehicle
         pl = runs(plans["powerline"])
+        pl_now = runs(plans["powerline"], gcs=())  # today's ground station: drag fed forward
         failed = sum(
             1 for r in whole
             if "refused" in r or r["safety_event"] or r["flown_robustness"] is None
@@ -291,6 +292,12 @@ def _calibration(seeds: int) -> dict:  # type: ignore[type-arg]
             (px4.POWERLINE_LAG, spread(pl, "lag_s")),
             (px4.POWERLINE_RMS, spread(pl, "rms_m")),
             (px4.POWERLINE_FLOWN, [r["flown_robustness"] for r in pl if r.get("flown_robustness")]),
+            (px4.POWERLINE_FF_LAG, spread(pl_now, "lag_s")),
+            (px4.POWERLINE_FF_RMS, spread(pl_now, "rms_m")),
+            (
+                px4.POWERLINE_FF_FLOWN,
+                [r["flown_robustness"] for r in pl_now if r.get("flown_robustness")],
+            ),
         ]
         out["reach_avoid_failed"] = (failed, len(whole))
         out["safety_stops"] = sum(1 for r in whole if r.get("safety_event"))
@@ -323,6 +330,8 @@ def _print_calibration(cal: dict) -> None:  # type: ignore[type-arg]
         verdict = "yes" if ok else "NO"
         if fig is px4.POWERLINE_FLOWN:
             verdict = "(one PX4 flight: for information)"
+        if fig is px4.POWERLINE_FF_FLOWN:
+            verdict = "(for information)"
         mock = f"{min(values):+.2f}..{max(values):+.2f}" if values else "n/a"
         print(
             f"{fig.what:<32} {mock:>14} {fig.unit:<2} {fig.lo:+.2f}..{fig.hi:+.2f} "

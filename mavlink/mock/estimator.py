@@ -8,7 +8,11 @@ quad-rotor that estimate is measurably off (``shared/PX4-BEHAVIOUR.md``):
   keeps that offset: the vehicle believes it is at its origin when it boots, so in the
   mission frame everything it reports (and flies to) is off by the origin's error;
 * on top of that a slowly varying bias and noise; the velocity estimate is off by up
-  to ~0.3 m/s rms, more during a yaw turn;
+  to ~0.3 m/s rms, more during a yaw turn, and part of that error is a slow horizontal
+  bias (0.1-0.2 m/s, correlated over tens of seconds).  PX4's position loop settles where
+  the *estimated* velocity is zero-error, so a velocity bias ``b`` holds the hovering
+  estimate about ``b / MPC_XY_P`` off its setpoint: the static 0.2-0.35 m hover offsets
+  PX4 SITL showed, which the tracking error of every flight carries;
 * near the ground (EKF2's ground-effect baro dead zone) the estimated altitude creeps up
   0.5-1.2 m while the vehicle really stays low or on the ground.
 
@@ -20,13 +24,13 @@ vehicle's *local frame*, whose origin is its (noisy) EKF origin.  With ``origin_
 the EKF origin expressed in the spawn frame::
 
     est_pos = true_pos - origin_ned_m + boot_origin_ned_m + bias_slow + drift + white - creep * e_down
-    est_vel = true_vel + vel_err
+    est_vel = true_vel + vel_err + vel_bias
 
 (``origin_ned_m`` equals ``boot_origin_ned_m`` until a client moves the origin with
 SET_GPS_GLOBAL_ORIGIN.)  The estimate's error against the truth is therefore
 ``boot_origin_ned_m + bias_slow + drift + white - creep * e_down`` in any frame.
 
-``drift`` integrates the velocity error and is pulled back by GPS with ``_GPS_TAU_S`` so a
+``drift`` integrates the velocity error (noise and bias) and is pulled back by GPS with ``_GPS_TAU_S`` so a
 velocity disturbance (a yaw turn) shows in the position estimate for about a second, as on
 PX4.  Arrays have one row per vehicle: ``(n, 3)`` NED vectors, ``(n,)`` scalars.
 """
@@ -56,6 +60,8 @@ class EstimatorParams:
         pos_noise_m: white noise on the position estimate, per axis.
         vel_noise_m_s: std of the velocity error, per axis (correlation ``vel_tau_s``).
         vel_tau_s: correlation time of the velocity error.
+        vel_bias_m_s: std of the slow horizontal velocity bias, per axis.
+        vel_bias_tau_s: correlation time of that bias.
         yaw_vel_m_s_per_rad_s: extra velocity-error std per rad/s of yaw rate.
         creep_height_m: below this true height above ground the altitude creeps (0: never).
         creep_rate_m_s: how fast it creeps while armed there (props spinning).
@@ -69,6 +75,8 @@ class EstimatorParams:
     pos_noise_m: float = 0.0
     vel_noise_m_s: float = 0.0
     vel_tau_s: float = 0.3
+    vel_bias_m_s: float = 0.0
+    vel_bias_tau_s: float = 30.0
     yaw_vel_m_s_per_rad_s: float = 0.0
     creep_height_m: float = 0.0
     creep_rate_m_s: float = 0.0
@@ -85,6 +93,8 @@ class EstimatorParams:
             pos_noise_m=p["MOCK_EST_P_N"],
             vel_noise_m_s=p["MOCK_EST_V_N"],
             vel_tau_s=max(p["MOCK_EST_V_TAU"], 1e-3),
+            vel_bias_m_s=p["MOCK_EST_VB"],
+            vel_bias_tau_s=max(p["MOCK_EST_VB_TAU"], 1e-3),
             yaw_vel_m_s_per_rad_s=p["MOCK_EST_YAW_V"],
             creep_height_m=p["MOCK_GE_HGT"],
             creep_rate_m_s=p["MOCK_GE_RATE"],
@@ -106,6 +116,8 @@ class FleetEstimator:
         self.bias_slow_m = np.zeros((n, 3))
         self.drift_m = np.zeros((n, 3))
         self.vel_err_m_s = np.zeros((n, 3))
+        #: the slow horizontal velocity bias (down component always 0)
+        self.vel_bias_m_s = np.zeros((n, 3))
         self.creep_m = np.zeros(n)
         self.creep_max_m = np.zeros(n)
         # per-vehicle magnitudes, (n,) each
@@ -114,6 +126,8 @@ class FleetEstimator:
         self._pos_sd = np.zeros((n, 1))
         self._vel_sd = np.zeros((n, 1))
         self._vel_tau = np.ones((n, 1))
+        self._vb_sd = np.zeros((n, 1))
+        self._vb_tau = np.ones((n, 1))
         self._yaw_gain = np.zeros((n, 1))
         self._creep_h = np.zeros(n)
         self._creep_rate = np.zeros(n)
@@ -131,6 +145,7 @@ class FleetEstimator:
             self.origin_ned_m[i] = (r * np.cos(ang), r * np.sin(ang), below)
             self.boot_origin_ned_m[i] = self.origin_ned_m[i]
             self.bias_slow_m[i] = rng.standard_normal(3) * prm.bias_slow_m
+            self.vel_bias_m_s[i, :2] = rng.standard_normal(2) * prm.vel_bias_m_s
             lo, hi = prm.creep_max_m
             self.creep_max_m[i] = rng.uniform(lo, hi) if hi > 0 else 0.0
         self._slow_sd[i] = prm.bias_slow_m
@@ -138,6 +153,10 @@ class FleetEstimator:
         self._pos_sd[i] = prm.pos_noise_m
         self._vel_sd[i] = prm.vel_noise_m_s
         self._vel_tau[i] = prm.vel_tau_s
+        self._vb_sd[i] = prm.vel_bias_m_s
+        self._vb_tau[i] = prm.vel_bias_tau_s
+        if not prm.vel_bias_m_s:
+            self.vel_bias_m_s[i] = 0.0
         self._yaw_gain[i] = prm.yaw_vel_m_s_per_rad_s
         self._creep_h[i] = prm.creep_height_m
         self._creep_rate[i] = prm.creep_rate_m_s
@@ -145,6 +164,7 @@ class FleetEstimator:
             np.any(self._slow_sd)
             or np.any(self._pos_sd)
             or np.any(self._vel_sd)
+            or np.any(self._vb_sd)
             or np.any(self._yaw_gain)
             or np.any(self._creep_rate)
         )
@@ -169,13 +189,17 @@ class FleetEstimator:
         dt = self.dt_s
         if self.active:
             rng = self.rng
-            draw = rng.standard_normal((self.n, 9))
+            draw = rng.standard_normal((self.n, 11))
             a = dt / self._slow_tau
             self.bias_slow_m += -self.bias_slow_m * a + self._slow_sd * np.sqrt(2 * a) * draw[:, :3]
             av = dt / self._vel_tau
             sd_v = np.sqrt(self._vel_sd**2 + (self._yaw_gain * yaw_rate_rad_s[:, None]) ** 2)
             self.vel_err_m_s += -self.vel_err_m_s * av + sd_v * np.sqrt(2 * av) * draw[:, 3:6]
-            self.drift_m += (self.vel_err_m_s - self.drift_m / _GPS_TAU_S) * dt
+            ab = dt / self._vb_tau
+            self.vel_bias_m_s[:, :2] += (
+                -self.vel_bias_m_s[:, :2] * ab + self._vb_sd * np.sqrt(2 * ab) * draw[:, 9:11]
+            )
+            self.drift_m += (self.vel_err_m_s + self.vel_bias_m_s - self.drift_m / _GPS_TAU_S) * dt
             white = self._pos_sd * draw[:, 6:9]
             agl = -true_pos_ned_m[:, 2]
             in_effect = motors_on & (agl < self._creep_h)
@@ -192,3 +216,4 @@ class FleetEstimator:
         out_pos_ned_m += self.boot_origin_ned_m + self.bias_slow_m + self.drift_m + white
         out_pos_ned_m[:, 2] -= self.creep_m
         np.add(true_vel_ned_m_s, self.vel_err_m_s, out=out_vel_ned_m_s)
+        out_vel_ned_m_s += self.vel_bias_m_s

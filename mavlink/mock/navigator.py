@@ -9,7 +9,7 @@ horizontally and NAV_MC_ALT_RAD vertically, then held ``param1`` s), DO items
 run at once (DO_CHANGE_SPEED, DO_JUMP with repeat counts, DO_SET_HOME, camera
 and gimbal items are accepted and skipped), a mission started on the ground
 without a takeoff item first climbs to MIS_TAKEOFF_ALT, MISSION_CURRENT is sent
-on every change.  Return to launch climbs to RTL_RETURN_ALT unless within 10 m of
+on every change (PX4: mostly on the next once-a-second report, ``_announce_current``).  Return to launch climbs to RTL_RETURN_ALT unless within 10 m of
 home (RTL_MIN_DIST), flies home and lands.  Geofence inclusion/exclusion polygons
 and circles are checked while flying; a breach triggers GF_ACTION.
 
@@ -253,7 +253,7 @@ class NavigatorMixin:
                 if self._mis_phase == "goto":
                     self._traj_begin(target)
         if changed or self._mis_phase:
-            self.send(self._msg_mission_current())
+            self._announce_current()
 
     def _mission_finish(self) -> None:
         self._traj_active = False
@@ -263,7 +263,25 @@ class NavigatorMixin:
         self._mis_phase = "done"
         if not self.landed:
             self.phys.hold_here(self.index)
-        self.send(self._msg_mission_current())
+        self._announce_current()
+
+    def _announce_current(self, *, set_by_client: bool = False) -> None:
+        """MISSION_CURRENT after the current item changed, as PX4 v1.17 sends it on one link.
+
+        PX4's ``MavlinkMissionManager`` keeps the current seq in a *static* shared by all
+        its MAVLink instances (GCS, API/offboard, onboard) and sends MISSION_CURRENT only
+        when its copy differs from the navigator's: whichever instance runs first sends
+        it, the others see no change and report it on their once-a-second stream.  On the
+        API link PX4 SITL sent 4 of 65 advances at once, the rest 0.1-0.9 s later
+        (``MOCK_MC_NOW``, the chance of at once); a MISSION_SET_CURRENT sets the static
+        itself, so its change is never sent at once.  MISSION_ITEM_REACHED is
+        per-instance and always prompt.  The ideal vehicle sends every change at once.
+        """
+        at_once = not self.px4_nav or (
+            not set_by_client and self._mc_rng.random() < self.params["MOCK_MC_NOW"]
+        )
+        if at_once:
+            self.send(self._msg_mission_current())
 
     def _item_reached(self, seq: int) -> None:
         if self.px4_nav:

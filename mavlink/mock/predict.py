@@ -31,6 +31,7 @@ QUIET_ESTIMATOR = {
     "MOCK_EST_SLOW_B": 0.0,
     "MOCK_EST_P_N": 0.0,
     "MOCK_EST_V_N": 0.0,
+    "MOCK_EST_VB": 0.0,
     "MOCK_EST_YAW_V": 0.0,
     "MOCK_ORG_XY_MIN": 0.0,
     "MOCK_ORG_XY_MAX": 0.0,

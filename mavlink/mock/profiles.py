@@ -10,11 +10,12 @@ or set by any client through the MAVLink parameter protocol.
     linear drag (SIH_KDV 1/s) that PX4's position controller does not compensate, so
     the vehicle trails its setpoints by KDV / (MPC_XY_P * MPC_XY_VEL_P_ACC) = 0.585 s
     until the velocity integrator catches up; the loops closed on a biased, noisy
-    estimate with a per-boot EKF origin (``mavlink.mock.estimator``) and a ground-effect
+    estimate (a slow velocity bias holds the hover ``bias / MPC_XY_P`` off its setpoint)
+    with a per-boot EKF origin (``mavlink.mock.estimator``) and a ground-effect
     altitude creep; yaw at MC_YAW_P; PX4's take-off (spool-up only when a climb is
     wanted, ramp MPC_TKO_RAMP_T, "reached" within NAV_MC_ALT_RAD); PX4's mission
-    navigator and storage (``MOCK_PX4_NAV``): corner speeds, MISSION_ITEM_REACHED as
-    PX4 emits it, items normalised on download, the take-off skip, the
+    navigator and storage (``MOCK_PX4_NAV``): corner speeds, MISSION_ITEM_REACHED and
+    MISSION_CURRENT as PX4 emits them on the API link, items normalised on download, the take-off skip, the
     mission-start rejection window (``MOCK_MIS_RDY_T``) and the predictive geofence
     (GF_PREDICT).
 ``ideal``
@@ -44,6 +45,7 @@ _IDEAL: dict[str, float] = {
     "MOCK_EST_SLOW_B": 0.0,
     "MOCK_EST_P_N": 0.0,
     "MOCK_EST_V_N": 0.0,
+    "MOCK_EST_VB": 0.0,
     "MOCK_EST_YAW_V": 0.0,
     "MOCK_GE_HGT": 0.0,
     "MOCK_GE_RATE": 0.0,

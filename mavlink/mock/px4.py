@@ -195,6 +195,8 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("MOCK_EST_P_N", ParamType.REAL32, 0.02, 0.0, 1.0),
     ParamSpec("MOCK_EST_V_N", ParamType.REAL32, 0.12, 0.0, 2.0),
     ParamSpec("MOCK_EST_V_TAU", ParamType.REAL32, 0.3, 0.01, 10.0),
+    ParamSpec("MOCK_EST_VB", ParamType.REAL32, 0.1, 0.0, 2.0),
+    ParamSpec("MOCK_EST_VB_TAU", ParamType.REAL32, 30.0, 0.1, 1000.0),
     ParamSpec("MOCK_EST_YAW_V", ParamType.REAL32, 0.05, 0.0, 2.0),
     ParamSpec("MOCK_GE_HGT", ParamType.REAL32, 1.0, 0.0, 5.0),
     ParamSpec("MOCK_GE_RATE", ParamType.REAL32, 0.25, 0.0, 5.0),
@@ -203,6 +205,7 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     # --- the mock's own: which PX4 v1.17 behaviours are modelled (1) or idealised (0) ---
     ParamSpec("MOCK_PX4_NAV", ParamType.INT32, 1, 0.0, 1.0),
     ParamSpec("MOCK_MIS_RDY_T", ParamType.REAL32, 0.09, 0.0, 5.0),
+    ParamSpec("MOCK_MC_NOW", ParamType.REAL32, 0.06, 0.0, 1.0),
 )
 
 #: COM_OBL_RC_ACT values (offboard loss action).  Without an RC link the

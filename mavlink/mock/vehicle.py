@@ -19,6 +19,7 @@ global positions are that origin's geodetic coordinates plus the local offset
 from __future__ import annotations
 
 import math
+import random
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, ClassVar
@@ -193,6 +194,8 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         self._seq_reached = -1
         self._reached_resends = 0
         self._reached_next_s = 0.0
+        # decides which MISSION_CURRENT changes PX4 would send at once (_announce_current)
+        self._mc_rng = random.Random(f"mission-current:{fleet.seed}:{index}")
         self._mission_valid_s = -math.inf
         self._jump_counts: dict[int, int] = {}
         # PX4's auto-mode trajectory setpoint (MOCK_PX4_NAV)
@@ -817,7 +820,7 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         self.mission_finished = False
         if self.mode is Px4Mode.AUTO_MISSION:
             self._mission_start_item(seq)
-        self.send(self._msg_mission_current())
+        self._announce_current(set_by_client=True)
         return True
 
     def _on_mission_set_current(self, msg: Msg) -> None:

@@ -9,6 +9,7 @@ command reports, and independently the ``.tlog`` bytes re-read with pymavlink.
 from __future__ import annotations
 
 import json
+import math
 import signal
 import subprocess
 import sys
@@ -228,8 +229,13 @@ def test_mission_mode_on_px4_is_predicted_refused_and_with_force_flown_as_predic
     pred = res["mission_prediction"]
     assert pred["acceptance_auto"] and pred["acceptance_m"] >= 0.6
     assert res["flown_robustness"] is not None and res["coverage_problem"] is None
-    # the prediction is what PX4 (here the px4 mock) flies: within 0.3 m of robustness
-    assert abs(res["flown_robustness"] - pred["predicted_robustness"]) < 0.3, res
+    # The prediction is what PX4's navigator (here the px4 mock's) flies, on a quiet
+    # estimator: the flown robustness is within 0.3 of it, plus what the estimate's own
+    # error can move a robustness (a distance between two vehicles moves by both errors:
+    # twice the largest (horizontal, vertical) position accuracy the vehicles reported).
+    est = max(math.hypot(*acc) for acc in res["estimator_accuracy_m"].values())
+    assert est > 0.2  # PX4's estimator, not the truth
+    assert abs(res["flown_robustness"] - pred["predicted_robustness"]) < 0.3 + 2 * est, res
     assert rc == (0 if res["flown_robustness"] >= 0 else 1)
     plan = load_plan(LINK_PLAN)
     for pv in plan.vehicles:

@@ -13,6 +13,7 @@ flight is a real dry run: MAVSDK over UDP to mock vehicles in real time.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import pytest
@@ -53,9 +54,23 @@ def fly(plan: Path, capsys: pytest.CaptureFixture[str], *params: str, gcs: tuple
     return json.loads(capsys.readouterr().out)
 
 
-def within(values: list[float], figure: px4.Px4Figure) -> bool:
+def within(values: list[float], figure: px4.Px4Figure, slack: float = 0.0) -> bool:
     lo, hi = figure.band(px4.TOLERANCE)
-    return all(lo <= v <= hi for v in values)
+    return all(lo - slack <= v <= hi + slack for v in values)
+
+
+def bias_lag_s(speed_m_s: float) -> float:
+    """How far the estimator's velocity bias can move one vehicle's best-fit lag.
+
+    A bias ``b`` holds the estimate ``b / MPC_XY_P`` off the setpoint (tests/mavlink/
+    test_mock_px4.py), which along the track reads as a lag of ``b / (MPC_XY_P * speed)``;
+    ``b`` up to 1.5 sigma of MOCK_EST_VB per axis.  PX4's own ranges come from 5 flights,
+    so one flight of the mock may sit that far outside them.
+    """
+    from mavlink.mock.px4 import PARAM_SPECS
+
+    d = {p.name: p.default for p in PARAM_SPECS}
+    return 1.5 * math.sqrt(2.0) * d["MOCK_EST_VB"] / (d["MPC_XY_P"] * speed_m_s)
 
 
 def test_reach_avoid_tracks_as_on_px4_and_fails_as_it_did(
@@ -68,12 +83,15 @@ def test_reach_avoid_tracks_as_on_px4_and_fails_as_it_did(
     res = fly(plans["reach_avoid"], capsys, *low)
     lags = [t["lag_s"] for t in res["tracking"]]
     rms = [t["rms_m"] for t in res["tracking"]]
-    assert within(lags, px4.REACH_AVOID_LAG), lags
+    assert within(lags, px4.REACH_AVOID_LAG, bias_lag_s(0.75)), lags
     assert within(rms, px4.REACH_AVOID_RMS), rms
-    # Without drag (SIH_KDV = 0) the lag all but vanishes, as on PX4.
+    # Without drag (SIH_KDV = 0) the lag all but vanishes, as on PX4: none is left on
+    # average, and each vehicle's is within what its estimator's velocity bias explains.
     free = fly(plans["reach_avoid"], capsys, *low, "SIH_KDV=0")
-    lags = [t["lag_s"] for t in free["tracking"]]
-    assert all(abs(x) < 0.2 for x in lags), lags
+    free_lags = [t["lag_s"] for t in free["tracking"]]
+    assert within(free_lags, px4.DRAG_FREE_LAG, bias_lag_s(0.75)), free_lags
+    # the drag's lag is gone: PX4 0.3-0.7 s with drag, -0.13..+0.17 s without
+    assert sum(lags) / len(lags) - sum(free_lags) / len(free_lags) > 0.25, (lags, free_lags)
     # Today's ground station on the same vehicle: the drag (SIH_KDV / SIH_MASS, read from
     # the vehicle) fed forward takes the lag out. At 0.75 m/s the lag is 0.44 m of a tracking
     # error that also holds the estimator's ~0.15 m: rms down by at least 40 % (the power
@@ -92,7 +110,7 @@ def test_power_line_tracks_and_scores_as_on_px4(
     assert res["completed"] and res["safety_event"] is None
     lags = [t["lag_s"] for t in res["tracking"]]
     rms = [t["rms_m"] for t in res["tracking"]]
-    assert within(lags, px4.POWERLINE_LAG), lags
+    assert within(lags, px4.POWERLINE_LAG, bias_lag_s(3.0)), lags
     assert within(rms, px4.POWERLINE_RMS), rms
     # PX4: flown +0.399 for a planned +0.871; a positive margin, about half the plan's
     # (with the drag fed forward the same plan flies to +0.63..+0.84 and rms 0.14-0.20 m:
