@@ -9,7 +9,7 @@ quad-rotor that estimate is measurably off (``shared/PX4-BEHAVIOUR.md``):
   mission frame everything it reports (and flies to) is off by the origin's error;
 * on top of that a slowly varying bias and noise; the velocity estimate is off by up
   to ~0.3 m/s rms, more during a yaw turn, and part of that error is a slow horizontal
-  bias (0.1-0.2 m/s, correlated over tens of seconds).  PX4's position loop settles where
+  bias (~0.1 m/s per axis, correlated over tens of seconds).  PX4's position loop settles where
   the *estimated* velocity is zero-error, so a velocity bias ``b`` holds the hovering
   estimate about ``b / MPC_XY_P`` off its setpoint: the static 0.2-0.35 m hover offsets
   PX4 SITL showed, which the tracking error of every flight carries;
@@ -30,9 +30,9 @@ the EKF origin expressed in the spawn frame::
 SET_GPS_GLOBAL_ORIGIN.)  The estimate's error against the truth is therefore
 ``boot_origin_ned_m + bias_slow + drift + white - creep * e_down`` in any frame.
 
-``drift`` integrates the velocity error (noise and bias) and is pulled back by GPS with ``_GPS_TAU_S`` so a
-velocity disturbance (a yaw turn) shows in the position estimate for about a second, as on
-PX4.  Arrays have one row per vehicle: ``(n, 3)`` NED vectors, ``(n,)`` scalars.
+``drift`` integrates the velocity error (noise and bias) and is pulled back by GPS with
+``_GPS_TAU_S`` so a velocity disturbance (a yaw turn) shows in the position estimate for
+about a second, as on PX4.  Arrays have one row per vehicle: ``(n, 3)`` NED vectors, ``(n,)`` scalars.
 """
 
 from __future__ import annotations
@@ -100,6 +100,12 @@ class EstimatorParams:
             creep_rate_m_s=p["MOCK_GE_RATE"],
             creep_max_m=(p["MOCK_GE_MIN"], p["MOCK_GE_MAX"]),
         )
+
+
+def _ou_step(x: np.ndarray, a: np.ndarray, sd: np.ndarray, draw: np.ndarray) -> None:
+    """One step of a stationary Ornstein-Uhlenbeck process in place: ``a = dt / tau``,
+    stationary std ``sd``, ``draw`` standard normal."""
+    x += -x * a + sd * np.sqrt(2 * a) * draw
 
 
 class FleetEstimator:
@@ -190,15 +196,10 @@ class FleetEstimator:
         if self.active:
             rng = self.rng
             draw = rng.standard_normal((self.n, 11))
-            a = dt / self._slow_tau
-            self.bias_slow_m += -self.bias_slow_m * a + self._slow_sd * np.sqrt(2 * a) * draw[:, :3]
-            av = dt / self._vel_tau
+            _ou_step(self.bias_slow_m, dt / self._slow_tau, self._slow_sd, draw[:, :3])
             sd_v = np.sqrt(self._vel_sd**2 + (self._yaw_gain * yaw_rate_rad_s[:, None]) ** 2)
-            self.vel_err_m_s += -self.vel_err_m_s * av + sd_v * np.sqrt(2 * av) * draw[:, 3:6]
-            ab = dt / self._vb_tau
-            self.vel_bias_m_s[:, :2] += (
-                -self.vel_bias_m_s[:, :2] * ab + self._vb_sd * np.sqrt(2 * ab) * draw[:, 9:11]
-            )
+            _ou_step(self.vel_err_m_s, dt / self._vel_tau, sd_v, draw[:, 3:6])
+            _ou_step(self.vel_bias_m_s[:, :2], dt / self._vb_tau, self._vb_sd, draw[:, 9:11])
             self.drift_m += (self.vel_err_m_s + self.vel_bias_m_s - self.drift_m / _GPS_TAU_S) * dt
             white = self._pos_sd * draw[:, 6:9]
             agl = -true_pos_ned_m[:, 2]

@@ -9,8 +9,9 @@ horizontally and NAV_MC_ALT_RAD vertically, then held ``param1`` s), DO items
 run at once (DO_CHANGE_SPEED, DO_JUMP with repeat counts, DO_SET_HOME, camera
 and gimbal items are accepted and skipped), a mission started on the ground
 without a takeoff item first climbs to MIS_TAKEOFF_ALT, MISSION_CURRENT is sent
-on every change (PX4: mostly on the next once-a-second report, ``_announce_current``).  Return to launch climbs to RTL_RETURN_ALT unless within 10 m of
-home (RTL_MIN_DIST), flies home and lands.  Geofence inclusion/exclusion polygons
+on every change (PX4: mostly on the next once-a-second report, ``_announce_current``).
+Return to launch climbs to RTL_RETURN_ALT unless within 10 m of home (RTL_MIN_DIST),
+flies home and lands.  Geofence inclusion/exclusion polygons
 and circles are checked while flying; a breach triggers GF_ACTION.
 
 With ``MOCK_PX4_NAV`` (the ``px4`` profile) the navigator is PX4 v1.17's
