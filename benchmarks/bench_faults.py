@@ -10,6 +10,11 @@ Rows:
    on the vehicle's own stored copy: ``partial`` counts runs where the vehicle
    holds neither its previous mission nor exactly the plan, ``silent`` runs
    where the GCS said success but the vehicle does not hold the plan.
+1b. The same upload retried as a whole (:func:`mavlink.mission.upload_with_retries`,
+   60 s budget: upload, read back, compare, exponential back-off with jitter) at 30 %
+   loss both ways and 50 % up or down, ``--retry-runs`` seeds each; the same
+   ``partial`` and ``silent`` judgement on the vehicle's stored copy; ``tries`` is the
+   most uploads a run took.
 2. Offboard flight of the two-vehicle reach-avoid plan: 10 % setpoint loss with
    50 ms jitter (success: completed and flown robustness > 0); a 3 s outage
    and a 1.5 s outage (shorter than the 2 s link timeout, longer than PX4's
@@ -21,11 +26,15 @@ Rows:
    back disarmed and answers, and its mission survived.
 4. A vehicle that never answers: :class:`mavlink.fleet.Fleet` connect (success:
    ``ConnectTimeoutError`` naming it).
+5. Connecting two vehicles whose links lose 30 % both ways from the start (discovery,
+   first heartbeats, telemetry rates at 20 Hz), ``--retry-runs`` seeds; success: connected.
 
 "worst s" is the worst wall time to complete or fail.  Prints a table, then one
 JSON line.  Usage::
 
     PYTHONPATH=. .venv/bin/python benchmarks/bench_faults.py [--runs 5] [--flights 2]
+
+(``--retry-runs 20``: seeds of the retried uploads and of the connect under loss.)
 """
 
 from __future__ import annotations
@@ -37,17 +46,23 @@ import time
 
 from mavlink.errors import ConnectTimeoutError
 from mavlink.fleet import Fleet, VehicleSpec
+from mavlink.mission import RetryPolicy
 from mavlink.mock import FaultConfig
 from mavlink.mock.testing import free_udp_ports
 from planner.planfile import load_plan
 from tests.reliability.harness import (
     CONDITIONS,
     PLAN_PATH,
+    connect_run,
     flight_run,
     mission_run,
     plan_items,
     reboot_run,
 )
+
+#: Conditions of the retried uploads (issue 17's targets) and the budget of each transfer.
+RETRY_CONDITIONS = ("loss 30% both", "loss 50% up", "loss 50% down")
+RETRY_BUDGET_S = 60.0
 
 
 def mission_rows(runs: int) -> list[dict]:
@@ -75,6 +90,58 @@ def mission_rows(runs: int) -> list[dict]:
         )
         print_row(rows[-1])
     return rows
+
+
+def retry_rows(runs: int) -> list[dict]:
+    plan = load_plan(PLAN_PATH)
+    items = plan_items(plan)
+    other = plan_items(plan_second(plan))
+    rows = []
+    for name in RETRY_CONDITIONS:
+        results = []
+        for seed in range(runs):
+            policy = RetryPolicy(budget_s=RETRY_BUDGET_S, seed=seed)
+            results.append(
+                asyncio.run(
+                    mission_run(
+                        name, CONDITIONS[name], seed, items, plan.origin, previous=other,
+                        policy=policy,
+                    )
+                )
+            )  # fmt: skip
+        errors = sorted({r.error.split(": ", 1)[-1] for r in results if not r.ok})
+        rows.append(
+            {
+                "kind": "mission retried",
+                "condition": f"retried ({RETRY_BUDGET_S:g} s): {name}",
+                "runs": runs,
+                "items": len(items),
+                "successes": sum(r.ok for r in results),
+                "partial": sum(r.partial_on_vehicle for r in results),
+                "silent": sum(r.silent_partial for r in results),
+                "worst_s": max(r.elapsed_s for r in results),
+                "attempts_max": max(r.attempts for r in results),
+                "attempts_mean": sum(r.attempts for r in results) / runs,
+                "errors": errors,
+            }
+        )
+        print_row(rows[-1])
+    return rows
+
+
+def connect_rows(runs: int) -> list[dict]:
+    name = "loss 30% both"
+    results = [asyncio.run(connect_run(name, CONDITIONS[name], seed)) for seed in range(runs)]
+    row = {
+        "kind": "connect",
+        "condition": f"connect 2 vehicles: {name}",
+        "runs": runs,
+        "successes": sum(r.ok for r in results),
+        "worst_s": max(r.elapsed_s for r in results),
+        "errors": sorted({r.error for r in results if not r.ok}),
+    }
+    print_row(row)
+    return [row]
 
 
 def plan_second(plan):  # type: ignore[no-untyped-def]
@@ -168,6 +235,13 @@ def print_row(r: dict) -> None:
     extra = ""
     if r["kind"] == "mission":
         extra = f"partial={r['partial']} silent={r['silent']} {'; '.join(r['errors'])}"
+    elif r["kind"] == "mission retried":
+        extra = (
+            f"partial={r['partial']} silent={r['silent']} tries<={r['attempts_max']} "
+            f"(mean {r['attempts_mean']:.1f}) {'; '.join(r['errors'])}"
+        )
+    elif r["kind"] == "connect":
+        extra = "discovery, heartbeats, telemetry rates " + "; ".join(r["errors"])
     elif r["kind"] == "reboot":
         extra = f"fleet Hold with d1 silent: worst {r['worst_hold_s']:.2f} s (d1 fails, d2 held)"
     elif r["kind"] == "flight":
@@ -186,13 +260,21 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=5, help="seeds per mission condition")
     ap.add_argument("--flights", type=int, default=2, help="runs per flight condition")
+    ap.add_argument(
+        "--retry-runs",
+        type=int,
+        default=20,
+        help="seeds per retried-upload condition and of the connect under loss",
+    )
     args = ap.parse_args()
     print(f"{'condition':<40} {'runs':>4} {'successes':>9} {'worst s':>8}  notes")
     rows = (
         mission_rows(args.runs)
+        + retry_rows(args.retry_runs)
         + flight_rows(args.flights)
         + reboot_rows(args.flights)
         + silent_rows(2)
+        + connect_rows(args.retry_runs)
     )
     print(json.dumps({"bench": "faults", "rows": rows}))
 

@@ -8,7 +8,8 @@ actions, missions and offboard, pymavlink for logs)::
     mavlink.fleet       Fleet: N vehicles through one MAVSDK instance, live status
     mavlink.stream      deadline-scheduled setpoint streaming and its statistics
     mavlink.offboard    fly_offboard: a plan flown in offboard mode, all in step
-    mavlink.mission     trajectory -> PX4 mission / geofence items, upload, verify
+    mavlink.mission     trajectory -> PX4 mission / geofence items, upload, verify,
+                        whole-transfer retries within a time budget
     mavlink.monitor     online safety monitor of the spec's always-clauses
     mavlink.tlog        telemetry recording to .tlog and CSV
     mavlink.mock        the mock PX4 vehicle endpoint (vehicle side)
@@ -26,6 +27,8 @@ Error tree (``mavlink.errors``)::
       StreamError                         setpoints that cannot be streamed (rate, shapes)
       MissionError                        mission transfer or verification failed
                                           (.result: MissionResult, .origin: operation)
+        TransferGaveUpError                   a retried transfer's time budget ran out
+                                              (.attempts, .elapsed_s, .last cause, .held)
       UnknownModeError(LinkError, ValueError)  custom_mode that is no PX4 mode
                                                (defined in mavlink.px4_modes)
 
@@ -42,6 +45,7 @@ from mavlink.errors import (
     MissionResult,
     PreflightError,
     StreamError,
+    TransferGaveUpError,
     UrlError,
 )
 
@@ -54,5 +58,6 @@ __all__ = [
     "MissionResult",
     "PreflightError",
     "StreamError",
+    "TransferGaveUpError",
     "UrlError",
 ]

@@ -111,3 +111,50 @@ class MissionError(LinkError):
         if detail:
             text += f": {detail}"
         super().__init__(text, vehicle=vehicle, url=url)
+
+
+class TransferGaveUpError(MissionError):
+    """A retried transfer (:func:`mavlink.mission.upload_with_retries`) ran out of its time
+    budget without a read-back equal to the plan.
+
+    ``origin`` is the whole operation (``"upload_mission"``); ``result`` and
+    ``mavsdk_result`` are those of the last cause. The vehicle holds whatever its last
+    read-back showed (``held``), never a part of the plan reported as the plan.
+
+    Attributes:
+        attempts: uploads tried.
+        elapsed_s: time spent, seconds.
+        last: the last cause (a :class:`MissionError`).
+        held: items of the vehicle's plan at its last completed read-back, which differed
+            from the plan (``None``: no read-back completed, unknown).
+    """
+
+    def __init__(
+        self,
+        origin: str,
+        last: MissionError,
+        *,
+        attempts: int,
+        elapsed_s: float,
+        budget_s: float,
+        held: int | None,
+        mission_type: str,
+    ) -> None:
+        self.last = last
+        self.attempts = attempts
+        self.elapsed_s = elapsed_s
+        self.held = held
+        holds = (
+            f"the vehicle's {mission_type} plan is unknown (no read-back completed)"
+            if held is None
+            else f"the vehicle holds another {mission_type} plan ({held} items)"
+        )
+        super().__init__(
+            last.result,
+            origin,
+            f"gave up after {attempts} attempt(s) in {elapsed_s:.1f} s (budget {budget_s:g} s); "
+            f"last cause: {last.detail}; {holds}",
+            mavsdk_result=last.mavsdk_result,
+            vehicle=last.vehicle,
+            url=last.url,
+        )

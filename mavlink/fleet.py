@@ -68,6 +68,9 @@ _KEPT_TEXTS = 50
 #: MAV_PARAM_TYPE values of integer parameters (UINT8 .. INT64).
 _INT_PARAM_TYPES = frozenset(range(1, 9))
 
+#: MAVSDK results of a request that got no (usable) answer: worth sending again on a bad link.
+_UNANSWERED = frozenset({"TIMEOUT", "BUSY", "NO_SYSTEM", "CONNECTION_ERROR", "UNKNOWN"})
+
 #: MAV_RESULT names, for COMMAND_ACK results reported through mavlink_direct.
 MAV_RESULT_NAMES = {
     0: "ACCEPTED",
@@ -713,15 +716,35 @@ class Vehicle:
                 )
             await asyncio.sleep(poll_s)
 
-    async def set_telemetry_rate(self, rate_hz: float) -> None:
-        """Ask for LOCAL_POSITION_NED and GLOBAL_POSITION_INT at ``rate_hz``."""
+    async def set_telemetry_rate(self, rate_hz: float, *, retry_for_s: float = 0.0) -> None:
+        """Ask for LOCAL_POSITION_NED and GLOBAL_POSITION_INT at ``rate_hz``.
+
+        A request left unanswered (MAVSDK's own command retries all lost on a bad link) is
+        sent again for up to ``retry_for_s`` seconds; setting a rate twice is harmless. A
+        refusal (DENIED, UNSUPPORTED) is not retried.
+
+        Raises:
+            CommandError: refused, or still unanswered after ``retry_for_s`` (names the
+                attempts).
+        """
+        deadline = time.monotonic() + retry_for_s
         for what, start in (
             ("set rate of local position", self.telemetry.set_rate_position_velocity_ned_async),
             ("set rate of global position", self.telemetry.set_rate_position_async),
         ):
-            result = await mavsdk_call(start, float(rate_hz))
-            if result != TelemetryResult.SUCCESS:
-                raise self._fail(what, result)
+            attempts = 0
+            while True:
+                attempts += 1
+                try:
+                    result = await mavsdk_call(start, float(rate_hz))
+                except TimeoutError:
+                    result = "TIMEOUT"
+                if result == TelemetryResult.SUCCESS:
+                    break
+                name = getattr(result, "name", str(result))
+                if name not in _UNANSWERED or time.monotonic() >= deadline:
+                    tries = f" ({attempts} attempts in {retry_for_s:.1f} s)" if attempts > 1 else ""
+                    raise self._fail(what + tries, result)
 
     def close(self) -> None:
         """Drop the telemetry subscriptions (the plugins die with the Mavsdk instance)."""
@@ -753,6 +776,8 @@ class Fleet:
         UrlError: a URL is malformed (before anything is opened).
         LinkError: a URL cannot be opened (port in use, no such device).
         ConnectTimeoutError: a vehicle did not appear; names it, its URL and sysid.
+        CommandError: a vehicle refused the telemetry rate, or never answered the request
+            within ``connect_timeout_s``.
     """
 
     def __init__(
@@ -801,7 +826,12 @@ class Fleet:
         self.close()
 
     async def connect(self) -> None:
-        """Open every URL and wait until each vehicle's system id has been seen."""
+        """Open every URL and wait until each vehicle's system id has been seen.
+
+        On a lossy link discovery waits for a heartbeat that gets through (PX4 sends one a
+        second) and the telemetry-rate requests are repeated while unanswered, each within
+        ``connect_timeout_s``.
+        """
         route_mavsdk_logs()
         config = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
         self._mavsdk = Mavsdk(config)
@@ -820,23 +850,33 @@ class Fleet:
                     spec, systems[spec.sysid], link_timeout_s=self.link_timeout_s
                 )
             # Discovery by sysid sees any message; wait for a decoded heartbeat too.
-            await asyncio.gather(
-                *(
-                    v.wait_for(
-                        lambda st: st.heartbeat_age_s is not None,
-                        "first heartbeat",
-                        timeout_s=self.connect_timeout_s,
-                    )
-                    for v in self._vehicles.values()
-                )
-            )
+            await asyncio.gather(*(self._first_heartbeat(v) for v in self._vehicles.values()))
             if self.telemetry_rate_hz is not None:
+                rate, wait = self.telemetry_rate_hz, self.connect_timeout_s
                 await asyncio.gather(
-                    *(v.set_telemetry_rate(self.telemetry_rate_hz) for v in self._vehicles.values())
+                    *(v.set_telemetry_rate(rate, retry_for_s=wait) for v in self._vehicles.values())
                 )
         except BaseException:
             self.close()
             raise
+
+    async def _first_heartbeat(self, v: Vehicle) -> None:
+        """Wait for ``v``'s first autopilot HEARTBEAT; ConnectTimeoutError naming it if none."""
+        try:
+            await v.wait_for(
+                lambda st: st.heartbeat_age_s is not None,
+                "first heartbeat",
+                timeout_s=self.connect_timeout_s,
+            )
+        except LinkLostError:
+            raise
+        except LinkError as exc:
+            raise ConnectTimeoutError(
+                f"no autopilot heartbeat from system id {v.spec.sysid} within "
+                f"{self.connect_timeout_s:.1f} s",
+                vehicle=v.name,
+                url=v.url,
+            ) from exc
 
     async def _wait_for_systems(self) -> dict[int, Any]:
         assert self._mavsdk is not None

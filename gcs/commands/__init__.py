@@ -6,10 +6,19 @@ import argparse
 
 
 def add_link_arguments(
-    p: argparse.ArgumentParser, *, plan_order: bool, timeout_s: float, timeout_help: str
+    p: argparse.ArgumentParser,
+    *,
+    plan_order: bool,
+    timeout_s: float,
+    timeout_help: str,
+    timeout_flag: str = "--timeout",
 ) -> None:
     """``--connection`` (repeatable), ``--timeout`` and ``--signing-key``: how ``gcs fly``,
-    ``gcs upload`` and ``gcs status`` reach their vehicles, declared once."""
+    ``gcs upload`` and ``gcs status`` reach their vehicles, declared once.
+
+    ``timeout_flag`` names the connection timeout where ``--timeout`` means something else
+    (``gcs upload``: ``--connect-timeout``, its ``--timeout`` being the transfer budget).
+    """
     order = "repeat, plan order" if plan_order else "repeat"
     p.add_argument(
         "--connection",
@@ -18,7 +27,7 @@ def add_link_arguments(
         help=f"connection URL of the next vehicle ({order}); default "
         "udpin://0.0.0.0:14540+i (PX4 SITL)",
     )
-    p.add_argument("--timeout", type=float, default=timeout_s, metavar="S", help=timeout_help)
+    p.add_argument(timeout_flag, type=float, default=timeout_s, metavar="S", help=timeout_help)
     p.add_argument(
         "--signing-key",
         metavar="FILE",

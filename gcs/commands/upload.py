@@ -19,6 +19,13 @@ and how far the mission's straight legs stray from the planned trajectory; below
 spec's exact robustness if every vehicle flew its mission's path exactly (the price of the
 mission conversion against the plan's own robustness).
 
+On a bad radio link each transfer is retried as a whole
+(:func:`mavlink.mission.upload_with_retries`: upload, read back, compare; exponential back-off
+with jitter between attempts) until it reads back as sent or the vehicle's ``--timeout``
+budget (60 s, shared by its mission and fence) runs out; each vehicle's progress goes to
+standard error, one line per step (attempt, items, elapsed time). ``--connect-timeout``
+bounds the wait for the vehicles to answer (10 s).
+
 Read-back compares each item as PX4 stores it (fence items come back without autocontinue,
 yaw wrapped to [0, 360): :func:`mavlink.mission.compare_items`); a position, command or count
 that differs is a failure. A start is reported only when it happened: PX4 in AUTO.MISSION,
@@ -27,7 +34,7 @@ for PX4's mission take-off (NAV_MC_ALT_RAD) is refused before anything is armed.
 
 Exit status: 0 every upload read back as sent (and, with ``--start``, every mission started),
 1 refused by an interlock, a read-back differs, a transfer failed or a start did not happen,
-2 bad input (plan file, URL, unreachable vehicle).
+2 bad input (plan file, URL, option value, unreachable vehicle).
 """
 
 from __future__ import annotations
@@ -37,21 +44,27 @@ import asyncio
 import json
 import math
 import sys
+import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from gcs.commands import add_link_arguments
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from gcs.missions import FencePlan, MissionConversion
     from mavlink.fleet import Fleet, Vehicle, VehicleSpec
-    from mavlink.mission import MissionItem, MissionPlan, MissionStart
+    from mavlink.mission import MissionItem, MissionPlan, MissionStart, TransferProgress
     from planner.planfile import Plan
 
 #: GF_ACTION values (PX4 v1.17 geofence breach action).
 FENCE_ACTIONS = {"none": 0, "warn": 1, "hold": 2, "return": 3, "terminate": 4, "land": 5}
 
 HELP = "upload each vehicle's mission (and geofence) converted from a plan, read back and compare"
+
+#: Default time budget per vehicle for its transfers, retries included (s).
+DEFAULT_BUDGET_S = 60.0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -91,7 +104,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="upload (and start) a plan or mission path that fails its checks",
     )
-    add_link_arguments(p, plan_order=True, timeout_s=10.0, timeout_help="connection timeout (10 s)")
+    p.add_argument(
+        "--timeout",
+        default=f"{DEFAULT_BUDGET_S:g}",
+        metavar="S",
+        help="time budget per vehicle for its transfers, every retry and read-back included "
+        f"({DEFAULT_BUDGET_S:g} s)",
+    )
+    add_link_arguments(
+        p,
+        plan_order=True,
+        timeout_s=10.0,
+        timeout_help="connection timeout (10 s)",
+        timeout_flag="--connect-timeout",
+    )
     p.add_argument("--json", action="store_true", help="print the results as JSON")
 
 
@@ -110,6 +136,9 @@ class UploadRow:
             climbed (``--start``).
         start_detail: what the start confirmation saw (or why it failed).
         start_attempts: start commands sent (a TEMPORARILY_REJECTED start is retried).
+        mission_attempts, fence_attempts: uploads it took (more than 1: retried on a bad
+            link; 0: not tried).
+        transfer_s: wall time of the vehicle's transfers, retries and waits included.
     """
 
     vehicle: str
@@ -126,24 +155,44 @@ class UploadRow:
     started: bool = False
     start_detail: str = ""
     start_attempts: int = 0
+    mission_attempts: int = 0
+    fence_attempts: int = 0
+    transfer_s: float = 0.0
 
 
 async def _upload_one(
-    v: Vehicle, mission: MissionPlan, fence: tuple[MissionItem, ...], plan: Plan
+    v: Vehicle,
+    mission: MissionPlan,
+    fence: tuple[MissionItem, ...],
+    plan: Plan,
+    budget_s: float,
+    progress: Callable[[TransferProgress], None] | None,
 ) -> UploadRow:
-    from mavlink.errors import LinkError
-    from mavlink.mission import MissionType, path_deviation, upload_and_verify
+    """Mission, then fence, each retried until read back as sent, within ``budget_s`` for
+    both (:func:`mavlink.mission.upload_with_retries`)."""
+    from mavlink.errors import LinkError, MissionError, TransferGaveUpError
+    from mavlink.mission import MissionType, RetryPolicy, path_deviation, upload_with_retries
 
     pv = plan.vehicle(v.name)
     dev = path_deviation(pv.trajectory, mission.path)
     up = back = 0.0
     error = ""
+    tries = {MissionType.MISSION: 0, MissionType.FENCE: 0}
+    t0 = time.monotonic()
     try:
-        rep = await upload_and_verify(v, mission.items)
-        up, back = rep.upload_s, rep.download_s
-        if fence:
-            rep = await upload_and_verify(v, fence, MissionType.FENCE)
+        for items, mtype in ((mission.items, MissionType.MISSION), (fence, MissionType.FENCE)):
+            if not items:
+                continue
+            left = max(budget_s - (time.monotonic() - t0), 1e-3)
+            try:
+                rep = await upload_with_retries(
+                    v, items, mtype, policy=RetryPolicy(budget_s=left), progress=progress
+                )
+            except MissionError as exc:
+                tries[mtype] = exc.attempts if isinstance(exc, TransferGaveUpError) else 1
+                raise
             up, back = up + rep.upload_s, back + rep.download_s
+            tries[mtype] = rep.attempts
     except LinkError as exc:
         error = exc.detail
     return UploadRow(
@@ -158,6 +207,9 @@ async def _upload_one(
         error=error,
         max_deviation_m=dev.max_m,
         rms_deviation_m=dev.rms_m,
+        mission_attempts=tries[MissionType.MISSION],
+        fence_attempts=tries[MissionType.FENCE],
+        transfer_s=time.monotonic() - t0,
     )
 
 
@@ -209,9 +261,14 @@ async def upload_plan(
     drag_per_s: float | None = None,
     force: bool = False,
     fence_action: str | None = None,
+    budget_s: float = DEFAULT_BUDGET_S,
+    progress: Callable[[TransferProgress], None] | None = None,
 ) -> tuple[list[UploadRow], MissionConversion, FencePlan | None]:
     """Convert (with the vehicles' parameters), upload, read back (and start) every
     vehicle's mission; a row per vehicle, and the conversion with its predicted flight.
+
+    Each vehicle's transfers are retried on a bad link within ``budget_s`` for all of them
+    (mission and fence); ``progress`` gets every step (:class:`TransferProgress`).
 
     Raises:
         mavlink.errors.ConnectTimeoutError: a vehicle never answered.
@@ -251,7 +308,10 @@ async def upload_plan(
             )
         rows = list(
             await asyncio.gather(
-                *(_upload_one(v, conv.missions[v.name], fence_items, plan) for v in fleet)
+                *(
+                    _upload_one(v, conv.missions[v.name], fence_items, plan, budget_s, progress)
+                    for v in fleet
+                )
             )
         )
         if fence and fence_action is not None and all(r.verified for r in rows):
@@ -276,14 +336,14 @@ def table(rows: list[UploadRow]) -> str:
     """The text table."""
     lines = [
         f"{'vehicle':<8} {'sysid':>5} {'url':<26} {'items':>5} {'fence':>5} {'up s':>6} "
-        f"{'back s':>6} {'read-back':<9} {'max dev m':>9} {'rms dev m':>9}"
+        f"{'back s':>6} {'tries':>5} {'read-back':<9} {'max dev m':>9} {'rms dev m':>9}"
     ]
     for r in rows:
         verdict = "identical" if r.verified else "FAILED"
         lines.append(
             f"{r.vehicle:<8} {r.sysid:>5} {r.url:<26} {r.mission_items:>5} {r.fence_items:>5} "
-            f"{r.upload_s:>6.2f} {r.readback_s:>6.2f} {verdict:<9} {r.max_deviation_m:>9.3f} "
-            f"{r.rms_deviation_m:>9.3f}"
+            f"{r.upload_s:>6.2f} {r.readback_s:>6.2f} {r.mission_attempts + r.fence_attempts:>5} "
+            f"{verdict:<9} {r.max_deviation_m:>9.3f} {r.rms_deviation_m:>9.3f}"
         )
         if r.error:
             lines.append(f"  {r.vehicle}: {r.error}")
@@ -298,10 +358,12 @@ def run(args: argparse.Namespace) -> int:
     from mavlink.errors import CommandError, PreflightError
     from planner.planfile import load_plan
 
-    for name in ("tolerance", "timeout"):
+    budget_s = parse_budget_s(args.timeout)
+    for name in ("tolerance", "connect_timeout"):
         value = getattr(args, name)
         if not (math.isfinite(value) and value > 0):
-            raise UserError(f"--{name}: must be a number > 0, got {value:g}")
+            flag = "--" + name.replace("_", "-")
+            raise UserError(f"{flag}: must be a number > 0, got {value:g}")
     if args.acceptance is not None and not (math.isfinite(args.acceptance) and args.acceptance > 0):
         raise UserError(f"--acceptance: must be a number > 0, got {args.acceptance:g}")
     if args.drag is not None and not (math.isfinite(args.drag) and 0 <= args.drag <= 10):
@@ -327,10 +389,12 @@ def run(args: argparse.Namespace) -> int:
                 end=args.end,
                 acceptance_m=args.acceptance,
                 tolerance_m=args.tolerance,
-                connect_timeout_s=args.timeout,
+                connect_timeout_s=args.connect_timeout,
                 drag_per_s=args.drag,
                 force=args.force,
                 fence_action=args.fence_action,
+                budget_s=budget_s,
+                progress=print_progress,
             )
 
     try:
@@ -384,6 +448,40 @@ def run(args: argparse.Namespace) -> int:
             failed = [r.vehicle for r in rows if not r.verified or (args.start and not r.started)]
             print(f"FAILED: {len(failed)} vehicle(s): {', '.join(failed)}")
     return 0 if ok else 1
+
+
+def parse_budget_s(text: str) -> float:
+    """``--timeout``'s value in seconds: a finite number > 0, else one-line bad input."""
+    from gcs.errors import UserError
+
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise UserError(f"--timeout: must be a number of seconds > 0, got {text!r}")
+    return value
+
+
+def progress_line(p: TransferProgress) -> str:
+    """One line of a vehicle's transfer progress: vehicle, plan, attempt, step, elapsed."""
+    what = {0: "mission", 1: "fence", 2: "rally"}.get(int(p.mission_type), str(p.mission_type))
+    if p.step == "upload":
+        body = f"uploading {p.items} items"
+    elif p.step == "read-back":
+        body = "reading back"
+    elif p.step == "retry":
+        body = f"{p.detail}; next step in {p.wait_s:.1f} s"
+    elif p.step == "verified":
+        body = f"{p.items} items read back as sent"
+    else:
+        body = f"FAILED: {p.detail}"
+    return f"{p.vehicle}: {what} attempt {p.attempt}: {body} ({p.elapsed_s:.1f} s)"
+
+
+def print_progress(p: TransferProgress) -> None:
+    """:func:`progress_line` on standard error (standard output keeps the table or JSON)."""
+    print(f"gcs upload: {progress_line(p)}", file=sys.stderr, flush=True)
 
 
 def _row_json(r: UploadRow) -> dict[str, Any]:

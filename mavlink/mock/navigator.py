@@ -24,7 +24,10 @@ With ``MOCK_PX4_NAV`` (the ``px4`` profile) the navigator is PX4 v1.17's
   vehicle that misses the acceptance circle (drag lag, wind) is not let go: the
   setpoint waits at the waypoint, past it if it overshot, until the vehicle's
   estimate is inside (PX4 SITL lost 18-35 s on such a waypoint at R = 0.3 m);
-* MISSION_ITEM_REACHED reports the last item *processed*: a DO item that
+* MISSION_ITEM_REACHED comes when an item is *completed*: a waypoint after its
+  hold (``param1``), a delay after its time, a LOITER_UNLIM never
+  (``MissionBlock::is_mission_item_reached_or_completed``); it reports the last
+  item processed: a DO item that
   follows a waypoint overwrites the waypoint's report before it is sent; the
   latest is re-sent about once a second, up to 10 times;
 * a take-off item climbs only when the first position item is more than
@@ -408,7 +411,8 @@ class NavigatorMixin:
                 math.hypot(pos[0] - tgt[0], pos[1] - tgt[1]) < acc_rad
                 and abs(pos[2] - tgt[2]) < alt_rad
             ):
-                self._item_reached(self.mission_seq)
+                if not self.px4_nav:
+                    self._item_reached(self.mission_seq)
                 if math.isfinite(item.param4) and item.command == mavlink2.MAV_CMD_NAV_WAYPOINT:
                     self.phys.sp_yaw_rad[i] = math.radians(item.param4)
                 if item.command == mavlink2.MAV_CMD_NAV_LOITER_UNLIM:
@@ -425,12 +429,17 @@ class NavigatorMixin:
                 if self.px4_nav and hold_s <= 0.0:
                     # PX4 moves on in the same cycle: a following DO item is processed (and
                     # becomes the reached item) before MAVLink sends the waypoint's report
+                    self._item_reached(self.mission_seq)
                     self._advance()
             return
         if phase in ("hold", "delay", "loiter"):
             if self._traj_active and phase != "delay":
                 self._traj_step(tgt)  # brake to the waypoint
             if phase != "loiter" and now >= self._mis_hold_until_s:
+                if self.px4_nav:
+                    # PX4 reports an item reached once its time inside (hold, delay) is over
+                    # (MissionBlock::is_mission_item_reached_or_completed)
+                    self._item_reached(self.mission_seq)
                 self._advance()
             return
         if phase == "land_approach":

@@ -241,6 +241,11 @@ def test_mission_mode_on_px4_is_predicted_refused_and_with_force_flown_as_predic
     for pv in plan.vehicles:
         m = res["missions"][pv.name]
         assert m["finished"] and 0 <= m["late_s"] < 10.0  # PX4 is late, never early
+        # With the estimator quiet the flight finishes as predicted (within 0.01 s); its
+        # noise and biases move the arrivals inside the acceptance circles (+0.5..+0.7 s at
+        # the default seed). The finish is the last item's reached report, which PX4 sends
+        # when the mission ends, not MAVSDK's verdict, which waits up to 1 s more for PX4's
+        # once-a-second MISSION_CURRENT.
         assert abs(m["late_s"] - pred["predicted_late_s"][pv.name]) < 1.5
         assert abs(m["start_skew_s"]) < 0.5  # one shared release
     assert all(t["samples"] > 100 for t in res["tracking"])

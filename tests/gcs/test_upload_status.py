@@ -110,6 +110,12 @@ def test_upload_stores_the_mission_and_fence_on_each_vehicle_and_starts_them(
         )
         row = res["vehicles"][i]
         assert row["verified"] and row["started"]
+        # Attempts and time per vehicle; the progress of each went to standard error.
+        assert row["mission_attempts"] >= 1 and row["fence_attempts"] >= 1
+        assert row["transfer_s"] > 0
+        assert f"gcs upload: {pv.name}: mission attempt 1: uploading" in err
+        assert f"gcs upload: {pv.name}: fence attempt" in err
+        assert f"{len(mission.items)} items read back as sent" in err
         assert row["mission_items"] == len(mission.items) and row["fence_items"] == len(fence)
         stored = fleet.vehicles[i].mission_items(0)
         # The conversion's items and positions; its radii and leg speeds are its own timing.
@@ -192,6 +198,17 @@ def test_status_of_a_connection_that_never_answers_names_it(
     assert url in err and "no heartbeat from system id 1 within 0.5 s" in err
     assert main(["status", "--connection", "udp://nowhere"]) == 2
     assert "bad connection URL 'udp://nowhere'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("value", ["-5", "0", "abc", "nan", "inf"])
+def test_upload_timeout_must_be_a_positive_number_of_seconds(
+    value: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Checked before anything is read or connected: one line, exit 2, no traceback.
+    assert main(["upload", str(PLAN), f"--timeout={value}"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert f"--timeout: must be a number of seconds > 0, got '{value}'" in err
 
 
 def _edited_plan(tmp_path: Path, **changes: object) -> Path:

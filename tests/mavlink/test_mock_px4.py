@@ -475,6 +475,40 @@ def test_mission_item_reached_is_the_last_item_processed_and_resent_up_to_ten_ti
     assert current and current[-1].mission_state == mavlink2.MISSION_STATE_COMPLETE
 
 
+@pytest.mark.parametrize("profile", ["px4", "ideal"])
+def test_a_waypoint_is_reported_reached_when_its_hold_is_over_and_a_loiter_unlim_never(
+    profile: str,
+) -> None:
+    # PX4 (MissionBlock::is_mission_item_reached_or_completed): an item is reached once it is
+    # completed, a waypoint after its hold (param1), so its report comes at the end of the
+    # hold and the mission's last report is its finish; LOITER_UNLIM never completes. The
+    # ideal vehicle reports on arrival.
+    f = MockFleet(n=1, seed=3, profile=profile, ready_after_s=0.0)
+    f.offline_links()
+    v = f.vehicles[0]
+    airborne(f, v, 4.0, 10.0)
+    items = mission_items(v, [(0.0, 0.0), (5.0, 0.0)], 4.0, 1.0, hold_s=3.0)
+    items.append(item(len(items), mavlink2.MAV_CMD_NAV_LOITER_UNLIM, *ne_to_e7(v, 5.0, 5.0),
+                      v._home_alt_amsl() + 4.0))  # fmt: skip
+    upload(f, v, items)
+    start_mission(f, v)
+    arrived, reached, t0 = None, {}, f.time_s
+    while f.time_s - t0 < 40.0:
+        f.advance(0.01)
+        if arrived is None and v.mission_seq == 1 and v._mis_phase == "hold":
+            arrived = f.time_s
+        for m in v.sent_messages():
+            if m.get_type() == "MISSION_ITEM_REACHED":
+                reached.setdefault(m.seq, f.time_s)
+    assert arrived is not None and 1 in reached
+    if profile == "px4":
+        assert reached[1] - arrived == pytest.approx(3.0, abs=0.03)
+        assert 2 not in reached and v.mission_seq == 2 and not v.mission_finished
+    else:
+        assert reached[1] - arrived == pytest.approx(0.0, abs=0.03)
+        assert 2 in reached
+
+
 def current_and_reached_times(f: MockFleet, v: MockVehicle, limit_s: float):  # type: ignore[no-untyped-def]
     """Step 10 ms at a time; (time, seq) of every MISSION_CURRENT change and first reached."""
     cur, reached, t0 = [], {}, f.time_s

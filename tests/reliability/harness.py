@@ -3,9 +3,10 @@
 One run = a fresh :class:`~mavlink.mock.MockFleet` vehicle and a MAVSDK
 :class:`~mavlink.fleet.Fleet` connected to it over loopback UDP (clean link),
 then the faults are switched on and the GCS link's own code
-(:func:`mavlink.mission.upload_and_verify`) uploads a plan's mission and reads
-it back.  The outcome is judged against the vehicle's own stored copy, so a
-"success" can never hide a partial mission.
+(:func:`mavlink.mission.upload_and_verify`, one attempt, or with a
+:class:`~mavlink.mission.RetryPolicy` :func:`mavlink.mission.upload_with_retries`)
+uploads a plan's mission and reads it back.  The outcome is judged against the
+vehicle's own stored copy, so a "success" can never hide a partial mission.
 """
 
 from __future__ import annotations
@@ -18,7 +19,14 @@ from pathlib import Path
 
 from mavlink.errors import MissionError
 from mavlink.fleet import Fleet, VehicleSpec
-from mavlink.mission import MissionItem, compare_items, trajectory_to_mission, upload_and_verify
+from mavlink.mission import (
+    MissionItem,
+    RetryPolicy,
+    compare_items,
+    trajectory_to_mission,
+    upload_and_verify,
+    upload_with_retries,
+)
 from mavlink.mock import FaultConfig, MockFleet
 from mavlink.mock.testing import free_udp_ports
 from planner.planfile import Plan, load_plan
@@ -55,7 +63,7 @@ class MissionRunResult:
     did not.  ``stored_ok``: the vehicle's stored mission equals the plan.
     ``stored_len``: how many items the vehicle holds; ``stored_previous``: it
     still holds the mission it had before (``previous``).  ``elapsed_s``: wall time
-    from the start of the upload to success or error.
+    from the start of the upload to success or error.  ``attempts``: uploads tried.
     """
 
     condition: str
@@ -66,6 +74,7 @@ class MissionRunResult:
     stored_len: int
     stored_previous: bool
     elapsed_s: float
+    attempts: int = 1
 
     @property
     def silent_partial(self) -> bool:
@@ -92,11 +101,13 @@ async def mission_run(
     items: tuple[MissionItem, ...],
     origin: object,
     previous: tuple[MissionItem, ...] = (),
+    policy: RetryPolicy | None = None,
 ) -> MissionRunResult:
     """One upload + read-back of ``items`` with ``faults`` on the link (see module doc).
 
     ``previous`` is uploaded first over the clean link (the vehicle's mission
-    before the faulty transfer).
+    before the faulty transfer).  With ``policy`` the transfer is retried as a whole
+    (:func:`mavlink.mission.upload_with_retries`), else tried once.
     """
     gcs_port, veh_port = free_udp_ports(2)
     async with MockFleet(
@@ -110,11 +121,18 @@ async def mission_run(
             vehicle.set_faults(faults)
             t0 = time.perf_counter()
             error = ""
+            attempts = 1
             try:
-                await upload_and_verify(fleet["d1"], items)
+                if policy is None:
+                    await upload_and_verify(fleet["d1"], items)
+                else:
+                    attempts = (
+                        await upload_with_retries(fleet["d1"], items, policy=policy)
+                    ).attempts
                 ok = True
             except MissionError as exc:
                 ok, error = False, str(exc)
+                attempts = getattr(exc, "attempts", 1)
             elapsed = time.perf_counter() - t0
             vehicle.set_faults(FaultConfig())
             stored = [MissionItem(**dataclasses.asdict(i)) for i in vehicle.mission_items(0)]
@@ -127,7 +145,67 @@ async def mission_run(
         len(stored),
         compare_items(previous, stored) == [],
         elapsed,
+        attempts,
     )
+
+
+# --------------------------------------------------------------------------
+# Connecting under faults
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class ConnectRunResult:
+    """Outcome of connecting a :class:`~mavlink.fleet.Fleet` to ``n`` mock vehicles whose links
+    have faults from the start: discovery, first heartbeats, telemetry rates set.
+
+    ``ok``: connected; ``error``: the error line otherwise; ``elapsed_s``: wall time of
+    the connect.
+    """
+
+    condition: str
+    seed: int
+    ok: bool
+    error: str
+    elapsed_s: float
+
+
+async def connect_run(
+    condition: str,
+    faults: FaultConfig,
+    seed: int,
+    *,
+    n: int = 2,
+    telemetry_rate_hz: float | None = 20.0,
+    connect_timeout_s: float = 10.0,
+) -> ConnectRunResult:
+    """Connect to ``n`` mock vehicles with ``faults`` on every link (see the class doc)."""
+    from mavlink.errors import LinkError
+
+    plan = load_plan(PLAN_PATH)
+    ports = free_udp_ports(2 * n)
+    async with MockFleet(
+        n=n,
+        origin=plan.origin,
+        gcs_ports=ports[:n],
+        vehicle_ports=ports[n:],
+        seed=seed,
+        faults=faults,
+    ):
+        specs = [VehicleSpec(f"d{i + 1}", f"udpin://127.0.0.1:{ports[i]}", i + 1) for i in range(n)]
+        fleet = Fleet(
+            specs, connect_timeout_s=connect_timeout_s, telemetry_rate_hz=telemetry_rate_hz
+        )
+        t0 = time.perf_counter()
+        try:
+            await fleet.connect()
+            ok, error = len(fleet) == n, ""
+        except LinkError as exc:
+            ok, error = False, str(exc)
+        finally:
+            elapsed = time.perf_counter() - t0
+            fleet.close()
+    return ConnectRunResult(condition, seed, ok, error, elapsed)
 
 
 # --------------------------------------------------------------------------
