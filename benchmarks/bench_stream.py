@@ -20,6 +20,16 @@
    the native binding directly.
 3. Mission: upload + read-back + item-by-item comparison of a 100-item
    mission to one mock vehicle (``mavlink.mock``) over loopback, repeated.
+4. A real flight's load (``--flight-sizes``, ``--flight-rates``): the sink's vehicles also
+   send LOCAL_POSITION_NED at 30 Hz (hovering on a grid), and the stream runs beside the
+   safety monitor (:class:`mavlink.monitor.SafetyMonitor`, 20 Hz, 0.5 s prediction, the
+   reach-avoid invariants of every vehicle and every pair: 2,080 clauses at N = 64) and the
+   progress view (:class:`gcs.flight.FlightProgress`, a terminal's 4 updates a second over
+   every clause of the whole horizon), as ``gcs fly`` runs them. The same limits apply
+   (p99 lateness <= 5 ms, no missed setpoint).
+5. The monitor's decision latency at the largest flight size: mid-flight the sink moves
+   one vehicle 5 cm from another; from the first datagram with that position to the
+   sink receiving the hold command (``--latency-runs`` flights).
 
 Prints a table, then one JSON line. Bounded: a few seconds per fleet size.
 """
@@ -28,22 +38,27 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import dataclasses
 import json
 import logging
+import math
 import statistics
 import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from mavsdk.asyncio import System as AsyncSystem
 from mavsdk.asyncio.plugins.offboard import OffboardAsync
 from mavsdk.plugins.offboard import AccelerationNed, PositionNedYaw, VelocityNedYaw
 
+from gcs.flight import FlightClock, FlightProgress, plan_formula
 from mavlink.fleet import Fleet, VehicleSpec
 from mavlink.mission import MissionEnd, trajectory_to_mission, upload_and_verify
 from mavlink.mock.fleet import MockFleet
+from mavlink.monitor import SafetyMonitor, always_clauses
 from mavlink.offboard import offboard_sender
 from mavlink.stream import (
     VEHICLES_PER_GROUP,
@@ -53,9 +68,17 @@ from mavlink.stream import (
     auto_send_groups,
 )
 from planner.frames import GeodeticPoint
+from planner.planfile import Plan, load_plan
 from planner.trajectory import Trajectory
 
 HERE = Path(__file__).parent
+sys.path.insert(0, str(HERE))
+from stream_sink import grid_ned  # noqa: E402  (the sink's hover grid)
+
+#: Telemetry rate of the sink's vehicles in the monitored flights (PX4's API link: 30 Hz).
+TELEMETRY_HZ = 30.0
+#: A plan file whose regions, origin and margins the monitored flights borrow.
+BASE_PLAN = HERE.parent / "tests" / "mavlink" / "data" / "reach_avoid_4.plan.json"
 
 
 class _CountWarnings(logging.Handler):
@@ -92,13 +115,16 @@ def free_udp_ports(k: int) -> list[int]:
 class Sink:
     """The counting sink process."""
 
-    def __init__(self, gcs_ports: list[int], vehicle_ports: list[int]) -> None:
+    def __init__(
+        self, gcs_ports: list[int], vehicle_ports: list[int], telemetry_hz: float = 0.0
+    ) -> None:
         self.proc = subprocess.Popen(
             [
                 sys.executable,
                 str(HERE / "stream_sink.py"),
                 json.dumps(gcs_ports),
                 json.dumps(vehicle_ports),
+                str(telemetry_hz),
             ],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
@@ -109,7 +135,13 @@ class Sink:
         if line != "ready":
             raise RuntimeError(f"sink did not start: {line!r}")
 
-    def report(self) -> dict[str, list[int]]:
+    def violate(self, i: int, j: int) -> None:
+        """Move vehicle ``i`` 5 cm from vehicle ``j`` (0-based)."""
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(f"violate {i} {j}\n")
+        self.proc.stdin.flush()
+
+    def report(self) -> dict[str, Any]:
         assert self.proc.stdin is not None and self.proc.stdout is not None
         self.proc.stdin.write("report\n")
         self.proc.stdin.flush()
@@ -122,12 +154,12 @@ class Sink:
         self.proc.wait(timeout=10)
 
 
-def ramp(i: int, n: int) -> NedSetpoints:
+def ramp(i: int, n: int, rate_hz: float = RATE_HZ) -> NedSetpoints:
     """Distinct setpoints (1 mm apart) so the sink can tell them from MAVSDK's re-sends."""
     k = np.arange(n, dtype=float)
     pos = np.column_stack([k * 1e-3, np.full(n, float(i)), np.full(n, -2.0)])
     z = np.zeros((n, 3))
-    return NedSetpoints(k / RATE_HZ, pos, z, z.copy(), np.zeros(n))
+    return NedSetpoints(k / rate_hz, pos, z, z.copy(), np.zeros(n))
 
 
 async def stream_fleet(
@@ -248,6 +280,133 @@ async def _stream_async_wrapper(fleet: Fleet, ticks: int) -> dict:
     }
 
 
+def hover_plan(n: int, horizon_s: float) -> Plan:
+    """A plan of ``n`` vehicles hovering on the sink's grid, with the reach-avoid spec of
+    every vehicle (reach the goal, avoid the obstacle, stay in the workspace) and pair
+    (keep the plan's separation), on the regions of :data:`BASE_PLAN`."""
+    base = load_plan(BASE_PLAN)
+    h = f"{horizon_s:g}"
+    vehicles, clauses = [], []
+    for i in range(n):
+        name = f"v{i + 1}"
+        north, east, down = grid_ned(i, n)
+        c = np.zeros((1, 3, 6))
+        c[0, :, 0] = (east, north, -down)
+        traj = Trajectory([0.0], [horizon_s], c, name=name)
+        vehicles.append(
+            dataclasses.replace(
+                base.vehicles[0], name=name, sysid=i + 1, trajectory=traj,
+                start_enu_m=(east, north, -down),
+            )
+        )  # fmt: skip
+        clauses.append(f"eventually[0, {h}] inside({name}, goal)")
+        clauses.append(f"always[0, {h}] (outside({name}, obstacle) and inside({name}, workspace))")
+    for i in range(n):
+        for j in range(i + 1, n):
+            clauses.append(f"always[0, {h}] dist(v{i + 1}, v{j + 1}) >= {base.separation_m:g}")
+    return dataclasses.replace(
+        base, vehicles=tuple(vehicles), spec=" and ".join(f"({c})" for c in clauses),
+        horizon_s=horizon_s,
+    )  # fmt: skip
+
+
+async def monitored_flight(
+    n: int, rate_hz: float, seconds: float, violate_at_s: float | None = None
+) -> dict:
+    """Stream ``n`` vehicles at ``rate_hz`` for ``seconds`` with the safety monitor and the
+    progress view running, as ``gcs fly`` does; optionally break a separation mid-flight."""
+    import io
+
+    ports = free_udp_ports(2 * n)
+    sink = Sink(ports[:n], ports[n:], TELEMETRY_HZ)
+    try:
+        specs = [VehicleSpec(f"v{i + 1}", f"udpin://127.0.0.1:{ports[i]}", i + 1) for i in range(n)]
+        fleet = Fleet(specs, telemetry_rate_hz=None, connect_timeout_s=30.0)
+        await fleet.connect()
+        try:
+            plan = hover_plan(n, seconds + 2.0)
+            names = [v.name for v in plan.vehicles]
+            t_build = time.perf_counter()
+            monitor = SafetyMonitor(always_clauses(plan_formula(plan), names), horizon_s=0.5)
+            progress = FlightProgress(plan, io.StringIO(), tty=True)
+            build_s = time.perf_counter() - t_build
+            clock = FlightClock()
+            origins = dict.fromkeys(names, ORIGIN)
+            trajs = {v.name: v.trajectory for v in plan.vehicles}
+            ticks = round(seconds * rate_hz)
+            targets = [
+                StreamTarget(v.name, offboard_sender(v.offboard), ramp(i, ticks, rate_hz))
+                for i, v in enumerate(fleet.vehicles)
+            ]
+            streamer = SetpointStreamer(targets, rate_hz, groups=auto_send_groups(n))
+            t0 = time.monotonic() + 0.3
+            clock.t0_monotonic_s.update(dict.fromkeys(names, t0))
+            stop = asyncio.Event()
+            mon_task = asyncio.create_task(
+                monitor.run(
+                    fleet, fleet.vehicles, t0_monotonic_s=t0, mission_origin=ORIGIN,
+                    origins=origins, stop=stop, plans=trajs,
+                )
+            )  # fmt: skip
+            view_task = asyncio.create_task(progress.run(fleet, clock, origins, stop))
+
+            async def break_separation() -> None:
+                await asyncio.sleep(max(0.0, t0 + float(violate_at_s or 0.0) - time.monotonic()))
+                sink.violate(4, 5)
+
+            breaker = asyncio.create_task(break_separation()) if violate_at_s else None
+            c0 = time.process_time()
+            stats = await streamer.run(t0, stop=stop)
+            cpu_s = time.process_time() - c0
+            stop.set()
+            event = await mon_task
+            await view_task
+            if breaker is not None:
+                await breaker
+            await asyncio.sleep(0.3)
+            counts = sink.report()
+        finally:
+            fleet.close()
+    finally:
+        sink.close()
+    lat = streamer.last_lateness
+    lat = lat[~np.isnan(lat)]
+    ticks_ms = np.asarray(monitor.stats.tick_s) * 1e3
+    sent = [s.sent for s in stats.values()]
+    out = {
+        "n": n,
+        "rate_hz": rate_hz,
+        "clauses": len(monitor.clauses),
+        "templates": monitor._batch.templates,
+        "build_s": build_s,
+        "ticks": ticks,
+        "missed": int(sum(max(0, ticks - d) for d in counts["distinct"])),
+        "skipped": max(s.skipped for s in stats.values()),
+        "failed": sum(s.failed for s in stats.values()),
+        "p99_ms": float(np.percentile(lat, 99) * 1e3),
+        "max_ms": float(lat.max() * 1e3),
+        "monitor_checks": monitor.checks,
+        "monitor_tick_ms_p50": float(np.percentile(ticks_ms, 50)) if ticks_ms.size else None,
+        "monitor_tick_ms_max": float(ticks_ms.max()) if ticks_ms.size else None,
+        "progress_updates": progress.lines,
+        "cpu_us_per_setpoint": cpu_s / max(1, n * sum(sent) / n) * 1e6 if sent else None,
+        "safety_event": None if event is None else event.describe(),
+    }
+    if violate_at_s is not None:
+        out["stopped"] = event is not None
+        v_t, c_t = counts.get("violated_t"), counts.get("command_t")
+        out["latency_ms"] = None if v_t is None or c_t is None else (c_t - v_t) * 1e3
+        out["decided_ms"] = (
+            None if event is None or event.latency_s is None else event.latency_s * 1e3
+        )
+    else:
+        out["ok"] = bool(
+            out["missed"] == 0 and out["skipped"] == 0 and out["failed"] == 0
+            and out["p99_ms"] <= P99_LIMIT_S * 1e3 and event is None
+        )  # fmt: skip
+    return out
+
+
 def zigzag_trajectory(legs: int) -> Trajectory:
     """``legs`` rest-to-rest 1 s legs alternating east/north by 2 m, at 10 m height."""
     w = [np.array([0.0, 0.0, 10.0])]
@@ -317,7 +476,7 @@ async def main_async(args: argparse.Namespace) -> dict:
     rows = []
     largest = {"native": 0, "grouped": 0}
     failing = {"native": 0, "grouped": 0}
-    for n in args.sizes:
+    for n in [] if args.flight_only else args.sizes:
         for kind in ("native", "grouped"):
             groups = 1 if kind == "native" else auto_send_groups(n)
             if failing[kind] >= 2 or (kind == "grouped" and groups == 1):
@@ -333,17 +492,69 @@ async def main_async(args: argparse.Namespace) -> dict:
                 failing[kind] = 0
             else:
                 failing[kind] += 1
-    wrapper = await stream_fleet(32, args.seconds, use_asyncio_wrapper=True)
-    wrapper["attempts"] = 1
-    _row(wrapper)
-    mission = await mission_transfer(args.mission_repeats)
+    wrapper = mission = None
+    if not args.flight_only:
+        wrapper = await stream_fleet(32, args.seconds, use_asyncio_wrapper=True)
+        wrapper["attempts"] = 1
+        _row(wrapper)
+        mission = await mission_transfer(args.mission_repeats)
+    flights, latency = await monitored_flights(args)
     return {
         "idle": idle,
         "streaming": rows,
         "asyncio_wrapper_32": wrapper,
         "largest": largest,
         "mission": mission,
+        "flights": flights,
+        "latency": latency,
     }
+
+
+async def monitored_flights(args: argparse.Namespace) -> tuple[list[dict], list[dict]]:
+    """Part 4 and 5 of the module docstring: the table rows, then the latency runs."""
+    print(
+        f"\nwith the safety monitor and the progress view (telemetry {TELEMETRY_HZ:g} Hz per "
+        f"vehicle), {args.flight_seconds:g} s each, best of {args.attempts}"
+    )
+    print(
+        f"{'n':>5} {'Hz':>4} {'clauses':>7} {'ticks':>6} {'missed':>6} {'p99 ms':>7} {'max ms':>7} "
+        f"{'mon ms p50':>10} {'mon ms max':>10} {'checks':>6} {'views':>5}  result"
+    )
+    flights = []
+    for n in args.flight_sizes:
+        for rate in args.flight_rates:
+            runs = []
+            for _ in range(args.attempts):
+                runs.append(await monitored_flight(n, rate, args.flight_seconds))
+                if runs[-1]["ok"]:
+                    break
+            r = min(runs, key=lambda r: (not r["ok"], r["p99_ms"]))
+            r["attempts"] = len(runs)
+            flights.append(r)
+            print(
+                f"{n:5d} {rate:4g} {r['clauses']:7d} {r['ticks']:6d} {r['missed']:6d} "
+                f"{r['p99_ms']:7.2f} {r['max_ms']:7.2f} {r['monitor_tick_ms_p50']:10.2f} "
+                f"{r['monitor_tick_ms_max']:10.2f} {r['monitor_checks']:6d} "
+                f"{r['progress_updates']:5d}  {'ok' if r['ok'] else 'FAIL'}"
+                + (f" ({r['safety_event']})" if r["safety_event"] else ""),
+                flush=True,
+            )
+    latency = []
+    if args.latency_runs:
+        n = max(args.flight_sizes)
+        rate = max(args.flight_rates)
+        for _ in range(args.latency_runs):
+            latency.append(await monitored_flight(n, rate, 4.0, violate_at_s=2.0))
+        ms = [r["latency_ms"] for r in latency if r["latency_ms"] is not None]
+        dec = [r["decided_ms"] for r in latency if r["decided_ms"] is not None]
+        print(
+            f"decision latency at N = {n}, {rate:g} Hz: a separation broken mid-flight, "
+            f"stopped in {sum(r['stopped'] for r in latency)} of {len(latency)}; "
+            f"telemetry datagram to hold command {min(ms, default=math.nan):.0f}-"
+            f"{max(ms, default=math.nan):.0f} ms (received telemetry to hold sent "
+            f"{min(dec, default=math.nan):.0f}-{max(dec, default=math.nan):.0f} ms)"
+        )
+    return flights, latency
 
 
 def _row(r: dict) -> None:
@@ -368,6 +579,13 @@ def main() -> int:
         help="runs per configuration until one passes (the machine is shared: a run can be "
         "hit by another process; the table shows how many were needed)",
     )
+    p.add_argument("--flight-sizes", type=int, nargs="*", default=[16, 32, 64])
+    p.add_argument("--flight-rates", type=float, nargs="+", default=[20.0, 50.0])
+    p.add_argument("--flight-seconds", type=float, default=6.0)
+    p.add_argument("--latency-runs", type=int, default=5)
+    p.add_argument(
+        "--flight-only", action="store_true", help="only the monitored flights (parts 4 and 5)"
+    )
     args = p.parse_args()
     mlog = logging.getLogger("mavlink.mavsdk")
     mlog.addHandler(WARNINGS)
@@ -387,12 +605,23 @@ def main() -> int:
         f"{out['largest']['grouped']} (one send instant per {VEHICLES_PER_GROUP} vehicles)"
     )
     print(f"MAVSDK warnings logged during the runs: {WARNINGS.count}")
+    flight_keys = ("n", "rate_hz", "clauses", "missed", "p99_ms", "max_ms",
+                   "monitor_tick_ms_p50", "monitor_tick_ms_max", "progress_updates", "ok")  # fmt: skip
+    flights = {
+        "monitored_flights": [{k: r[k] for k in flight_keys} for r in out["flights"]],
+        "decision_latency_ms": [r["latency_ms"] for r in out["latency"]],
+        "decision_latency_in_gcs_ms": [r["decided_ms"] for r in out["latency"]],
+    }
+    if m is None:
+        print(json.dumps({"bench": "stream", **flights}))
+        return 0
     print(
         f"mission of {m['items']} items, upload + read-back + compare over loopback (mock), "
         f"median of {m['repeats']}: upload {m['upload_s_median']:.3f} s, verify {m['verify_s_median']:.3f} s, "
         f"total {m['total_s_median']:.3f} s (max {m['total_s_max']:.3f} s)"
     )
     summary = {
+        **flights,
         "bench": "stream",
         "rate_hz": RATE_HZ,
         "idle_wakeup_p99_ms": out["idle"]["p99_ms"],

@@ -9,13 +9,21 @@ every SET_POSITION_TARGET_LOCAL_NED it receives together with the number of
 *distinct* setpoints (MAVSDK re-sends the last setpoint by itself when the
 stream is slower than 20 Hz; distinct positions are the GCS's own sends).
 
+With a telemetry rate (third argument, Hz) every endpoint also sends
+LOCAL_POSITION_NED at that rate: the vehicles hover on a grid 0.45 m apart, 8 to a row,
+1.8 m up (inside the reach-avoid workspace, above its obstacle), so a flight's safety
+monitor and progress view have real telemetry to work on. A line ``violate I J`` on stdin
+puts vehicle ``I`` 5 cm from vehicle ``J`` (0-based); the sink notes when it first sent
+that position and when the next command from the GCS arrived (the monitor's hold).
+
 It has no physics: it measures the link, not a vehicle. Run as::
 
-    python benchmarks/stream_sink.py '[GCS_PORT, ...]' '[VEHICLE_PORT, ...]'
+    python benchmarks/stream_sink.py '[GCS_PORT, ...]' '[VEHICLE_PORT, ...]' [TELEMETRY_HZ]
 
 It prints ``ready`` once bound; on a line ``report`` on stdin it prints one
-JSON line ``{"received": [...], "distinct": [...]}`` per endpoint order and on
-``quit`` (or end of input) it exits.
+JSON line ``{"received": [...], "distinct": [...], "violated_t": T, "command_t": T}``
+(``time.monotonic()`` seconds, ``null`` if none) and on ``quit`` (or end of input) it
+exits.
 """
 
 from __future__ import annotations
@@ -32,12 +40,28 @@ from pymavlink.dialects.v20 import common as mav
 
 SETPOINT_ID = mav.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
 
+#: The hover grid: spacing, vehicles per row, height (m).
+GRID_M, ROW, HEIGHT_M = 0.45, 8, 1.8
+
+
+def grid_ned(i: int, n: int) -> tuple[float, float, float]:
+    """Vehicle ``i``'s hover position (NED) of ``n`` vehicles on the grid, centred."""
+    rows = (n + ROW - 1) // ROW
+    col, row = i % ROW, i // ROW
+    east = (col - (min(n, ROW) - 1) / 2) * GRID_M
+    north = (row - (rows - 1) / 2) * GRID_M
+    return north, east, -HEIGHT_M
+
 
 def main(argv: list[str]) -> int:
     """Run the sink until ``quit``; see the module docstring."""
     gcs_ports = [int(p) for p in json.loads(argv[1])]
     vehicle_ports = [int(p) for p in json.loads(argv[2])]
     n = len(gcs_ports)
+    telemetry_hz = float(argv[3]) if len(argv) > 3 else 0.0
+    pos = [list(grid_ned(i, n)) for i in range(n)]
+    events: dict[str, float | None] = {"violated_t": None, "command_t": None}
+    pending: list[tuple[int, int]] = []
     sel = selectors.DefaultSelector()
     socks: list[socket.socket] = []
     links: list[mav.MAVLink] = []
@@ -61,7 +85,12 @@ def main(argv: list[str]) -> int:
             if cmd == "report":
                 with lock:
                     out = {"received": list(received), "distinct": [len(d) for d in distinct]}
+                    out.update(events)
                 print(json.dumps(out), flush=True)
+            elif cmd.startswith("violate "):
+                i, j = (int(x) for x in cmd.split()[1:3])
+                with lock:
+                    pending.append((i, j))
             elif cmd == "quit":
                 break
         done.set()
@@ -69,8 +98,23 @@ def main(argv: list[str]) -> int:
     threading.Thread(target=commands, daemon=True).start()
     print("ready", flush=True)
     next_hb = 0.0
+    next_pos = 0.0
+    boot = time.monotonic()
     while not done.is_set():
         now = time.monotonic()
+        if telemetry_hz > 0 and now >= next_pos:
+            next_pos = max(next_pos + 1.0 / telemetry_hz, now)
+            with lock:
+                moved = list(pending)
+                pending.clear()
+            for i, j in moved:
+                pos[i] = [pos[j][0], pos[j][1] + 0.05, pos[j][2]]
+            boot_ms = int((now - boot) * 1e3)
+            for i, s in enumerate(socks):
+                msg = links[i].local_position_ned_encode(boot_ms, *pos[i], 0.0, 0.0, 0.0)
+                s.sendto(msg.pack(links[i]), ("127.0.0.1", gcs_ports[i]))
+            if moved and events["violated_t"] is None:
+                events["violated_t"] = time.monotonic()
         if now >= next_hb:
             next_hb = now + 0.5
             for i, s in enumerate(socks):
@@ -82,7 +126,8 @@ def main(argv: list[str]) -> int:
                     mav.MAV_STATE_ACTIVE,
                 )
                 s.sendto(hb.pack(links[i]), ("127.0.0.1", gcs_ports[i]))
-        for key, _ in sel.select(timeout=0.05):
+        wait = 0.05 if telemetry_hz <= 0 else max(0.0, min(0.05, next_pos - time.monotonic()))
+        for key, _ in sel.select(timeout=wait):
             i = key.data
             s = socks[i]
             while True:
@@ -102,6 +147,8 @@ def main(argv: list[str]) -> int:
                 for msg in links[i].parse_buffer(data) or ():
                     kind = msg.get_type()
                     if kind in ("COMMAND_LONG", "COMMAND_INT"):
+                        if events["violated_t"] is not None and events["command_t"] is None:
+                            events["command_t"] = time.monotonic()
                         if msg.command == mav.MAV_CMD_DO_SET_MODE:
                             modes[i] = (int(msg.param2) << 16) | (int(msg.param3) << 24)
                         ack = links[i].command_ack_encode(

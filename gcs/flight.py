@@ -40,11 +40,13 @@ Errors::
 from __future__ import annotations
 
 import asyncio
+import bisect
 import contextlib
 import math
 import shutil
 import socket
 import sys
+import threading
 import time
 from collections.abc import AsyncIterator, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -63,11 +65,11 @@ if TYPE_CHECKING:
     from mavlink.fleet import Fleet, Vehicle, VehicleSpec
     from mavlink.mission import MissionRun
     from mavlink.mock import MockFleet
-    from mavlink.monitor import SafetyEvent
+    from mavlink.monitor import MonitorStats, SafetyEvent
     from mavlink.offboard import EndAction
     from mavlink.stream import StreamStats
     from mavlink.tlog import FlownTrack, TlogStats
-    from planner.frames import GeodeticPoint
+    from planner.frames import GeodeticPoint, NedToEnuMap
     from planner.planfile import Plan
     from planner.stl import Formula
 
@@ -489,6 +491,11 @@ class FlightProgress:
     the minimum over the clauses it appears in of their exact robustness on its flown
     positions up to now followed by the plan for the rest of the horizon.
 
+    The work per update is bounded: the flown samples are written into the signals
+    incrementally (only the grid steps since the last update), the clauses are evaluated
+    per template (:class:`planner.stl.batch.ClauseBatch`), and :meth:`run` does that on a
+    worker thread, so the setpoint stream on the event loop never waits for it.
+
     Args:
         plan: the plan being flown.
         stream: where to write (stdout, or stderr under ``--json``).
@@ -504,6 +511,8 @@ class FlightProgress:
         tty: bool | None = None,
         plain_interval_s: float = 2.0,
     ) -> None:
+        from planner.stl.batch import ClauseBatch
+
         self.plan = plan
         self.stream = stream if stream is not None else sys.stdout
         self.tty = self.stream.isatty() if tty is None else tty
@@ -514,41 +523,58 @@ class FlightProgress:
         self.t_grid = np.arange(n) * self.dt_s
         self.planned = {v.name: v.trajectory.position(self.t_grid) for v in plan.vehicles}
         names = [v.name for v in plan.vehicles]
-        self.clauses_of = {
-            name: [c for c in self.phi.clauses if name in c.signal_names()] for name in names
+        clauses = list(self.phi.clauses)
+        self._batch = ClauseBatch(clauses)
+        self._members = {
+            name: np.array([i for i, c in enumerate(clauses) if name in c.signal_names()], int)
+            for name in names
         }
         self._samples: dict[str, list[tuple[float, float, float, float]]] = {n: [] for n in names}
+        # the signals: flown up to _filled[name] grid steps, planned after
+        self._signals = {name: p.copy() for name, p in self.planned.items()}
+        self._filled = dict.fromkeys(names, 0)
+        self._lock = threading.Lock()  # record() and so_far() may run on different threads
+        self._maps: dict[GeodeticPoint, NedToEnuMap] = {}  # per EKF origin
         self.lines = 0
         self.last_line = ""
 
+    def _fill(self, name: str, t_now_s: float) -> None:
+        """Write the flown positions into the grid steps up to ``t_now_s`` not yet written
+        (steps before the last sample only: a later sample could still move them)."""
+        with self._lock:
+            rows = self._samples[name]
+            if not rows:
+                return
+            t_last = rows[-1][0]
+            k0 = self._filled[name]
+            k1 = int(np.searchsorted(self.t_grid, min(t_now_s, t_last), side="right"))
+            if k1 <= k0:
+                return
+            # the samples around steps k0..k1-1: from the last one at or before step k0
+            t_first = self.t_grid[k0]
+            j = max(0, bisect.bisect_right(rows, (t_first, math.inf, 0.0, 0.0)) - 1)
+            a = np.asarray(rows[j:])
+        sig = self._signals[name]
+        for ax in range(3):
+            sig[k0:k1, ax] = np.interp(self.t_grid[k0:k1], a[:, 0], a[:, ax + 1])
+        self._filled[name] = k1
+
     def so_far(self, t_now_s: float) -> dict[str, float]:
         """Robustness so far per vehicle (see class docstring) at plan time ``t_now_s``."""
-        signals = {}
-        for name, planned in self.planned.items():
-            rows = self._samples[name]
-            sig = planned.copy()
-            if rows:
-                a = np.asarray(rows)
-                done = self.t_grid <= min(t_now_s, a[-1, 0])
-                for ax in range(3):
-                    sig[done, ax] = np.interp(self.t_grid[done], a[:, 0], a[:, ax + 1])
-            signals[name] = sig
-        values = {}
-        cache: dict[int, float] = {}
-        for name, clauses in self.clauses_of.items():
-            vals = []
-            for c in clauses:
-                if id(c) not in cache:
-                    cache[id(c)] = float(c.robustness(signals, self.dt_s))
-                vals.append(cache[id(c)])
-            values[name] = min(vals) if vals else math.nan
-        return values
+        for name in self._signals:
+            self._fill(name, t_now_s)
+        values = self._batch.values(self._signals, self.dt_s)
+        return {
+            name: float(values[idx].min()) if idx.size else math.nan
+            for name, idx in self._members.items()
+        }
 
     def record(self, name: str, t_s: float, pos_enu_m: np.ndarray) -> None:
         """Add a position sample of ``name`` at plan time ``t_s``."""
-        rows = self._samples[name]
-        if not rows or t_s > rows[-1][0]:
-            rows.append((t_s, float(pos_enu_m[0]), float(pos_enu_m[1]), float(pos_enu_m[2])))
+        with self._lock:
+            rows = self._samples[name]
+            if not rows or t_s > rows[-1][0]:
+                rows.append((t_s, float(pos_enu_m[0]), float(pos_enu_m[1]), float(pos_enu_m[2])))
 
     def line(
         self,
@@ -562,7 +588,7 @@ class FlightProgress:
 
         ``with_robustness=False`` only records (the robustness is the costly part).
         """
-        from planner.frames import ned_to_enu
+        from planner.frames import NedToEnuMap
 
         now = time.monotonic()
         parts = []
@@ -573,7 +599,11 @@ class FlightProgress:
             t = clock.plan_time(v.name, now)
             where = ""
             if st.pos_ned_m is not None and v.name in origins:
-                pos = ned_to_enu(np.asarray(st.pos_ned_m), self.plan.origin, origins[v.name])
+                origin = origins[v.name]
+                fmap = self._maps.get(origin)
+                if fmap is None:
+                    fmap = self._maps[origin] = NedToEnuMap.between(self.plan.origin, origin)
+                pos = fmap.position(st.pos_ned_m)
                 ref_t = 0.0 if t is None else min(max(t, 0.0), v.trajectory.duration_s)
                 ref = v.trajectory.position(np.array([ref_t]))[0]
                 where = f" {float(np.linalg.norm(pos - ref)):5.2f} m"
@@ -616,12 +646,16 @@ class FlightProgress:
         origins: Mapping[str, GeodeticPoint],
         stop: asyncio.Event,
     ) -> None:
-        """Sample positions every 0.1 s and show a line every 0.25 s (tty) or interval."""
+        """Sample positions every 0.1 s and show a line every 0.25 s (tty) or interval.
+
+        Sampling and evaluation run on a worker thread (the event loop only waits for it),
+        one at a time; only the writing is done here.
+        """
         show_every = 0.25 if self.tty else self.plain_interval_s
         next_show = time.monotonic()
         while not stop.is_set():
             due = time.monotonic() >= next_show
-            text = self.line(fleet, clock, origins, with_robustness=due)
+            text = await asyncio.to_thread(self.line, fleet, clock, origins, with_robustness=due)
             if due:
                 self.show(text)
                 next_show += show_every
@@ -647,6 +681,7 @@ class FlightOutcome:
         stats: offboard stream statistics per vehicle (empty in mission mode).
         missions: mission runs per vehicle (mission mode).
         safety_event: what the safety monitor stopped, if it did.
+        monitor: what the safety monitor did (``None``: it did not run).
         end_failures: vehicles whose end action (or hold on Ctrl-C) failed, with the reason.
         final_modes: each vehicle's mode label at the end.
         tlog: the recording's statistics (with a log directory).
@@ -672,6 +707,7 @@ class FlightOutcome:
     stats: dict[str, StreamStats] = field(default_factory=dict)
     missions: dict[str, MissionRun] = field(default_factory=dict)
     safety_event: SafetyEvent | None = None
+    monitor: MonitorStats | None = None
     end_failures: dict[str, str] = field(default_factory=dict)
     final_modes: dict[str, str] = field(default_factory=dict)
     tlog: TlogStats | None = None
@@ -779,15 +815,12 @@ async def _fly_offboard(
 
     names = [v.name for v in plan.vehicles]
 
-    class ClockedMonitor(SafetyMonitor):
-        """The safety monitor; its start tells the progress view the shared start time."""
-
-        async def run(self, *args: Any, t0_monotonic_s: float, **kwargs: Any) -> Any:
-            clock.t0_monotonic_s.update(dict.fromkeys(names, t0_monotonic_s))
-            return await super().run(*args, t0_monotonic_s=t0_monotonic_s, **kwargs)
+    def started(t0_monotonic_s: float) -> None:
+        """The shared start time, for the progress view."""
+        clock.t0_monotonic_s.update(dict.fromkeys(names, t0_monotonic_s))
 
     clauses = always_clauses(plan_formula(plan), names) if opts.monitor else ()
-    monitor = ClockedMonitor(clauses, horizon_s=0.5 if opts.monitor else 0.0)
+    monitor = SafetyMonitor(clauses, horizon_s=0.5 if opts.monitor else 0.0, on_start=started)
     cfg = OffboardConfig(
         rate_hz=opts.rate_hz,
         start_tolerance_m=opts.tolerance_m,
@@ -939,6 +972,11 @@ async def fly_plan(
         stats=dict(result.stats) if result is not None else {},
         missions=missions,
         safety_event=safety_event,
+        monitor=(
+            result.monitor
+            if result is not None
+            else (mission.monitor if mission is not None else None)
+        ),
         end_failures=end_failures,
         final_modes=final_modes,
         tlog=tlog,
@@ -963,6 +1001,8 @@ def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
         lines.append("interrupted: every vehicle was commanded to hold")
     elif outcome.safety_event is not None:
         lines.append(f"safety stop: {outcome.safety_event.describe()}")
+    if outcome.monitor is not None and outcome.monitor.stale:
+        lines.append(f"monitor: {outcome.monitor.describe_stale()}")
     verdict = "completed" if outcome.completed else "NOT completed"
     lines.append(
         f"flight {verdict} in {outcome.flight_s:.1f} s ({outcome.mode.value}, "
@@ -1071,6 +1111,10 @@ def outcome_json(plan: Plan, outcome: FlightOutcome) -> dict[str, Any]:
         "flight_s": outcome.flight_s,
         "t0_unix_s": outcome.t0_unix_s,
         "safety_event": None if outcome.safety_event is None else outcome.safety_event.describe(),
+        "monitor": None if outcome.monitor is None else outcome.monitor.as_json(),
+        "decision_latency_s": (
+            None if outcome.safety_event is None else outcome.safety_event.latency_s
+        ),
         "end_failures": outcome.end_failures,
         "final_modes": outcome.final_modes,
         "planned_robustness": None if ev is None else num(ev.planned_robustness),

@@ -2,7 +2,8 @@
 
 The plan becomes PX4 missions timed by PX4's own laws (:func:`gcs.missions.convert_plan`:
 acceptance radius from the vehicle, legs re-timed against the predicted flight), which are
-uploaded and read back. Then, in order:
+uploaded and read back (retried as a whole on a bad link until read back as sent, within
+:class:`mavlink.mission.RetryPolicy`'s default budget). Then, in order:
 
 1. the predicted mission robustness is checked against the plan's epsilon (refused below it
    unless ``--force``: the missions would not satisfy the spec even if flown as predicted);
@@ -37,7 +38,7 @@ if TYPE_CHECKING:
     from gcs.tuning import VehicleTuning
     from mavlink.fleet import Fleet
     from mavlink.mission import MissionRun
-    from mavlink.monitor import SafetyEvent
+    from mavlink.monitor import MonitorStats, SafetyEvent
     from planner.planfile import Plan
 
 #: Seconds after the plan's horizon a mission may still take before it is given up.
@@ -57,6 +58,7 @@ class MissionFlight:
             prediction left it (``None``: never left).
         late_s: per vehicle, its finish minus the plan's last arrival (``inf``: unfinished).
         safety_event: what the monitor stopped, if it did.
+        monitor: what the monitor did (evaluations, vehicles checked on their prediction).
     """
 
     conversion: MissionConversion
@@ -66,6 +68,7 @@ class MissionFlight:
     departure_skew_s: dict[str, float | None]
     late_s: dict[str, float]
     safety_event: SafetyEvent | None = None
+    monitor: MonitorStats | None = None
     notes: list[str] = field(default_factory=list)
 
 
@@ -118,7 +121,7 @@ async def fly_mission_plan(
         MissionEnd,
         MissionFollower,
         start_mission_confirmed,
-        upload_and_verify,
+        upload_with_retries,
     )
     from mavlink.monitor import SafetyAction, SafetyMonitor, always_clauses, safe_stop
     from mavlink.offboard import (
@@ -182,7 +185,8 @@ async def fly_mission_plan(
             alt = float(np.ravel(enu_to_geodetic(starts[v.name], plan.origin)[2])[0])
             await check_takeoff_height(v, alt, TAKEOFF_MARGIN_M)
             on_ground.append(v)
-    await asyncio.gather(*(upload_and_verify(v, conv.missions[v.name].items) for v in vehicles))
+    # retried as a whole on a bad link, within the default budget, until read back as sent
+    await asyncio.gather(*(upload_with_retries(v, conv.missions[v.name].items) for v in vehicles))
 
     async def to_start(v: Any) -> None:
         lat, lon, alt = (
@@ -288,6 +292,7 @@ async def fly_mission_plan(
         departure_skew_s=dep,
         late_s=late,
         safety_event=event,
+        monitor=monitor.stats,
     )
 
 

@@ -95,6 +95,8 @@ def report_markdown(
         lines.append(f"| flown robustness not evaluated | {_cell(ev.coverage_problem)} |")
     if outcome.safety_event is not None:
         lines.append(f"| safety stop | {_cell(outcome.safety_event.describe())} |")
+    if outcome.monitor is not None and outcome.monitor.stale:
+        lines.append(f"| late telemetry | {_cell(outcome.monitor.describe_stale())} |")
     if outcome.interrupted:
         lines.append("| interrupted | Ctrl-C: every vehicle was commanded to hold |")
     for name, why in outcome.end_failures.items():

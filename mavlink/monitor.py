@@ -10,8 +10,15 @@ error growing with the current velocity error (without a plan: constant
 velocity). If a clause is violated now, or its robustness on the predicted
 samples drops below zero inside the clause's interval, or a vehicle's link
 times out, the monitor stops the stream and commands every vehicle to hold
-(or land), and reports which clause, which vehicles and when
-(:class:`SafetyEvent`).
+(or land), and reports which clause, which vehicles, when and how long after
+the telemetry it decided on (:class:`SafetyEvent`). A vehicle whose telemetry
+is late (older than ``stale_after_s``, not yet lost) is predicted from its last
+sample and its plan over the time since, never skipped; the run's
+:class:`MonitorStats` count such evaluations for the report.
+
+The evaluation runs on the monitor's own thread on a snapshot of the telemetry,
+vectorised over vehicles and clause templates, so the setpoint stream on the
+event loop never waits for it.
 
 Robustness is the exact STL semantics of :mod:`planner.stl`
 (``robustness_trace`` of ``psi`` on the predicted samples), so the monitor and
@@ -23,7 +30,8 @@ from __future__ import annotations
 import asyncio
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import TYPE_CHECKING
@@ -33,8 +41,9 @@ from mavsdk.plugins.offboard import OffboardResult
 
 from mavlink.errors import CommandError, LinkError
 from mavlink.px4_modes import Px4Mode
-from planner.frames import GeodeticPoint, ned_to_enu, ned_vector_to_enu
+from planner.frames import GeodeticPoint, NedToEnuMap
 from planner.stl.ast import Always, Formula
+from planner.stl.batch import ClauseBatch
 
 if TYPE_CHECKING:
     from mavlink.fleet import Fleet, Vehicle
@@ -111,6 +120,8 @@ class SafetyEvent:
             every other vehicle; its own failsafe action is not overridden).
         action_failures: vehicles that did not accept it, with the reason.
         detail: for ``LEFT_MODE``, the mode each departed vehicle reported.
+        latency_s: from the reception of the oldest telemetry the decision read (for a
+            departed vehicle, its heartbeat) to the stop commands being sent.
     """
 
     verdict: Verdict
@@ -122,6 +133,7 @@ class SafetyEvent:
     action: SafetyAction
     action_failures: dict[str, str] = field(default_factory=dict)
     detail: str = ""
+    latency_s: float | None = None
 
     def describe(self) -> str:
         """One line for the operator."""
@@ -142,6 +154,8 @@ class SafetyEvent:
                 f"(predicted robustness {self.robustness:.3f})"
             )
         tail = f"; commanded {self.action.value} to all vehicles"
+        if self.latency_s is not None:
+            tail += f" {self.latency_s * 1e3:.0f} ms after the telemetry"
         if self.action_failures:
             tail += " (not accepted by " + ", ".join(sorted(self.action_failures)) + ")"
         return head + tail
@@ -169,8 +183,124 @@ async def safe_stop(v: Vehicle, action: SafetyAction) -> None:
         await v.land()
 
 
+class _PlanTable:
+    """The vehicles' planned positions and velocities at any times, all vehicles at once.
+
+    Plans that share their segment times (the planner's always do) are evaluated by one
+    vectorised Horner over the stacked coefficients (exact, as :class:`Trajectory`); others
+    one by one. A vehicle without a plan has none (``has[i]`` false).
+    """
+
+    def __init__(self, plans: Sequence[Trajectory | None]) -> None:
+        self.plans = list(plans)
+        self.has = np.array([p is not None for p in self.plans], dtype=bool)
+        real = [p for p in self.plans if p is not None]
+        self._stacked = bool(real) and all(
+            p.degree == real[0].degree
+            and np.array_equal(p.segment_t0_s, real[0].segment_t0_s)
+            and np.array_equal(p.segment_duration_s, real[0].segment_duration_s)
+            for p in real
+        )
+        if self._stacked:
+            ref = real[0]
+            self._t0 = np.asarray(ref.segment_t0_s)
+            self._dur = np.asarray(ref.segment_duration_s)
+            self._end = ref.duration_s
+            self._deg = ref.degree
+            coeffs = np.zeros((len(self.plans), *np.shape(ref.coeffs)))
+            for i, p in enumerate(self.plans):
+                if p is not None:
+                    coeffs[i] = p.coeffs
+            self._coeffs = coeffs  # (N, n_seg, 3, deg + 1)
+
+    def state(self, t_s: np.ndarray, order: int) -> np.ndarray:
+        """``(N, M, 3)`` derivative ``order`` (0: position, 1: velocity) at times ``(N, M)``
+        (zeros for a vehicle without a plan)."""
+        n, m = t_s.shape
+        out = np.zeros((n, m, 3))
+        if not self.has.any():
+            return out
+        if not self._stacked:
+            for i, p in enumerate(self.plans):
+                if p is not None:
+                    out[i] = p.derivative(t_s[i], order)
+            return out
+        tc = np.clip(t_s, 0.0, self._end)
+        seg = np.clip(np.searchsorted(self._t0, tc, side="right") - 1, 0, self._t0.size - 1)
+        tau = np.minimum(tc - self._t0[seg], self._dur[seg])[..., None]
+        c = self._coeffs[np.arange(n)[:, None], seg]  # (N, M, 3, deg + 1)
+        for j in range(self._deg, order - 1, -1):
+            fac = math.factorial(j) / math.factorial(j - order)
+            out = out * tau + fac * c[..., j]
+        if order > 0:
+            out[(t_s < 0.0) | (t_s > self._end)] = 0.0
+        return out
+
+
+@dataclass(frozen=True, slots=True)
+class _Finding:
+    verdict: Verdict
+    clause: SafetyClause | None
+    vehicles: tuple[str, ...]
+    t_s: float
+    robustness: float | None
+    ahead_s: float | None
+    sample_monotonic_s: float  # when the oldest telemetry the decision read was received
+    exclude: tuple[str, ...] = ()
+    detail: str = ""
+
+
+@dataclass(slots=True)
+class MonitorStats:
+    """What a monitor run did (for reports and benchmarks).
+
+    Attributes:
+        checks: evaluations of the clauses.
+        tick_s: CPU wall time of each evaluation (telemetry snapshot to verdict), seconds;
+            it runs on the monitor's own thread, never on the event loop.
+        stale: per vehicle, evaluations in which its telemetry was older than
+            ``stale_after_s`` (but younger than ``offboard_loss_s``), so its clauses were
+            checked on its prediction from its last sample and its plan.
+        stale_max_age_s: per vehicle, the oldest telemetry so predicted.
+    """
+
+    checks: int = 0
+    tick_s: list[float] = field(default_factory=list)
+    stale: dict[str, int] = field(default_factory=dict)
+    stale_max_age_s: dict[str, float] = field(default_factory=dict)
+
+    def as_json(self) -> dict[str, object]:
+        """The figures as JSON values (tick times in ms)."""
+        ticks = np.asarray(self.tick_s) * 1e3
+        return {
+            "checks": self.checks,
+            "tick_ms_p50": float(np.percentile(ticks, 50)) if ticks.size else None,
+            "tick_ms_max": float(ticks.max()) if ticks.size else None,
+            "predicted_while_late": dict(self.stale),
+            "late_max_age_s": dict(self.stale_max_age_s),
+        }
+
+    def describe_stale(self) -> str:
+        """One line on the vehicles checked on predictions (empty when none was)."""
+        if not self.stale:
+            return ""
+        parts = [
+            f"{n} {self.stale[n]} times (telemetry up to {self.stale_max_age_s[n]:.2f} s old)"
+            for n in sorted(self.stale)
+        ]
+        return "checked on its prediction from its last telemetry and its plan: " + ", ".join(parts)
+
+
 class SafetyMonitor:
     """Watch links and always-clauses during a flight (see module docstring).
+
+    Per evaluation the work is bounded and vectorised: each vehicle's NED -> mission-ENU map
+    is computed once per flight (:class:`planner.frames.NedToEnuMap`), every vehicle's
+    prediction is one array expression over the stacked plans, and the clauses are
+    evaluated per template (:class:`planner.stl.batch.ClauseBatch`: all separation pairs in
+    one step). :meth:`run` evaluates on its own thread on a snapshot of the telemetry, so a
+    setpoint stream on the event loop never waits for it; only the stop itself (commanding
+    the vehicles) runs on the loop.
 
     Args:
         clauses: the invariants (:func:`always_clauses`); may be empty (links only).
@@ -178,12 +308,15 @@ class SafetyMonitor:
         steps: predicted samples over the horizon (the check step is horizon/steps).
         rate_hz: how often to evaluate.
         action: hold or land on a stop.
-        stale_after_s: telemetry older than this is not used for a clause
-            (the vehicle's link check covers it).
+        stale_after_s: telemetry older than this is extrapolated: the vehicle is predicted
+            from its last sample and its plan over the time since (counted in
+            :attr:`stats`), rather than skipped.
         offboard_loss_s: a vehicle whose position telemetry is older than this counts as
             lost: PX4 leaves offboard by itself after COM_OF_LOSS_T (default 1 s) without
             setpoints, and an outage that silences telemetry that long has most likely
             starved it of setpoints too, so streaming to it must stop before the link returns.
+        on_start: called with the flight's start (``time.monotonic()`` seconds) when
+            :meth:`run` begins.
     """
 
     def __init__(
@@ -196,6 +329,7 @@ class SafetyMonitor:
         action: SafetyAction = SafetyAction.HOLD,
         stale_after_s: float = 0.5,
         offboard_loss_s: float = 1.0,
+        on_start: Callable[[float], None] | None = None,
     ) -> None:
         if not (math.isfinite(horizon_s) and horizon_s >= 0):
             raise LinkError(f"monitor horizon_s must be >= 0, got {horizon_s!r}")
@@ -210,7 +344,60 @@ class SafetyMonitor:
         self.action = action
         self.stale_after_s = stale_after_s
         self.offboard_loss_s = offboard_loss_s
-        self.checks = 0  # evaluations done in the last run (for tests and reports)
+        self.on_start = on_start
+        self._batch = ClauseBatch([c.formula for c in self.clauses])
+        self._ends = np.array([c.end_s for c in self.clauses])
+        self._starts = np.array([c.start_s for c in self.clauses])
+        self.stats = MonitorStats()
+        self._table: tuple[tuple[int, ...], tuple[str, ...], _PlanTable] | None = None
+
+    @property
+    def checks(self) -> int:
+        """Evaluations done in the last run (for tests and reports)."""
+        return self.stats.checks
+
+    def _plan_table(
+        self, names: tuple[str, ...], plans: Mapping[str, Trajectory] | None
+    ) -> _PlanTable:
+        chosen = [None if plans is None else plans.get(n) for n in names]
+        # the cached table holds these trajectories, so their ids cannot be reused meanwhile
+        key = tuple(id(p) for p in chosen)
+        if self._table is None or self._table[0] != key or self._table[1] != names:
+            self._table = (key, names, _PlanTable(chosen))
+        return self._table[2]
+
+    def predict_all(
+        self,
+        t_s: float,
+        pos_enu_m: np.ndarray,
+        vel_enu_m_s: np.ndarray,
+        table: _PlanTable,
+        age_s: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, float]:
+        """Predicted positions ``(N, steps + 1, 3)`` at ``t_s + j * dt`` and the step ``dt``.
+
+        Each vehicle keeps following its plan with the tracking error of its last sample
+        (taken ``age_s`` before ``t_s``), the error growing with that sample's velocity error;
+        without a plan it keeps its velocity.
+        """
+        n = pos_enu_m.shape[0]
+        age = np.zeros(n) if age_s is None else np.asarray(age_s, dtype=float)
+        dt = self.horizon_s / self.steps if self.horizon_s > 0 else 1.0
+        tau = np.arange(self.steps + 1) * dt if self.horizon_s > 0 else np.zeros(1)
+        since = tau[None, :] + age[:, None]  # (N, S): from the sample to each prediction
+        out = pos_enu_m[:, None, :] + since[..., None] * vel_enu_m_s[:, None, :]
+        if table.has.any():
+            t_sample = (t_s - age)[:, None]
+            ref = table.state(np.broadcast_to(t_s + tau, (n, tau.size)), 0)
+            ref0 = table.state(t_sample, 0)[:, 0]
+            vref0 = table.state(t_sample, 1)[:, 0]
+            along = (
+                ref
+                + (pos_enu_m - ref0)[:, None, :]
+                + since[..., None] * (vel_enu_m_s - vref0)[:, None, :]
+            )
+            out[table.has] = along[table.has]
+        return out, dt
 
     def predict(
         self,
@@ -219,54 +406,133 @@ class SafetyMonitor:
         vel_enu_m_s: np.ndarray,
         plan: Trajectory | None,
     ) -> tuple[np.ndarray, float]:
-        """Predicted positions ``(steps + 1, 3)`` at ``t_s + j * dt`` and the step ``dt``."""
-        if self.horizon_s == 0:
-            return pos_enu_m[None, :], 1.0
-        dt = self.horizon_s / self.steps
-        tau = np.arange(self.steps + 1) * dt
-        if plan is None:
-            return pos_enu_m + tau[:, None] * vel_enu_m_s, dt
-        ref = plan.position(t_s + tau)
-        v_ref = plan.velocity(np.array([t_s]))[0]
-        return ref + (pos_enu_m - ref[0]) + tau[:, None] * (vel_enu_m_s - v_ref), dt
+        """Predicted positions ``(steps + 1, 3)`` of one vehicle (see :meth:`predict_all`)."""
+        pred, dt = self.predict_all(
+            t_s, np.asarray(pos_enu_m, float)[None], np.asarray(vel_enu_m_s, float)[None],
+            _PlanTable([plan]),
+        )  # fmt: skip
+        return pred[0], dt
 
     def evaluate(
         self,
         t_s: float,
         states: Mapping[str, tuple[np.ndarray, np.ndarray]],
         plans: Mapping[str, Trajectory] | None = None,
+        ages_s: Mapping[str, float] | None = None,
     ) -> tuple[Verdict, SafetyClause, float, float] | None:
         """Check every active clause at plan time ``t_s``.
+
+        A clause is violated if its robustness is negative now; otherwise it is predicted to
+        fail if negative at a predicted sample inside its interval. Violations come first,
+        then predictions; among each, the clauses in order.
 
         Args:
             t_s: seconds from the plan's start.
             states: per vehicle, (position ``(3,)``, velocity ``(3,)``) in mission ENU.
             plans: the vehicles' planned trajectories (for the prediction).
+            ages_s: per vehicle, how old its state is (s; default 0).
 
         Returns:
-            ``(verdict, clause, robustness, predicted_in_s)`` for the first
-            failing clause, or ``None``.
+            ``(verdict, clause, robustness, predicted_in_s)`` of the failing clause, or
+            ``None``.
         """
-        signals: dict[str, np.ndarray] = {}
-        dt = 1.0
-        for name, (p, v) in states.items():
-            signals[name], dt = self.predict(t_s, p, v, None if plans is None else plans.get(name))
-        for clause in self.clauses:
-            if not (clause.start_s <= t_s <= clause.end_s):
-                continue
-            if any(name not in signals for name in clause.vehicles):
-                continue
-            sub = {name: signals[name] for name in clause.vehicles}
-            trace = np.asarray(clause.formula.robustness_trace(sub, dt), dtype=float)
-            if trace[0] < 0:
-                return Verdict.VIOLATED, clause, float(trace[0]), 0.0
-            times = t_s + np.arange(trace.size) * dt
-            active = times <= clause.end_s
-            bad = np.nonzero((trace < 0) & active)[0]
-            if bad.size:
-                j = int(bad[0])
-                return Verdict.PREDICTED, clause, float(trace[active].min()), j * dt
-        return None
+        if not self.clauses:
+            return None
+        names = tuple(states)
+        if names:
+            pos = np.array([np.asarray(states[n][0], dtype=float) for n in names])
+            vel = np.array([np.asarray(states[n][1], dtype=float) for n in names])
+            age = np.array([(ages_s or {}).get(n, 0.0) for n in names])
+            pred, dt = self.predict_all(t_s, pos, vel, self._plan_table(names, plans), age)
+        else:
+            pred, dt = np.zeros((0, self.steps + 1, 3)), 1.0
+        rows = pred.shape[1]
+        signals = dict(zip(names, pred, strict=True))
+        present = np.array([all(v in signals for v in c.vehicles) for c in self.clauses])
+        active = present & (self._starts <= t_s) & (t_s <= self._ends)
+        if not active.any():
+            return None
+        blank = np.zeros((rows, 3))
+        for c in self.clauses:
+            for name in c.formula.signal_names():
+                signals.setdefault(name, blank)
+        traces = self._batch.traces(signals, dt)  # (C, S)
+        now = active & (traces[:, 0] < 0)
+        if now.any():
+            i = int(np.argmax(now))
+            return Verdict.VIOLATED, self.clauses[i], float(traces[i, 0]), 0.0
+        inside = (t_s + np.arange(rows) * dt)[None, :] <= self._ends[:, None]
+        bad = active[:, None] & inside & (traces < 0)
+        if not bad.any():
+            return None
+        i = int(np.argmax(bad.any(axis=1)))
+        j = int(np.argmax(bad[i]))
+        return Verdict.PREDICTED, self.clauses[i], float(traces[i][inside[i]].min()), j * dt
+
+    def _tick(
+        self,
+        vehicles: Sequence[Vehicle],
+        t0_monotonic_s: float,
+        maps: Mapping[str, NedToEnuMap],
+        plans: Mapping[str, Trajectory] | None,
+        expected_mode: Px4Mode | None,
+        mode_grace_s: float,
+    ) -> _Finding | None:
+        """One evaluation on a snapshot of the telemetry (runs on the monitor's thread)."""
+        t_cpu = time.perf_counter()
+        now = time.monotonic()
+        t_s = now - t0_monotonic_s
+        statuses = {v.name: v.status(now) for v in vehicles}
+        try:
+            lost = tuple(
+                sorted(
+                    n
+                    for n, st in statuses.items()
+                    if not st.connected
+                    or (st.position_age_s is not None and st.position_age_s > self.offboard_loss_s)
+                )
+            )
+            if lost:
+                return _Finding(Verdict.LINK_LOST, None, lost, t_s, None, None, now)
+            if expected_mode is not None:
+                left = {
+                    n: st
+                    for n, st in statuses.items()
+                    if st.mode is not None
+                    and st.mode is not expected_mode
+                    and st.heartbeat_age_s is not None
+                    and now - st.heartbeat_age_s > t0_monotonic_s + mode_grace_s
+                }
+                if left:
+                    names = tuple(sorted(left))
+                    detail = ", ".join(f"{n} now {left[n].mode.name}" for n in names)  # type: ignore[union-attr]
+                    seen = min(now - float(left[n].heartbeat_age_s or 0.0) for n in names)
+                    return _Finding(
+                        Verdict.LEFT_MODE, None, names, t_s, None, None, seen,
+                        exclude=names, detail=detail,
+                    )  # fmt: skip
+            states: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+            ages: dict[str, float] = {}
+            for name, st in statuses.items():
+                if st.pos_ned_m is None or st.vel_ned_m_s is None or st.position_age_s is None:
+                    continue
+                fmap = maps[name]
+                states[name] = (fmap.position(st.pos_ned_m), fmap.vector(st.vel_ned_m_s))
+                ages[name] = st.position_age_s
+                if st.position_age_s > self.stale_after_s:
+                    self.stats.stale[name] = self.stats.stale.get(name, 0) + 1
+                    self.stats.stale_max_age_s[name] = max(
+                        self.stats.stale_max_age_s.get(name, 0.0), st.position_age_s
+                    )
+            self.stats.checks += 1
+            found = self.evaluate(t_s, states, plans, ages)
+            if found is None:
+                return None
+            verdict, clause, rho, ahead = found
+            sample = now - max(ages[n] for n in clause.vehicles)
+            return _Finding(verdict, clause, clause.vehicles, t_s, rho, ahead, sample)
+        finally:
+            self.stats.tick_s.append(time.perf_counter() - t_cpu)
 
     async def run(
         self,
@@ -291,97 +557,50 @@ class SafetyMonitor:
         Returns:
             The :class:`SafetyEvent`, or ``None`` if the flight ended without one.
         """
+        if self.on_start is not None:
+            self.on_start(t0_monotonic_s)
+        self.stats = MonitorStats()
+        maps = {v.name: NedToEnuMap.between(mission_origin, origins[v.name]) for v in vehicles}
         period = 1.0 / self.rate_hz
+        loop = asyncio.get_running_loop()
+        worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="stl-gcs-monitor")
         k = 0
-        self.checks = 0
-        while not stop.is_set():
-            # Half a period after the setpoint ticks, so an evaluation never delays a send.
-            deadline = t0_monotonic_s + (k + 0.5) * period
-            delay = deadline - time.monotonic()
-            if delay > 0:
-                try:
-                    await asyncio.wait_for(stop.wait(), delay)
-                    break
-                except TimeoutError:
-                    pass
-            k = max(k + 1, int((time.monotonic() - t0_monotonic_s) / period - 0.5) + 1)
-            now = time.monotonic()
-            t_s = now - t0_monotonic_s
-            statuses = {v.name: v.status(now) for v in vehicles}
-            lost = tuple(
-                sorted(
-                    n
-                    for n, st in statuses.items()
-                    if not st.connected
-                    or (st.position_age_s is not None and st.position_age_s > self.offboard_loss_s)
-                )
-            )
-            if lost:
-                return await self._stop(fleet, stop, Verdict.LINK_LOST, None, lost, t_s, None, None)
-            if expected_mode is not None:
-                left = {
-                    n: st.mode
-                    for n, st in statuses.items()
-                    if st.mode is not None
-                    and st.mode is not expected_mode
-                    and st.heartbeat_age_s is not None
-                    and now - st.heartbeat_age_s > t0_monotonic_s + mode_grace_s
-                }
-                if left:
-                    names = tuple(sorted(left))
-                    detail = ", ".join(f"{n} now {left[n].name}" for n in names)
-                    return await self._stop(
-                        fleet, stop, Verdict.LEFT_MODE, None, names, t_s, None, None,
-                        exclude=names, detail=detail,
-                    )  # fmt: skip
-            states: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-            for name, st in statuses.items():
-                if (
-                    st.pos_ned_m is None
-                    or st.vel_ned_m_s is None
-                    or st.position_age_s is None
-                    or st.position_age_s > self.stale_after_s
-                ):
-                    continue
-                origin = origins[name]
-                states[name] = (
-                    ned_to_enu(np.asarray(st.pos_ned_m), mission_origin, origin),
-                    ned_vector_to_enu(np.asarray(st.vel_ned_m_s), mission_origin, origin),
-                )
-            self.checks += 1
-            found = self.evaluate(t_s, states, plans)
-            if found is not None:
-                verdict, clause, rho, ahead = found
-                return await self._stop(
-                    fleet, stop, verdict, clause.name, clause.vehicles, t_s, rho, ahead
-                )
+        try:
+            while not stop.is_set():
+                # Half a period after the setpoint ticks, so an evaluation never delays a send.
+                deadline = t0_monotonic_s + (k + 0.5) * period
+                delay = deadline - time.monotonic()
+                if delay > 0:
+                    try:
+                        await asyncio.wait_for(stop.wait(), delay)
+                        break
+                    except TimeoutError:
+                        pass
+                k = max(k + 1, int((time.monotonic() - t0_monotonic_s) / period - 0.5) + 1)
+                found = await loop.run_in_executor(
+                    worker, self._tick, vehicles, t0_monotonic_s, maps, plans,
+                    expected_mode, mode_grace_s,
+                )  # fmt: skip
+                if found is not None and not stop.is_set():
+                    return await self._stop(fleet, stop, found)
+        finally:
+            worker.shutdown(wait=False, cancel_futures=True)
         return None
 
-    async def _stop(
-        self,
-        fleet: Fleet,
-        stop: asyncio.Event,
-        verdict: Verdict,
-        clause: str | None,
-        vehicles: tuple[str, ...],
-        t_s: float,
-        rho: float | None,
-        ahead: float | None,
-        *,
-        exclude: tuple[str, ...] = (),
-        detail: str = "",
-    ) -> SafetyEvent:
+    async def _stop(self, fleet: Fleet, stop: asyncio.Event, found: _Finding) -> SafetyEvent:
         stop.set()
-        others = [v for v in fleet if v.name not in exclude]
+        others = [v for v in fleet if v.name not in found.exclude]
+        t_command = time.monotonic()
         failures = await fleet.for_each(lambda v: safe_stop(v, self.action), others)
         return SafetyEvent(
-            verdict=verdict,
-            clause=clause,
-            vehicles=vehicles,
-            t_s=t_s,
-            robustness=rho,
-            predicted_in_s=None if verdict is not Verdict.PREDICTED else ahead,
+            verdict=found.verdict,
+            clause=None if found.clause is None else found.clause.name,
+            vehicles=found.vehicles,
+            t_s=found.t_s,
+            robustness=found.robustness,
+            predicted_in_s=None if found.verdict is not Verdict.PREDICTED else found.ahead_s,
             action=self.action,
             action_failures={k: str(e) for k, e in failures.items()},
-            detail=detail,
+            detail=found.detail,
+            latency_s=t_command - found.sample_monotonic_s,
         )

@@ -49,7 +49,7 @@ from mavsdk.plugins.offboard import (
 
 from mavlink.errors import CommandError, LinkError, LinkLostError, PreflightError
 from mavlink.fleet import Fleet, Vehicle, VehicleStatus, mavsdk_call
-from mavlink.monitor import SafetyAction, SafetyEvent, SafetyMonitor, safe_stop
+from mavlink.monitor import MonitorStats, SafetyAction, SafetyEvent, SafetyMonitor, safe_stop
 from mavlink.px4_modes import Px4Mode
 from mavlink.stream import (
     MAX_RATE_HZ,
@@ -264,6 +264,8 @@ class FlightResult:
         end_failures: vehicles whose end action failed, with the reason.
         origins: each vehicle's EKF origin used for the transform.
         tlog: what the ``.tlog`` recording holds, if one was asked for.
+        monitor: what the safety monitor did (evaluations, their cost, vehicles checked
+            on their prediction while their telemetry was late).
     """
 
     completed: bool
@@ -275,6 +277,7 @@ class FlightResult:
     end_failures: dict[str, str] = field(default_factory=dict)
     origins: dict[str, GeodeticPoint] = field(default_factory=dict)
     tlog: TlogStats | None = None
+    monitor: MonitorStats | None = None
 
 
 # --------------------------------------------------------------------------
@@ -767,4 +770,5 @@ async def _fly(
         safety_event=event,
         end_failures=end_failures,
         origins=origins,
+        monitor=mon.stats,
     )

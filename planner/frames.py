@@ -168,6 +168,41 @@ def ned_to_enu(
     return _out(np.column_stack([np.ravel(e2), np.ravel(n2), np.ravel(u2)]), single)
 
 
+@dataclass(frozen=True, slots=True, eq=False)
+class NedToEnuMap:
+    """:func:`ned_to_enu` / :func:`ned_vector_to_enu` of one vehicle as one affine map.
+
+    Vehicle NED -> geodetic -> mission ENU goes through ECEF by two affine maps (pymap3d's
+    ``enu2ecef`` and ``ecef2enu``; the geodetic round trip in between is the identity), so
+    the whole is affine: ``enu = ned @ a.T + b``, velocities ``ned_v @ a.T``. Computed once
+    per flight, it turns the per-sample pymap3d calls of a live flight into one product.
+
+    Attributes:
+        a: ``(3, 3)`` the linear part (a rotation, with the NED -> ENU axis swap).
+        b: ``(3,)`` where the vehicle's origin lies in the mission frame.
+    """
+
+    a: NDArray[np.float64]
+    b: NDArray[np.float64]
+
+    @classmethod
+    def between(cls, mission_origin: GeodeticPoint, vehicle_origin: GeodeticPoint) -> NedToEnuMap:
+        """The map of a vehicle whose local origin is ``vehicle_origin``."""
+        step = 1000.0  # long base vectors: the round trip's rounding is relative to them
+        pts = np.vstack([np.zeros(3), step * np.eye(3)])
+        enu = ned_to_enu(pts, mission_origin, vehicle_origin)
+        b = enu[0]
+        return cls(a=((enu[1:] - b) / step).T.copy(), b=b.copy())
+
+    def position(self, pos_ned_m: ArrayLike) -> NDArray[np.float64]:
+        """Mission-ENU positions of NED points ``(..., 3)``."""
+        return np.asarray(pos_ned_m, dtype=float) @ self.a.T + self.b
+
+    def vector(self, vec_ned: ArrayLike) -> NDArray[np.float64]:
+        """Mission-ENU vectors (velocity, acceleration) of NED vectors ``(..., 3)``."""
+        return np.asarray(vec_ned, dtype=float) @ self.a.T
+
+
 def _rotate_enu(
     vec: NDArray[np.float64], src: GeodeticPoint, dst: GeodeticPoint
 ) -> NDArray[np.float64]:
