@@ -15,7 +15,8 @@
    to where the plan is at that instant, and the robustness of the clauses it takes part in
    *so far* (exact semantics of the flown prefix completed by the plan for the rest of the
    horizon, i.e. what the spec's value will be if the rest goes as planned);
-5. on Ctrl-C (task cancellation) stops every task of the flight and commands every vehicle
+5. on Ctrl-C (task cancellation) the flight's tasks end with it (structured in the link layer)
+   and :meth:`mavlink.fleet.Fleet.flight` commands every vehicle
    to hold where it is (:func:`mavlink.monitor.safe_stop`), and reports the modes it then has;
 6. writes the flown tracks (``flight.csv``, mission frame) and evaluates the flown data
    against the spec with the exact semantics (:func:`evaluate_flight`), next to the planned
@@ -779,29 +780,6 @@ async def _show_mode(
     await asyncio.gather(*(one(v) for v in fleet if v.name not in skip))
 
 
-async def _hold_everyone(fleet: Fleet) -> dict[str, str]:
-    """Stop offboard / hold every vehicle; failures by name."""
-    from mavlink.monitor import SafetyAction, safe_stop
-
-    failed = await fleet.for_each(lambda v: safe_stop(v, SafetyAction.HOLD))
-    return {k: str(e) for k, e in failed.items()}
-
-
-async def _cancel_since(before: set[asyncio.Task[Any]]) -> None:
-    """Cancel every task of this loop created since ``before`` was taken (but this one).
-
-    Those are what an interrupted flight left running: ``fly_offboard`` does not cancel its
-    own pre-stream task when it is cancelled during the switch to offboard, and a setpoint
-    stream must not outlive the hold command.
-    """
-    current = asyncio.current_task()
-    others = [t for t in asyncio.all_tasks() - before if t is not current]
-    for t in others:
-        t.cancel()
-    if others:
-        await asyncio.gather(*others, return_exceptions=True)
-
-
 async def _fly_offboard(
     fleet: Fleet,
     plan: Plan,
@@ -885,7 +863,6 @@ async def fly_plan(
         end_failures: dict[str, str] = {}
         for v in fleet:
             v.start_track()
-        before = asyncio.all_tasks()
         names = [v.name for v in plan.vehicles]
         tuning = await read_tuning(fleet, names, opts.drag_per_s)
         # offboard feeds the drag forward; a mission's timing is judged by its prediction
@@ -893,20 +870,22 @@ async def fly_plan(
         if progress is not None:
             for w in warnings:
                 print(w, file=progress.stream, flush=True)
+        guard = None
         try:
-            if opts.mode is FlightMode.OFFBOARD:
-                result = await _fly_offboard(fleet, plan, opts, clock, tuning)
-            else:
-                mission = await fly_mission_plan(fleet, plan, opts, clock, tuning)
+            # the flight's own tasks end with it; leaving it abnormally holds every vehicle
+            async with fleet.flight() as guard:
+                if opts.mode is FlightMode.OFFBOARD:
+                    result = await _fly_offboard(fleet, plan, opts, clock, tuning)
+                else:
+                    mission = await fly_mission_plan(fleet, plan, opts, clock, tuning)
         except asyncio.CancelledError:
-            # Ctrl-C: asyncio.run cancelled us. Take the cancellation back, stop what the
-            # flight left running and hold every vehicle before returning.
+            # Ctrl-C: asyncio.run cancelled us, and every vehicle was commanded to hold on the
+            # way out of the flight. Take the cancellation back to report.
             task = asyncio.current_task()
             if task is not None:
                 task.uncancel()
             interrupted = True
-            await _cancel_since(before)
-            end_failures = await _hold_everyone(fleet)
+            end_failures = dict(guard.failures) if guard is not None else {}
         finally:
             accuracy = {v.name: v.track_accuracy_m for v in fleet}
             rows = {v.name: v.stop_track() for v in fleet}

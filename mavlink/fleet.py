@@ -33,8 +33,8 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Awaitable, Callable, Iterator, Sequence
-from dataclasses import dataclass
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterator, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -762,6 +762,22 @@ def _fmt(p: tuple[float, float, float] | None) -> str:
 # --------------------------------------------------------------------------
 
 
+@dataclass(slots=True)
+class FlightGuard:
+    """What :meth:`Fleet.flight` did on the way out.
+
+    Attributes:
+        action: ``"hold"`` or ``"land"``, what an abnormal exit commands.
+        stopped: the scope was left by an exception or a cancellation and the vehicles
+            were commanded.
+        failures: vehicles that did not accept the command, with the reason.
+    """
+
+    action: str
+    stopped: bool = False
+    failures: dict[str, str] = field(default_factory=dict)
+
+
 class Fleet:
     """N vehicles behind one MAVSDK instance (the GCS is system 245, component 190).
 
@@ -981,6 +997,37 @@ class Fleet:
                     raise r
                 failures[v.name] = r
         return failures
+
+    @contextlib.asynccontextmanager
+    async def flight(
+        self, vehicles: Sequence[Vehicle] | None = None, *, on_exit: str = "hold"
+    ) -> AsyncIterator[FlightGuard]:
+        """A flight scope: leaving it by an exception or a cancellation (Ctrl-C) first commands
+        every vehicle (of ``vehicles``; default all) to hold where it is (``on_exit="land"``:
+        to land), then lets the exception go on; a normal exit leaves them as they are.
+
+        In the spirit of crazyflie-lib-python's ``MotionCommander``, whatever flies inside
+        (``fly_offboard``, a mission flight) cannot leave the vehicles streaming to nobody::
+
+            async with fleet.flight() as guard:
+                result = await fly_offboard(fleet, trajectories, origin)
+
+        The stop is MAVSDK's offboard stop (which holds) for a vehicle in offboard, Hold
+        otherwise (:func:`mavlink.monitor.safe_stop`); every vehicle is attempted, and the
+        guard records which did not accept it.
+        """
+        from mavlink.monitor import SafetyAction, safe_stop
+
+        action = SafetyAction(on_exit)
+        guard = FlightGuard(action=action.value)
+        targets = list(self.vehicles if vehicles is None else vehicles)
+        try:
+            yield guard
+        except BaseException:
+            guard.stopped = True
+            failed = await self.for_each(lambda v: safe_stop(v, action), targets)
+            guard.failures = {k: str(e) for k, e in failed.items()}
+            raise
 
     async def hold_all(self) -> dict[str, BaseException]:
         """Command Hold on every vehicle; returns the failures by name."""

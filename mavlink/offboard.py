@@ -37,6 +37,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from mavsdk.plugins.offboard import (
@@ -574,6 +575,17 @@ async def fly_offboard(
     return dataclasses.replace(result, tlog=stats)
 
 
+async def _end_task(task: asyncio.Task[Any], stop: asyncio.Event) -> BaseException | None:
+    """End a stream task: ask it to stop (it finishes its tick) and wait; if the caller is
+    being cancelled, cancel it outright. Idempotent; returns what the task raised, if it did."""
+    stop.set()
+    current = asyncio.current_task()
+    if current is not None and current.cancelling():
+        task.cancel()
+    (outcome,) = await asyncio.gather(task, return_exceptions=True)
+    return outcome if isinstance(outcome, BaseException) else None
+
+
 async def _fly(
     fleet: Fleet,
     trajectories: Mapping[str, Trajectory],
@@ -676,61 +688,67 @@ async def _fly(
     hover_stop = asyncio.Event()
     hover_task = asyncio.create_task(hover.run(time.monotonic(), stop=hover_stop))
     try:
-        await asyncio.sleep(cfg.prestream_s)
-        failures = await fleet.for_each(_start_offboard, vehicles)
-        if failures:
-            name, exc = next(iter(failures.items()))
-            raise PreflightError(
-                f"did not switch to offboard: {exc}", vehicle=name, url=fleet[name].url
-            )
-        await asyncio.gather(
-            *(
-                v.wait_for(
-                    lambda s: s.mode is Px4Mode.OFFBOARD,
-                    "mode OFFBOARD",
-                    timeout_s=cfg.mode_timeout_s,
+        try:
+            await asyncio.sleep(cfg.prestream_s)
+            failures = await fleet.for_each(_start_offboard, vehicles)
+            if failures:
+                name, exc = next(iter(failures.items()))
+                raise PreflightError(
+                    f"did not switch to offboard: {exc}", vehicle=name, url=fleet[name].url
                 )
-                for v in vehicles
-            )
-        )
-        # The arrival gate: PX4 holds the streamed start in offboard; the plan starts once
-        # every vehicle is on it (a fraction of the plan's margin), still and on heading.
-        await asyncio.gather(
-            *(
-                wait_settled(
-                    v,
-                    setpoints[v.name].pos_ned_m[0],
-                    arrive_m=cfg.arrive_m,
-                    settle_speed_m_s=cfg.settle_speed_m_s,
-                    dwell_s=cfg.dwell_s,
-                    timeout_s=cfg.arrive_timeout_s,
-                    yaw_deg=yaw0[v.name],
-                    yaw_tolerance_deg=cfg.yaw_tolerance_deg,
+            await asyncio.gather(
+                *(
+                    v.wait_for(
+                        lambda s: s.mode is Px4Mode.OFFBOARD,
+                        "mode OFFBOARD",
+                        timeout_s=cfg.mode_timeout_s,
+                    )
+                    for v in vehicles
                 )
-                for v in vehicles
             )
-        )
-    except Exception as exc:
-        hover_stop.set()
-        await hover_task
-        failed = await fleet.for_each(lambda v: safe_stop(v, SafetyAction.HOLD), vehicles)
-        for name, err in failed.items():
-            exc.add_note(f"vehicle {name}: hold after the failed start also failed: {err}")
-        raise
+            # The arrival gate: PX4 holds the streamed start in offboard; the plan starts once
+            # every vehicle is on it (a fraction of the plan's margin), still and on heading.
+            await asyncio.gather(
+                *(
+                    wait_settled(
+                        v,
+                        setpoints[v.name].pos_ned_m[0],
+                        arrive_m=cfg.arrive_m,
+                        settle_speed_m_s=cfg.settle_speed_m_s,
+                        dwell_s=cfg.dwell_s,
+                        timeout_s=cfg.arrive_timeout_s,
+                        yaw_deg=yaw0[v.name],
+                        yaw_tolerance_deg=cfg.yaw_tolerance_deg,
+                    )
+                    for v in vehicles
+                )
+            )
+        except Exception as exc:
+            await _end_task(hover_task, hover_stop)
+            failed = await fleet.for_each(lambda v: safe_stop(v, SafetyAction.HOLD), vehicles)
+            for name, err in failed.items():
+                exc.add_note(f"vehicle {name}: hold after the failed start also failed: {err}")
+            raise
 
-    # One shared start; the hover stream runs until just before it.
-    t0 = time.monotonic() + cfg.start_delay_s
-    main = SetpointStreamer(
-        [StreamTarget(v.name, offboard_sender(v.offboard), setpoints[v.name]) for v in vehicles],
-        cfg.rate_hz,
-        late_threshold_s=cfg.late_threshold_s,
-        groups=groups,
-    )
-    for v in vehicles:
-        v.start_track()
-    await asyncio.sleep(max(0.0, t0 - time.monotonic() - 0.5 / cfg.rate_hz))
-    hover_stop.set()
-    await hover_task
+        # One shared start; the hover stream runs until just before it.
+        t0 = time.monotonic() + cfg.start_delay_s
+        main = SetpointStreamer(
+            [
+                StreamTarget(v.name, offboard_sender(v.offboard), setpoints[v.name])
+                for v in vehicles
+            ],
+            cfg.rate_hz,
+            late_threshold_s=cfg.late_threshold_s,
+            groups=groups,
+        )
+        for v in vehicles:
+            v.start_track()
+        await asyncio.sleep(max(0.0, t0 - time.monotonic() - 0.5 / cfg.rate_hz))
+    finally:
+        # whatever ends the pre-stream (its end, a failure, a cancellation) ends its task
+        failed_stream = await _end_task(hover_task, hover_stop)
+    if failed_stream is not None:
+        raise failed_stream
 
     mon = monitor or SafetyMonitor(())
     stop = asyncio.Event()
