@@ -599,11 +599,12 @@ def main() -> int:
     )
     out = asyncio.run(main_async(args))
     m = out["mission"]
-    print(
-        f"largest fleet streamed at {RATE_HZ:g} Hz within the criterion: "
-        f"{out['largest']['native']} (all vehicles at the tick), "
-        f"{out['largest']['grouped']} (one send instant per {VEHICLES_PER_GROUP} vehicles)"
-    )
+    if not args.flight_only:
+        print(
+            f"largest fleet streamed at {RATE_HZ:g} Hz within the criterion: "
+            f"{out['largest']['native']} (all vehicles at the tick), "
+            f"{out['largest']['grouped']} (one send instant per {VEHICLES_PER_GROUP} vehicles)"
+        )
     print(f"MAVSDK warnings logged during the runs: {WARNINGS.count}")
     flight_keys = ("n", "rate_hz", "clauses", "missed", "p99_ms", "max_ms",
                    "monitor_tick_ms_p50", "monitor_tick_ms_max", "progress_updates", "ok")  # fmt: skip

@@ -10,8 +10,8 @@ every SET_POSITION_TARGET_LOCAL_NED it receives together with the number of
 stream is slower than 20 Hz; distinct positions are the GCS's own sends).
 
 With a telemetry rate (third argument, Hz) every endpoint also sends
-LOCAL_POSITION_NED at that rate: the vehicles hover on a grid 0.45 m apart, 8 to a row,
-1.8 m up (inside the reach-avoid workspace, above its obstacle), so a flight's safety
+LOCAL_POSITION_NED at that rate: the vehicles hover on a grid 0.75 m apart, 1.5 m up
+(inside the test plans' workspace, around their obstacle), so a flight's safety
 monitor and progress view have real telemetry to work on. A line ``violate I J`` on stdin
 puts vehicle ``I`` 5 cm from vehicle ``J`` (0-based); the sink notes when it first sent
 that position and when the next command from the GCS arrived (the monitor's hold).
@@ -40,17 +40,19 @@ from pymavlink.dialects.v20 import common as mav
 
 SETPOINT_ID = mav.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
 
-#: The hover grid: spacing, vehicles per row, height (m).
-GRID_M, ROW, HEIGHT_M = 0.45, 8, 1.8
+#: The hover grid: spacing and height (m), 9 x 9 positions around the middle (which is left
+#: empty: the test plans' obstacle stands there), so up to 80 vehicles.
+GRID_M, SIDE, HEIGHT_M = 0.75, 9, 1.5
 
 
 def grid_ned(i: int, n: int) -> tuple[float, float, float]:
-    """Vehicle ``i``'s hover position (NED) of ``n`` vehicles on the grid, centred."""
-    rows = (n + ROW - 1) // ROW
-    col, row = i % ROW, i // ROW
-    east = (col - (min(n, ROW) - 1) / 2) * GRID_M
-    north = (row - (rows - 1) / 2) * GRID_M
-    return north, east, -HEIGHT_M
+    """Vehicle ``i``'s hover position (NED): the ``i``-th free grid position, row by row."""
+    slots = [(r, c) for r in range(SIDE) for c in range(SIDE) if (r, c) != (SIDE // 2, SIDE // 2)]
+    if not 0 <= i < len(slots) or n > len(slots):
+        raise ValueError(f"the grid holds {len(slots)} vehicles, not {n}")
+    r, c = slots[i]
+    half = SIDE // 2
+    return (r - half) * GRID_M, (c - half) * GRID_M, -HEIGHT_M
 
 
 def main(argv: list[str]) -> int:

@@ -50,6 +50,11 @@ if TYPE_CHECKING:
     from planner.trajectory import Trajectory
 
 
+#: An EKF origin that moves more than this (m) in flight stops the flight (origins are sent
+#: as degE7 / mm: a re-sent origin compares equal; this only absorbs rounding).
+_ORIGIN_MOVE_M = 0.01
+
+
 class Verdict(Enum):
     """Why the monitor stopped the flight."""
 
@@ -58,6 +63,8 @@ class Verdict(Enum):
     LINK_LOST = "link_lost"  # a vehicle went silent (heartbeats, or telemetry for longer
     # than the vehicle's offboard-loss time, after which PX4 has left offboard by itself)
     LEFT_MODE = "left_mode"  # a vehicle left the flight's mode (its own failsafe took over)
+    ORIGIN_MOVED = "origin_moved"  # a vehicle's EKF origin moved in flight: its positions and
+    # the setpoints streamed to it are in another frame than the flight's
 
 
 class SafetyAction(Enum):
@@ -142,6 +149,11 @@ class SafetyEvent:
             head = f"link lost to {who} at t={self.t_s:.2f} s"
         elif self.verdict is Verdict.LEFT_MODE:
             head = f"{who} left the flight mode at t={self.t_s:.2f} s ({self.detail})"
+        elif self.verdict is Verdict.ORIGIN_MOVED:
+            head = (
+                f"the EKF origin of {who} moved at t={self.t_s:.2f} s ({self.detail}): its "
+                "positions and setpoints are no longer in the flight's frame"
+            )
         elif self.verdict is Verdict.VIOLATED:
             head = (
                 f"clause {self.clause!r} violated by {who} at t={self.t_s:.2f} s "
@@ -346,6 +358,15 @@ class SafetyMonitor:
         self.offboard_loss_s = offboard_loss_s
         self.on_start = on_start
         self._batch = ClauseBatch([c.formula for c in self.clauses])
+        # the signals the clauses read, and per clause the rows of its vehicles (padded with
+        # the extra last row, always "present")
+        self._signals = tuple(sorted({n for c in self.clauses for n in c.formula.signal_names()}))
+        self._signal_row = {n: k for k, n in enumerate(self._signals)}
+        width = max((len(c.vehicles) for c in self.clauses), default=0)
+        self._clause_rows = np.full((len(self.clauses), width), len(self._signals), dtype=int)
+        for i, c in enumerate(self.clauses):
+            for j, name in enumerate(c.vehicles):
+                self._clause_rows[i, j] = self._signal_row.get(name, len(self._signals))
         self._ends = np.array([c.end_s for c in self.clauses])
         self._starts = np.array([c.start_s for c in self.clauses])
         self.stats = MonitorStats()
@@ -447,16 +468,21 @@ class SafetyMonitor:
         else:
             pred, dt = np.zeros((0, self.steps + 1, 3)), 1.0
         rows = pred.shape[1]
-        signals = dict(zip(names, pred, strict=True))
-        present = np.array([all(v in signals for v in c.vehicles) for c in self.clauses])
+        # every signal the clauses read, in one array (zeros for a vehicle without a state,
+        # whose clauses are inactive)
+        stack = np.zeros((len(self._signals) + 1, rows, 3))
+        have = np.zeros(len(self._signals) + 1, dtype=bool)
+        have[-1] = True  # the padding of one-vehicle clauses
+        for k, name in enumerate(names):
+            j = self._signal_row.get(name)
+            if j is not None:
+                stack[j] = pred[k]
+                have[j] = True
+        present = have[self._clause_rows].all(axis=1)
         active = present & (self._starts <= t_s) & (t_s <= self._ends)
         if not active.any():
             return None
-        blank = np.zeros((rows, 3))
-        for c in self.clauses:
-            for name in c.formula.signal_names():
-                signals.setdefault(name, blank)
-        traces = self._batch.traces(signals, dt)  # (C, S)
+        traces = self._batch.traces_of(stack[:-1], self._signals, dt)  # (C, S)
         now = active & (traces[:, 0] < 0)
         if now.any():
             i = int(np.argmax(now))
@@ -474,6 +500,7 @@ class SafetyMonitor:
         vehicles: Sequence[Vehicle],
         t0_monotonic_s: float,
         maps: Mapping[str, NedToEnuMap],
+        origins: Mapping[str, GeodeticPoint],
         plans: Mapping[str, Trajectory] | None,
         expected_mode: Px4Mode | None,
         mode_grace_s: float,
@@ -511,6 +538,18 @@ class SafetyMonitor:
                         Verdict.LEFT_MODE, None, names, t_s, None, None, seen,
                         exclude=names, detail=detail,
                     )  # fmt: skip
+            moved = {
+                n: float(np.linalg.norm(NedToEnuMap.between(o, st.origin).b))
+                for n, st in statuses.items()
+                if st.origin is not None and st.origin != (o := origins[n])
+            }
+            moved = {n: d for n, d in moved.items() if d > _ORIGIN_MOVE_M}
+            if moved:
+                names = tuple(sorted(moved))
+                detail = ", ".join(f"{n} by {moved[n]:.2f} m" for n in names)
+                return _Finding(
+                    Verdict.ORIGIN_MOVED, None, names, t_s, None, None, now, detail=detail
+                )
             states: dict[str, tuple[np.ndarray, np.ndarray]] = {}
             ages: dict[str, float] = {}
             for name, st in statuses.items():
@@ -578,7 +617,7 @@ class SafetyMonitor:
                         pass
                 k = max(k + 1, int((time.monotonic() - t0_monotonic_s) / period - 0.5) + 1)
                 found = await loop.run_in_executor(
-                    worker, self._tick, vehicles, t0_monotonic_s, maps, plans,
+                    worker, self._tick, vehicles, t0_monotonic_s, maps, origins, plans,
                     expected_mode, mode_grace_s,
                 )  # fmt: skip
                 if found is not None and not stop.is_set():

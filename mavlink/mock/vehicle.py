@@ -366,7 +366,7 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         """Replace the link faults of this vehicle (takes effect for the next datagram)."""
         self.fleet.configure_links(self, faults)
 
-    def reboot(self, silent_s: float) -> None:
+    def reboot(self, silent_s: float, *, in_air: bool = False) -> None:
         """Simulate an autopilot reboot on the ground: silent, then back fresh.
 
         For ``silent_s`` seconds of simulation time nothing passes the link in
@@ -374,9 +374,11 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         in AUTO_LOITER with no offboard setpoint, a new parser and its MAVLink
         sequence restarted at 0.  Stored plans survive (PX4 keeps them on the
         SD card).  A reboot in the air is refused (:class:`MockError`): PX4
-        refuses MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN when not landed.
+        refuses MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN when not landed; ``in_air``
+        injects one anyway (a brown-out or a crash of the autopilot in flight,
+        which no command asks for).
         """
-        if not self.landed:
+        if not self.landed and not in_air:
             raise MockError(f"vehicle {self.index}: no reboot in the air")
         if not (silent_s > 0.0 and math.isfinite(silent_s)):
             raise MockConfigError(f"reboot silent_s must be a finite number > 0, got {silent_s!r}")
@@ -952,6 +954,20 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
             # 50 km of the vehicle (and degE7 / mm fields from overflowing)
             self.statustext(mavlink2.MAV_SEVERITY_WARNING, "EKF origin rejected: too far")
             return
+        self._move_origin(new, shift)
+
+    def reset_ekf_origin(self, north_m: float, east_m: float) -> None:
+        """Move the EKF origin by (``north_m``, ``east_m``) now, in the air or not: what
+        PX4's EKF2 does when it re-initialises its global origin (a GNSS reset). The vehicle
+        stays where it is, its local coordinates (and the setpoint it holds) shift, and the
+        new GPS_GLOBAL_ORIGIN is sent."""
+        lat0, lon0, h0 = self.origin_lla
+        lat, lon, alt = pymap3d.ned2geodetic(north_m, east_m, 0.0, lat0, lon0, h0)
+        new = (float(lat), float(lon), float(alt))
+        self._move_origin(new, self.global_to_ned(*new))
+
+    def _move_origin(self, new: tuple[float, float, float], shift: np.ndarray) -> None:
+        """The EKF origin becomes ``new`` (lat, lon, alt), ``shift`` away in the local frame."""
         self.origin_lla = new
         i = self.index
         lat0, lon0, h0 = self.spawn_lla

@@ -108,15 +108,65 @@ class ClauseBatch:
             for template, members in groups.items()
         )
         self.templates = len(self._groups)
+        self._slot_cache: dict[tuple[str, ...], list[tuple[_Group, list[np.ndarray]]] | None] = {}
 
-    def _stacked(
-        self, g: _Group, signals: Mapping[str, np.ndarray], rows: int
-    ) -> dict[str, np.ndarray]:
-        j_count = len(g.bindings[0])
-        return {
-            f"_s{j}": np.concatenate([np.asarray(signals[b[j]])[:rows] for b in g.bindings])
-            for j in range(j_count)
-        }
+    def _slots(self, names: tuple[str, ...]) -> list[tuple[_Group, list[np.ndarray]]] | None:
+        """Per template, per signal slot, the rows of ``names`` its bindings read (cached per
+        ``names``); ``None`` if a binding reads a signal not in ``names``."""
+        cached = self._slot_cache.get(names)
+        if cached is not None or names in self._slot_cache:
+            return cached
+        row = {n: k for k, n in enumerate(names)}
+        out: list[tuple[_Group, list[np.ndarray]]] | None = []
+        for g in self._groups:
+            j_count = len(g.bindings[0])
+            try:
+                idx = [np.array([row[b[j]] for b in g.bindings], dtype=int) for j in range(j_count)]
+            except KeyError:
+                out = None
+                break
+            out.append((g, idx))
+        self._slot_cache[names] = out
+        return out
+
+    def values_of(self, stack: np.ndarray, names: tuple[str, ...], dt: float) -> np.ndarray:
+        """:meth:`values` of signals given stacked: ``stack[k]`` is the signal ``names[k]``
+        (all of one shape ``(S, ...)``)."""
+        slots = self._slots(names)
+        if slots is None:
+            return self.values(dict(zip(names, stack, strict=True)), dt)
+        rows = stack.shape[1]
+        out = np.empty(len(self.clauses))
+        for g, idx in slots:
+            if g.horizon_steps_at(dt) > rows - 1 or not idx:
+                view = dict(zip(names, stack, strict=True))
+                for i in g.members:
+                    out[i] = self.clauses[i].robustness(view, dt)
+                continue
+            sig = {f"_s{j}": _flat(stack[ix]) for j, ix in enumerate(idx)}
+            trace = np.asarray(g.template.robustness_trace(sig, dt), dtype=float)
+            out[g.members] = trace[::rows][: len(g.members)]
+        return out
+
+    def traces_of(self, stack: np.ndarray, names: tuple[str, ...], dt: float) -> np.ndarray:
+        """:meth:`traces` of signals given stacked (see :meth:`values_of`)."""
+        slots = self._slots(names)
+        if slots is None:
+            return self.traces(dict(zip(names, stack, strict=True)), dt)
+        rows = stack.shape[1]
+        out = np.empty((len(self.clauses), rows))
+        for g, idx in slots:
+            if g.horizon_steps_at(dt) != 0:
+                raise ValueError(f"traces() takes atemporal clauses; {g.template} is temporal")
+            if not idx:
+                view = dict(zip(names, stack, strict=True))
+                for i in g.members:
+                    out[i] = self.clauses[i].robustness_trace(view, dt)[:rows]
+                continue
+            sig = {f"_s{j}": _flat(stack[ix]) for j, ix in enumerate(idx)}
+            trace = np.asarray(g.template.robustness_trace(sig, dt))
+            out[g.members] = trace.reshape(len(g.members), rows)
+        return out
 
     def values(self, signals: Mapping[str, np.ndarray], dt: float) -> np.ndarray:
         """``(len(clauses),)`` robustness of every clause at t = 0 (as ``clause.robustness``).
@@ -125,6 +175,9 @@ class ClauseBatch:
         horizon does not fit in them is evaluated clause by clause (as the clause itself
         would be, error included).
         """
+        stacked = _stack(signals)
+        if stacked is not None:
+            return self.values_of(stacked, tuple(signals), dt)
         out = np.empty(len(self.clauses))
         for g in self._groups:
             rows = _rows(signals, g.bindings)
@@ -132,12 +185,15 @@ class ClauseBatch:
                 for i in g.members:
                     out[i] = self.clauses[i].robustness(signals, dt)
                 continue
-            trace = g.template.robustness_trace(self._stacked(g, signals, rows), dt)
+            trace = g.template.robustness_trace(_concat(g, signals, rows), dt)
             out[g.members] = np.asarray(trace, dtype=float)[::rows][: len(g.members)]
         return out
 
     def traces(self, signals: Mapping[str, np.ndarray], dt: float) -> np.ndarray:
         """``(len(clauses), S)`` robustness traces of atemporal clauses (``S`` samples each)."""
+        stacked = _stack(signals)
+        if stacked is not None:
+            return self.traces_of(stacked, tuple(signals), dt)
         rows = _rows(signals, tuple(b for g in self._groups for b in g.bindings))
         out = np.empty((len(self.clauses), rows))
         for g in self._groups:
@@ -147,9 +203,29 @@ class ClauseBatch:
                 for i in g.members:
                     out[i] = self.clauses[i].robustness_trace(signals, dt)[:rows]
                 continue
-            trace = np.asarray(g.template.robustness_trace(self._stacked(g, signals, rows), dt))
+            trace = np.asarray(g.template.robustness_trace(_concat(g, signals, rows), dt))
             out[g.members] = trace.reshape(len(g.members), rows)
         return out
+
+
+def _flat(block: np.ndarray) -> np.ndarray:
+    """``(K, S, ...)`` -> ``(K * S, ...)``: the bindings' signals end to end."""
+    return block.reshape(block.shape[0] * block.shape[1], *block.shape[2:])
+
+
+def _stack(signals: Mapping[str, np.ndarray]) -> np.ndarray | None:
+    """The signals as one ``(len, S, ...)`` array, or ``None`` if their shapes differ."""
+    arrays = [np.asarray(a) for a in signals.values()]
+    if not arrays or any(a.shape != arrays[0].shape for a in arrays):
+        return None
+    return np.stack(arrays)
+
+
+def _concat(g: _Group, signals: Mapping[str, np.ndarray], rows: int) -> dict[str, np.ndarray]:
+    return {
+        f"_s{j}": np.concatenate([np.asarray(signals[b[j]])[:rows] for b in g.bindings])
+        for j in range(len(g.bindings[0]))
+    }
 
 
 def _rows(signals: Mapping[str, np.ndarray], bindings: Sequence[tuple[str, ...]]) -> int:

@@ -124,15 +124,17 @@ def test_late_telemetry_is_predicted_from_the_last_sample_and_the_plan_not_skipp
 class FakeVehicle:
     """What the monitor reads from a vehicle: ``name`` and ``status(now)``."""
 
-    def __init__(self, name: str, pos_ned, age_s: float) -> None:  # type: ignore[no-untyped-def]
+    def __init__(self, name: str, pos_ned, age_s: float, origin: GeodeticPoint) -> None:  # type: ignore[no-untyped-def]
         self.name = name
         self.pos = np.asarray(pos_ned, dtype=float)
         self.age_s = age_s
+        self.origin = origin
 
     def status(self, now: float):  # type: ignore[no-untyped-def]
         return types.SimpleNamespace(
             connected=True, position_age_s=self.age_s, mode=Px4Mode.OFFBOARD,
             heartbeat_age_s=0.1, pos_ned_m=self.pos, vel_ned_m_s=np.zeros(3),
+            origin=self.origin,
         )  # fmt: skip
 
 
@@ -145,7 +147,9 @@ def test_the_run_evaluates_on_its_own_thread_and_reports_late_vehicles() -> None
     # both far from the obstacle and apart; d2's telemetry is 0.6 s old (late, not lost)
     starts = {"d1": np.array([-1.5, 1.5, 1.5]), "d2": np.array([1.5, -1.5, 1.5])}
     vehicles = [
-        FakeVehicle(n, enu_to_ned(starts[n], origin, origins[n]), 0.6 if n == "d2" else 0.01)
+        FakeVehicle(
+            n, enu_to_ned(starts[n], origin, origins[n]), 0.6 if n == "d2" else 0.01, origins[n]
+        )
         for n in names
     ]
     mon = SafetyMonitor(always_clauses(spec, names), horizon_s=0.5)
