@@ -18,10 +18,10 @@ lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 
-# Two workers, a test file each at a time: most tests wait on real-time flights (the machine
-# idles), so two files in parallel halve the wall time without crowding the CPU.
+# Two workers: most tests wait on real-time flights (the machine
+# idles), so two at a time halve the wall time without crowding the CPU.
 test: $(STAMP) lint
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile
+	$(BIN)/python -m pytest -q -n 2 --dist load
 
 demo: $(STAMP)
 	$(BIN)/gcs demo

@@ -11,6 +11,7 @@ actions, missions and offboard, pymavlink for logs)::
     mavlink.mission     trajectory -> PX4 mission / geofence items, upload, verify,
                         whole-transfer retries within a time budget
     mavlink.monitor     online safety monitor of the spec's always-clauses
+    mavlink.scan        who answers on the udpin ports (duplicate system ids)
     mavlink.tlog        telemetry recording to .tlog and CSV
     mavlink.mock        the mock PX4 vehicle endpoint (vehicle side)
 
@@ -20,6 +21,7 @@ Error tree (``mavlink.errors``)::
                                       carries .vehicle and .url, names them in the message
       UrlError(LinkError, ValueError)     malformed connection URL
       ConnectTimeoutError                 a vehicle did not appear in time
+      DuplicateSystemError                two autopilots answer as one vehicle's system id
       LinkLostError                       a connected vehicle stopped sending heartbeats
       CommandError                        a command was refused / unanswered (.result)
       PreflightError                      a vehicle may not start the plan (too far from
@@ -39,6 +41,7 @@ A safety stop by the monitor is not an error: it is reported as a
 from mavlink.errors import (
     CommandError,
     ConnectTimeoutError,
+    DuplicateSystemError,
     LinkError,
     LinkLostError,
     MissionError,
@@ -52,6 +55,7 @@ from mavlink.errors import (
 __all__ = [
     "CommandError",
     "ConnectTimeoutError",
+    "DuplicateSystemError",
     "LinkError",
     "LinkLostError",
     "MissionError",

@@ -45,6 +45,10 @@ class ConnectTimeoutError(LinkError):
     """A vehicle did not appear (no heartbeat from its system id) in time."""
 
 
+class DuplicateSystemError(LinkError):
+    """More than one vehicle answers as a fleet vehicle's system id (names the addresses)."""
+
+
 class LinkLostError(LinkError):
     """A vehicle that was connected stopped sending heartbeats."""
 

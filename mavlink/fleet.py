@@ -46,7 +46,13 @@ from mavsdk.plugins.mission_raw import MissionRaw
 from mavsdk.plugins.offboard import Offboard
 from mavsdk.plugins.telemetry import Telemetry, TelemetryResult
 
-from mavlink.errors import CommandError, ConnectTimeoutError, LinkError, LinkLostError
+from mavlink.errors import (
+    CommandError,
+    ConnectTimeoutError,
+    DuplicateSystemError,
+    LinkError,
+    LinkLostError,
+)
 from mavlink.px4_modes import (
     MAV_CMD_DO_SET_MODE,
     Px4Mode,
@@ -792,6 +798,9 @@ class Fleet:
         UrlError: a URL is malformed (before anything is opened).
         LinkError: a URL cannot be opened (port in use, no such device).
         ConnectTimeoutError: a vehicle did not appear; names it, its URL and sysid.
+        DuplicateSystemError: two autopilots answer as one vehicle's system id (a scan of
+            the ``udpin`` ports before MAVSDK opens them, up to ``scan_s``: it names both
+            addresses; MAVSDK would merge them into one system).
         CommandError: a vehicle refused the telemetry rate, or never answered the request
             within ``connect_timeout_s``.
     """
@@ -803,6 +812,7 @@ class Fleet:
         connect_timeout_s: float = 10.0,
         link_timeout_s: float = 2.0,
         telemetry_rate_hz: float | None = 20.0,
+        scan_s: float = 1.0,
     ) -> None:
         if not specs:
             raise LinkError("no vehicles to connect")
@@ -829,6 +839,7 @@ class Fleet:
         self.connect_timeout_s = connect_timeout_s
         self.link_timeout_s = link_timeout_s
         self.telemetry_rate_hz = telemetry_rate_hz
+        self.scan_s = scan_s
         self._mavsdk: Mavsdk | None = None
         self._vehicles: dict[str, Vehicle] = {}
 
@@ -849,6 +860,8 @@ class Fleet:
         ``connect_timeout_s``.
         """
         route_mavsdk_logs()
+        if self.scan_s > 0:
+            await self._refuse_duplicates()
         config = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
         self._mavsdk = Mavsdk(config)
         try:
@@ -875,6 +888,19 @@ class Fleet:
         except BaseException:
             self.close()
             raise
+
+    async def _refuse_duplicates(self) -> None:
+        """DuplicateSystemError if two autopilots answer as one of the fleet's system ids on
+        the udpin ports (:mod:`mavlink.scan`), before MAVSDK merges them."""
+        from mavlink.scan import duplicates, scan_udpin
+
+        urls = [parse_url(s.url, vehicle=s.name) for s in self.specs]
+        sysids = [s.sysid for s in self.specs]
+        heard = await scan_udpin(urls, self.scan_s, expect=sysids)
+        found = duplicates(heard, sysids)
+        if found:
+            spec = next(s for s in self.specs if s.sysid == found[0].sysid)
+            raise DuplicateSystemError(found[0].describe(), vehicle=spec.name, url=spec.url)
 
     async def _first_heartbeat(self, v: Vehicle) -> None:
         """Wait for ``v``'s first autopilot HEARTBEAT; ConnectTimeoutError naming it if none."""

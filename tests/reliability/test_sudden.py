@@ -122,3 +122,49 @@ def test_the_wall_clock_stepping_during_a_flight_changes_nothing(
     assert result.safety_event is None and result.completed
     assert all(s.skipped == 0 and s.failed == 0 for s in result.stats.values())
     assert all(np.all(np.diff(tr.t_s) > 0) for tr in result.tracks.values())
+
+
+def test_two_autopilots_answering_as_one_system_id_are_refused_naming_both_addresses() -> None:
+    from mavlink.errors import DuplicateSystemError
+    from mavlink.fleet import VehicleSpec
+    from mavlink.mock.testing import free_udp_ports
+
+    gcs, first, second = free_udp_ports(3)
+
+    async def run() -> str:
+        # two mock autopilots, both system id 1, both sending to the ground station's port;
+        # the second boots 1.5 s after the first
+        async with MockFleet(n=1, gcs_ports=[gcs], vehicle_ports=[first]):
+            await asyncio.sleep(1.5)
+            async with MockFleet(n=1, gcs_ports=[gcs], vehicle_ports=[second]):
+                fleet = Fleet([VehicleSpec("d1", f"udpin://127.0.0.1:{gcs}", 1)])
+                try:
+                    with pytest.raises(DuplicateSystemError) as err:
+                        await asyncio.wait_for(fleet.connect(), HANG_S)
+                finally:
+                    fleet.close()
+                return str(err.value)
+
+    text = asyncio.run(run())
+    assert text.startswith(
+        f"vehicle d1 (udpin://127.0.0.1:{gcs}): two vehicles answer as system id 1"
+    )
+    assert f"127.0.0.1:{first}" in text and f"127.0.0.1:{second}" in text
+    assert "booted 1." in text and "MAV_SYS_ID" in text
+
+
+def test_one_autopilot_heard_over_two_links_is_one_vehicle() -> None:
+    from mavlink.scan import Heard, Sender, duplicates
+
+    one_clock = Heard({1: {("10.0.0.2", 14580): Sender(("10.0.0.2", 14580), "udpin://:14540", 100.0),
+                           ("10.0.0.3", 14580): Sender(("10.0.0.3", 14580), "udpin://:14540", 100.2)}})  # fmt: skip
+    assert duplicates(one_clock, [1]) == []
+    two_clocks = Heard({1: {("10.0.0.2", 14580): Sender(("10.0.0.2", 14580), "udpin://:14540", 100.0),
+                            ("10.0.0.3", 14580): Sender(("10.0.0.3", 14580), "udpin://:14540", 160.0)}})  # fmt: skip
+    (dup,) = duplicates(two_clocks, [1, 2])
+    assert "booted 60.0 s apart" in dup.describe() and "10.0.0.3:14580" in dup.describe()
+    no_clock = Heard({1: {("10.0.0.2", 14580): Sender(("10.0.0.2", 14580), "udpin://:14540", None),
+                          ("10.0.0.3", 14580): Sender(("10.0.0.3", 14580), "udpin://:14540", 100.0)}})  # fmt: skip
+    (dup,) = duplicates(no_clock, [1])
+    assert "no clock" in dup.describe()
+    assert duplicates(two_clocks, [2]) == []  # not a fleet vehicle's id: not ours to refuse
