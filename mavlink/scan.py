@@ -130,7 +130,19 @@ async def scan_udpin(
     finally:
         for t in transports:
             t.close()
+        # asyncio closes the sockets on its next iteration: let it, so MAVSDK can bind the
+        # ports right after
+        while any(t.get_extra_info("socket") is not None and not _released(t) for t in transports):
+            await asyncio.sleep(0)
     return heard
+
+
+def _released(transport: asyncio.BaseTransport) -> bool:
+    sock = transport.get_extra_info("socket")
+    try:
+        return sock.fileno() == -1
+    except (AttributeError, OSError):
+        return True
 
 
 @dataclass(frozen=True, slots=True)
