@@ -60,7 +60,7 @@ import numpy as np
 from gcs.errors import InputFileError, UserError
 
 if TYPE_CHECKING:
-    from gcs.commands.verify import Check
+    from gcs.checks import Check
     from gcs.mission_flight import MissionFlight
     from gcs.tuning import VehicleTuning
     from mavlink.fleet import Fleet, Vehicle, VehicleSpec
@@ -175,7 +175,7 @@ def preflight_interlock(plan: Plan, *, force: bool = False) -> tuple[Check, ...]
     Raises:
         FlightRefused: naming the first failed check, its value and bound, and how many fail.
     """
-    from gcs.commands.verify import verify_plan
+    from gcs.checks import verify_plan
 
     checks = tuple(verify_plan(plan))
     failed = [c for c in checks if not c.ok]

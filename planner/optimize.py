@@ -160,8 +160,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import casadi as ca
 import numpy as np
 
+from planner.checks import LimitReport, check_trajectories
 from planner.dynamics import DoubleIntegrator, MinimumJerkChain
-from planner.dynamics.feasibility import FeasibilityReport, InputLimits, check_input_feasibility
 from planner.leaf_templates import (
     LeafInstance,
     clear_templates,
@@ -241,32 +241,6 @@ class ClauseReport:
     key_path: str
     text: str
     robustness: float
-
-
-@dataclass(frozen=True, slots=True)
-class LimitReport:
-    """Limits of one vehicle checked on the dense samples (ratios: 1 = at the limit)."""
-
-    name: str
-    max_speed_m_s: float
-    max_acc_m_s2: float
-    path_length_m: float
-    v_ratio: float
-    a_ratio: float
-    workspace_margin_m: float
-    feasibility: FeasibilityReport | None
-
-    @property
-    def ok(self) -> bool:
-        """Limits, workspace and (if checked) thrust/body rates all hold."""
-        tol = 1e-6
-        feas = self.feasibility is None or self.feasibility.feasible
-        return (
-            self.v_ratio <= 1 + tol
-            and self.a_ratio <= 1 + tol
-            and self.workspace_margin_m >= -tol
-            and feas
-        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -1322,52 +1296,6 @@ def _dense_times(problem: Problem) -> np.ndarray:
     t = problem.timing
     n = round(t.horizon_s / t.check_dt_s) + 1
     return np.arange(n) * t.check_dt_s
-
-
-def check_trajectories(
-    problem_like: Any,
-    trajectories: Sequence[Trajectory],
-    vehicles: Sequence[Any],
-    dt_s: float,
-    horizon_s: float,
-) -> tuple[LimitReport, ...]:
-    """Dense checks per vehicle: max speed/acc per axis vs limits, workspace, Mueller test.
-
-    ``problem_like`` has a ``workspace`` region; ``vehicles`` have the scenario's limit
-    fields (``v_max_m_s``, ``a_max_m_s2``, optional thrust/body-rate limits).
-    """
-    n = round(horizon_s / dt_s) + 1
-    t = np.arange(n) * dt_s
-    ws = problem_like.workspace
-    out = []
-    for v, tr in zip(vehicles, trajectories, strict=True):
-        pos = tr.position(t)
-        vel = tr.velocity(t)
-        acc = tr.acceleration(t)
-        v_ratio = float(np.max(np.abs(vel) / np.asarray(v.v_max_m_s)))
-        a_ratio = float(np.max(np.abs(acc) / np.asarray(v.a_max_m_s2)))
-        margin = float(
-            np.min(np.concatenate([pos - np.asarray(ws.lo_enu_m), np.asarray(ws.hi_enu_m) - pos]))
-        )
-        feas = None
-        if v.thrust_max_m_s2 is not None and v.body_rate_max_rad_s is not None:
-            feas = check_input_feasibility(
-                tr,
-                InputLimits(v.thrust_min_m_s2 or 0.0, v.thrust_max_m_s2, v.body_rate_max_rad_s),
-            )
-        out.append(
-            LimitReport(
-                name=v.name,
-                max_speed_m_s=float(np.max(np.linalg.norm(vel, axis=1))),
-                max_acc_m_s2=float(np.max(np.linalg.norm(acc, axis=1))),
-                path_length_m=float(np.sum(np.linalg.norm(np.diff(pos, axis=0), axis=1))),
-                v_ratio=v_ratio,
-                a_ratio=a_ratio,
-                workspace_margin_m=margin,
-                feasibility=feas,
-            )
-        )
-    return tuple(out)
 
 
 # ------------------------------------------------------------------------------- plan

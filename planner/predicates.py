@@ -38,7 +38,6 @@ import math
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
-import casadi as ca
 import numpy as np
 
 from planner.scenario import Clause, Problem, Region, ScenarioError
@@ -98,6 +97,8 @@ def ca_box_margins(pos: Any, region: Region) -> Any:
 
     The bounds may be numbers or (3, 1) CasADi symbols (the planner's leaf templates,
     :mod:`planner.leaf_templates`, take boxes as inputs)."""
+    import casadi as ca
+
     n = pos.shape[0]
     lo, hi = (
         b if isinstance(b, ca.SX | ca.MX) else ca.DM(b) for b in (region.lo_enu_m, region.hi_enu_m)
@@ -107,6 +108,8 @@ def ca_box_margins(pos: Any, region: Region) -> Any:
 
 def _ca_softmin_rows(m: Any, k: float) -> Any:
     """Row-wise soft-min (n, 1) by LSE, shifted by the row min; in [min - log(c)/k, min]."""
+    import casadi as ca
+
     c = m.shape[1]
     mn = m[:, 0]
     for j in range(1, c):
@@ -119,6 +122,8 @@ def _ca_softmin_rows(m: Any, k: float) -> Any:
 
 def _ca_softmax_rows_lower(m: Any, k: float) -> Any:
     """Row-wise soft-max minus its bound (n, 1); in [max - log(c)/k, max]."""
+    import casadi as ca
+
     c = m.shape[1]
     mx = m[:, 0]
     for j in range(1, c):
@@ -175,6 +180,7 @@ def _np_functions(problem: RegionSource) -> dict[str, Callable[..., np.ndarray]]
 
 def casadi_functions(problem: RegionSource, k_pred: float) -> dict[str, Callable[..., Any]]:
     """The smooth CasADi implementations by name: ``f(args, signals) -> (m, 1)``."""
+    import casadi as ca
 
     def inside(args: tuple[str, ...], signals: Mapping[str, Any]) -> Any:
         m = ca_box_margins(_vehicle_signal(signals, args[0]), _region(problem, args[1]))
@@ -215,11 +221,22 @@ def build_registry(problem: RegionSource, k_pred: float | None = None) -> Functi
 
     k = predicate_sharpness(problem) if k_pred is None else k_pred
     np_f = _np_functions(problem)
-    ca_f = casadi_functions(problem, k)
+    # The CasADi side is built on first use: checking and flying a plan (exact semantics,
+    # numpy) never imports CasADi.
+    built: dict[str, Callable[..., Any]] = {}
+
+    def smooth(name: str) -> Callable[..., Any]:
+        def impl(args: tuple[str, ...], signals: Mapping[str, Any]) -> Any:
+            if not built:
+                built.update(casadi_functions(problem, k))
+            return built[name](args, signals)
+
+        return impl
+
     reg = FunctionRegistry()
     for name, kinds in FUNCTION_NAMES.items():
         signal_args = tuple(i for i, kind in enumerate(kinds) if kind == "v")
-        reg.register(name, len(kinds), np_f[name], ca_f[name], signal_args=signal_args)
+        reg.register(name, len(kinds), np_f[name], smooth(name), signal_args=signal_args)
     return reg
 
 

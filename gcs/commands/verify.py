@@ -24,18 +24,14 @@ vehicle or region, a horizon shorter than the spec), in one line naming the plan
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
-import math
-from dataclasses import dataclass
-from typing import Any
 
-import numpy as np
+from gcs.checks import MAX_TELEMETRY_GAP_S, Check, check_step_s, verify_plan, verify_telemetry
+
+__all__ = ["MAX_TELEMETRY_GAP_S", "Check", "add_arguments", "check_step_s", "run",
+           "verify_plan", "verify_telemetry"]  # fmt: skip
 
 HELP = "re-check a plan file: spec robustness, limits, separation and workspace"
-
-#: Longest hole in a vehicle's flown telemetry that verification interpolates across (s).
-MAX_TELEMETRY_GAP_S = 1.0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -50,145 +46,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--t0", type=float, metavar="UNIX_S", help="for a .tlog: Unix time of t = 0")
     p.add_argument("--json", action="store_true", help="print the checks as JSON")
-
-
-@dataclass(frozen=True, slots=True)
-class Check:
-    """One verified property: its name, the measured value, the bound and the verdict."""
-
-    name: str
-    value: float
-    bound: float
-    ok: bool
-    detail: str = ""
-
-
-def check_step_s(plan: Any, dt_s: float | None) -> float:
-    """The check step: ``dt_s`` (``--dt``) if given, else the plan's ``check_dt_s``.
-
-    Raises:
-        UserError: ``--dt`` not a positive number, or so small that the plan's horizon would
-            take more than :data:`planner.planfile.MAX_CHECK_SAMPLES` samples.
-    """
-    from gcs.errors import UserError
-    from planner.planfile import MAX_CHECK_SAMPLES
-
-    if dt_s is None:
-        return float(plan.check_dt_s)  # load_plan checked it
-    if not (math.isfinite(dt_s) and dt_s > 0):
-        raise UserError(f"--dt: must be a positive number of seconds, got {dt_s:g}")
-    if plan.horizon_s / dt_s > MAX_CHECK_SAMPLES:
-        raise UserError(
-            f"--dt: {dt_s:g} s gives more than {MAX_CHECK_SAMPLES:g} check samples over the "
-            f"plan's {plan.horizon_s:g} s horizon"
-        )
-    return float(dt_s)
-
-
-def verify_plan(plan: Any, dt_s: float | None = None) -> list[Check]:
-    """All checks of a loaded plan (see module docstring).
-
-    Raises:
-        PlanFileError: the plan's spec does not fit the plan or cannot be evaluated on it
-            (:func:`planner.planfile.plan_formula`, :func:`planner.planfile.spec_errors`).
-        UserError: a bad ``dt_s`` (:func:`check_step_s`).
-    """
-    from planner.optimize import check_trajectories
-    from planner.planfile import plan_formula, spec_errors
-
-    dt = check_step_s(plan, dt_s)
-    n = round(plan.horizon_s / dt) + 1
-    t = np.arange(n) * dt
-    trajs = [v.trajectory for v in plan.vehicles]
-    pos = {v.name: v.trajectory.position(t) for v in plan.vehicles}
-    checks: list[Check] = []
-
-    phi = plan_formula(plan)
-    for clause in phi.clauses:
-        with spec_errors(plan):
-            rho = clause.robustness(pos, dt)
-            detail = ""
-            if rho < plan.epsilon:
-                w = clause.weakest(pos, dt)[-1]
-                detail = f"weakest {w.formula} = {w.robustness:.4g} at t = {w.t_s:g} s"
-        checks.append(Check(f"spec: {clause}", rho, plan.epsilon, rho >= plan.epsilon, detail))
-
-    for lim in check_trajectories(plan, trajs, plan.vehicles, dt, plan.horizon_s):
-        checks.append(
-            Check(f"{lim.name} velocity / v_max", lim.v_ratio, 1.0, lim.v_ratio <= 1 + 1e-6)
-        )
-        checks.append(
-            Check(f"{lim.name} acceleration / a_max", lim.a_ratio, 1.0, lim.a_ratio <= 1 + 1e-6)
-        )
-        checks.append(
-            Check(
-                f"{lim.name} workspace margin m",
-                lim.workspace_margin_m,
-                0.0,
-                lim.workspace_margin_m >= -1e-9,
-            )
-        )
-        if lim.feasibility is not None:
-            f = lim.feasibility
-            checks.append(
-                Check(
-                    f"{lim.name} thrust/body rate (Mueller)",
-                    float(f.first_violation_t_s if f.first_violation_t_s is not None else 0.0),
-                    0.0,
-                    f.feasible,
-                    "" if f.feasible else f"{f.violation} at t = {f.first_violation_t_s:g} s",
-                )
-            )
-    for a, b in itertools.combinations(plan.vehicles, 2):
-        d = np.linalg.norm(pos[a.name] - pos[b.name], axis=1)
-        i = int(np.argmin(d))
-        checks.append(
-            Check(
-                f"separation {a.name}-{b.name} m",
-                float(d[i]),
-                plan.separation_m,
-                bool(d[i] >= plan.separation_m),
-                f"closest at t = {t[i]:g} s",
-            )
-        )
-    for v in plan.vehicles:
-        err = float(np.linalg.norm(v.trajectory.position(np.array([0.0]))[0] - v.start_enu_m))
-        checks.append(Check(f"{v.name} start offset m", err, 1e-6, err <= 1e-6))
-    return checks
-
-
-def verify_telemetry(plan: Any, telemetry: Any, dt_s: float | None = None) -> list[Check]:
-    """Checks of flown data (module docstring): coverage and gaps per vehicle, then each
-    top-level clause on the flown positions (bound 0: the flown data satisfies it).
-
-    Args:
-        plan: a loaded plan.
-        telemetry: a :class:`gcs.plot.Telemetry` (flown ENU paths by vehicle name).
-        dt_s: check step (default: the plan's ``check_dt_s``).
-    """
-    from planner.planfile import plan_formula
-
-    dt = check_step_s(plan, dt_s)
-    t = np.arange(round(plan.horizon_s / dt) + 1) * dt
-    checks: list[Check] = []
-    flown: dict[str, np.ndarray] = {}
-    for v in plan.vehicles:
-        path = telemetry.vehicles.get(v.name)
-        if path is None or len(path.t_s) == 0:
-            checks.append(Check(f"flown {v.name} telemetry", 0.0, 1.0, False, "no samples"))
-            continue
-        ts = np.asarray(path.t_s, dtype=float)
-        gap = float(max(ts[0] - 0.0, plan.horizon_s - ts[-1], np.diff(ts).max(initial=0.0)))
-        ok = gap <= MAX_TELEMETRY_GAP_S
-        detail = f"samples {ts[0]:.2f}..{ts[-1]:.2f} s of 0..{plan.horizon_s:g} s"
-        checks.append(Check(f"flown {v.name} largest gap s", gap, MAX_TELEMETRY_GAP_S, ok, detail))
-        if ok:
-            flown[v.name] = path.position(t)
-    if len(flown) == len(plan.vehicles):
-        for clause in plan_formula(plan).clauses:
-            rho = float(clause.robustness(flown, dt))
-            checks.append(Check(f"flown spec: {clause}", rho, 0.0, rho >= 0.0))
-    return checks
 
 
 def run(args: argparse.Namespace) -> int:

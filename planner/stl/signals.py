@@ -7,20 +7,26 @@ mixed in and are converted to DM. All signals share the same n.
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Mapping
 from typing import Any
 
-import casadi as ca
 import numpy as np
 
 from planner.stl.errors import SignalShapeError
 
-_SYMBOLIC = (ca.SX, ca.MX)
+
+def _symbolic() -> tuple[type, ...]:
+    """CasADi's SX and MX, if CasADi is loaded (no value can be one otherwise: the exact
+    semantics never import CasADi)."""
+    ca = sys.modules.get("casadi")
+    return () if ca is None else (ca.SX, ca.MX)
 
 
 def is_symbolic(signals: Mapping[str, Any]) -> bool:
     """True when any signal is a CasADi SX/MX matrix."""
-    return any(isinstance(value, _SYMBOLIC) for value in signals.values())
+    kinds = _symbolic()
+    return bool(kinds) and any(isinstance(value, kinds) for value in signals.values())
 
 
 def numpy_signals(signals: Mapping[str, Any]) -> tuple[dict[str, np.ndarray], int]:
@@ -37,8 +43,9 @@ def numpy_signals(signals: Mapping[str, Any]) -> tuple[dict[str, np.ndarray], in
     out: dict[str, np.ndarray] = {}
     n: int | None = None
     first = ""
+    symbolic = _symbolic()
     for name, value in signals.items():
-        if isinstance(value, _SYMBOLIC):
+        if symbolic and isinstance(value, symbolic):
             raise SignalShapeError(
                 f"signal {name!r} is a CasADi symbol: exact robustness needs numeric signals"
             )
@@ -73,7 +80,10 @@ def casadi_signals(signals: Mapping[str, Any]) -> tuple[dict[str, Any], int, typ
     Raises:
         SignalShapeError: SX mixed with MX, wrong dimensions, unequal lengths.
     """
-    kinds = {type(v) for v in signals.values() if isinstance(v, _SYMBOLIC)}
+    import casadi as ca
+
+    symbolic = (ca.SX, ca.MX)
+    kinds = {type(v) for v in signals.values() if isinstance(v, symbolic)}
     if len(kinds) != 1:
         raise SignalShapeError(f"signals mix CasADi types {sorted(k.__name__ for k in kinds)}")
     kind = kinds.pop()
@@ -81,7 +91,7 @@ def casadi_signals(signals: Mapping[str, Any]) -> tuple[dict[str, Any], int, typ
     n: int | None = None
     first = ""
     for name, value in signals.items():
-        if isinstance(value, (*_SYMBOLIC, ca.DM)):
+        if isinstance(value, (*symbolic, ca.DM)):
             matrix = value
         else:
             try:

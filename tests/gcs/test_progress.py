@@ -56,3 +56,20 @@ def test_the_incremental_view_gives_the_definition_at_every_update() -> None:
                 assert got[name] == want[name], (t, name)
             checked += 1
     assert checked > 10
+
+
+def test_checking_and_flying_a_plan_never_loads_casadi_or_the_optimiser() -> None:
+    # exact semantics and dense checks are numpy only: gcs verify (and the modules gcs fly
+    # runs) start without CasADi and planner.optimize
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from gcs.cli import main\n"
+        "import gcs.flight, gcs.missions, gcs.mission_flight, mavlink.offboard\n"
+        f"rc = main(['verify', {str(PLANS / 'reach_avoid_2.plan.json')!r}])\n"
+        "print(rc, 'casadi' in sys.modules, 'planner.optimize' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.splitlines()[-1] == "0 False False", out.stdout[-500:]
