@@ -7,7 +7,10 @@ that ``planner.trajectory`` users do not pay for CasADi):
   expansion of the spec over vehicles, groups and pairs).
 * :mod:`planner.predicates`: the spec's functions ``inside``, ``outside``, ``dist``, ``alt``,
   ``x``, ``y``, ``z`` (numpy exact, CasADi smooth), ``build_registry(problem)``.
-* :mod:`planner.optimize`: ``plan(problem) -> PlanResult`` (CasADi/IPOPT).
+* :mod:`planner.optimize`: ``plan(problem) -> PlanResult`` (CasADi/IPOPT), built from
+  :mod:`planner.nlp` (the NLP and the solvers), :mod:`planner.guess` (the initial guess),
+  :mod:`planner.results` and :mod:`planner.checks` (dense limit checks, numpy only);
+  ``docs/solver-notes.md`` records what each choice measured.
 * :mod:`planner.planfile`: ``save_plan``, ``load_plan`` (DESIGN.md section 6).
 * :mod:`planner.stl`, :mod:`planner.dynamics`, :mod:`planner.trajectory`,
   :mod:`planner.frames`: the STL engine, motion models, trajectories and frames.

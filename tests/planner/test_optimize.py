@@ -180,7 +180,7 @@ def test_local_hessian_equals_casadi_hessian_of_the_whole_vector() -> None:
 def test_flat_blocks_keep_their_gradient_and_leave_the_hessian() -> None:
     import casadi as ca
 
-    from planner.optimize import _derivatives
+    from planner.nlp import _derivatives
 
     w, p = ca.SX.sym("w", 3), ca.SX.sym("p", 0)
     sep = ca.vertcat(ca.norm_2(w[:2]) - w[2])  # a keep-apart row: dist - r >= 0
@@ -202,7 +202,7 @@ def test_flat_blocks_keep_their_gradient_and_leave_the_hessian() -> None:
 
 
 def test_separation_without_curvature_reaches_the_exact_hessian_optimum() -> None:
-    from planner.optimize import _is_separation
+    from planner.nlp import _is_separation
     from planner.predicates import build_registry, parse_clause
 
     problem = load_scenario(CONFIGS / "reach_avoid.yaml", vehicles=2)
@@ -220,7 +220,7 @@ def test_separation_without_curvature_reaches_the_exact_hessian_optimum() -> Non
 def test_shared_target_slots_are_lattice_points_with_equal_depth_and_spacing_margins() -> None:
     from types import SimpleNamespace
 
-    from planner.optimize import _box_slots
+    from planner.guess import _box_slots
 
     cube = SimpleNamespace(lo_enu_m=(1.5, 1.5, 0.5), hi_enu_m=(2.0, 2.0, 1.0))
 

@@ -1,0 +1,449 @@
+"""The initial guess of :func:`planner.optimize.plan`: timed grid paths through each vehicle's
+targets, in lanes, fitted to the limits (``docs/solver-notes.md`` says what each part bought).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from planner.nlp import _limit_bounds, _two_sided_rows
+from planner.scenario import Problem
+from planner.stl import (
+    Always,
+    Formula,
+    Not,
+    Or,
+    Predicate,
+)
+
+# ------------------------------------------------------------------------ initial guess
+
+
+def _targets(formula: Formula, vehicle: str, problem: Problem) -> list[str]:
+    """Boxes ``vehicle`` must be inside somewhere (not under a negation), in spec order."""
+    out: list[str] = []
+
+    def walk(node: Formula, negated: bool) -> None:
+        if isinstance(node, Not):
+            walk(node.child, not negated)
+            return
+        if isinstance(node, Or):
+            walk(node.operands[0], negated)  # the guess takes the first alternative
+            return
+        if isinstance(node, Predicate) and node.call.name == "inside" and not negated:
+            v, reg = node.call.args
+            if v == vehicle and reg != problem.workspace.name and reg not in out:
+                out.append(reg)
+        for child in node.children:
+            walk(child, negated)
+
+    walk(formula, False)
+    return out
+
+
+def _avoided(leaves: Mapping[Formula, Any], vehicle: str, problem: Problem) -> list[Any]:
+    """Boxes the vehicle must always stay out of (``outside`` leaves of the conjunction)."""
+    out = []
+    for leaf in leaves:
+        if (
+            isinstance(leaf, Predicate)
+            and leaf.call.name == "outside"
+            and leaf.call.args[0] == vehicle
+        ):
+            out.append(problem.region(leaf.call.args[1]))
+    return out
+
+
+#: Cells of the initial-guess search grid (at most).
+_GRID_CELLS = 40_000
+
+
+def _grid_path(problem: Problem, avoid: Sequence[Any], points: Sequence[np.ndarray]) -> np.ndarray:
+    """Shortest polyline through ``points`` (in order) on a voxel grid, around ``avoid`` boxes.
+
+    A 26-connected grid over the workspace (cell size from the smallest avoided box and a
+    cell budget); cells whose centre lies in a box grown by half a cell are blocked.
+    Returns (m, 3) vertices; falls back to straight segments where no path exists.
+    """
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    lo = np.asarray(problem.workspace.lo_enu_m)
+    hi = np.asarray(problem.workspace.hi_enu_m)
+    ext = hi - lo
+    feature = min((float(np.min(np.subtract(b.hi_enu_m, b.lo_enu_m))) for b in avoid), default=1.0)
+    cell = max(feature / 2.0, float((np.prod(ext) / _GRID_CELLS) ** (1 / 3)))
+    shape = np.maximum(1, np.floor(ext / cell).astype(int))
+    axes = [lo[a] + (np.arange(shape[a]) + 0.5) * ext[a] / shape[a] for a in range(3)]
+    cx, cy, cz = np.meshgrid(*axes, indexing="ij")
+    centres = np.column_stack([cx.ravel(), cy.ravel(), cz.ravel()])
+    step = ext / shape
+    blocked = np.zeros(len(centres), dtype=bool)
+    for b in avoid:
+        grow = 0.5 * step + 0.05 * feature
+        inside = np.all(
+            (centres > np.asarray(b.lo_enu_m) - grow) & (centres < np.asarray(b.hi_enu_m) + grow),
+            axis=1,
+        )
+        blocked |= inside
+    idx = np.arange(len(centres)).reshape(shape)
+    rows, cols, wts = [], [], []
+    for off in (
+        np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1], indexing="ij")).reshape(3, -1).T
+    ):
+        if not off.any():
+            continue
+        src = idx[
+            max(0, -off[0]) : shape[0] - max(0, off[0]),
+            max(0, -off[1]) : shape[1] - max(0, off[1]),
+            max(0, -off[2]) : shape[2] - max(0, off[2]),
+        ].ravel()
+        dst = src + off[0] * shape[1] * shape[2] + off[1] * shape[2] + off[2]
+        ok = ~blocked[src] & ~blocked[dst]
+        rows.append(src[ok])
+        cols.append(dst[ok])
+        wts.append(np.full(int(ok.sum()), float(np.linalg.norm(off * step))))
+    graph = csr_matrix(
+        (np.concatenate(wts), (np.concatenate(rows), np.concatenate(cols))),
+        shape=(len(centres), len(centres)),
+    )
+    free = np.nonzero(~blocked)[0]
+    if free.size == 0:
+        return np.asarray(points, dtype=float)
+
+    def nearest(pt: np.ndarray) -> int:
+        return int(free[np.argmin(np.linalg.norm(centres[free] - pt, axis=1))])
+
+    out = [np.asarray(points[0], dtype=float)]
+    for a, b in itertools.pairwise(points):
+        ia, ib = nearest(np.asarray(a)), nearest(np.asarray(b))
+        _, pred = dijkstra(graph, indices=ia, return_predecessors=True)
+        if ia != ib and pred[ib] < 0:
+            out.append(np.asarray(b, dtype=float))
+            continue
+        chain = [ib]
+        while chain[-1] != ia:
+            chain.append(int(pred[chain[-1]]))
+        out.extend(centres[i] for i in reversed(chain[:-1]))
+        out.append(np.asarray(b, dtype=float))
+    return np.asarray(out)
+
+
+#: Fraction of the per-axis limits the initial guess's legs use (the Bezier bounds of the
+#: limit constraints are conservative, and the least-squares fit overshoots a little).
+_GUESS_LIMIT_FRACTION = 0.75
+#: Extra time (s) the guess stays in a target box beyond the spec's hover there.
+_GUESS_DWELL_MARGIN_S = 0.75
+
+
+def _hover_times(formula: Formula, vehicle: str) -> dict[str, float]:
+    """Longest ``always[a, b] inside(vehicle, box)`` window (b - a, s) per box."""
+    out: dict[str, float] = {}
+
+    def walk(node: Formula) -> None:
+        if isinstance(node, Always):
+            c = node.child
+            if isinstance(c, Predicate) and c.call.name == "inside" and c.call.args[0] == vehicle:
+                reg = c.call.args[1]
+                out[reg] = max(out.get(reg, 0.0), node.end_s - node.start_s)
+        for child in node.children:
+            walk(child)
+
+    walk(formula)
+    return out
+
+
+def _leg_profile(dist_m: np.ndarray, v_max: np.ndarray, a_max: np.ndarray) -> tuple[float, float]:
+    """(duration s, accelerating fraction of it) of the fastest rest-to-rest trapezoidal
+    profile over per-axis distances ``dist_m`` (3,) within per-axis ``v_max``/``a_max``.
+
+    Every axis is flown on the same normalised profile; the limiting axis decides.  With
+    an accelerating fraction ``phi`` of duration ``T`` the peak speed is ``d / (T (1-phi))``
+    and the acceleration ``d / (T^2 phi (1-phi))``.
+    """
+    d = np.abs(dist_m)
+    t_acc = v_max / a_max
+    tri = d <= v_max * t_acc  # never reaches v_max
+    t = np.where(tri, 2 * np.sqrt(d / a_max), d / v_max + t_acc)
+    i = int(np.argmax(t))
+    if t[i] <= 0:
+        return 0.0, 0.5
+    return float(t[i]), float(0.5 if tri[i] else t_acc[i] / t[i])
+
+
+def _trapezoid_s(t_s: np.ndarray, duration_s: float, phi: float) -> np.ndarray:
+    """Normalised path parameter in [0, 1] of a symmetric trapezoidal speed profile that
+    accelerates for a fraction ``phi`` (0 < phi <= 0.5) of ``duration_s``."""
+    u = np.clip(t_s / max(duration_s, 1e-9), 0.0, 1.0)
+    peak = 1.0 / (1.0 - phi)
+    acc = peak / phi
+    return np.where(
+        u < phi,
+        0.5 * acc * u**2,
+        np.where(u <= 1 - phi, 0.5 * acc * phi**2 + peak * (u - phi), 1 - 0.5 * acc * (1 - u) ** 2),
+    )
+
+
+def _initial_guess(
+    problem: Problem,
+    model: Any,
+    formula: Formula,
+    x0s: list[np.ndarray],
+    leaves: Mapping[Formula, Any],
+) -> np.ndarray:
+    """Shortest grid paths through each vehicle's target boxes around the boxes it must
+    avoid, fitted to Z by least squares.
+
+    Timing respects the vehicle's limits: each leg (between targets) is flown rest to rest
+    with a trapezoidal speed profile (a third accelerating, a third cruising, a third
+    braking) along its polyline, no shorter than the per-axis trapezoid time at
+    ``_GUESS_LIMIT_FRACTION`` of ``v_max``/``a_max`` over the leg's per-axis travel; at each
+    target the vehicle dwells for the spec's hover there (``always[a, b] inside``) plus
+    ``_GUESS_DWELL_MARGIN_S``.  The time left over in the horizon is split: half stretches
+    the legs (slower is easier on the limits), half lengthens the dwells.  Vehicles sharing
+    a target box get points spread along its longest side, so the guess does not put them on
+    top of each other.
+    """
+    times = np.asarray(model.times_s)
+    horizon = problem.timing.horizon_s
+    per_vehicle = {v.name: _targets(formula, v.name, problem) for v in problem.vehicles}
+    sharing: dict[str, list[str]] = {}
+    for name, regs in per_vehicle.items():
+        for reg in regs:
+            sharing.setdefault(reg, []).append(name)
+
+    starts = {v.name: np.asarray(v.start_enu_m, dtype=float) for v in problem.vehicles}
+    sep = float(problem.separation_m or 0.0)
+    slots = {
+        reg: _box_slots(problem.region(reg), users, starts, sep) for reg, users in sharing.items()
+    }
+
+    def point(reg: str, name: str) -> np.ndarray:
+        return slots[reg][name]
+
+    options: list[list[np.ndarray]] = []
+    avoids: list[list[Any]] = []
+    for v in problem.vehicles:
+        targets = per_vehicle[v.name]
+        pts = [np.asarray(v.start_enu_m), *(point(r, v.name) for r in targets)]
+        avoid = _avoided(leaves, v.name, problem)
+        avoids.append(avoid)
+        if len(pts) == 1:
+            options.append([np.tile(pts[0], (len(times), 1))])
+            continue
+        legs = [_grid_path(problem, avoid, [a, b]) for a, b in itertools.pairwise(pts)]
+        v_lim = _GUESS_LIMIT_FRACTION * np.asarray(v.v_max_m_s, dtype=float)
+        a_lim = _GUESS_LIMIT_FRACTION * np.asarray(v.a_max_m_s2, dtype=float)
+        prof = [
+            _leg_profile(np.abs(np.diff(leg, axis=0)).sum(axis=0), v_lim, a_lim) for leg in legs
+        ]
+        leg_s = np.array([d for d, _ in prof])
+        phis = [ph for _, ph in prof]
+        hovers = _hover_times(formula, v.name)
+        dwell_s = np.array([hovers.get(r, 0.0) + _GUESS_DWELL_MARGIN_S for r in targets])
+        slack = horizon - leg_s.sum() - dwell_s.sum()
+        if slack > 0:
+            leg_s = leg_s + 0.5 * slack * leg_s / max(leg_s.sum(), 1e-9)
+            dwell_s = dwell_s + 0.5 * slack / len(dwell_s)
+        else:  # infeasible as timed: squeeze everything into the horizon
+            scale = horizon / (leg_s.sum() + dwell_s.sum())
+            leg_s, dwell_s = leg_s * scale, dwell_s * scale
+        options.append(
+            [
+                _timed_path(times, legs, leg_s, phis, dwell_s, lane * _GUESS_LANE_SEP * sep)
+                for lane in _GUESS_LANES
+            ]
+        )
+    # Lanes: a few rounds of each vehicle picking the first lane clear of all the others.
+    chosen = [opts[0] for opts in options]
+    for _ in range(3):
+        changed = False
+        for i, opts in enumerate(options):
+            others = [p for j, p in enumerate(chosen) if j != i]
+            pick = _pick_lane(opts, others, avoids[i], sep)
+            changed |= pick is not chosen[i]
+            chosen[i] = pick
+        if not changed:
+            break
+    cols = []
+    for path, x0, v in zip(chosen, x0s, problem.vehicles, strict=True):
+        Zv = _fit_within_limits(model, path, x0, v, problem.workspace)
+        cols.append(Zv.reshape(-1, order="F"))
+    return np.concatenate(cols)
+
+
+def _fit_within_limits(
+    model: Any, path: np.ndarray, x0: np.ndarray, vehicle: Any, ws: Any
+) -> np.ndarray:
+    """``Z`` (n_dec, 3) whose samples are closest (least squares) to ``path`` (n, 3) among
+    the trajectories that respect the vehicle's limits, end at rest and stay in the
+    workspace at the samples: a small QP per axis (DAQP, dense, ``n_dec`` variables).
+
+    The unconstrained fit of a timed polyline rings at its corners (reach-avoid N = 4:
+    2.4x the acceleration limit), and IPOPT then spends its first iterations restoring
+    feasibility instead of raising the robustness.  If the QP fails, falls back to the
+    least-squares fit with only the equalities (end at rest, the model's own).
+    """
+    Mp, Np = np.asarray(model.Mp), np.asarray(model.Np)
+    cons = model.limit_constraints(vehicle.v_max_m_s, vehicle.a_max_m_s2)
+    half = _two_sided_rows(cons)
+    lo_all, hi_all = _limit_bounds(cons, half)
+    Ge, He = model.equality_constraints()
+    n_fix = 1 + len(Ge)  # rows held at 0: the end velocity, the model's equalities
+    A = np.vstack([model.Mv[-1:], Ge, cons.G[:half], Mp])
+    qp = _guess_qp(model.n_dec, A)
+    H = 2 * (Mp.T @ Mp) + 1e-6 * np.eye(model.n_dec)
+    out = np.zeros((model.n_dec, 3))
+    for a in range(3):
+        xa = x0[:, a]
+        off = np.concatenate([model.Nv[-1:] @ xa, He @ xa, cons.H[:half] @ xa, Np @ xa])
+        lo_lim, hi_lim = lo_all[:, a], hi_all[:, a]
+        lba = np.concatenate([np.zeros(n_fix), lo_lim, np.full(len(Mp), ws.lo_enu_m[a])]) - off
+        uba = np.concatenate([np.zeros(n_fix), hi_lim, np.full(len(Mp), ws.hi_enu_m[a])]) - off
+        g = -2 * Mp.T @ (path[:, a] - Np @ xa)
+        sol = qp(h=H, g=g, a=A, lba=lba, uba=uba)
+        za = np.asarray(sol["x"]).reshape(-1)
+        if not qp.stats().get("success", False) or not np.all(np.isfinite(za)):
+            # Equality-constrained least squares only (limits and workspace dropped).
+            E = A[:n_fix]
+            kkt = np.block([[H, E.T], [E, np.zeros((n_fix, n_fix))]])
+            rhs = np.concatenate([-g, -off[:n_fix]])
+            za = np.linalg.lstsq(kkt, rhs, rcond=None)[0][: model.n_dec]
+        out[:, a] = za
+    return out
+
+
+_QP_CACHE: dict[tuple[int, int], Any] = {}
+
+
+def _guess_qp(n_dec: int, A: np.ndarray) -> Any:
+    key = (n_dec, A.shape[0])
+    if key not in _QP_CACHE:
+        _QP_CACHE[key] = ca.conic(
+            "guess_fit",
+            "daqp",
+            {"h": ca.Sparsity.dense(n_dec, n_dec), "a": ca.Sparsity.dense(*A.shape)},
+            {"error_on_fail": False},
+        )
+    return _QP_CACHE[key]
+
+
+def _box_slots(
+    box: Any, users: Sequence[str], starts: Mapping[str, np.ndarray], sep_m: float = 0.0
+) -> dict[str, np.ndarray]:
+    """Target points for the vehicles sharing ``box``: a k_x x k_y x k_z lattice (the counts
+    giving every vehicle its own point with the largest margin), handed out greedily, each
+    vehicle taking the free point nearest its start.  A single vehicle gets the centre.
+
+    The margin of a lattice is the smaller of the points' depth inside the box and their
+    spacing beyond the separation ``sep_m``, the two robustness terms a vehicle parked there
+    is scored by.  Along an axis with ``k > 1`` points both are equal,
+    ``m = (ext - sep (k - 1)) / (k + 1)``; an axis with one point puts it mid-box.
+    (Reach-avoid, 16 drones in the 0.5 m goal with 0.2 m separation: a 3 x 3 x 2 lattice
+    with m = 0.025 m; the cell centres of the same lattice were 0.167 m apart, which
+    broke the separation from the start.)
+    """
+    lo, hi = np.asarray(box.lo_enu_m, dtype=float), np.asarray(box.hi_enu_m, dtype=float)
+    ext = hi - lo
+    n = len(users)
+
+    def axis_margin(a: int, k: int) -> float:
+        return ext[a] / 2 if k == 1 else (ext[a] - sep_m * (k - 1)) / (k + 1)
+
+    best: tuple[float, tuple[int, ...]] = (-np.inf, (1, 1, 1))
+    for k in itertools.product(range(1, n + 1), repeat=3):
+        if math.prod(k) >= n and math.prod(k) < 2 * n + 2:
+            m = min(axis_margin(a, k[a]) for a in range(3))
+            if m > best[0] + 1e-12:
+                best = (m, k)
+    k = best[1]
+    axes = []
+    for a in range(3):
+        if k[a] == 1:
+            axes.append(np.array([0.5 * (lo[a] + hi[a])]))
+        else:
+            m = max(axis_margin(a, k[a]), 0.0)
+            axes.append(np.linspace(lo[a] + m, hi[a] - m, k[a]))
+    cells = [np.array(c) for c in itertools.product(*axes)]
+    out: dict[str, np.ndarray] = {}
+    for name in users:
+        i = int(np.argmin([np.linalg.norm(c - starts[name]) for c in cells]))
+        out[name] = cells.pop(i)
+    return out
+
+
+#: Lateral lanes (multiples of ``_GUESS_LANE_SEP`` x separation) the guess may shift a
+#: vehicle's legs into, in order of preference.
+_GUESS_LANES = (0, -1, 1, -2, 2, -3, 3)
+_GUESS_LANE_SEP = 1.5
+
+
+def _timed_path(
+    times: np.ndarray,
+    legs: Sequence[np.ndarray],
+    leg_s: np.ndarray,
+    phis: Sequence[float],
+    dwell_s: np.ndarray,
+    lane_m: float,
+) -> np.ndarray:
+    """Positions (n, 3) at ``times``: each leg flown on its trapezoid, shifted sideways
+    (horizontally, left of the leg's direction) by ``lane_m`` away from its two ends."""
+    knots_t: list[float] = [0.0]
+    knots_p: list[np.ndarray] = [legs[0][0]]
+    t_now = 0.0
+    for leg, dur, phi, dwell in zip(legs, leg_s, phis, dwell_s, strict=True):
+        seg = np.linalg.norm(np.diff(leg, axis=0), axis=1)
+        cum = np.concatenate([[0.0], np.cumsum(seg)]) / max(seg.sum(), 1e-9)
+        tt = np.linspace(0.0, dur, 61)[1:]
+        arc = _trapezoid_s(tt, dur, phi)
+        pos = np.column_stack([np.interp(arc, cum, leg[:, a]) for a in range(3)])
+        if lane_m:
+            d = leg[-1] - leg[0]
+            left = np.array([-d[1], d[0], 0.0])
+            norm = float(np.linalg.norm(left))
+            if norm > 1e-9:
+                u = tt / max(dur, 1e-9)
+                bump = np.clip(np.minimum(u, 1 - u) / 0.3, 0.0, 1.0)
+                bump = bump * bump * (3 - 2 * bump)
+                pos = pos + np.outer(bump, left / norm * lane_m)
+        knots_t.extend((t_now + tt).tolist())
+        knots_p.extend(pos)
+        t_now += dur + dwell
+        knots_t.append(t_now)
+        knots_p.append(leg[-1])
+    poly = np.asarray(knots_p)
+    kt = np.asarray(knots_t)
+    return np.column_stack([np.interp(times, kt, poly[:, a]) for a in range(3)])
+
+
+def _pick_lane(
+    candidates: Sequence[np.ndarray], placed: Sequence[np.ndarray], avoid: Sequence[Any], sep: float
+) -> np.ndarray:
+    """The first candidate path clear of the avoided boxes (0.3 m) and 1.3 separations from
+    the paths already placed; else the clear one farthest from them."""
+    best, best_d = candidates[0], -np.inf
+    for path in candidates:
+        clear = all(
+            np.all(
+                np.max(
+                    np.maximum(np.asarray(b.lo_enu_m) - path, path - np.asarray(b.hi_enu_m)),
+                    axis=1,
+                )
+                >= 0.3
+            )
+            for b in avoid
+        )
+        if not clear:
+            continue
+        d = min((float(np.min(np.linalg.norm(path - q, axis=1))) for q in placed), default=np.inf)
+        if d >= 1.3 * sep:
+            return path
+        if d > best_d:
+            best, best_d = path, d
+    return best

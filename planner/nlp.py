@@ -1,0 +1,569 @@
+"""The NLP of :func:`planner.optimize.plan`: the spec's leaves as constraints on the epigraph
+variable ``r``, the dynamics and limits, and the IPOPT / sqpmethod glue.
+
+Formulation and why it is shaped so: :mod:`planner.optimize`; what each choice measured:
+``docs/solver-notes.md``.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+# IPOPT's MUMPS (and its BLAS) read this when CasADi loads the ipopt plugin, at the first
+# nlpsol: threads only fight on a small shared machine (power-line N = 4 measured 19 s
+# with one thread, > 90 s unset on 2 loaded cores).  An explicit setting is respected.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import casadi as ca
+import numpy as np
+
+from planner.leaf_templates import (
+    LeafInstance,
+    clear_templates,
+    instance,
+    local_hessian,
+    selection,
+)
+from planner.predicates import (
+    ca_box_margins,
+    casadi_functions,
+    predicate_sharpness,
+)
+from planner.scenario import Problem, SolverMethod
+from planner.stl import (
+    Always,
+    And,
+    BinOp,
+    BoolConst,
+    Call,
+    CmpOp,
+    Comparison,
+    Const,
+    Expr,
+    Formula,
+    Neg,
+    Predicate,
+    Signal,
+)
+
+#: Lower bound of the fitted smoothing sharpness (1/m).
+K_MIN = 10.0
+#: Fraction of the smallest region half-size the smooth leaves may be off by.
+_K_TOLERANCE = 0.06
+#: Weight of the mean squared acceleration ((m/s^2)^2) subtracted from r in the objective.
+_REG_WEIGHT = 1e-3
+#: Upper bound of the epigraph variable r (m): keeps IPOPT bounded on trivial specs.
+_R_MAX = 1e3
+
+
+# --------------------------------------------------------------------------- decompose
+
+
+def _decompose(node: Formula, steps: np.ndarray, dt: float, out: dict[Formula, set[int]]) -> None:
+    """Collect conjunctive leaves: walk ``and``/``always`` from the root, track steps."""
+    if isinstance(node, And):
+        for child in node.operands:
+            _decompose(child, steps, dt, out)
+    elif isinstance(node, Always):
+        lo, hi = node.steps(dt)
+        shifted = np.unique((steps[:, None] + np.arange(lo, hi + 1)[None, :]).ravel())
+        _decompose(node.child, shifted, dt, out)
+    elif isinstance(node, BoolConst) and node.value:
+        return
+    else:
+        out.setdefault(node, set()).update(int(s) for s in steps)
+
+
+def _is_direct(node: Formula) -> bool:
+    """Leaves evaluated directly (vectorised over steps) rather than through the engine."""
+    return isinstance(node, Comparison | Predicate)
+
+
+def _ca_expr(e: Expr, rows: Mapping[str, Any], fns: Mapping[str, Callable[..., Any]]) -> Any:
+    if isinstance(e, Const):
+        return e.value
+    if isinstance(e, Call):
+        return fns[e.name](e.args, rows)
+    if isinstance(e, Neg):
+        return -_ca_expr(e.operand, rows, fns)
+    if isinstance(e, BinOp):
+        a = _ca_expr(e.lhs, rows, fns)
+        b = _ca_expr(e.rhs, rows, fns)
+        return {"+": a + b, "-": a - b, "*": a * b, "/": a / b}[e.op.value]
+    if isinstance(e, Signal):
+        return rows[e.name]
+    raise TypeError(f"unsupported expression node {type(e).__name__}")
+
+
+# ------------------------------------------------------------------------------ build
+
+
+@dataclass(slots=True)
+class _Structure:
+    """A built NLP, reusable for any start states and limits of the same structure."""
+
+    solvers: list[tuple[float, Any]]  # (k, nlpsol) in continuation order
+    leaf_fn: Any  # ca.Function (w, p) -> leaf values (for r0)
+    n_w: int
+    n_z: int  # the first n_z entries of w are the Z matrices (vec, vehicle after vehicle)
+    n_g: int
+    lbx: np.ndarray
+    ubx: np.ndarray
+    lbg_fixed: np.ndarray
+    ubg_fixed: np.ndarray
+    lim_slices: list[slice]  # g rows of each vehicle's limits
+    lim_half: int  # rows of the model's limits kept (two-sided rows when they pair up)
+    leaves: dict[Formula, set[int]]
+    used_steps: list[int]  # planning steps whose positions are lifted into variables
+    n_smooth: int
+    k: float
+    margin: float
+    build_s: float
+
+
+_CACHE: dict[Any, _Structure] = {}
+_CACHE_SIZE = 8
+
+
+def clear_cache() -> None:
+    """Forget built solvers and leaf templates (benchmarks measure cold builds with this)."""
+    _CACHE.clear()
+    clear_templates()
+
+
+def _structure_key(problem: Problem) -> Any:
+    s = problem.solver
+    return (
+        problem.spec_text,
+        tuple((r.name, r.lo_enu_m, r.hi_enu_m) for r in problem.all_regions),
+        problem.timing,
+        problem.model,
+        tuple(v.name for v in problem.vehicles),
+        s,
+        problem.epsilon,
+    )
+
+
+def _fit_k(problem: Problem, smooth_leaves: Sequence[Formula], dt: float) -> tuple[float, float]:
+    """(k, error bound at k) for the smooth leaves: bound = 6 % of the smallest half-size."""
+    if problem.solver.k is not None:
+        k = problem.solver.k
+    elif not smooth_leaves:
+        k = K_MIN
+    else:
+        halves = [0.5 * (np.asarray(r.hi_enu_m) - r.lo_enu_m) for r in problem.all_regions]
+        tol = _K_TOLERANCE * float(min(np.min(h) for h in halves))
+        unit = max(leaf.smooth_error_bound(1.0, dt) for leaf in smooth_leaves)
+        k = max(K_MIN, unit / tol)
+    bound = max((leaf.smooth_error_bound(k, dt) for leaf in smooth_leaves), default=0.0)
+    return k, bound
+
+
+def _leaf_values(
+    leaf: Formula,
+    steps: list[int],
+    rows_of: Callable[[list[int]], Mapping[str, Any]],
+    problem: Problem,
+    fns: Mapping[str, Callable[..., Any]],
+) -> Any:
+    """SX column of a row-wise leaf's robustness at ``steps`` (from the lifted positions)."""
+    rows = rows_of(steps)
+    if isinstance(leaf, Predicate) and leaf.call.name == "inside":
+        region = problem.region(leaf.call.args[1])
+        return ca.vec(ca_box_margins(rows[leaf.call.args[0]], region))
+    if isinstance(leaf, Predicate):
+        return fns[leaf.call.name](leaf.call.args, rows)
+    assert isinstance(leaf, Comparison)
+    lhs = _ca_expr(leaf.lhs, rows, fns)
+    rhs = _ca_expr(leaf.rhs, rows, fns)
+    out = lhs - rhs if leaf.op in (CmpOp.GE, CmpOp.GT) else rhs - lhs
+    return out * ca.DM.ones(len(steps), 1) if not hasattr(out, "shape") else out
+
+
+def _build(problem: Problem, model: Any, formula: Formula) -> _Structure:
+    t0 = time.perf_counter()
+    dt = problem.timing.sample_dt_s
+    n = len(model.times_s)
+    names = [v.name for v in problem.vehicles]
+    nv = len(names)
+    opts = problem.solver
+
+    # Lifted formulation: the sampled positions P_i (n, 3) are variables tied to Z_i by
+    # linear equalities.  Row-wise leaves (separation, obstacles, boxes) then touch a few
+    # variables each, so the constraint Jacobian and the Lagrangian Hessian are very sparse
+    # and CasADi's symbolic derivatives need few directions (colouring) whatever N is.
+    # Smooth leaves couple many samples (a window's soft max): they are written in Z (the
+    # same positions through Mp), where their dense Hessian block is n_dec*3 wide, not n*3.
+    leaves: dict[Formula, set[int]] = {}
+    _decompose(formula, np.array([0]), dt, leaves)
+    smooth_leaves = [leaf for leaf in leaves if not _is_direct(leaf)]
+    k_final, margin = _fit_k(problem, smooth_leaves, dt)
+    k_list = [*[kk for kk in opts.continuation if kk < k_final], k_final]
+    k_pred = predicate_sharpness(problem)
+    fns = casadi_functions(problem, k_pred)
+    c_dt = opts.constraint_dt_s if opts.constraint_dt_s is not None else max(dt, 0.1)
+    stride = max(1, round(c_dt / dt))
+    direct_steps: dict[Formula, list[int]] = {}
+    for leaf, steps_set in leaves.items():
+        if _is_direct(leaf):
+            steps = sorted(steps_set)
+            direct_steps[leaf] = sorted(set(steps[::stride]) | {steps[-1]})
+    # The workspace bounds the lifted positions, so every constraint step of the horizon is
+    # lifted, whether or not the spec itself constrains it there.
+    grid = {*range(0, n, stride), n - 1}
+    used = sorted(grid.union(*direct_steps.values()))
+    row_of = {st: i for i, st in enumerate(used)}
+
+    Z = [ca.SX.sym(f"Z_{nm}", model.n_dec, 3) for nm in names]
+    P = [ca.SX.sym(f"P_{nm}", len(used), 3) for nm in names]
+    X0 = [ca.SX.sym(f"X0_{nm}", model.n_init, 3) for nm in names]
+    r = ca.SX.sym("r")
+    w = ca.vertcat(*[ca.vec(z) for z in Z], *[ca.vec(q) for q in P], r)
+    p = ca.vertcat(*[ca.vec(x) for x in X0])
+    Mp, Np = ca.sparsify(ca.DM(model.Mp)), ca.sparsify(ca.DM(model.Np))
+    pos_from_z = {nm: ca.mtimes(Mp, Z[i]) + ca.mtimes(Np, X0[i]) for i, nm in enumerate(names)}
+    Pd = dict(zip(names, P, strict=True))
+
+    def rows_of(steps: list[int]) -> dict[str, Any]:
+        idx = [row_of[st] for st in steps]
+        return {nm: q[idx, :] for nm, q in Pd.items()}
+
+    direct_parts = [
+        _leaf_values(leaf, steps, rows_of, problem, fns) for leaf, steps in direct_steps.items()
+    ]
+    direct = ca.vertcat(*direct_parts) if direct_parts else ca.SX(0, 1)
+
+    # Linear parts: lifting equalities, limits, rest at the end.
+    lift_g = [ca.vec(P[i] - pos_from_z[nm][used, :]) for i, nm in enumerate(names)]
+    n_lift = len(used) * 3 * nv
+    lim_g, lim_slices = [], []
+    row = n_lift
+    cons = model.limit_constraints(np.ones(3), np.ones(3))
+    half = _two_sided_rows(cons)
+    G = ca.sparsify(ca.DM(cons.G[:half]))
+    H = ca.sparsify(ca.DM(cons.H[:half]))
+    for i in range(nv):
+        gi = ca.vec(ca.mtimes(G, Z[i]) + ca.mtimes(H, X0[i]))
+        lim_g.append(gi)
+        lim_slices.append(slice(row, row + gi.shape[0]))
+        row += gi.shape[0]
+    n_lim = row - n_lift
+    Mv_end = ca.DM(model.Mv[-1:, :])
+    Nv_end = ca.DM(model.Nv[-1:, :])
+    end_g = [ca.vec(ca.mtimes(Mv_end, Z[i]) + ca.mtimes(Nv_end, X0[i])) for i in range(nv)]
+    # The model's own equalities (the acceleration chain of an explicit-acc primitive chain).
+    Ge, He = (ca.sparsify(ca.DM(m)) for m in model.equality_constraints())
+    eq_g = [ca.vec(ca.mtimes(Ge, Z[i]) + ca.mtimes(He, X0[i])) for i in range(nv)]
+    n_eq = Ge.shape[0] * 3 * nv
+
+    # A small acceleration penalty gives the NLP curvature in the directions r does not
+    # care about (the max-min objective is flat there); measured to cut iterations.
+    Ma, Na = ca.sparsify(ca.DM(model.Ma)), ca.sparsify(ca.DM(model.Na))
+    acc_sq = 0
+    for i in range(nv):
+        acc = ca.mtimes(Ma, Z[i]) + ca.mtimes(Na, X0[i])
+        acc_sq = acc_sq + ca.sumsqr(acc)
+    reg_term = _REG_WEIGHT * acc_sq / (n * nv)
+
+    # Workspace: simple bounds on the lifted positions.
+    ws = problem.workspace
+    n_z = model.n_dec * 3 * nv
+    m = len(used)
+    lbx = np.concatenate([np.full(n_z, -np.inf), np.tile(np.repeat(ws.lo_enu_m, m), nv), [-np.inf]])
+    r_hi = _R_MAX if opts.robustness_cap_m is None else opts.robustness_cap_m + margin
+    ubx = np.concatenate([np.full(n_z, np.inf), np.tile(np.repeat(ws.hi_enu_m, m), nv), [r_hi]])
+
+    # The linear and row-wise blocks (SX, differentiated block by block) do not depend on
+    # the temporal sharpness k; the smooth leaves are calls of shared templates, assembled
+    # with them into MX functions per k (see :mod:`planner.leaf_templates`).
+    linear = [*lift_g, *lim_g, *end_g, *eq_g]
+    n_lin = sum(int(b.shape[0]) for b in linear)
+    nonlinear = [part - r for part in direct_parts]
+    f = -r + reg_term
+    # Separation rows enter the Hessian flat unless asked otherwise (see _derivatives).
+    flat = [_is_separation(leaf) and not opts.separation_curvature for leaf in direct_steps]
+    exact = opts.hessian == "exact"
+    sx_derivs = _derivatives(w, p, f, linear, nonlinear, exact, flat)
+    # Values and derivatives are separate functions: nlpsol differentiates the MX values once
+    # more (reverse mode, for the multipliers) and must not go through derivative outputs.
+    sx_derivs["f"] = ca.Function("nlp_f", [w, p], [f])
+    sx_derivs["grad_f"] = ca.Function("nlp_grad_f", [w, p], [f, ca.gradient(f, w)])
+    sx_derivs["g"] = ca.Function("nlp_g", [w, p], [ca.vertcat(*linear, *nonlinear)])
+    n_sx = n_lin + int(direct.shape[0])
+    vehicle_index = {nm: i for i, nm in enumerate(names)}
+    smooth_items = [(leaf, st) for leaf in smooth_leaves for st in sorted(leaves[leaf])]
+    wm = ca.MX.sym("w", w.shape[0])
+    pm = ca.MX.sym("p", p.shape[0])
+
+    solvers = []
+    leaf_fn = None
+    for k in k_list:
+        insts = [
+            instance(leaf, st, model, dt, k, k_pred, vehicle_index, problem.region)
+            for leaf, st in smooth_items
+        ]
+        nlp, derivs, leaf_fn = _assemble(wm, pm, sx_derivs, insts, n_lin, n_sx, exact)
+        solvers.append((k, _nlpsol(nlp, problem, derivs, warm=bool(solvers))))
+    n_g = n_sx + len(smooth_items)
+    n_leaf = n_g - n_lin
+    lbg_fixed = np.concatenate(
+        [np.zeros(n_lift), np.full(n_lim, -np.inf), np.zeros(3 * nv + n_eq), np.zeros(n_leaf)]
+    )  # the limit rows' bounds are set per vehicle in plan()
+    ubg_fixed = np.concatenate(
+        [np.zeros(n_lift), np.zeros(n_lim), np.zeros(3 * nv + n_eq), np.full(n_leaf, np.inf)]
+    )
+    return _Structure(
+        solvers=solvers,
+        leaf_fn=leaf_fn,
+        n_w=int(w.shape[0]),
+        n_z=n_z,
+        n_g=n_g,
+        lbx=lbx,
+        ubx=ubx,
+        lbg_fixed=lbg_fixed,
+        ubg_fixed=ubg_fixed,
+        lim_slices=lim_slices,
+        lim_half=half,
+        leaves=leaves,
+        used_steps=used,
+        n_smooth=len(smooth_items),
+        k=k_final,
+        margin=margin,
+        build_s=time.perf_counter() - t0,
+    )
+
+
+def _assemble(
+    wm: Any,
+    pm: Any,
+    sx: Mapping[str, Any],
+    insts: Sequence[LeafInstance],
+    n_lin: int,
+    n_sx: int,
+    exact: bool,
+) -> tuple[dict[str, Any], dict[str, Any], Any]:
+    """The NLP, its derivative functions and the leaf-value function, in MX.
+
+    ``g`` is the SX blocks' rows (linear, then row-wise leaves ``- r``) followed by one row
+    per smooth leaf instance (``value - r``); their Jacobian rows are the templates'
+    gradients scattered into ``w`` and ``-1`` in r's column, their Hessian the templates'
+    ``lam * H`` scattered (upper triangle, as IPOPT takes it).
+    """
+    n_w = wm.shape[0]
+    g_sx = sx["g"](wm, pm)
+    jac_sx = sx["jac_g"](wm, pm)[1]
+    vals, rows, calls = [], [], []
+    for inst in insts:
+        args = (wm[list(inst.z_index)], pm[list(inst.x0_index)], ca.DM(inst.bounds))
+        _, grad = inst.template.value_grad(*args)
+        sel = selection(inst.z_index, n_w)
+        vals.append(inst.template.value(*args))
+        rows.append(ca.mtimes(grad, sel))
+        calls.append((args, sel))
+    r = wm[n_w - 1]
+    n_s = len(insts)
+    if n_s:
+        e_r = ca.DM(ca.Sparsity.triplet(n_s, n_w, list(range(n_s)), [n_w - 1] * n_s), -1.0)
+        g = ca.vertcat(g_sx, ca.vertcat(*vals) - r)
+        jac = ca.vertcat(jac_sx, ca.vertcat(*rows) + e_r)
+        leaf_all = ca.vertcat(g_sx[n_lin:] + r, *vals)
+    else:
+        g, jac, leaf_all = g_sx, jac_sx, g_sx[n_lin:] + r
+    derivs = {"jac_g": ca.Function("nlp_jac_g", [wm, pm], [g, jac], ["x", "p"], ["g", "jac_g_x"])}
+    if exact:
+        lam_f = ca.MX.sym("lam_f")
+        lam_g = ca.MX.sym("lam_g", n_sx + n_s)
+        H = sx["hess_lag"](wm, pm, lam_f, lam_g[:n_sx])
+        for i, (inst, (args, sel)) in enumerate(zip(insts, calls, strict=True)):
+            h_i = inst.template.hess(*args, lam_g[n_sx + i])
+            H = H + ca.triu(ca.mtimes(ca.mtimes(sel.T, h_i), sel))
+        derivs["hess_lag"] = ca.Function(
+            "nlp_hess_l",
+            [wm, pm, lam_f, lam_g],
+            [H],
+            ["x", "p", "lam_f", "lam_g"],
+            ["triu_hess_gamma_x_x"],
+        )
+    derivs["grad_f"] = ca.Function(
+        "nlp_grad_f", [wm, pm], list(sx["grad_f"](wm, pm)), ["x", "p"], ["f", "grad_f_x"]
+    )
+    nlp = {"x": wm, "p": pm, "f": sx["f"](wm, pm), "g": g}
+    return nlp, derivs, ca.Function("leaves", [wm, pm], [leaf_all])
+
+
+def _is_separation(leaf: Formula) -> bool:
+    """``dist(a, b) >= c`` (or ``c <= dist(a, b)``) with a constant ``c``: a keep-apart row."""
+    if not isinstance(leaf, Comparison):
+        return False
+    big, small = (leaf.lhs, leaf.rhs) if leaf.op in (CmpOp.GE, CmpOp.GT) else (leaf.rhs, leaf.lhs)
+    return isinstance(big, Call) and big.name == "dist" and isinstance(small, Const)
+
+
+def _two_sided_rows(cons: Any) -> int:
+    """Rows of ``cons`` to keep: ``n/2`` when the limits come as ``[A; -A]`` with equal
+    right-hand sides (then each kept row is two-sided, ``-h <= A z <= h``, which halves the
+    limit rows IPOPT sees), else all of them (one-sided, as given)."""
+    n = cons.G.shape[0]
+    half = n // 2
+    paired = (
+        n % 2 == 0
+        and np.array_equal(cons.G[half:], -cons.G[:half])
+        and np.array_equal(cons.H[half:], -cons.H[:half])
+        and np.array_equal(cons.h[half:], cons.h[:half])
+    )
+    return half if paired else n
+
+
+def _derivatives(
+    w: Any,
+    p: Any,
+    f: Any,
+    linear: list[Any],
+    nonlinear: list[Any],
+    hessian: bool,
+    flat: Sequence[bool] = (),
+) -> dict[str, Any]:
+    """Constraint Jacobian and Lagrangian Hessian assembled block by block.
+
+    CasADi differentiates a whole SX graph with one colouring and one mode; here the
+    blocks differ (dense rows of the smooth leaves in Z, the dense column of r in every
+    leaf, sparse local rows), and one colouring for all of them costs several times the
+    sum of the per-block derivatives (measured 4.7 s vs 1.1 s on power-line N = 2).
+
+    ``flat[i]`` leaves the i-th nonlinear block's curvature out of the Hessian (its
+    gradient stays exact, so the KKT point is the same; only IPOPT's step model changes).
+    The planner does this for the separation rows: ``dist >= s`` is reverse-convex, its
+    curvature term is negative, and with it IPOPT corrected the inertia (factorised again)
+    in 60 of 63 iterations on reach-avoid N = 8, without it in 27 of 76 (tol 1e-4).  Linearising keep-apart constraints is
+    what sequential convex programming does for collision avoidance.
+    """
+    blocks = [*linear, *nonlinear]
+    g = ca.vertcat(*blocks)
+    jac = ca.vertcat(*[ca.jacobian(b, w) for b in blocks])
+    out = {"jac_g": ca.Function("nlp_jac_g", [w, p], [g, jac], ["x", "p"], ["g", "jac_g_x"])}
+    if hessian:
+        lam_f = ca.SX.sym("lam_f")
+        lam_g = ca.SX.sym("lam_g", g.shape[0])
+        H = lam_f * local_hessian(f, w)
+        row = sum(b.shape[0] for b in linear)
+        for ib, b in enumerate(nonlinear):
+            m = b.shape[0]
+            if ib >= len(flat) or not flat[ib]:
+                H = H + local_hessian(ca.dot(lam_g[row : row + m], b), w)
+            row += m
+        out["hess_lag"] = ca.Function(
+            "nlp_hess_l",
+            [w, p, lam_f, lam_g],
+            [ca.triu(H)],
+            ["x", "p", "lam_f", "lam_g"],
+            ["triu_hess_gamma_x_x"],
+        )
+    return out
+
+
+def _limit_bounds(cons: Any, half: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(lo, hi)`` ``(half, 3)`` of the kept limit rows (:func:`_two_sided_rows`):
+    ``-h`` below each paired row, ``-inf`` when the rows are kept one-sided."""
+    h = cons.h
+    lo = -h[half:] if 2 * half == len(h) else np.full_like(h, -np.inf)
+    return lo, h[:half]
+
+
+#: IPOPT options of a warm-started stage: start from the given multipliers with a small
+#: barrier and pushes, instead of re-centring (which undoes the earlier stage).
+_IPOPT_WARM: dict[str, Any] = {
+    "warm_start_init_point": "yes",
+    "mu_init": 1e-4,
+    "warm_start_bound_push": 1e-6,
+    "warm_start_bound_frac": 1e-6,
+    "warm_start_slack_bound_push": 1e-6,
+    "warm_start_slack_bound_frac": 1e-6,
+    "warm_start_mult_bound_push": 1e-6,
+}
+
+
+def _nlpsol(
+    nlp: dict[str, Any], problem: Problem, derivs: dict[str, Any], warm: bool = False
+) -> Any:
+    """The solver; ``warm``: it starts from an earlier solve's primal-dual point (a later
+    stage of the k continuation), so IPOPT keeps the multipliers and a small barrier."""
+    s = problem.solver
+    if s.method is SolverMethod.SQP:
+        return _sqpsol(nlp, s, derivs)
+    return ca.nlpsol(
+        "stl_ipopt",
+        "ipopt",
+        nlp,
+        {
+            "print_time": False,
+            "error_on_fail": False,
+            **derivs,
+            "ipopt": {
+                "print_level": s.print_level,
+                "sb": "yes",
+                "max_iter": s.max_iter,
+                "tol": s.tol,
+                "acceptable_tol": 1e-4,
+                "hessian_approximation": s.hessian,
+                "limited_memory_max_history": s.lbfgs_history,
+                "mu_strategy": "adaptive",
+                **(_IPOPT_WARM if warm else {}),
+            },
+        },
+    )
+
+
+def _sqpsol(nlp: dict[str, Any], s: Any, derivs: dict[str, Any]) -> Any:
+    """CasADi's ``sqpmethod`` on the same NLP and derivatives, with a QP solver of the wheel.
+
+    sqpmethod takes the objective gradient and the constraint Jacobian as one function
+    (``jac_fg``) and the full symmetric Hessian; an exact Hessian, indefinite here, is
+    convexified by regularisation (CasADi's ``eigen-clip`` failed before the first
+    iteration).  Measured (benchmarks/bench_solvers.py): IPOPT is faster on every scenario.
+    """
+    x, p = nlp["x"], nlp["p"]
+    f, grad_f = derivs["grad_f"](x, p)
+    g, jac_g = derivs["jac_g"](x, p)
+    jac_fg = ca.Function(
+        "nlp_jac_fg", [x, p], [f, grad_f.T, g, jac_g], ["x", "p"], ["f", "jac_f_x", "g", "jac_g_x"]
+    )
+    opts: dict[str, Any] = {
+        "jac_fg": jac_fg,
+        "qpsol": s.qpsol,
+        "qpsol_options": {"error_on_fail": False, **_QPSOL_QUIET.get(s.qpsol, {})},
+        "max_iter": s.max_iter,
+        "print_header": False,
+        "print_iteration": s.print_level > 0,
+        "print_status": False,
+        "print_time": False,
+        "error_on_fail": False,
+        "tol_pr": s.tol,
+        "tol_du": s.tol,
+    }
+    if s.hessian == "exact":
+        lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", g.shape[0])
+        upper = derivs["hess_lag"](x, p, lam_f, lam_g)
+        opts["hess_lag"] = ca.Function(
+            "nlp_hess_l",
+            [x, p, lam_f, lam_g],
+            [upper + ca.triu(upper, False).T],
+            ["x", "p", "lam_f", "lam_g"],
+            ["hess_gamma_x_x"],
+        )
+        opts["convexify_strategy"] = "regularize"
+    else:
+        opts["hessian_approximation"] = "limited-memory"
+    return ca.nlpsol("stl_sqp", "sqpmethod", nlp, opts)
+
+
+#: Options that keep the QP solvers quiet (their banners and per-iteration output).
+_QPSOL_QUIET: dict[str, dict[str, Any]] = {
+    "qpoases": {"printLevel": "none"},
+    "osqp": {"osqp": {"verbose": False}},
+    "qrqp": {"print_iter": False, "print_header": False},
+    "highs": {"highs": {"output_flag": False}},
+}
