@@ -1053,6 +1053,17 @@ async def upload_with_retries(
         )
         return value, err
 
+    def failed_step(err: MissionError) -> None:
+        """A step failed: a refusal no retry mends is raised; otherwise the vehicle is told to
+        drop the transfer and the failure counted."""
+        nonlocal last, failures
+        if not _transient(err):
+            tell("failed", err.detail)
+            raise err
+        last = err
+        _send_cancel(v, mission_type)
+        failures += 1
+
     async def back_off(err: MissionError) -> None:
         wait = min(policy.backoff(failures, rng), max(0.0, deadline - time.monotonic()))
         tell("retry", err.detail, wait)
@@ -1094,12 +1105,7 @@ async def upload_with_retries(
                 failures = 0
                 readbacks_left = policy.readbacks
             else:
-                if not _transient(err):
-                    tell("failed", err.detail)
-                    raise err
-                last = err
-                _send_cancel(v, mission_type)
-                failures += 1
+                failed_step(err)
                 if plan and asked[0] >= len(plan) - 1:
                     readbacks_left = 1  # complete on the vehicle, its final ACK lost?
                     tell(
@@ -1114,12 +1120,7 @@ async def upload_with_retries(
         back, err = await run("read-back", lambda: download(v, mission_type))
         readbacks_left -= 1
         if err is not None:
-            if not _transient(err):
-                tell("failed", err.detail)
-                raise err
-            last = err
-            _send_cancel(v, mission_type)
-            failures += 1
+            failed_step(err)
             await back_off(err)
             continue
         diffs = compare_items(plan, back)
