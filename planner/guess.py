@@ -13,6 +13,7 @@ import casadi as ca
 import numpy as np
 
 from planner.nlp import _limit_bounds, _two_sided_rows
+from planner.predicates import Role, role_of
 from planner.scenario import Problem
 from planner.stl import (
     Always,
@@ -36,7 +37,7 @@ def _targets(formula: Formula, vehicle: str, problem: Problem) -> list[str]:
         if isinstance(node, Or):
             walk(node.operands[0], negated)  # the guess takes the first alternative
             return
-        if isinstance(node, Predicate) and node.call.name == "inside" and not negated:
+        if isinstance(node, Predicate) and role_of(node) is Role.TARGET_BOX and not negated:
             v, reg = node.call.args
             if v == vehicle and reg != problem.workspace.name and reg not in out:
                 out.append(reg)
@@ -53,7 +54,7 @@ def _avoided(leaves: Mapping[Formula, Any], vehicle: str, problem: Problem) -> l
     for leaf in leaves:
         if (
             isinstance(leaf, Predicate)
-            and leaf.call.name == "outside"
+            and role_of(leaf) is Role.KEEP_OUT
             and leaf.call.args[0] == vehicle
         ):
             out.append(problem.region(leaf.call.args[1]))
@@ -149,7 +150,11 @@ def _hover_times(formula: Formula, vehicle: str) -> dict[str, float]:
     def walk(node: Formula) -> None:
         if isinstance(node, Always):
             c = node.child
-            if isinstance(c, Predicate) and c.call.name == "inside" and c.call.args[0] == vehicle:
+            if (
+                isinstance(c, Predicate)
+                and role_of(c) is Role.TARGET_BOX
+                and c.call.args[0] == vehicle
+            ):
                 reg = c.call.args[1]
                 out[reg] = max(out.get(reg, 0.0), node.end_s - node.start_s)
         for child in node.children:

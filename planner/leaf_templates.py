@@ -40,7 +40,7 @@ import casadi as ca
 import numpy as np
 
 from planner.predicates import build_registry
-from planner.scenario import Region, RegionKind
+from planner.regions import Region, RegionKind
 from planner.stl import Call, Expr, Formula
 
 __all__ = ["LeafInstance", "LeafTemplate", "canonical_leaf", "clear_templates", "local_hessian"]

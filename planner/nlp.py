@@ -29,9 +29,11 @@ from planner.leaf_templates import (
     selection,
 )
 from planner.predicates import (
+    Role,
     ca_box_margins,
     casadi_functions,
     predicate_sharpness,
+    role_of,
 )
 from planner.scenario import Problem, SolverMethod
 from planner.stl import (
@@ -172,7 +174,7 @@ def _leaf_values(
 ) -> Any:
     """SX column of a row-wise leaf's robustness at ``steps`` (from the lifted positions)."""
     rows = rows_of(steps)
-    if isinstance(leaf, Predicate) and leaf.call.name == "inside":
+    if role_of(leaf) is Role.TARGET_BOX:  # exact linear face margins
         region = problem.region(leaf.call.args[1])
         return ca.vec(ca_box_margins(rows[leaf.call.args[0]], region))
     if isinstance(leaf, Predicate):
@@ -400,7 +402,7 @@ def _is_separation(leaf: Formula) -> bool:
     if not isinstance(leaf, Comparison):
         return False
     big, small = (leaf.lhs, leaf.rhs) if leaf.op in (CmpOp.GE, CmpOp.GT) else (leaf.rhs, leaf.lhs)
-    return isinstance(big, Call) and big.name == "dist" and isinstance(small, Const)
+    return role_of(big) is Role.KEEP_APART and isinstance(small, Const)
 
 
 def _two_sided_rows(cons: Any) -> int:

@@ -76,10 +76,9 @@ from planner.nlp import (
 )
 from planner.predicates import (
     build_registry,
-    parse_clause,
 )
 from planner.results import ClauseReport, PlanResult, SolveStats, Weakest
-from planner.scenario import DynamicsModel, Problem
+from planner.scenario import DynamicsModel, Problem, parse_clause
 from planner.stl import (
     Formula,
     conjunction,

@@ -1,9 +1,10 @@
 """The scenario's function predicates: numpy (exact) and CasADi (smooth) implementations.
 
-A scenario's spec calls these functions (argument kinds in
-:data:`planner.scenario.FUNCTION_NAMES`); vehicle arguments are signal names whose values
-are positions, shape (n, 3) ENU metres; region arguments are names the function resolves
-from the :class:`~planner.scenario.Problem`.
+A scenario's spec calls these functions (:data:`PREDICATES`: each one's argument kinds and
+its *role*, which is how the planner, the initial guess and the checks treat it; a new
+predicate is added there and in the two implementation tables below); vehicle arguments are
+signal names whose values are positions, shape (n, 3) ENU metres; region arguments are
+names the function resolves from the scenario or plan (:class:`RegionSource`).
 
 ========================  ==========================================================
 ``inside(d, box)``        Chebyshev (L-infinity) margin to the box boundary:
@@ -34,34 +35,27 @@ the obstacle margins so sharp that IPOPT stalled inside the obstacle on reach-av
 
 from __future__ import annotations
 
+import enum
 import math
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
 
-from planner.scenario import Clause, Problem, Region, ScenarioError
-from planner.stl import (
-    BinOp,
-    Comparison,
-    EvaluationError,
-    Expr,
-    Formula,
-    FunctionRegistry,
-    Neg,
-    Signal,
-    SpecError,
-    parse,
-)
+from planner.regions import Region
+from planner.stl import Call, EvaluationError, Formula, FunctionRegistry, Predicate
 
 __all__ = [
     "DIST_DELTA_M",
+    "PREDICATES",
+    "Role",
     "box_margins",
     "build_registry",
     "ca_box_margins",
     "casadi_functions",
-    "parse_clause",
     "predicate_sharpness",
+    "role_of",
 ]
 
 #: Smoothing offset of ``dist`` in metres (see module docstring).
@@ -70,8 +64,62 @@ DIST_DELTA_M = 1e-4
 _PRED_TOLERANCE = 0.1
 
 
+class Role(enum.Enum):
+    """How the planner treats a predicate (beyond evaluating it)."""
+
+    #: ``inside(d, box)``: a place to be; the NLP writes it as six exact linear face
+    #: margins, the initial guess routes the vehicle through the box.
+    TARGET_BOX = "target box"
+    #: ``outside(d, box)``: a place to stay out of; the initial guess routes around it.
+    KEEP_OUT = "keep out"
+    #: ``dist(a, b)``: two vehicles' distance; ``dist(a, b) >= c`` is a keep-apart row
+    #: (its curvature optional in the NLP's Hessian).
+    KEEP_APART = "keep apart"
+    #: ``x(d)``, ``y(d)``, ``z(d)``, ``alt(d)``: one coordinate of a vehicle.
+    COORDINATE = "coordinate"
+
+
+@dataclass(frozen=True, slots=True)
+class PredicateKind:
+    """A function a spec may call.
+
+    Attributes:
+        name: its name in the spec.
+        args: the kind of each argument: ``"v"`` a vehicle, ``"r"`` a region.
+        role: how the planner treats it (:class:`Role`).
+    """
+
+    name: str
+    args: tuple[str, ...]
+    role: Role
+
+
+#: Every function a spec may call, by name.
+PREDICATES: dict[str, PredicateKind] = {
+    p.name: p
+    for p in (
+        PredicateKind("inside", ("v", "r"), Role.TARGET_BOX),
+        PredicateKind("outside", ("v", "r"), Role.KEEP_OUT),
+        PredicateKind("dist", ("v", "v"), Role.KEEP_APART),
+        PredicateKind("alt", ("v",), Role.COORDINATE),
+        PredicateKind("x", ("v",), Role.COORDINATE),
+        PredicateKind("y", ("v",), Role.COORDINATE),
+        PredicateKind("z", ("v",), Role.COORDINATE),
+    )
+}
+
+
+def role_of(node: Formula | Call) -> Role | None:
+    """The role of a predicate atom or call (``None``: anything else)."""
+    call = node.call if isinstance(node, Predicate) else node
+    if not isinstance(call, Call):
+        return None
+    kind = PREDICATES.get(call.name)
+    return None if kind is None else kind.role
+
+
 class RegionSource(Protocol):
-    """Where predicates look up boxes: a :class:`Problem` or a loaded plan."""
+    """Where predicates look up boxes: a scenario's ``Problem`` or a loaded plan."""
 
     @property
     def all_regions(self) -> tuple[Region, ...]: ...
@@ -217,8 +265,6 @@ def build_registry(problem: RegionSource, k_pred: float | None = None) -> Functi
 
     ``k_pred`` is the predicate sharpness (1/m); default :func:`predicate_sharpness`.
     """
-    from planner.scenario import FUNCTION_NAMES
-
     k = predicate_sharpness(problem) if k_pred is None else k_pred
     np_f = _np_functions(problem)
     # The CasADi side is built on first use: checking and flying a plan (exact semantics,
@@ -234,46 +280,7 @@ def build_registry(problem: RegionSource, k_pred: float | None = None) -> Functi
         return impl
 
     reg = FunctionRegistry()
-    for name, kinds in FUNCTION_NAMES.items():
-        signal_args = tuple(i for i, kind in enumerate(kinds) if kind == "v")
-        reg.register(name, len(kinds), np_f[name], smooth(name), signal_args=signal_args)
+    for name, kind in PREDICATES.items():
+        signal_args = tuple(i for i, a in enumerate(kind.args) if a == "v")
+        reg.register(name, len(kind.args), np_f[name], smooth(name), signal_args=signal_args)
     return reg
-
-
-def parse_clause(
-    problem: Problem, clause: Clause, registry: FunctionRegistry | None = None
-) -> Formula:
-    """Parse one expanded clause; a SpecError becomes a ScenarioError naming the clause's key."""
-    try:
-        phi = parse(clause.text, functions=registry or build_registry(problem))
-    except SpecError as exc:
-        raise ScenarioError(problem.source, clause.key_path, f"{exc} in {clause.text!r}") from None
-    for node in phi.walk():
-        if isinstance(node, Comparison):
-            bare = _bare_signals(node.lhs) | _bare_signals(node.rhs)
-            if bare:
-                name = sorted(bare)[0]
-                raise ScenarioError(
-                    problem.source,
-                    clause.key_path,
-                    f"{name!r} is used as a number in {str(node)!r}; vehicles are positions: "
-                    f"use x({name}), y({name}), z({name}) or a function such as dist",
-                )
-    horizon = problem.timing.horizon_s
-    if phi.horizon > horizon * (1 + 1e-9):
-        raise ScenarioError(
-            problem.source,
-            clause.key_path,
-            f"the clause looks {phi.horizon:g} s ahead but the plan horizon is {horizon:g} s",
-        )
-    return phi
-
-
-def _bare_signals(e: Expr) -> set[str]:
-    if isinstance(e, Signal):
-        return {e.name}
-    if isinstance(e, Neg):
-        return _bare_signals(e.operand)
-    if isinstance(e, BinOp):
-        return _bare_signals(e.lhs) | _bare_signals(e.rhs)
-    return set()

@@ -55,6 +55,19 @@ import yaml
 
 from planner.errors import FileFieldError
 from planner.frames import GeodeticPoint
+from planner.predicates import PREDICATES, build_registry
+from planner.regions import Region, RegionKind
+from planner.stl import (
+    BinOp,
+    Comparison,
+    Expr,
+    Formula,
+    FunctionRegistry,
+    Neg,
+    Signal,
+    SpecError,
+    parse,
+)
 
 __all__ = [
     "FUNCTION_NAMES",
@@ -69,20 +82,13 @@ __all__ = [
     "Timing",
     "Vehicle",
     "load_scenario",
+    "parse_clause",
     "parse_scenario",
 ]
 
 #: Function predicates a scenario's spec may call, with the kinds of their arguments
-#: (``v`` a vehicle, ``r`` a region).  Implemented in :mod:`planner.predicates`.
-FUNCTION_NAMES: dict[str, tuple[str, ...]] = {
-    "inside": ("v", "r"),
-    "outside": ("v", "r"),
-    "dist": ("v", "v"),
-    "alt": ("v",),
-    "x": ("v",),
-    "y": ("v",),
-    "z": ("v",),
-}
+#: (``v`` a vehicle, ``r`` a region): :data:`planner.predicates.PREDICATES`.
+FUNCTION_NAMES: dict[str, tuple[str, ...]] = {p.name: p.args for p in PREDICATES.values()}
 
 
 #: Longest mission a scenario may plan (s): an hour is beyond any quad-rotor's battery.
@@ -91,19 +97,6 @@ MAX_HORIZON_S = 3600.0
 
 class ScenarioError(FileFieldError):
     """A mistake in a scenario file: ``"<file>: <key path>: <problem>"``."""
-
-
-class RegionKind(enum.Enum):
-    """What a named box means to the mission (documentation and plots; the spec decides)."""
-
-    WORKSPACE = "workspace"
-    OBSTACLE = "obstacle"
-    NO_FLY = "no_fly"
-    POLE = "pole"
-    CONDUCTOR = "conductor"
-    INSPECTION = "inspection"
-    GOAL = "goal"
-    REGION = "region"
 
 
 class DynamicsModel(enum.Enum):
@@ -118,26 +111,6 @@ class SolverMethod(enum.Enum):
 
     IPOPT = "ipopt"
     SQP = "sqpmethod"
-
-
-@dataclass(frozen=True, slots=True)
-class Region:
-    """An axis-aligned box in the mission frame (ENU, metres)."""
-
-    name: str
-    kind: RegionKind
-    lo_enu_m: tuple[float, float, float]
-    hi_enu_m: tuple[float, float, float]
-
-    @property
-    def center_enu_m(self) -> np.ndarray:
-        """Centre of the box, shape (3,)."""
-        return (np.asarray(self.lo_enu_m) + np.asarray(self.hi_enu_m)) / 2.0
-
-    def contains(self, pos_enu_m: np.ndarray) -> np.ndarray:
-        """Whether each point (shape (n, 3) or (3,)) lies in the closed box."""
-        p = np.asarray(pos_enu_m, dtype=float)
-        return np.all((p >= self.lo_enu_m) & (p <= self.hi_enu_m), axis=-1)
 
 
 @dataclass(frozen=True, slots=True)
@@ -900,10 +873,9 @@ def parse_scenario(
         constants=constants,
     )
     # Parse every clause with the STL engine now, so a syntax error names the clause's key.
-    from planner.predicates import parse_clause  # local: predicates imports this module
-
+    registry = build_registry(problem)
     for cl in problem.clauses:
-        parse_clause(problem, cl)
+        parse_clause(problem, cl, registry)
     return problem
 
 
@@ -1001,3 +973,42 @@ def load_scenario(path: str | Path, *, vehicles: int | None = None) -> Problem:
         problem = getattr(exc, "problem", None) or str(exc)
         raise ScenarioError(str(p), where, f"invalid YAML: {problem}") from None
     return parse_scenario(data, str(p), vehicles=vehicles)
+
+
+def parse_clause(
+    problem: Problem, clause: Clause, registry: FunctionRegistry | None = None
+) -> Formula:
+    """Parse one expanded clause; a SpecError becomes a ScenarioError naming the clause's key."""
+    try:
+        phi = parse(clause.text, functions=registry or build_registry(problem))
+    except SpecError as exc:
+        raise ScenarioError(problem.source, clause.key_path, f"{exc} in {clause.text!r}") from None
+    for node in phi.walk():
+        if isinstance(node, Comparison):
+            bare = _bare_signals(node.lhs) | _bare_signals(node.rhs)
+            if bare:
+                name = sorted(bare)[0]
+                raise ScenarioError(
+                    problem.source,
+                    clause.key_path,
+                    f"{name!r} is used as a number in {str(node)!r}; vehicles are positions: "
+                    f"use x({name}), y({name}), z({name}) or a function such as dist",
+                )
+    horizon = problem.timing.horizon_s
+    if phi.horizon > horizon * (1 + 1e-9):
+        raise ScenarioError(
+            problem.source,
+            clause.key_path,
+            f"the clause looks {phi.horizon:g} s ahead but the plan horizon is {horizon:g} s",
+        )
+    return phi
+
+
+def _bare_signals(e: Expr) -> set[str]:
+    if isinstance(e, Signal):
+        return {e.name}
+    if isinstance(e, Neg):
+        return _bare_signals(e.operand)
+    if isinstance(e, BinOp):
+        return _bare_signals(e.lhs) | _bare_signals(e.rhs)
+    return set()

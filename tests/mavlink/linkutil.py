@@ -15,8 +15,8 @@ from mavlink.fleet import Fleet, VehicleSpec
 from mavlink.mock.fleet import MockFleet
 from mavlink.tlog import FlownTrack
 from planner.planfile import Plan, load_plan
-from planner.predicates import build_registry, parse_clause
-from planner.scenario import Problem, parse_scenario
+from planner.predicates import build_registry
+from planner.scenario import Problem, parse_clause, parse_scenario
 from planner.stl.ast import Formula, conjunction
 
 DATA = Path(__file__).parent / "data"

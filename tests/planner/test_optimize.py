@@ -203,7 +203,8 @@ def test_flat_blocks_keep_their_gradient_and_leave_the_hessian() -> None:
 
 def test_separation_without_curvature_reaches_the_exact_hessian_optimum() -> None:
     from planner.nlp import _is_separation
-    from planner.predicates import build_registry, parse_clause
+    from planner.predicates import build_registry
+    from planner.scenario import parse_clause
 
     problem = load_scenario(CONFIGS / "reach_avoid.yaml", vehicles=2)
     registry = build_registry(problem)
