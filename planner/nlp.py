@@ -39,17 +39,15 @@ from planner.scenario import Problem, SolverMethod
 from planner.stl import (
     Always,
     And,
-    BinOp,
     BoolConst,
-    Call,
     CmpOp,
     Comparison,
     Const,
     Expr,
     Formula,
-    Neg,
     Predicate,
-    Signal,
+    comparison_margin,
+    fold_expr,
 )
 
 #: Lower bound of the fitted smoothing sharpness (1/m).
@@ -86,19 +84,8 @@ def _is_direct(node: Formula) -> bool:
 
 
 def _ca_expr(e: Expr, rows: Mapping[str, Any], fns: Mapping[str, Callable[..., Any]]) -> Any:
-    if isinstance(e, Const):
-        return e.value
-    if isinstance(e, Call):
-        return fns[e.name](e.args, rows)
-    if isinstance(e, Neg):
-        return -_ca_expr(e.operand, rows, fns)
-    if isinstance(e, BinOp):
-        a = _ca_expr(e.lhs, rows, fns)
-        b = _ca_expr(e.rhs, rows, fns)
-        return {"+": a + b, "-": a - b, "*": a * b, "/": a / b}[e.op.value]
-    if isinstance(e, Signal):
-        return rows[e.name]
-    raise TypeError(f"unsupported expression node {type(e).__name__}")
+    """An expression on the lifted rows (the STL engine's one evaluator, CasADi leaves)."""
+    return fold_expr(e, lambda s: rows[s.name], lambda c: fns[c.name](c.args, rows))
 
 
 # ------------------------------------------------------------------------------ build
@@ -180,9 +167,7 @@ def _leaf_values(
     if isinstance(leaf, Predicate):
         return fns[leaf.call.name](leaf.call.args, rows)
     assert isinstance(leaf, Comparison)
-    lhs = _ca_expr(leaf.lhs, rows, fns)
-    rhs = _ca_expr(leaf.rhs, rows, fns)
-    out = lhs - rhs if leaf.op in (CmpOp.GE, CmpOp.GT) else rhs - lhs
+    out = comparison_margin(leaf.op, _ca_expr(leaf.lhs, rows, fns), _ca_expr(leaf.rhs, rows, fns))
     return out * ca.DM.ones(len(steps), 1) if not hasattr(out, "shape") else out
 
 

@@ -103,7 +103,9 @@ from planner.stl.ast import (
     Predicate,
     Signal,
     Until,
+    comparison_margin,
     conjunction,
+    fold_expr,
     interval_steps,
 )
 from planner.stl.errors import (
@@ -153,7 +155,9 @@ __all__ = [
     "UnknownSignalError",
     "Until",
     "Witness",
+    "comparison_margin",
     "conjunction",
+    "fold_expr",
     "interval_steps",
     "parse",
 ]

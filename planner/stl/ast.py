@@ -21,13 +21,14 @@ with ``dt = 0.1`` covers 4 samples, steps 0..3).
 from __future__ import annotations
 
 import math
+import operator
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import TYPE_CHECKING, Any
 
-from planner.stl.errors import FormulaError, SamplingError
+from planner.stl.errors import EvaluationError, FormulaError, SamplingError
 
 if TYPE_CHECKING:
     import numpy as np
@@ -294,6 +295,46 @@ class Call(Expr):
 
     def signal_names(self) -> frozenset[str]:
         return frozenset(self.function.signal_names(self.args))
+
+
+def fold_expr(
+    node: Expr,
+    signal: Callable[[Signal], Any],
+    call: Callable[[Call], Any],
+    div: Callable[[Any, Any], Any] = operator.truediv,
+) -> Any:
+    """The value of an arithmetic expression on one backend: the one evaluator of ``+ - * /``
+    that the exact semantics, the smooth semantics and the planner's constraints share.
+
+    Constants are floats; ``signal(node)`` and ``call(node)`` give the backend's leaves
+    (numpy arrays, CasADi matrices), and the operators are theirs; ``div`` divides (numpy
+    passes ``np.divide``: a division by zero is +-inf there, as the exact semantics say).
+    """
+    if isinstance(node, Const):
+        return node.value
+    if isinstance(node, Signal):
+        return signal(node)
+    if isinstance(node, Call):
+        return call(node)
+    if isinstance(node, Neg):
+        return -fold_expr(node.operand, signal, call, div)
+    if isinstance(node, BinOp):
+        lhs = fold_expr(node.lhs, signal, call, div)
+        rhs = fold_expr(node.rhs, signal, call, div)
+        if node.op is ArithOp.ADD:
+            return lhs + rhs
+        if node.op is ArithOp.SUB:
+            return lhs - rhs
+        if node.op is ArithOp.MUL:
+            return lhs * rhs
+        return div(lhs, rhs)
+    raise EvaluationError(f"cannot evaluate expression of type {type(node).__name__}")
+
+
+def comparison_margin(op: CmpOp, lhs: Any, rhs: Any) -> Any:
+    """A comparison's robustness from its sides: ``lhs - rhs`` for ``>=``/``>``, else
+    ``rhs - lhs`` (any backend)."""
+    return lhs - rhs if op in (CmpOp.GE, CmpOp.GT) else rhs - lhs
 
 
 # --------------------------------------------------------------------------- formulas

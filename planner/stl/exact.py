@@ -65,24 +65,21 @@ from scipy.ndimage import maximum_filter1d, minimum_filter1d
 from planner.stl.ast import (
     Always,
     And,
-    ArithOp,
-    BinOp,
     BoolConst,
     Call,
-    CmpOp,
     Comparison,
-    Const,
     Eventually,
     Expr,
     Formula,
     Implies,
-    Neg,
     Not,
     Or,
     Predicate,
     Signal,
     Until,
     check_dt,
+    comparison_margin,
+    fold_expr,
 )
 from planner.stl.errors import (
     EvaluationError,
@@ -241,9 +238,7 @@ class ExactEvaluator:
         if isinstance(node, BoolConst):
             return np.full(n, np.inf if node.value else -np.inf)
         if isinstance(node, Comparison):
-            lhs = self.expr(node.lhs)
-            rhs = self.expr(node.rhs)
-            diff = lhs - rhs if node.op in (CmpOp.GE, CmpOp.GT) else rhs - lhs
+            diff = comparison_margin(node.op, self.expr(node.lhs), self.expr(node.rhs))
             if isinstance(diff, np.ndarray) and diff.shape == (n,):
                 return diff  # already a fresh array
             return np.full(n, float(diff))
@@ -271,33 +266,20 @@ class ExactEvaluator:
 
     def expr(self, node: Expr) -> np.ndarray | float:
         """Values of an expression: (n,) array, or a float for constant sub-expressions."""
-        if isinstance(node, Const):
-            return node.value
-        if isinstance(node, Signal):
-            if node.name not in self.signals:
-                raise UnknownSignalError(node.name, tuple(self.signals))
-            values = self.signals[node.name]
-            if values.ndim != 1:
-                raise SignalShapeError(
-                    f"signal {node.name!r} has shape {values.shape}: arithmetic and comparisons "
-                    f"need a scalar signal (use a function for vector signals)"
-                )
-            return values
-        if isinstance(node, Neg):
-            return -self.expr(node.operand)
-        if isinstance(node, BinOp):
-            lhs = self.expr(node.lhs)
-            rhs = self.expr(node.rhs)
-            if node.op is ArithOp.ADD:
-                return lhs + rhs
-            if node.op is ArithOp.SUB:
-                return lhs - rhs
-            if node.op is ArithOp.MUL:
-                return lhs * rhs
-            return np.divide(lhs, rhs)
-        if isinstance(node, Call):
-            return call_numpy(node, self._view, self.n)
-        raise EvaluationError(f"cannot evaluate expression of type {type(node).__name__}")
+        return fold_expr(
+            node, self._signal, lambda c: call_numpy(c, self._view, self.n), div=np.divide
+        )
+
+    def _signal(self, node: Signal) -> np.ndarray:
+        if node.name not in self.signals:
+            raise UnknownSignalError(node.name, tuple(self.signals))
+        values = self.signals[node.name]
+        if values.ndim != 1:
+            raise SignalShapeError(
+                f"signal {node.name!r} has shape {values.shape}: arithmetic and comparisons "
+                f"need a scalar signal (use a function for vector signals)"
+            )
+        return values
 
 
 def call_numpy(node: Call, view: Mapping[str, Any], rows: int) -> np.ndarray:

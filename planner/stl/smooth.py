@@ -61,24 +61,21 @@ import numpy as np
 from planner.stl.ast import (
     Always,
     And,
-    ArithOp,
-    BinOp,
     BoolConst,
     Call,
-    CmpOp,
     Comparison,
-    Const,
     Eventually,
     Expr,
     Formula,
     Implies,
-    Neg,
     Not,
     Or,
     Predicate,
     Signal,
     Until,
     check_dt,
+    comparison_margin,
+    fold_expr,
 )
 from planner.stl.errors import (
     EvaluationError,
@@ -350,9 +347,9 @@ class SmoothEvaluator:
         if isinstance(node, BoolConst):
             return math.inf if node.value else -math.inf
         if isinstance(node, Comparison):
-            lhs = self._expr(node.lhs, lo, hi)
-            rhs = self._expr(node.rhs, lo, hi)
-            diff = lhs - rhs if node.op in (CmpOp.GE, CmpOp.GT) else rhs - lhs
+            diff = comparison_margin(
+                node.op, self._expr(node.lhs, lo, hi), self._expr(node.rhs, lo, hi)
+            )
             if isinstance(diff, float):
                 return ops.full(rows, diff)
             return diff
@@ -427,27 +424,15 @@ class SmoothEvaluator:
         return outer / k
 
     def _expr(self, node: Expr, lo: int, hi: int) -> Any:
-        if isinstance(node, Const):
-            return node.value
-        if isinstance(node, Signal):
-            if node.name not in self.signals:
-                raise UnknownSignalError(node.name, tuple(self.signals))
-            return self.ops.signal_rows(node.name, self.signals[node.name], lo, hi + 1)
-        if isinstance(node, Neg):
-            return -self._expr(node.operand, lo, hi)
-        if isinstance(node, BinOp):
-            lhs = self._expr(node.lhs, lo, hi)
-            rhs = self._expr(node.rhs, lo, hi)
-            if node.op is ArithOp.ADD:
-                return lhs + rhs
-            if node.op is ArithOp.SUB:
-                return lhs - rhs
-            if node.op is ArithOp.MUL:
-                return lhs * rhs
-            return lhs / rhs
-        if isinstance(node, Call):
-            return self.ops.call(node, RowView(self.signals, lo, hi + 1), hi - lo + 1)
-        raise EvaluationError(f"cannot evaluate expression of type {type(node).__name__}")
+        def signal(s: Signal) -> Any:
+            if s.name not in self.signals:
+                raise UnknownSignalError(s.name, tuple(self.signals))
+            return self.ops.signal_rows(s.name, self.signals[s.name], lo, hi + 1)
+
+        def call(c: Call) -> Any:
+            return self.ops.call(c, RowView(self.signals, lo, hi + 1), hi - lo + 1)
+
+        return fold_expr(node, signal, call)
 
 
 def _postorder(formula: Formula) -> list[Formula]:

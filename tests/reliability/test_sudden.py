@@ -120,7 +120,10 @@ def test_the_wall_clock_stepping_during_a_flight_changes_nothing(
     monkeypatch.setattr(time, "time", stepping)
     result, _ = fly_with(step_clock, after_start_s=0.5)
     assert result.safety_event is None and result.completed
-    assert all(s.skipped == 0 and s.failed == 0 for s in result.stats.values())
+    # a deadline on the wall clock would have skipped every tick after a step (an hour
+    # late) or waited an hour; a busy machine may skip the odd tick, never most of them
+    for st in result.stats.values():
+        assert st.failed == 0 and st.sent >= 0.9 * (st.sent + st.skipped), st
     assert all(np.all(np.diff(tr.t_s) > 0) for tr in result.tracks.values())
 
 
