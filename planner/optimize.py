@@ -153,8 +153,10 @@ def plan(
     """
     say = progress or (lambda _msg: None)
     t_start = time.perf_counter()
-    registry = build_registry(problem)
-    formulas = [parse_clause(problem, c, registry) for c in problem.clauses]
+    formulas = list(problem.formulas)  # parsed once, at load
+    if len(formulas) != len(problem.clauses):
+        registry = build_registry(problem)
+        formulas = [parse_clause(problem, c, registry) for c in problem.clauses]
     formula = conjunction(formulas)
     model = make_model(problem)
     x0s = _x0(problem, model)

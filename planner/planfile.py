@@ -111,6 +111,8 @@ class Plan:
     check_dt_s: float
     #: The file the plan was read from; ``""`` for a plan made in memory (``PlanResult.to_plan``).
     source: str = field(default="", compare=False)
+    #: The parsed and checked spec, made on first use (:func:`plan_formula`), once per plan.
+    _formula: Formula | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def input_file(self) -> str:
@@ -424,6 +426,14 @@ def plan_formula(plan: Plan) -> Formula:
     Raises:
         PlanFileError: naming :attr:`Plan.input_file` and ``spec`` (or ``horizon_s``).
     """
+    if plan._formula is not None:
+        return plan._formula
+    phi = _checked_formula(plan)
+    object.__setattr__(plan, "_formula", phi)
+    return phi
+
+
+def _checked_formula(plan: Plan) -> Formula:
     from planner.predicates import build_registry
     from planner.stl import BinOp, Call, Comparison, Neg, Predicate, Signal, SpecError, parse
 

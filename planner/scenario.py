@@ -212,6 +212,9 @@ class Problem:
     solver: SolverOptions
     clauses: tuple[Clause, ...]
     constants: Mapping[str, float] = field(default_factory=dict)
+    #: The clauses parsed at load (exact and smooth semantics), in order; empty for a
+    #: problem made otherwise (``dataclasses.replace``), which is parsed where it is used.
+    formulas: tuple[Formula, ...] = field(default=(), init=False, repr=False, compare=False)
 
     @property
     def spec_text(self) -> str:
@@ -874,8 +877,8 @@ def parse_scenario(
     )
     # Parse every clause with the STL engine now, so a syntax error names the clause's key.
     registry = build_registry(problem)
-    for cl in problem.clauses:
-        parse_clause(problem, cl, registry)
+    parsed = tuple(parse_clause(problem, cl, registry) for cl in problem.clauses)
+    object.__setattr__(problem, "formulas", parsed)
     return problem
 
 

@@ -62,3 +62,22 @@ def test_the_predicates_do_not_load_the_scenario_reader_or_casadi() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False False"
+
+
+def test_a_scenario_and_a_plan_are_parsed_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    import planner.optimize as optimize
+    from planner.planfile import load_plan, plan_formula
+
+    problem = load_scenario(REPO / "configs" / "reach_avoid.yaml", vehicles=1)
+    assert len(problem.formulas) == len(problem.clauses)
+    assert [str(f) for f in problem.formulas] == [
+        str(parse(c.text, functions=build_registry(problem))) for c in problem.clauses
+    ]
+
+    def parse_again(*_a: object, **_k: object) -> None:
+        raise AssertionError("the planner parsed the spec again")
+
+    monkeypatch.setattr(optimize, "parse_clause", parse_again)
+    assert optimize.plan(problem).success  # on the formulas parsed at load
+    plan = load_plan(REPO / "tests" / "mavlink" / "data" / "reach_avoid_2.plan.json")
+    assert plan_formula(plan) is plan_formula(plan)  # checked and parsed on first use only
