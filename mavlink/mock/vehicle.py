@@ -22,7 +22,7 @@ import math
 import random
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 import pymap3d
@@ -40,8 +40,24 @@ from mavlink.mock.px4 import Px4Mode
 from mavlink.mock.telemetry import DEFAULT_RATES_HZ, TelemetryMixin
 from mavlink.signing import signing_timestamp
 
-if TYPE_CHECKING:
-    from mavlink.mock.fleet import MockFleet
+
+class FleetSide(Protocol):
+    """What a vehicle needs from the fleet that runs it (:class:`mavlink.mock.fleet.MockFleet`
+    is one): the shared clock and physics step, its geodetic position, the link settings.
+    Declared here so that the vehicle does not import the fleet, which imports it."""
+
+    time_s: float
+    dt_s: float
+    signing_key: bytes | None
+
+    def geodetic(self, i: int) -> tuple[float, float, float]: ...
+
+    def configure_links(self, vehicle: MockVehicle, faults: FaultConfig) -> None: ...
+
+    def origins_changed(self) -> None: ...
+
+    def offline_links(self) -> None: ...
+
 
 Msg = mavlink2.MAVLink_message
 
@@ -123,7 +139,7 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
 
     def __init__(
         self,
-        fleet: MockFleet,
+        fleet: FleetSide,
         index: int,
         config: MockVehicleConfig,
         spawn_lla: tuple[float, float, float],
