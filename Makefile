@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: test demo lint venv clean
+.PHONY: test test-fast demo lint venv clean
 
 venv: $(STAMP)
 
@@ -22,6 +22,11 @@ lint: $(STAMP)
 # idles), so two at a time halve the wall time without crowding the CPU.
 test: $(STAMP) lint
 	$(BIN)/python -m pytest -q -n 2 --dist load
+
+# The fast tier: everything but the tests marked slow (real-time flights and transfers over
+# UDP, the calibration flights); for the edit-test loop, not for CI.
+test-fast: $(STAMP) lint
+	$(BIN)/python -m pytest -q -n 2 --dist load -m "not slow"
 
 demo: $(STAMP)
 	$(BIN)/gcs demo

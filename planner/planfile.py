@@ -35,7 +35,7 @@ import os
 import stat
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -113,6 +113,11 @@ class Plan:
     source: str = field(default="", compare=False)
     #: The parsed and checked spec, made on first use (:func:`plan_formula`), once per plan.
     _formula: Formula | None = field(default=None, init=False, repr=False, compare=False)
+
+    def __getstate__(self) -> list[Any]:
+        """Pickled without the parsed spec (its functions are closures over the plan's
+        regions); the copy parses it again on first use."""
+        return [None if f.name == "_formula" else getattr(self, f.name) for f in fields(self)]
 
     @property
     def input_file(self) -> str:

@@ -46,7 +46,7 @@ import itertools
 import math
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -215,6 +215,11 @@ class Problem:
     #: The clauses parsed at load (exact and smooth semantics), in order; empty for a
     #: problem made otherwise (``dataclasses.replace``), which is parsed where it is used.
     formulas: tuple[Formula, ...] = field(default=(), init=False, repr=False, compare=False)
+
+    def __getstate__(self) -> list[Any]:
+        """Pickled without the parsed clauses (their functions are closures over the regions);
+        the planner parses the copy's again."""
+        return [() if f.name == "formulas" else getattr(self, f.name) for f in fields(self)]
 
     @property
     def spec_text(self) -> str:

@@ -20,6 +20,8 @@ from gcs.flight import plan_formula
 from mavlink.tlog import read_tracks_csv
 from planner.planfile import load_plan
 
+pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)
+
 REPO = Path(__file__).resolve().parents[2]
 
 

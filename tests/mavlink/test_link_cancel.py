@@ -17,6 +17,8 @@ from mavlink.monitor import SafetyMonitor
 from mavlink.offboard import OffboardConfig, fly_offboard
 from tests.mavlink.linkutil import mock_and_fleet, stored_plan
 
+pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)
+
 HANG_S = 60.0
 
 

@@ -82,6 +82,7 @@ def test_prediction_along_the_plan_does_not_stop_a_vehicle_that_brakes_in_time()
     )
 
 
+@pytest.mark.slow  # a real-time flight over UDP
 def test_monitor_stops_a_flight_that_would_leave_an_extra_geofence() -> None:
     plan, problem = stored_plan(2), scenario(2)
     names = [v.name for v in plan.vehicles]

@@ -17,6 +17,8 @@ from mavsdk.asyncio.plugins.telemetry import LandedState, TelemetryAsync
 from mavlink.mock import MockFleet, Px4Mode
 from mavlink.mock.testing import free_udp_ports
 
+pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)
+
 T = TypeVar("T")
 FAST_LANDING = {"MPC_LAND_SPEED": 1.5, "COM_DISARM_LAND": 0.5}
 

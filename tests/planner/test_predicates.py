@@ -81,3 +81,10 @@ def test_a_scenario_and_a_plan_are_parsed_once(monkeypatch: pytest.MonkeyPatch) 
     assert optimize.plan(problem).success  # on the formulas parsed at load
     plan = load_plan(REPO / "tests" / "mavlink" / "data" / "reach_avoid_2.plan.json")
     assert plan_formula(plan) is plan_formula(plan)  # checked and parsed on first use only
+    # both still travel to other processes (the mission conversion runs in a child): the
+    # parsed spec, closures over the regions, stays behind and is parsed again there
+    import pickle
+
+    copy = pickle.loads(pickle.dumps(plan))
+    assert str(plan_formula(copy)) == str(plan_formula(plan))
+    assert pickle.loads(pickle.dumps(problem)).formulas == ()

@@ -29,6 +29,8 @@ from mavlink.signing import (
     verifier,
 )
 
+pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)
+
 KEY = bytes(range(32))
 WRONG = bytes(range(1, 33))
 ARM = mavlink2.MAV_CMD_COMPONENT_ARM_DISARM

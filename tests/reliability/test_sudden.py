@@ -20,6 +20,8 @@ from mavlink.offboard import FlightResult, OffboardConfig, fly_offboard
 from tests.mavlink.linkutil import mock_and_fleet, spec_formula, stored_plan
 from tests.mavlink.linkutil import scenario as link_scenario
 
+pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)
+
 HANG_S = 90.0
 
 During = Callable[[MockFleet], Awaitable[None]]
