@@ -1,0 +1,51 @@
+"""The layers of DESIGN.md section 2, read from every module's imports (nested ones too):
+planner -> mavlink -> gcs, nothing running back up; mavlink uses of planner only its
+trajectories, frames and STL engine; gcs's flight code no command module."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+MAVLINK_MAY_USE = ("planner.trajectory", "planner.frames", "planner.stl")
+
+
+def imports(package: str) -> dict[str, set[str]]:
+    """Module file -> every module it imports (absolute names)."""
+    out: dict[str, set[str]] = {}
+    for path in sorted((REPO / package).rglob("*.py")):
+        names: set[str] = set()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                names.update(a.name for a in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                names.add(node.module)
+        out[str(path.relative_to(REPO))] = names
+    return out
+
+
+def test_the_planner_imports_neither_the_link_nor_the_ground_station() -> None:
+    bad = {f: sorted(n for n in ns if n.split(".")[0] in ("mavlink", "gcs"))
+           for f, ns in imports("planner").items()}  # fmt: skip
+    assert {f: v for f, v in bad.items() if v} == {}
+
+
+def test_the_link_uses_only_trajectories_frames_and_stl_of_the_planner_and_no_gcs() -> None:
+    bad = {}
+    for f, ns in imports("mavlink").items():
+        wrong = sorted(
+            n
+            for n in ns
+            if n.startswith("gcs")
+            or (n.startswith("planner") and not n.startswith(MAVLINK_MAY_USE))
+        )
+        if wrong:
+            bad[f] = wrong
+    assert bad == {}
+
+
+def test_the_flight_code_imports_no_command_module() -> None:
+    for module in ("gcs/flight.py", "gcs/mission_flight.py", "gcs/checks.py", "gcs/missions.py"):
+        ns = imports("gcs")[module]
+        assert not [n for n in ns if n.startswith("gcs.commands")], module
