@@ -8,6 +8,11 @@
   ``PX4_HOME_LAT/LON/ALT``, one line per vehicle, for PX4 SITL's spawn points.
 
 See :mod:`gcs.export` for the exact layouts.
+
+What reaches a vehicle (``qgc`` missions, ``csv``/``json`` setpoints) is written only for a plan
+that passes ``gcs verify``: otherwise exit 1 naming the failed check, as ``gcs fly`` and
+``gcs upload`` refuse it, unless ``--force`` (then a warning on standard error). ``homes``
+places simulated vehicles and is always written.
 """
 
 from __future__ import annotations
@@ -47,6 +52,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="qgc: what the mission ends with: land (default), return or hold",
     )
     p.add_argument("--no-fence", action="store_true", help="qgc: leave the geofence out")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="write missions or setpoints for a plan that fails its checks (gcs verify)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -77,6 +87,27 @@ def run(args: argparse.Namespace) -> int:
     if fmt in (ExportFormat.QGC, ExportFormat.HOMES) and args.rate is not None:
         raise UserError("--rate applies to --format csv and json only")
     plan = load_plan(args.plan)
+    if fmt is not ExportFormat.HOMES:
+        import sys
+
+        from gcs.flight import FlightRefused, preflight_interlock
+
+        try:
+            checks = preflight_interlock(plan, force=args.force)
+        except FlightRefused as exc:
+            print(
+                f"gcs export: refused: {exc.summary} (gcs verify lists them; --force exports "
+                "anyway)",
+                file=sys.stderr,
+            )
+            return 1
+        failed = [c for c in checks if not c.ok]
+        if failed:
+            print(
+                f"gcs export: warning: exported with --force although {len(failed)} of "
+                f"{len(checks)} checks fail (first: {failed[0].name}); these files go to vehicles",
+                file=sys.stderr,
+            )
     rate = DEFAULT_RATE_HZ if args.rate is None else args.rate
     paths = write_export(plan, args.plan, fmt, args.output, rate_hz=rate, qgc=qgc)
     for p in paths:

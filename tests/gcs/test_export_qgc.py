@@ -33,6 +33,7 @@ from planner.planfile import load_plan
 from tests.gcs.test_export_support import ORIGIN, reach_avoid_plan, write_plan
 
 MAV_FRAME_GLOBAL = 0
+LINK_PLAN = Path(__file__).resolve().parents[1] / "mavlink" / "data" / "reach_avoid_2.plan.json"
 
 
 class Importer:
@@ -335,3 +336,30 @@ def test_homes_are_the_ground_below_each_start_as_px4_home_variables(tmp_path: P
             plan.origin.lat_deg, plan.origin.lon_deg, plan.origin.alt_m,
         )  # fmt: skip
         assert (e, n, u) == pytest.approx((v.start_enu_m[0], v.start_enu_m[1], 0.0), abs=0.01)
+
+
+def test_missions_and_setpoints_of_a_failing_plan_are_refused_unless_forced(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import json as _json
+
+    from gcs.cli import main
+
+    # the stored plan, with a speed limit it breaks: it fails gcs verify
+    data = _json.loads(LINK_PLAN.read_text(encoding="utf-8"))
+    data["vehicles"][0]["limits"]["v_max_m_s"] = [0.2, 0.2, 0.2]
+    bad = tmp_path / "bad.json"
+    bad.write_text(_json.dumps(data), encoding="utf-8")
+    for fmt in ("qgc", "csv", "json"):
+        out_dir = tmp_path / fmt
+        rc = main(["export", str(bad), "--format", fmt, "-o", str(out_dir / "x")])
+        out, err = capsys.readouterr()
+        assert rc == 1 and out == "" and not out_dir.exists(), (fmt, out, err)
+        assert err.count("\n") == 1 and "refused: the plan fails verification: d1 velocity" in err
+        assert "--force exports anyway" in err
+    rc = main(["export", str(bad), "--format", "qgc", "-o", str(tmp_path / "forced"), "--force"])
+    out, err = capsys.readouterr()
+    assert rc == 0 and "wrote" in out and "warning: exported with --force" in err
+    assert list((tmp_path / "forced").glob("*.plan"))
+    # where the vehicles stand is not a flight: written whatever the plan's checks say
+    assert main(["export", str(bad), "--format", "homes", "-o", str(tmp_path / "h.txt")]) == 0
