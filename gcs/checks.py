@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -69,14 +70,18 @@ def verify_plan(plan: Any, dt_s: float | None = None) -> list[Check]:
     checks: list[Check] = []
 
     phi = plan_formula(plan)
+    clause_checks = []
     for clause in phi.clauses:
         with spec_errors(plan):
             rho = clause.robustness(pos, dt)
             detail = ""
             if rho < plan.epsilon:
-                w = clause.weakest(pos, dt)[-1]
-                detail = f"weakest {w.formula} = {w.robustness:.4g} at t = {w.t_s:g} s"
-        checks.append(Check(f"spec: {clause}", rho, plan.epsilon, rho >= plan.epsilon, detail))
+                detail = weakest_detail(clause.weakest(pos, dt))
+        clause_checks.append(
+            Check(f"spec: {clause}", rho, plan.epsilon, rho >= plan.epsilon, detail)
+        )
+    # worst first: the clause to fix first leads (file order among equals)
+    checks.extend(sorted(clause_checks, key=lambda c: c.value))
 
     for lim in check_trajectories(plan, trajs, plan.vehicles, dt, plan.horizon_s):
         checks.append(
@@ -122,6 +127,23 @@ def verify_plan(plan: Any, dt_s: float | None = None) -> list[Check]:
     return checks
 
 
+def weakest_detail(chain: Sequence[Any]) -> str:
+    """What decides a failing clause, from its weakest chain (``Formula.weakest``): the leaf,
+    or, where the chain passes an ``or``, the disjunction's value and its best option (a
+    leaf under an ``or`` is one choice, not a requirement)."""
+    from planner.stl import Or
+
+    for i, w in enumerate(chain):
+        if isinstance(w.formula, Or) and i + 1 < len(chain):
+            best = chain[i + 1]
+            return (
+                f"either of {w.formula} = {w.robustness:.4g} at t = {w.t_s:g} s; its best "
+                f"option {best.formula} = {best.robustness:.4g}"
+            )
+    w = chain[-1]
+    return f"weakest {w.formula} = {w.robustness:.4g} at t = {w.t_s:g} s"
+
+
 def verify_telemetry(plan: Any, telemetry: Any, dt_s: float | None = None) -> list[Check]:
     """Checks of flown data (module docstring): coverage and gaps per vehicle, then each
     top-level clause on the flown positions (bound 0: the flown data satisfies it).
@@ -150,7 +172,10 @@ def verify_telemetry(plan: Any, telemetry: Any, dt_s: float | None = None) -> li
         if ok:
             flown[v.name] = path.position(t)
     if len(flown) == len(plan.vehicles):
+        clause_checks = []
         for clause in plan_formula(plan).clauses:
             rho = float(clause.robustness(flown, dt))
-            checks.append(Check(f"flown spec: {clause}", rho, 0.0, rho >= 0.0))
+            detail = "" if rho >= 0.0 else weakest_detail(clause.weakest(flown, dt))
+            clause_checks.append(Check(f"flown spec: {clause}", rho, 0.0, rho >= 0.0, detail))
+        checks.extend(sorted(clause_checks, key=lambda c: c.value))  # worst first
     return checks

@@ -180,3 +180,34 @@ def test_bad_dt_option_names_the_option(
 ) -> None:
     assert cli.main(["verify", str(good_plan), "--dt", dt]) == 2
     assert capsys.readouterr().err.splitlines() == [f"gcs verify: error: {message}"]
+
+
+def test_failing_clauses_are_listed_worst_first_and_an_or_by_its_best_option(
+    good_plan: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # three clauses appended in file order: a small miss, a large one, and a disjunction
+    # whose options both miss (the stored paths stay in x in [-2, 2])
+    def edit(d: dict) -> None:  # type: ignore[type-arg]
+        d["spec"] += (
+            " and (always[0, 6] x(d1) <= 1.5)"
+            " and (always[0, 6] x(d1) <= -8)"
+            " and (eventually[0, 6] (x(d1) >= 10 or x(d1) >= 30))"
+        )
+
+    bad = _edited(good_plan, tmp_path / "bad.json", edit)
+    assert cli.main(["verify", str(bad), "--json"]) == 1
+    checks = json.loads(capsys.readouterr().out)["checks"]
+    spec = [c for c in checks if c["name"].startswith("spec: ")]
+    values = [c["value"] for c in spec]
+    assert values == sorted(values)  # worst first
+    failing = [c for c in spec if not c["ok"]]
+    assert [c["name"] for c in failing][:2] == [
+        "spec: always[0,6] (x(d1) <= -8)",
+        "spec: eventually[0,6] (x(d1) >= 10 or x(d1) >= 30)",
+    ]
+    either = failing[1]["detail"]
+    assert either.startswith("either of x(d1) >= 10 or x(d1) >= 30 = ")
+    assert "its best option x(d1) >= 10 = " in either
+    # fly refuses naming the worst one
+    assert cli.main(["fly", str(bad), "--dry-run"]) == 1
+    assert "x(d1) <= -8" in capsys.readouterr().err
