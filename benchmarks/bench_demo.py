@@ -54,7 +54,7 @@ def main() -> int:
     print(f"planned robustness {planned:+.4f}  flown robustness ", end="")
     print("n/a" if flown is None else f"{flown:+.4f}", end="")
     print(
-        f"  ({demo.plan.status.split(';')[0]}; {'verification FAILED: ' + demo.verification if demo.verification else 'verifies'})"
+        f"  ({demo.plan.status.split(':')[0]}; {'verification FAILED: ' + demo.verification if demo.verification else 'verifies'})"
     )
     if ev is not None:
         for te in ev.tracking:

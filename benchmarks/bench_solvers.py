@@ -147,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
             print(
                 f"{name:<18} {int(n):>2} {v:<12} {wall:>7.2f} {r.stats.build_s:>7.2f} "
                 f"{r.stats.solver_s:>8.2f} {r.iterations:>5} {r.robustness:>8.4f} "
-                f"{'y' if r.success else 'n':>3}  {r.status.split(';')[0][:40]}",
+                f"{'y' if r.success else 'n':>3}  {r.status.split(' (solver: ')[-1].rstrip(')')[:40]}",
                 flush=True,
             )
     print(json.dumps({"bench": "solvers", "rows": rows}))

@@ -651,7 +651,7 @@ def render_figure(
     _draw_kinematics(axes_v, axes_a, plan, colours, t)
     rho = min((tr.robustness for tr in traces), default=math.nan)
     _, dt = plan_grid(plan, dt_s)
-    status = plan.status.split(";")[0].strip()
+    status = plan.status.split(":")[0].strip()  # the outcome in words (optimize._user_status)
     fig.suptitle(
         f"{name or Path(plan.scenario).stem}: {len(plan.vehicles)} vehicle(s), horizon {plan.horizon_s:g} s"
         f" | spec robustness {rho:+.4f} (exact, dt {dt:g} s; epsilon {plan.epsilon:g})"

@@ -302,7 +302,7 @@ def plan(
     return PlanResult(
         problem=problem,
         success=success,
-        status=f"{status}; {verdict}",
+        status=_user_status(status, success, rob < problem.epsilon, verdict),
         robustness=rob,
         robustness_planning_grid=rob_grid,
         smooth_robustness=smooth,
@@ -334,6 +334,23 @@ def _lower_r(lbx: np.ndarray, ubx: np.ndarray, value: float) -> None:
     the bounds stay consistent: a cap below the required margin leaves r pinned there."""
     lbx[-1] = value
     ubx[-1] = max(ubx[-1], value + _EPS_MARGIN_STEP_M)
+
+
+def _user_status(solver: str, success: bool, short: bool, verdict: str) -> str:
+    """The outcome in the user's terms first, the solver's own status after (in brackets):
+    "the solver converged but the mission is not met: robustness -111 < epsilon 0.01 ...",
+    never "Solve_Succeeded" on a plan that fails."""
+    if success:
+        head = "the mission is met"
+    elif "NonIpopt_Exception_Thrown" in solver or "User_Requested_Stop" in solver:
+        head = "the solver was stopped (interrupted, or an error inside it); the best plan found"
+    elif not _solved(solver.rsplit(": ", 1)[-1].strip(") ")):
+        head = "the solver did not converge; the best plan found"
+    elif short:
+        head = "the solver converged but the mission is not met"
+    else:
+        head = "the solver converged but the plan breaks the vehicles' limits"
+    return f"{head}: {verdict} (solver: {solver})"
 
 
 def _solved(status: str) -> bool:

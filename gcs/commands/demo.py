@@ -216,7 +216,7 @@ def run_demo(
 def summary(demo: DemoResult) -> str:
     """The short summary ``gcs demo`` prints."""
     plan, out = demo.plan, demo.outcome
-    lines = [f"planned robustness {plan.robustness:+.4f} ({plan.status.split(';')[0]})"]
+    lines = [f"planned robustness {plan.robustness:+.4f} ({plan.status.split(':')[0]})"]
     if demo.verification:
         lines.append(f"verification FAILED: {demo.verification}")
     if out is None:

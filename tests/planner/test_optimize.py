@@ -146,6 +146,11 @@ def test_unsatisfiable_scenario_is_a_failed_result_not_an_exception() -> None:
     assert not result.success
     assert result.robustness < 0
     assert "robustness" in result.status and "< epsilon" in result.status
+    # in the user's terms first: never a solver's "Succeeded" heading a failed plan
+    head = result.status.split(" (solver: ")[0]
+    assert head.startswith(("the solver converged but the mission is not met: ",
+                            "the solver did not converge; the best plan found: "))  # fmt: skip
+    assert "Succeeded" not in head
     assert result.weakest is not None
     assert len(result.trajectories) == 1  # the best trajectories found are still returned
 
