@@ -389,7 +389,7 @@ async def monitored_flight(
         "monitor_tick_ms_p50": float(np.percentile(ticks_ms, 50)) if ticks_ms.size else None,
         "monitor_tick_ms_max": float(ticks_ms.max()) if ticks_ms.size else None,
         "progress_updates": progress.lines,
-        "cpu_us_per_setpoint": cpu_s / max(1, n * sum(sent) / n) * 1e6 if sent else None,
+        "cpu_us_per_setpoint": cpu_s / max(1, sum(sent)) * 1e6,
         "safety_event": None if event is None else event.describe(),
     }
     if violate_at_s is not None:

@@ -219,6 +219,7 @@ def plan(
 
     run = _run_solvers(struct, w0, bounds, say, problem.solver.method.value)
     w_opt, status = run.w, run.status
+    converged = _solved(status)  # of the solve whose point is returned
     check_s = 0.0
     if problem.solver.robustness_constraint:
         # The paper's eq. (1): smooth robustness >= epsilon + margin as a constraint.  The
@@ -247,6 +248,7 @@ def plan(
             if rob > best[0]:
                 best = (rob, w_opt, status)
         rob, w_opt, status = best
+        converged = _solved(status)
         if rob < eps:
             # Infeasible as constrained: the plain maximisation from the same start finds
             # the best trajectories there are (a failed result carries the best found).
@@ -255,6 +257,7 @@ def plan(
             t_check = time.perf_counter()
             if exact_of(plain.w) > rob:
                 w_opt = plain.w
+                converged = _solved(plain.status)
                 status = (
                     f"eq. (1) constraint not met ({status}); plain maximisation: {plain.status}"
                 )
@@ -302,7 +305,7 @@ def plan(
     return PlanResult(
         problem=problem,
         success=success,
-        status=_user_status(status, success, rob < problem.epsilon, verdict),
+        status=_user_status(status, converged, success, rob < problem.epsilon, verdict),
         robustness=rob,
         robustness_planning_grid=rob_grid,
         smooth_robustness=smooth,
@@ -336,7 +339,7 @@ def _lower_r(lbx: np.ndarray, ubx: np.ndarray, value: float) -> None:
     ubx[-1] = max(ubx[-1], value + _EPS_MARGIN_STEP_M)
 
 
-def _user_status(solver: str, success: bool, short: bool, verdict: str) -> str:
+def _user_status(solver: str, converged: bool, success: bool, short: bool, verdict: str) -> str:
     """The outcome in the user's terms first, the solver's own status after (in brackets):
     "the solver converged but the mission is not met: robustness -111 < epsilon 0.01 ...",
     never "Solve_Succeeded" on a plan that fails."""
@@ -344,7 +347,7 @@ def _user_status(solver: str, success: bool, short: bool, verdict: str) -> str:
         head = "the mission is met"
     elif "NonIpopt_Exception_Thrown" in solver or "User_Requested_Stop" in solver:
         head = "the solver was stopped (interrupted, or an error inside it); the best plan found"
-    elif not _solved(solver.rsplit(": ", 1)[-1].strip(") ")):
+    elif not converged:
         head = "the solver did not converge; the best plan found"
     elif short:
         head = "the solver converged but the mission is not met"

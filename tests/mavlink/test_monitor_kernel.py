@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import threading
+import time
 import types
 from pathlib import Path
 
@@ -165,15 +166,12 @@ def test_the_run_evaluates_on_its_own_thread_and_reports_late_vehicles() -> None
     async def run() -> tuple[object, int]:
         stop = asyncio.Event()
         loop_thread = threading.get_ident()
-        t0 = asyncio.get_running_loop().time()
-        import time
-
         task = asyncio.create_task(
             mon.run(
-                None,
+                None,  # type: ignore[arg-type]  (the fleet: only needed to stop)
                 vehicles,
                 t0_monotonic_s=time.monotonic(),
-                mission_origin=origin,  # type: ignore[arg-type]
+                mission_origin=origin,
                 origins=origins,
                 stop=stop,
                 expected_mode=Px4Mode.OFFBOARD,
@@ -181,7 +179,6 @@ def test_the_run_evaluates_on_its_own_thread_and_reports_late_vehicles() -> None
         )
         await asyncio.sleep(0.5)
         stop.set()
-        del t0
         return await task, loop_thread
 
     event, loop_thread = asyncio.run(run())
