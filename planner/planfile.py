@@ -44,6 +44,7 @@ import numpy as np
 from planner.errors import FileFieldError
 from planner.frames import GeodeticPoint
 from planner.scenario import FUNCTION_NAMES, MAX_HORIZON_S, Region, RegionKind
+from planner.scenario_checks import horizon_sum
 from planner.trajectory import Trajectory, TrajectoryError
 
 if TYPE_CHECKING:
@@ -492,7 +493,7 @@ def _checked_formula(plan: Plan) -> Formula:
         if clause.horizon > plan.horizon_s * (1 + 1e-9):
             raise fail(
                 f"{plan.horizon_s:g} s is shorter than spec clause {i} ({clause}), which looks "
-                f"{clause.horizon:g} s ahead",
+                f"{horizon_sum(clause)} ahead",
                 "horizon_s",
             )
     return phi

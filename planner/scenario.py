@@ -57,6 +57,7 @@ from planner.errors import FileFieldError
 from planner.frames import GeodeticPoint
 from planner.predicates import PREDICATES, build_registry
 from planner.regions import Region, RegionKind
+from planner.scenario_checks import clause_findings, horizon_sum, start_findings
 from planner.stl import (
     BinOp,
     Comparison,
@@ -801,10 +802,19 @@ def parse_scenario(
         raise rd.fail("timing.horizon_s", f"{horizon:g} s is longer than {MAX_HORIZON_S:g} s")
     seg = rd.number(rd.require(t, "segment_s", "timing"), "timing.segment_s", positive=True)
     ts = rd.number(rd.require(t, "Ts_s", "timing"), "timing.Ts_s", positive=True)
-    for key, val in (("segment_s", seg), ("Ts_s", ts)):
+    # The plan is a chain of whole motion primitives sampled on one grid: the horizon must
+    # be a whole number of segments and of sample steps (README, "Scenario files").
+    for key, val, what in (("segment_s", seg, "segments"), ("Ts_s", ts, "sample steps")):
         ratio = horizon / val
         if abs(ratio - round(ratio)) > 1e-9:
-            raise rd.fail(f"timing.{key}", f"horizon {horizon:g} s is not a multiple of {val:g} s")
+            lo, hi = math.floor(ratio) * val, math.ceil(ratio) * val
+            near = f"{lo:g} or {hi:g} s" if lo > 0 else f"{hi:g} s"
+            raise rd.fail(
+                f"timing.{key}",
+                f"the horizon {horizon:g} s is not a whole number of {what} of {val:g} s "
+                f"({ratio:.4g}): the plan is a chain of whole {what}; make timing.horizon_s "
+                f"{near}, or change timing.{key}",
+            )
     if seg < ts:
         raise rd.fail("timing.segment_s", f"segment {seg:g} s is shorter than Ts {ts:g} s")
     check_dt = rd.number(t.get("check_dt_s", ts / 5), "timing.check_dt_s", positive=True)
@@ -825,15 +835,14 @@ def parse_scenario(
 
     solver = _solver(rd, top.get("solver", {}) or {})
 
+    start_keys: dict[str, str] = {}
     for i, v in enumerate(vlist):
         if isinstance(top["vehicles"], list):
-            p = f"vehicles[{i}].start"
+            start_keys[v.name] = f"vehicles[{i}].start"
         elif "positions" in (top["vehicles"].get("starts") or {}):
-            p = f"vehicles.starts.positions[{i}]"
+            start_keys[v.name] = f"vehicles.starts.positions[{i}]"
         else:
-            p = "vehicles.starts.grid"
-        if not bool(workspace.contains(np.asarray(v.start_enu_m))):
-            raise rd.fail(p, f"start {list(v.start_enu_m)} of {v.name} is outside the workspace")
+            start_keys[v.name] = "vehicles.starts.grid"
     starts = np.array([v.start_enu_m for v in vlist])
     if len(vlist) > 1 and sep > 0:
         d = np.linalg.norm(starts[:, None, :] - starts[None, :, :], axis=-1)
@@ -880,10 +889,15 @@ def parse_scenario(
         clauses=tuple(clauses),
         constants=constants,
     )
+    for finding in start_findings(problem, start_keys):
+        raise rd.fail(finding.key_path, finding.message)
     # Parse every clause with the STL engine now, so a syntax error names the clause's key.
     registry = build_registry(problem)
     parsed = tuple(parse_clause(problem, cl, registry) for cl in problem.clauses)
     object.__setattr__(problem, "formulas", parsed)
+    # What no plan can mend: a start breaking a clause at t = 0, a target out of reach.
+    for finding in clause_findings(problem, start_keys):
+        raise rd.fail(finding.key_path, finding.message)
     return problem
 
 
@@ -1007,7 +1021,8 @@ def parse_clause(
         raise ScenarioError(
             problem.source,
             clause.key_path,
-            f"the clause looks {phi.horizon:g} s ahead but the plan horizon is {horizon:g} s",
+            f"the clause looks {horizon_sum(phi)} ahead, more than the plan's horizon "
+            f"{horizon:g} s (timing.horizon_s)",
         )
     return phi
 

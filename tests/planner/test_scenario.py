@@ -19,6 +19,7 @@ from planner.scenario import (
     load_scenario,
     parse_scenario,
 )
+from planner.scenario_checks import reach_m
 from planner.stl import parse
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
@@ -112,11 +113,43 @@ _DELETE = object()
             ["vehicles", "starts", "positions", 0],
             [-3, 1.5, 0.75],
             "vehicles.starts.positions[0]",
-            "outside the workspace",
+            "outside the workspace: east -3 is below its minimum -2",
+        ),
+        (
+            ["vehicles", "starts", "positions", 1],
+            [1.5, -1.5, 2.5],
+            "vehicles.starts.positions[1]",
+            "up 2.5 is above its maximum 2",
+        ),
+        (
+            ["vehicles", "starts", "positions", 0],
+            [0.5, 0.0, 1.0],
+            "vehicles.starts.positions[0]",
+            "inside obstacle 'obstacle' ([-1, -1, 0] to [1, 1, 1.5])",
+        ),
+        (
+            ["spec", 2, "formula"],
+            "always[0, $horizon] dist(a, b) >= 5",
+            "spec[2].formula",
+            "dist(d1, d2) >= 5 is -0.757 with d1, d2 at their starts",
+        ),
+        (
+            ["spec", 0, "formula"],
+            "eventually[0, 1] inside(d, goal)",
+            "spec[0].formula",
+            "inside(d1, goal) cannot hold by t = 1 s: goal is 3 m east of d1's start and d1 "
+            "covers at most 0.469 m that way in 1 s from rest (limits 0.751 m/s, 1 m/s^2)",
+        ),
+        (
+            ["spec", 0, "formula"],
+            "always[0, 3] eventually[0, 2] always[0, 2] inside(d, goal)",
+            "spec[0].formula",
+            "looks 3 + 2 + 2 = 7 s ahead, more than the plan's horizon 6 s",
         ),
         (["regions", "goal", "half_size"], 0, "regions.goal.half_size", "> 0"),
         (["regions", "obstacle", "kind"], "wall", "regions.obstacle.kind", "unknown kind"),
-        (["timing", "segment_s"], 0.7, "timing.segment_s", "multiple"),
+        (["timing", "segment_s"], 0.7, "timing.segment_s", "whole number of segments of 0.7 s"),
+        (["timing", "Ts_s"], 0.7, "timing.Ts_s", "make timing.horizon_s 5.6 or 6.3 s"),
         (["timing"], _DELETE, "timing", "missing"),
         (["spec", 0, "each"], "d in drones", "spec[0].each", "unknown group"),
         (
@@ -214,3 +247,38 @@ def test_sqpmethod_defaults_to_bfgs_and_a_shipped_qp_solver() -> None:
     data["solver"] = {"method": "sqpmethod", "hessian": "exact", "qpsol": "osqp"}
     solver = parse_scenario(data, "x.yaml").solver
     assert (solver.hessian, solver.qpsol) == ("exact", "osqp")
+
+
+@pytest.mark.parametrize(("v_max", "a_max", "t_s"), [(0.751, 1.0, 1.0), (5.0, 2.0, 38.0), (3.0, 4.0, 0.5), (2.0, 1.0, 2.0)])  # fmt: skip
+def test_the_reach_bound_is_what_full_acceleration_then_full_speed_covers(
+    v_max: float, a_max: float, t_s: float
+) -> None:
+    # The fastest way along one axis from rest within |v| <= V and |a| <= A: accelerate at A
+    # until V, then hold V. Integrated step by step, independently of the closed form.
+    dt, x, v = 1e-4, 0.0, 0.0
+    for _ in range(round(t_s / dt)):
+        a = a_max if v < v_max else 0.0
+        v_next = min(v + a * dt, v_max)
+        x += 0.5 * (v + v_next) * dt
+        v = v_next
+    assert reach_m(t_s, v_max, a_max) == pytest.approx(x, abs=1e-3)
+
+
+def test_load_checks_stop_at_what_the_spec_requires_not_at_what_it_allows() -> None:
+    data = _yaml("reach_avoid.yaml")
+    # a choice (or) and a negation are not obligations: these load
+    for text in (
+        "eventually[0, 1] inside(d, goal) or eventually[0, 6] inside(d, goal)",
+        "not always[0, 6] dist(a, b) >= 5",
+    ):
+        ok = _mutate(data, ["spec", 2 if "dist" in text else 0, "formula"], text)
+        parse_scenario(ok, "configs/x.yaml")
+    # an obligation under always is one: at t = 0 (always[0, ...]) and by its deadline
+    nested = _mutate(data, ["spec", 0, "formula"], "always[0, 2] eventually[0, 1] inside(d, goal)")
+    with pytest.raises(ScenarioError, match=r"cannot hold by t = 1 s"):
+        parse_scenario(nested, "configs/x.yaml")
+    late = _mutate(data, ["spec", 0, "formula"], "always[5, 6] inside(d, goal)")
+    parse_scenario(late, "configs/x.yaml")  # by 5 s: 3 m is within reach
+    # the shipped scenarios all load
+    for name in ("reach_avoid.yaml", "powerline_inspection.yaml", "narrow_passage_di.yaml"):
+        load_scenario(CONFIGS / name)
