@@ -49,7 +49,7 @@ import socket
 import sys
 import threading
 import time
-from collections.abc import AsyncIterator, Iterator, Mapping, Sequence
+from collections.abc import AsyncIterator, Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
@@ -139,6 +139,9 @@ class FlyOptions:
         acceptance_m: mission mode's waypoint acceptance radius; ``None``: chosen
             (:func:`gcs.missions.auto_acceptance_m`).
         force: fly missions whose predicted robustness is below epsilon.
+        max_off_plan_m: offboard: hold every vehicle when one is farther than this from
+            its plan (the monitor's tracking alarm; ``None``: never). Past the plan's margin
+            (its robustness) a vehicle is warned about once, in flight and in the report.
     """
 
     mode: FlightMode = FlightMode.OFFBOARD
@@ -152,6 +155,7 @@ class FlyOptions:
     arrive_m: float | None = None
     acceptance_m: float | None = None
     force: bool = False
+    max_off_plan_m: float | None = 3.0
 
 
 # ---------------------------------------------------------------------------- before flight
@@ -625,14 +629,28 @@ class FlightProgress:
 
     def show(self, text: str) -> None:
         """Write ``text``: rewrite the status line on a terminal, else a new line."""
-        self.last_line = text
-        self.lines += 1
-        if self.tty:
-            width = shutil.get_terminal_size((120, 20)).columns
-            self.stream.write("\r\033[K" + text[: width - 1])
-        else:
-            self.stream.write(text + "\n")
-        self.stream.flush()
+        with self._lock:
+            self.lines += 1
+            if self.tty:
+                width = shutil.get_terminal_size((120, 20)).columns
+                self.last_line = text[: width - 1]
+                self.stream.write("\r\033[K" + self.last_line)
+            else:
+                self.last_line = text
+                self.stream.write(text + "\n")
+            self.stream.flush()
+
+    def note(self, text: str) -> None:
+        """Write ``text`` on a line of its own (the status line, if any, is redrawn after it).
+
+        Safe from any thread (the safety monitor's warnings come from its own).
+        """
+        with self._lock:
+            if self.tty and self.lines:
+                self.stream.write("\r\033[K" + text + "\n" + self.last_line)
+            else:
+                self.stream.write(text + "\n")
+            self.stream.flush()
 
     def close(self) -> None:
         """End the status line (terminal)."""
@@ -786,6 +804,7 @@ async def _fly_offboard(
     opts: FlyOptions,
     clock: FlightClock,
     tuning: Mapping[str, VehicleTuning],
+    note: Callable[[str], None],
 ) -> Any:
     from gcs.mission_flight import arrive_gate_m
     from mavlink.monitor import SafetyMonitor, always_clauses
@@ -798,7 +817,15 @@ async def _fly_offboard(
         clock.t0_monotonic_s.update(dict.fromkeys(names, t0_monotonic_s))
 
     clauses = always_clauses(plan_formula(plan), names) if opts.monitor else ()
-    monitor = SafetyMonitor(clauses, horizon_s=0.5 if opts.monitor else 0.0, on_start=started)
+    monitor = SafetyMonitor(
+        clauses,
+        horizon_s=0.5 if opts.monitor else 0.0,
+        on_start=started,
+        # the tracking alarm: warn past the plan's margin, hold past the bound
+        warn_off_plan_m=plan.robustness if opts.monitor and plan.robustness > 0 else None,
+        max_off_plan_m=opts.max_off_plan_m if opts.monitor else None,
+        on_warning=note,
+    )
     cfg = OffboardConfig(
         rate_hz=opts.rate_hz,
         start_tolerance_m=opts.tolerance_m,
@@ -871,11 +898,18 @@ async def fly_plan(
             for w in warnings:
                 print(w, file=progress.stream, flush=True)
         guard = None
+
+        def note(line: str) -> None:
+            if progress is not None:
+                progress.note(line)
+            else:
+                print(line, file=sys.stderr, flush=True)
+
         try:
             # the flight's own tasks end with it; leaving it abnormally holds every vehicle
             async with fleet.flight() as guard:
                 if opts.mode is FlightMode.OFFBOARD:
-                    result = await _fly_offboard(fleet, plan, opts, clock, tuning)
+                    result = await _fly_offboard(fleet, plan, opts, clock, tuning, note)
                 else:
                     mission = await fly_mission_plan(fleet, plan, opts, clock, tuning)
         except asyncio.CancelledError:
@@ -1010,9 +1044,15 @@ def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
                 f"  weakest flown clause {w.flown:+.4f} (planned {w.planned:+.4f}): {w.text}"
             )
         for te in ev.tracking:
+            over = (
+                f" (WARNING: more than the plan's margin {plan.robustness:.3f} m)"
+                if plan.robustness > 0 and te.max_m > plan.robustness
+                else ""
+            )
             lines.append(
-                f"  {te.vehicle}: tracking error max {te.max_m:.3f} m at t {te.t_at_max_s:.2f} s, "
-                f"rms {te.rms_m:.3f} m; best-fit delay {te.lag_s:+.2f} s (rms {te.rms_at_lag_m:.3f} m)"
+                f"  {te.vehicle}: tracking error max {te.max_m:.3f} m at t {te.t_at_max_s:.2f} s"
+                f"{over}, rms {te.rms_m:.3f} m; best-fit delay {te.lag_s:+.2f} s (rms "
+                f"{te.rms_at_lag_m:.3f} m)"
             )
     if outcome.stats:
         lines.append("setpoint stream (lateness of each send after its deadline):")

@@ -141,9 +141,11 @@ def report_markdown(
             "| vehicle | samples | max m | at t s | rms m | best-fit delay s | rms at delay m |",
             "|---|---:|---:|---:|---:|---:|---:|",
         ]
+        margin = plan.robustness
         for t in ev.tracking:
+            over = " (over the plan's margin)" if margin > 0 and t.max_m > margin else ""
             lines.append(
-                f"| {t.vehicle} | {t.samples} | {_num(t.max_m, '.3f')} | "
+                f"| {t.vehicle} | {t.samples} | {_num(t.max_m, '.3f')}{over} | "
                 f"{_num(t.t_at_max_s, '.2f')} | {_num(t.rms_m, '.3f')} | {_num(t.lag_s, '+.2f')} | "
                 f"{_num(t.rms_at_lag_m, '.3f')} |"
             )

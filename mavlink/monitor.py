@@ -11,7 +11,11 @@ velocity). If a clause is violated now, or its robustness on the predicted
 samples drops below zero inside the clause's interval, or a vehicle's link
 times out, the monitor stops the stream and commands every vehicle to hold
 (or land), and reports which clause, which vehicles, when and how long after
-the telemetry it decided on (:class:`SafetyEvent`). A vehicle whose telemetry
+the telemetry it decided on (:class:`SafetyEvent`). Where the vehicles fly a plan it
+also watches how far each is from it (the tracking alarm): past ``warn_off_plan_m``
+(the plan's robustness margin: beyond it the spec may no longer hold) it warns once per
+vehicle, past ``max_off_plan_m`` it stops the flight (:attr:`Verdict.OFF_PLAN`), and the
+largest distance per vehicle goes into :class:`MonitorStats`. A vehicle whose telemetry
 is late (older than ``stale_after_s``, not yet lost) is predicted from its last
 sample and its plan over the time since, never skipped; the run's
 :class:`MonitorStats` count such evaluations for the report.
@@ -65,6 +69,7 @@ class Verdict(Enum):
     LEFT_MODE = "left_mode"  # a vehicle left the flight's mode (its own failsafe took over)
     ORIGIN_MOVED = "origin_moved"  # a vehicle's EKF origin moved in flight: its positions and
     # the setpoints streamed to it are in another frame than the flight's
+    OFF_PLAN = "off_plan"  # a vehicle is farther from its plan than the flight allows
 
 
 class SafetyAction(Enum):
@@ -154,6 +159,8 @@ class SafetyEvent:
                 f"the EKF origin of {who} moved at t={self.t_s:.2f} s ({self.detail}): its "
                 "positions and setpoints are no longer in the flight's frame"
             )
+        elif self.verdict is Verdict.OFF_PLAN:
+            head = f"{who} off its plan at t={self.t_s:.2f} s ({self.detail})"
         elif self.verdict is Verdict.VIOLATED:
             head = (
                 f"clause {self.clause!r} violated by {who} at t={self.t_s:.2f} s "
@@ -274,12 +281,19 @@ class MonitorStats:
             ``stale_after_s`` (but younger than ``offboard_loss_s``), so its clauses were
             checked on its prediction from its last sample and its plan.
         stale_max_age_s: per vehicle, the oldest telemetry so predicted.
+        off_plan_max_m: per vehicle with a plan, the largest distance from it seen (m).
+        off_plan_max_t_s: when that was (plan time, s).
+        warned: per vehicle, when it first went farther from its plan than the warning
+            distance and how far it was (plan time s, m).
     """
 
     checks: int = 0
     tick_s: list[float] = field(default_factory=list)
     stale: dict[str, int] = field(default_factory=dict)
     stale_max_age_s: dict[str, float] = field(default_factory=dict)
+    off_plan_max_m: dict[str, float] = field(default_factory=dict)
+    off_plan_max_t_s: dict[str, float] = field(default_factory=dict)
+    warned: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     def as_json(self) -> dict[str, object]:
         """The figures as JSON values (tick times in ms)."""
@@ -290,6 +304,9 @@ class MonitorStats:
             "tick_ms_max": float(ticks.max()) if ticks.size else None,
             "predicted_while_late": dict(self.stale),
             "late_max_age_s": dict(self.stale_max_age_s),
+            "off_plan_max_m": dict(self.off_plan_max_m),
+            "off_plan_max_t_s": dict(self.off_plan_max_t_s),
+            "off_plan_warned": {n: {"t_s": t, "off_m": d} for n, (t, d) in self.warned.items()},
         }
 
     def describe_stale(self) -> str:
@@ -329,6 +346,11 @@ class SafetyMonitor:
             starved it of setpoints too, so streaming to it must stop before the link returns.
         on_start: called with the flight's start (``time.monotonic()`` seconds) when
             :meth:`run` begins.
+        warn_off_plan_m: warn (``on_warning``, once per vehicle) when a vehicle is farther
+            than this from its plan (``None``: never).
+        max_off_plan_m: stop the flight when a vehicle is farther than this from its plan
+            (``None``: never).
+        on_warning: called with one line for the operator (on the monitor's thread).
     """
 
     def __init__(
@@ -342,6 +364,9 @@ class SafetyMonitor:
         stale_after_s: float = 0.5,
         offboard_loss_s: float = 1.0,
         on_start: Callable[[float], None] | None = None,
+        warn_off_plan_m: float | None = None,
+        max_off_plan_m: float | None = None,
+        on_warning: Callable[[str], None] | None = None,
     ) -> None:
         if not (math.isfinite(horizon_s) and horizon_s >= 0):
             raise LinkError(f"monitor horizon_s must be >= 0, got {horizon_s!r}")
@@ -357,6 +382,12 @@ class SafetyMonitor:
         self.stale_after_s = stale_after_s
         self.offboard_loss_s = offboard_loss_s
         self.on_start = on_start
+        for what, bound in (("warn_off_plan_m", warn_off_plan_m), ("max_off_plan_m", max_off_plan_m)):  # fmt: skip
+            if bound is not None and not (math.isfinite(bound) and bound > 0):
+                raise LinkError(f"monitor {what} must be > 0, got {bound!r}")
+        self.warn_off_plan_m = warn_off_plan_m
+        self.max_off_plan_m = max_off_plan_m
+        self.on_warning = on_warning
         self._batch = ClauseBatch([c.formula for c in self.clauses])
         # the signals the clauses read, and per clause the rows of its vehicles (padded with
         # the extra last row, always "present")
@@ -564,6 +595,9 @@ class SafetyMonitor:
                         self.stats.stale_max_age_s.get(name, 0.0), st.position_age_s
                     )
             self.stats.checks += 1
+            off = self._off_plan(t_s, states, plans, ages, now)
+            if off is not None:
+                return off
             found = self.evaluate(t_s, states, plans, ages)
             if found is None:
                 return None
@@ -572,6 +606,51 @@ class SafetyMonitor:
             return _Finding(verdict, clause, clause.vehicles, t_s, rho, ahead, sample)
         finally:
             self.stats.tick_s.append(time.perf_counter() - t_cpu)
+
+    def _off_plan(
+        self,
+        t_s: float,
+        states: Mapping[str, tuple[np.ndarray, np.ndarray]],
+        plans: Mapping[str, Trajectory] | None,
+        ages: Mapping[str, float],
+        now: float,
+    ) -> _Finding | None:
+        """The tracking alarm: record, warn, and past ``max_off_plan_m`` a stop finding."""
+        if plans is None or (self.warn_off_plan_m is None and self.max_off_plan_m is None):
+            return None
+        names = tuple(states)  # the same table as the clauses' prediction (one cache)
+        table = self._plan_table(names, plans)
+        if not table.has.any():
+            return None
+        age = np.array([ages[n] for n in names])
+        t_sample = np.clip(t_s - age, 0.0, None)[:, None]  # where the plan was at each sample
+        ref = table.state(t_sample, 0)[:, 0]
+        pos = np.array([states[n][0] for n in names])
+        off = np.where(table.has, np.linalg.norm(pos - ref, axis=1), 0.0)
+        st = self.stats
+        for k, name in enumerate(names):
+            if not table.has[k]:
+                continue
+            d = float(off[k])
+            if d > st.off_plan_max_m.get(name, -1.0):
+                st.off_plan_max_m[name] = d
+                st.off_plan_max_t_s[name] = float(t_sample[k, 0])
+            warn = self.warn_off_plan_m
+            if warn is not None and d > warn and name not in st.warned:
+                st.warned[name] = (float(t_sample[k, 0]), d)
+                if self.on_warning is not None:
+                    self.on_warning(
+                        f"warning: {name} is {d:.2f} m from its plan at t={t_sample[k, 0]:.2f} s, "
+                        f"more than the plan's margin {warn:.2f} m: the spec may not hold"
+                    )
+        bound = self.max_off_plan_m
+        if bound is None or not (off > bound).any():
+            return None
+        far = tuple(n for n, d in zip(names, off, strict=True) if d > bound)
+        detail = ", ".join(f"{n} {off[names.index(n)]:.2f} m" for n in far)
+        detail += f" from the plan, more than the bound {bound:g} m"
+        sample = now - max(ages[n] for n in far)
+        return _Finding(Verdict.OFF_PLAN, None, far, t_s, None, None, sample, detail=detail)
 
     async def run(
         self,

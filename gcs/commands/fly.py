@@ -78,6 +78,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="--mode mission: waypoint acceptance radius (default: from the plan's speeds, "
         "at most NAV_ACC_RAD)",
     )
+    p.add_argument(
+        "--max-off-plan",
+        type=float,
+        default=3.0,
+        metavar="M",
+        help="hold every vehicle when one is more than M m from its plan (3; 0: never); "
+        "past the plan's margin a vehicle is warned about",
+    )
     p.add_argument("--end", choices=["hold", "land", "return"], default="hold")
     add_link_arguments(p, plan_order=True, timeout_s=10.0, timeout_help="connection timeout (10 s)")
     p.add_argument("--json", action="store_true", help="print the outcome as JSON")
@@ -116,6 +124,8 @@ def run(args: argparse.Namespace) -> int:
         value = getattr(args, name)
         if value is not None and not (math.isfinite(value) and value > 0):
             raise UserError(f"--{name}: must be a number > 0 m, got {value:g}")
+    if not (math.isfinite(args.max_off_plan) and args.max_off_plan >= 0):
+        raise UserError(f"--max-off-plan: must be a number >= 0 m, got {args.max_off_plan:g}")
     if args.drag is not None and not (math.isfinite(args.drag) and 0 <= args.drag <= 10):
         raise UserError(f"--drag: must be a number in [0, 10] 1/s, got {args.drag:g}")
     if args.dry_run and args.connection:
@@ -138,6 +148,7 @@ def run(args: argparse.Namespace) -> int:
         arrive_m=args.arrive,
         acceptance_m=args.acceptance,
         force=args.force,
+        max_off_plan_m=args.max_off_plan or None,
     )
     progress = FlightProgress(plan, out)
 

@@ -297,3 +297,31 @@ def test_evaluation_finds_the_delay_of_a_late_track_and_judges_it_exactly() -> N
     }
     assert ev.flown_robustness == pytest.approx(plan_formula(plan).robustness(ref, dt), abs=2e-4)
     assert ev.planned_robustness == pytest.approx(plan.robustness, abs=1e-9)
+
+
+def test_a_vehicle_falling_behind_its_plan_is_warned_about_then_held(
+    plan_file: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # PX4 limits offboard speed to MPC_XY_VEL_MAX: at 0.3 m/s the vehicles fall behind a
+    # 0.75 m/s plan. Past the plan's margin each is warned about once; past --max-off-plan
+    # every vehicle is held and the flight is reported as stopped, exit 1.
+    plan = load_plan(plan_file)
+    capsys.readouterr()
+    argv = ["fly", str(plan_file), "--dry-run", "--profile", "ideal", "--max-off-plan", "0.6",
+            "--mock-param", "MPC_XY_VEL_MAX=0.3"]  # fmt: skip
+    rc = main(argv)
+    out, err = capsys.readouterr()
+    assert rc == 1, out + err
+    warned = [ln for ln in out.splitlines() if ln.startswith("warning: d")]
+    assert warned and all(f"the plan's margin {plan.robustness:.2f} m" in ln for ln in warned)
+    assert len({ln.split()[1] for ln in warned}) == len(warned)  # once per vehicle
+    stop = next(ln for ln in out.splitlines() if ln.startswith("safety stop:"))
+    assert "off its plan" in stop and "more than the bound 0.6 m" in stop
+    assert "commanded hold to all vehicles" in stop
+    assert "(WARNING: more than the plan's margin" in out
+    # the bound can be switched off: the same flight then runs to its end
+    capsys.readouterr()
+    assert main([*argv[:6], "0", *argv[7:], "--json"]) == 1  # flown, but the spec fails
+    res = json.loads(capsys.readouterr().out)
+    assert res["safety_event"] is None
+    assert max(res["monitor"]["off_plan_max_m"].values()) > 0.6

@@ -190,3 +190,69 @@ def test_the_run_evaluates_on_its_own_thread_and_reports_late_vehicles() -> None
     # the frame map the run used is the exact one
     fmap = NedToEnuMap.between(origin, other)
     np.testing.assert_allclose(fmap.position(vehicles[1].pos), starts["d2"], atol=1e-6)
+
+
+class FakeFleet:
+    """What the monitor's stop needs: the vehicles and ``for_each`` (records the action)."""
+
+    def __init__(self, vehicles: list[FakeVehicle]) -> None:
+        self.vehicles = vehicles
+        self.stopped: list[str] = []
+
+    def __iter__(self):  # type: ignore[no-untyped-def]
+        return iter(self.vehicles)
+
+    async def for_each(self, fn, vehicles):  # type: ignore[no-untyped-def]
+        self.stopped += [v.name for v in vehicles]
+        return {}
+
+
+def hover_plan(name: str, at_enu: np.ndarray) -> Trajectory:
+    c = np.zeros((1, 3, 6))
+    c[0, :, 0] = at_enu
+    return Trajectory([0.0], [10.0], c, name=name)
+
+
+@pytest.mark.parametrize("bound", [None, 1.0])
+def test_the_tracking_alarm_warns_past_the_margin_once_and_holds_past_the_bound(bound) -> None:  # type: ignore[no-untyped-def]  # fmt: skip
+    origin = GeodeticPoint(47.397742, 8.545594, 488.0)
+    plans = {"d1": hover_plan("d1", np.array([-1.5, 1.5, 1.5])),
+             "d2": hover_plan("d2", np.array([1.5, -1.5, 1.5]))}  # fmt: skip
+    # d1 on its plan, d2 1.2 m east and 0.5 m up of it (1.3 m off)
+    flown = {"d1": np.array([-1.5, 1.5, 1.5]), "d2": np.array([2.7, -1.5, 2.0])}
+    vehicles = [FakeVehicle(n, enu_to_ned(flown[n], origin, origin), 0.02, origin) for n in plans]
+    fleet = FakeFleet(vehicles)
+    lines: list[str] = []
+    mon = SafetyMonitor((), horizon_s=0.5, warn_off_plan_m=0.5, max_off_plan_m=bound,
+                        on_warning=lines.append)  # fmt: skip
+
+    async def run():  # type: ignore[no-untyped-def]
+        stop = asyncio.Event()
+        task = asyncio.create_task(
+            mon.run(
+                fleet,  # type: ignore[arg-type]
+                vehicles,  # type: ignore[arg-type]
+                t0_monotonic_s=time.monotonic(),
+                mission_origin=origin,
+                origins=dict.fromkeys(plans, origin),
+                stop=stop,
+                plans=plans,
+            )
+        )
+        await asyncio.sleep(0.4)
+        stop.set()
+        return await task
+
+    event = asyncio.run(run())
+    off = float(np.hypot(1.2, 0.5))
+    assert mon.stats.off_plan_max_m["d2"] == pytest.approx(off, abs=1e-6)
+    assert mon.stats.off_plan_max_m["d1"] == pytest.approx(0.0, abs=1e-6)
+    assert list(mon.stats.warned) == ["d2"] and len(lines) == 1  # once, however many ticks
+    assert "d2 is 1.30 m from its plan" in lines[0] and "margin 0.50 m" in lines[0]
+    if bound is None:
+        assert event is None and mon.checks >= 3 and fleet.stopped == []
+    else:
+        assert event is not None and event.verdict is Verdict.OFF_PLAN
+        assert event.vehicles == ("d2",) and fleet.stopped == ["d1", "d2"]
+        assert "d2 1.30 m from the plan, more than the bound 1 m" in event.describe()
+    assert mon.stats.as_json()["off_plan_warned"]["d2"]["off_m"] == pytest.approx(off, abs=1e-6)  # type: ignore[index]  # fmt: skip
