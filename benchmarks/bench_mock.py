@@ -299,6 +299,17 @@ def _calibration(seeds: int) -> dict:  # type: ignore[type-arg]
                 [r["flown_robustness"] for r in pl_now if r.get("flown_robustness")],
             ),
         ]
+        from gcs.missions import convert_plan
+        from mavlink.mission import MissionEnd
+        from planner.planfile import load_plan
+
+        pl_plan = load_plan(plans["powerline"])
+        late = {
+            r: convert_plan(pl_plan, end=MissionEnd.HOLD, iterations=1, acceptance_m=r).late_s
+            for r in (1.0, 0.3)
+        }
+        out["rows"].append((px4.POWERLINE_MISSION_LATE, list(late[1.0].values())))
+        out["missions_late_r03"] = list(late[0.3].values())
         out["reach_avoid_failed"] = (failed, len(whole))
         out["safety_stops"] = sum(1 for r in whole if r.get("safety_event"))
         demo_dir = Path(tmp) / "demo"
@@ -326,8 +337,9 @@ def _print_calibration(cal: dict) -> None:  # type: ignore[type-arg]
         lo, hi = fig.band(px4.TOLERANCE)
         if fig is px4.DRAG_FREE_LAG:
             lo, hi = -0.2, 0.2
-        ok = bool(values) and all(lo <= v <= hi for v in values)
-        verdict = "yes" if ok else "NO"
+        inside = sum(1 for v in values if lo <= v <= hi)
+        ok = bool(values) and inside == len(values)
+        verdict = "yes" if ok else f"NO: {inside} of {len(values)} in"
         if fig is px4.POWERLINE_FLOWN:
             verdict = "(one PX4 flight: for information)"
         if fig is px4.POWERLINE_FF_FLOWN:
@@ -337,6 +349,11 @@ def _print_calibration(cal: dict) -> None:  # type: ignore[type-arg]
             f"{fig.what:<32} {mock:>14} {fig.unit:<2} {fig.lo:+.2f}..{fig.hi:+.2f} "
             f"{lo:+.2f}..{hi:+.2f}  {verdict}"
         )
+    r03 = cal["missions_late_r03"]
+    print(
+        f"power-line missions late with R 0.3 m: mock {min(r03):.1f}..{max(r03):.1f} s "
+        "(quiet estimator); PX4 SITL: 18-35 s lost on one waypoint, 3 of 4 unfinished at 90 s"
+    )
     failed, total = cal["reach_avoid_failed"]
     print(
         f"reach-avoid with the whole px4 vehicle, today's gcs: {failed} of {total} refused or "
@@ -442,6 +459,7 @@ def main() -> None:
                         for f, v in cal["rows"]
                     ],
                     "reach_avoid_failed": list(cal["reach_avoid_failed"]),
+                    "missions_late_r03_s": cal["missions_late_r03"],
                     "demo": cal["demo"],
                 },
                 "with_mavsdk": {k: round(v, 4) for k, v in cl.items()},

@@ -10,7 +10,11 @@ point, ground at ``down = 0``) driven by a PX4-like cascaded controller:
 * velocity loop (PI): ``a_cmd = a_ff + Kp_vel * (v_cmd - v) + Ki_vel * int(v_cmd - v)``,
   limited to ``acc_xy_max_m_s2`` horizontally and ``acc_up_max_m_s2`` /
   ``acc_dn_max_m_s2`` vertically;
-* the airframe follows ``a_cmd`` with a first-order lag (``thrust_tau_s``) and feels
+* the airframe turns ``a_cmd`` into acceleration through two lags, as PX4 on SIH does:
+  horizontally the tilt follows PX4's attitude loop, a first-order lag of
+  ``1 / MC_ROLL_P`` (``att_tau_s``, 0.25 s with PX4's default gain 4; the rate loop
+  inside it is fast), and every axis then the rotors' thrust lag (SIH_T_TAU, 0.05 s);
+  ``att_tau_s = 0`` (the ideal profile) makes the tilt follow at once.  It feels
   linear aerodynamic drag ``-kdv * (v - wind)`` (SIH_KDV, 1/s for SIH's 1 kg quad), which
   the controller does not model: at a steady speed ``v`` it trails its setpoint by
   ``kdv / (Kp_pos * Kp_vel)`` seconds until the velocity integrator catches up, as PX4
@@ -59,7 +63,10 @@ class FleetPhysics:
         self.rng = rng
         self.wind = wind or WindConfig()
         self.noise = noise or NoiseConfig()
-        self._alpha = min(1.0, dt_s / thrust_tau_s)
+        self._alpha = np.full(n, min(1.0, dt_s / thrust_tau_s))
+        #: per vehicle: the tilt's time constant (1 / MC_ROLL_P; 0: the tilt follows at once)
+        self.att_tau_s = np.zeros(n)
+        self._acc_tilt = np.zeros((n, 2))  # the horizontal acceleration the tilt asks for
         # true state (spawn frame) and the estimate the controller flies on (local frame)
         self.true_pos_ned_m = np.zeros((n, 3))
         self.true_vel_ned_m_s = np.zeros((n, 3))
@@ -107,6 +114,10 @@ class FleetPhysics:
         self.pitch_rad = np.zeros(n)
         self.roll_rate_rad_s = np.zeros(n)
         self.pitch_rate_rad_s = np.zeros(n)
+
+    def set_thrust_tau(self, i: int, tau_s: float) -> None:
+        """The rotors' first-order time constant of vehicle ``i`` (SIH_T_TAU)."""
+        self._alpha[i] = min(1.0, self.dt_s / max(tau_s, 1e-9))
 
     def update_estimate(self) -> None:
         """Recompute the estimate from the truth without advancing time (after a reset)."""
@@ -207,9 +218,14 @@ class FleetPhysics:
         self._vel_int += err_arw * self.ki_vel * dt * armed_col
         self._vel_int *= vel_ctl * armed_col  # PX4 resets the integrators on the ground
         a_cmd *= armed_col
-        # airframe: thrust lag, wind, gravity when disarmed
+        # airframe: the tilt's lag (horizontal), the rotors' (all axes), wind, gravity
+        tilt = self._acc_tilt
+        follow = np.minimum(1.0, dt / np.maximum(self.att_tau_s, 1e-9))
+        tilt += (a_cmd[:, :2] - tilt) * follow[:, None]
         acc = self.acc_ned_m_s2
-        acc += (a_cmd - acc) * self._alpha
+        alpha = self._alpha[:, None]
+        acc[:, :2] += (tilt - acc[:, :2]) * alpha
+        acc[:, 2] += (a_cmd[:, 2] - acc[:, 2]) * alpha[:, 0]
         a_total = acc.copy()
         pos, vel = self.true_pos_ned_m, self.true_vel_ned_m_s
         airborne = pos[:, 2] < _GROUND_D_M - 1e-3

@@ -7,6 +7,8 @@ or set by any client through the MAVLink parameter protocol.
 
 ``px4`` (the default)
     PX4 v1.17 SITL with its SIH quad-rotor, as observed in ``shared/PX4-BEHAVIOUR.md``:
+    PX4's attitude loop between the acceleration asked and the one flown (the tilt
+    follows at 1 / MC_ROLL_P = 0.25 s, then the rotors at SIH_T_TAU = 0.05 s);
     linear drag (SIH_KDV 1/s) that PX4's position controller does not compensate, so
     the vehicle trails its setpoints by KDV / (MPC_XY_P * MPC_XY_VEL_P_ACC) = 0.585 s
     until the velocity integrator catches up; the loops closed on a biased, noisy
@@ -52,6 +54,7 @@ _IDEAL: dict[str, float] = {
     "MOCK_GE_MIN": 0.0,
     "MOCK_GE_MAX": 0.0,
     "MOCK_PX4_NAV": 0,
+    "MOCK_ATT_DYN": 0,
     "MOCK_MIS_RDY_T": 0.0,
     "SYS_AUTOSTART": 4001,
     # takes off exactly to any height: take-offs count as reached 0.2 m from the target

@@ -152,6 +152,8 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("COM_RC_IN_MODE", ParamType.INT32, 3),
     ParamSpec("GF_ACTION", ParamType.INT32, 2),
     ParamSpec("GF_PREDICT", ParamType.INT32, 1, 0.0, 1.0),
+    ParamSpec("MC_PITCH_P", ParamType.REAL32, 4.0, 0.0, 12.0),
+    ParamSpec("MC_ROLL_P", ParamType.REAL32, 4.0, 0.0, 12.0),
     ParamSpec("MC_YAWRATE_MAX", ParamType.REAL32, 200.0, 0.0, 1800.0),
     ParamSpec("MC_YAW_P", ParamType.REAL32, 2.8, 0.0, 5.0),
     ParamSpec("MIS_TAKEOFF_ALT", ParamType.REAL32, 2.5),
@@ -166,6 +168,7 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("MPC_TKO_RAMP_T", ParamType.REAL32, 3.0, 0.0, 10.0),
     ParamSpec("MPC_TKO_SPEED", ParamType.REAL32, 1.5),
     ParamSpec("MPC_XY_CRUISE", ParamType.REAL32, 5.0),
+    ParamSpec("MPC_XY_ERR_MAX", ParamType.REAL32, 2.0, 0.1, 10.0),
     ParamSpec("MPC_XY_P", ParamType.REAL32, 0.95),
     ParamSpec("MPC_XY_TRAJ_P", ParamType.REAL32, 0.5, 0.1, 1.0),
     ParamSpec("MPC_XY_VEL_D_ACC", ParamType.REAL32, 0.2, 0.0, 2.0),
@@ -184,6 +187,7 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("RTL_RETURN_ALT", ParamType.REAL32, 60.0),
     ParamSpec("SIH_KDV", ParamType.REAL32, 1.0, 0.0, 2.0),
     ParamSpec("SIH_MASS", ParamType.REAL32, 1.0, 0.1, 100.0),
+    ParamSpec("SIH_T_TAU", ParamType.REAL32, 0.05, 0.005, 1.0),
     ParamSpec("SYS_AUTOSTART", ParamType.INT32, 10040),
     # --- the mock's own: estimator error magnitudes (mavlink.mock.estimator) ---
     ParamSpec("MOCK_ORG_XY_MIN", ParamType.REAL32, 0.2, 0.0, 5.0),
@@ -204,6 +208,8 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("MOCK_GE_MAX", ParamType.REAL32, 1.2, 0.0, 5.0),
     # --- the mock's own: which PX4 v1.17 behaviours are modelled (1) or idealised (0) ---
     ParamSpec("MOCK_PX4_NAV", ParamType.INT32, 1, 0.0, 1.0),
+    # the tilt follows PX4's attitude loop (1 / MC_ROLL_P) rather than at once
+    ParamSpec("MOCK_ATT_DYN", ParamType.INT32, 1, 0.0, 1.0),
     ParamSpec("MOCK_MIS_RDY_T", ParamType.REAL32, 0.09, 0.0, 5.0),
     ParamSpec("MOCK_MC_NOW", ParamType.REAL32, 0.06, 0.0, 1.0),
 )

@@ -220,6 +220,9 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         self._traj_vel = np.zeros(3)
         self._traj_from = np.zeros(3)
         self._traj_exit_m_s = 0.0
+        self._leg_prev = np.zeros(3)  # PX4's previous triplet waypoint
+        self._leg_radius_m = 2.0  # the current item's acceptance radius
+        self._leg_next: np.ndarray | None = None
         # (due time, action) run by tick: PX4's late second COMMAND_ACK
         self._deferred: list[tuple[float, Callable[[], None]]] = []
         self._cmd_partner: tuple[int, int, int] = (0, 0, 0)
@@ -505,6 +508,10 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         p.kd_vel[i] = (prm["MPC_XY_VEL_D_ACC"], prm["MPC_XY_VEL_D_ACC"], prm["MPC_Z_VEL_D_ACC"])
         p.kdv_per_s[i] = prm["SIH_KDV"] / prm["SIH_MASS"]  # SIH: force per m/s over mass
         p.yaw_p[i] = prm["MC_YAW_P"]
+        # the tilt follows PX4's attitude loop (1 / MC_ROLL_P, MC_PITCH_P: the slower one)
+        gain = min(prm["MC_ROLL_P"], prm["MC_PITCH_P"])
+        p.att_tau_s[i] = 1.0 / gain if prm["MOCK_ATT_DYN"] >= 0.5 and gain > 0.0 else 0.0
+        p.set_thrust_tau(i, prm["SIH_T_TAU"])
         p.estimator.configure(i, EstimatorParams.from_params(prm), new_boot=False)
         self._apply_limits()
 

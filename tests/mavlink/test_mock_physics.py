@@ -122,3 +122,30 @@ def test_same_seed_same_flight_other_seed_other_flight() -> None:
     a, b, c = flight(11), flight(11), flight(12)
     assert np.array_equal(a, b)
     assert not np.allclose(a, c)
+
+
+def test_tilt_follows_the_attitude_loop_then_the_rotors_and_thrust_only_the_rotors() -> None:
+    # PX4 on SIH: the horizontal acceleration comes from the tilt, which the attitude loop
+    # brings to its setpoint with time constant 1 / MC_ROLL_P (0.25 s at PX4's gain 4);
+    # the rotors then follow with SIH_T_TAU (0.05 s).  Vertical acceleration is thrust
+    # alone.  An acceleration-only setpoint (no position or velocity loop) shows the two.
+    tau_att, tau_rot, dt = 0.25, 0.05, 0.01
+    p = airborne_fleet(2)
+    p.att_tau_s[:] = (tau_att, 0.0)  # vehicle 1: the ideal tilt, at once
+    for i in range(2):
+        p.set_thrust_tau(i, tau_rot)
+        p.set_axes(i, np.zeros(3), np.zeros(3), np.array([2.0, 0.0, -1.0]), np.zeros(3), np.zeros(3), np.ones(3))  # fmt: skip
+    _, _, acc = run(p, 1.5)
+    t = np.arange(1, len(acc) + 1) * dt
+
+    def two_lags(t: np.ndarray, a: float, b: float) -> np.ndarray:
+        return 1.0 - (a * np.exp(-t / a) - b * np.exp(-t / b)) / (a - b)
+
+    # (Euler steps of 0.01 s against the continuous responses)
+    assert np.allclose(acc[:, 0, 0] / 2.0, two_lags(t, tau_att, tau_rot), atol=0.035)
+    assert np.allclose(acc[:, 1, 0] / 2.0, 1.0 - np.exp(-t / tau_rot), atol=0.05)
+    for i in range(2):
+        assert np.allclose(acc[:, i, 2] / -1.0, 1.0 - np.exp(-t / tau_rot), atol=0.05)
+    # 63 % of the horizontal step after about tau_att + tau_rot, not after tau_rot
+    k63 = int(np.argmax(acc[:, 0, 0] >= 0.63 * 2.0))
+    assert 0.26 <= t[k63] <= 0.34

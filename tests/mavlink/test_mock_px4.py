@@ -139,6 +139,12 @@ def test_profiles_are_parameter_tables_readable_and_settable_over_mavlink() -> N
     v.receive(mavlink2.MAVLink_param_set_message(1, 1, b"SIH_KDV", 50.0, 9))
     (pv,) = [m for m in v.sent_messages() if m.get_type() == "PARAM_VALUE"]
     assert pv.param_value == pytest.approx(0.25) and f.physics.kdv_per_s[0] == 0.25
+    # the tilt's lag is PX4's attitude gain: 1 / min(MC_ROLL_P, MC_PITCH_P); at once on ideal
+    assert f.physics.att_tau_s[0] == pytest.approx(0.25)
+    assert MockFleet(n=1, profile="ideal").physics.att_tau_s[0] == 0.0
+    v.receive(mavlink2.MAVLink_param_set_message(1, 1, b"MC_PITCH_P", 8.0, 9))
+    v.receive(mavlink2.MAVLink_param_set_message(1, 1, b"MC_ROLL_P", 10.0, 9))
+    assert f.physics.att_tau_s[0] == pytest.approx(1.0 / 8.0)
     with pytest.raises(MockConfigError, match=r"unknown mock profile 'sitl'.*px4, ideal"):
         MockFleet(n=1, profile="sitl")
     with pytest.raises(MockConfigError, match=r"MPC_JERK_AUTO = 0.0 outside \[1, 80\]"):
@@ -419,6 +425,55 @@ def test_corner_speed_and_braking_follow_px4s_trajectory_law() -> None:
     # stop-at-the-next-waypoint look-ahead: about 3.6 m/s on 7.5 m legs
     assert max_speed_from_distance(4.0, 3.0, 7.5, 0.0) == pytest.approx(3.58, abs=0.01)
     assert corner_speed(o, a, a + np.array([0.5, 0.5, 0.0]), 1.0, p) == 0.0  # next within R
+
+
+@pytest.mark.parametrize("radius", [0.3, 2.0])
+def test_a_vehicle_off_the_leg_by_more_than_the_radius_is_sent_back_to_the_line_first(radius: float) -> None:  # fmt: skip
+    # PX4's FlightTaskAuto::_getCurrentState: farther than the acceptance radius from the
+    # leg (previous waypoint -> target), the trajectory heads for the closest point on the
+    # leg ("offtrack"), not for the target.
+    f = fleet(seed=3, **QUIET, **NO_CREEP)
+    v = f.vehicles[0]
+    airborne(f, v, 5.0, 10.0)
+    n0, e0, _ = f.physics.pos_ned_m[0]
+    upload(f, v, mission_items(v, [(n0, e0), (n0 + 30.0, e0)], 5.0, radius))
+    start_mission(f, v)
+    f.advance(4.0)  # on the leg north, at speed
+    speed = f.physics.sp_vel_ned_m_s[0, 0]
+    assert speed > 1.0 and abs(f.physics.pos_ned_m[0, 1] - e0) < 0.1
+    # a gust puts it 1 m east of the line
+    f.physics.true_pos_ned_m[0, 1] += 1.0
+    f.physics.update_estimate()
+    f.advance(1.0)
+    after = f.physics.sp_vel_ned_m_s[0, 0]
+    if radius < 1.0:
+        # the setpoint turns back for the closest point on the line, behind it (braking at
+        # MPC_ACC_HOR), while the position loop pulls the vehicle west onto the line
+        assert after < speed - 1.0, (speed, after)
+    else:
+        # within the radius of the line: the setpoint keeps going along the leg
+        assert after > speed - 0.2, (speed, after)
+
+
+def test_the_trajectory_waits_for_a_vehicle_that_trails_it() -> None:
+    # PX4's PositionSmoothing: while the vehicle is behind its setpoint, the setpoint's clock
+    # runs at 1 - error / MPC_XY_ERR_MAX: a vehicle trailing by 2 m or more holds it still.
+    def setpoint_advance(err_max: float) -> float:
+        f = fleet(seed=3, **QUIET, **NO_CREEP, MPC_XY_ERR_MAX=err_max)
+        v = f.vehicles[0]
+        airborne(f, v, 5.0, 10.0)
+        n0, e0, _ = f.physics.pos_ned_m[0]
+        upload(f, v, mission_items(v, [(n0, e0), (n0 + 40.0, e0)], 5.0, 1.0))
+        start_mission(f, v)
+        f.advance(5.0)
+        f.physics.true_pos_ned_m[0, 0] -= 1.0  # the vehicle 1 m further behind
+        f.physics.update_estimate()
+        before = f.physics.sp_pos_ned_m[0, 0]
+        f.advance(0.05)
+        return float(f.physics.sp_pos_ned_m[0, 0] - before)
+
+    free, held = setpoint_advance(10.0), setpoint_advance(1.0)
+    assert free > 0.1 and held == pytest.approx(0.0, abs=1e-9)
 
 
 def test_missions_slow_at_every_waypoint_and_a_small_circle_missed_in_wind_costs_seconds() -> None:  # fmt: skip
