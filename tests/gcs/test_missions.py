@@ -30,6 +30,7 @@ def test_a_leg_takes_at_least_its_acceleration_limited_time_and_a_hold_is_held()
     mp = trajectory_to_mission(traj, ORIGIN, acceptance_radius_m=0.6, end=MissionEnd.HOLD)
     wps = [i.seq for i in mp.items if i.command == Cmd.NAV_WAYPOINT]
     assert mp.hold_s.tolist() == [0.0, 10.0, 0.0]
+
     def predict(**params: float):  # type: ignore[no-untyped-def]
         return predict_missions(
             {"d1": mp.items}, {"d1": (0.0, 0.0, 3.0)}, ORIGIN, duration_s=40.0,
