@@ -186,10 +186,11 @@ def test_lost_link_mid_flight_is_reported_and_the_hold_reaches_the_other_vehicle
     trajs = {v.name: v.trajectory for v in plan.vehicles}
     spawns = [(v.start_enu_m[0], v.start_enu_m[1], 0.0) for v in plan.vehicles]
 
+    started = asyncio.Event()
+
     async def cut_link_of_d2(mock, fleet) -> float:
-        # Once both fly in offboard, cut d2's link (both directions) for good.
-        while not all(v.state.mode is MockMode.OFFBOARD for v in mock.vehicles):
-            await asyncio.sleep(0.02)
+        # 1 s into the plan (both flying it in offboard), cut d2's link both ways for good.
+        await started.wait()
         await asyncio.sleep(1.0)
         now = mock.time_s
         mock.configure_links(mock.vehicles[1], FaultConfig(outages=(Outage(now, now + 600.0),)))
@@ -198,9 +199,11 @@ def test_lost_link_mid_flight_is_reported_and_the_hold_reaches_the_other_vehicle
     async def run():
         async with mock_and_fleet(names, plan.origin, spawns, link_timeout_s=1.5) as (mock, fleet):
             cutter = asyncio.create_task(cut_link_of_d2(mock, fleet))
-            # no dwell at the start: the cut falls at a known plan time
+            loop = asyncio.get_running_loop()
+            # the links-only monitor, telling the cutter when the plan's clock starts
+            monitor = SafetyMonitor((), on_start=lambda _t0: loop.call_soon_threadsafe(started.set))
             cfg = OffboardConfig(rate_hz=20.0, dwell_s=0.0, arrive_m=1.0, yaw_tolerance_deg=180.0)
-            result = await fly_offboard(fleet, trajs, plan.origin, cfg)
+            result = await fly_offboard(fleet, trajs, plan.origin, cfg, monitor=monitor)
             t_cut = await cutter
             await asyncio.sleep(0.3)
             return result, t_cut, [v.state for v in mock.vehicles]
