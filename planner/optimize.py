@@ -53,9 +53,12 @@ Errors: bad scenarios are :class:`~planner.scenario.ScenarioError` (raised by
 
 from __future__ import annotations
 
+import contextlib
 import math
+import signal
+import threading
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -217,52 +220,54 @@ def plan(
     def exact_of(w: np.ndarray) -> float:
         return _evaluate(problem, formula, formulas, trajectories_of(w))[0]
 
-    run = _run_solvers(struct, w0, bounds, say, problem.solver.method.value)
-    w_opt, status = run.w, run.status
-    converged = _solved(status)  # of the solve whose point is returned
-    check_s = 0.0
-    if problem.solver.robustness_constraint:
-        # The paper's eq. (1): smooth robustness >= epsilon + margin as a constraint.  The
-        # margin starts at the smooth leaves' error bound; if the exact robustness on the
-        # dense samples still falls short (dips between constraint samples), the margin
-        # grows by the deficit and the solve restarts from the point it reached.  The best
-        # point of these rounds is kept.
-        eps = problem.epsilon
-        margin = struct.margin
-        t_check = time.perf_counter()
-        best = (exact_of(w_opt), w_opt, status)
-        check_s += time.perf_counter() - t_check
-        rob = best[0]
-        for _ in range(_EPS_ROUNDS):
-            if rob >= eps or not _solved(status):
-                break
-            margin += eps - rob + _EPS_MARGIN_STEP_M
-            _lower_r(lbx, ubx, eps + margin)
-            w_start = w_opt.copy()
-            w_start[-1] = lbx[-1]
-            run = run.then(_run_solvers(struct, w_start, bounds, say, "eq. (1) margin"))
-            w_opt, status = run.w, run.status
+    # Ctrl-C stops the solve in hand and any after it; the best point so far is the plan
+    with _watch_sigint() as stop:
+        run = _run_solvers(struct, w0, bounds, say, problem.solver.method.value, stop)
+        w_opt, status = run.w, run.status
+        converged = _solved(status)  # of the solve whose point is returned
+        check_s = 0.0
+        if problem.solver.robustness_constraint:
+            # The paper's eq. (1): smooth robustness >= epsilon + margin as a constraint.  The
+            # margin starts at the smooth leaves' error bound; if the exact robustness on the
+            # dense samples still falls short (dips between constraint samples), the margin
+            # grows by the deficit and the solve restarts from the point it reached.  The best
+            # point of these rounds is kept.
+            eps = problem.epsilon
+            margin = struct.margin
             t_check = time.perf_counter()
-            rob = exact_of(w_opt)
+            best = (exact_of(w_opt), w_opt, status)
             check_s += time.perf_counter() - t_check
-            if rob > best[0]:
-                best = (rob, w_opt, status)
-        rob, w_opt, status = best
-        converged = _solved(status)
-        if rob < eps:
-            # Infeasible as constrained: the plain maximisation from the same start finds
-            # the best trajectories there are (a failed result carries the best found).
-            lbx[-1], ubx[-1] = struct.lbx[-1], struct.ubx[-1]
-            plain = _run_solvers(struct, w0, bounds, say, "plain maximisation")
-            t_check = time.perf_counter()
-            if exact_of(plain.w) > rob:
-                w_opt = plain.w
-                converged = _solved(plain.status)
-                status = (
-                    f"eq. (1) constraint not met ({status}); plain maximisation: {plain.status}"
-                )
-            check_s += time.perf_counter() - t_check
-            run = run.then(plain)
+            rob = best[0]
+            for _ in range(_EPS_ROUNDS):
+                if rob >= eps or not _solved(status) or stop.hit:
+                    break
+                margin += eps - rob + _EPS_MARGIN_STEP_M
+                _lower_r(lbx, ubx, eps + margin)
+                w_start = w_opt.copy()
+                w_start[-1] = lbx[-1]
+                run = run.then(_run_solvers(struct, w_start, bounds, say, "eq. (1) margin", stop))
+                w_opt, status = run.w, run.status
+                t_check = time.perf_counter()
+                rob = exact_of(w_opt)
+                check_s += time.perf_counter() - t_check
+                if rob > best[0]:
+                    best = (rob, w_opt, status)
+            rob, w_opt, status = best
+            converged = _solved(status)
+            if rob < eps and not stop.hit:
+                # Infeasible as constrained: the plain maximisation from the same start finds
+                # the best trajectories there are (a failed result carries the best found).
+                lbx[-1], ubx[-1] = struct.lbx[-1], struct.ubx[-1]
+                plain = _run_solvers(struct, w0, bounds, say, "plain maximisation", stop)
+                t_check = time.perf_counter()
+                if exact_of(plain.w) > rob:
+                    w_opt = plain.w
+                    converged = _solved(plain.status)
+                    status = (
+                        f"eq. (1) constraint not met ({status}); plain maximisation: {plain.status}"
+                    )
+                check_s += time.perf_counter() - t_check
+                run = run.then(plain)
 
     say("checking on dense samples")
     # The smooth value at the point returned (r itself may sit on a bound, eq. (1)).
@@ -305,7 +310,9 @@ def plan(
     return PlanResult(
         problem=problem,
         success=success,
-        status=_user_status(status, converged, success, rob < problem.epsilon, verdict),
+        status=_user_status(
+            status, converged, success, rob < problem.epsilon, verdict, interrupted=stop.hit
+        ),
         robustness=rob,
         robustness_planning_grid=rob_grid,
         smooth_robustness=smooth,
@@ -339,14 +346,26 @@ def _lower_r(lbx: np.ndarray, ubx: np.ndarray, value: float) -> None:
     ubx[-1] = max(ubx[-1], value + _EPS_MARGIN_STEP_M)
 
 
-def _user_status(solver: str, converged: bool, success: bool, short: bool, verdict: str) -> str:
+def _user_status(
+    solver: str,
+    converged: bool,
+    success: bool,
+    short: bool,
+    verdict: str,
+    *,
+    interrupted: bool = False,
+) -> str:
     """The outcome in the user's terms first, the solver's own status after (in brackets):
     "the solver converged but the mission is not met: robustness -111 < epsilon 0.01 ...",
     never "Solve_Succeeded" on a plan that fails."""
-    if success:
+    if interrupted:
+        head = "interrupted (Ctrl-C); the best plan so far" + (
+            ", and it meets the mission" if success else ""
+        )
+    elif success:
         head = "the mission is met"
     elif "NonIpopt_Exception_Thrown" in solver or "User_Requested_Stop" in solver:
-        head = "the solver was stopped (interrupted, or an error inside it); the best plan found"
+        head = "the solver stopped on an error inside it; the best plan found"
     elif not converged:
         head = "the solver did not converge; the best plan found"
     elif short:
@@ -385,22 +404,56 @@ class _Run:
         )
 
 
+class _SigintWatch:
+    """Whether Ctrl-C came during the solve (:func:`_watch_sigint`)."""
+
+    hit = False
+
+
+@contextlib.contextmanager
+def _watch_sigint() -> Iterator[_SigintWatch]:
+    """Note a Ctrl-C (SIGINT) and pass it on as usual: CasADi's solver stops at its next
+    check and returns its last iterate, which the planner keeps as the best so far.  Only
+    in the main thread (signal handlers live there); elsewhere nothing is installed."""
+    watch = _SigintWatch()
+    if threading.current_thread() is not threading.main_thread():
+        yield watch
+        return
+    previous = signal.getsignal(signal.SIGINT)
+
+    def handler(signum: int, frame: Any) -> None:
+        watch.hit = True
+        if callable(previous):
+            previous(signum, frame)
+        else:
+            raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, handler)
+    try:
+        yield watch
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def _run_solvers(
     struct: _Structure,
     w0: np.ndarray,
     bounds: Mapping[str, np.ndarray],
     say: Callable[[str], None],
     what: str,
+    stop: _SigintWatch,
 ) -> _Run:
     """Run the structure's solvers in turn (the k continuation), each warm started from the
-    previous one's primal-dual point.  ``bounds`` are read at call time (``lbx`` may change
-    between calls)."""
+    previous one's primal-dual point, until one is interrupted (``stop``).  ``bounds`` are
+    read at call time (``lbx`` may change between calls)."""
     iterations = 0
     solver_s = eval_s = 0.0
     status = "not solved"
     w_opt = w0
     lam_x = lam_g = None
     for k, solver in struct.solvers:
+        if stop.hit:
+            break
         say(f"solving with {what} (k={k:.3g})")
         args: dict[str, Any] = {"x0": w_opt, **bounds}
         if lam_x is not None:

@@ -113,3 +113,29 @@ def test_writable_output_check_leaves_an_existing_file_alone(
     check_writable(tmp_path / "new.json")
     assert old.read_text() == "previous plan\n" and old.stat().st_mtime_ns == mtime_ns
     assert sorted(tmp_path.iterdir()) == [old]
+
+
+@pytest.mark.slow
+def test_ctrl_c_during_the_solve_writes_the_best_plan_so_far_and_says_so(tmp_path: Path) -> None:
+    import signal
+    import time
+
+    from tests.procutil import interruptible
+
+    out = tmp_path / "p.json"
+    # 8 drones on the power line: a build of seconds, then an IPOPT solve of seconds more
+    argv = [sys.executable, "-m", "gcs.cli", "plan", str(CONFIGS / "powerline_inspection.yaml"),
+            "--vehicles", "8", "-o", str(out), "--json"]  # fmt: skip
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=interruptible)  # fmt: skip
+    assert proc.stderr is not None
+    for line in proc.stderr:  # progress: one line per stage
+        if "solving with ipopt" in line:
+            break
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=120)
+    summary = json.loads(stdout)
+    assert summary["status"].startswith("interrupted (Ctrl-C); the best plan so far"), summary
+    assert "Traceback" not in stderr
+    assert json.loads(out.read_text())["format"] == "stl-gcs-plan"  # written all the same
