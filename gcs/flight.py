@@ -196,11 +196,13 @@ def preflight_interlock(plan: Plan, *, force: bool = False) -> tuple[Check, ...]
     return checks
 
 
-def vehicle_specs(plan: Plan, urls: Sequence[str] | None = None) -> tuple[VehicleSpec, ...]:
+def vehicle_specs(
+    plan: Plan, urls: Sequence[str] | None = None, base_port: int = 14540
+) -> tuple[VehicleSpec, ...]:
     """How to reach each vehicle of ``plan``, in plan order.
 
-    Vehicle ``i`` uses ``urls[i]`` or, with no URLs, ``udpin://0.0.0.0:{14540+i}`` (PX4 SITL);
-    its system id is the plan's (``i + 1`` for plans written by ``gcs plan``).
+    Vehicle ``i`` uses ``urls[i]`` or, with no URLs, ``udpin://0.0.0.0:{base_port+i}`` (PX4
+    SITL: 14540 + i); its system id is the plan's (``i + 1`` for plans written by ``gcs plan``).
 
     Raises:
         UserError: a number of URLs other than the number of vehicles.
@@ -218,7 +220,7 @@ def vehicle_specs(plan: Plan, urls: Sequence[str] | None = None) -> tuple[Vehicl
         )
     out = []
     for i, v in enumerate(plan.vehicles):
-        url = urls[i] if urls else default_url(i)
+        url = urls[i] if urls else default_url(i, base_port)
         parse_url(url, vehicle=v.name)
         out.append(VehicleSpec(v.name, url, v.sysid))
     return tuple(out)

@@ -60,10 +60,20 @@ from mavlink.px4_modes import (
     decode_custom_mode,
     set_mode_params,
 )
-from mavlink.urls import default_sysid, default_url, parse_url
+from mavlink.urls import Scheme, default_sysid, default_url, parse_url
 from planner.frames import GeodeticPoint
 
 log = logging.getLogger(__name__)
+
+#: MAV_AUTOPILOT of PX4 in its HEARTBEAT.
+MAV_AUTOPILOT_PX4 = 12
+_AUTOPILOTS = {0: "generic", 3: "ArduPilot", 8: "invalid (not an autopilot)", 12: "PX4"}
+
+
+def _autopilot_name(value: int) -> str:
+    name = _AUTOPILOTS.get(value)
+    return f", {name}" if name else ""
+
 
 MAV_CMD_NAV_TAKEOFF = 22
 #: MAVSDK's system id as a ground station (component 190).
@@ -897,10 +907,47 @@ class Fleet:
         urls = [parse_url(s.url, vehicle=s.name) for s in self.specs]
         sysids = [s.sysid for s in self.specs]
         heard = await scan_udpin(urls, self.scan_s, expect=sysids)
+        for spec, url in zip(self.specs, urls, strict=True):
+            why = heard.busy.get(str(url))
+            if why is not None:
+                raise LinkError(
+                    f"port {url.port} cannot be opened ({why}): another program (a ground "
+                    "station, QGroundControl, a MAVSDK server, another gcs) uses it; close it, "
+                    "or choose other ports with --base-port or --connection",
+                    vehicle=spec.name,
+                    url=spec.url,
+                )
         found = duplicates(heard, sysids)
         if found:
             spec = next(s for s in self.specs if s.sysid == found[0].sysid)
             raise DuplicateSystemError(found[0].describe(), vehicle=spec.name, url=spec.url)
+        for spec, url in zip(self.specs, urls, strict=True):
+            if url.scheme is not Scheme.UDPIN:
+                continue
+            expected = {s.sysid for s, u in zip(self.specs, urls, strict=True) if u == url}
+            there = heard.sysids_on(str(url))
+            if there and not there & expected:
+                raise LinkError(
+                    f"system id(s) {', '.join(map(str, sorted(there)))} answer on port "
+                    f"{url.port}, not {spec.sysid}: another program's vehicle, or a vehicle "
+                    f"configured with another MAV_SYS_ID (give --connection per vehicle, and "
+                    "the plan's system ids)",
+                    vehicle=spec.name,
+                    url=spec.url,
+                )
+            kinds = {
+                snd.autopilot
+                for snd in heard.senders.get(spec.sysid, {}).values()
+                if snd.url == str(url) and snd.autopilot is not None
+            }
+            if kinds and MAV_AUTOPILOT_PX4 not in kinds:
+                raise LinkError(
+                    f"system id {spec.sysid} on port {url.port} is not PX4 (its heartbeat says "
+                    f"MAV_AUTOPILOT {min(kinds)}{_autopilot_name(min(kinds))}): stl-gcs flies "
+                    "PX4 vehicles",
+                    vehicle=spec.name,
+                    url=spec.url,
+                )
 
     async def _first_heartbeat(self, v: Vehicle) -> None:
         """Wait for ``v``'s first autopilot HEARTBEAT; ConnectTimeoutError naming it if none."""

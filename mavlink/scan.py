@@ -38,18 +38,26 @@ class Sender:
         url: the udpin URL it was heard on.
         boot_s: ``time.monotonic()`` at which its autopilot booted, as its latest
             ``time_boot_ms`` implies (``None``: no message with a clock heard).
+        autopilot: the MAV_AUTOPILOT of its HEARTBEAT (``None``: no heartbeat heard).
     """
 
     address: tuple[str, int]
     url: str
     boot_s: float | None = None
+    autopilot: int | None = None
 
 
 @dataclass(slots=True)
 class Heard:
-    """Every autopilot heard during a scan: system id -> its senders by address."""
+    """Every autopilot heard during a scan: system id -> its senders by address; and the
+    URLs whose port could not be bound (URL -> the reason)."""
 
     senders: dict[int, dict[tuple[str, int], Sender]] = field(default_factory=dict)
+    busy: dict[str, str] = field(default_factory=dict)
+
+    def sysids_on(self, url: str) -> set[int]:
+        """The system ids heard on ``url``."""
+        return {i for i, by in self.senders.items() if any(s.url == url for s in by.values())}
 
 
 def parse_frame(data: bytes) -> tuple[int, int, int, bytes] | None:
@@ -79,6 +87,8 @@ class _Listener(asyncio.DatagramProtocol):
         sender = self.heard.senders.setdefault(sysid, {}).setdefault(
             address, Sender(address, self.url)
         )
+        if msgid == 0:  # HEARTBEAT: custom_mode (uint32), type, autopilot, ...
+            sender.autopilot = payload.ljust(6, b"\0")[5]
         at = _BOOT_MS_AT.get(msgid)
         if at is not None:
             raw = payload.ljust(at + 4, b"\0")
@@ -98,7 +108,7 @@ async def scan_udpin(
     skipped: nothing arrives on them unasked); after ``min_s`` stop as soon as every system
     id of ``expect`` has been heard with its clock (PX4 streams attitude and position many
     times a second, so a second autopilot on the same id has been heard by then too). A port
-    that cannot be bound is skipped (MAVSDK then reports it as it opens it)."""
+    that cannot be bound is skipped and recorded in :attr:`Heard.busy`."""
     wanted = set(expect)
     heard = Heard()
     loop = asyncio.get_running_loop()
@@ -111,7 +121,8 @@ async def scan_udpin(
                 local_addr=(url.host, url.port),
                 family=family,
             )
-        except OSError:
+        except OSError as exc:
+            heard.busy[str(url)] = exc.strerror or str(exc)
             continue
         transports.append(transport)
     try:

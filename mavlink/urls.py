@@ -151,11 +151,12 @@ def parse_url(text: str, *, vehicle: str | None = None) -> ConnectionUrl:
     return ConnectionUrl(scheme, host=host, port=int(port_text))
 
 
-def default_url(index: int) -> str:
-    """URL of vehicle instance ``index`` (0-based) by the PX4 SITL convention."""
-    if index < 0 or GCS_BASE_PORT + index > 65535:
-        raise UrlError(f"vehicle index {index} has no default port")
-    return f"udpin://0.0.0.0:{GCS_BASE_PORT + index}"
+def default_url(index: int, base_port: int = GCS_BASE_PORT) -> str:
+    """URL of vehicle instance ``index`` (0-based) by the PX4 SITL convention:
+    ``udpin://0.0.0.0:{base_port + index}`` (14540 + index by default)."""
+    if index < 0 or not 1 <= base_port + index <= 65535:
+        raise UrlError(f"vehicle index {index} has no port from base port {base_port}")
+    return f"udpin://0.0.0.0:{base_port + index}"
 
 
 def default_sysid(index: int) -> int:

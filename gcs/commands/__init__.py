@@ -27,6 +27,14 @@ def add_link_arguments(
         help=f"connection URL of the next vehicle ({order}); default "
         "udpin://0.0.0.0:14540+i (PX4 SITL)",
     )
+    p.add_argument(
+        "--base-port",
+        type=int,
+        default=14540,
+        metavar="PORT",
+        help="without --connection, vehicle i is udpin://0.0.0.0:PORT+i (14540: PX4 SITL); "
+        "other ports keep clear of another program's vehicles (gcs mock --base-port)",
+    )
     p.add_argument(timeout_flag, type=float, default=timeout_s, metavar="S", help=timeout_help)
     p.add_argument(
         "--signing-key",

@@ -153,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
     progress = FlightProgress(plan, out)
 
     def fly(urls: list[str] | None) -> FlightOutcome:
-        specs = vehicle_specs(plan, urls)
+        specs = vehicle_specs(plan, urls, args.base_port)
 
         async def signed_flight() -> FlightOutcome:
             async with signed_links(specs, args.signing_key) as links:

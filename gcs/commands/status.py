@@ -85,7 +85,7 @@ def _enum_name(enum: str, value: Any, prefix: str) -> str | None:
 
 
 def specs_for(
-    urls: list[str] | None, sysids: list[int] | None, vehicles: int
+    urls: list[str] | None, sysids: list[int] | None, vehicles: int, base_port: int = 14540
 ) -> tuple[VehicleSpec, ...]:
     """Vehicle specs from the options (see module docstring).
 
@@ -102,7 +102,7 @@ def specs_for(
         if not 1 <= vehicles <= 254:
             raise UserError(f"--vehicles: must be 1..254, got {vehicles}")
         n = vehicles
-        urls = [default_url(i) for i in range(n)]
+        urls = [default_url(i, base_port) for i in range(n)]
     if sysids is not None and len(sysids) != n:
         raise UserError(f"--sysid: {len(sysids)} given for {n} connection(s); give one each")
     ids = sysids if sysids is not None else list(range(1, n + 1))
@@ -211,7 +211,7 @@ def run(args: argparse.Namespace) -> int:
 
     if not (args.timeout > 0):
         raise UserError(f"--timeout: must be > 0 s, got {args.timeout:g}")
-    specs = specs_for(args.connection, args.sysid, args.vehicles)
+    specs = specs_for(args.connection, args.sysid, args.vehicles, args.base_port)
     from gcs.flight import signed_links
 
     async def signed_status() -> list[Any]:

@@ -369,7 +369,7 @@ def run(args: argparse.Namespace) -> int:
     if args.drag is not None and not (math.isfinite(args.drag) and 0 <= args.drag <= 10):
         raise UserError(f"--drag: must be a number in [0, 10] 1/s, got {args.drag:g}")
     plan = load_plan(args.plan)
-    specs = vehicle_specs(plan, args.connection)
+    specs = vehicle_specs(plan, args.connection, args.base_port)
     try:
         preflight_interlock(plan, force=args.force)
     except FlightRefused as exc:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import errno
 import random
 import threading
 from collections.abc import Iterator, Mapping, Sequence
@@ -298,9 +299,16 @@ class MockFleet:
                         lambda v=v: _VehicleProtocol(v), local_addr=(self.bind_host, port)
                     )
                 except OSError as exc:
+                    hint = (
+                        ": another program (PX4 SITL, another gcs mock) holds it; choose "
+                        "other ports with --vehicle-base-port (and --base-port for the ground "
+                        "station's)"
+                        if exc.errno == errno.EADDRINUSE
+                        else ""
+                    )
                     raise MockStartError(
                         f"vehicle {v.index} (sysid {v.sysid}): cannot bind UDP "
-                        f"{self.bind_host}:{port}: {exc.strerror or exc}"
+                        f"{self.bind_host}:{port}: {exc.strerror or exc}{hint}"
                     ) from exc
                 self._transports.append(transport)
                 self._protocols.append(protocol)

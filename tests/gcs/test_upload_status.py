@@ -251,3 +251,53 @@ def test_upload_start_refuses_a_mission_predicted_below_epsilon_unless_forced(
     assert main(["upload", str(edited), *_connections(urls)]) == 0
     assert main(["upload", str(edited), "--start", "--force", *_connections(urls)]) == 0
     assert all(v.state.armed for v in fleet.vehicles)
+
+
+def _free_run_of_ports(n: int) -> int:
+    """A base port with ``n`` consecutive free UDP ports (clear of PX4 SITL's 14540-14599)."""
+    import random
+    import socket
+
+    rng = random.Random()
+    for _ in range(200):
+        base = rng.randrange(20000, 60000)
+        socks = []
+        try:
+            for i in range(n):
+                s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                socks.append(s)
+                s.bind(("0.0.0.0", base + i))
+            return base
+        except OSError:
+            continue
+        finally:
+            for s in socks:
+                s.close()
+    raise RuntimeError("no run of free ports")
+
+
+def test_status_finds_vehicles_on_other_ports_by_base_port(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    base = _free_run_of_ports(2)
+    with MockFleet(
+        n=2, gcs_ports=[base, base + 1], vehicle_ports=free_udp_ports(2)
+    ).running_in_thread():
+        assert main(["status", "--base-port", str(base), "--vehicles", "2", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)["vehicles"]
+    assert [(r["sysid"], r["url"]) for r in rows] == [
+        (1, f"udpin://0.0.0.0:{base}"),
+        (2, f"udpin://0.0.0.0:{base + 1}"),
+    ]
+    # a port another program holds: one line naming it and the way out, exit 2
+    import socket
+
+    holder = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    holder.bind(("0.0.0.0", base))
+    try:
+        assert main(["status", "--base-port", str(base), "--vehicles", "1"]) == 2
+    finally:
+        holder.close()
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert f"port {base} cannot be opened" in err and "--base-port" in err

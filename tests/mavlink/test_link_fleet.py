@@ -76,16 +76,86 @@ def test_missing_vehicle_is_one_error_naming_it_its_url_and_what_was_seen() -> N
     )
 
 
-def test_a_port_in_use_is_a_link_error_naming_the_vehicle() -> None:
+def test_a_port_in_use_is_a_link_error_naming_the_vehicle_and_the_way_out() -> None:
     busy = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     busy.bind(("127.0.0.1", 0))
     port = busy.getsockname()[1]
     try:
+        # found by the scan before MAVSDK opens anything ...
         fleet = Fleet([VehicleSpec("d1", f"udpin://127.0.0.1:{port}", 1)], connect_timeout_s=1.0)
+        with pytest.raises(LinkError) as info:
+            asyncio.run(fleet.connect())
+        assert str(info.value).startswith(
+            f"vehicle d1 (udpin://127.0.0.1:{port}): port {port} cannot be opened (Address "
+            "already in use): another program"
+        )
+        assert "--base-port or --connection" in str(info.value)
+        # ... and by MAVSDK without the scan
+        fleet = Fleet(
+            [VehicleSpec("d1", f"udpin://127.0.0.1:{port}", 1)], connect_timeout_s=1.0, scan_s=0.0
+        )
         with pytest.raises(LinkError, match=r"^vehicle d1 \(udpin://127.0.0.1:\d+\): cannot open"):
             asyncio.run(fleet.connect())
     finally:
         busy.close()
+
+
+def test_another_system_id_on_the_port_is_named_at_once_not_waited_for() -> None:
+    gcs, vport = free_udp_ports(2)
+
+    async def run() -> tuple[LinkError, float]:
+        # a mock vehicle with system id 1 sends to the port where the fleet expects id 2
+        async with MockFleet(n=1, origin=ORIGIN, gcs_ports=[gcs], vehicle_ports=[vport]):
+            fleet = Fleet([VehicleSpec("d2", f"udpin://127.0.0.1:{gcs}", 2)], connect_timeout_s=10)
+            t0 = asyncio.get_running_loop().time()
+            with pytest.raises(LinkError) as info:
+                await fleet.connect()
+            return info.value, asyncio.get_running_loop().time() - t0
+
+    err, took = asyncio.run(run())
+    assert str(err).startswith(
+        f"vehicle d2 (udpin://127.0.0.1:{gcs}): system id(s) 1 answer on port {gcs}, not 2: "
+        "another program's vehicle"
+    )
+    assert took < 2.0  # the scan's second, not the 10 s connection timeout
+
+
+def test_an_autopilot_that_is_not_px4_is_refused() -> None:
+    from pymavlink.dialects.v20 import common as mav
+
+    (gcs,) = free_udp_ports(1)
+
+    async def run() -> LinkError:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        link = mav.MAVLink(None, srcSystem=1, srcComponent=1)
+
+        async def ardupilot() -> None:  # heartbeats and attitude, as ArduPilot sends them
+            t = 0
+            while True:
+                hb = mav.MAVLink_heartbeat_message(
+                    mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 3, 3
+                )
+                att = mav.MAVLink_attitude_message(1000 + t, 0, 0, 0, 0, 0, 0)
+                for m in (hb, att):
+                    sock.sendto(m.pack(link), ("127.0.0.1", gcs))
+                t += 50
+                await asyncio.sleep(0.05)
+
+        task = asyncio.create_task(ardupilot())
+        try:
+            fleet = Fleet([VehicleSpec("d1", f"udpin://127.0.0.1:{gcs}", 1)], connect_timeout_s=5)
+            with pytest.raises(LinkError) as info:
+                await fleet.connect()
+            return info.value
+        finally:
+            task.cancel()
+            sock.close()
+
+    err = asyncio.run(run())
+    assert str(err) == (
+        f"vehicle d1 (udpin://127.0.0.1:{gcs}): system id 1 on port {gcs} is not PX4 (its "
+        "heartbeat says MAV_AUTOPILOT 3, ArduPilot): stl-gcs flies PX4 vehicles"
+    )
 
 
 def test_status_matches_the_vehicle_and_mavsdks_own_mode_decoding() -> None:
