@@ -43,6 +43,7 @@ from __future__ import annotations
 import asyncio
 import bisect
 import contextlib
+import dataclasses
 import math
 import shutil
 import socket
@@ -835,6 +836,15 @@ async def _fly_offboard(
         end_action=opts.end or EndAction.HOLD,
         drag_per_s={n: t.drag_per_s for n, t in tuning.items()},
     )
+    if cfg.end_action is EndAction.LAND:
+        from gcs.missions import landing_targets
+        from planner.frames import enu_to_geodetic
+
+        land_at = {}
+        for name, point in landing_targets(plan).items():
+            lat, lon, alt = (float(np.ravel(x)[0]) for x in enu_to_geodetic(point, plan.origin))
+            land_at[name] = (lat, lon, alt)
+        cfg = dataclasses.replace(cfg, land_at=land_at)
     trajs = {v.name: v.trajectory for v in plan.vehicles}
     return await fly_offboard(fleet, trajs, plan.origin, cfg, monitor=monitor)
 

@@ -104,6 +104,25 @@ def expected_lag_s(params: Mapping[str, float]) -> float:
     )
 
 
+def landing_targets(plan: Plan) -> dict[str, np.ndarray]:
+    """Per vehicle that must not land straight down at its plan's end, where it lands
+    instead (mission ENU; :mod:`gcs.landing`).
+
+    Raises:
+        gcs.errors.UserError: a vehicle with no clear landing point (land refused).
+    """
+    from gcs.errors import UserError
+    from gcs.landing import landing_points
+
+    out = {}
+    for name, lp in landing_points(plan).items():
+        if not lp.found:
+            raise UserError(f"--end land: {lp.describe()}; end with hold or return instead")
+        if lp.blocked_by is not None:
+            out[name] = lp.point_enu_m
+    return out
+
+
 def convert_plan(
     plan: Plan,
     *,
@@ -125,7 +144,7 @@ def convert_plan(
         retime: re-time the legs (False: the legs' average speeds, predicted once).
     """
     from gcs.flight import plan_formula
-    from mavlink.mission import Cmd, path_robustness, trajectory_to_mission
+    from mavlink.mission import Cmd, MissionEnd, path_robustness, trajectory_to_mission
     from mavlink.mock.predict import predict_missions
 
     prm = dict(params or {})
@@ -139,6 +158,7 @@ def convert_plan(
     dt = plan.check_dt_s
     t = np.arange(round(plan.horizon_s / dt) + 1) * dt
     starts = {pv.name: tuple(float(x) for x in pv.start_enu_m) for pv in plan.vehicles}
+    land_at = landing_targets(plan) if end is MissionEnd.LAND else {}
 
     def build(speeds: Mapping[str, np.ndarray] | None) -> dict[str, MissionPlan]:
         return {
@@ -150,6 +170,7 @@ def convert_plan(
                 name=pv.name,
                 leg_speed_m_s=None if speeds is None else speeds[pv.name],
                 pass_lag_s=lag_s,
+                land_at_enu_m=land_at.get(pv.name),
             )
             for pv in plan.vehicles
         }

@@ -272,6 +272,7 @@ def trajectory_to_mission(
     name: str | None = None,
     leg_speed_m_s: Sequence[float] | None = None,
     pass_lag_s: float = 0.0,
+    land_at_enu_m: Sequence[float] | None = None,
 ) -> MissionPlan:
     """Convert one mission-frame trajectory into PX4 mission items (module docstring).
 
@@ -290,6 +291,9 @@ def trajectory_to_mission(
             larger (at most 45 % of its shorter leg): PX4 accepts a waypoint by where the
             vehicle is, which trails its setpoint by the drag lag, so with a radius
             smaller than that trail the setpoint stops at the waypoint and waits.
+        land_at_enu_m: with ``end`` LAND, land here (east, north; the mission frame)
+            instead of below the last point: PX4 flies a NAV_LAND with a position there
+            first, at the altitude it is at (:mod:`gcs.landing` picks it clear of keep-outs).
 
     Raises:
         MissionError: ``INVALID_ITEM`` for a non-positive acceptance radius or a speed
@@ -427,9 +431,15 @@ def trajectory_to_mission(
             float(alt[j]),
         )
     if end is MissionEnd.LAND:
+        land_lat, land_lon = lat[-1], lon[-1]
+        if land_at_enu_m is not None:
+            e, n = float(land_at_enu_m[0]), float(land_at_enu_m[1])
+            pe = enu_to_geodetic(np.array([e, n, float(wp[-1, 2])]), origin)
+            land_lat, land_lon = float(np.ravel(pe[0])[0]), float(np.ravel(pe[1])[0])
         add(
-            Cmd.NAV_LAND, g, 0.0, 0.0, 0.0, float("nan"), _e7(lat[-1]), _e7(lon[-1]), float(alt[-1])
-        )
+            Cmd.NAV_LAND, g, 0.0, 0.0, 0.0, float("nan"), _e7(land_lat), _e7(land_lon),
+            float(alt[-1]),
+        )  # fmt: skip
     elif end is MissionEnd.RETURN:
         add(Cmd.NAV_RETURN_TO_LAUNCH, Frame.MISSION, 0.0, 0.0, 0.0, 0.0, 0, 0, 0.0)
 

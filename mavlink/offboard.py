@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pymap3d as pm
 from mavsdk.plugins.offboard import (
     AccelerationNed,
     Offboard,
@@ -76,6 +77,8 @@ from planner.trajectory import Trajectory
 #: How far above NAV_MC_ALT_RAD a start must be for a take-off from the ground (m): PX4
 #: counts a take-off within NAV_MC_ALT_RAD as reached at once (PX4-BEHAVIOUR.md).
 TAKEOFF_MARGIN_M = 0.2
+#: A vehicle sent to a landing point lands once this close to it (m) and nearly still.
+LAND_AT_M = 0.3
 
 
 class EndAction(Enum):
@@ -118,6 +121,12 @@ class OffboardConfig:
         start_delay_s: the shared start time is this long after the switch.
         hold_after_s: keep streaming the final setpoint this long.
         end_action: hold, land or return to launch afterwards.
+        land_at: with ``end_action`` LAND, per vehicle name a point ``(lat_deg, lon_deg,
+            alt_amsl_m)`` to fly to first (at the altitude given) and land at, where landing
+            straight down would not be safe (:mod:`gcs.landing`); others land where they are.
+        land_goto_timeout_s: time allowed to reach that point (plus 1 s per metre away);
+            a vehicle that does not arrive is left holding, and the end action is reported
+            failed for it.
         late_threshold_s: lateness that counts as late (default a quarter period).
         send_groups: spread the vehicles over this many send instants per
             period (:class:`~mavlink.stream.SetpointStreamer`); each vehicle's
@@ -142,6 +151,8 @@ class OffboardConfig:
     start_delay_s: float = 0.3
     hold_after_s: float = 1.0
     end_action: EndAction = EndAction.HOLD
+    land_at: Mapping[str, tuple[float, float, float]] = field(default_factory=dict)
+    land_goto_timeout_s: float = 20.0
     late_threshold_s: float | None = None
     send_groups: int | None = None
 
@@ -504,9 +515,29 @@ async def _stop_offboard(v: Vehicle) -> None:
         )
 
 
-async def _end(v: Vehicle, action: EndAction) -> None:
+async def _end(v: Vehicle, action: EndAction, cfg: OffboardConfig | None = None) -> None:
     await _stop_offboard(v)
-    if action is EndAction.LAND:
+    at = cfg.land_at.get(v.name) if cfg is not None else None
+    if action is EndAction.LAND and at is not None:
+        # not straight down: to the landing point first, at the altitude given, then land
+        lat, lon, alt = at
+        st = v.status()
+        away = 0.0
+        if st.position is not None:
+            n, e, _ = pm.geodetic2ned(lat, lon, alt, st.position.lat_deg, st.position.lon_deg, st.position.alt_m)  # fmt: skip
+            away = math.hypot(n, e)
+        await v.goto(lat, lon, alt, math.nan)
+
+        def there(s: VehicleStatus) -> bool:
+            if s.position is None:
+                return False
+            n, e, _ = pm.geodetic2ned(lat, lon, alt, s.position.lat_deg, s.position.lon_deg, s.position.alt_m)  # fmt: skip
+            speed = math.inf if s.vel_ned_m_s is None else float(np.linalg.norm(s.vel_ned_m_s[:2]))  # fmt: skip
+            return math.hypot(n, e) < LAND_AT_M and speed < 0.3
+
+        await v.wait_for(there, "the landing point", timeout_s=cfg.land_goto_timeout_s + away)
+        await v.land()
+    elif action is EndAction.LAND:
         await v.land()
     elif action is EndAction.RETURN:
         await v.return_to_launch()
@@ -772,7 +803,7 @@ async def _fly(
         event = await mon_task
     end_failures: dict[str, str] = {}
     if event is None:
-        failed = await fleet.for_each(lambda v: _end(v, cfg.end_action), vehicles)
+        failed = await fleet.for_each(lambda v: _end(v, cfg.end_action, cfg), vehicles)
         end_failures = {k: str(e) for k, e in failed.items()}
     tracks = {
         v.name: _track(v.name, v.stop_track(), t0, mission_origin, origins[v.name])

@@ -378,6 +378,15 @@ def run(args: argparse.Namespace) -> int:
 
     if args.fence_action is not None and not args.fence:
         raise UserError("--fence-action: applies with --fence only")
+    if args.end == "land":
+        # the missions land clear of the keep-outs (gcs.landing), or the upload is refused
+        from gcs.landing import landing_points
+        from gcs.missions import landing_targets
+
+        landing_targets(plan)
+        for lp in landing_points(plan).values():
+            if lp.describe():
+                print(f"landing: {lp.describe()}", file=sys.stderr)
 
     async def signed_upload() -> tuple[list[UploadRow], MissionConversion, FencePlan | None]:
         async with signed_links(specs, args.signing_key) as links:

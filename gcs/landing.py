@@ -1,0 +1,167 @@
+"""Where a vehicle may land at the end of its plan: straight down unless that crosses a keep-out.
+
+``gcs fly --end land`` (offboard and mission) and ``gcs upload --end land`` land each vehicle
+where its plan ends, unless the column below it, widened by :data:`CLEARANCE_M` (the drift of
+a descent, the tracking error left at the end), meets a box that is a keep-out by kind
+(obstacle, no-fly zone, pole, conductor): a drone that ends its inspection beside a pole or
+above a conductor must not descend there.  Then the vehicle first flies, at the altitude it
+ends at, to the nearest point whose column is clear and to which the straight transit at that
+altitude is clear too (inside the workspace's footprint), and lands there.  Candidates: the
+vehicle's planned start (a place it stood), then rings of points around the end, nearest
+first, up to :data:`SEARCH_M`.  When none is clear, :func:`landing_point` says so and the
+caller refuses ``--end land`` before anything flies.
+
+Geometry is the mission frame (ENU metres); regions are axis-aligned boxes.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from planner.regions import Region, RegionKind
+
+if TYPE_CHECKING:
+    from planner.planfile import Plan
+
+#: Kinds of region a vehicle must never descend or fly through.
+KEEP_OUT_KINDS = (RegionKind.OBSTACLE, RegionKind.NO_FLY, RegionKind.POLE, RegionKind.CONDUCTOR)
+#: Horizontal clearance from a keep-out box, for the descent and for the transit, m:
+#: PX4 holds its position within decimetres while it lands (PX4 SITL: 0.1-0.3 m), and a
+#: flight that ended farther from its plan than this was warned about by the tracking alarm.
+CLEARANCE_M = 0.5
+#: How far from the plan's end a landing point is looked for, m.
+SEARCH_M = 60.0
+_RING_STEP_M = 0.5
+_RING_POINTS = 32
+
+
+@dataclass(frozen=True, slots=True)
+class LandingPoint:
+    """Where one vehicle lands.
+
+    Attributes:
+        vehicle: its name.
+        end_enu_m: where its plan ends (mission ENU).
+        point_enu_m: where it lands: horizontally the landing point, vertically the altitude
+            of the transit (the end's); equal to ``end_enu_m`` when it lands straight down.
+        blocked_by: the keep-out below the end (``None``: the column is clear).
+        found: a clear point was found (always, when nothing blocks the end).
+    """
+
+    vehicle: str
+    end_enu_m: np.ndarray
+    point_enu_m: np.ndarray
+    blocked_by: Region | None
+    found: bool
+
+    @property
+    def moved_m(self) -> float:
+        """Horizontal distance from the end to the landing point."""
+        return float(np.hypot(*(self.point_enu_m[:2] - self.end_enu_m[:2])))
+
+    def describe(self) -> str:
+        """One line for the operator (empty when it lands straight down)."""
+        if self.blocked_by is None:
+            return ""
+        r = self.blocked_by
+        below = f"straight down from its plan's end would pass {r.kind.value} {r.name!r}"
+        if not self.found:
+            return (
+                f"{self.vehicle}: {below}, and no clear landing point lies within "
+                f"{SEARCH_M:g} m at {CLEARANCE_M:g} m from every keep-out"
+            )
+        e, n = self.point_enu_m[:2] - self.end_enu_m[:2]
+        return (
+            f"{self.vehicle}: {below}; it flies {self.moved_m:.1f} m ({_bearing(e, n)}) at "
+            f"{self.point_enu_m[2]:.1f} m to land clear of it"
+        )
+
+
+def keep_outs(plan: Plan) -> tuple[Region, ...]:
+    """The plan's regions a vehicle must keep out of."""
+    return tuple(r for r in plan.regions if r.kind in KEEP_OUT_KINDS)
+
+
+def column_blocker(xy: np.ndarray, top_m: float, boxes: tuple[Region, ...]) -> Region | None:
+    """The first box whose footprint (widened by the clearance) holds ``xy`` and which
+    reaches down below ``top_m``: a descent from ``top_m`` to the ground would meet it."""
+    for r in boxes:
+        lo, hi = np.asarray(r.lo_enu_m), np.asarray(r.hi_enu_m)
+        inside = np.all(xy >= lo[:2] - CLEARANCE_M) and np.all(xy <= hi[:2] + CLEARANCE_M)
+        if inside and lo[2] <= top_m:
+            return r
+    return None
+
+
+def transit_clear(a: np.ndarray, b: np.ndarray, z_m: float, boxes: tuple[Region, ...]) -> bool:
+    """True if the straight horizontal flight ``a`` -> ``b`` (xy) at ``z_m`` keeps the
+    clearance from every box it is level with (slab test of the segment against each box
+    widened horizontally; a box wholly below or above ``z_m`` is passed over or under)."""
+    d = b - a
+    for r in boxes:
+        lo = np.asarray(r.lo_enu_m) - CLEARANCE_M
+        hi = np.asarray(r.hi_enu_m) + CLEARANCE_M
+        if not r.lo_enu_m[2] <= z_m <= r.hi_enu_m[2]:
+            continue
+        t0, t1 = 0.0, 1.0
+        for k in range(2):
+            if abs(d[k]) < 1e-12:
+                if not lo[k] <= a[k] <= hi[k]:
+                    break
+                continue
+            u, v = (lo[k] - a[k]) / d[k], (hi[k] - a[k]) / d[k]
+            t0, t1 = max(t0, min(u, v)), min(t1, max(u, v))
+            if t0 > t1:
+                break
+        else:
+            return False
+    return True
+
+
+def landing_point(plan: Plan, name: str) -> LandingPoint:
+    """Where vehicle ``name`` of ``plan`` lands with ``--end land`` (module docstring)."""
+    pv = next(v for v in plan.vehicles if v.name == name)
+    end = np.asarray(pv.trajectory.position(np.array([pv.trajectory.duration_s]))[0], float)
+    boxes = keep_outs(plan)
+    blocker = column_blocker(end[:2], end[2], boxes)
+    if blocker is None:
+        return LandingPoint(name, end, end.copy(), None, True)
+    ws = plan.workspace
+    z = float(end[2])
+
+    def usable(xy: np.ndarray) -> bool:
+        in_ws = bool(np.all(xy >= np.asarray(ws.lo_enu_m)[:2]) and np.all(xy <= np.asarray(ws.hi_enu_m)[:2]))  # fmt: skip
+        return (
+            in_ws and column_blocker(xy, z, boxes) is None and transit_clear(end[:2], xy, z, boxes)
+        )
+
+    start = np.asarray(pv.start_enu_m, dtype=float)[:2]
+    best: np.ndarray | None = None
+    angles = np.arange(_RING_POINTS) * (2.0 * math.pi / _RING_POINTS)
+    for r in np.arange(_RING_STEP_M, SEARCH_M + 1e-9, _RING_STEP_M):
+        if usable(start) and float(np.hypot(*(start - end[:2]))) <= r:
+            best = start
+            break
+        ring = end[:2] + r * np.column_stack([np.cos(angles), np.sin(angles)])
+        ok = [q for q in ring if usable(q)]
+        if ok:
+            best = ok[0]
+            break
+    if best is None:
+        return LandingPoint(name, end, end.copy(), blocker, False)
+    return LandingPoint(name, end, np.array([best[0], best[1], z]), blocker, True)
+
+
+def landing_points(plan: Plan) -> dict[str, LandingPoint]:
+    """:func:`landing_point` of every vehicle of ``plan``."""
+    return {v.name: landing_point(plan, v.name) for v in plan.vehicles}
+
+
+def _bearing(east: float, north: float) -> str:
+    names = ("north", "north-east", "east", "south-east", "south", "south-west", "west", "north-west")  # fmt: skip
+    deg = math.degrees(math.atan2(east, north)) % 360.0
+    return names[round(deg / 45.0) % 8]

@@ -1,0 +1,145 @@
+"""``--end land`` clear of the keep-outs: where each vehicle lands (:mod:`gcs.landing`),
+checked by dense sampling; the missions' NAV_LAND; a dry-run flight landing there; and the
+refusal when no clear point exists."""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gcs.cli import main
+from gcs.landing import CLEARANCE_M, keep_outs, landing_point, landing_points
+from planner.planfile import load_plan
+from planner.regions import Region, RegionKind
+
+DATA = Path(__file__).resolve().parents[1] / "mavlink" / "data"
+PLAN = DATA / "reach_avoid_2.plan.json"
+
+
+def _end(plan, name: str) -> np.ndarray:  # type: ignore[no-untyped-def]
+    pv = next(v for v in plan.vehicles if v.name == name)
+    return pv.trajectory.position(np.array([pv.trajectory.duration_s]))[0]
+
+
+def _with(plan, *regions: Region):  # type: ignore[no-untyped-def]
+    return dataclasses.replace(plan, regions=(*plan.regions, *regions))
+
+
+def _inside_widened(p: np.ndarray, r: Region, dims: int) -> bool:
+    lo, hi = np.asarray(r.lo_enu_m) - CLEARANCE_M, np.asarray(r.hi_enu_m) + CLEARANCE_M
+    return bool(np.all(p[:dims] >= lo[:dims]) and np.all(p[:dims] <= hi[:dims]))
+
+
+def _usable(plan, end: np.ndarray, q: np.ndarray) -> bool:  # type: ignore[no-untyped-def]
+    """The definition, by sampling: the column below q and the transit end -> q at the end's
+    altitude keep the clearance from every keep-out, and q is over the workspace."""
+    boxes = keep_outs(plan)
+    ws = plan.workspace
+    if not (np.all(q[:2] >= np.asarray(ws.lo_enu_m)[:2]) and np.all(q[:2] <= np.asarray(ws.hi_enu_m)[:2])):  # fmt: skip
+        return False
+    for z in np.linspace(0.0, end[2], 50):
+        if any(_inside_widened(np.array([q[0], q[1], z]), r, 3) for r in boxes if r.lo_enu_m[2] <= end[2]):  # fmt: skip
+            return False
+    for s in np.linspace(0.0, 1.0, 400):
+        p = np.array([*(end[:2] + s * (q[:2] - end[:2])), end[2]])
+        level = [r for r in boxes if r.lo_enu_m[2] <= end[2] <= r.hi_enu_m[2]]
+        if any(_inside_widened(p, r, 2) for r in level):
+            return False
+    return True
+
+
+def test_a_clear_end_lands_straight_down_and_a_blocked_one_at_the_nearest_clear_point() -> None:
+    plan = load_plan(PLAN)
+    assert all(
+        lp.blocked_by is None and lp.describe() == "" for lp in landing_points(plan).values()
+    )
+    end = _end(plan, "d1")
+    # a mast below d1's end, up to 0.3 m under it
+    mast = Region("mast", RegionKind.POLE, (end[0] - 0.1, end[1] - 0.1, 0.0), (end[0] + 0.1, end[1] + 0.1, end[2] - 0.3))  # fmt: skip
+    edited = _with(plan, mast)
+    lp = landing_point(edited, "d1")
+    assert lp.blocked_by is mast and lp.found
+    assert _usable(edited, end, lp.point_enu_m) and lp.point_enu_m[2] == pytest.approx(end[2])
+    # no usable point on a fine grid is nearer by more than the search's ring step
+    xs = np.arange(-2.0, 2.0001, 0.05)
+    nearer = [
+        (x, y) for x in xs for y in xs
+        if np.hypot(x - end[0], y - end[1]) < lp.moved_m - 0.5
+        and _usable(edited, end, np.array([x, y, end[2]]))
+    ]  # fmt: skip
+    assert nearer == [], nearer[:3]
+    assert "d1: straight down from its plan's end would pass pole 'mast'" in lp.describe()
+    # d2 is unaffected
+    assert landing_point(edited, "d2").blocked_by is None
+
+
+def test_missions_land_at_the_clear_point_and_no_clear_point_refuses_land(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from gcs.errors import UserError
+    from gcs.missions import convert_plan, landing_targets
+    from mavlink.mission import Cmd, MissionEnd
+    from planner.frames import enu_to_geodetic
+
+    plan = load_plan(PLAN)
+    end = _end(plan, "d1")
+    mast = Region("mast", RegionKind.POLE, (end[0] - 0.1, end[1] - 0.1, 0.0), (end[0] + 0.1, end[1] + 0.1, end[2] - 0.3))  # fmt: skip
+    edited = _with(plan, mast)
+    point = landing_targets(edited)["d1"]
+    conv = convert_plan(edited, end=MissionEnd.LAND, iterations=1)
+    land = conv.missions["d1"].items[-1]
+    assert land.command == Cmd.NAV_LAND
+    lat, lon, _ = enu_to_geodetic(point, plan.origin)
+    assert (land.x, land.y) == (round(float(lat) * 1e7), round(float(lon) * 1e7))
+    # a no-fly zone under the whole workspace: nowhere to land
+    ws = plan.workspace
+    road = Region("road", RegionKind.NO_FLY, (ws.lo_enu_m[0], ws.lo_enu_m[1], -1.0), (ws.hi_enu_m[0], ws.hi_enu_m[1], 0.1))  # fmt: skip
+    with pytest.raises(UserError, match=r"--end land: d1: straight down .* no clear landing point"):
+        landing_targets(_with(plan, road))
+    # through the command line: one line, exit 2, before connecting to anything
+    data = json.loads(PLAN.read_text())
+    data["regions"]["road"] = {"kind": "no_fly", "min": [*ws.lo_enu_m[:2], -1.0], "max": [*ws.hi_enu_m[:2], 0.1]}  # fmt: skip
+    path = tmp_path / "road.json"
+    path.write_text(json.dumps(data))
+    capsys.readouterr()
+    assert main(["fly", str(path), "--end", "land", "--connection", "udpin://127.0.0.1:9", "--connection", "udpin://127.0.0.1:10"]) == 2  # fmt: skip
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no clear landing point" in err and "Traceback" not in err
+
+
+@pytest.mark.slow
+def test_an_offboard_flight_ending_over_a_keep_out_lands_clear_of_it() -> None:
+    from mavlink.offboard import EndAction, OffboardConfig, fly_offboard
+    from planner.frames import enu_to_geodetic
+    from tests.mavlink.linkutil import mock_and_fleet
+
+    plan = load_plan(PLAN)
+    end = _end(plan, "d1")
+    mast = Region("mast", RegionKind.POLE, (end[0] - 0.1, end[1] - 0.1, 0.0), (end[0] + 0.1, end[1] + 0.1, end[2] - 0.3))  # fmt: skip
+    point = landing_point(_with(plan, mast), "d1").point_enu_m
+    lat, lon, alt = (float(np.ravel(x)[0]) for x in enu_to_geodetic(point, plan.origin))
+    names = [v.name for v in plan.vehicles]
+    spawns = [(v.start_enu_m[0], v.start_enu_m[1], 0.0) for v in plan.vehicles]
+    trajs = {v.name: v.trajectory for v in plan.vehicles}
+
+    async def run():  # type: ignore[no-untyped-def]
+        async with mock_and_fleet(names, plan.origin, spawns, profile="ideal") as (mock, fleet):
+            cfg = OffboardConfig(end_action=EndAction.LAND, land_at={"d1": (lat, lon, alt)},
+                                 arrive_m=0.3)  # fmt: skip
+            result = await fly_offboard(fleet, trajs, plan.origin, cfg)
+            for _ in range(300):  # until both are down
+                if all(v.state.landed for v in mock.vehicles):
+                    break
+                await asyncio.sleep(0.1)
+            return result, mock.truth_enu_m(), [v.state.landed for v in mock.vehicles]
+
+    result, truth, landed = asyncio.run(run())
+    assert result.completed and not result.end_failures and all(landed)
+    assert np.hypot(*(truth[0, :2] - point[:2])) < 0.35  # d1 at its landing point
+    assert not _inside_widened(np.array([*truth[0, :2], 0.0]), mast, 2)
+    assert np.hypot(*(truth[1, :2] - _end(plan, "d2")[:2])) < 0.35  # d2 straight down
