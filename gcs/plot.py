@@ -244,10 +244,12 @@ class ClauseTrace:
     Attributes:
         text: the clause as STL text.
         robustness: exact robustness of the clause at t = 0 on the planned paths.
-        shown: ``"body"`` when the curve is the body of a top-level always/eventually, else
-            ``"clause"``.
-        operator: ``"always"``, ``"eventually"`` or ``""`` (for ``shown == "clause"``).
-        window_s: ``(a, b)`` of the top-level always/eventually, else None.
+        shown: ``"body"`` when the curve is the body of a top-level always/eventually,
+            ``"until"`` for a top-level until (the curve whose maximum over ``[a, b]`` is
+            the clause's value, NaN outside), else ``"clause"``.
+        operator: ``"always"``, ``"eventually"``, ``"until"`` or ``""`` (``"clause"``).
+        window_s: ``(a, b)`` of the top-level operator, else None.
+        vehicles: the vehicles the clause reads (its colour: one vehicle's own, several black).
         t_s: ``(m,)`` times of the curve.
         rho: ``(m,)`` planned robustness of what is shown.
         witness_t_s: time where the clause value is attained on the curve (``t_s[0]`` for
@@ -267,6 +269,7 @@ class ClauseTrace:
     witness_t_s: float
     flown_robustness: float | None = None
     flown_rho: NDArray[np.float64] | None = None
+    vehicles: tuple[str, ...] = ()
 
 
 def plan_grid(plan: Plan, dt_s: float | None = None) -> tuple[NDArray[np.float64], float]:
@@ -279,11 +282,22 @@ def plan_grid(plan: Plan, dt_s: float | None = None) -> tuple[NDArray[np.float64
 
 
 def _curve(clause: Formula, signals: Mapping[str, Any], dt: float) -> tuple[str, NDArray]:
-    """``("body", trace of the body)`` for a top-level always/eventually, else the clause's."""
-    from planner.stl import Always, Eventually
+    """``("body", trace of the body)`` for a top-level always/eventually; for a top-level
+    ``p until[a,b] q`` ``("until", c)`` with ``c(t') = min(q(t'), min over [0, t') of p)``
+    on ``[a, b]`` (NaN elsewhere), whose maximum is the clause's value at t = 0; else the
+    clause's own trace."""
+    from planner.stl import Always, Eventually, Until
 
     if isinstance(clause, Always | Eventually):
         return "body", clause.child.robustness_trace(signals, dt)
+    if isinstance(clause, Until):
+        lo, hi = clause.steps(dt)
+        q = clause.rhs.robustness_trace(signals, dt)[: hi + 1]
+        p = clause.lhs.robustness_trace(signals, dt)[: hi + 1]
+        before = np.concatenate([[np.inf], np.minimum.accumulate(p)[:-1]])  # min over [0, t')
+        curve = np.full(hi + 1, np.nan)
+        curve[lo:] = np.minimum(q[lo:], before[lo : hi + 1])
+        return "until", curve
     return "clause", clause.robustness_trace(signals, dt)
 
 
@@ -294,7 +308,7 @@ def _witness(
 
     Only called once the clause itself evaluated, so its window lies inside ``rho``.
     """
-    from planner.stl import Always, Eventually
+    from planner.stl import Always, Eventually, Until
 
     if isinstance(clause, Always | Eventually):
         lo, hi = clause.steps(dt)
@@ -302,6 +316,9 @@ def _witness(
         k = lo + int(pick(rho[lo : hi + 1]))
         op = "always" if isinstance(clause, Always) else "eventually"
         return k, op, (clause.start_s, clause.end_s)
+    if isinstance(clause, Until):
+        lo, hi = clause.steps(dt)
+        return lo + int(np.nanargmax(rho[lo : hi + 1])), "until", (clause.start_s, clause.end_s)
     return 0, "", None
 
 
@@ -351,6 +368,7 @@ def clause_traces(
                 witness_t_s=float(t[k]),
                 flown_robustness=flown_value,
                 flown_rho=flown_rho,
+                vehicles=tuple(v.name for v in plan.vehicles if v.name in clause.signal_names()),
             )
         )
     return tuple(out)
@@ -408,8 +426,28 @@ def _vehicle_colours(n: int) -> list[Any]:
     return [cmap(i % cmap.N) for i in range(n)]
 
 
+#: A region whose footprint covers more than this share of the workspace's, or that spans
+#: more than :data:`_LARGE_SPAN` of it along east or north (a right of way, a corridor), is
+#: drawn as an outline: a solid would hide what lies inside it.
+_LARGE_AREA = 0.4
+_LARGE_SPAN = 0.6
+#: Kinds drawn last and more opaque: the places to be, visible inside keep-outs.
+_TARGET_KINDS = ("inspection", "goal")
+
+
+def is_large(region: Any, workspace: Any) -> bool:
+    """Whether ``region`` is drawn as an outline (see :data:`_LARGE_AREA`)."""
+    span = np.asarray(region.hi_enu_m) - np.asarray(region.lo_enu_m)
+    ws = np.asarray(workspace.hi_enu_m) - np.asarray(workspace.lo_enu_m)
+    area = float(span[0] * span[1]) / max(float(ws[0] * ws[1]), 1e-12)
+    return area > _LARGE_AREA or bool(np.any(span[:2] > _LARGE_SPAN * ws[:2]))
+
+
 def _draw_regions(ax: Any, plan: Plan) -> list[Any]:
-    """Draw the workspace outline and region boxes; returns legend handles (one per kind)."""
+    """Draw the workspace outline and region boxes; returns legend handles (one per kind).
+
+    Large regions are outlines, others translucent solids; inspection boxes and goals are
+    drawn last and more opaque, so one inside a keep-out stays visible."""
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
     from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
@@ -423,19 +461,28 @@ def _draw_regions(ax: Any, plan: Plan) -> list[Any]:
     handles: dict[str, Any] = {
         "workspace": Line2D([], [], color="k", lw=0.7, ls="--", label="workspace")
     }
-    for r in plan.regions:
+    ordered = sorted(plan.regions, key=lambda r: r.kind.value in _TARGET_KINDS)
+    for r in ordered:
         face, alpha, edge, label = _KIND_STYLE.get(r.kind.value, _KIND_STYLE["region"])
-        poly = Poly3DCollection(
-            _box_faces(r.lo_enu_m, r.hi_enu_m),
-            facecolors=face,
-            edgecolors=edge,
-            linewidths=0.5,
-            alpha=alpha,
-        )
-        ax.add_collection3d(poly)
+        if is_large(r, ws):
+            ax.add_collection3d(
+                Line3DCollection(_box_edges(r.lo_enu_m, r.hi_enu_m), colors=edge, linewidths=1.1)
+            )
+            label = f"{label} (outline)"
+            handles.setdefault(label, Line2D([], [], color=edge, lw=1.1, label=label))
+        else:
+            target = r.kind.value in _TARGET_KINDS
+            poly = Poly3DCollection(
+                _box_faces(r.lo_enu_m, r.hi_enu_m),
+                facecolors=face,
+                edgecolors=edge,
+                linewidths=0.9 if target else 0.5,
+                alpha=min(1.0, 1.6 * alpha) if target else alpha,
+            )
+            ax.add_collection3d(poly)
+            handles.setdefault(label, Patch(facecolor=face, edgecolor=edge, alpha=0.5, label=label))
         top = (np.asarray(r.lo_enu_m) + np.asarray(r.hi_enu_m)) / 2.0
         ax.text(top[0], top[1], r.hi_enu_m[2], r.name, fontsize=7, color=edge, ha="center")
-        handles.setdefault(label, Patch(facecolor=face, edgecolor=edge, alpha=0.5, label=label))
     return list(handles.values())
 
 
@@ -465,13 +512,13 @@ def _draw_3d(
         handles.append(Line2D([], [], color=c, lw=1.6, label=v.name))
         if telemetry is not None and v.name in telemetry.vehicles:
             f = telemetry.vehicles[v.name].pos_enu_m
-            ax.plot(f[:, 0], f[:, 1], f[:, 2], color=c, lw=1.0, ls="--", alpha=0.9)
+            ax.plot(f[:, 0], f[:, 1], f[:, 2], color=c, lw=2.6, alpha=0.35)
     handles.append(
         Line2D([], [], color="k", marker="o", ls="", markersize=5, label="start"),
     )
     handles.append(Line2D([], [], color="k", marker="s", ls="", markersize=5, label="end"))
     if telemetry is not None:
-        handles.append(Line2D([], [], color="k", lw=1.0, ls="--", label="flown (telemetry)"))
+        handles.append(Line2D([], [], color="k", lw=2.6, alpha=0.35, label="flown (telemetry)"))
     ws = plan.workspace
     ax.set_xlim(ws.lo_enu_m[0], ws.hi_enu_m[0])
     ax.set_ylim(ws.lo_enu_m[1], ws.hi_enu_m[1])
@@ -495,30 +542,44 @@ def _short(text: str, n: int = 70) -> str:
     return text if len(text) <= n else text[: n - 3] + "..."
 
 
+#: Line styles that tell apart the clauses drawn in one colour.
+_CLAUSE_STYLES: tuple[Any, ...] = ("-", (0, (6, 2)), (0, (1, 1.5)), (0, (6, 2, 1, 2)), (0, (3, 1, 1, 1, 1, 1)))  # fmt: skip
+
+
 def _draw_robustness(
-    ax: Any, legend_ax: Any, traces: Sequence[ClauseTrace], epsilon: float
+    ax: Any,
+    legend_ax: Any,
+    traces: Sequence[ClauseTrace],
+    epsilon: float,
+    colours: Mapping[str, Any] | None = None,
 ) -> None:
-    from matplotlib import colormaps
+    """Colour means vehicle here as in every panel: a clause about one vehicle is drawn in
+    that vehicle's colour, one about several in black; line styles tell apart the clauses of
+    one colour; the clauses beyond the weakest :data:`MAX_COLOURED_CLAUSES` are thin grey."""
     from matplotlib.lines import Line2D
 
+    colours = colours or {}
     order = sorted(range(len(traces)), key=lambda i: traces[i].robustness)
     coloured = set(order[:MAX_COLOURED_CLAUSES])
-    cmap = colormaps["tab10"]
     handles = []
-    rank = 0
+    used: dict[Any, int] = {}
     grey_min = math.inf
     for i in order:
         tr = traces[i]
+        style: Any = "-"
         if i in coloured:
-            colour, lw, alpha = cmap(rank % 10), 1.3, 1.0
-            rank += 1
+            colour = colours.get(tr.vehicles[0], "k") if len(tr.vehicles) == 1 else "k"
+            key = colour if isinstance(colour, str) else tuple(colour)
+            style = _CLAUSE_STYLES[used.get(key, 0) % len(_CLAUSE_STYLES)]
+            used[key] = used.get(key, 0) + 1
+            lw, alpha = 1.3, 1.0
             flown = "" if tr.flown_robustness is None else f" (flown {tr.flown_robustness:+.3f})"
             label = f"{tr.robustness:+.3f}{flown}  {_short(tr.text)}"
-            handles.append(Line2D([], [], color=colour, lw=lw, label=label))
+            handles.append(Line2D([], [], color=colour, lw=lw, ls=style, label=label))
         else:
             colour, lw, alpha = "0.6", 0.8, 0.7
             grey_min = min(grey_min, tr.robustness)
-        ax.plot(tr.t_s, tr.rho, color=colour, lw=lw, alpha=alpha)
+        ax.plot(tr.t_s, tr.rho, color=colour, lw=lw, alpha=alpha, ls=style)
         ax.plot(
             [tr.witness_t_s],
             [tr.robustness],
@@ -529,7 +590,8 @@ def _draw_robustness(
             markeredgewidth=0.4,
         )
         if tr.flown_rho is not None:
-            ax.plot(tr.t_s[: tr.flown_rho.size], tr.flown_rho, color=colour, lw=0.9, ls="--")
+            ax.plot(tr.t_s[: tr.flown_rho.size], tr.flown_rho, color=colour, lw=2.4, ls=style,
+                    alpha=0.35)  # fmt: skip
     n_grey = len(traces) - len(coloured)
     if n_grey:
         handles.append(
@@ -557,7 +619,9 @@ def _draw_robustness(
         )
     )
     if any(tr.flown_rho is not None for tr in traces):
-        handles.append(Line2D([], [], color="k", lw=0.9, ls="--", label="flown (telemetry)"))
+        handles.append(
+            Line2D([], [], color="k", lw=2.4, alpha=0.35, label="flown (telemetry): broad, faint")
+        )
     # The band around zero decides the verdict: show the values of the coloured (weakest)
     # clauses with room above; curves far above (e.g. distances to far walls) run off the top.
     weakest = np.array([traces[i].robustness for i in order[:MAX_COLOURED_CLAUSES]], dtype=float)
@@ -571,7 +635,8 @@ def _draw_robustness(
     ax.tick_params(labelsize=7)
     ax.grid(alpha=0.3)
     ax.set_title(
-        "Clause robustness over time (always/eventually: trace of the body; dot = clause value)",
+        "Clause robustness over time (always/eventually: the body; until: the option at t; "
+        "dot = clause value)",
         fontsize=9,
     )
     legend_ax.axis("off")
@@ -587,8 +652,31 @@ def _draw_robustness(
     )
 
 
+#: Flown velocities are differentiated over this window (s): telemetry positions carry
+#: centimetres of noise that a sample-to-sample difference would turn into m/s.
+_FLOWN_VEL_WINDOW_S = 0.25
+
+
+def flown_velocity(path: FlownPath) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``(t, v)``: the flown velocity ``(m, 3)``, central differences over
+    :data:`_FLOWN_VEL_WINDOW_S`, at the sample times whose window lies inside the track."""
+    t = path.t_s
+    if t.size < 3:
+        return np.zeros(0), np.zeros((0, 3))
+    half = _FLOWN_VEL_WINDOW_S / 2.0
+    ok = (t - half >= t[0]) & (t + half <= t[-1])
+    tc = t[ok]
+    v = (path.position(tc + half) - path.position(tc - half)) / (2.0 * half)
+    return tc, v
+
+
 def _draw_kinematics(
-    axes_v: Sequence[Any], axes_a: Sequence[Any], plan: Plan, colours: Sequence[Any], t: NDArray
+    axes_v: Sequence[Any],
+    axes_a: Sequence[Any],
+    plan: Plan,
+    colours: Sequence[Any],
+    t: NDArray,
+    telemetry: Telemetry | None = None,
 ) -> None:
     for v, c in zip(plan.vehicles, colours, strict=True):
         vel = v.trajectory.velocity(t)
@@ -596,6 +684,10 @@ def _draw_kinematics(
         for a in range(3):
             axes_v[a].plot(t, vel[:, a], color=c, lw=1.0, label=v.name)
             axes_a[a].plot(t, acc[:, a], color=c, lw=1.0, label=v.name)
+        if telemetry is not None and v.name in telemetry.vehicles:
+            tf, vf = flown_velocity(telemetry.vehicles[v.name])
+            for a in range(3):
+                axes_v[a].plot(tf, vf[:, a], color=c, lw=2.4, alpha=0.35)
     for a in range(3):
         for row, limits, unit, what in (
             (axes_v, {v.v_max_m_s[a] for v in plan.vehicles}, "m/s", "velocity"),
@@ -619,6 +711,35 @@ def _draw_kinematics(
     axes_v[0].legend(fontsize=6, ncol=min(4, len(plan.vehicles)), loc="upper right")
 
 
+def tracking_error(plan: Plan, telemetry: Telemetry, t: NDArray) -> dict[str, tuple[NDArray, NDArray]]:  # fmt: skip
+    """Per vehicle in the telemetry: ``(t, |flown - planned|)`` on the grid ``t``, where the
+    telemetry covers it."""
+    out = {}
+    for v in plan.vehicles:
+        path = telemetry.vehicles.get(v.name)
+        if path is None or path.t_s.size == 0:
+            continue
+        tt = t[(t >= path.t_s[0]) & (t <= path.t_s[-1])]
+        err = np.linalg.norm(path.position(tt) - v.trajectory.position(tt), axis=1)
+        out[v.name] = (tt, err)
+    return out
+
+
+def _draw_tracking(ax: Any, plan: Plan, telemetry: Telemetry, colours: Sequence[Any], t: NDArray) -> None:  # fmt: skip
+    by_name = dict(zip((v.name for v in plan.vehicles), colours, strict=True))
+    for name, (tt, err) in tracking_error(plan, telemetry, t).items():
+        ax.plot(tt, err, color=by_name[name], lw=1.1, label=f"{name} (max {err.max():.2f} m)")
+    if plan.robustness > 0:
+        ax.axhline(plan.robustness, color="k", lw=0.8, ls=":", label="the plan's margin")
+    ax.set_title("Tracking error |flown - planned| (m)", fontsize=9)
+    ax.set_xlabel("time t (s)", fontsize=8)
+    ax.set_ylabel("m", fontsize=8)
+    ax.set_ylim(bottom=0.0)
+    ax.tick_params(labelsize=7)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=6, ncol=min(4, len(plan.vehicles) + 1), loc="upper left")
+
+
 def render_figure(
     plan: Plan,
     traces: Sequence[ClauseTrace],
@@ -639,16 +760,21 @@ def render_figure(
     FigureCanvasAgg(fig)
     gs = fig.add_gridspec(3, 3, height_ratios=[2.3, 1.0, 1.0])
     top = gs[0, :].subgridspec(1, 2, width_ratios=[1.2, 1.0])
-    right = top[0, 1].subgridspec(2, 1, height_ratios=[2.0, 1.0])
+    rows = 3 if telemetry is not None else 2
+    ratios = [2.0, 1.0, 1.0] if telemetry is not None else [2.0, 1.0]
+    right = top[0, 1].subgridspec(rows, 1, height_ratios=ratios)
     ax3 = fig.add_subplot(top[0, 0], projection="3d")
     axr = fig.add_subplot(right[0, 0])
-    axl = fig.add_subplot(right[1, 0])
+    axl = fig.add_subplot(right[rows - 1, 0])
     axes_v = [fig.add_subplot(gs[1, a]) for a in range(3)]
     axes_a = [fig.add_subplot(gs[2, a], sharex=axes_v[a]) for a in range(3)]
     colours = _vehicle_colours(len(plan.vehicles))
     _draw_3d(ax3, plan, telemetry, colours, t)
-    _draw_robustness(axr, axl, traces, plan.epsilon)
-    _draw_kinematics(axes_v, axes_a, plan, colours, t)
+    by_name = dict(zip((v.name for v in plan.vehicles), colours, strict=True))
+    _draw_robustness(axr, axl, traces, plan.epsilon, by_name)
+    if telemetry is not None:
+        _draw_tracking(fig.add_subplot(right[1, 0]), plan, telemetry, colours, t)
+    _draw_kinematics(axes_v, axes_a, plan, colours, t, telemetry)
     rho = min((tr.robustness for tr in traces), default=math.nan)
     _, dt = plan_grid(plan, dt_s)
     status = plan.status.split(":")[0].strip()  # the outcome in words (optimize._user_status)

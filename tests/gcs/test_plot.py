@@ -78,22 +78,26 @@ def test_clause_curves_match_brute_force_predicates_and_clause_values() -> None:
     assert all(tr.flown_rho is None and tr.flown_robustness is None for tr in traces.values())
 
 
-def test_until_clause_is_drawn_as_its_own_trace_over_the_steps_its_horizon_allows() -> None:
+def test_until_clause_is_drawn_over_its_whole_window() -> None:
     spec = "(not inside(d1, goal)) until[0,3] (always[0,1] inside(d1, goal))"
     (tr,) = clause_traces(reach_avoid_plan(spec))
-    # Horizon 3 + 1 s: the trace exists for t in [0, 2] s.
-    assert tr.shown == "clause" and tr.operator == "" and tr.window_s is None
-    assert tr.t_s.size == 601 - 400
-    # Reference: brute force of the until definition (DESIGN.md section 4) at a few steps.
+    # The curve over t' in [0, 3] whose maximum is the clause's value: the option of
+    # meeting q at t' (q(t') while p held on [0, t')), not a stub of the clause's own trace.
+    assert tr.shown == "until" and tr.operator == "until" and tr.window_s == (0.0, 3.0)
+    assert tr.t_s.size == 301 and not np.isnan(tr.rho).any()
     phi = _inside(P1, *GOAL)
     hold = np.array([phi[k : k + 101].min() for k in range(501)])  # always[0,1]
-    for t in (0, 50, 137, 200):
-        best = -np.inf
-        for tp in range(t, t + 301):
-            before = np.inf if tp == t else (-phi[t:tp]).min()
-            best = max(best, min(hold[tp], before))
-        assert tr.rho[t] == pytest.approx(best, abs=1e-9)
-    assert tr.robustness == tr.rho[0]
+    for tp in (0, 1, 57, 180, 300):
+        before = np.inf if tp == 0 else (-phi[:tp]).min()
+        assert tr.rho[tp] == pytest.approx(min(hold[tp], before), abs=1e-9)
+    # Reference: brute force of the until definition (DESIGN.md section 4) at t = 0.
+    best = max(min(hold[tp], np.inf if tp == 0 else (-phi[:tp]).min()) for tp in range(301))
+    assert tr.robustness == pytest.approx(best, abs=1e-9)
+    assert tr.robustness == pytest.approx(np.nanmax(tr.rho), abs=1e-12)
+    assert tr.witness_t_s == pytest.approx(T[int(np.nanargmax(tr.rho))])
+    # a window that starts later is NaN before it
+    (late,) = clause_traces(reach_avoid_plan(spec.replace("until[0,3]", "until[1,3]")))
+    assert np.isnan(late.rho[:100]).all() and not np.isnan(late.rho[100:]).any()
 
 
 def test_plot_png_is_written_with_all_panels(tmp_path: Path) -> None:
@@ -115,10 +119,24 @@ def test_plot_png_is_written_with_all_panels(tmp_path: Path) -> None:
     ax3 = next(ax for ax in fig.axes if ax.name == "3d")
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
+    from gcs.plot import is_large
+
     boxes = [c for c in ax3.collections if isinstance(c, Poly3DCollection)]
-    assert len(boxes) == len(plan.regions)
+    large = [r for r in plan.regions if is_large(r, plan.workspace)]
+    # small regions solid; large ones (a corridor along the whole line) only outlined, so
+    # what lies inside them stays visible
+    assert [r.name for r in large] == ["line"]
+    assert len(boxes) == len(plan.regions) - len(large)
     labels = {t.get_text() for t in ax3.get_legend().get_texts()}
-    assert {"d1", "d2", "workspace", "start", "end", "pole", "conductor corridor"} <= labels
+    assert {
+        "d1",
+        "d2",
+        "workspace",
+        "start",
+        "end",
+        "pole",
+        "conductor corridor (outline)",
+    } <= labels
     # The velocity panels carry the per-axis limits as dashed lines at +-v_max.
     vx = next(ax for ax in fig.axes if ax.get_title().startswith("velocity east x"))
     levels = {round(ln.get_ydata()[0], 6) for ln in vx.get_lines() if ln.get_linestyle() == "--"}
@@ -318,3 +336,58 @@ def test_unusable_telemetry_or_spec_is_one_line_exit_2(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1
     assert "spec clause 1 (always[0,10] inside(d1, workspace))" in err[0], err
+
+
+def test_colour_means_vehicle_in_every_panel_and_telemetry_adds_tracking_and_velocity(
+    tmp_path: Path,
+) -> None:
+    from matplotlib.colors import to_rgba
+
+    from gcs.plot import flown_velocity, tracking_error
+
+    plan = reach_avoid_plan()
+    # d2 flew 0.1 m north of its plan and 0.2 s late (so its velocity is the plan's, delayed)
+    t_tel = np.arange(301) * 0.02
+    shift = np.array([0.0, 0.1, 0.0])
+    late = np.clip(t_tel - 0.2, 0.0, None)
+    telemetry = load_telemetry(
+        _write_telemetry(
+            tmp_path / "f.csv",
+            {"d1": quintic_position(*D1, t_tel), "d2": quintic_position(*D2, late) + shift},
+            t_tel,
+        )
+    )
+    traces = clause_traces(plan, telemetry)
+    fig = render_figure(plan, traces, telemetry)
+    vel_ax = next(ax for ax in fig.axes if ax.get_title().startswith("velocity east x"))
+    vehicle_colour = {ln.get_label(): to_rgba(ln.get_color()) for ln in vel_ax.get_lines() if ln.get_label() in ("d1", "d2")}  # fmt: skip
+    assert len(set(vehicle_colour.values())) == 2
+    # robustness panel: a clause about one vehicle in that vehicle's colour, several in black
+    rob = next(ax for ax in fig.axes if ax.get_title().startswith("Clause robustness"))
+    legend = next(ax for ax in fig.axes if ax.get_legend() and "weakest first" in ax.get_legend().get_title().get_text())  # fmt: skip
+    for handle in legend.get_legend().legend_handles:
+        text = handle.get_label()
+        names = [n for n in ("d1", "d2") if f"{n}," in text or f"{n})" in text]
+        if not names:
+            continue
+        want = vehicle_colour[names[0]] if len(names) == 1 else to_rgba("k")
+        assert to_rgba(handle.get_color()) == want, text
+    clause_colours = {to_rgba(ln.get_color()) for ln in rob.get_lines()}
+    assert clause_colours <= {*vehicle_colour.values(), to_rgba("k"), to_rgba("0.6")}
+    # tracking error panel: |flown - planned| per vehicle, against a direct computation
+    trk = next(ax for ax in fig.axes if ax.get_title().startswith("Tracking error"))
+    err = tracking_error(plan, telemetry, T)
+    assert np.allclose(err["d1"][1][::2], 0.0, atol=1e-9)  # at the samples; between, linear
+    assert np.allclose(err["d1"][1], 0.0, atol=1e-3)
+    ref = np.linalg.norm(quintic_position(*D2, np.clip(T - 0.2, 0, None)) + shift - P2, axis=1)
+    np.testing.assert_allclose(err["d2"][1], ref, atol=2e-3)  # telemetry interpolated
+    assert {ln.get_label().split()[0] for ln in trk.get_lines()} >= {"d1", "d2"}
+    # flown velocities beside the planned ones: d2's is its plan's, 0.2 s later
+    tf, vf = flown_velocity(telemetry.vehicles["d2"])
+    inner = (tf > 0.5) & (tf < 5.5)
+    assert np.all(np.isfinite(vf))
+    pv = next(v for v in plan.vehicles if v.name == "d2")
+    # (a central difference over 0.25 s: exact to h^2 / 6 of the jerk, under 0.05 m/s here)
+    np.testing.assert_allclose(vf[inner], pv.trajectory.velocity(tf[inner] - 0.2), atol=0.05)
+    flown_lines = [ln for ln in vel_ax.get_lines() if ln.get_alpha() == pytest.approx(0.35)]
+    assert len(flown_lines) == 2
