@@ -37,8 +37,8 @@ def _mistakes() -> list[tuple[str, str, list[Any], Any]]:
         (
             "start inside a pole",
             "powerline_inspection.yaml",
-            ["vehicles", "starts", "positions", 0],
-            [0.0, 0.0, 5.0],
+            ["vehicles", "starts"],
+            {"grid": {"min": [0, 0, 5], "max": [12, 4, 5], "shape": [4, 2, 1]}},
         ),
         (
             "start above the workspace",
