@@ -2,7 +2,7 @@
 
 ``gcs fly --end land`` (offboard and mission) and ``gcs upload --end land`` land each vehicle
 where its plan ends, unless the column below it, widened by :data:`CLEARANCE_M` (the drift of
-a descent, the tracking error left at the end), meets a box that is a keep-out by kind
+a descent), meets a box that is a keep-out by kind
 (obstacle, no-fly zone, pole, conductor): a drone that ends its inspection beside a pole or
 above a conductor must not descend there.  Then the vehicle first flies, at the altitude it
 ends at, to the nearest point whose column is clear and to which the straight transit at that
@@ -29,9 +29,11 @@ if TYPE_CHECKING:
 
 #: Kinds of region a vehicle must never descend or fly through.
 KEEP_OUT_KINDS = (RegionKind.OBSTACLE, RegionKind.NO_FLY, RegionKind.POLE, RegionKind.CONDUCTOR)
-#: Horizontal clearance from a keep-out box, for the descent and for the transit, m:
-#: PX4 holds its position within decimetres while it lands (PX4 SITL: 0.1-0.3 m), and a
-#: flight that ended farther from its plan than this was warned about by the tracking alarm.
+#: Horizontal clearance from a keep-out box, for the descent and for the transit, m. It
+#: covers a descent's drift (the px4 mock's vehicles land within 0.5 m of where they began
+#: it: tests/mavlink/test_mock_mavsdk.py), not a vehicle that ended its plan off track: the
+#: landing point is chosen from the plan's end, and the tracking alarm (``gcs fly
+#: --max-off-plan``) is what bounds how far from it a vehicle can be.
 CLEARANCE_M = 0.5
 #: How far from the plan's end a landing point is looked for, m.
 SEARCH_M = 60.0

@@ -323,7 +323,9 @@ def test_vehicles_boot_facing_north_and_a_90_degree_turn_takes_px4s_time_and_sha
             t_settle = (k - 100) * 0.01
     # PX4 SITL: about 1.2 s for 90 degrees (MC_YAW_P 2.8)
     assert t_settle is not None and 0.8 < t_settle < 1.5
-    assert max(turning[:100]) < 0.6 and np.mean(turning[:100]) > np.mean(quiet)
+    # PX4 SITL: the turn adds up to ~0.3 m/s to the velocity error
+    extra = np.mean(turning[:100]) - np.mean(quiet)
+    assert 0.0 < extra < 0.3, extra
 
 
 # ------------------------------------------------------------------ take-off
@@ -712,7 +714,8 @@ def test_download_returns_what_px4_stores_yaw_fence_and_rally() -> None:
 
 def test_geofence_is_predictive_and_fires_before_a_goal_near_the_wall() -> None:
     def approach(**params: float) -> tuple[Px4Mode, list[str], float]:
-        f = fleet(seed=11, **params)
+        # the fence logic alone: a quiet estimator (its noise near a wall is another matter)
+        f = fleet(seed=11, **QUIET, **params)
         v = f.vehicles[0]
         square = [(-2.0, -2.0), (-2.0, 2.0), (2.0, 2.0), (2.0, -2.0)]
         upload(f, v, [
