@@ -7,6 +7,7 @@ Formulation and why it is shaped so: :mod:`planner.optimize`; what each choice m
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -91,11 +92,57 @@ def _ca_expr(e: Expr, rows: Mapping[str, Any], fns: Mapping[str, Callable[..., A
 # ------------------------------------------------------------------------------ build
 
 
+class IterationWatch(ca.Callback):  # type: ignore[misc]
+    """Called by the solver after every iteration: counts them, shows the iterate to
+    ``on_iteration`` (decision vector, objective), and asks the solver to stop once
+    ``time.perf_counter()`` passes ``deadline`` (IPOPT then returns User_Requested_Stop
+    with its last iterate).  One per built structure, shared by its solvers; a plan sets
+    ``deadline`` and ``on_iteration`` before it solves."""
+
+    def __init__(self, n_x: int, n_g: int, n_p: int) -> None:
+        ca.Callback.__init__(self)
+        self._dims = {"x": n_x, "f": 1, "g": n_g, "lam_x": n_x, "lam_g": n_g, "lam_p": n_p}
+        self.deadline = math.inf
+        self.iterations = 0
+        self.stopped = False
+        self.on_iteration: Callable[[np.ndarray, float], None] | None = None
+        self.construct("stl_iteration_watch", {})
+
+    def get_n_in(self) -> int:
+        return int(ca.nlpsol_n_out())
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_name_in(self, i: int) -> str:
+        return str(ca.nlpsol_out(i))
+
+    def get_name_out(self, i: int) -> str:
+        return "ret"
+
+    def get_sparsity_in(self, i: int) -> Any:
+        n = self._dims.get(str(ca.nlpsol_out(i)), 0)
+        return ca.Sparsity.dense(n, 1) if n else ca.Sparsity(0, 0)
+
+    def get_sparsity_out(self, i: int) -> Any:
+        return ca.Sparsity.scalar()
+
+    def eval(self, arg: list[Any]) -> list[Any]:
+        self.iterations += 1
+        if self.on_iteration is not None:
+            self.on_iteration(np.asarray(arg[0]).reshape(-1), float(arg[1]))
+        if time.perf_counter() > self.deadline:
+            self.stopped = True
+            return [1]
+        return [0]
+
+
 @dataclass(slots=True)
 class _Structure:
     """A built NLP, reusable for any start states and limits of the same structure."""
 
     solvers: list[tuple[float, Any]]  # (k, nlpsol) in continuation order
+    watch: IterationWatch  # every solver's iteration callback
     leaf_fn: Any  # ca.Function (w, p) -> leaf values (for r0)
     n_w: int
     n_z: int  # the first n_z entries of w are the Z matrices (vec, vehicle after vehicle)
@@ -288,13 +335,14 @@ def _build(problem: Problem, model: Any, formula: Formula) -> _Structure:
 
     solvers = []
     leaf_fn = None
+    watch = IterationWatch(int(w.shape[0]), n_sx + len(smooth_items), int(p.shape[0]))
     for k in k_list:
         insts = [
             instance(leaf, st, model, dt, k, k_pred, vehicle_index, problem.region)
             for leaf, st in smooth_items
         ]
         nlp, derivs, leaf_fn = _assemble(wm, pm, sx_derivs, insts, n_lin, n_sx, exact)
-        solvers.append((k, _nlpsol(nlp, problem, derivs, warm=bool(solvers))))
+        solvers.append((k, _nlpsol(nlp, problem, derivs, watch, warm=bool(solvers))))
     n_g = n_sx + len(smooth_items)
     n_leaf = n_g - n_lin
     lbg_fixed = np.concatenate(
@@ -305,6 +353,7 @@ def _build(problem: Problem, model: Any, formula: Formula) -> _Structure:
     )
     return _Structure(
         solvers=solvers,
+        watch=watch,
         leaf_fn=leaf_fn,
         n_w=int(w.shape[0]),
         n_z=n_z,
@@ -474,13 +523,17 @@ _IPOPT_WARM: dict[str, Any] = {
 
 
 def _nlpsol(
-    nlp: dict[str, Any], problem: Problem, derivs: dict[str, Any], warm: bool = False
+    nlp: dict[str, Any],
+    problem: Problem,
+    derivs: dict[str, Any],
+    watch: IterationWatch,
+    warm: bool = False,
 ) -> Any:
     """The solver; ``warm``: it starts from an earlier solve's primal-dual point (a later
     stage of the k continuation), so IPOPT keeps the multipliers and a small barrier."""
     s = problem.solver
     if s.method is SolverMethod.SQP:
-        return _sqpsol(nlp, s, derivs)
+        return _sqpsol(nlp, s, derivs, watch)
     return ca.nlpsol(
         "stl_ipopt",
         "ipopt",
@@ -488,6 +541,7 @@ def _nlpsol(
         {
             "print_time": False,
             "error_on_fail": False,
+            "iteration_callback": watch,
             **derivs,
             "ipopt": {
                 "print_level": s.print_level,
@@ -504,7 +558,7 @@ def _nlpsol(
     )
 
 
-def _sqpsol(nlp: dict[str, Any], s: Any, derivs: dict[str, Any]) -> Any:
+def _sqpsol(nlp: dict[str, Any], s: Any, derivs: dict[str, Any], watch: IterationWatch) -> Any:
     """CasADi's ``sqpmethod`` on the same NLP and derivatives, with a QP solver of the wheel.
 
     sqpmethod takes the objective gradient and the constraint Jacobian as one function
@@ -530,6 +584,7 @@ def _sqpsol(nlp: dict[str, Any], s: Any, derivs: dict[str, Any]) -> Any:
         "error_on_fail": False,
         "tol_pr": s.tol,
         "tol_du": s.tol,
+        "iteration_callback": watch,
     }
     if s.hessian == "exact":
         lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", g.shape[0])

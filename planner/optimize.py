@@ -140,6 +140,8 @@ def plan(
     *,
     initial_guess: np.ndarray | None = None,
     progress: Callable[[str], None] | None = None,
+    time_limit_s: float | None = None,
+    progress_every_s: float = 2.0,
 ) -> PlanResult:
     """Plan trajectories that maximise the robustness of ``problem``'s spec.
 
@@ -148,7 +150,12 @@ def plan(
         initial_guess: flat decision vector (``PlanResult.decision`` of an earlier solve of
             the same structure) to warm start from; default: straight lines through the
             boxes each vehicle must visit.
-        progress: called with a short line at each stage (build, solve, check).
+        progress: called with a short line at each stage (build, solve, check), and
+            during a solve every ``progress_every_s`` with the iteration and the best exact
+            robustness so far.
+        time_limit_s: stop the solver once this long has passed since the call (the build
+            counts; ``None``: no limit) and return the best plan found by then, its status
+            saying so.  The solver stops at its next iteration; the check after it runs.
 
     Returns:
         :class:`PlanResult`; ``success=False`` (with the best trajectories) when the
@@ -175,6 +182,10 @@ def plan(
         _CACHE[key] = struct
     struct = _CACHE[key]
     build_s = struct.build_s if not cached else 0.0
+    watch = struct.watch
+    watch.deadline = math.inf if time_limit_s is None else t_start + float(time_limit_s)
+    watch.iterations = 0
+    watch.stopped = False
 
     # Numeric bounds: limits per vehicle into lbg/ubg, r bounds.
     lbg = struct.lbg_fixed.copy()
@@ -220,6 +231,30 @@ def plan(
     def exact_of(w: np.ndarray) -> float:
         return _evaluate(problem, formula, formulas, trajectories_of(w))[0]
 
+    # During a solve: every progress_every_s, the iterate's exact robustness (the best one
+    # kept: a solve stopped by the time limit or Ctrl-C returns the better of it and its
+    # last iterate).
+    seen: dict[str, Any] = {
+        "next": time.perf_counter() + progress_every_s,
+        "rho": -math.inf,
+        "w": None,
+    }
+
+    def on_iteration(w: np.ndarray, _f: float) -> None:
+        now = time.perf_counter()
+        if now < seen["next"]:
+            return
+        seen["next"] = now + progress_every_s
+        rho = exact_of(w)
+        if rho > seen["rho"]:
+            seen["rho"], seen["w"] = rho, w.copy()
+        say(
+            f"solving: iteration {watch.iterations}, best exact robustness so far "
+            f"{seen['rho']:+.4f}"
+        )
+
+    watch.on_iteration = on_iteration
+
     # Ctrl-C stops the solve in hand and any after it; the best point so far is the plan
     with _watch_sigint() as stop:
         run = _run_solvers(struct, w0, bounds, say, problem.solver.method.value, stop)
@@ -239,7 +274,7 @@ def plan(
             check_s += time.perf_counter() - t_check
             rob = best[0]
             for _ in range(_EPS_ROUNDS):
-                if rob >= eps or not _solved(status) or stop.hit:
+                if rob >= eps or not _solved(status) or stop.hit or watch.stopped:
                     break
                 margin += eps - rob + _EPS_MARGIN_STEP_M
                 _lower_r(lbx, ubx, eps + margin)
@@ -254,7 +289,7 @@ def plan(
                     best = (rob, w_opt, status)
             rob, w_opt, status = best
             converged = _solved(status)
-            if rob < eps and not stop.hit:
+            if rob < eps and not stop.hit and not watch.stopped:
                 # Infeasible as constrained: the plain maximisation from the same start finds
                 # the best trajectories there are (a failed result carries the best found).
                 lbx[-1], ubx[-1] = struct.lbx[-1], struct.ubx[-1]
@@ -269,6 +304,9 @@ def plan(
                 check_s += time.perf_counter() - t_check
                 run = run.then(plain)
 
+    watch.on_iteration = None
+    if (stop.hit or watch.stopped) and seen["w"] is not None and seen["rho"] > exact_of(w_opt):
+        w_opt = seen["w"]  # an earlier iterate was better than the one the solver stopped at
     say("checking on dense samples")
     # The smooth value at the point returned (r itself may sit on a bound, eq. (1)).
     smooth = _min_leaf(struct, w_opt, p_val, default=float(w_opt[-1]))
@@ -311,7 +349,13 @@ def plan(
         problem=problem,
         success=success,
         status=_user_status(
-            status, converged, success, rob < problem.epsilon, verdict, interrupted=stop.hit
+            status,
+            converged,
+            success,
+            rob < problem.epsilon,
+            verdict,
+            interrupted=stop.hit,
+            time_limit_s=time_limit_s if watch.stopped and not stop.hit else None,
         ),
         robustness=rob,
         robustness_planning_grid=rob_grid,
@@ -354,12 +398,17 @@ def _user_status(
     verdict: str,
     *,
     interrupted: bool = False,
+    time_limit_s: float | None = None,
 ) -> str:
     """The outcome in the user's terms first, the solver's own status after (in brackets):
     "the solver converged but the mission is not met: robustness -111 < epsilon 0.01 ...",
     never "Solve_Succeeded" on a plan that fails."""
     if interrupted:
         head = "interrupted (Ctrl-C); the best plan so far" + (
+            ", and it meets the mission" if success else ""
+        )
+    elif time_limit_s is not None:
+        head = f"stopped at the time limit ({time_limit_s:g} s); the best plan so far" + (
             ", and it meets the mission" if success else ""
         )
     elif success:
@@ -452,7 +501,7 @@ def _run_solvers(
     w_opt = w0
     lam_x = lam_g = None
     for k, solver in struct.solvers:
-        if stop.hit:
+        if stop.hit or struct.watch.stopped:
             break
         say(f"solving with {what} (k={k:.3g})")
         args: dict[str, Any] = {"x0": w_opt, **bounds}

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import threading
 import time
@@ -30,6 +31,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", default="plan.json", help="plan file (default plan.json)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--print-spec", action="store_true", help="print the expanded STL spec and exit")
+    p.add_argument(
+        "--time-limit",
+        type=float,
+        default=120.0,
+        metavar="S",
+        help="stop solving after S seconds (build included) and write the best plan so far, "
+        "saying so (120; 0: no limit)",
+    )
     p.add_argument(
         "--solver",
         choices=["ipopt", "sqpmethod"],
@@ -165,10 +174,13 @@ def run(args: argparse.Namespace) -> int:
     """Plan; 0 on success, 1 when the plan fails its checks."""
     from dataclasses import replace
 
+    from gcs.errors import UserError
     from planner.optimize import plan
     from planner.planfile import check_writable, save_plan
     from planner.scenario import SolverMethod, load_scenario
 
+    if not (math.isfinite(args.time_limit) and args.time_limit >= 0):
+        raise UserError(f"--time-limit: must be a number of seconds >= 0, got {args.time_limit:g}")
     problem = load_scenario(args.scenario, vehicles=args.vehicles)
     if args.print_spec:
         print(problem.spec_text)
@@ -180,7 +192,12 @@ def run(args: argparse.Namespace) -> int:
         hessian = "limited-memory" if method is SolverMethod.SQP else problem.solver.hessian
         problem = replace(problem, solver=replace(problem.solver, method=method, hessian=hessian))
     with _Ticker(enabled=True) as ticker:
-        result = plan(problem, progress=ticker.set)
+        result = plan(
+            problem,
+            progress=ticker.set,
+            time_limit_s=args.time_limit or None,
+            progress_every_s=1.0 if sys.stderr.isatty() else 10.0,
+        )
     save_plan(out, result, scenario_path=str(args.scenario))
     from gcs.tuning import px4_notes
     from planner.planfile import load_plan

@@ -139,3 +139,14 @@ def test_ctrl_c_during_the_solve_writes_the_best_plan_so_far_and_says_so(tmp_pat
     assert summary["status"].startswith("interrupted (Ctrl-C); the best plan so far"), summary
     assert "Traceback" not in stderr
     assert json.loads(out.read_text())["format"] == "stl-gcs-plan"  # written all the same
+
+
+@pytest.mark.parametrize("value", ["-1", "nan", "inf"])
+def test_a_bad_time_limit_is_one_line_exit_2(
+    value: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = ["plan", str(CONFIGS / "reach_avoid.yaml"), "-o", str(tmp_path / "p.json")]
+    assert cli.main([*argv, "--time-limit", value]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--time-limit: must be a number of seconds >= 0" in err
+    assert not (tmp_path / "p.json").exists()

@@ -345,3 +345,27 @@ def test_a_leaf_of_constants_only_plans() -> None:
     result = plan(parse_scenario(base, "constants.yaml"))
     assert result.success, result.status
     assert result.robustness == pytest.approx(0.25, abs=0.01)  # the goal's half-size
+
+
+@pytest.mark.slow
+def test_a_time_limit_stops_the_solver_with_the_best_plan_so_far_and_says_so() -> None:
+    # 8 drones on the power line: dozens of IPOPT iterations of ~0.2 s each
+    problem = load_scenario(CONFIGS / "powerline_inspection.yaml", vehicles=8)
+    lines: list[str] = []
+    full = plan(problem, progress=lines.append, progress_every_s=0.5)
+    assert full.success and full.status.startswith("the mission is met")
+    # while solving: the iteration and the best exact robustness so far
+    during = [ln for ln in lines if ln.startswith("solving: iteration ")]
+    assert during and all("best exact robustness so far" in ln for ln in during)
+    # the same structure again (built: the limit is all solve), stopped after about a second
+    short = plan(problem, time_limit_s=1.0)
+    assert short.status.startswith("stopped at the time limit (1 s); the best plan so far")
+    assert "(solver: User_Requested_Stop)" in short.status
+    assert short.iterations < full.iterations
+    # the best plan so far is a plan: trajectories and its exact verdict
+    assert len(short.trajectories) == 8 and np.isfinite(short.robustness)
+    # no limit: the solver runs to its end as before
+    again = plan(problem, time_limit_s=None)
+    assert again.iterations == full.iterations and again.robustness == pytest.approx(
+        full.robustness
+    )
