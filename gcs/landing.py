@@ -22,13 +22,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from planner.regions import Region, RegionKind
+from planner.regions import KEEP_OUT_KINDS, Region
 
 if TYPE_CHECKING:
     from planner.planfile import Plan
 
-#: Kinds of region a vehicle must never descend or fly through.
-KEEP_OUT_KINDS = (RegionKind.OBSTACLE, RegionKind.NO_FLY, RegionKind.POLE, RegionKind.CONDUCTOR)
 #: Horizontal clearance from a keep-out box, for the descent and for the transit, m. It
 #: covers a descent's drift (the px4 mock's vehicles land within 0.5 m of where they began
 #: it: tests/mavlink/test_mock_mavsdk.py), not a vehicle that ended its plan off track: the

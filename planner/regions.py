@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Region", "RegionKind"]
+__all__ = ["KEEP_OUT_KINDS", "Region", "RegionKind"]
 
 
 class RegionKind(enum.Enum):
@@ -25,6 +25,14 @@ class RegionKind(enum.Enum):
     INSPECTION = "inspection"
     GOAL = "goal"
     REGION = "region"
+
+
+#: Kinds of region no vehicle may ever be inside of, whatever the spec says: where it
+#: may not start (:mod:`planner.scenario_checks`) and not descend or fly through when it
+#: lands (:mod:`gcs.landing`).
+KEEP_OUT_KINDS = frozenset(
+    {RegionKind.OBSTACLE, RegionKind.NO_FLY, RegionKind.POLE, RegionKind.CONDUCTOR}
+)
 
 
 @dataclass(frozen=True, slots=True)

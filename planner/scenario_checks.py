@@ -35,16 +35,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from planner.predicates import Role, role_of
-from planner.regions import RegionKind
+from planner.regions import KEEP_OUT_KINDS
 from planner.stl import Always, And, Eventually, Formula, Predicate, Until
 from planner.stl.ast import format_number
 
 if TYPE_CHECKING:
     from planner.regions import Region
     from planner.scenario import Problem, Vehicle
-
-#: Region kinds a vehicle can never be inside of, whatever the spec says.
-KEEP_OUT_KINDS = (RegionKind.OBSTACLE, RegionKind.NO_FLY, RegionKind.POLE, RegionKind.CONDUCTOR)
 
 _AXES = ("east", "north", "up")
 
