@@ -48,6 +48,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.mock import px4
 from mavlink.mock.mission import FENCE, MISSION, RALLY
+from mavlink.mock.parts import VehicleParts
 from mavlink.mock.px4 import Px4Mode
 
 _RTL_MIN_DIST_M = 10.0
@@ -94,7 +95,7 @@ def corner_speed(
     return min(turn, max_speed_from_distance(jerk, acc, d_next, 0.0))
 
 
-class NavigatorMixin:
+class NavigatorMixin(VehicleParts):
     """Mission, RTL and geofence logic of :class:`~mavlink.mock.vehicle.MockVehicle`."""
 
     def _rtl_start(self) -> None:
@@ -167,11 +168,11 @@ class NavigatorMixin:
             item = plan[seq]
             cmd = item.command
             if cmd == mavlink2.MAV_CMD_DO_JUMP:
-                target, repeat = int(item.param1), int(item.param2)
+                jump_to, repeat = int(item.param1), int(item.param2)
                 done = self._jump_counts.get(seq, 0)
-                if (repeat < 0 or done < repeat) and 0 <= target < len(plan):
+                if (repeat < 0 or done < repeat) and 0 <= jump_to < len(plan):
                     self._jump_counts[seq] = done + 1
-                    seq = target
+                    seq = jump_to
                 else:
                     seq += 1
                 continue

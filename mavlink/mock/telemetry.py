@@ -10,15 +10,18 @@ from __future__ import annotations
 
 import enum
 import math
+from typing import Any, TypeAlias
 
 import pymap3d
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.mock import px4
 from mavlink.mock.mission import MISSION
+from mavlink.mock.parts import VehicleParts
 from mavlink.mock.px4 import Px4Mode
 
-Msg = mavlink2.MAVLink_message
+#: A pymavlink message (its fields are per message type: untyped to mypy).
+Msg: TypeAlias = Any
 
 #: Default telemetry rates (Hz) of a PX4 GCS/onboard link, by message id.
 DEFAULT_RATES_HZ: dict[int, float] = {
@@ -76,7 +79,7 @@ class LandedState(enum.IntEnum):
     LANDING = mavlink2.MAV_LANDED_STATE_LANDING
 
 
-class TelemetryMixin:
+class TelemetryMixin(VehicleParts):
     """Message builders of :class:`~mavlink.mock.vehicle.MockVehicle` (one per message type)."""
 
     def _landed_state(self) -> int:

@@ -13,10 +13,12 @@ import contextlib
 import socket
 import time
 from collections.abc import Callable, Iterator
+from typing import Any, TypeAlias
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-Msg = mavlink2.MAVLink_message
+#: A pymavlink message (its fields are per message type: untyped to mypy).
+Msg: TypeAlias = Any
 
 
 def free_udp_port(host: str = "127.0.0.1") -> int:

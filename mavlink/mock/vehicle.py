@@ -22,7 +22,7 @@ import math
 import random
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import Any, ClassVar, Protocol
+from typing import Any, ClassVar, Protocol, TypeAlias
 
 import numpy as np
 import pymap3d
@@ -34,7 +34,7 @@ from mavlink.mock.errors import MockConfigError, MockError
 from mavlink.mock.estimator import EstimatorParams
 from mavlink.mock.mission import MISSION, MissionItem, MissionServer
 from mavlink.mock.navigator import NavigatorMixin
-from mavlink.mock.physics import GRAVITY_M_S2
+from mavlink.mock.physics import GRAVITY_M_S2, FleetPhysics
 from mavlink.mock.profiles import profile_params
 from mavlink.mock.px4 import Px4Mode
 from mavlink.mock.telemetry import DEFAULT_RATES_HZ, TelemetryMixin
@@ -49,6 +49,10 @@ class FleetSide(Protocol):
     time_s: float
     dt_s: float
     signing_key: bytes | None
+    seed: int
+    gcs_host: str
+    gcs_ports: list[int]
+    physics: FleetPhysics
 
     def geodetic(self, i: int) -> tuple[float, float, float]: ...
 
@@ -59,7 +63,8 @@ class FleetSide(Protocol):
     def offline_links(self) -> None: ...
 
 
-Msg = mavlink2.MAVLink_message
+#: A pymavlink message (its fields are per message type: untyped to mypy).
+Msg: TypeAlias = Any
 
 ACCEPTED = mavlink2.MAV_RESULT_ACCEPTED
 TEMPORARILY_REJECTED = mavlink2.MAV_RESULT_TEMPORARILY_REJECTED

@@ -1,0 +1,86 @@
+"""What the mock vehicle's mixins read from the vehicle, declared once for the type checker.
+
+:class:`~mavlink.mock.vehicle.MockVehicle` is put together from
+:class:`~mavlink.mock.navigator.NavigatorMixin` (missions, RTL, geofence) and
+:class:`~mavlink.mock.telemetry.TelemetryMixin` (message builders); both read the vehicle's
+state and call a few of its methods.  :class:`VehicleParts`, their common base, names those
+attributes with their types and the methods' signatures (the latter for the type checker
+only), so each mixin is checked against what the vehicle really provides.  At run time it
+adds nothing: annotations without values create no attributes.
+"""
+
+from __future__ import annotations
+
+import random
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from mavlink.mock.config import MockVehicleConfig
+    from mavlink.mock.mission import MissionServer
+    from mavlink.mock.physics import FleetPhysics
+    from mavlink.mock.px4 import Px4Mode
+    from mavlink.mock.vehicle import FleetSide
+
+
+class VehicleParts:
+    """The state and methods of a mock vehicle that its mixins use (module docstring)."""
+
+    fleet: FleetSide
+    index: int
+    sysid: int
+    uid: int
+    config: MockVehicleConfig
+    spawn_lla: tuple[float, float, float]
+    origin_lla: tuple[float, float, float]
+    phys: FleetPhysics
+    params: dict[str, float]
+    missions: MissionServer
+    armed: bool
+    landed: bool
+    failsafe: bool
+    mode: Px4Mode
+    home_ned_m: np.ndarray
+    mission_seq: int
+    mission_finished: bool
+    _armed_at_s: float
+    _fence_breached: bool
+    _rtl_phase: str
+    _jump_counts: dict[int, int]
+    _mc_rng: random.Random
+
+    if TYPE_CHECKING:
+
+        @property
+        def px4_nav(self) -> bool: ...
+
+        def _now(self) -> float: ...
+
+        def _boot_ms(self) -> int: ...
+
+        def _usec(self) -> int: ...
+
+        def send(self, msg: Any) -> None: ...
+
+        def statustext(self, severity: int, text: str) -> None: ...
+
+        def set_mode(self, mode: Px4Mode, takeoff_down_m: float | None = None) -> None: ...
+
+        def ned_to_global(self, pos_ned_m: np.ndarray) -> tuple[float, float, float]: ...
+
+        def global_to_ned(self, lat_deg: float, lon_deg: float, alt_m: float) -> np.ndarray: ...
+
+        def _home_alt_amsl(self) -> float: ...
+
+        def _item_target_ned(
+            self, frame: int, x_e7: int, y_e7: int, z_m: float, default: np.ndarray
+        ) -> np.ndarray: ...
+
+        def _apply_limits(self) -> None: ...
+
+        def _do_disarm(self, why: str) -> None: ...
+
+        def _start_descent(self) -> None: ...
+
+        def _msg_mission_current(self) -> Any: ...
