@@ -201,7 +201,9 @@ def convert_plan(
             break
         changed = False
         for name, m in missions.items():
+            # the plan's waypoints (a landing point's waypoint, if any, comes after them)
             wp_seqs = [it.seq for it in m.items if it.command == Cmd.NAV_WAYPOINT]
+            wp_seqs = wp_seqs[: len(m.hold_s)]
             left = pred.left_s[name]
             new = speeds[name].copy()
             for j in range(1, len(wp_seqs)):

@@ -292,8 +292,9 @@ def trajectory_to_mission(
             vehicle is, which trails its setpoint by the drag lag, so with a radius
             smaller than that trail the setpoint stops at the waypoint and waits.
         land_at_enu_m: with ``end`` LAND, land here (east, north; the mission frame)
-            instead of below the last point: PX4 flies a NAV_LAND with a position there
-            first, at the altitude it is at (:mod:`gcs.landing` picks it clear of keep-outs).
+            instead of below the last point: a NAV_WAYPOINT there at the last point's
+            altitude, then the NAV_LAND (a multicopter's NAV_LAND descends on its way to
+            its position); :mod:`gcs.landing` picks the point clear of keep-outs.
 
     Raises:
         MissionError: ``INVALID_ITEM`` for a non-positive acceptance radius or a speed
@@ -436,6 +437,12 @@ def trajectory_to_mission(
             e, n = float(land_at_enu_m[0]), float(land_at_enu_m[1])
             pe = enu_to_geodetic(np.array([e, n, float(wp[-1, 2])]), origin)
             land_lat, land_lon = float(np.ravel(pe[0])[0]), float(np.ravel(pe[1])[0])
+            # A multicopter's NAV_LAND descends while it moves to its position
+            # (FlightTaskAuto::_prepareLandSetpoints): get there at the end's altitude first.
+            add(
+                Cmd.NAV_WAYPOINT, g, 0.0, float(acceptance_radius_m), 0.0, float("nan"),
+                _e7(land_lat), _e7(land_lon), float(alt[-1]),
+            )  # fmt: skip
         add(
             Cmd.NAV_LAND, g, 0.0, 0.0, 0.0, float("nan"), _e7(land_lat), _e7(land_lon),
             float(alt[-1]),

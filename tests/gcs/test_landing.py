@@ -92,10 +92,21 @@ def test_missions_land_at_the_clear_point_and_no_clear_point_refuses_land(
     edited = _with(plan, mast)
     point = landing_targets(edited)["d1"]
     conv = convert_plan(edited, end=MissionEnd.LAND, iterations=1)
-    land = conv.missions["d1"].items[-1]
+    go, land = conv.missions["d1"].items[-2:]
     assert land.command == Cmd.NAV_LAND
     lat, lon, _ = enu_to_geodetic(point, plan.origin)
     assert (land.x, land.y) == (round(float(lat) * 1e7), round(float(lon) * 1e7))
+    # first there at the end's altitude (PX4's NAV_LAND descends on its way to its point)
+    before = conv.missions["d1"].items[-3]
+    assert go.command == Cmd.NAV_WAYPOINT and (go.x, go.y) == (land.x, land.y)
+    assert go.z == pytest.approx(before.z) and go.z == pytest.approx(land.z)
+
+    # one waypoint more than the plan's for d1; d2 lands straight down, none more
+    def waypoints(name: str) -> int:
+        return sum(1 for it in conv.missions[name].items if it.command == Cmd.NAV_WAYPOINT)
+
+    assert waypoints("d1") == len(conv.missions["d1"].hold_s) + 1
+    assert waypoints("d2") == len(conv.missions["d2"].hold_s)
     # a no-fly zone under the whole workspace: nowhere to land
     ws = plan.workspace
     road = Region("road", RegionKind.NO_FLY, (ws.lo_enu_m[0], ws.lo_enu_m[1], -1.0), (ws.hi_enu_m[0], ws.hi_enu_m[1], 0.1))  # fmt: skip
