@@ -159,11 +159,11 @@ def report_markdown(
             "| vehicle | rate Hz | sent | skipped | failed | late | mean ms | p99 ms | max ms |",
             "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
         ]
-        for s in outcome.stats.values():
+        for st in outcome.stats.values():
             lines.append(
-                f"| {s.vehicle} | {s.rate_hz:g} | {s.sent} | {s.skipped} | {s.failed} | {s.late} "
-                f"| {_num(s.mean_lateness_s * 1e3, '.3f')} | {_num(s.p99_lateness_s * 1e3, '.3f')} "
-                f"| {_num(s.max_lateness_s * 1e3, '.3f')} |"
+                f"| {st.vehicle} | {st.rate_hz:g} | {st.sent} | {st.skipped} | {st.failed} "
+                f"| {st.late} | {_num(st.mean_lateness_s * 1e3, '.3f')} "
+                f"| {_num(st.p99_lateness_s * 1e3, '.3f')} | {_num(st.max_lateness_s * 1e3, '.3f')} |"
             )
         lines.append("")
     if outcome.missions:
@@ -180,11 +180,11 @@ def report_markdown(
         lines.append("")
         m = outcome.mission
         if m is not None:
-            c = m.conversion
+            conv = m.conversion
             lines += [
-                f"Acceptance radius {c.acceptance_m:.2f} m; robustness predicted "
-                f"{c.predicted_robustness:+.4f} (straight legs on time "
-                f"{c.straight_leg_robustness:+.4f}).",
+                f"Acceptance radius {conv.acceptance_m:.2f} m; robustness predicted "
+                f"{conv.predicted_robustness:+.4f} (straight legs on time "
+                f"{conv.straight_leg_robustness:+.4f}).",
                 "",
                 "| vehicle | s after the plan | predicted | start skew ms |",
                 "|---|---:|---:|---:|",
@@ -192,7 +192,7 @@ def report_markdown(
             for name in outcome.missions:
                 lines.append(
                     f"| {name} | {_num(m.late_s.get(name), '+.1f')} | "
-                    f"{_num(c.late_s.get(name), '+.1f')} | "
+                    f"{_num(conv.late_s.get(name), '+.1f')} | "
                     f"{_num(m.start_skew_s.get(name, 0.0) * 1e3, '+.0f')} |"
                 )
             lines.append("")
@@ -203,10 +203,10 @@ def report_markdown(
             "| vehicle | drag 1/s | from | estimator accuracy m (h / v) |",
             "|---|---:|---|---|",
         ]
-        for name, t in outcome.tuning.items():
+        for name, tu in outcome.tuning.items():
             acc = outcome.accuracy_m.get(name)
             accs = f"{acc[0]:.2f} / {acc[1]:.2f}" if acc is not None else "n/a"
-            lines.append(f"| {name} | {t.drag_per_s:.2f} | {t.drag_source} | {accs} |")
+            lines.append(f"| {name} | {tu.drag_per_s:.2f} | {tu.drag_source} | {accs} |")
         lines.append("")
     listed = dict(files or {})
     for kind, p in outcome.files.items():

@@ -171,8 +171,8 @@ class FrameFuzzer:
             return bytes(f)
         if kind is FrameKind.TRUNCATED:
             msgid, payload = self._valid_random()
-            f = frame_v2(msgid, payload, sysid=self.src_sysid)
-            return f[: rng.randint(1, len(f) - 1)]
+            whole = frame_v2(msgid, payload, sysid=self.src_sysid)
+            return bytes(whole[: rng.randint(1, len(whole) - 1)])
         if kind is FrameKind.OVERSIZED:
             if rng.random() < 0.5:
                 msgid = rng.choice(_KNOWN)

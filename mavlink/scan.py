@@ -14,6 +14,7 @@ MAVLink instances (two addresses, one clock).
 from __future__ import annotations
 
 import asyncio
+import functools
 import socket
 import struct
 import time
@@ -117,7 +118,7 @@ async def scan_udpin(
         family = socket.AF_INET6 if ":" in url.host else socket.AF_INET
         try:
             transport, _ = await loop.create_datagram_endpoint(
-                lambda url=url: _Listener(str(url), heard),
+                functools.partial(_Listener, str(url), heard),
                 local_addr=(url.host, url.port),
                 family=family,
             )

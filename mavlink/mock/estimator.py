@@ -212,7 +212,7 @@ class FleetEstimator:
                 np.where(agl >= self._creep_h, decayed, self.creep_m),
             )
         else:
-            white = 0.0
+            white = np.zeros(1)
         np.subtract(true_pos_ned_m, self.origin_ned_m, out=out_pos_ned_m)
         out_pos_ned_m += self.boot_origin_ned_m + self.bias_slow_m + self.drift_m + white
         out_pos_ned_m[:, 2] -= self.creep_m

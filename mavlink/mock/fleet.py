@@ -466,8 +466,11 @@ class MockFleet:
             out.append(
                 {
                     "sysid": v.sysid,
-                    "uplink": v.uplink.stats if v.uplink else None,
-                    "downlink": v.downlink.stats if v.downlink else None,
+                    # offline links (advance() without sockets) keep no counters
+                    "uplink": v.uplink.stats if isinstance(v.uplink, FaultyChannel) else None,
+                    "downlink": (
+                        v.downlink.stats if isinstance(v.downlink, FaultyChannel) else None
+                    ),
                     "send_errors": proto.send_errors if proto else 0,
                 }
             )

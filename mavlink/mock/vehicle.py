@@ -63,6 +63,12 @@ class FleetSide(Protocol):
     def offline_links(self) -> None: ...
 
 
+class Link(Protocol):
+    """One direction of a vehicle's link: datagrams pushed in are delivered (or not)."""
+
+    def push(self, data: bytes) -> None: ...
+
+
 #: A pymavlink message (its fields are per message type: untyped to mypy).
 Msg: TypeAlias = Any
 
@@ -246,8 +252,8 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         self.remote_addr: tuple[str, int] = (fleet.gcs_host, fleet.gcs_ports[index])
         self._rx_addr = self.remote_addr
         self._transport_send: Callable[[bytes, tuple[str, int]], None] | None = None
-        self.uplink = None  # FaultyChannel, set by the fleet
-        self.downlink = None
+        self.uplink: Link | None = None  # a FaultyChannel, set by the fleet
+        self.downlink: Link | None = None
         self._streams: dict[int, _Stream] = {}
         self._builders: dict[int, Callable[[], Msg | None]] = {
             mavlink2.MAVLINK_MSG_ID_HEARTBEAT: self._msg_heartbeat,
@@ -322,6 +328,7 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         mav = self._mav
         buf = msg.pack(mav)
         mav.seq = (mav.seq + 1) & 0xFF
+        assert self.downlink is not None, "the fleet sets the links before anything is sent"
         self.downlink.push(buf)
 
     def _deliver_down(self, data: bytes) -> None:
@@ -337,6 +344,7 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         other systems must not redirect the link.
         """
         self._rx_addr = addr
+        assert self.uplink is not None, "the fleet sets the links before it receives"
         self.uplink.push(data)
 
     def _deliver_up(self, data: bytes) -> None:

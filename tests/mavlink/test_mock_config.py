@@ -62,3 +62,16 @@ def test_px4_custom_mode_encoding_round_trips() -> None:
     assert Px4Mode.AUTO_MISSION.custom_mode == (4 << 16) | (4 << 24)
     assert Px4Mode.from_main_sub(4, 0) is Px4Mode.AUTO_LOITER
     assert Px4Mode.from_main_sub(9, 0) is None
+
+
+def test_link_stats_of_offline_links_are_none_not_an_error() -> None:
+    # advance() without sockets: in-memory links keep no counters (found by mypy: the
+    # offline links have no ``stats``, and link_stats() raised AttributeError)
+    from mavlink.mock.fleet import MockFleet
+
+    f = MockFleet(n=2)
+    f.offline_links()
+    f.advance(0.1)
+    assert f.link_stats() == [
+        {"sysid": i + 1, "uplink": None, "downlink": None, "send_errors": 0} for i in range(2)
+    ]
