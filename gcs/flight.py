@@ -837,7 +837,7 @@ async def _fly_offboard(
         drag_per_s={n: t.drag_per_s for n, t in tuning.items()},
     )
     if cfg.end_action is EndAction.LAND:
-        from gcs.missions import landing_targets
+        from gcs.landing import landing_targets
         from planner.frames import enu_to_geodetic
 
         land_at = {}

@@ -161,6 +161,37 @@ def landing_points(plan: Plan) -> dict[str, LandingPoint]:
     return {v.name: landing_point(plan, v.name) for v in plan.vehicles}
 
 
+def _checked(plan: Plan) -> dict[str, LandingPoint]:
+    """:func:`landing_points`; UserError (``--end land`` refused) if one found none."""
+    from gcs.errors import UserError
+
+    points = landing_points(plan)
+    for lp in points.values():
+        if not lp.found:
+            raise UserError(f"--end land: {lp.describe()}; end with hold or return instead")
+    return points
+
+
+def landing_targets(plan: Plan) -> dict[str, np.ndarray]:
+    """Per vehicle that must not land straight down at its plan's end, where it lands
+    instead (mission ENU).
+
+    Raises:
+        gcs.errors.UserError: a vehicle with no clear landing point (land refused).
+    """
+    return {n: lp.point_enu_m for n, lp in _checked(plan).items() if lp.blocked_by is not None}
+
+
+def landing_lines(plan: Plan) -> list[str]:
+    """What ``gcs fly`` / ``gcs upload --end land`` tell the operator before they start:
+    one line per vehicle that lands elsewhere than below its plan's end.
+
+    Raises:
+        gcs.errors.UserError: a vehicle with no clear landing point (land refused).
+    """
+    return [f"landing: {lp.describe()}" for lp in _checked(plan).values() if lp.describe()]
+
+
 def _bearing(east: float, north: float) -> str:
     names = ("north", "north-east", "east", "south-east", "south", "south-west", "west", "north-west")  # fmt: skip
     deg = math.degrees(math.atan2(east, north)) % 360.0

@@ -104,25 +104,6 @@ def expected_lag_s(params: Mapping[str, float]) -> float:
     )
 
 
-def landing_targets(plan: Plan) -> dict[str, np.ndarray]:
-    """Per vehicle that must not land straight down at its plan's end, where it lands
-    instead (mission ENU; :mod:`gcs.landing`).
-
-    Raises:
-        gcs.errors.UserError: a vehicle with no clear landing point (land refused).
-    """
-    from gcs.errors import UserError
-    from gcs.landing import landing_points
-
-    out = {}
-    for name, lp in landing_points(plan).items():
-        if not lp.found:
-            raise UserError(f"--end land: {lp.describe()}; end with hold or return instead")
-        if lp.blocked_by is not None:
-            out[name] = lp.point_enu_m
-    return out
-
-
 def convert_plan(
     plan: Plan,
     *,
@@ -158,6 +139,8 @@ def convert_plan(
     dt = plan.check_dt_s
     t = np.arange(round(plan.horizon_s / dt) + 1) * dt
     starts = {pv.name: tuple(float(x) for x in pv.start_enu_m) for pv in plan.vehicles}
+    from gcs.landing import landing_targets
+
     land_at = landing_targets(plan) if end is MissionEnd.LAND else {}
 
     def build(speeds: Mapping[str, np.ndarray] | None) -> dict[str, MissionPlan]:

@@ -134,13 +134,10 @@ def run(args: argparse.Namespace) -> int:
     out = sys.stderr if args.json else sys.stdout
     if args.end == "land":
         # where landing straight down would meet a keep-out, somewhere clear (or refused)
-        from gcs.landing import landing_points
-        from gcs.missions import landing_targets
+        from gcs.landing import landing_lines
 
-        landing_targets(plan)
-        for lp in landing_points(plan).values():
-            if lp.describe():
-                print(f"landing: {lp.describe()}", file=out)
+        for line in landing_lines(plan):
+            print(line, file=out)
     try:
         preflight_interlock(plan, force=args.force)
     except FlightRefused as exc:

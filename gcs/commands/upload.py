@@ -380,13 +380,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--fence-action: applies with --fence only")
     if args.end == "land":
         # the missions land clear of the keep-outs (gcs.landing), or the upload is refused
-        from gcs.landing import landing_points
-        from gcs.missions import landing_targets
+        from gcs.landing import landing_lines
 
-        landing_targets(plan)
-        for lp in landing_points(plan).values():
-            if lp.describe():
-                print(f"landing: {lp.describe()}", file=sys.stderr)
+        for line in landing_lines(plan):
+            print(line, file=sys.stderr)
 
     async def signed_upload() -> tuple[list[UploadRow], MissionConversion, FencePlan | None]:
         async with signed_links(specs, args.signing_key) as links:

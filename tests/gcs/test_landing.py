@@ -82,7 +82,8 @@ def test_missions_land_at_the_clear_point_and_no_clear_point_refuses_land(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     from gcs.errors import UserError
-    from gcs.missions import convert_plan, landing_targets
+    from gcs.landing import landing_targets
+    from gcs.missions import convert_plan
     from mavlink.mission import Cmd, MissionEnd
     from planner.frames import enu_to_geodetic
 
