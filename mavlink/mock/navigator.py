@@ -128,6 +128,8 @@ class NavigatorMixin(VehicleParts):
                 self._rtl_phase = "land"
                 self._start_descent()
                 self.phys.sp_pos_ned_m[i, :2] = home[:2]
+        elif self._rtl_phase == "land" and not self.landed:
+            self.phys.sp_vel_ned_m_s[i, 2] = self._land_speed_m_s()
 
     def _face(self, target: np.ndarray) -> None:
         i = self.index
@@ -237,7 +239,13 @@ class NavigatorMixin(VehicleParts):
                 self._traj_active = False
             elif cmd in (mavlink2.MAV_CMD_NAV_LAND, mavlink2.MAV_CMD_NAV_VTOL_LAND):
                 target[2] = pos[2]
-                self._mis_phase = "land_approach"
+                # PX4 v1.17's multicopter descends at once while its trajectory takes it to
+                # the land position (FlightTaskAuto::_prepareLandSetpoints: the horizontal
+                # position setpoint and the land speed together; only a VTOL moves to the
+                # land point first, Mission's do_need_move_to_land)
+                self._mis_phase = (
+                    "land" if self.px4_nav and cmd == mavlink2.MAV_CMD_NAV_LAND else "land_approach"
+                )
             else:
                 self._mis_phase = "goto"
             climb = not self.px4_nav or pos[2] - target[2] > alt_rad
@@ -259,6 +267,9 @@ class NavigatorMixin(VehicleParts):
                 self._face(target)
                 if self._mis_phase == "goto":
                     self._traj_begin(target, prev)
+                elif self._mis_phase == "land":
+                    self._traj_begin(target, prev)
+                    self._land_tick()
         if changed or self._mis_phase:
             self._announce_current()
 
@@ -496,9 +507,29 @@ class NavigatorMixin(VehicleParts):
                 self._start_descent()
                 self.phys.sp_pos_ned_m[i, :2] = tgt[:2]
             return
-        if phase == "land" and self.landed:
-            self._item_reached(self.mission_seq)
-            self._advance()
+        if phase == "land":
+            if self.landed:
+                self._item_reached(self.mission_seq)
+                self._advance()
+            else:
+                self._land_tick()
+
+    def _land_tick(self) -> None:
+        """A mission land on PX4: the horizontal trajectory to the land position (while it
+        is still on its way) and the descent at PX4's land speed."""
+        i = self.index
+        phys = self.phys
+        if self._traj_active:
+            # the land setpoint has no altitude (NaN in PX4): the leg and the setpoint are
+            # kept at the vehicle's height, so the trajectory's geometry is horizontal
+            down = float(phys.pos_ned_m[i, 2])
+            self._traj_pos[2] = self._mis_target[2] = self._leg_prev[2] = down
+            self._traj_vel[2] = 0.0
+            self._traj_step(self._mis_target)
+        phys.m_pos[i, 2] = 0.0
+        phys.m_acc[i, 2] = 0.0
+        phys.m_vel[i, 2] = 1.0
+        phys.sp_vel_ned_m_s[i, 2] = self._land_speed_m_s()
 
     def _advance(self) -> None:
         self._mission_start_item(self.mission_seq + 1)

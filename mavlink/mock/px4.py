@@ -162,6 +162,8 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("MPC_ACC_HOR_MAX", ParamType.REAL32, 5.0),
     ParamSpec("MPC_ACC_UP_MAX", ParamType.REAL32, 4.0),
     ParamSpec("MPC_JERK_AUTO", ParamType.REAL32, 4.0, 1.0, 80.0),
+    ParamSpec("MPC_LAND_ALT1", ParamType.REAL32, 10.0),
+    ParamSpec("MPC_LAND_ALT2", ParamType.REAL32, 5.0),
     ParamSpec("MPC_LAND_SPEED", ParamType.REAL32, 0.7),
     ParamSpec("MPC_THR_HOVER", ParamType.REAL32, 0.5),
     ParamSpec("MPC_TILTMAX_AIR", ParamType.REAL32, 45.0, 20.0, 89.0),

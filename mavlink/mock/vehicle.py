@@ -789,12 +789,31 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         elif mode is Px4Mode.OFFBOARD:
             self._apply_setpoint()
 
+    def _land_speed_m_s(self) -> float:
+        """PX4's descent speed when landing, from the height above home.
+
+        ``FlightTaskAuto::_prepareLandSetpoints``: MPC_Z_VEL_MAX_DN above MPC_LAND_ALT1,
+        MPC_LAND_SPEED below MPC_LAND_ALT2, linear between (``math::interpolate``).  The
+        ideal vehicle lands at MPC_LAND_SPEED throughout.
+        """
+        prm = self.params
+        slow, fast = prm["MPC_LAND_SPEED"], prm["MPC_Z_VEL_MAX_DN"]
+        if not self.px4_nav:
+            return slow
+        height = float(self.home_ned_m[2] - self.phys.pos_ned_m[self.index, 2])
+        lo, hi = prm["MPC_LAND_ALT2"], prm["MPC_LAND_ALT1"]
+        if height <= lo or hi <= lo:
+            return slow if height <= lo else fast
+        if height >= hi:
+            return fast
+        return slow + (fast - slow) * (height - lo) / (hi - lo)
+
     def _start_descent(self) -> None:
         i = self.index
         self.phys.set_axes(
             i,
             self.phys.pos_ned_m[i].copy(),
-            np.array([0.0, 0.0, self.params["MPC_LAND_SPEED"]]),
+            np.array([0.0, 0.0, self._land_speed_m_s()]),
             np.zeros(3),
             np.array([1.0, 1.0, 0.0]),
             np.array([0.0, 0.0, 1.0]),
@@ -1243,6 +1262,8 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
                     phys.sp_yaw_rad[i] = yaw
             elif mode is Px4Mode.AUTO_RTL:
                 self._rtl_tick()
+            elif mode is Px4Mode.AUTO_LAND and not self.landed:
+                phys.sp_vel_ned_m_s[i, 2] = self._land_speed_m_s()
             if self.landed:
                 t_land = self.params["COM_DISARM_LAND"]
                 t_pre = self.params["COM_DISARM_PRFLT"]

@@ -627,6 +627,45 @@ def test_do_change_speed_sets_the_cruise_speed_of_what_follows() -> None:
     assert top == pytest.approx(2.0, abs=0.05)
 
 
+@pytest.mark.parametrize("profile", ["px4", "ideal"])
+def test_a_mission_land_descends_on_its_way_at_px4s_graded_land_speed(profile: str) -> None:
+    # PX4 v1.17 multicopter (FlightTaskAuto::_prepareLandSetpoints): a NAV_LAND sets the land
+    # position and the land speed together, so the vehicle descends while it flies there
+    # (only a VTOL moves to the land point first); the speed is MPC_Z_VEL_MAX_DN above
+    # MPC_LAND_ALT1, MPC_LAND_SPEED below MPC_LAND_ALT2, linear between. The ideal vehicle
+    # flies to the point, then descends at MPC_LAND_SPEED.
+    f = MockFleet(n=1, seed=5, profile=profile, ready_after_s=0.0)
+    f.offline_links()
+    v = f.vehicles[0]
+    airborne(f, v, 12.0, 14.0)
+    home_alt = v._home_alt_amsl()
+    items = mission_items(v, [(0.0, 0.0)], 12.0, 1.0)
+    items.append(item(1, mavlink2.MAV_CMD_NAV_LAND, *ne_to_e7(v, 20.0, 0.0), home_alt))
+    upload(f, v, items)
+    start_mission(f, v)
+    track = []  # north, height above home (estimate), commanded and true down speed
+    while not v.mission_finished and f.time_s < 120.0:
+        f.advance(0.05)
+        ph = f.physics
+        track.append((float(ph.pos_ned_m[0, 0]), float(v.home_ned_m[2] - ph.pos_ned_m[0, 2]),
+                      float(ph.sp_vel_ned_m_s[0, 2]), float(ph.true_vel_ned_m_s[0, 2])))  # fmt: skip
+    assert v.mission_finished and v.state.landed
+    north, height, command, down = np.array(track).T
+    assert north[-1] == pytest.approx(20.0, abs=1.0)
+    halfway = int(np.argmax(north > 10.0))
+    descending = height < 11.5
+    if profile == "px4":
+        assert height[halfway] < 12.0 - 2.0  # already well on its way down
+        graded = np.interp(height, [5.0, 10.0], [0.7, 1.5])  # ALT2, ALT1 -> LAND_SPEED, MAX_DN
+        assert command[descending] == pytest.approx(graded[descending], abs=0.02)
+        assert down.max() == pytest.approx(1.5, abs=0.15)  # the vehicle follows
+        assert down[(height > 1.0) & (height < 4.0)].mean() == pytest.approx(0.7, abs=0.05)
+    else:
+        assert height[halfway] > 12.0 - 0.5  # level until it is over the land point
+        assert command[descending] == pytest.approx(0.7, abs=0.02)
+        assert down.max() == pytest.approx(0.7, abs=0.1)
+
+
 def test_mission_takeoff_within_nav_mc_alt_rad_is_skipped_and_the_vehicle_auto_disarms() -> None:
     f = fleet(seed=9, COM_DISARM_PRFLT=4.0)
     v = f.vehicles[0]
