@@ -437,8 +437,10 @@ def trajectory_to_mission(
             e, n = float(land_at_enu_m[0]), float(land_at_enu_m[1])
             pe = enu_to_geodetic(np.array([e, n, float(wp[-1, 2])]), origin)
             land_lat, land_lon = float(np.ravel(pe[0])[0]), float(np.ravel(pe[1])[0])
-            # A multicopter's NAV_LAND descends while it moves to its position
-            # (FlightTaskAuto::_prepareLandSetpoints): get there at the end's altitude first.
+            # PX4 moves to a land point itself only until within NAV_ACC_RAD (2 m) and then
+            # descends while closing the rest (Mission::do_need_move_to_land; seen on SITL):
+            # a waypoint first, within the mission's own radius, starts the descent over the
+            # clear point rather than up to 2 m short of it, beside what it keeps clear of.
             add(
                 Cmd.NAV_WAYPOINT, g, 0.0, float(acceptance_radius_m), 0.0, float("nan"),
                 _e7(land_lat), _e7(land_lon), float(alt[-1]),

@@ -210,7 +210,8 @@ class NavigatorMixin(VehicleParts):
         self._mis_hold_until_s = math.inf
         if cmd not in (mavlink2.MAV_CMD_NAV_WAYPOINT, mavlink2.MAV_CMD_NAV_LOITER_TIME,
                        mavlink2.MAV_CMD_NAV_LOITER_UNLIM, mavlink2.MAV_CMD_NAV_TAKEOFF,
-                       mavlink2.MAV_CMD_NAV_VTOL_TAKEOFF):  # fmt: skip
+                       mavlink2.MAV_CMD_NAV_VTOL_TAKEOFF, mavlink2.MAV_CMD_NAV_LAND,
+                       mavlink2.MAV_CMD_NAV_VTOL_LAND):  # fmt: skip
             self._traj_active = False
         pos = self.phys.pos_ned_m[i].copy()
         if cmd == mavlink2.MAV_CMD_NAV_RETURN_TO_LAUNCH:
@@ -238,13 +239,15 @@ class NavigatorMixin(VehicleParts):
                 self._mis_phase = "takeoff"
                 self._traj_active = False
             elif cmd in (mavlink2.MAV_CMD_NAV_LAND, mavlink2.MAV_CMD_NAV_VTOL_LAND):
+                # PX4 v1.17 (Mission::do_need_move_to_land, rotary wing): farther than the
+                # acceptance radius from the land point it first flies there at its altitude
+                # as a waypoint, reported reached on arrival; then it descends at the land
+                # speed while it closes the last metres (seen on SITL: level to 1.7 m short,
+                # "reached", then down at 1.5 m/s graded to 0.7 m/s)
                 target[2] = pos[2]
-                # PX4 v1.17's multicopter descends at once while its trajectory takes it to
-                # the land position (FlightTaskAuto::_prepareLandSetpoints: the horizontal
-                # position setpoint and the land speed together; only a VTOL moves to the
-                # land point first, Mission's do_need_move_to_land)
-                self._mis_phase = (
-                    "land" if self.px4_nav and cmd == mavlink2.MAV_CMD_NAV_LAND else "land_approach"
+                self._mis_phase = "land_approach"
+                self._mis_land_moved = (
+                    math.hypot(pos[0] - target[0], pos[1] - target[1]) >= self.params["NAV_ACC_RAD"]
                 )
             else:
                 self._mis_phase = "goto"
@@ -265,11 +268,8 @@ class NavigatorMixin(VehicleParts):
                 self._mis_target = target
                 self.phys.set_position(i, target)
                 self._face(target)
-                if self._mis_phase == "goto":
+                if self._mis_phase in ("goto", "land_approach"):
                     self._traj_begin(target, prev)
-                elif self._mis_phase == "land":
-                    self._traj_begin(target, prev)
-                    self._land_tick()
         if changed or self._mis_phase:
             self._announce_current()
 
@@ -502,21 +502,26 @@ class NavigatorMixin(VehicleParts):
                 self._advance()
             return
         if phase == "land_approach":
+            if self._traj_active:
+                self._traj_step(tgt)
             if math.hypot(pos[0] - tgt[0], pos[1] - tgt[1]) < self.params["NAV_ACC_RAD"]:
+                if self.px4_nav and self._mis_land_moved:
+                    self._item_reached(self.mission_seq)  # the move-to-land waypoint
                 self._mis_phase = "land"
                 self._start_descent()
                 self.phys.sp_pos_ned_m[i, :2] = tgt[:2]
+                self._land_tick()
             return
         if phase == "land":
             if self.landed:
-                self._item_reached(self.mission_seq)
+                self._item_reached(self.mission_seq)  # PX4: nothing new after a move-to-land
                 self._advance()
             else:
                 self._land_tick()
 
     def _land_tick(self) -> None:
-        """A mission land on PX4: the horizontal trajectory to the land position (while it
-        is still on its way) and the descent at PX4's land speed."""
+        """A mission land: the horizontal trajectory closing the last metres to the land
+        position (PX4) and the descent at PX4's land speed."""
         i = self.index
         phys = self.phys
         if self._traj_active:

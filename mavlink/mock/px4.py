@@ -152,6 +152,7 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("COM_RC_IN_MODE", ParamType.INT32, 3),
     ParamSpec("GF_ACTION", ParamType.INT32, 2),
     ParamSpec("GF_PREDICT", ParamType.INT32, 1, 0.0, 1.0),
+    ParamSpec("LNDMC_TRIG_TIME", ParamType.REAL32, 1.0, 0.1, 10.0),
     ParamSpec("MC_PITCH_P", ParamType.REAL32, 4.0, 0.0, 12.0),
     ParamSpec("MC_ROLL_P", ParamType.REAL32, 4.0, 0.0, 12.0),
     ParamSpec("MC_YAWRATE_MAX", ParamType.REAL32, 200.0, 0.0, 1800.0),

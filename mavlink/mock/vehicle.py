@@ -200,6 +200,8 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         self.has_flown = False
         self._armed_at_s = 0.0
         self._landed_since_s = 0.0
+        #: since when the land detector's conditions hold (None: not now)
+        self._ground_since_s: float | None = None
         self.home_ned_m = np.zeros(3)
         self.cruise_speed_m_s = self.params["MPC_XY_CRUISE"]
         # offboard
@@ -215,6 +217,8 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
         self.mission_seq = 0
         self.mission_finished = False
         self._mis_phase = ""
+        #: a mission land flew to its land point first (PX4 reports that arrival reached)
+        self._mis_land_moved = False
         self._mis_target = np.zeros(3)
         self._mis_hold_until_s = 0.0
         self._mis_reached_sent = -1
@@ -1229,9 +1233,18 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
             and (not px4_nav or float(self.home_ned_m[2]) - d < _CLOSE_TO_GROUND_M)
         ):
             # PX4's land detector also needs the *estimate* close to the ground: with the
-            # ground-effect creep a vehicle sitting on the ground can stay "in air"
-            self.landed = True
-            self._landed_since_s = now
+            # ground-effect creep a vehicle sitting on the ground can stay "in air"; and it
+            # says landed only after ground contact, maybe-landed and landed have each held
+            # for LNDMC_TRIG_TIME / 3 (MulticopterLandDetector, without a range sensor; SITL
+            # reported a mission land 1.9 s after touching down)
+            if self._ground_since_s is None:
+                self._ground_since_s = now
+            if not px4_nav or now - self._ground_since_s >= self.params["LNDMC_TRIG_TIME"]:
+                self.landed = True
+                self._landed_since_s = now
+                self._ground_since_s = None
+        else:
+            self._ground_since_s = None
         if px4_nav and self.armed:
             self._takeoff_gate(now, d)
         mode = self.mode
