@@ -45,10 +45,11 @@ import json
 import time
 
 from mavlink.errors import ConnectTimeoutError
-from mavlink.fleet import Fleet, VehicleSpec
+from mavlink.fleet import Fleet
 from mavlink.mission import RetryPolicy
 from mavlink.mock import FaultConfig
 from mavlink.mock.testing import free_udp_ports
+from mavlink.vehicle import VehicleSpec
 from planner.planfile import load_plan
 from tests.reliability.harness import (
     CONDITIONS,

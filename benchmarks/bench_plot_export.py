@@ -18,11 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
+from gcs.clause_traces import clause_traces
 from gcs.export import ExportFormat, write_export
-from gcs.plot import clause_traces, figure_png, html_report, render_figure
+from gcs.figure import figure_png, render_figure
+from gcs.plot import html_report
 from planner.frames import GeodeticPoint
 from planner.planfile import Plan, PlannedVehicle, save_plan
-from planner.scenario import Region, RegionKind
+from planner.regions import Region, RegionKind
 from planner.trajectory import Trajectory
 
 ORIGIN = GeodeticPoint(47.397742, 8.545594, 488.0)

@@ -37,7 +37,8 @@ from typing import Any
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from planner.optimize import clear_cache, make_model, plan
-from planner.scenario import Problem, SolverMethod, load_scenario
+from planner.problem import Problem, SolverMethod
+from planner.scenario import load_scenario
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 FILES = {

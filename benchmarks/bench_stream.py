@@ -24,7 +24,7 @@
    send LOCAL_POSITION_NED at 30 Hz (hovering on a grid), and the stream runs beside the
    safety monitor (:class:`mavlink.monitor.SafetyMonitor`, 20 Hz, 0.5 s prediction, the
    reach-avoid invariants of every vehicle and every pair: 2,080 clauses at N = 64) and the
-   progress view (:class:`gcs.flight.FlightProgress`, a terminal's 4 updates a second over
+   progress view (:class:`gcs.progress.FlightProgress`, a terminal's 4 updates a second over
    every clause of the whole horizon), as ``gcs fly`` runs them. The same limits apply
    (p99 lateness <= 5 ms, no missed setpoint).
 5. The monitor's decision latency at the largest flight size: mid-flight the sink moves
@@ -54,12 +54,13 @@ from mavsdk.asyncio import System as AsyncSystem
 from mavsdk.asyncio.plugins.offboard import OffboardAsync
 from mavsdk.plugins.offboard import AccelerationNed, PositionNedYaw, VelocityNedYaw
 
-from gcs.flight import FlightClock, FlightProgress, plan_formula
-from mavlink.fleet import Fleet, VehicleSpec
+from gcs.evaluation import plan_formula
+from gcs.progress import FlightClock, FlightProgress
+from mavlink.fleet import Fleet
 from mavlink.mission import MissionEnd, trajectory_to_mission, upload_and_verify
 from mavlink.mock.fleet import MockFleet
 from mavlink.monitor import SafetyMonitor, always_clauses
-from mavlink.offboard import offboard_sender
+from mavlink.offboard_setpoints import offboard_sender
 from mavlink.stream import (
     VEHICLES_PER_GROUP,
     NedSetpoints,
@@ -67,6 +68,7 @@ from mavlink.stream import (
     StreamTarget,
     auto_send_groups,
 )
+from mavlink.vehicle import VehicleSpec
 from planner.frames import GeodeticPoint
 from planner.planfile import Plan, load_plan
 from planner.trajectory import Trajectory

@@ -150,7 +150,7 @@ def verify_telemetry(plan: Any, telemetry: Any, dt_s: float | None = None) -> li
 
     Args:
         plan: a loaded plan.
-        telemetry: a :class:`gcs.plot.Telemetry` (flown ENU paths by vehicle name).
+        telemetry: a :class:`gcs.telemetry.Telemetry` (flown ENU paths by vehicle name).
         dt_s: check step (default: the plan's ``check_dt_s``).
     """
     from planner.planfile import plan_formula

@@ -8,7 +8,7 @@ Exception tree::
 Errors raised by the packages for bad user input are treated alike (one
 line, exit status 2): they are collected in :data:`USER_ERRORS`, which grows
 as the packages define their error trees (``planner.stl.SpecError``,
-``planner.scenario.ScenarioError``, ``mavlink.LinkError``, ...).
+``planner.scenario_sections.ScenarioError``, ``mavlink.LinkError``, ...).
 
 Errors that cannot name the file themselves stay out of :data:`USER_ERRORS` and are converted
 where the file is known: ``planner.stl.EvaluationError`` (unknown signal or region, trace too
@@ -42,7 +42,7 @@ def _optional(module: str, name: str) -> tuple[type[BaseException], ...]:
 USER_ERRORS: tuple[type[BaseException], ...] = (
     UserError,
     *_optional("planner.stl", "SpecError"),
-    *_optional("planner.scenario", "ScenarioError"),
+    *_optional("planner.scenario_sections", "ScenarioError"),
     *_optional("planner.planfile", "PlanFileError"),
     *_optional("planner.frames", "FrameError"),
     *_optional("mavlink.errors", "LinkError"),

@@ -11,25 +11,25 @@
    the spec's always-clauses), in **mission** mode the plan's PX4 mission conversion
    (:func:`mavlink.mission.trajectory_to_mission`: uploaded, read back and compared, then
    flown with :func:`mavlink.mission.fly_missions`);
-4. shows progress while flying (:class:`FlightProgress`): per vehicle its mode, its distance
-   to where the plan is at that instant, and the robustness of the clauses it takes part in
-   *so far* (exact semantics of the flown prefix completed by the plan for the rest of the
-   horizon, i.e. what the spec's value will be if the rest goes as planned);
+4. shows progress while flying (:class:`gcs.progress.FlightProgress`): per vehicle its mode,
+   its distance to where the plan is at that instant, and the robustness of the clauses it
+   takes part in *so far* (exact semantics of the flown prefix completed by the plan for the
+   rest of the horizon, i.e. what the spec's value will be if the rest goes as planned);
 5. on Ctrl-C (task cancellation) the flight's tasks end with it (structured in the link layer)
    and :meth:`mavlink.fleet.Fleet.flight` commands every vehicle
    to hold where it is (:func:`mavlink.monitor.safe_stop`), and reports the modes it then has;
 6. writes the flown tracks (``flight.csv``, mission frame) and evaluates the flown data
-   against the spec with the exact semantics (:func:`evaluate_flight`), next to the planned
-   value, with per-vehicle tracking errors and the delay that best aligns flown and planned
-   positions (the first thing to look at when flown robustness falls short).
+   against the spec with the exact semantics (:func:`gcs.evaluation.evaluate_flight`), next
+   to the planned value, with per-vehicle tracking errors and the delay that best aligns
+   flown and planned positions (the first thing to look at when flown robustness falls short).
+
+It returns a :class:`gcs.outcome.FlightOutcome` (told by :func:`gcs.outcome.format_outcome`).
 
 The pre-flight interlock (:func:`preflight_interlock`) re-runs ``gcs verify``'s checks
 (:func:`gcs.commands.verify.verify_plan`) and refuses a plan that fails one.
 
-Dry runs (:func:`mock_vehicles`): mock PX4 vehicles (:class:`mavlink.mock.MockFleet`) in a
-background thread of this process, on free loopback ports, each spawned **on the ground
-directly below its planned start** (mission-frame ``z = 0``), as PX4 SITL spawns its vehicles;
-the flight then arms, takes off to the start and flies, exactly as against SITL.
+Dry runs (:func:`gcs.dryrun.mock_vehicles`) fly mock PX4 vehicles spawned on the ground below
+the planned starts, exactly as against SITL (:mod:`gcs.dryrun`).
 
 Errors::
 
@@ -41,56 +41,39 @@ Errors::
 from __future__ import annotations
 
 import asyncio
-import bisect
 import contextlib
 import dataclasses
 import math
-import shutil
-import socket
 import sys
-import threading
 import time
-from collections.abc import AsyncIterator, Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
-from enum import Enum
+from collections.abc import AsyncIterator, Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TextIO
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from gcs.dryrun import free_udp_ports
 from gcs.errors import InputFileError, UserError
+from gcs.evaluation import evaluate_flight, plan_formula
+from gcs.outcome import FlightMode, FlightOutcome
+from gcs.progress import FlightClock, FlightProgress
 
 if TYPE_CHECKING:
     from gcs.checks import Check
     from gcs.mission_flight import MissionFlight
     from gcs.tuning import VehicleTuning
-    from mavlink.fleet import Fleet, Vehicle, VehicleSpec
-    from mavlink.mission import MissionRun
-    from mavlink.mock import MockFleet
-    from mavlink.monitor import MonitorStats, SafetyEvent
-    from mavlink.offboard import EndAction
-    from mavlink.stream import StreamStats
-    from mavlink.tlog import FlownTrack, TlogStats
-    from planner.frames import GeodeticPoint, NedToEnuMap
+    from mavlink.fleet import Fleet
+    from mavlink.offboard_setpoints import EndAction
+    from mavlink.tlog import FlownTrack
+    from mavlink.vehicle import Vehicle, VehicleSpec
+    from planner.frames import GeodeticPoint
     from planner.planfile import Plan
-    from planner.stl import Formula
 
 __all__ = [
-    "ClauseOutcome",
-    "FlightClock",
-    "FlightMode",
-    "FlightOutcome",
-    "FlightProgress",
     "FlightRefused",
-    "FlownEvaluation",
     "FlyOptions",
-    "TrackingError",
-    "evaluate_flight",
     "fly_plan",
-    "free_udp_ports",
-    "ground_spawns",
-    "mock_vehicles",
-    "plan_formula",
     "preflight_interlock",
     "vehicle_specs",
 ]
@@ -111,13 +94,6 @@ class FlightRefused(Exception):
         self.check = check
         self.summary = summary or detail
         super().__init__(detail)
-
-
-class FlightMode(Enum):
-    """How the plan is flown."""
-
-    OFFBOARD = "offboard"  # setpoint streaming of the exact trajectories
-    MISSION = "mission"  # the PX4 mission conversion (straight legs, timed by speed changes)
 
 
 @dataclass(frozen=True, slots=True)
@@ -162,15 +138,6 @@ class FlyOptions:
 # ---------------------------------------------------------------------------- before flight
 
 
-def plan_formula(plan: Plan) -> Formula:
-    """The plan's whole spec with the scenario's predicates (exact numpy semantics), checked
-    against the plan: :func:`planner.planfile.plan_formula` (PlanFileError naming the plan file).
-    """
-    from planner.planfile import plan_formula as checked_formula
-
-    return checked_formula(plan)
-
-
 def preflight_interlock(plan: Plan, *, force: bool = False) -> tuple[Check, ...]:
     """``gcs verify``'s checks of ``plan``; refuse the flight if one fails (unless ``force``).
 
@@ -209,8 +176,8 @@ def vehicle_specs(
         UserError: a number of URLs other than the number of vehicles.
         mavlink.errors.UrlError: a malformed URL (names it and the vehicle).
     """
-    from mavlink.fleet import VehicleSpec
     from mavlink.urls import default_url, parse_url
+    from mavlink.vehicle import VehicleSpec
 
     n = len(plan.vehicles)
     if urls and len(urls) != n:
@@ -245,9 +212,9 @@ async def signed_links(
     if key_file is None:
         yield tuple(specs)
         return
-    from mavlink.fleet import VehicleSpec
     from mavlink.signing import SigningProxy, load_key
     from mavlink.urls import Scheme, parse_url
+    from mavlink.vehicle import VehicleSpec
 
     key = load_key(key_file)
     proxies: list[SigningProxy] = []
@@ -271,474 +238,7 @@ async def signed_links(
             proxy.close()
 
 
-def ground_spawns(plan: Plan) -> list[tuple[float, float, float]]:
-    """Spawn points for a dry run: on the ground (mission ``z = 0``) below each planned start."""
-    return [(float(v.start_enu_m[0]), float(v.start_enu_m[1]), 0.0) for v in plan.vehicles]
-
-
-def free_udp_ports(k: int) -> list[int]:
-    """``k`` distinct loopback UDP ports that were free a moment ago (bound to port 0)."""
-    socks = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(k)]
-    try:
-        for s in socks:
-            s.bind(("127.0.0.1", 0))
-        return [int(s.getsockname()[1]) for s in socks]
-    finally:
-        for s in socks:
-            s.close()
-
-
-@dataclass(frozen=True, slots=True, eq=False)
-class DryRun:
-    """Mock vehicles running for a dry run: their fleet and the URL of each (plan order)."""
-
-    mock: MockFleet
-    urls: tuple[str, ...]
-    sysids: tuple[int, ...]
-
-
-@contextlib.contextmanager
-def mock_vehicles(
-    plan: Plan,
-    *,
-    seed: int = 0,
-    profile: str = "px4",
-    params: Mapping[str, float] | None = None,
-) -> Iterator[DryRun]:
-    """Mock PX4 vehicles on the ground below the plan's starts, in a background thread.
-
-    Vehicle ``i`` has system id ``i + 1`` and sends to a free loopback port, reached at
-    ``udpin://127.0.0.1:PORT`` (the URLs yielded, plan order).  ``profile`` and
-    ``params`` choose the vehicle (:mod:`mavlink.mock.profiles`: ``px4`` by default).
-    """
-    from mavlink.mock import MockFleet
-
-    n = len(plan.vehicles)
-    ports = free_udp_ports(2 * n)
-    mock = MockFleet(
-        n=n,
-        origin=plan.origin,
-        spawns_enu_m=ground_spawns(plan),
-        gcs_ports=ports[:n],
-        vehicle_ports=ports[n:],
-        seed=seed,
-        profile=profile,
-        params=params,
-    )
-    with mock.running_in_thread():
-        yield DryRun(
-            mock=mock,
-            urls=tuple(f"udpin://127.0.0.1:{p}" for p in ports[:n]),
-            sysids=tuple(range(1, n + 1)),
-        )
-
-
-# ---------------------------------------------------------------------------- evaluation
-
-
-@dataclass(frozen=True, slots=True)
-class ClauseOutcome:
-    """One top-level clause: its text and its exact robustness planned and flown (m)."""
-
-    text: str
-    vehicles: tuple[str, ...]
-    planned: float
-    flown: float | None
-
-
-@dataclass(frozen=True, slots=True)
-class TrackingError:
-    """How far one vehicle's reported positions were from its plan at the same instants.
-
-    Attributes:
-        vehicle: name.
-        samples: telemetry samples inside the horizon.
-        max_m, rms_m: largest and root-mean-square distance flown - planned (m).
-        t_at_max_s: when the largest distance occurred (s from the plan's start).
-        lag_s: the delay ``tau`` minimising the RMS distance between flown(t) and
-            planned(t - tau), searched in [-0.5, 1.0] s (0: flown in step with the plan).
-        rms_at_lag_m: that minimal RMS distance.
-    """
-
-    vehicle: str
-    samples: int
-    max_m: float
-    rms_m: float
-    t_at_max_s: float
-    lag_s: float
-    rms_at_lag_m: float
-
-
-@dataclass(frozen=True, slots=True, eq=False)
-class FlownEvaluation:
-    """The flown data judged against the spec (exact semantics, the plan's check grid).
-
-    Attributes:
-        dt_s: grid step (the plan's ``check_dt_s``).
-        planned_robustness: the spec's robustness on the planned trajectories.
-        flown_robustness: on the flown tracks (``None`` when a track does not cover the
-            horizon; ``coverage_problem`` says why).
-        clauses: per top-level clause, planned and flown.
-        tracking: per vehicle tracking error.
-        coverage_problem: why flown robustness could not be evaluated, else ``""``.
-    """
-
-    dt_s: float
-    planned_robustness: float
-    flown_robustness: float | None
-    clauses: tuple[ClauseOutcome, ...]
-    tracking: tuple[TrackingError, ...]
-    coverage_problem: str = ""
-
-    @property
-    def weakest_flown(self) -> ClauseOutcome | None:
-        """The flown clause with the smallest robustness."""
-        flown = [c for c in self.clauses if c.flown is not None]
-        return min(flown, key=lambda c: c.flown or 0.0) if flown else None
-
-
-def _tracking(
-    name: str, track: FlownTrack, plan_pos: Any, horizon_s: float, lags_s: np.ndarray
-) -> TrackingError:
-    inside = (track.t_s >= 0.0) & (track.t_s <= horizon_s)
-    t = track.t_s[inside]
-    p = track.pos_enu_m[inside]
-    if t.size == 0:
-        nan = math.nan
-        return TrackingError(name, 0, nan, nan, nan, nan, nan)
-    d = np.linalg.norm(p - plan_pos(t), axis=1)
-    i = int(np.argmax(d))
-    # planned(t - tau) for every candidate delay at once: (lags, samples, 3).
-    shifted = plan_pos(np.clip((t[None, :] - lags_s[:, None]).ravel(), 0.0, horizon_s))
-    err = np.linalg.norm(shifted.reshape(lags_s.size, t.size, 3) - p[None], axis=2)
-    rms = np.sqrt(np.mean(err**2, axis=1))
-    j = int(np.argmin(rms))
-    return TrackingError(
-        vehicle=name,
-        samples=int(t.size),
-        max_m=float(d[i]),
-        rms_m=float(np.sqrt(np.mean(d**2))),
-        t_at_max_s=float(t[i]),
-        lag_s=float(lags_s[j]),
-        rms_at_lag_m=float(rms[j]),
-    )
-
-
-def evaluate_flight(plan: Plan, tracks: Mapping[str, FlownTrack]) -> FlownEvaluation:
-    """Exact robustness of the flown tracks next to the plan's, per clause and overall.
-
-    Flown positions are resampled on the plan's check grid ``t = 0, dt, ..., horizon`` by
-    linear interpolation of the telemetry (:meth:`mavlink.tlog.FlownTrack.resample`, which
-    refuses a track that does not cover the horizon).
-    """
-    from mavlink.errors import LinkError
-
-    phi = plan_formula(plan)
-    dt = plan.check_dt_s
-    n = round(plan.horizon_s / dt) + 1
-    t = np.arange(n) * dt
-    planned = {v.name: v.trajectory.position(t) for v in plan.vehicles}
-    flown: dict[str, np.ndarray] | None = {}
-    problem = ""
-    for v in plan.vehicles:
-        tr = tracks.get(v.name)
-        if tr is None:
-            flown, problem = None, f"no telemetry from {v.name}"
-            break
-        try:
-            flown[v.name] = tr.resample(dt, plan.horizon_s)  # type: ignore[index]
-        except LinkError as exc:
-            flown, problem = None, str(exc)
-            break
-    clauses = []
-    for c in phi.clauses:
-        clauses.append(
-            ClauseOutcome(
-                text=str(c),
-                vehicles=tuple(sorted(c.signal_names() & planned.keys())),
-                planned=float(c.robustness(planned, dt)),
-                flown=None if flown is None else float(c.robustness(flown, dt)),
-            )
-        )
-    lags = np.round(np.arange(-0.5, 1.0 + 1e-9, 0.01), 6)
-    tracking = tuple(
-        _tracking(v.name, tracks[v.name], v.trajectory.position, plan.horizon_s, lags)
-        for v in plan.vehicles
-        if v.name in tracks
-    )
-    return FlownEvaluation(
-        dt_s=dt,
-        planned_robustness=float(phi.robustness(planned, dt)),
-        flown_robustness=None if flown is None else float(phi.robustness(flown, dt)),
-        clauses=tuple(clauses),
-        tracking=tracking,
-        coverage_problem=problem,
-    )
-
-
-# ---------------------------------------------------------------------------- progress
-
-
-@dataclass(slots=True)
-class FlightClock:
-    """The plan's start instant (``time.monotonic()``) per vehicle, once the flight has one."""
-
-    t0_monotonic_s: dict[str, float] = field(default_factory=dict)
-
-    def plan_time(self, name: str, now: float) -> float | None:
-        """Seconds since ``name``'s plan start, or ``None`` before it."""
-        t0 = self.t0_monotonic_s.get(name)
-        return None if t0 is None else now - t0
-
-
-class FlightProgress:
-    """Live view of a flight: per vehicle mode, distance to the plan, robustness so far.
-
-    On a terminal one status line is rewritten in place (4 times a second); otherwise a
-    plain line is printed every ``plain_interval_s``. "Robustness so far" of a vehicle is
-    the minimum over the clauses it appears in of their exact robustness on its flown
-    positions up to now followed by the plan for the rest of the horizon.
-
-    The work per update is bounded: the flown samples are written into the signals
-    incrementally (only the grid steps since the last update), the clauses are evaluated
-    per template (:class:`planner.stl.batch.ClauseBatch`), and :meth:`run` does that on a
-    worker thread, so the setpoint stream on the event loop never waits for it.
-
-    Args:
-        plan: the plan being flown.
-        stream: where to write (stdout, or stderr under ``--json``).
-        tty: rewrite one line (default: ``stream.isatty()``).
-        plain_interval_s: seconds between plain lines.
-    """
-
-    def __init__(
-        self,
-        plan: Plan,
-        stream: TextIO | None = None,
-        *,
-        tty: bool | None = None,
-        plain_interval_s: float = 2.0,
-    ) -> None:
-        from planner.stl.batch import ClauseBatch
-
-        self.plan = plan
-        self.stream = stream if stream is not None else sys.stdout
-        self.tty = self.stream.isatty() if tty is None else tty
-        self.plain_interval_s = plain_interval_s
-        self.phi = plan_formula(plan)
-        self.dt_s = max(plan.check_dt_s, 0.05)
-        n = round(plan.horizon_s / self.dt_s) + 1
-        self.t_grid = np.arange(n) * self.dt_s
-        self.planned = {v.name: v.trajectory.position(self.t_grid) for v in plan.vehicles}
-        names = [v.name for v in plan.vehicles]
-        clauses = list(self.phi.clauses)
-        self._batch = ClauseBatch(clauses)
-        self._members = {
-            name: np.array([i for i, c in enumerate(clauses) if name in c.signal_names()], int)
-            for name in names
-        }
-        self._samples: dict[str, list[tuple[float, float, float, float]]] = {n: [] for n in names}
-        # the signals: flown up to _filled[name] grid steps, planned after
-        self._signals = {name: p.copy() for name, p in self.planned.items()}
-        self._filled = dict.fromkeys(names, 0)
-        self._lock = threading.Lock()  # record() and so_far() may run on different threads
-        self._maps: dict[GeodeticPoint, NedToEnuMap] = {}  # per EKF origin
-        self.lines = 0
-        self.last_line = ""
-
-    def _fill(self, name: str, t_now_s: float) -> None:
-        """Write the flown positions into the grid steps up to ``t_now_s`` not yet written
-        (steps before the last sample only: a later sample could still move them)."""
-        with self._lock:
-            rows = self._samples[name]
-            if not rows:
-                return
-            t_last = rows[-1][0]
-            k0 = self._filled[name]
-            k1 = int(np.searchsorted(self.t_grid, min(t_now_s, t_last), side="right"))
-            if k1 <= k0:
-                return
-            # the samples around steps k0..k1-1: from the last one at or before step k0
-            t_first = self.t_grid[k0]
-            j = max(0, bisect.bisect_right(rows, (t_first, math.inf, 0.0, 0.0)) - 1)
-            a = np.asarray(rows[j:])
-        sig = self._signals[name]
-        for ax in range(3):
-            sig[k0:k1, ax] = np.interp(self.t_grid[k0:k1], a[:, 0], a[:, ax + 1])
-        self._filled[name] = k1
-
-    def so_far(self, t_now_s: float) -> dict[str, float]:
-        """Robustness so far per vehicle (see class docstring) at plan time ``t_now_s``."""
-        for name in self._signals:
-            self._fill(name, t_now_s)
-        values = self._batch.values(self._signals, self.dt_s)
-        return {
-            name: float(values[idx].min()) if idx.size else math.nan
-            for name, idx in self._members.items()
-        }
-
-    def record(self, name: str, t_s: float, pos_enu_m: np.ndarray) -> None:
-        """Add a position sample of ``name`` at plan time ``t_s``."""
-        with self._lock:
-            rows = self._samples[name]
-            if not rows or t_s > rows[-1][0]:
-                rows.append((t_s, float(pos_enu_m[0]), float(pos_enu_m[1]), float(pos_enu_m[2])))
-
-    def line(
-        self,
-        fleet: Fleet,
-        clock: FlightClock,
-        origins: Mapping[str, GeodeticPoint],
-        *,
-        with_robustness: bool = True,
-    ) -> str:
-        """One status line for the current instant (and record the positions it read).
-
-        ``with_robustness=False`` only records (the robustness is the costly part).
-        """
-        from planner.frames import NedToEnuMap
-
-        now = time.monotonic()
-        parts = []
-        t_plan: float | None = None
-        for v in self.plan.vehicles:
-            st = fleet[v.name].status(now)
-            mode = st.mode.label if st.mode is not None else str(st.custom_mode)
-            t = clock.plan_time(v.name, now)
-            where = ""
-            if st.pos_ned_m is not None and v.name in origins:
-                origin = origins[v.name]
-                fmap = self._maps.get(origin)
-                if fmap is None:
-                    fmap = self._maps[origin] = NedToEnuMap.between(self.plan.origin, origin)
-                pos = fmap.position(st.pos_ned_m)
-                ref_t = 0.0 if t is None else min(max(t, 0.0), v.trajectory.duration_s)
-                ref = v.trajectory.position(np.array([ref_t]))[0]
-                where = f" {float(np.linalg.norm(pos - ref)):5.2f} m"
-                if t is not None and t >= 0.0:
-                    self.record(v.name, t, pos)
-                    t_plan = t if t_plan is None else max(t_plan, t)
-            parts.append(f"{v.name} {mode}{where}")
-        if t_plan is not None and with_robustness:
-            rho = self.so_far(t_plan)
-            parts = [
-                f"{p} rho {rho[v.name]:+.3f}"
-                for p, v in zip(parts, self.plan.vehicles, strict=True)
-            ]
-            head = f"t {min(t_plan, self.plan.horizon_s):5.1f}/{self.plan.horizon_s:g} s"
-        else:
-            head = "preparing (distance to start)"
-        return head + " | " + " | ".join(parts)
-
-    def show(self, text: str) -> None:
-        """Write ``text``: rewrite the status line on a terminal, else a new line."""
-        with self._lock:
-            self.lines += 1
-            if self.tty:
-                width = shutil.get_terminal_size((120, 20)).columns
-                self.last_line = text[: width - 1]
-                self.stream.write("\r\033[K" + self.last_line)
-            else:
-                self.last_line = text
-                self.stream.write(text + "\n")
-            self.stream.flush()
-
-    def note(self, text: str) -> None:
-        """Write ``text`` on a line of its own (the status line, if any, is redrawn after it).
-
-        Safe from any thread (the safety monitor's warnings come from its own).
-        """
-        with self._lock:
-            if self.tty and self.lines:
-                self.stream.write("\r\033[K" + text + "\n" + self.last_line)
-            else:
-                self.stream.write(text + "\n")
-            self.stream.flush()
-
-    def close(self) -> None:
-        """End the status line (terminal)."""
-        if self.tty and self.lines:
-            self.stream.write("\n")
-            self.stream.flush()
-
-    async def run(
-        self,
-        fleet: Fleet,
-        clock: FlightClock,
-        origins: Mapping[str, GeodeticPoint],
-        stop: asyncio.Event,
-    ) -> None:
-        """Sample positions every 0.1 s and show a line every 0.25 s (tty) or interval.
-
-        Sampling and evaluation run on a worker thread (the event loop only waits for it),
-        one at a time; only the writing is done here.
-        """
-        show_every = 0.25 if self.tty else self.plain_interval_s
-        next_show = time.monotonic()
-        while not stop.is_set():
-            due = time.monotonic() >= next_show
-            text = await asyncio.to_thread(self.line, fleet, clock, origins, with_robustness=due)
-            if due:
-                self.show(text)
-                next_show += show_every
-            await asyncio.sleep(0.1)  # no child task: an interruption cancels those
-
-
 # ---------------------------------------------------------------------------- the flight
-
-
-@dataclass(frozen=True, slots=True, eq=False)
-class FlightOutcome:
-    """What :func:`fly_plan` did.
-
-    Attributes:
-        mode: offboard or mission.
-        completed: the whole plan was flown, no safety stop, no failed end action.
-        interrupted: Ctrl-C stopped it (every vehicle was commanded to hold).
-        connect_s: wall time to connect every vehicle and learn its origin.
-        flight_s: wall time from then to the end action (take-off, flight, end).
-        t0_unix_s: Unix time of the plan's start (offboard; the earliest vehicle in mission mode).
-        tracks: flown tracks in the mission frame, times from each vehicle's plan start.
-        evaluation: flown vs planned robustness (``None`` when no track was recorded).
-        stats: offboard stream statistics per vehicle (empty in mission mode).
-        missions: mission runs per vehicle (mission mode).
-        safety_event: what the safety monitor stopped, if it did.
-        monitor: what the safety monitor did (``None``: it did not run).
-        end_failures: vehicles whose end action (or hold on Ctrl-C) failed, with the reason.
-        final_modes: each vehicle's mode label at the end.
-        tlog: the recording's statistics (with a log directory).
-        files: what was written, by kind (``tlog``, ``csv``).
-        mission: mission mode's conversion, prediction, clock skews and lateness.
-        tuning: each vehicle's tracking model (drag fed forward, gains, estimator accuracy).
-        warnings: margin warnings shown before the flight.
-        accuracy_m: per vehicle the worst (horizontal, vertical) position accuracy its
-            estimator reported during the flight (ESTIMATOR_STATUS, 1-sigma).
-        flown_lower_bound: flown robustness minus twice the worst 3-D accuracy: what the
-            spec is worth at least if every estimate was within its reported accuracy of
-            the truth (flown robustness is computed on the estimates).
-    """
-
-    mode: FlightMode
-    completed: bool
-    interrupted: bool
-    connect_s: float
-    flight_s: float
-    t0_unix_s: float | None
-    tracks: dict[str, FlownTrack]
-    evaluation: FlownEvaluation | None
-    stats: dict[str, StreamStats] = field(default_factory=dict)
-    missions: dict[str, MissionRun] = field(default_factory=dict)
-    safety_event: SafetyEvent | None = None
-    monitor: MonitorStats | None = None
-    end_failures: dict[str, str] = field(default_factory=dict)
-    final_modes: dict[str, str] = field(default_factory=dict)
-    tlog: TlogStats | None = None
-    files: dict[str, Path] = field(default_factory=dict)
-    mission: MissionFlight | None = None
-    tuning: dict[str, VehicleTuning] = field(default_factory=dict)
-    warnings: tuple[str, ...] = ()
-    accuracy_m: dict[str, tuple[float, float]] = field(default_factory=dict)
-    flown_lower_bound: float | None = None
 
 
 def _make_log_dir(log_dir: Path | None) -> None:
@@ -811,7 +311,8 @@ async def _fly_offboard(
 ) -> Any:
     from gcs.mission_flight import arrive_gate_m
     from mavlink.monitor import SafetyMonitor, always_clauses
-    from mavlink.offboard import EndAction, OffboardConfig, fly_offboard
+    from mavlink.offboard import fly_offboard
+    from mavlink.offboard_setpoints import EndAction, OffboardConfig
 
     names = [v.name for v in plan.vehicles]
 
@@ -1012,213 +513,3 @@ async def fly_plan(
         accuracy_m={k: v for k, v in accuracy.items() if v is not None},
         flown_lower_bound=lower,
     )
-
-
-# ---------------------------------------------------------------------------- text
-
-
-def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
-    """The end-of-flight summary for the operator (several lines)."""
-    from mavlink.stream import STATS_HEADER
-
-    lines = []
-    if outcome.interrupted:
-        lines.append("interrupted: every vehicle was commanded to hold")
-    elif outcome.safety_event is not None:
-        lines.append(f"safety stop: {outcome.safety_event.describe()}")
-    if outcome.monitor is not None and outcome.monitor.stale:
-        lines.append(f"monitor: {outcome.monitor.describe_stale()}")
-    verdict = "completed" if outcome.completed else "NOT completed"
-    lines.append(
-        f"flight {verdict} in {outcome.flight_s:.1f} s ({outcome.mode.value}, "
-        f"{len(plan.vehicles)} vehicle(s)); modes now: "
-        + ", ".join(f"{k} {m}" for k, m in outcome.final_modes.items())
-    )
-    for name, why in outcome.end_failures.items():
-        lines.append(f"  {name}: end action failed: {why}")
-    ev = outcome.evaluation
-    if ev is not None:
-        flown = "n/a" if ev.flown_robustness is None else f"{ev.flown_robustness:+.4f}"
-        lines.append(
-            f"robustness (exact, dt {ev.dt_s:g} s): planned {ev.planned_robustness:+.4f}, "
-            f"flown {flown}" + (f" ({ev.coverage_problem})" if ev.coverage_problem else "")
-        )
-        if outcome.flown_lower_bound is not None:
-            acc = max(outcome.accuracy_m.values(), key=lambda a: math.hypot(*a))
-            lines.append(
-                f"  flown robustness is on the vehicles' estimates; at least "
-                f"{outcome.flown_lower_bound:+.4f} if each was within the accuracy its "
-                f"estimator reported (worst {acc[0]:.2f} m horizontal, {acc[1]:.2f} m vertical)"
-            )
-        w = ev.weakest_flown
-        if w is not None:
-            lines.append(
-                f"  weakest flown clause {w.flown:+.4f} (planned {w.planned:+.4f}): {w.text}"
-            )
-        for te in ev.tracking:
-            over = (
-                f" (WARNING: more than the plan's margin {plan.robustness:.3f} m)"
-                if plan.robustness > 0 and te.max_m > plan.robustness
-                else ""
-            )
-            lines.append(
-                f"  {te.vehicle}: tracking error max {te.max_m:.3f} m at t {te.t_at_max_s:.2f} s"
-                f"{over}, rms {te.rms_m:.3f} m; best-fit delay {te.lag_s:+.2f} s (rms "
-                f"{te.rms_at_lag_m:.3f} m)"
-            )
-    if outcome.stats:
-        lines.append("setpoint stream (lateness of each send after its deadline):")
-        lines.append("  " + STATS_HEADER)
-        lines += ["  " + s.row() for s in outcome.stats.values()]
-    lines += _tuning_lines(outcome)
-    m = outcome.mission
-    if m is not None:
-        c = m.conversion
-        how = "chosen" if c.acceptance_auto else "given"
-        lines.append(
-            f"missions: acceptance radius {c.acceptance_m:.2f} m ({how}), legs "
-            f"{'re-timed' if c.retimed else 'at their average speeds'}; robustness predicted "
-            f"{c.predicted_robustness:+.4f} (straight legs {c.straight_leg_robustness:+.4f})"
-        )
-    for name, run in outcome.missions.items():
-        extra = ""
-        if m is not None:
-            late = m.late_s.get(name, math.inf)
-            dep = m.departure_skew_s.get(name)
-            extra = (
-                f", {'+' if late >= 0 else ''}{late:.1f} s against the plan"
-                if math.isfinite(late)
-                else ""
-            )
-            extra += f"; start skew {m.start_skew_s.get(name, 0.0) * 1000:+.0f} ms"
-            if dep is not None:
-                extra += f", left the start waypoint {dep:+.2f} s off the prediction"
-        items = len(m.conversion.missions[name].items) if m is not None else None
-        lines.append(
-            f"  {name}: mission {'finished' if run.finished else 'NOT finished'} in "
-            f"{run.duration_s:.1f} s{extra}; "
-            + (f"at item {run.current[-1][0]} of {items}" if run.current and items else "")
-        )
-    if outcome.tlog is not None:
-        lines.append(f"telemetry: {outcome.tlog.path} ({outcome.tlog.messages} messages)")
-    if "csv" in outcome.files:
-        lines.append(f"tracks: {outcome.files['csv']}")
-    return "\n".join(lines)
-
-
-def _tuning_lines(outcome: FlightOutcome) -> list[str]:
-    """Drag fed forward per vehicle, the lag it still showed, and the drag to set."""
-    from gcs.tuning import LAG_NOISE_S, drag_from_lag
-
-    ev = outcome.evaluation
-    lags = {t.vehicle: t.lag_s for t in ev.tracking} if ev is not None else {}
-    lines = []
-    for name, tu in outcome.tuning.items():
-        lag = lags.get(name, math.nan)
-        acc = f", estimator accuracy {tu.accuracy_m:.2f} m" if tu.accuracy_m is not None else ""
-        how = "fed forward" if outcome.mode is FlightMode.OFFBOARD else "in the prediction"
-        text = f"  {name}: drag {tu.drag_per_s:.2f} /s {how} ({tu.drag_source}){acc}"
-        if math.isfinite(lag) and outcome.mode is FlightMode.OFFBOARD:
-            c = drag_from_lag(lag, tu)
-            text += f"; flown lag {lag:+.2f} s -> drag {c:.2f} /s"
-            if abs(lag) > LAG_NOISE_S:
-                text += f" (set --drag {c:.2f})"
-        lines.append(text)
-    return lines
-
-
-def outcome_json(plan: Plan, outcome: FlightOutcome) -> dict[str, Any]:
-    """The outcome as a JSON-ready dict (``gcs fly --json``)."""
-    ev = outcome.evaluation
-
-    def num(x: float | None) -> float | None:
-        return None if x is None or not math.isfinite(x) else float(x)
-
-    return {
-        "mode": outcome.mode.value,
-        "completed": outcome.completed,
-        "interrupted": outcome.interrupted,
-        "connect_s": outcome.connect_s,
-        "flight_s": outcome.flight_s,
-        "t0_unix_s": outcome.t0_unix_s,
-        "safety_event": None if outcome.safety_event is None else outcome.safety_event.describe(),
-        "monitor": None if outcome.monitor is None else outcome.monitor.as_json(),
-        "decision_latency_s": (
-            None if outcome.safety_event is None else outcome.safety_event.latency_s
-        ),
-        "end_failures": outcome.end_failures,
-        "final_modes": outcome.final_modes,
-        "planned_robustness": None if ev is None else num(ev.planned_robustness),
-        "flown_robustness": None if ev is None else num(ev.flown_robustness),
-        "coverage_problem": None if ev is None else ev.coverage_problem or None,
-        "clauses": []
-        if ev is None
-        else [
-            {"text": c.text, "planned": num(c.planned), "flown": num(c.flown)} for c in ev.clauses
-        ],
-        "tracking": []
-        if ev is None
-        else [
-            {
-                "vehicle": t.vehicle,
-                "samples": t.samples,
-                "max_m": num(t.max_m),
-                "rms_m": num(t.rms_m),
-                "lag_s": num(t.lag_s),
-                "rms_at_lag_m": num(t.rms_at_lag_m),
-            }
-            for t in ev.tracking
-        ],
-        "stream": {
-            name: {
-                "sent": s.sent,
-                "skipped": s.skipped,
-                "failed": s.failed,
-                "late": s.late,
-                "mean_lateness_s": num(s.mean_lateness_s),
-                "p99_lateness_s": num(s.p99_lateness_s),
-                "max_lateness_s": num(s.max_lateness_s),
-                "rate_hz": s.rate_hz,
-            }
-            for name, s in outcome.stats.items()
-        },
-        "missions": {
-            name: {
-                "finished": r.finished,
-                "duration_s": r.duration_s,
-                "reached": len(r.reached),
-                "late_s": None if outcome.mission is None else num(outcome.mission.late_s[name]),
-                "start_skew_s": None
-                if outcome.mission is None
-                else num(outcome.mission.start_skew_s[name]),
-                "departure_skew_s": None
-                if outcome.mission is None
-                else num(outcome.mission.departure_skew_s[name]),
-            }
-            for name, r in outcome.missions.items()
-        },
-        "mission_prediction": None
-        if outcome.mission is None
-        else {
-            "acceptance_m": outcome.mission.conversion.acceptance_m,
-            "acceptance_auto": outcome.mission.conversion.acceptance_auto,
-            "retimed": outcome.mission.conversion.retimed,
-            "predicted_robustness": num(outcome.mission.conversion.predicted_robustness),
-            "straight_leg_robustness": num(outcome.mission.conversion.straight_leg_robustness),
-            "predicted_late_s": {k: num(v) for k, v in outcome.mission.conversion.late_s.items()},
-        },
-        "tuning": {
-            name: {
-                "drag_per_s": t.drag_per_s,
-                "drag_source": t.drag_source,
-                "expected_lag_s": t.expected_lag_s,
-                "accuracy_m": t.accuracy_m,
-            }
-            for name, t in outcome.tuning.items()
-        },
-        "warnings": list(outcome.warnings),
-        "flown_lower_bound": num(outcome.flown_lower_bound),
-        "estimator_accuracy_m": {k: list(v) for k, v in outcome.accuracy_m.items()},
-        "tlog_messages": None if outcome.tlog is None else outcome.tlog.messages,
-        "files": {k: str(p) for k, p in outcome.files.items()},
-    }

@@ -33,8 +33,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from gcs.flight import FlightClock, FlyOptions
+    from gcs.flight import FlyOptions
     from gcs.missions import MissionConversion
+    from gcs.progress import FlightClock
     from gcs.tuning import VehicleTuning
     from mavlink.fleet import Fleet
     from mavlink.mission import MissionRun
@@ -124,7 +125,7 @@ async def fly_mission_plan(
         upload_with_retries,
     )
     from mavlink.monitor import SafetyAction, SafetyMonitor, always_clauses, safe_stop
-    from mavlink.offboard import (
+    from mavlink.preflight import (
         TAKEOFF_MARGIN_M,
         check_start,
         check_takeoff_height,
@@ -302,6 +303,6 @@ def arrive_gate_m(plan: Plan) -> float:
 
 
 def _formula(plan: Plan) -> Any:
-    from gcs.flight import plan_formula
+    from gcs.evaluation import plan_formula
 
     return plan_formula(plan)

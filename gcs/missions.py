@@ -124,7 +124,7 @@ def convert_plan(
         iterations: predictions at most (1: no re-timing, just the prediction).
         retime: re-time the legs (False: the legs' average speeds, predicted once).
     """
-    from gcs.flight import plan_formula
+    from gcs.evaluation import plan_formula
     from mavlink.mission import Cmd, MissionEnd, path_robustness, trajectory_to_mission
     from mavlink.mock.predict import predict_missions
 

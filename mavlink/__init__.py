@@ -5,11 +5,17 @@ actions, missions and offboard, pymavlink for logs)::
 
     mavlink.urls        connection URLs and the PX4 SITL port convention
     mavlink.px4_modes   PX4 custom_mode encode/decode, DO_SET_MODE params
+    mavlink.mavsdk_glue MAVSDK's callback API as awaitables, its log routed to logging
+    mavlink.vehicle     Vehicle: one vehicle's link (telemetry, commands, status)
     mavlink.fleet       Fleet: N vehicles through one MAVSDK instance, live status
+    mavlink.preflight   checks before a plan starts (distance to start, take-off height,
+                        settled)
     mavlink.stream      deadline-scheduled setpoint streaming and its statistics
+    mavlink.offboard_setpoints  a plan sampled into PX4 setpoints (OffboardConfig)
     mavlink.offboard    fly_offboard: a plan flown in offboard mode, all in step
-    mavlink.mission     trajectory -> PX4 mission / geofence items, upload, verify,
-                        whole-transfer retries within a time budget
+    mavlink.mission     package: items and their comparison, trajectory -> PX4 mission,
+                        geofence items, transfer, whole-transfer retries within a time
+                        budget, starting and following a mission
     mavlink.monitor     online safety monitor of the spec's always-clauses
     mavlink.scan        who answers on the udpin ports (duplicate system ids)
     mavlink.tlog        telemetry recording to .tlog and CSV

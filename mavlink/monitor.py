@@ -50,7 +50,8 @@ from planner.stl.ast import Always, Formula
 from planner.stl.batch import ClauseBatch
 
 if TYPE_CHECKING:
-    from mavlink.fleet import Fleet, Vehicle
+    from mavlink.fleet import Fleet
+    from mavlink.vehicle import Vehicle
     from planner.trajectory import Trajectory
 
 
@@ -185,7 +186,7 @@ async def safe_stop(v: Vehicle, action: SafetyAction) -> None:
 
     A vehicle not in offboard gets MAVSDK's plain Hold.
     """
-    from mavlink.fleet import mavsdk_call
+    from mavlink.mavsdk_glue import mavsdk_call
 
     if v.offboard.is_active():
         result = await mavsdk_call(v.offboard.stop_async)

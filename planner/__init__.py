@@ -4,7 +4,10 @@ No vehicle I/O happens here.  Modules (import them directly; this package import
 that ``planner.trajectory`` users do not pay for CasADi):
 
 * :mod:`planner.scenario`: ``load_scenario(path, vehicles=N) -> Problem`` (YAML, for-each
-  expansion of the spec over vehicles, groups and pairs).
+  expansion of the spec over vehicles, groups and pairs), reading its sections with
+  :mod:`planner.scenario_sections`, the spec with :mod:`planner.scenario_spec`, checking
+  mistakes with :mod:`planner.scenario_checks`; the result types are in
+  :mod:`planner.problem`, the regions in :mod:`planner.regions`.
 * :mod:`planner.predicates`: the spec's functions ``inside``, ``outside``, ``dist``, ``alt``,
   ``x``, ``y``, ``z`` (numpy exact, CasADi smooth), ``build_registry(problem)``.
 * :mod:`planner.optimize`: ``plan(problem) -> PlanResult`` (CasADi/IPOPT), built from
@@ -18,7 +21,7 @@ that ``planner.trajectory`` users do not pay for CasADi):
 Error tree (each a ``ValueError``, each message names the file/field/position)::
 
     planner.errors.FileFieldError       a mistake in an input file (file, key path, problem)
-      planner.scenario.ScenarioError    ... in a scenario file
+      planner.scenario_sections.ScenarioError ... in a scenario file
       planner.planfile.PlanFileError    ... in a plan file (missing, not JSON, not a plan)
     planner.stl.STLError                STL engine errors (SpecError: syntax, line/column, ...)
     planner.dynamics.DynamicsError      bad model parameters

@@ -14,7 +14,7 @@ import numpy as np
 
 from planner.nlp import _limit_bounds, _two_sided_rows
 from planner.predicates import Role, role_of
-from planner.scenario import Problem
+from planner.problem import Problem
 from planner.stl import (
     Always,
     Formula,

@@ -36,7 +36,7 @@ from planner.predicates import (
     predicate_sharpness,
     role_of,
 )
-from planner.scenario import Problem, SolverMethod
+from planner.problem import Problem, SolverMethod
 from planner.stl import (
     Always,
     And,

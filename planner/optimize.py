@@ -47,7 +47,7 @@ gives those limits.  ``success`` means exact robustness >= epsilon with all of t
 checks passing; anything else is a ``success=False`` result with the best trajectories
 found, never an exception.
 
-Errors: bad scenarios are :class:`~planner.scenario.ScenarioError` (raised by
+Errors: bad scenarios are :class:`~planner.scenario_sections.ScenarioError` (raised by
 :mod:`planner.scenario`); this module raises nothing else for bad input.
 """
 
@@ -80,8 +80,9 @@ from planner.nlp import (
 from planner.predicates import (
     build_registry,
 )
+from planner.problem import DynamicsModel, Problem
 from planner.results import ClauseReport, PlanResult, SolveStats, Weakest
-from planner.scenario import DynamicsModel, Problem, parse_clause
+from planner.scenario_spec import parse_clause
 from planner.stl import (
     Formula,
     conjunction,

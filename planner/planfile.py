@@ -43,8 +43,10 @@ import numpy as np
 
 from planner.errors import FileFieldError
 from planner.frames import GeodeticPoint
-from planner.scenario import FUNCTION_NAMES, MAX_HORIZON_S, Region, RegionKind
+from planner.problem import MAX_HORIZON_S
+from planner.regions import Region, RegionKind
 from planner.scenario_checks import horizon_sum
+from planner.scenario_spec import FUNCTION_NAMES
 from planner.trajectory import Trajectory, TrajectoryError
 
 if TYPE_CHECKING:
@@ -426,7 +428,7 @@ def plan_formula(plan: Plan) -> Formula:
     Besides parsing it, checks the spec against the plan, so that evaluating it on the plan's
     trajectories cannot fail on a name or a length: every function argument names a vehicle or
     a region of the plan (by the argument's kind in
-    :data:`planner.scenario.FUNCTION_NAMES`), a bare name in a comparison is not a vehicle
+    :data:`planner.scenario_spec.FUNCTION_NAMES`), a bare name in a comparison is not a vehicle
     (vehicles are positions), and the spec looks no further ahead than ``horizon_s``.
 
     Raises:

@@ -9,7 +9,7 @@ import numpy as np
 
 from planner.checks import LimitReport
 from planner.planfile import Plan, PlannedVehicle
-from planner.scenario import Problem
+from planner.problem import Problem
 from planner.trajectory import Trajectory
 
 # ------------------------------------------------------------------------------ results

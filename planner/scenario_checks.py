@@ -40,8 +40,8 @@ from planner.stl import Always, And, Eventually, Formula, Predicate, Until
 from planner.stl.ast import format_number
 
 if TYPE_CHECKING:
+    from planner.problem import Problem, Vehicle
     from planner.regions import Region
-    from planner.scenario import Problem, Vehicle
 
 _AXES = ("east", "north", "up")
 

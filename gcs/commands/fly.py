@@ -94,24 +94,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Fly; see the module docstring for the exit statuses."""
+    from gcs.dryrun import mock_vehicles
     from gcs.errors import UserError
     from gcs.flight import (
-        FlightMode,
-        FlightOutcome,
-        FlightProgress,
         FlightRefused,
         FlyOptions,
         fly_plan,
-        format_outcome,
-        mock_vehicles,
-        outcome_json,
         preflight_interlock,
         signed_links,
         vehicle_specs,
     )
     from gcs.mission_flight import MissionRefused
+    from gcs.outcome import FlightMode, FlightOutcome, format_outcome, outcome_json
+    from gcs.progress import FlightProgress
     from mavlink.errors import PreflightError
-    from mavlink.offboard import EndAction
+    from mavlink.offboard_setpoints import EndAction
     from planner.planfile import load_plan
 
     if not (2.0 < args.rate <= 100.0):

@@ -177,7 +177,8 @@ def run(args: argparse.Namespace) -> int:
     from gcs.errors import UserError
     from planner.optimize import plan
     from planner.planfile import check_writable, save_plan
-    from planner.scenario import SolverMethod, load_scenario
+    from planner.problem import SolverMethod
+    from planner.scenario import load_scenario
 
     if not (math.isfinite(args.time_limit) and args.time_limit >= 0):
         raise UserError(f"--time-limit: must be a number of seconds >= 0, got {args.time_limit:g}")

@@ -39,7 +39,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Draw; 0 when the picture is written."""
-    from gcs.plot import load_telemetry, plot_plan
+    from gcs.plot import plot_plan
+    from gcs.telemetry import load_telemetry
     from planner.planfile import load_plan
 
     plan = load_plan(args.plan)

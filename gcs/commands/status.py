@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 from gcs.commands import add_link_arguments
 
 if TYPE_CHECKING:
-    from mavlink.fleet import VehicleSpec, VehicleStatus
+    from mavlink.vehicle import VehicleSpec, VehicleStatus
 
 HELP = "show each vehicle: system id, autopilot, mode, armed, position, battery"
 
@@ -93,8 +93,8 @@ def specs_for(
         UserError: counts that do not match, or a system id outside 1..255.
     """
     from gcs.errors import UserError
-    from mavlink.fleet import VehicleSpec
     from mavlink.urls import default_url, parse_url
+    from mavlink.vehicle import VehicleSpec
 
     if urls:
         n = len(urls)

@@ -54,8 +54,9 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
     from gcs.missions import FencePlan, MissionConversion
-    from mavlink.fleet import Fleet, Vehicle, VehicleSpec
+    from mavlink.fleet import Fleet
     from mavlink.mission import MissionItem, MissionPlan, MissionStart, TransferProgress
+    from mavlink.vehicle import Vehicle, VehicleSpec
     from planner.planfile import Plan
 
 #: GF_ACTION values (PX4 v1.17 geofence breach action).
@@ -218,7 +219,7 @@ async def _check_starts(fleet: Fleet, plan: Plan, tolerance_m: float) -> None:
     or on the ground below a start too low for PX4's mission take-off."""
     import numpy as np
 
-    from mavlink.offboard import TAKEOFF_MARGIN_M, check_start, check_takeoff_height
+    from mavlink.preflight import TAKEOFF_MARGIN_M, check_start, check_takeoff_height
     from planner.frames import enu_to_geodetic, enu_to_ned
 
     origins = await fleet.origins()

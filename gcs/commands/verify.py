@@ -50,7 +50,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Verify; 0 if every check holds, 1 otherwise."""
-    from gcs.plot import load_telemetry
+    from gcs.telemetry import load_telemetry
     from planner.planfile import load_plan
 
     plan = load_plan(args.plan)

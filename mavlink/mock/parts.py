@@ -1,17 +1,22 @@
 """What the mock vehicle's mixins read from the vehicle, declared once for the type checker.
 
 :class:`~mavlink.mock.vehicle.MockVehicle` is put together from
+:class:`~mavlink.mock.commands.CommandsMixin` (commands, arming, modes),
+:class:`~mavlink.mock.offboard.OffboardMixin` (offboard setpoints),
+:class:`~mavlink.mock.parameters.ParametersMixin` (parameter protocol and effects),
+:class:`~mavlink.mock.origin.OriginMixin` (local frame, EKF origin),
 :class:`~mavlink.mock.navigator.NavigatorMixin` (missions, RTL, geofence) and
-:class:`~mavlink.mock.telemetry.TelemetryMixin` (message builders); both read the vehicle's
-state and call a few of its methods.  :class:`VehicleParts`, their common base, names those
-attributes with their types and the methods' signatures (the latter for the type checker
-only), so each mixin is checked against what the vehicle really provides.  At run time it
-adds nothing: annotations without values create no attributes.
+:class:`~mavlink.mock.telemetry.TelemetryMixin` (message builders); each reads the vehicle's
+state and calls methods of the vehicle or of the other mixins.  :class:`VehicleParts`, their
+common base, names those attributes with their types and the methods' signatures (the
+latter for the type checker only), so each mixin is checked against what the vehicle really
+provides.  At run time it adds nothing: annotations without values create no attributes.
 """
 
 from __future__ import annotations
 
 import random
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -19,8 +24,10 @@ import numpy as np
 if TYPE_CHECKING:
     from mavlink.mock.config import MockVehicleConfig
     from mavlink.mock.mission import MissionServer
+    from mavlink.mock.offboard import _Setpoint
     from mavlink.mock.physics import FleetPhysics
-    from mavlink.mock.px4 import Px4Mode
+    from mavlink.mock.px4 import ParamSpec, Px4Mode
+    from mavlink.mock.telemetry import _Stream
     from mavlink.mock.vehicle import FleetSide
 
 
@@ -36,12 +43,15 @@ class VehicleParts:
     origin_lla: tuple[float, float, float]
     phys: FleetPhysics
     params: dict[str, float]
+    _param_specs: dict[str, ParamSpec]
+    _param_names: list[str]
     missions: MissionServer
     armed: bool
     landed: bool
     failsafe: bool
     mode: Px4Mode
     home_ned_m: np.ndarray
+    cruise_speed_m_s: float
     mission_seq: int
     mission_finished: bool
     _armed_at_s: float
@@ -49,6 +59,16 @@ class VehicleParts:
     _rtl_phase: str
     _jump_counts: dict[int, int]
     _mc_rng: random.Random
+    _mission_valid_s: float
+    # offboard: the last setpoint, when setpoints last came and since when they stream
+    _sp: _Setpoint | None
+    _sp_last_s: float
+    _sp_stream_start_s: float
+    _frame_warned: set[int]
+    # telemetry streams, and (due time, action) run by tick
+    _builders: dict[int, Callable[[], Any]]
+    _streams: dict[int, _Stream]
+    _deferred: list[tuple[float, Callable[[], None]]]
 
     if TYPE_CHECKING:
 
@@ -62,6 +82,8 @@ class VehicleParts:
         def _usec(self) -> int: ...
 
         def send(self, msg: Any) -> None: ...
+
+        def _for_me(self, msg: Any) -> bool: ...
 
         def statustext(self, severity: int, text: str) -> None: ...
 
@@ -86,3 +108,15 @@ class VehicleParts:
         def _land_speed_m_s(self) -> float: ...
 
         def _msg_mission_current(self) -> Any: ...
+
+        def _msg_gps_global_origin(self) -> Any: ...
+
+        def _stream_ok(self) -> bool: ...
+
+        def _apply_setpoint(self) -> None: ...
+
+        def _rtl_start(self) -> None: ...
+
+        def _mission_start_item(self, seq: int) -> None: ...
+
+        def _announce_current(self, *, set_by_client: bool = False) -> None: ...

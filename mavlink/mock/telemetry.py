@@ -4,12 +4,16 @@ Mixed into :class:`mavlink.mock.vehicle.MockVehicle`.  Each ``_msg_*`` method
 builds one message for the current tick; positions and velocities carry the
 fleet's seeded telemetry noise, global positions are the vehicle's EKF origin
 plus its local offset (the fleet converts the whole fleet at once per tick).
+The streams that send them at their rates are :class:`_Stream` records, run by the
+vehicle's tick.
 """
 
 from __future__ import annotations
 
 import enum
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, TypeAlias
 
 import pymap3d
@@ -40,6 +44,19 @@ DEFAULT_RATES_HZ: dict[int, float] = {
     mavlink2.MAVLINK_MSG_ID_ATTITUDE: 50.0,
     mavlink2.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 1.0,
 }
+
+
+@dataclass(slots=True)
+class _Stream:
+    """One telemetry stream of the vehicle: message ``msg_id``, built by ``build`` every
+    ``interval_s`` (s), next due at ``next_s`` (simulation time, s).  Set up at boot from
+    :data:`DEFAULT_RATES_HZ` and changed by MAV_CMD_SET_MESSAGE_INTERVAL."""
+
+    msg_id: int
+    interval_s: float
+    next_s: float
+    build: Callable[[], Msg | None]
+
 
 _EST_FLAGS = (
     mavlink2.ESTIMATOR_ATTITUDE

@@ -7,9 +7,14 @@ land, return, mission, offboard failsafe, geofence, auto-disarm), the mission
 protocol timers and the telemetry streams due at that time.  Incoming
 datagrams are parsed with pymavlink's MAVLink 2 codec and dispatched by
 message type; every ``COMMAND_LONG``/``COMMAND_INT`` addressed to the vehicle is
-answered with a ``COMMAND_ACK``.  The navigator (mission execution, return to
-launch, geofence) lives in :mod:`mavlink.mock.navigator`, the telemetry
-messages in :mod:`mavlink.mock.telemetry`.
+answered with a ``COMMAND_ACK``.  This module keeps the vehicle's state, its
+construction, the message dispatch and the tick; the rest is mixed in from rooms of
+their own: the commands, arming and modes in :mod:`mavlink.mock.commands`, offboard
+setpoints in :mod:`mavlink.mock.offboard`, the parameter protocol in
+:mod:`mavlink.mock.parameters`, the local frame and EKF origin in
+:mod:`mavlink.mock.origin`, the navigator (mission execution, return to launch,
+geofence) in :mod:`mavlink.mock.navigator` and the telemetry messages in
+:mod:`mavlink.mock.telemetry`.
 
 Frames: the vehicle's local NED origin is its EKF origin, the spawn point;
 global positions are that origin's geodetic coordinates plus the local offset
@@ -22,22 +27,26 @@ import math
 import random
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import Any, ClassVar, Protocol, TypeAlias
+from typing import Any, Protocol, TypeAlias
 
 import numpy as np
 import pymap3d
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.mock import px4
+from mavlink.mock.commands import CommandsMixin
 from mavlink.mock.config import FaultConfig, MockVehicleConfig, Outage
 from mavlink.mock.errors import MockConfigError, MockError
 from mavlink.mock.estimator import EstimatorParams
 from mavlink.mock.mission import MISSION, MissionItem, MissionServer
 from mavlink.mock.navigator import NavigatorMixin
-from mavlink.mock.physics import GRAVITY_M_S2, FleetPhysics
+from mavlink.mock.offboard import OffboardMixin, _Setpoint
+from mavlink.mock.origin import OriginMixin
+from mavlink.mock.parameters import ParametersMixin
+from mavlink.mock.physics import FleetPhysics
 from mavlink.mock.profiles import profile_params
 from mavlink.mock.px4 import Px4Mode
-from mavlink.mock.telemetry import DEFAULT_RATES_HZ, TelemetryMixin
+from mavlink.mock.telemetry import DEFAULT_RATES_HZ, TelemetryMixin, _Stream
 from mavlink.signing import signing_timestamp
 
 
@@ -72,28 +81,8 @@ class Link(Protocol):
 #: A pymavlink message (its fields are per message type: untyped to mypy).
 Msg: TypeAlias = Any
 
-ACCEPTED = mavlink2.MAV_RESULT_ACCEPTED
-TEMPORARILY_REJECTED = mavlink2.MAV_RESULT_TEMPORARILY_REJECTED
-DENIED = mavlink2.MAV_RESULT_DENIED
-UNSUPPORTED = mavlink2.MAV_RESULT_UNSUPPORTED
-FAILED = mavlink2.MAV_RESULT_FAILED
 
-
-_GLOBAL_FRAMES = frozenset(
-    {
-        mavlink2.MAV_FRAME_GLOBAL,
-        mavlink2.MAV_FRAME_GLOBAL_INT,
-        mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT,
-        mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-        mavlink2.MAV_FRAME_GLOBAL_TERRAIN_ALT,
-        mavlink2.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
-    }
-)
-_FORCE_MAGIC = 21196.0
-_STREAM_GAP_S = 0.5  # setpoints at >= 2 Hz
-_STREAM_MIN_S = 1.0  # ... for at least 1 s before offboard is allowed
-_CLOSE_TO_GROUND_M = 1.0
-_MAX_ORIGIN_MOVE_M = 50_000.0  # the land detector's "close to ground" height (estimate)
+_CLOSE_TO_GROUND_M = 1.0  # the land detector's "close to ground" height (estimate)
 
 
 @dataclass(frozen=True, slots=True)
@@ -121,31 +110,9 @@ class VehicleState:
     est_vel_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
-@dataclass(slots=True)
-class _Stream:
-    msg_id: int
-    interval_s: float
-    next_s: float
-    build: Callable[[], Msg | None]
-
-
-@dataclass(slots=True)
-class _Setpoint:
-    """The last offboard setpoint, already in the local NED frame."""
-
-    pos: np.ndarray
-    vel: np.ndarray
-    acc: np.ndarray
-    m_pos: np.ndarray
-    m_vel: np.ndarray
-    m_acc: np.ndarray
-    yaw_rad: float
-    yaw_rate_rad_s: float
-    use_yaw: bool
-    use_yaw_rate: bool
-
-
-class MockVehicle(TelemetryMixin, NavigatorMixin):
+class MockVehicle(
+    CommandsMixin, OffboardMixin, ParametersMixin, OriginMixin, TelemetryMixin, NavigatorMixin
+):
     """Vehicle ``index`` of a :class:`~mavlink.mock.fleet.MockFleet` (system id ``index + 1``)."""
 
     def __init__(
@@ -379,6 +346,13 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
                 if tgt in (0, self.sysid):
                     self.missions.handle(msg)
 
+    def _for_me(self, msg: Msg) -> bool:
+        return msg.target_system in (0, self.sysid)
+
+    def _on_timesync(self, msg: Msg) -> None:
+        if msg.tc1 == 0:
+            self.send(mavlink2.MAVLink_timesync_message(self._usec() * 1000, msg.ts1))
+
     def receive(self, msg: Msg, sysid: int = 255, compid: int = 190) -> None:
         """Hand ``msg`` to the vehicle as if it arrived from (sysid, compid) over its link."""
         if self.uplink is None:
@@ -474,716 +448,6 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
             for it in items
         )
         self._on_plan_changed(mission_type)
-
-    # ================================================================ geodesy
-    def ned_to_global(self, pos_ned_m: np.ndarray) -> tuple[float, float, float]:
-        """Local NED (m) -> (lat_deg, lon_deg, alt_m AMSL)."""
-        lat0, lon0, h0 = self.origin_lla
-        lat, lon, alt = pymap3d.ned2geodetic(
-            float(pos_ned_m[0]), float(pos_ned_m[1]), float(pos_ned_m[2]), lat0, lon0, h0
-        )
-        return float(lat), float(lon), float(alt)
-
-    def global_to_ned(self, lat_deg: float, lon_deg: float, alt_m: float) -> np.ndarray:
-        """(lat_deg, lon_deg, alt_m AMSL) -> local NED (m), shape (3,)."""
-        lat0, lon0, h0 = self.origin_lla
-        n, e, d = pymap3d.geodetic2ned(lat_deg, lon_deg, alt_m, lat0, lon0, h0)
-        return np.array([float(n), float(e), float(d)])
-
-    def _home_alt_amsl(self) -> float:
-        return self.origin_lla[2] - float(self.home_ned_m[2])
-
-    def _item_target_ned(
-        self, frame: int, x_e7: int, y_e7: int, z_m: float, default: np.ndarray
-    ) -> np.ndarray:
-        """Position of a global mission item / command in local NED; NaN or 0,0 keep ``default``."""
-        target = default.copy()
-        has_latlon = (x_e7 != 0 or y_e7 != 0) and frame in _GLOBAL_FRAMES
-        if math.isfinite(z_m):
-            target[2] = self._alt_to_down(frame, z_m)
-        if has_latlon:
-            # exact geodetic conversion (curvature included) at the target's altitude
-            alt_amsl = self.origin_lla[2] - float(target[2])
-            ned = self.global_to_ned(x_e7 / 1e7, y_e7 / 1e7, alt_amsl)
-            target[0], target[1] = ned[0], ned[1]
-            if math.isfinite(z_m):
-                target[2] = ned[2]
-        return target
-
-    def _alt_to_down(self, frame: int, alt_m: float) -> float:
-        if frame in (mavlink2.MAV_FRAME_GLOBAL, mavlink2.MAV_FRAME_GLOBAL_INT):
-            return self.origin_lla[2] - alt_m
-        # relative to home (terrain following over flat ground is the same)
-        return float(self.home_ned_m[2]) - alt_m
-
-    # ================================================================ parameters
-    def _apply_params(self) -> None:
-        i, p, prm = self.index, self.phys, self.params
-        p.kp_pos[i] = (prm["MPC_XY_P"], prm["MPC_XY_P"], prm["MPC_Z_P"])
-        p.kp_vel[i] = (prm["MPC_XY_VEL_P_ACC"], prm["MPC_XY_VEL_P_ACC"], prm["MPC_Z_VEL_P_ACC"])
-        p.ki_vel[i] = (prm["MPC_XY_VEL_I_ACC"], prm["MPC_XY_VEL_I_ACC"], prm["MPC_Z_VEL_I_ACC"])
-        p.kd_vel[i] = (prm["MPC_XY_VEL_D_ACC"], prm["MPC_XY_VEL_D_ACC"], prm["MPC_Z_VEL_D_ACC"])
-        p.kdv_per_s[i] = prm["SIH_KDV"] / prm["SIH_MASS"]  # SIH: force per m/s over mass
-        p.yaw_p[i] = prm["MC_YAW_P"]
-        # the tilt follows PX4's attitude loop (1 / MC_ROLL_P, MC_PITCH_P: the slower one)
-        gain = min(prm["MC_ROLL_P"], prm["MC_PITCH_P"])
-        p.att_tau_s[i] = 1.0 / gain if prm["MOCK_ATT_DYN"] >= 0.5 and gain > 0.0 else 0.0
-        p.set_thrust_tau(i, prm["SIH_T_TAU"])
-        p.estimator.configure(i, EstimatorParams.from_params(prm), new_boot=False)
-        self._apply_limits()
-
-    @property
-    def px4_nav(self) -> bool:
-        """True when PX4 v1.17's navigator, take-off and storage are modelled (MOCK_PX4_NAV)."""
-        return self.params["MOCK_PX4_NAV"] >= 0.5
-
-    def _apply_limits(self) -> None:
-        """Speed/acceleration limits of the current mode from the parameters."""
-        i, p, prm = self.index, self.phys, self.params
-        auto = self.mode.value[0] == 4
-        p.vel_xy_max_m_s[i] = (
-            min(self.cruise_speed_m_s, prm["MPC_XY_VEL_MAX"]) if auto else prm["MPC_XY_VEL_MAX"]
-        )
-        self._vel_up_base = (
-            prm["MPC_TKO_SPEED"] if self.mode is Px4Mode.AUTO_TAKEOFF else prm["MPC_Z_VEL_MAX_UP"]
-        )
-        p.vel_up_max_m_s[i] = self._vel_up_base
-        p.vel_dn_max_m_s[i] = prm["MPC_Z_VEL_MAX_DN"]
-        if self.px4_nav:
-            # PX4's position controller limits the acceleration only by the tilt; the
-            # trajectory generators of the auto modes respect MPC_ACC_HOR themselves
-            p.acc_xy_max_m_s2[i] = GRAVITY_M_S2 * math.tan(math.radians(prm["MPC_TILTMAX_AIR"]))
-        else:
-            p.acc_xy_max_m_s2[i] = prm["MPC_ACC_HOR"] if auto else prm["MPC_ACC_HOR_MAX"]
-        p.acc_up_max_m_s2[i] = prm["MPC_ACC_UP_MAX"]
-        p.acc_dn_max_m_s2[i] = prm["MPC_ACC_DOWN_MAX"]
-        yaw_max = (
-            prm["MC_YAWRATE_MAX"] if self.mode is Px4Mode.OFFBOARD else prm["MPC_YAWRAUTO_MAX"]
-        )
-        p.yaw_rate_max_rad_s[i] = math.radians(yaw_max)
-
-    def _param_value_msg(self, name: str) -> Msg:
-        spec = self._param_specs[name]
-        return mavlink2.MAVLink_param_value_message(
-            name.encode("ascii"),
-            px4.encode_param_value(self.params[name], spec.type),
-            int(spec.type),
-            len(self._param_names),
-            self._param_names.index(name),
-        )
-
-    def _for_me(self, msg: Msg) -> bool:
-        return msg.target_system in (0, self.sysid)
-
-    def _on_param_request_list(self, msg: Msg) -> None:
-        if self._for_me(msg):
-            for name in self._param_names:
-                self.send(self._param_value_msg(name))
-
-    def _on_param_request_read(self, msg: Msg) -> None:
-        if not self._for_me(msg):
-            return
-        if msg.param_index >= 0:
-            if msg.param_index < len(self._param_names):
-                self.send(self._param_value_msg(self._param_names[msg.param_index]))
-            return
-        name = _param_name(msg.param_id)
-        if name in self.params:
-            self.send(self._param_value_msg(name))
-        else:
-            self.statustext(mavlink2.MAV_SEVERITY_WARNING, f"Parameter {name} not found")
-
-    def _on_param_set(self, msg: Msg) -> None:
-        if not self._for_me(msg):
-            return
-        name = _param_name(msg.param_id)
-        spec = self._param_specs.get(name)
-        if spec is None:
-            self.statustext(mavlink2.MAV_SEVERITY_WARNING, f"Parameter {name} not found")
-            return
-        value = px4.decode_param_value(msg.param_value, spec.type)
-        if not spec.accepts(value):
-            self.statustext(
-                mavlink2.MAV_SEVERITY_WARNING, f"Parameter {name}: {value:g} out of range"
-            )
-        else:
-            self.params[name] = value
-            if name == "MPC_XY_CRUISE":
-                self.cruise_speed_m_s = value
-            self._apply_params()
-        self.send(self._param_value_msg(name))
-
-    def _on_timesync(self, msg: Msg) -> None:
-        if msg.tc1 == 0:
-            self.send(mavlink2.MAVLink_timesync_message(self._usec() * 1000, msg.ts1))
-
-    # ================================================================ commands
-    def _on_command_long(self, msg: Msg) -> None:
-        if not self._for_me(msg) or msg.target_component not in (0, 1):
-            return
-        p = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
-        self._command(msg, msg.command, p, mavlink2.MAV_FRAME_GLOBAL, is_int=False)
-
-    def _on_command_int(self, msg: Msg) -> None:
-        if not self._for_me(msg) or msg.target_component not in (0, 1):
-            return
-        p = (msg.param1, msg.param2, msg.param3, msg.param4, msg.x, msg.y, msg.z)
-        self._command(msg, msg.command, p, msg.frame, is_int=True)
-
-    def _command(
-        self, msg: Msg, command: int, p: tuple[float, ...], frame: int, is_int: bool
-    ) -> None:
-        handler = self._COMMANDS.get(command)
-        self._cmd_partner = (command, msg.get_srcSystem(), msg.get_srcComponent())
-        if handler is None:
-            result = UNSUPPORTED
-            after = None
-        else:
-            result, after = handler(self, p, frame, is_int)
-        self.send(
-            mavlink2.MAVLink_command_ack_message(
-                command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
-            )
-        )
-        if after is not None:
-            after()
-
-    def _cmd_arm_disarm(self, p, frame, is_int):  # type: ignore[no-untyped-def]
-        force = abs(p[1] - _FORCE_MAGIC) < 0.5
-        if p[0] >= 0.5:
-            return self.arm(force=force), None
-        return self.disarm(force=force), None
-
-    def arm(self, force: bool = False) -> int:
-        """Arm as PX4 does (pre-arm checks unless forced); returns a MAV_RESULT."""
-        if self.armed:
-            return ACCEPTED
-        if not force:
-            reason = self._arming_denied_reason()
-            if reason:
-                self.statustext(mavlink2.MAV_SEVERITY_CRITICAL, f"Arming denied: {reason}")
-                return TEMPORARILY_REJECTED
-        self.armed = True
-        self.phys.armed[self.index] = True
-        # PX4 idles on the ground until a climb is wanted (see _takeoff_gate)
-        self.phys.idle[self.index] = self.landed and self.px4_nav
-        self._armed_at_s = self._now()
-        self.has_flown = not self.landed
-        if self.landed:
-            self.home_ned_m = self.phys.pos_ned_m[self.index].copy()
-        self.failsafe = False
-        if self.mode in (Px4Mode.AUTO_LOITER, Px4Mode.AUTO_READY):
-            self.phys.hold_here(self.index)
-        self.statustext(mavlink2.MAV_SEVERITY_INFO, "Armed by external command")
-        return ACCEPTED
-
-    def _arming_denied_reason(self) -> str:
-        if self._now() < self.config.ready_after_s:
-            return "EKF not ready, wait for GPS lock"
-        if self.mode is Px4Mode.OFFBOARD and not self._stream_ok():
-            return "no offboard signal"
-        if self.mode is Px4Mode.AUTO_MISSION and not self.missions.plans[MISSION]:
-            return "no valid mission"
-        if self._fence_breached:
-            return "geofence violation"
-        return ""
-
-    def disarm(self, force: bool = False) -> int:
-        """Disarm; refused in the air unless forced.  Returns a MAV_RESULT."""
-        if not self.armed:
-            return ACCEPTED
-        if not self.landed and not force:
-            self.statustext(mavlink2.MAV_SEVERITY_CRITICAL, "Disarming denied: not landed")
-            return DENIED
-        self._do_disarm("Disarmed by external command")
-        return ACCEPTED
-
-    def _do_disarm(self, why: str) -> None:
-        self.armed = False
-        self.phys.armed[self.index] = False
-        self.statustext(mavlink2.MAV_SEVERITY_INFO, why)
-
-    def _cmd_set_mode(self, p, frame, is_int):  # type: ignore[no-untyped-def]
-        if not (int(p[0]) & mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED):
-            return UNSUPPORTED, None
-        mode = Px4Mode.from_main_sub(int(p[1]), int(p[2]))
-        if mode is None or mode is Px4Mode.AUTO_READY:
-            self.statustext(mavlink2.MAV_SEVERITY_WARNING, "Unsupported mode")
-            return DENIED, None
-        return self.request_mode(mode), None
-
-    def request_mode(self, mode: Px4Mode) -> int:
-        """A mode switch requested by a client; returns a MAV_RESULT."""
-        if mode is self.mode and not self.failsafe:
-            return ACCEPTED
-        if mode.needs_manual_control:
-            self.statustext(
-                mavlink2.MAV_SEVERITY_CRITICAL,
-                f"Switching to {mode.name} is not possible: no manual control",
-            )
-            return TEMPORARILY_REJECTED
-        if mode is Px4Mode.OFFBOARD and not self._stream_ok():
-            self.statustext(
-                mavlink2.MAV_SEVERITY_CRITICAL, "Switching to Offboard is currently not possible"
-            )
-            return TEMPORARILY_REJECTED
-        if mode is Px4Mode.AUTO_MISSION and not self.missions.plans[MISSION]:
-            self.statustext(mavlink2.MAV_SEVERITY_CRITICAL, "Mission rejected: no mission")
-            return TEMPORARILY_REJECTED
-        if mode is Px4Mode.AUTO_MISSION and self._mission_not_ready():
-            return ACCEPTED  # and a late TEMPORARILY_REJECTED, as PX4 (_mission_not_ready)
-        self.failsafe = False
-        self.set_mode(mode)
-        return ACCEPTED
-
-    def _mission_not_ready(self) -> bool:
-        """PX4's window after a mission upload in which the commander still flags the mission
-        missing (``auto_mission_missing``, ~90 ms on SITL): the mode switch is acknowledged
-        ACCEPTED by the MAVLink receiver, then TEMPORARILY_REJECTED ~12 ms later by the
-        commander, and the vehicle stays in its mode.  True (and the late ACK scheduled)
-        inside that window."""
-        window_s = self.params["MOCK_MIS_RDY_T"]
-        now = self._now()
-        if not (window_s > 0 and now - self._mission_valid_s < window_s):
-            return False
-        command, sysid, compid = self._cmd_partner
-
-        def reject() -> None:
-            self.statustext(mavlink2.MAV_SEVERITY_CRITICAL, "Mission rejected: mission invalid")
-            self.send(
-                mavlink2.MAVLink_command_ack_message(
-                    command, TEMPORARILY_REJECTED, 0, 0, sysid, compid
-                )
-            )
-
-        self._deferred.append((now + 0.012, reject))
-        return True
-
-    def set_mode(self, mode: Px4Mode, takeoff_down_m: float | None = None) -> None:
-        """Enter ``mode`` (no checks) and set up its controller targets."""
-        i = self.index
-        phys = self.phys
-        was_mission = self.mode is Px4Mode.AUTO_MISSION
-        self.mode = mode
-        self._traj_active = False
-        self._apply_limits()
-        pos = phys.pos_ned_m[i]
-        if mode is Px4Mode.AUTO_LOITER:
-            phys.hold_here(i)
-        elif mode is Px4Mode.AUTO_TAKEOFF:
-            if takeoff_down_m is None:
-                takeoff_down_m = float(self.home_ned_m[2]) - self.params["MIS_TAKEOFF_ALT"]
-            self._takeoff_d_m = min(takeoff_down_m, float(pos[2]))
-            target = pos.copy()
-            target[2] = self._takeoff_d_m
-            phys.set_position(i, target)
-            phys.sp_yaw_rad[i] = phys.yaw_rad[i]
-            phys.m_yaw[i] = True
-        elif mode is Px4Mode.AUTO_LAND:
-            self._start_descent()
-        elif mode is Px4Mode.AUTO_RTL:
-            self._rtl_start()
-        elif mode is Px4Mode.AUTO_MISSION:
-            if not was_mission or self.mission_finished:
-                if self.mission_finished:
-                    self.mission_seq = 0
-                    self._jump_counts.clear()
-                self.mission_finished = False
-            self._mission_start_item(self.mission_seq)
-        elif mode is Px4Mode.OFFBOARD:
-            self._apply_setpoint()
-
-    def _land_speed_m_s(self) -> float:
-        """PX4's descent speed when landing, from the height above home.
-
-        ``FlightTaskAuto::_prepareLandSetpoints``: MPC_Z_VEL_MAX_DN above MPC_LAND_ALT1,
-        MPC_LAND_SPEED below MPC_LAND_ALT2, linear between (``math::interpolate``).  The
-        ideal vehicle lands at MPC_LAND_SPEED throughout.
-        """
-        prm = self.params
-        slow, fast = prm["MPC_LAND_SPEED"], prm["MPC_Z_VEL_MAX_DN"]
-        if not self.px4_nav:
-            return slow
-        height = float(self.home_ned_m[2] - self.phys.pos_ned_m[self.index, 2])
-        lo, hi = prm["MPC_LAND_ALT2"], prm["MPC_LAND_ALT1"]
-        if height <= lo or hi <= lo:
-            return slow if height <= lo else fast
-        if height >= hi:
-            return fast
-        return slow + (fast - slow) * (height - lo) / (hi - lo)
-
-    def _start_descent(self) -> None:
-        i = self.index
-        self.phys.set_axes(
-            i,
-            self.phys.pos_ned_m[i].copy(),
-            np.array([0.0, 0.0, self._land_speed_m_s()]),
-            np.zeros(3),
-            np.array([1.0, 1.0, 0.0]),
-            np.array([0.0, 0.0, 1.0]),
-            np.zeros(3),
-        )
-
-    def _cmd_takeoff(self, p, frame, is_int):  # type: ignore[no-untyped-def]
-        alt = p[6]
-        down = None
-        if math.isfinite(alt):
-            down = self._alt_to_down(frame if is_int else mavlink2.MAV_FRAME_GLOBAL, float(alt))
-        if not self.landed and self.mode is not Px4Mode.AUTO_TAKEOFF and down is None:
-            return ACCEPTED, None
-        self.failsafe = False
-        # PX4 v1.17 ignores param4 (yaw) here: navigator_main.cpp sets the take-off's yaw to
-        # NaN ("Navigator doesn't handle the yaw reset"), so the vehicle keeps its heading.
-        self.set_mode(Px4Mode.AUTO_TAKEOFF, takeoff_down_m=down)
-        return ACCEPTED, None
-
-    def _cmd_land(self, p, frame, is_int):  # type: ignore[no-untyped-def]
-        self.failsafe = False
-        self.set_mode(Px4Mode.AUTO_LAND)
-        return ACCEPTED, None
-
-    def _cmd_rtl(self, p, frame, is_int):  # type: ignore[no-untyped-def]
-        self.failsafe = False
-        self.set_mode(Px4Mode.AUTO_RTL)
-        return ACCEPTED, None
-
-    def _cmd_mission_start(self, p, frame, is_int):  # type: ignore[no-untyped-def]
-        plan = self.missions.plans[MISSION]
-        if not plan:
-            self.statustext(mavlink2.MAV_SEVERITY_CRITICAL, "Mission rejected: no mission")
-            return DENIED, None
-        if self._mission_not_ready():
-            return ACCEPTED, None
-        first = int(p[0]) if math.isfinite(p[0]) else 0
-        if 0 <= first < len(plan) and first != self.mission_seq:
-            self.mission_seq = first
-            self.mission_finished = False
-        if self.mission_finished:
-            self.mission_seq = 0
-            self.mission_finished = False
-        self.failsafe = False
-        self.mode = Px4Mode.AUTO_MISSION
-        self._apply_limits()
-        self._mission_start_item(self.mission_seq)
-        return ACCEPTED, None
-
-    def _cmd_set_mission_current(self, p, frame, is_int):  # type: ignore[no-untyped-def]
-        seq = int(p[0]) if math.isfinite(p[0]) else -1
-        if not self.set_mission_current(seq):
-            return DENIED, None
-        return ACCEPTED, None
-
-    def set_mission_current(self, seq: int) -> bool:
-        """Make ``seq`` the current mission item; False if out of range."""
-        if not (0 <= seq < len(self.missions.plans[MISSION])):
-            return False
-        self.mission_seq = seq
-        self.mission_finished = False
-        if self.mode is Px4Mode.AUTO_MISSION:
-            self._mission_start_item(seq)
-        self._announce_current(set_by_client=True)
-        return True
-
-    def _on_mission_set_current(self, msg: Msg) -> None:
-        if self._for_me(msg):
-            self.set_mission_current(msg.seq)
-
-    def _cmd_reposition(self, p, frame, is_int):  # type: ignore[no-untyped-def]
-        if not self.armed or self.landed:
-            return TEMPORARILY_REJECTED, None
-        i = self.index
-        pos = self.phys.pos_ned_m[i].copy()
-        if is_int:
-            x, y = int(p[4]), int(p[5])
-        else:
-            x = round(p[4] * 1e7) if math.isfinite(p[4]) else 0
-            y = round(p[5] * 1e7) if math.isfinite(p[5]) else 0
-        target = self._item_target_ned(
-            frame if is_int else mavlink2.MAV_FRAME_GLOBAL, x, y, float(p[6]), pos
-        )
-        if p[0] > 0:
-            self.cruise_speed_m_s = float(p[0])
-        self.failsafe = False
-        self.set_mode(Px4Mode.AUTO_LOITER)
-        self.phys.set_position(i, target)
-        if math.isfinite(p[3]):
-            # radians: PX4 copies param4 into the setpoint's yaw unconverted
-            # (navigator_main.cpp), and MAVSDK's goto_location sends radians
-            self.phys.sp_yaw_rad[i] = float(p[3])
-        return ACCEPTED, None
-
-    def _cmd_change_speed(self, p, frame, is_int):  # type: ignore[no-untyped-def]
-        if p[1] > 0:
-            self.cruise_speed_m_s = float(p[1])
-        elif p[1] == -1:
-            self.cruise_speed_m_s = self.params["MPC_XY_CRUISE"]
-        self._apply_limits()
-        return ACCEPTED, None
-
-    def _cmd_set_home(self, p, frame, is_int):  # type: ignore[no-untyped-def]
-        if p[0] >= 0.5:
-            self.home_ned_m = self.phys.pos_ned_m[self.index].copy()
-        else:
-            if is_int:
-                x, y = int(p[4]), int(p[5])
-            else:
-                x, y = round(p[4] * 1e7), round(p[5] * 1e7)
-            self.home_ned_m = self._item_target_ned(
-                mavlink2.MAV_FRAME_GLOBAL_INT, x, y, float(p[6]), self.home_ned_m
-            )
-        self.send(self._msg_home_position())
-        return ACCEPTED, None
-
-    def _cmd_request_message(self, p, frame, is_int):  # type: ignore[no-untyped-def]
-        msg_id = int(p[0])
-        build = self._builders.get(msg_id)
-        if build is None:
-            return DENIED, None
-
-        def send_it() -> None:
-            msg = build()
-            if msg is not None:
-                self.send(msg)
-
-        return ACCEPTED, send_it
-
-    def _cmd_request_capabilities(self, p, frame, is_int):  # type: ignore[no-untyped-def]
-        return ACCEPTED, lambda: self.send(self._msg_autopilot_version())
-
-    def _cmd_set_message_interval(self, p, frame, is_int):  # type: ignore[no-untyped-def]
-        msg_id = int(p[0])
-        build = self._builders.get(msg_id)
-        if build is None:
-            return DENIED, None
-        interval_us = p[1]
-        if interval_us == -1:
-            self._streams.pop(msg_id, None)
-            return ACCEPTED, None
-        if interval_us == 0:
-            rate = DEFAULT_RATES_HZ.get(msg_id)
-            if rate is None:
-                self._streams.pop(msg_id, None)
-                return ACCEPTED, None
-            interval_s = 1.0 / rate
-        elif interval_us > 0:
-            interval_s = max(interval_us * 1e-6, self.fleet.dt_s)
-        else:
-            return DENIED, None
-        self._streams[msg_id] = _Stream(msg_id, interval_s, self._now(), build)
-        return ACCEPTED, None
-
-    def _cmd_get_message_interval(self, p, frame, is_int):  # type: ignore[no-untyped-def]
-        msg_id = int(p[0])
-        stream = self._streams.get(msg_id)
-        interval_us = -1 if stream is None else round(stream.interval_s * 1e6)
-        if msg_id not in self._builders:
-            interval_us = 0
-        return ACCEPTED, lambda: self.send(
-            mavlink2.MAVLink_message_interval_message(msg_id, interval_us)
-        )
-
-    _COMMANDS: ClassVar[dict[int, Callable[..., tuple[int, Callable[[], None] | None]]]] = {
-        mavlink2.MAV_CMD_COMPONENT_ARM_DISARM: _cmd_arm_disarm,
-        mavlink2.MAV_CMD_DO_SET_MODE: _cmd_set_mode,
-        mavlink2.MAV_CMD_NAV_TAKEOFF: _cmd_takeoff,
-        mavlink2.MAV_CMD_NAV_LAND: _cmd_land,
-        mavlink2.MAV_CMD_NAV_RETURN_TO_LAUNCH: _cmd_rtl,
-        mavlink2.MAV_CMD_MISSION_START: _cmd_mission_start,
-        mavlink2.MAV_CMD_DO_SET_MISSION_CURRENT: _cmd_set_mission_current,
-        mavlink2.MAV_CMD_DO_REPOSITION: _cmd_reposition,
-        mavlink2.MAV_CMD_DO_CHANGE_SPEED: _cmd_change_speed,
-        mavlink2.MAV_CMD_DO_SET_HOME: _cmd_set_home,
-        mavlink2.MAV_CMD_REQUEST_MESSAGE: _cmd_request_message,
-        mavlink2.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: _cmd_request_capabilities,
-        mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL: _cmd_set_message_interval,
-        mavlink2.MAV_CMD_GET_MESSAGE_INTERVAL: _cmd_get_message_interval,
-    }
-
-    def _on_set_gps_global_origin(self, msg: Msg) -> None:
-        if not self._for_me(msg):
-            return
-        # PX4 accepts a new EKF origin only while landed; the vehicle stays where it is
-        # physically, so its local coordinates shift by the origin change.
-        if not self.landed:
-            return
-        new = (msg.latitude / 1e7, msg.longitude / 1e7, msg.altitude / 1e3)
-        shift = self.global_to_ned(*new) if abs(new[0]) <= 90.0 and abs(new[1]) <= 180.0 else None
-        if shift is None or not (np.all(np.abs(shift) < _MAX_ORIGIN_MOVE_M)):
-            # the mock's local frame is a flat tangent plane: it keeps the EKF origin within
-            # 50 km of the vehicle (and degE7 / mm fields from overflowing)
-            self.statustext(mavlink2.MAV_SEVERITY_WARNING, "EKF origin rejected: too far")
-            return
-        self._move_origin(new, shift)
-
-    def reset_ekf_origin(self, north_m: float, east_m: float) -> None:
-        """Move the EKF origin by (``north_m``, ``east_m``) now, in the air or not: what
-        PX4's EKF2 does when it re-initialises its global origin (a GNSS reset). The vehicle
-        stays where it is, its local coordinates (and the setpoint it holds) shift, and the
-        new GPS_GLOBAL_ORIGIN is sent."""
-        lat0, lon0, h0 = self.origin_lla
-        lat, lon, alt = pymap3d.ned2geodetic(north_m, east_m, 0.0, lat0, lon0, h0)
-        new = (float(lat), float(lon), float(alt))
-        self._move_origin(new, self.global_to_ned(*new))
-
-    def _move_origin(self, new: tuple[float, float, float], shift: np.ndarray) -> None:
-        """The EKF origin becomes ``new`` (lat, lon, alt), ``shift`` away in the local frame."""
-        self.origin_lla = new
-        i = self.index
-        lat0, lon0, h0 = self.spawn_lla
-        n, e, d = pymap3d.geodetic2ned(*new, lat0, lon0, h0)
-        self.phys.estimator.set_origin(i, np.array([float(n), float(e), float(d)]))
-        self.phys.update_estimate()
-        self.phys.sp_pos_ned_m[i] -= shift
-        self.home_ned_m = self.home_ned_m - shift
-        self.fleet.origins_changed()
-        self.send(self._msg_gps_global_origin())
-
-    # ================================================================ offboard
-    def _stream_ok(self) -> bool:
-        now = self._now()
-        return (
-            now - self._sp_last_s <= _STREAM_GAP_S
-            and now - self._sp_stream_start_s >= _STREAM_MIN_S
-        )
-
-    def _keepalive(self) -> None:
-        now = self._now()
-        if now - self._sp_last_s > _STREAM_GAP_S:
-            self._sp_stream_start_s = now
-        self._sp_last_s = now
-
-    def _on_set_position_target_local(self, msg: Msg) -> None:
-        if not self._for_me(msg):
-            return
-        frame = msg.coordinate_frame
-        i = self.index
-        if frame not in (
-            mavlink2.MAV_FRAME_LOCAL_NED,
-            mavlink2.MAV_FRAME_LOCAL_OFFSET_NED,
-            mavlink2.MAV_FRAME_BODY_NED,
-            mavlink2.MAV_FRAME_BODY_OFFSET_NED,
-        ):
-            if frame not in self._frame_warned:
-                self._frame_warned.add(frame)
-                self.statustext(
-                    mavlink2.MAV_SEVERITY_WARNING, f"Offboard: frame {frame} not supported"
-                )
-            return
-        pos = np.array([msg.x, msg.y, msg.z], dtype=float)
-        vel = np.array([msg.vx, msg.vy, msg.vz], dtype=float)
-        acc = np.array([msg.afx, msg.afy, msg.afz], dtype=float)
-        if frame in (mavlink2.MAV_FRAME_BODY_NED, mavlink2.MAV_FRAME_BODY_OFFSET_NED):
-            yaw = float(self.phys.yaw_rad[i])
-            c, s = math.cos(yaw), math.sin(yaw)
-            rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-            pos, vel, acc = rot @ pos, rot @ vel, rot @ acc
-        if frame != mavlink2.MAV_FRAME_LOCAL_NED:
-            pos = pos + self.phys.pos_ned_m[i]
-        self._store_setpoint(msg.type_mask, pos, vel, acc, msg.yaw, msg.yaw_rate)
-
-    def _on_set_position_target_global(self, msg: Msg) -> None:
-        if not self._for_me(msg):
-            return
-        frame = msg.coordinate_frame
-        if frame not in (
-            mavlink2.MAV_FRAME_GLOBAL_INT,
-            mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-            mavlink2.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT,
-            mavlink2.MAV_FRAME_GLOBAL,
-            mavlink2.MAV_FRAME_GLOBAL_RELATIVE_ALT,
-        ):
-            return
-        pos = self._item_target_ned(
-            frame, msg.lat_int, msg.lon_int, msg.alt, self.phys.pos_ned_m[self.index]
-        )
-        vel = np.array([msg.vx, msg.vy, msg.vz], dtype=float)
-        acc = np.array([msg.afx, msg.afy, msg.afz], dtype=float)
-        self._store_setpoint(msg.type_mask, pos, vel, acc, msg.yaw, msg.yaw_rate)
-
-    def _on_set_attitude_target(self, msg: Msg) -> None:
-        """Attitude + collective thrust (PX4 offboard): the specific force it implies.
-
-        Thrust ``MPC_THR_HOVER`` with a level attitude hovers; the body z axis of
-        ``q`` (body -> NED) tilts the thrust.  Body-rate-only setpoints (attitude
-        ignored) keep offboard alive but are not flown.
-        """
-        if not self._for_me(msg):
-            return
-        if msg.type_mask & 128 or msg.type_mask & 64 or not math.isfinite(msg.thrust):
-            self._keepalive()
-            return
-        w, x, y, z = (float(c) for c in msg.q)
-        norm = math.sqrt(w * w + x * x + y * y + z * z)
-        if not (norm > 0.0 and math.isfinite(norm)):
-            self._keepalive()
-            return
-        w, x, y, z = w / norm, x / norm, y / norm, z / norm
-        body_z_ned = np.array([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)])
-        specific_force = max(0.0, float(msg.thrust)) / self.params["MPC_THR_HOVER"] * GRAVITY_M_S2
-        acc = np.array([0.0, 0.0, GRAVITY_M_S2]) - specific_force * body_z_ned
-        yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-        # type mask of SET_POSITION_TARGET_*: everything but the acceleration ignored
-        self._store_setpoint(0b0000_0011_1111, np.zeros(3), np.zeros(3), acc, yaw, 0.0)
-
-    def _store_setpoint(
-        self,
-        type_mask: int,
-        pos: np.ndarray,
-        vel: np.ndarray,
-        acc: np.ndarray,
-        yaw: float,
-        yaw_rate: float,
-    ) -> None:
-        m_pos = np.array([not (type_mask & b) for b in (1, 2, 4)], dtype=float)
-        m_vel = np.array([not (type_mask & b) for b in (8, 16, 32)], dtype=float)
-        m_acc = np.array([not (type_mask & b) for b in (64, 128, 256)], dtype=float)
-        m_pos *= np.isfinite(pos)
-        m_vel *= np.isfinite(vel)
-        m_acc *= np.isfinite(acc)
-        # an axis with a position uses velocity/acceleration as feed-forward; an axis with
-        # only a velocity is velocity-controlled; an acceleration alone is applied directly
-        pos = np.where(m_pos > 0, pos, 0.0)
-        vel = np.where(m_vel > 0, vel, 0.0)
-        acc = np.where(m_acc > 0, acc, 0.0)
-        use_yaw = not (type_mask & 1024) and math.isfinite(yaw)
-        use_rate = not (type_mask & 2048) and math.isfinite(yaw_rate) and not use_yaw
-        self._keepalive()
-        if not (m_pos.any() or m_vel.any() or m_acc.any()):
-            return
-        self._sp = _Setpoint(
-            pos, vel, acc, m_pos, m_vel, m_acc, float(yaw), float(yaw_rate), use_yaw, use_rate
-        )
-        if self.mode is Px4Mode.OFFBOARD:
-            self._apply_setpoint()
-
-    def _apply_setpoint(self) -> None:
-        sp = self._sp
-        i = self.index
-        phys = self.phys
-        if sp is None:
-            phys.hold_here(i)
-            return
-        phys.set_axes(i, sp.pos, sp.vel, sp.acc, sp.m_pos, sp.m_vel, sp.m_acc)
-        phys.m_yaw[i] = sp.use_yaw
-        phys.m_yaw_rate[i] = sp.use_yaw_rate
-        if sp.use_yaw:
-            phys.sp_yaw_rad[i] = sp.yaw_rad
-        if sp.use_yaw_rate:
-            phys.sp_yaw_rate_rad_s[i] = sp.yaw_rate_rad_s
-
-    def _offboard_lost(self) -> None:
-        action = int(self.params["COM_OBL_RC_ACT"])
-        mode = px4.OBL_ACTION_MODES.get(action, Px4Mode.AUTO_LOITER)
-        self.failsafe = True
-        if mode is None:
-            self.statustext(mavlink2.MAV_SEVERITY_CRITICAL, "Failsafe: no offboard, disarming")
-            self.mode = Px4Mode.AUTO_LOITER
-            self._do_disarm("Disarmed by failsafe")
-            return
-        self.statustext(
-            mavlink2.MAV_SEVERITY_CRITICAL, f"Failsafe: no offboard signal, {mode.name}"
-        )
-        self.set_mode(mode)
 
     # ================================================================ tick
     def _takeoff_gate(self, now: float, est_d: float) -> None:
@@ -1312,9 +576,3 @@ class MockVehicle(TelemetryMixin, NavigatorMixin):
 
 def _radio_status_only(_mav: mavlink2.MAVLink, msg_id: int) -> bool:
     return msg_id == mavlink2.MAVLINK_MSG_ID_RADIO_STATUS
-
-
-def _param_name(raw: str | bytes) -> str:
-    if isinstance(raw, bytes):
-        raw = raw.decode("ascii", "replace")
-    return raw.split("\x00", 1)[0]

@@ -16,7 +16,7 @@ import pytest
 
 from gcs.cli import main
 from gcs.commands.demo import SCENARIO, find_config
-from gcs.flight import plan_formula
+from gcs.evaluation import plan_formula
 from mavlink.tlog import read_tracks_csv
 from planner.planfile import load_plan
 

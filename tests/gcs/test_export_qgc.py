@@ -288,7 +288,7 @@ def test_planned_scenario_plots_verifies_and_exports_round_trip(
     importer: Importer, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """gcs plan -> gcs verify --json -> gcs plot (HTML) -> gcs export qgc -> MAVSDK import."""
-    from gcs.plot import clause_traces
+    from gcs.clause_traces import clause_traces
 
     scenario = tmp_path / "e2e.yaml"
     scenario.write_text(E2E_SCENARIO)

@@ -20,7 +20,8 @@ import pytest
 from pymavlink import mavutil
 
 from gcs.cli import main
-from gcs.flight import free_udp_ports, plan_formula
+from gcs.dryrun import free_udp_ports
+from gcs.evaluation import plan_formula
 from mavlink.tlog import read_tracks_csv, tracks_from_tlog
 from planner.planfile import load_plan
 from tests.procutil import interruptible
@@ -273,7 +274,7 @@ def test_mission_mode_flies_the_uploaded_missions_over_the_whole_horizon(
 
 
 def test_evaluation_finds_the_delay_of_a_late_track_and_judges_it_exactly() -> None:
-    from gcs.flight import evaluate_flight
+    from gcs.evaluation import evaluate_flight
     from mavlink.tlog import FlownTrack
 
     plan = load_plan(

@@ -126,7 +126,8 @@ def test_missions_land_at_the_clear_point_and_no_clear_point_refuses_land(
 
 @pytest.mark.slow
 def test_an_offboard_flight_ending_over_a_keep_out_lands_clear_of_it() -> None:
-    from mavlink.offboard import EndAction, OffboardConfig, fly_offboard
+    from mavlink.offboard import fly_offboard
+    from mavlink.offboard_setpoints import EndAction, OffboardConfig
     from planner.frames import enu_to_geodetic
     from tests.mavlink.linkutil import mock_and_fleet
 

@@ -21,7 +21,10 @@ from matplotlib.image import imread
 from pymavlink.dialects.v20 import common as mavlink2
 
 from gcs import cli
-from gcs.plot import clause_traces, load_telemetry, plot_plan, render_figure
+from gcs.clause_traces import clause_traces
+from gcs.figure import render_figure
+from gcs.plot import plot_plan
+from gcs.telemetry import load_telemetry
 from planner.planfile import load_plan
 from tests.gcs.test_export_support import (
     D1,
@@ -119,7 +122,7 @@ def test_plot_png_is_written_with_all_panels(tmp_path: Path) -> None:
     ax3 = next(ax for ax in fig.axes if ax.name == "3d")
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    from gcs.plot import is_large
+    from gcs.figure import is_large
 
     boxes = [c for c in ax3.collections if isinstance(c, Poly3DCollection)]
     large = [r for r in plan.regions if is_large(r, plan.workspace)]
@@ -343,7 +346,7 @@ def test_colour_means_vehicle_in_every_panel_and_telemetry_adds_tracking_and_vel
 ) -> None:
     from matplotlib.colors import to_rgba
 
-    from gcs.plot import flown_velocity, tracking_error
+    from gcs.figure import flown_velocity, tracking_error
 
     plan = reach_avoid_plan()
     # d2 flew 0.1 m north of its plan and 0.2 s late (so its velocity is the plan's, delayed)

@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from gcs.flight import FlightProgress, plan_formula
+from gcs.evaluation import plan_formula
+from gcs.progress import FlightProgress
 from planner.planfile import load_plan
 
 REPO = Path(__file__).resolve().parents[2]

@@ -17,7 +17,7 @@ import pymap3d
 import pytest
 
 from gcs.cli import main
-from gcs.flight import free_udp_ports, ground_spawns
+from gcs.dryrun import free_udp_ports, ground_spawns
 from gcs.missions import fence_plan
 from mavlink.mission import trajectory_to_mission
 from mavlink.mock import MockFleet, Px4Mode

@@ -11,12 +11,15 @@ from typing import Any
 import numpy as np
 import yaml
 
-from mavlink.fleet import Fleet, VehicleSpec
+from mavlink.fleet import Fleet
 from mavlink.mock.fleet import MockFleet
 from mavlink.tlog import FlownTrack
+from mavlink.vehicle import VehicleSpec
 from planner.planfile import Plan, load_plan
 from planner.predicates import build_registry
-from planner.scenario import Problem, parse_clause, parse_scenario
+from planner.problem import Problem
+from planner.scenario import parse_scenario
+from planner.scenario_spec import parse_clause
 from planner.stl.ast import Formula, conjunction
 
 DATA = Path(__file__).parent / "data"

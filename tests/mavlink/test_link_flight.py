@@ -19,7 +19,8 @@ from mavlink.errors import PreflightError
 from mavlink.mock.config import FaultConfig, Outage
 from mavlink.mock.px4 import Px4Mode as MockMode
 from mavlink.monitor import SafetyMonitor, Verdict, always_clauses
-from mavlink.offboard import FlightResult, OffboardConfig, fly_offboard
+from mavlink.offboard import FlightResult, fly_offboard
+from mavlink.offboard_setpoints import OffboardConfig
 from mavlink.tlog import read_tracks_csv, tracks_from_tlog
 from planner.frames import GeodeticPoint, ned_to_enu
 from tests.mavlink.linkutil import (

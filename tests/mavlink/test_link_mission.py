@@ -269,7 +269,7 @@ def test_geofence_polygons_are_the_box_footprints() -> None:
 
 
 def test_fence_excludes_only_stay_out_boxes_that_span_the_workspace_height() -> None:
-    from planner.scenario import Region, RegionKind
+    from planner.regions import Region, RegionKind
 
     ws = Region("workspace", RegionKind.WORKSPACE, (-5.0, -5.0, 0.5), (5.0, 5.0, 20.0))
     regions = [

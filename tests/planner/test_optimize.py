@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from planner.optimize import PlanResult, plan
-from planner.scenario import Problem, load_scenario, parse_scenario
+from planner.problem import Problem
+from planner.scenario import load_scenario, parse_scenario
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 #: A one-drone scenario without a spec (tests add theirs): goal ahead, no obstacle.
@@ -209,7 +210,7 @@ def test_flat_blocks_keep_their_gradient_and_leave_the_hessian() -> None:
 def test_separation_without_curvature_reaches_the_exact_hessian_optimum() -> None:
     from planner.nlp import _is_separation
     from planner.predicates import build_registry
-    from planner.scenario import parse_clause
+    from planner.scenario_spec import parse_clause
 
     problem = load_scenario(CONFIGS / "reach_avoid.yaml", vehicles=2)
     registry = build_registry(problem)
@@ -326,7 +327,7 @@ def test_robustness_constraint_that_cannot_hold_returns_the_best_plain_plan() ->
 
 
 def test_sqpmethod_plans_the_same_scenario_as_ipopt() -> None:
-    from planner.scenario import SolverMethod
+    from planner.problem import SolverMethod
 
     problem = load_scenario(CONFIGS / "reach_avoid.yaml", vehicles=1)
     ipopt = plan(problem)

@@ -18,7 +18,8 @@ from planner.predicates import (
     casadi_functions,
     role_of,
 )
-from planner.scenario import FUNCTION_NAMES, load_scenario
+from planner.scenario import load_scenario
+from planner.scenario_spec import FUNCTION_NAMES
 from planner.stl import parse
 
 REPO = Path(__file__).resolve().parents[2]

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from mavlink.errors import MissionError
-from mavlink.fleet import Fleet, VehicleSpec
+from mavlink.fleet import Fleet
 from mavlink.mission import (
     MissionItem,
     RetryPolicy,
@@ -29,6 +29,7 @@ from mavlink.mission import (
 )
 from mavlink.mock import FaultConfig, MockFleet
 from mavlink.mock.testing import free_udp_ports
+from mavlink.vehicle import VehicleSpec
 from planner.planfile import Plan, load_plan
 
 PLAN_PATH = Path(__file__).resolve().parents[1] / "mavlink" / "data" / "reach_avoid_2.plan.json"
@@ -273,7 +274,8 @@ async def flight_run(
 
     from mavlink.mock import Outage
     from mavlink.mock.px4 import Px4Mode
-    from mavlink.offboard import OffboardConfig, fly_offboard
+    from mavlink.offboard import fly_offboard
+    from mavlink.offboard_setpoints import OffboardConfig
     from planner.frames import GeodeticPoint, ned_to_enu
     from tests.mavlink.linkutil import mock_and_fleet, scenario, spec_formula
 

@@ -17,7 +17,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from gcs.cli import main
 from mavlink.errors import CommandError
-from mavlink.fleet import Fleet, VehicleSpec
+from mavlink.fleet import Fleet
 from mavlink.mock import MockFleet
 from mavlink.mock.testing import GcsEndpoint, free_udp_ports
 from mavlink.signing import (
@@ -28,6 +28,7 @@ from mavlink.signing import (
     signing_timestamp,
     verifier,
 )
+from mavlink.vehicle import VehicleSpec
 
 pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)
 

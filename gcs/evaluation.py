@@ -1,0 +1,180 @@
+"""Judging a flown flight against its spec: the exact robustness of the flown tracks next to
+the plan's, per top-level clause and overall, and per vehicle how far it flew from its plan
+and with what delay (the first thing to look at when flown robustness falls short).
+
+A room of its own because it is pure computation on recorded tracks (numpy and the exact STL
+semantics; no link, no printing): :func:`gcs.flight.fly_plan` calls :func:`evaluate_flight`
+once the flight is over, the live view (:mod:`gcs.progress`) and mission mode evaluate the
+same :func:`plan_formula`, and the outcome (:mod:`gcs.outcome`) reports what was found.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from mavlink.tlog import FlownTrack
+    from planner.planfile import Plan
+    from planner.stl import Formula
+
+__all__ = [
+    "ClauseOutcome",
+    "FlownEvaluation",
+    "TrackingError",
+    "evaluate_flight",
+    "plan_formula",
+]
+
+
+def plan_formula(plan: Plan) -> Formula:
+    """The plan's whole spec with the scenario's predicates (exact numpy semantics), checked
+    against the plan: :func:`planner.planfile.plan_formula` (PlanFileError naming the plan file).
+    """
+    from planner.planfile import plan_formula as checked_formula
+
+    return checked_formula(plan)
+
+
+@dataclass(frozen=True, slots=True)
+class ClauseOutcome:
+    """One top-level clause: its text and its exact robustness planned and flown (m)."""
+
+    text: str
+    vehicles: tuple[str, ...]
+    planned: float
+    flown: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class TrackingError:
+    """How far one vehicle's reported positions were from its plan at the same instants.
+
+    Attributes:
+        vehicle: name.
+        samples: telemetry samples inside the horizon.
+        max_m, rms_m: largest and root-mean-square distance flown - planned (m).
+        t_at_max_s: when the largest distance occurred (s from the plan's start).
+        lag_s: the delay ``tau`` minimising the RMS distance between flown(t) and
+            planned(t - tau), searched in [-0.5, 1.0] s (0: flown in step with the plan).
+        rms_at_lag_m: that minimal RMS distance.
+    """
+
+    vehicle: str
+    samples: int
+    max_m: float
+    rms_m: float
+    t_at_max_s: float
+    lag_s: float
+    rms_at_lag_m: float
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class FlownEvaluation:
+    """The flown data judged against the spec (exact semantics, the plan's check grid).
+
+    Attributes:
+        dt_s: grid step (the plan's ``check_dt_s``).
+        planned_robustness: the spec's robustness on the planned trajectories.
+        flown_robustness: on the flown tracks (``None`` when a track does not cover the
+            horizon; ``coverage_problem`` says why).
+        clauses: per top-level clause, planned and flown.
+        tracking: per vehicle tracking error.
+        coverage_problem: why flown robustness could not be evaluated, else ``""``.
+    """
+
+    dt_s: float
+    planned_robustness: float
+    flown_robustness: float | None
+    clauses: tuple[ClauseOutcome, ...]
+    tracking: tuple[TrackingError, ...]
+    coverage_problem: str = ""
+
+    @property
+    def weakest_flown(self) -> ClauseOutcome | None:
+        """The flown clause with the smallest robustness."""
+        flown = [c for c in self.clauses if c.flown is not None]
+        return min(flown, key=lambda c: c.flown or 0.0) if flown else None
+
+
+def _tracking(
+    name: str, track: FlownTrack, plan_pos: Any, horizon_s: float, lags_s: np.ndarray
+) -> TrackingError:
+    inside = (track.t_s >= 0.0) & (track.t_s <= horizon_s)
+    t = track.t_s[inside]
+    p = track.pos_enu_m[inside]
+    if t.size == 0:
+        nan = math.nan
+        return TrackingError(name, 0, nan, nan, nan, nan, nan)
+    d = np.linalg.norm(p - plan_pos(t), axis=1)
+    i = int(np.argmax(d))
+    # planned(t - tau) for every candidate delay at once: (lags, samples, 3).
+    shifted = plan_pos(np.clip((t[None, :] - lags_s[:, None]).ravel(), 0.0, horizon_s))
+    err = np.linalg.norm(shifted.reshape(lags_s.size, t.size, 3) - p[None], axis=2)
+    rms = np.sqrt(np.mean(err**2, axis=1))
+    j = int(np.argmin(rms))
+    return TrackingError(
+        vehicle=name,
+        samples=int(t.size),
+        max_m=float(d[i]),
+        rms_m=float(np.sqrt(np.mean(d**2))),
+        t_at_max_s=float(t[i]),
+        lag_s=float(lags_s[j]),
+        rms_at_lag_m=float(rms[j]),
+    )
+
+
+def evaluate_flight(plan: Plan, tracks: Mapping[str, FlownTrack]) -> FlownEvaluation:
+    """Exact robustness of the flown tracks next to the plan's, per clause and overall.
+
+    Flown positions are resampled on the plan's check grid ``t = 0, dt, ..., horizon`` by
+    linear interpolation of the telemetry (:meth:`mavlink.tlog.FlownTrack.resample`, which
+    refuses a track that does not cover the horizon).
+    """
+    from mavlink.errors import LinkError
+
+    phi = plan_formula(plan)
+    dt = plan.check_dt_s
+    n = round(plan.horizon_s / dt) + 1
+    t = np.arange(n) * dt
+    planned = {v.name: v.trajectory.position(t) for v in plan.vehicles}
+    flown: dict[str, np.ndarray] | None = {}
+    problem = ""
+    for v in plan.vehicles:
+        tr = tracks.get(v.name)
+        if tr is None:
+            flown, problem = None, f"no telemetry from {v.name}"
+            break
+        try:
+            flown[v.name] = tr.resample(dt, plan.horizon_s)  # type: ignore[index]
+        except LinkError as exc:
+            flown, problem = None, str(exc)
+            break
+    clauses = []
+    for c in phi.clauses:
+        clauses.append(
+            ClauseOutcome(
+                text=str(c),
+                vehicles=tuple(sorted(c.signal_names() & planned.keys())),
+                planned=float(c.robustness(planned, dt)),
+                flown=None if flown is None else float(c.robustness(flown, dt)),
+            )
+        )
+    lags = np.round(np.arange(-0.5, 1.0 + 1e-9, 0.01), 6)
+    tracking = tuple(
+        _tracking(v.name, tracks[v.name], v.trajectory.position, plan.horizon_s, lags)
+        for v in plan.vehicles
+        if v.name in tracks
+    )
+    return FlownEvaluation(
+        dt_s=dt,
+        planned_robustness=float(phi.robustness(planned, dt)),
+        flown_robustness=None if flown is None else float(phi.robustness(flown, dt)),
+        clauses=tuple(clauses),
+        tracking=tracking,
+        coverage_problem=problem,
+    )

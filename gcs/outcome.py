@@ -1,0 +1,297 @@
+"""What a flight did and how it is told: :class:`FlightOutcome` (returned by
+:func:`gcs.flight.fly_plan`), the operator's end-of-flight summary (:func:`format_outcome`) and
+the same as JSON (:func:`outcome_json`, ``gcs fly --json``).
+
+A room of its own because the outcome outlives the flight: ``gcs fly`` prints it, ``gcs demo``
+and the report (:mod:`gcs.report`) read it, and none of them needs the flight's machinery.
+:class:`FlightMode` lives here, with the outcome that records it, so that neither this module
+nor its readers import :mod:`gcs.flight`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import Enum
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from gcs.evaluation import FlownEvaluation
+    from gcs.mission_flight import MissionFlight
+    from gcs.tuning import VehicleTuning
+    from mavlink.mission import MissionRun
+    from mavlink.monitor import MonitorStats, SafetyEvent
+    from mavlink.stream import StreamStats
+    from mavlink.tlog import FlownTrack, TlogStats
+    from planner.planfile import Plan
+
+__all__ = ["FlightMode", "FlightOutcome", "format_outcome", "outcome_json"]
+
+
+class FlightMode(Enum):
+    """How the plan is flown."""
+
+    OFFBOARD = "offboard"  # setpoint streaming of the exact trajectories
+    MISSION = "mission"  # the PX4 mission conversion (straight legs, timed by speed changes)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class FlightOutcome:
+    """What :func:`gcs.flight.fly_plan` did.
+
+    Attributes:
+        mode: offboard or mission.
+        completed: the whole plan was flown, no safety stop, no failed end action.
+        interrupted: Ctrl-C stopped it (every vehicle was commanded to hold).
+        connect_s: wall time to connect every vehicle and learn its origin.
+        flight_s: wall time from then to the end action (take-off, flight, end).
+        t0_unix_s: Unix time of the plan's start (offboard; the earliest vehicle in mission mode).
+        tracks: flown tracks in the mission frame, times from each vehicle's plan start.
+        evaluation: flown vs planned robustness (``None`` when no track was recorded).
+        stats: offboard stream statistics per vehicle (empty in mission mode).
+        missions: mission runs per vehicle (mission mode).
+        safety_event: what the safety monitor stopped, if it did.
+        monitor: what the safety monitor did (``None``: it did not run).
+        end_failures: vehicles whose end action (or hold on Ctrl-C) failed, with the reason.
+        final_modes: each vehicle's mode label at the end.
+        tlog: the recording's statistics (with a log directory).
+        files: what was written, by kind (``tlog``, ``csv``).
+        mission: mission mode's conversion, prediction, clock skews and lateness.
+        tuning: each vehicle's tracking model (drag fed forward, gains, estimator accuracy).
+        warnings: margin warnings shown before the flight.
+        accuracy_m: per vehicle the worst (horizontal, vertical) position accuracy its
+            estimator reported during the flight (ESTIMATOR_STATUS, 1-sigma).
+        flown_lower_bound: flown robustness minus twice the worst 3-D accuracy: what the
+            spec is worth at least if every estimate was within its reported accuracy of
+            the truth (flown robustness is computed on the estimates).
+    """
+
+    mode: FlightMode
+    completed: bool
+    interrupted: bool
+    connect_s: float
+    flight_s: float
+    t0_unix_s: float | None
+    tracks: dict[str, FlownTrack]
+    evaluation: FlownEvaluation | None
+    stats: dict[str, StreamStats] = field(default_factory=dict)
+    missions: dict[str, MissionRun] = field(default_factory=dict)
+    safety_event: SafetyEvent | None = None
+    monitor: MonitorStats | None = None
+    end_failures: dict[str, str] = field(default_factory=dict)
+    final_modes: dict[str, str] = field(default_factory=dict)
+    tlog: TlogStats | None = None
+    files: dict[str, Path] = field(default_factory=dict)
+    mission: MissionFlight | None = None
+    tuning: dict[str, VehicleTuning] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+    accuracy_m: dict[str, tuple[float, float]] = field(default_factory=dict)
+    flown_lower_bound: float | None = None
+
+
+def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
+    """The end-of-flight summary for the operator (several lines)."""
+    from mavlink.stream import STATS_HEADER
+
+    lines = []
+    if outcome.interrupted:
+        lines.append("interrupted: every vehicle was commanded to hold")
+    elif outcome.safety_event is not None:
+        lines.append(f"safety stop: {outcome.safety_event.describe()}")
+    if outcome.monitor is not None and outcome.monitor.stale:
+        lines.append(f"monitor: {outcome.monitor.describe_stale()}")
+    verdict = "completed" if outcome.completed else "NOT completed"
+    lines.append(
+        f"flight {verdict} in {outcome.flight_s:.1f} s ({outcome.mode.value}, "
+        f"{len(plan.vehicles)} vehicle(s)); modes now: "
+        + ", ".join(f"{k} {m}" for k, m in outcome.final_modes.items())
+    )
+    for name, why in outcome.end_failures.items():
+        lines.append(f"  {name}: end action failed: {why}")
+    ev = outcome.evaluation
+    if ev is not None:
+        flown = "n/a" if ev.flown_robustness is None else f"{ev.flown_robustness:+.4f}"
+        lines.append(
+            f"robustness (exact, dt {ev.dt_s:g} s): planned {ev.planned_robustness:+.4f}, "
+            f"flown {flown}" + (f" ({ev.coverage_problem})" if ev.coverage_problem else "")
+        )
+        if outcome.flown_lower_bound is not None:
+            acc = max(outcome.accuracy_m.values(), key=lambda a: math.hypot(*a))
+            lines.append(
+                f"  flown robustness is on the vehicles' estimates; at least "
+                f"{outcome.flown_lower_bound:+.4f} if each was within the accuracy its "
+                f"estimator reported (worst {acc[0]:.2f} m horizontal, {acc[1]:.2f} m vertical)"
+            )
+        w = ev.weakest_flown
+        if w is not None:
+            lines.append(
+                f"  weakest flown clause {w.flown:+.4f} (planned {w.planned:+.4f}): {w.text}"
+            )
+        for te in ev.tracking:
+            over = (
+                f" (WARNING: more than the plan's margin {plan.robustness:.3f} m)"
+                if plan.robustness > 0 and te.max_m > plan.robustness
+                else ""
+            )
+            lines.append(
+                f"  {te.vehicle}: tracking error max {te.max_m:.3f} m at t {te.t_at_max_s:.2f} s"
+                f"{over}, rms {te.rms_m:.3f} m; best-fit delay {te.lag_s:+.2f} s (rms "
+                f"{te.rms_at_lag_m:.3f} m)"
+            )
+    if outcome.stats:
+        lines.append("setpoint stream (lateness of each send after its deadline):")
+        lines.append("  " + STATS_HEADER)
+        lines += ["  " + s.row() for s in outcome.stats.values()]
+    lines += _tuning_lines(outcome)
+    m = outcome.mission
+    if m is not None:
+        c = m.conversion
+        how = "chosen" if c.acceptance_auto else "given"
+        lines.append(
+            f"missions: acceptance radius {c.acceptance_m:.2f} m ({how}), legs "
+            f"{'re-timed' if c.retimed else 'at their average speeds'}; robustness predicted "
+            f"{c.predicted_robustness:+.4f} (straight legs {c.straight_leg_robustness:+.4f})"
+        )
+    for name, run in outcome.missions.items():
+        extra = ""
+        if m is not None:
+            late = m.late_s.get(name, math.inf)
+            dep = m.departure_skew_s.get(name)
+            extra = (
+                f", {'+' if late >= 0 else ''}{late:.1f} s against the plan"
+                if math.isfinite(late)
+                else ""
+            )
+            extra += f"; start skew {m.start_skew_s.get(name, 0.0) * 1000:+.0f} ms"
+            if dep is not None:
+                extra += f", left the start waypoint {dep:+.2f} s off the prediction"
+        items = len(m.conversion.missions[name].items) if m is not None else None
+        lines.append(
+            f"  {name}: mission {'finished' if run.finished else 'NOT finished'} in "
+            f"{run.duration_s:.1f} s{extra}; "
+            + (f"at item {run.current[-1][0]} of {items}" if run.current and items else "")
+        )
+    if outcome.tlog is not None:
+        lines.append(f"telemetry: {outcome.tlog.path} ({outcome.tlog.messages} messages)")
+    if "csv" in outcome.files:
+        lines.append(f"tracks: {outcome.files['csv']}")
+    return "\n".join(lines)
+
+
+def _tuning_lines(outcome: FlightOutcome) -> list[str]:
+    """Drag fed forward per vehicle, the lag it still showed, and the drag to set."""
+    from gcs.tuning import LAG_NOISE_S, drag_from_lag
+
+    ev = outcome.evaluation
+    lags = {t.vehicle: t.lag_s for t in ev.tracking} if ev is not None else {}
+    lines = []
+    for name, tu in outcome.tuning.items():
+        lag = lags.get(name, math.nan)
+        acc = f", estimator accuracy {tu.accuracy_m:.2f} m" if tu.accuracy_m is not None else ""
+        how = "fed forward" if outcome.mode is FlightMode.OFFBOARD else "in the prediction"
+        text = f"  {name}: drag {tu.drag_per_s:.2f} /s {how} ({tu.drag_source}){acc}"
+        if math.isfinite(lag) and outcome.mode is FlightMode.OFFBOARD:
+            c = drag_from_lag(lag, tu)
+            text += f"; flown lag {lag:+.2f} s -> drag {c:.2f} /s"
+            if abs(lag) > LAG_NOISE_S:
+                text += f" (set --drag {c:.2f})"
+        lines.append(text)
+    return lines
+
+
+def outcome_json(plan: Plan, outcome: FlightOutcome) -> dict[str, Any]:
+    """The outcome as a JSON-ready dict (``gcs fly --json``)."""
+    ev = outcome.evaluation
+
+    def num(x: float | None) -> float | None:
+        return None if x is None or not math.isfinite(x) else float(x)
+
+    return {
+        "mode": outcome.mode.value,
+        "completed": outcome.completed,
+        "interrupted": outcome.interrupted,
+        "connect_s": outcome.connect_s,
+        "flight_s": outcome.flight_s,
+        "t0_unix_s": outcome.t0_unix_s,
+        "safety_event": None if outcome.safety_event is None else outcome.safety_event.describe(),
+        "monitor": None if outcome.monitor is None else outcome.monitor.as_json(),
+        "decision_latency_s": (
+            None if outcome.safety_event is None else outcome.safety_event.latency_s
+        ),
+        "end_failures": outcome.end_failures,
+        "final_modes": outcome.final_modes,
+        "planned_robustness": None if ev is None else num(ev.planned_robustness),
+        "flown_robustness": None if ev is None else num(ev.flown_robustness),
+        "coverage_problem": None if ev is None else ev.coverage_problem or None,
+        "clauses": []
+        if ev is None
+        else [
+            {"text": c.text, "planned": num(c.planned), "flown": num(c.flown)} for c in ev.clauses
+        ],
+        "tracking": []
+        if ev is None
+        else [
+            {
+                "vehicle": t.vehicle,
+                "samples": t.samples,
+                "max_m": num(t.max_m),
+                "rms_m": num(t.rms_m),
+                "lag_s": num(t.lag_s),
+                "rms_at_lag_m": num(t.rms_at_lag_m),
+            }
+            for t in ev.tracking
+        ],
+        "stream": {
+            name: {
+                "sent": s.sent,
+                "skipped": s.skipped,
+                "failed": s.failed,
+                "late": s.late,
+                "mean_lateness_s": num(s.mean_lateness_s),
+                "p99_lateness_s": num(s.p99_lateness_s),
+                "max_lateness_s": num(s.max_lateness_s),
+                "rate_hz": s.rate_hz,
+            }
+            for name, s in outcome.stats.items()
+        },
+        "missions": {
+            name: {
+                "finished": r.finished,
+                "duration_s": r.duration_s,
+                "reached": len(r.reached),
+                "late_s": None if outcome.mission is None else num(outcome.mission.late_s[name]),
+                "start_skew_s": None
+                if outcome.mission is None
+                else num(outcome.mission.start_skew_s[name]),
+                "departure_skew_s": None
+                if outcome.mission is None
+                else num(outcome.mission.departure_skew_s[name]),
+            }
+            for name, r in outcome.missions.items()
+        },
+        "mission_prediction": None
+        if outcome.mission is None
+        else {
+            "acceptance_m": outcome.mission.conversion.acceptance_m,
+            "acceptance_auto": outcome.mission.conversion.acceptance_auto,
+            "retimed": outcome.mission.conversion.retimed,
+            "predicted_robustness": num(outcome.mission.conversion.predicted_robustness),
+            "straight_leg_robustness": num(outcome.mission.conversion.straight_leg_robustness),
+            "predicted_late_s": {k: num(v) for k, v in outcome.mission.conversion.late_s.items()},
+        },
+        "tuning": {
+            name: {
+                "drag_per_s": t.drag_per_s,
+                "drag_source": t.drag_source,
+                "expected_lag_s": t.expected_lag_s,
+                "accuracy_m": t.accuracy_m,
+            }
+            for name, t in outcome.tuning.items()
+        },
+        "warnings": list(outcome.warnings),
+        "flown_lower_bound": num(outcome.flown_lower_bound),
+        "estimator_accuracy_m": {k: list(v) for k, v in outcome.accuracy_m.items()},
+        "tlog_messages": None if outcome.tlog is None else outcome.tlog.messages,
+        "files": {k: str(p) for k, p in outcome.files.items()},
+    }

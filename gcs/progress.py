@@ -1,0 +1,239 @@
+"""The live view of a flight: per vehicle its mode, its distance to where the plan is at that
+instant, and the robustness of the clauses it takes part in *so far* (exact semantics of the
+flown prefix completed by the plan for the rest of the horizon, i.e. what the spec's value
+will be if the rest goes as planned).
+
+A room of its own because it is the one part of a flight that runs beside it, on a worker
+thread, and writes to the terminal: :func:`gcs.flight.fly_plan` only starts
+:meth:`FlightProgress.run` and stops it, and :class:`FlightClock` is how the flight tells the
+view (and mission mode) when each vehicle's plan started.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import bisect
+import math
+import shutil
+import sys
+import threading
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, TextIO
+
+import numpy as np
+
+from gcs.evaluation import plan_formula
+
+if TYPE_CHECKING:
+    from mavlink.fleet import Fleet
+    from planner.frames import GeodeticPoint, NedToEnuMap
+    from planner.planfile import Plan
+
+__all__ = ["FlightClock", "FlightProgress"]
+
+
+@dataclass(slots=True)
+class FlightClock:
+    """The plan's start instant (``time.monotonic()``) per vehicle, once the flight has one."""
+
+    t0_monotonic_s: dict[str, float] = field(default_factory=dict)
+
+    def plan_time(self, name: str, now: float) -> float | None:
+        """Seconds since ``name``'s plan start, or ``None`` before it."""
+        t0 = self.t0_monotonic_s.get(name)
+        return None if t0 is None else now - t0
+
+
+class FlightProgress:
+    """Live view of a flight: per vehicle mode, distance to the plan, robustness so far.
+
+    On a terminal one status line is rewritten in place (4 times a second); otherwise a
+    plain line is printed every ``plain_interval_s``. "Robustness so far" of a vehicle is
+    the minimum over the clauses it appears in of their exact robustness on its flown
+    positions up to now followed by the plan for the rest of the horizon.
+
+    The work per update is bounded: the flown samples are written into the signals
+    incrementally (only the grid steps since the last update), the clauses are evaluated
+    per template (:class:`planner.stl.batch.ClauseBatch`), and :meth:`run` does that on a
+    worker thread, so the setpoint stream on the event loop never waits for it.
+
+    Args:
+        plan: the plan being flown.
+        stream: where to write (stdout, or stderr under ``--json``).
+        tty: rewrite one line (default: ``stream.isatty()``).
+        plain_interval_s: seconds between plain lines.
+    """
+
+    def __init__(
+        self,
+        plan: Plan,
+        stream: TextIO | None = None,
+        *,
+        tty: bool | None = None,
+        plain_interval_s: float = 2.0,
+    ) -> None:
+        from planner.stl.batch import ClauseBatch
+
+        self.plan = plan
+        self.stream = stream if stream is not None else sys.stdout
+        self.tty = self.stream.isatty() if tty is None else tty
+        self.plain_interval_s = plain_interval_s
+        self.phi = plan_formula(plan)
+        self.dt_s = max(plan.check_dt_s, 0.05)
+        n = round(plan.horizon_s / self.dt_s) + 1
+        self.t_grid = np.arange(n) * self.dt_s
+        self.planned = {v.name: v.trajectory.position(self.t_grid) for v in plan.vehicles}
+        names = [v.name for v in plan.vehicles]
+        clauses = list(self.phi.clauses)
+        self._batch = ClauseBatch(clauses)
+        self._members = {
+            name: np.array([i for i, c in enumerate(clauses) if name in c.signal_names()], int)
+            for name in names
+        }
+        self._samples: dict[str, list[tuple[float, float, float, float]]] = {n: [] for n in names}
+        # the signals: flown up to _filled[name] grid steps, planned after
+        self._signals = {name: p.copy() for name, p in self.planned.items()}
+        self._filled = dict.fromkeys(names, 0)
+        self._lock = threading.Lock()  # record() and so_far() may run on different threads
+        self._maps: dict[GeodeticPoint, NedToEnuMap] = {}  # per EKF origin
+        self.lines = 0
+        self.last_line = ""
+
+    def _fill(self, name: str, t_now_s: float) -> None:
+        """Write the flown positions into the grid steps up to ``t_now_s`` not yet written
+        (steps before the last sample only: a later sample could still move them)."""
+        with self._lock:
+            rows = self._samples[name]
+            if not rows:
+                return
+            t_last = rows[-1][0]
+            k0 = self._filled[name]
+            k1 = int(np.searchsorted(self.t_grid, min(t_now_s, t_last), side="right"))
+            if k1 <= k0:
+                return
+            # the samples around steps k0..k1-1: from the last one at or before step k0
+            t_first = self.t_grid[k0]
+            j = max(0, bisect.bisect_right(rows, (t_first, math.inf, 0.0, 0.0)) - 1)
+            a = np.asarray(rows[j:])
+        sig = self._signals[name]
+        for ax in range(3):
+            sig[k0:k1, ax] = np.interp(self.t_grid[k0:k1], a[:, 0], a[:, ax + 1])
+        self._filled[name] = k1
+
+    def so_far(self, t_now_s: float) -> dict[str, float]:
+        """Robustness so far per vehicle (see class docstring) at plan time ``t_now_s``."""
+        for name in self._signals:
+            self._fill(name, t_now_s)
+        values = self._batch.values(self._signals, self.dt_s)
+        return {
+            name: float(values[idx].min()) if idx.size else math.nan
+            for name, idx in self._members.items()
+        }
+
+    def record(self, name: str, t_s: float, pos_enu_m: np.ndarray) -> None:
+        """Add a position sample of ``name`` at plan time ``t_s``."""
+        with self._lock:
+            rows = self._samples[name]
+            if not rows or t_s > rows[-1][0]:
+                rows.append((t_s, float(pos_enu_m[0]), float(pos_enu_m[1]), float(pos_enu_m[2])))
+
+    def line(
+        self,
+        fleet: Fleet,
+        clock: FlightClock,
+        origins: Mapping[str, GeodeticPoint],
+        *,
+        with_robustness: bool = True,
+    ) -> str:
+        """One status line for the current instant (and record the positions it read).
+
+        ``with_robustness=False`` only records (the robustness is the costly part).
+        """
+        from planner.frames import NedToEnuMap
+
+        now = time.monotonic()
+        parts = []
+        t_plan: float | None = None
+        for v in self.plan.vehicles:
+            st = fleet[v.name].status(now)
+            mode = st.mode.label if st.mode is not None else str(st.custom_mode)
+            t = clock.plan_time(v.name, now)
+            where = ""
+            if st.pos_ned_m is not None and v.name in origins:
+                origin = origins[v.name]
+                fmap = self._maps.get(origin)
+                if fmap is None:
+                    fmap = self._maps[origin] = NedToEnuMap.between(self.plan.origin, origin)
+                pos = fmap.position(st.pos_ned_m)
+                ref_t = 0.0 if t is None else min(max(t, 0.0), v.trajectory.duration_s)
+                ref = v.trajectory.position(np.array([ref_t]))[0]
+                where = f" {float(np.linalg.norm(pos - ref)):5.2f} m"
+                if t is not None and t >= 0.0:
+                    self.record(v.name, t, pos)
+                    t_plan = t if t_plan is None else max(t_plan, t)
+            parts.append(f"{v.name} {mode}{where}")
+        if t_plan is not None and with_robustness:
+            rho = self.so_far(t_plan)
+            parts = [
+                f"{p} rho {rho[v.name]:+.3f}"
+                for p, v in zip(parts, self.plan.vehicles, strict=True)
+            ]
+            head = f"t {min(t_plan, self.plan.horizon_s):5.1f}/{self.plan.horizon_s:g} s"
+        else:
+            head = "preparing (distance to start)"
+        return head + " | " + " | ".join(parts)
+
+    def show(self, text: str) -> None:
+        """Write ``text``: rewrite the status line on a terminal, else a new line."""
+        with self._lock:
+            self.lines += 1
+            if self.tty:
+                width = shutil.get_terminal_size((120, 20)).columns
+                self.last_line = text[: width - 1]
+                self.stream.write("\r\033[K" + self.last_line)
+            else:
+                self.last_line = text
+                self.stream.write(text + "\n")
+            self.stream.flush()
+
+    def note(self, text: str) -> None:
+        """Write ``text`` on a line of its own (the status line, if any, is redrawn after it).
+
+        Safe from any thread (the safety monitor's warnings come from its own).
+        """
+        with self._lock:
+            if self.tty and self.lines:
+                self.stream.write("\r\033[K" + text + "\n" + self.last_line)
+            else:
+                self.stream.write(text + "\n")
+            self.stream.flush()
+
+    def close(self) -> None:
+        """End the status line (terminal)."""
+        if self.tty and self.lines:
+            self.stream.write("\n")
+            self.stream.flush()
+
+    async def run(
+        self,
+        fleet: Fleet,
+        clock: FlightClock,
+        origins: Mapping[str, GeodeticPoint],
+        stop: asyncio.Event,
+    ) -> None:
+        """Sample positions every 0.1 s and show a line every 0.25 s (tty) or interval.
+
+        Sampling and evaluation run on a worker thread (the event loop only waits for it),
+        one at a time; only the writing is done here.
+        """
+        show_every = 0.25 if self.tty else self.plain_interval_s
+        next_show = time.monotonic()
+        while not stop.is_set():
+            due = time.monotonic() >= next_show
+            text = await asyncio.to_thread(self.line, fleet, clock, origins, with_robustness=due)
+            if due:
+                self.show(text)
+                next_show += show_every
+            await asyncio.sleep(0.1)  # no child task: an interruption cancels those

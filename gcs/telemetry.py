@@ -1,0 +1,187 @@
+"""Flown telemetry for the plan's pictures and checks: each vehicle's recorded positions
+(:class:`FlownPath`) by vehicle name (:class:`Telemetry`), read by :func:`load_telemetry`.
+
+A room of its own because reading a file is not drawing: ``gcs plot --telemetry`` and
+``gcs verify --telemetry`` both read flown data here, and :mod:`gcs.clause_traces` and
+:mod:`gcs.figure` only consume what it returns.
+
+Telemetry (``--telemetry``): a CSV file with a header line and at least the columns
+``t,vehicle,x,y,z``: time in seconds from the plan's start, the vehicle name of the plan,
+position in the mission ENU frame in metres (extra columns are ignored); the link's track CSV
+(:func:`mavlink.tlog.write_tracks_csv`: ``vehicle,t_s,x_enu_m,y_enu_m,z_enu_m,...``) is read
+alike. A ``.tlog`` goes through :func:`mavlink.tlog.tracks_from_tlog`; since a tlog does not
+record when the plan started, its Unix start time must be given (``--t0``).
+
+Errors::
+
+    gcs.errors.InputFileError        unreadable/malformed telemetry (file, line, column), no
+                                     rows, a .tlog without its start time
+    mavlink.errors.LinkError         a .tlog the link's reader rejects (no origin message)
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from gcs.errors import InputFileError
+
+if TYPE_CHECKING:
+    from planner.planfile import Plan
+
+__all__ = ["TELEMETRY_COLUMNS", "FlownPath", "Telemetry", "load_telemetry"]
+
+#: Columns a telemetry CSV must have (more are allowed).
+TELEMETRY_COLUMNS = ("t", "vehicle", "x", "y", "z")
+
+#: Accepted names of those columns: ours, and the link's track CSV (:mod:`mavlink.tlog`).
+_TELEMETRY_ALIASES: dict[str, tuple[str, ...]] = {
+    "t": ("t", "t_s"),
+    "vehicle": ("vehicle",),
+    "x": ("x", "x_enu_m"),
+    "y": ("y", "y_enu_m"),
+    "z": ("z", "z_enu_m"),
+}
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class FlownPath:
+    """One vehicle's recorded positions.
+
+    Attributes:
+        t_s: ``(n,)`` non-decreasing seconds from the plan's start.
+        pos_enu_m: ``(n, 3)`` mission-frame ENU positions in m.
+    """
+
+    t_s: NDArray[np.float64]
+    pos_enu_m: NDArray[np.float64]
+
+    def position(self, t_s: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Positions ``(m, 3)`` at times ``t_s`` ``(m,)``: linear between samples, held outside."""
+        return np.column_stack([np.interp(t_s, self.t_s, self.pos_enu_m[:, a]) for a in range(3)])
+
+
+@dataclass(frozen=True, slots=True)
+class Telemetry:
+    """Flown paths by vehicle name, read from ``source``."""
+
+    source: str
+    vehicles: Mapping[str, FlownPath]
+
+
+def _column_map(header: list[str]) -> dict[str, int] | None:
+    """Index of t, vehicle, x, y, z in either CSV layout (None if a column is missing)."""
+    out = {}
+    for key, names in _TELEMETRY_ALIASES.items():
+        idx = next((header.index(n) for n in names if n in header), None)
+        if idx is None:
+            return None
+        out[key] = idx
+    return out
+
+
+def load_telemetry(
+    path: str | Path, plan: Plan | None = None, t0_unix_s: float | None = None
+) -> Telemetry:
+    """Read flown telemetry (module docstring); CSV rows may come in any order.
+
+    Args:
+        path: a CSV file (either layout) or a ``.tlog``.
+        plan: the plan flown (needed for a ``.tlog``: vehicle names by system id, origin).
+        t0_unix_s: Unix time of the plan's start (needed for a ``.tlog``, which does not
+            record it).
+
+    Raises:
+        InputFileError: missing file, missing columns, a bad number (names file, line, column),
+            no rows, a ``.tlog`` without ``t0_unix_s``.
+        mavlink.errors.LinkError: a ``.tlog`` the link's reader rejects.
+    """
+    p = Path(path)
+    src = str(p)
+    if p.suffix.lower() == ".tlog":
+        return _load_tlog(p, plan, t0_unix_s)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise InputFileError(f"{src}: cannot read: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        raise InputFileError(f"{src}: not a text (CSV) file") from None
+    reader = csv.reader(io.StringIO(text))
+    try:
+        header = [h.strip() for h in next(reader)]
+    except StopIteration:
+        raise InputFileError(f"{src}: empty file (expected a header t,vehicle,x,y,z)") from None
+    col = _column_map(header)
+    if col is None:
+        missing = [k for k, names in _TELEMETRY_ALIASES.items() if not set(names) & set(header)]
+        raise InputFileError(
+            f"{src}: line 1: missing column(s) {', '.join(missing)} "
+            f"(need {','.join(TELEMETRY_COLUMNS)}, or the link's vehicle,t_s,x_enu_m,...)"
+        )
+    rows: dict[str, list[tuple[float, float, float, float]]] = {}
+    for lineno, row in enumerate(reader, start=2):
+        if not row or all(not f.strip() for f in row):
+            continue
+        if len(row) < len(header):
+            raise InputFileError(
+                f"{src}: line {lineno}: {len(row)} fields, the header has {len(header)}"
+            )
+        vals = []
+        for key in ("t", "x", "y", "z"):
+            field = row[col[key]].strip()
+            try:
+                v = float(field)
+            except ValueError:
+                raise InputFileError(
+                    f"{src}: line {lineno}: column {header[col[key]]}: not a number: {field!r}"
+                ) from None
+            if not math.isfinite(v):
+                raise InputFileError(
+                    f"{src}: line {lineno}: column {header[col[key]]}: must be finite"
+                )
+            vals.append(v)
+        name = row[col["vehicle"]].strip()
+        if not name:
+            raise InputFileError(f"{src}: line {lineno}: column vehicle: empty")
+        rows.setdefault(name, []).append((vals[0], vals[1], vals[2], vals[3]))
+    if not rows:
+        raise InputFileError(f"{src}: no telemetry rows after the header")
+    vehicles: dict[str, FlownPath] = {}
+    for name, r in rows.items():
+        a = np.asarray(r, dtype=float)
+        a = a[np.argsort(a[:, 0], kind="stable")]
+        vehicles[name] = FlownPath(t_s=a[:, 0], pos_enu_m=a[:, 1:4])
+    return Telemetry(source=src, vehicles=vehicles)
+
+
+def _load_tlog(p: Path, plan: Plan | None, t0_unix_s: float | None) -> Telemetry:
+    """Tracks from a ``.tlog`` through the link's reader (:func:`mavlink.tlog.tracks_from_tlog`)."""
+    if plan is None or t0_unix_s is None:
+        raise InputFileError(
+            f"{p}: a .tlog does not record when the plan started: give --t0 UNIX_SECONDS "
+            "(or use the flight's CSV track file)"
+        )
+    if not p.is_file():
+        raise InputFileError(f"{p}: cannot read: no such file")
+    from mavlink.tlog import tracks_from_tlog
+
+    tracks = tracks_from_tlog(
+        p, {v.sysid: v.name for v in plan.vehicles}, plan.origin, float(t0_unix_s)
+    )
+    if not tracks:
+        raise InputFileError(f"{p}: no LOCAL_POSITION_NED from the plan's vehicles")
+    return Telemetry(
+        source=str(p),
+        vehicles={
+            name: FlownPath(t_s=np.asarray(tr.t_s), pos_enu_m=np.asarray(tr.pos_enu_m))
+            for name, tr in tracks.items()
+        },
+    )

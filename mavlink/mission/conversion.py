@@ -1,0 +1,342 @@
+"""Trajectories as PX4 missions: the items of a plan, and the straight-leg path they fly.
+
+PX4 has no local-frame mission items, so a vehicle's mission-frame trajectory
+becomes global ``*_INT`` items (DESIGN.md section 7):
+
+* ``NAV_TAKEOFF`` to the start point (lat/lon/alt AMSL of the plan's start);
+* a ``NAV_WAYPOINT`` at the start (its hold time is the plan's initial hover);
+* per segment of the trajectory that moves: ``DO_CHANGE_SPEED`` to the
+  straight-line length / duration of the segment, so the mission's timing
+  follows the plan, then ``NAV_WAYPOINT`` at the segment's end point with
+  ``acceptance_radius_m`` (param2) and, where the plan then hovers, the hover
+  time as hold time (param1);
+* ``NAV_LAND`` at the last point, ``NAV_RETURN_TO_LAUNCH``, or nothing (PX4
+  then holds at the last waypoint).
+
+A segment whose peak speed stays below ``hover_speed_m_s`` (or which ends
+less than the acceptance radius from where it started) is a hover.
+
+The mission flies straight legs at constant speed: :class:`PiecewiseLinearPath`
+is that path as a function of time (knots at the segment boundaries, so it
+meets the plan exactly at every waypoint). :func:`path_deviation` measures how
+far it strays from the planned trajectory and :func:`path_robustness`
+evaluates the exact STL robustness of the paths (DESIGN.md section 4), so the
+mission can be judged before it is flown.
+
+A room of its own because it is pure computation: it speaks to no vehicle.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from mavlink.errors import MissionError, MissionResult
+from mavlink.mission.items import Cmd, Frame, MissionEnd, MissionItem, MissionType, _e7
+from planner.frames import GeodeticPoint, enu_to_geodetic, yaw_enu_to_ned
+from planner.trajectory import Trajectory
+
+if TYPE_CHECKING:
+    from planner.stl.ast import Formula
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class PiecewiseLinearPath:
+    """Straight legs at constant speed with holds: position linear between knots.
+
+    Attributes:
+        knots_t_s: ``(m,)`` non-decreasing times from the plan's start.
+        knots_enu_m: ``(m, 3)`` mission-frame positions at those times.
+    """
+
+    knots_t_s: np.ndarray
+    knots_enu_m: np.ndarray
+
+    @property
+    def duration_s(self) -> float:
+        """Time of the last knot."""
+        return float(self.knots_t_s[-1])
+
+    def position(self, t_s: np.ndarray) -> np.ndarray:
+        """``(n, 3)`` positions at times ``t_s`` ``(n,)`` (held before/after the knots)."""
+        t = np.atleast_1d(np.asarray(t_s, dtype=float))
+        return np.column_stack(
+            [np.interp(t, self.knots_t_s, self.knots_enu_m[:, a]) for a in range(3)]
+        )
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class MissionPlan:
+    """A vehicle's mission and what it means in the mission frame.
+
+    Attributes:
+        name: vehicle name.
+        items: the MISSION items, ``seq`` 0..n-1.
+        waypoints_enu_m: ``(k, 3)`` the NAV_WAYPOINT positions (the first is the start).
+        arrival_t_s: ``(k,)`` planned arrival time at each waypoint.
+        hold_s: ``(k,)`` hold time at each waypoint.
+        leg_speed_m_s: ``(k-1,)`` commanded speed of each leg.
+        acceptance_m: ``(k,)`` acceptance radius of each waypoint (param2).
+        path: the piecewise-linear path the mission flies.
+    """
+
+    name: str
+    items: tuple[MissionItem, ...]
+    waypoints_enu_m: np.ndarray
+    arrival_t_s: np.ndarray
+    hold_s: np.ndarray
+    leg_speed_m_s: np.ndarray
+    acceptance_m: np.ndarray
+    path: PiecewiseLinearPath
+
+
+def trajectory_to_mission(
+    trajectory: Trajectory,
+    origin: GeodeticPoint,
+    *,
+    acceptance_radius_m: float = 0.3,
+    hover_speed_m_s: float = 0.05,
+    end: MissionEnd = MissionEnd.LAND,
+    name: str | None = None,
+    leg_speed_m_s: Sequence[float] | None = None,
+    pass_lag_s: float = 0.0,
+    land_at_enu_m: Sequence[float] | None = None,
+) -> MissionPlan:
+    """Convert one mission-frame trajectory into PX4 mission items (module docstring).
+
+    Args:
+        trajectory: the vehicle's planned trajectory (mission ENU frame).
+        origin: geodetic origin of the mission frame.
+        acceptance_radius_m: NAV_WAYPOINT acceptance radius (param2), > 0.
+        hover_speed_m_s: segments slower than this everywhere are hovers.
+        end: land, return to launch, or hold at the last waypoint.
+        name: vehicle name (default the trajectory's).
+        leg_speed_m_s: the DO_CHANGE_SPEED of each leg instead of its length / duration
+            (:func:`gcs.missions.convert_plan` times them so PX4 keeps the plan's clock);
+            the path and the planned arrival times stay the plan's.
+        pass_lag_s: the vehicle's lag behind its setpoint (s). A waypoint flown through
+            (no hold, a turn under 30 degrees) gets the radius ``lag * speed + R / 2`` if
+            larger (at most 45 % of its shorter leg): PX4 accepts a waypoint by where the
+            vehicle is, which trails its setpoint by the drag lag, so with a radius
+            smaller than that trail the setpoint stops at the waypoint and waits.
+        land_at_enu_m: with ``end`` LAND, land here (east, north; the mission frame)
+            instead of below the last point: a NAV_WAYPOINT there at the last point's
+            altitude, then the NAV_LAND (a multicopter's NAV_LAND descends on its way to
+            its position); :mod:`gcs.landing` picks the point clear of keep-outs.
+
+    Raises:
+        MissionError: ``INVALID_ITEM`` for a non-positive acceptance radius or a speed
+            list of the wrong length or with a non-positive speed.
+    """
+    vname = name if name is not None else trajectory.name
+    if not (math.isfinite(acceptance_radius_m) and acceptance_radius_m > 0):
+        raise MissionError(
+            MissionResult.INVALID_ITEM,
+            "trajectory_to_mission",
+            f"acceptance_radius_m must be > 0, got {acceptance_radius_m!r}",
+            vehicle=vname,
+        )
+    t0 = np.asarray(trajectory.segment_t0_s, dtype=float)
+    dur = np.asarray(trajectory.segment_duration_s, dtype=float)
+    bounds = np.append(t0, t0[-1] + dur[-1])
+    pts = trajectory.position(bounds)
+    # Peak speed per segment on a dense grid (21 points per segment).
+    u = np.linspace(0.0, 1.0, 21)
+    dense_t = (t0[:, None] + dur[:, None] * u[None, :]).ravel()
+    speed = np.linalg.norm(trajectory.velocity(dense_t), axis=1).reshape(t0.size, u.size)
+    moving = speed.max(axis=1) >= hover_speed_m_s
+    lengths = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    moving &= lengths >= acceptance_radius_m
+
+    waypoints = [pts[0]]
+    arrival = [0.0]
+    hold = [0.0]
+    leg_speed: list[float] = []
+    leg_index: list[int] = []
+    for s in range(t0.size):
+        if moving[s]:
+            waypoints.append(pts[s + 1])
+            arrival.append(float(bounds[s + 1]))
+            hold.append(0.0)
+            leg_speed.append(float(lengths[s] / dur[s]))
+            leg_index.append(s)
+        else:
+            hold[-1] += float(dur[s])
+    if leg_speed_m_s is not None:
+        given = [float(x) for x in leg_speed_m_s]
+        if len(given) != len(leg_speed) or not all(math.isfinite(x) and x > 0 for x in given):
+            raise MissionError(
+                MissionResult.INVALID_ITEM,
+                "trajectory_to_mission",
+                f"leg_speed_m_s: {len(leg_speed)} speeds > 0 wanted, got {given!r}",
+                vehicle=vname,
+            )
+        commanded = given
+    else:
+        commanded = leg_speed
+    wp = np.asarray(waypoints)
+    radius = np.full(wp.shape[0], float(acceptance_radius_m))
+    if pass_lag_s > 0:
+        for j in range(1, wp.shape[0] - 1):
+            a_in, a_out = wp[j] - wp[j - 1], wp[j + 1] - wp[j]
+            l_in, l_out = float(np.linalg.norm(a_in)), float(np.linalg.norm(a_out))
+            if hold[j] > 0 or l_in < 1e-6 or l_out < 1e-6:
+                continue
+            if float(np.dot(a_in, a_out)) / (l_in * l_out) < math.cos(math.radians(30.0)):
+                continue
+            v = min(commanded[j - 1], commanded[j])
+            want = pass_lag_s * v + 0.5 * acceptance_radius_m
+            radius[j] = max(radius[j], min(want, 0.45 * min(l_in, l_out)))
+    lat, lon, alt = enu_to_geodetic(wp, origin)
+    yaw_deg = np.degrees(
+        np.asarray(yaw_enu_to_ned(trajectory.yaw_rad(np.asarray(arrival))), dtype=float)
+    )
+
+    items: list[MissionItem] = []
+
+    def add(
+        command: int,
+        frame: int,
+        p1: float,
+        p2: float,
+        p3: float,
+        p4: float,
+        x: int,
+        y: int,
+        z: float,
+    ) -> None:
+        items.append(
+            MissionItem(
+                seq=len(items),
+                frame=frame,
+                command=command,
+                current=1 if not items else 0,  # MAVSDK requires item 0 to be current
+                autocontinue=1,
+                param1=p1,
+                param2=p2,
+                param3=p3,
+                param4=p4,
+                x=x,
+                y=y,
+                z=z,
+                mission_type=MissionType.MISSION,
+            )
+        )
+
+    g = Frame.GLOBAL_INT
+    add(
+        Cmd.NAV_TAKEOFF,
+        g,
+        0.0,
+        0.0,
+        0.0,
+        float(yaw_deg[0]),
+        _e7(lat[0]),
+        _e7(lon[0]),
+        float(alt[0]),
+    )
+    add(
+        Cmd.NAV_WAYPOINT,
+        g,
+        hold[0],
+        acceptance_radius_m,
+        0.0,
+        float(yaw_deg[0]),
+        _e7(lat[0]),
+        _e7(lon[0]),
+        float(alt[0]),
+    )
+    for j in range(1, wp.shape[0]):
+        add(Cmd.DO_CHANGE_SPEED, Frame.MISSION, 1.0, commanded[j - 1], -1.0, 0.0, 0, 0, 0.0)
+        add(
+            Cmd.NAV_WAYPOINT,
+            g,
+            hold[j],
+            float(radius[j]),
+            0.0,
+            float(yaw_deg[j]),
+            _e7(lat[j]),
+            _e7(lon[j]),
+            float(alt[j]),
+        )
+    if end is MissionEnd.LAND:
+        land_lat, land_lon = lat[-1], lon[-1]
+        if land_at_enu_m is not None:
+            e, n = float(land_at_enu_m[0]), float(land_at_enu_m[1])
+            pe = enu_to_geodetic(np.array([e, n, float(wp[-1, 2])]), origin)
+            land_lat, land_lon = float(np.ravel(pe[0])[0]), float(np.ravel(pe[1])[0])
+            # PX4 moves to a land point itself only until within NAV_ACC_RAD (2 m) and then
+            # descends while closing the rest (Mission::do_need_move_to_land; seen on SITL):
+            # a waypoint first, within the mission's own radius, starts the descent over the
+            # clear point rather than up to 2 m short of it, beside what it keeps clear of.
+            add(
+                Cmd.NAV_WAYPOINT, g, 0.0, float(acceptance_radius_m), 0.0, float("nan"),
+                _e7(land_lat), _e7(land_lon), float(alt[-1]),
+            )  # fmt: skip
+        add(
+            Cmd.NAV_LAND, g, 0.0, 0.0, 0.0, float("nan"), _e7(land_lat), _e7(land_lon),
+            float(alt[-1]),
+        )  # fmt: skip
+    elif end is MissionEnd.RETURN:
+        add(Cmd.NAV_RETURN_TO_LAUNCH, Frame.MISSION, 0.0, 0.0, 0.0, 0.0, 0, 0, 0.0)
+
+    # Knots: arrive at each waypoint at its planned time, hold, leave.
+    kt: list[float] = []
+    kp: list[np.ndarray] = []
+    for j in range(wp.shape[0]):
+        kt += [arrival[j], arrival[j] + hold[j]]
+        kp += [wp[j], wp[j]]
+    path = PiecewiseLinearPath(np.asarray(kt), np.asarray(kp))
+    return MissionPlan(
+        name=vname,
+        items=tuple(items),
+        waypoints_enu_m=wp,
+        arrival_t_s=np.asarray(arrival),
+        hold_s=np.asarray(hold),
+        leg_speed_m_s=np.asarray(commanded),
+        acceptance_m=radius,
+        path=path,
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class PathDeviation:
+    """How far a mission's straight-leg path strays from the planned trajectory.
+
+    Attributes:
+        max_m: largest distance between the two at the same time.
+        rms_m: root-mean-square distance.
+        t_at_max_s: when the largest distance occurs.
+    """
+
+    max_m: float
+    rms_m: float
+    t_at_max_s: float
+
+
+def path_deviation(
+    trajectory: Trajectory, path: PiecewiseLinearPath, dt_s: float = 0.01
+) -> PathDeviation:
+    """Distance between ``path`` and ``trajectory`` at equal times, sampled every ``dt_s``."""
+    t_end = max(trajectory.duration_s, path.duration_s)
+    t = np.linspace(0.0, t_end, math.ceil(t_end / dt_s) + 1)
+    d = np.linalg.norm(path.position(t) - trajectory.position(t), axis=1)
+    i = int(np.argmax(d))
+    return PathDeviation(float(d[i]), float(np.sqrt(np.mean(d**2))), float(t[i]))
+
+
+def path_robustness(
+    spec: Formula, paths: Mapping[str, PiecewiseLinearPath], dt_s: float, horizon_s: float
+) -> float:
+    """Exact STL robustness of the vehicles flying ``paths`` (signals: name -> ``(n, 3)`` ENU).
+
+    Sampled at ``t = 0, dt, ..., horizon`` (paths hold their last point beyond their end).
+    """
+    n = math.floor(horizon_s / dt_s + 1e-9) + 1
+    t = np.arange(n) * dt_s
+    signals = {name: p.position(t) for name, p in paths.items()}
+    return float(spec.robustness(signals, dt_s))

@@ -1,0 +1,214 @@
+"""What an offboard flight streams: its settings, and the plan sampled into setpoints.
+
+:class:`OffboardConfig` holds the settings of :func:`mavlink.offboard.fly_offboard`
+(setpoint rate, pre-stream, start tolerance and arrival gate, take-off, drag feed-forward,
+end action); :func:`plan_setpoints_ned` samples a mission-frame trajectory into one
+vehicle's local NED setpoints; :func:`offboard_sender` puts one setpoint on the wire through
+MAVSDK's Offboard plugin.
+
+A room of its own, apart from the running of the flight (:mod:`mavlink.offboard`): these
+are values and functions of a plan that never wait on a vehicle (the sender only queues a
+datagram), so they are tested and benchmarked on their own.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+from mavsdk.plugins.offboard import (
+    AccelerationNed,
+    Offboard,
+    PositionNedYaw,
+    VelocityNedYaw,
+)
+
+from mavlink.errors import LinkError
+from mavlink.preflight import TAKEOFF_MARGIN_M
+from mavlink.stream import MAX_RATE_HZ, NedSetpoints
+from planner.frames import GeodeticPoint, enu_to_ned, enu_vector_to_ned, yaw_enu_to_ned
+from planner.trajectory import Trajectory
+
+
+class EndAction(Enum):
+    """What every vehicle does after the last setpoint has been held."""
+
+    HOLD = "hold"
+    LAND = "land"
+    RETURN = "return"
+
+
+@dataclass(frozen=True, slots=True)
+class OffboardConfig:
+    """Settings of an offboard flight.
+
+    Attributes:
+        rate_hz: setpoint rate, 2 < rate <= 100 (default 20 Hz).
+        prestream_s: how long the start setpoint is streamed before the
+            switch to offboard (>= 1 s; PX4 needs a live stream; a denied
+            switch is retried twice, 0.5 s apart, while the stream goes on).
+        start_tolerance_m: refuse a vehicle farther than this from its planned start
+            (before anything is armed; horizontally on the ground, in 3-D in the air).
+        arrive_m: the arrival gate: the plan starts only when every vehicle (its estimate)
+            is this close to its start in 3-D, slower than ``settle_speed_m_s`` and on the
+            plan's heading (``yaw_tolerance_deg``), for ``dwell_s`` without a break.
+            ``gcs fly`` sets it from the plan's margin.
+        dwell_s: how long the arrival gate must hold.
+        arrive_timeout_s: time allowed for the gate after the switch to offboard.
+        yaw_tolerance_deg: heading error the gate accepts.
+        takeoff: take off to the start altitude if a vehicle is on the ground
+            (otherwise a vehicle must already hover at its start).
+        takeoff_margin_m: a start must be this much more than NAV_MC_ALT_RAD above the
+            vehicle for a take-off: PX4 counts a take-off within NAV_MC_ALT_RAD as reached
+            at once, and below ~1 m the ground-effect creep of its altitude estimate keeps
+            the vehicle on the ground (PX4-BEHAVIOUR.md).
+        takeoff_timeout_s: time allowed to be airborne near the start after takeoff.
+        drag_per_s: the vehicles' drag per unit mass (1/s; one for all or per vehicle name),
+            added to the acceleration feed-forward (:func:`plan_setpoints_ned`); 0: none.
+        settle_speed_m_s: a vehicle counts as hovering below this speed.
+        mode_timeout_s: time allowed for all vehicles to report OFFBOARD.
+        start_delay_s: the shared start time is this long after the switch.
+        hold_after_s: keep streaming the final setpoint this long.
+        end_action: hold, land or return to launch afterwards.
+        land_at: with ``end_action`` LAND, per vehicle name a point ``(lat_deg, lon_deg,
+            alt_amsl_m)`` to fly to first (at the altitude given) and land at, where landing
+            straight down would not be safe (:mod:`gcs.landing`); others land where they are.
+        land_goto_timeout_s: time allowed to reach that point (plus 1 s per metre away);
+            a vehicle that does not arrive is left holding, and the end action is reported
+            failed for it.
+        late_threshold_s: lateness that counts as late (default a quarter period).
+        send_groups: spread the vehicles over this many send instants per
+            period (:class:`~mavlink.stream.SetpointStreamer`); each vehicle's
+            setpoints are sampled at its own send times. ``None``: one group
+            per 16 vehicles (measured in ``benchmarks/bench_stream.py``:
+            bursts of more vehicles raise the p99 lateness); 1: all at the tick.
+    """
+
+    rate_hz: float = 20.0
+    prestream_s: float = 1.2
+    start_tolerance_m: float = 1.0
+    arrive_m: float = 0.3
+    dwell_s: float = 1.0
+    arrive_timeout_s: float = 20.0
+    yaw_tolerance_deg: float = 10.0
+    takeoff: bool = True
+    takeoff_margin_m: float = TAKEOFF_MARGIN_M
+    takeoff_timeout_s: float = 30.0
+    drag_per_s: float | Mapping[str, float] = 0.0
+    settle_speed_m_s: float = 0.3
+    mode_timeout_s: float = 5.0
+    start_delay_s: float = 0.3
+    hold_after_s: float = 1.0
+    end_action: EndAction = EndAction.HOLD
+    land_at: Mapping[str, tuple[float, float, float]] = field(default_factory=dict)
+    land_goto_timeout_s: float = 20.0
+    late_threshold_s: float | None = None
+    send_groups: int | None = None
+
+    def drag_of(self, name: str) -> float:
+        """The drag fed forward for vehicle ``name`` (1/s)."""
+        if isinstance(self.drag_per_s, Mapping):
+            return float(self.drag_per_s.get(name, 0.0))
+        return float(self.drag_per_s)
+
+    def __post_init__(self) -> None:
+        if self.send_groups is not None and not (
+            isinstance(self.send_groups, int) and self.send_groups >= 1
+        ):
+            raise LinkError(f"send_groups must be an integer >= 1, got {self.send_groups!r}")
+        if not (2.0 < self.rate_hz <= MAX_RATE_HZ):
+            raise LinkError(f"offboard rate_hz {self.rate_hz!r} outside (2, {MAX_RATE_HZ:g}]")
+        if not self.prestream_s >= 1.0:
+            raise LinkError(f"prestream_s {self.prestream_s!r} must be >= 1 s (PX4 offboard rule)")
+        for name in (
+            "start_tolerance_m",
+            "arrive_m",
+            "arrive_timeout_s",
+            "yaw_tolerance_deg",
+            "takeoff_timeout_s",
+            "mode_timeout_s",
+            "settle_speed_m_s",
+        ):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise LinkError(f"{name} must be a finite number > 0, got {value!r}")
+        drags = (
+            self.drag_per_s.values() if isinstance(self.drag_per_s, Mapping) else [self.drag_per_s]
+        )
+        if not all(math.isfinite(c) and c >= 0 for c in drags):
+            raise LinkError(f"drag_per_s must be finite numbers >= 0, got {self.drag_per_s!r}")
+        for name in ("start_delay_s", "hold_after_s", "dwell_s", "takeoff_margin_m"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise LinkError(f"{name} must be a finite number >= 0, got {value!r}")
+
+
+def plan_setpoints_ned(
+    trajectory: Trajectory,
+    rate_hz: float,
+    mission_origin: GeodeticPoint,
+    vehicle_origin: GeodeticPoint,
+    *,
+    t_offset_s: float = 0.0,
+    drag_per_s: float | Mapping[str, float] = 0.0,
+) -> NedSetpoints:
+    """Sample ``trajectory`` at ``rate_hz`` and express it in the vehicle's local NED frame.
+
+    Positions go mission ENU -> geodetic -> vehicle NED; velocity and
+    acceleration are rotated between the two tangent planes; yaw becomes a
+    NED heading (planner.frames).
+
+    Args:
+        t_offset_s: sample at ``k / rate_hz + t_offset_s`` (the vehicle's send
+            offset within the period, :func:`mavlink.stream.send_offsets`).
+        drag_per_s: the vehicle's linear drag per unit mass ``c`` (1/s). PX4's position
+            controller does not model drag, so without help the vehicle settles
+            ``c / (MPC_XY_P * MPC_XY_VEL_P_ACC)`` seconds behind a moving setpoint
+            (0.585 s on SIH's quad); the acceleration feed-forward then carries the force
+            the drag takes: ``a_ff = a_plan + c * v_plan``.
+
+    Returns:
+        :class:`NedSetpoints` for ``k = 0 .. ceil(T * rate)`` (the trajectory
+        holds its end state past its duration).
+    """
+    n = math.ceil(trajectory.duration_s * rate_hz - 1e-9) + 1  # as Trajectory.sample
+    t = np.arange(n) / rate_hz + t_offset_s
+    vel = trajectory.velocity(t)
+    acc = trajectory.acceleration(t) + drag_per_s * vel
+    return NedSetpoints(
+        t_s=t,
+        pos_ned_m=enu_to_ned(trajectory.position(t), mission_origin, vehicle_origin),
+        vel_ned_m_s=enu_vector_to_ned(vel, mission_origin, vehicle_origin),
+        acc_ned_m_s2=enu_vector_to_ned(acc, mission_origin, vehicle_origin),
+        yaw_ned_rad=np.asarray(
+            yaw_enu_to_ned(trajectory.yaw_rad(t), mission_origin, vehicle_origin), dtype=float
+        ),
+    )
+
+
+def offboard_sender(offboard: Offboard) -> Callable[..., None]:
+    """A :class:`StreamTarget` sender over MAVSDK's blocking-free setpoint call."""
+    set_pva = offboard.set_position_velocity_acceleration_ned
+
+    def send(
+        n: float,
+        e: float,
+        d: float,
+        vn: float,
+        ve: float,
+        vd: float,
+        an: float,
+        ae: float,
+        ad: float,
+        yaw_deg: float,
+    ) -> None:
+        set_pva(
+            PositionNedYaw(n, e, d, yaw_deg),
+            VelocityNedYaw(vn, ve, vd, yaw_deg),
+            AccelerationNed(an, ae, ad),
+        )
+
+    return send

@@ -1,0 +1,648 @@
+"""One PX4 vehicle as the ground station sees it: its MAVSDK plugins, live state, commands.
+
+:class:`Vehicle` subscribes to the vehicle's telemetry (MAVSDK's telemetry plugin and
+mavlink_direct messages: HEARTBEAT, GPS_GLOBAL_ORIGIN, STATUSTEXT, ESTIMATOR_STATUS,
+PARAM_VALUE); the callbacks update its state directly on MAVSDK's callback thread under a
+lock, and :meth:`Vehicle.status` takes a consistent :class:`VehicleStatus` snapshot. Its
+commands (arm, modes, take-off, go-to, COMMAND_LONG, parameters, telemetry rates) are
+coroutines over :func:`mavlink.mavsdk_glue.mavsdk_call`.
+
+A room of its own, apart from :mod:`mavlink.fleet` (which connects N of them through one
+MAVSDK instance): everything here concerns one vehicle's link, and the missions, the
+monitor and the offboard flight work on single vehicles.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from mavsdk.plugins.action import Action, ActionResult
+from mavsdk.plugins.mavlink_direct import MavlinkDirect, MavlinkDirectResult, MavlinkMessage
+from mavsdk.plugins.mission_raw import MissionRaw
+from mavsdk.plugins.offboard import Offboard
+from mavsdk.plugins.telemetry import Telemetry, TelemetryResult
+
+from mavlink.errors import CommandError, LinkError, LinkLostError
+from mavlink.mavsdk_glue import MAV_RESULT_NAMES, mavsdk_call, resolve_future
+from mavlink.px4_modes import (
+    MAV_CMD_DO_SET_MODE,
+    Px4Mode,
+    UnknownModeError,
+    decode_custom_mode,
+    set_mode_params,
+)
+from planner.frames import GeodeticPoint
+
+log = logging.getLogger(__name__)
+
+MAV_CMD_NAV_TAKEOFF = 22
+
+#: STATUSTEXTs kept per vehicle (the latest).
+_KEPT_TEXTS = 50
+#: MAV_PARAM_TYPE values of integer parameters (UINT8 .. INT64).
+_INT_PARAM_TYPES = frozenset(range(1, 9))
+
+#: MAVSDK results of a request that got no (usable) answer: worth sending again on a bad link.
+_UNANSWERED = frozenset({"TIMEOUT", "BUSY", "NO_SYSTEM", "CONNECTION_ERROR", "UNKNOWN"})
+
+
+# --------------------------------------------------------------------------
+# Values
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleSpec:
+    """How to reach one vehicle.
+
+    Attributes:
+        name: the plan's vehicle name (``"d1"``).
+        url: connection URL (validated by :func:`mavlink.urls.parse_url`).
+        sysid: the MAVLink system id the vehicle uses (1..255).
+    """
+
+    name: str
+    url: str
+    sysid: int
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleStatus:
+    """A snapshot of one vehicle's state as the GCS last heard it.
+
+    Fields are ``None`` until the corresponding message has arrived.
+
+    Attributes:
+        name, sysid, url: the vehicle.
+        connected: a heartbeat arrived within the link timeout.
+        armed: from HEARTBEAT.base_mode.
+        in_air: from EXTENDED_SYS_STATE.landed_state (MAVSDK's in-air flag).
+        mode: decoded PX4 mode, ``None`` if unknown (``custom_mode`` keeps the raw value).
+        custom_mode: raw HEARTBEAT.custom_mode.
+        pos_ned_m: local position (north, east, down), metres, LOCAL_POSITION_NED.
+        vel_ned_m_s: local velocity, m/s.
+        position: GLOBAL_POSITION_INT (altitude AMSL).
+        relative_alt_m: altitude above home, metres.
+        home: HOME_POSITION (altitude AMSL).
+        origin: GPS_GLOBAL_ORIGIN (the EKF origin of the local frame).
+        battery_remaining: 0..1.
+        battery_voltage_v: volts.
+        heartbeat_age_s: seconds since the last heartbeat.
+        position_age_s: seconds since the last local position.
+        heading_deg: heading, degrees clockwise from north (GLOBAL_POSITION_INT.hdg).
+    """
+
+    name: str
+    sysid: int
+    url: str
+    connected: bool
+    armed: bool | None
+    in_air: bool | None
+    mode: Px4Mode | None
+    custom_mode: int | None
+    pos_ned_m: tuple[float, float, float] | None
+    vel_ned_m_s: tuple[float, float, float] | None
+    position: GeodeticPoint | None
+    relative_alt_m: float | None
+    home: GeodeticPoint | None
+    origin: GeodeticPoint | None
+    battery_remaining: float | None
+    battery_voltage_v: float | None
+    heartbeat_age_s: float | None
+    position_age_s: float | None
+    heading_deg: float | None = None
+
+
+# --------------------------------------------------------------------------
+# One vehicle
+# --------------------------------------------------------------------------
+
+
+class Vehicle:
+    """One connected vehicle: its MAVSDK plugins and live state.
+
+    Telemetry callbacks run on MAVSDK's thread and update the state under a
+    lock; :meth:`status` takes a consistent snapshot. Commands are
+    coroutines that raise :class:`CommandError` naming the vehicle, its URL
+    and the MAVSDK result.
+    """
+
+    def __init__(self, spec: VehicleSpec, system: Any, *, link_timeout_s: float) -> None:
+        self.spec = spec
+        self.name = spec.name
+        self.url = spec.url
+        self.link_timeout_s = link_timeout_s
+        self.system = system
+        self.action = Action(system)
+        self.telemetry = Telemetry(system)
+        self.offboard = Offboard(system)
+        self.mission_raw = MissionRaw(system)
+        self.direct = MavlinkDirect(system)
+        self._lock = threading.Lock()
+        self._armed: bool | None = None
+        self._in_air: bool | None = None
+        self._custom_mode: int | None = None
+        self._mode: Px4Mode | None = None
+        self._pos_ned: tuple[float, float, float] | None = None
+        self._vel_ned: tuple[float, float, float] | None = None
+        self._position: GeodeticPoint | None = None
+        self._rel_alt: float | None = None
+        self._home: GeodeticPoint | None = None
+        self._origin: GeodeticPoint | None = None
+        self._battery: tuple[float, float] | None = None
+        self._heading: float | None = None
+        self._t_heartbeat: float | None = None
+        self._t_position: float | None = None
+        self._track: list[tuple[float, ...]] | None = None
+        self._texts: list[tuple[float, int, str]] = []
+        self._pos_accuracy: tuple[float, float] | None = None
+        self._track_accuracy: tuple[float, float] | None = None
+        self._params: dict[str, float] = {}
+        self._param_waiters: dict[str, list[asyncio.Future[float]]] = {}
+        self._handles: list[tuple[Callable[[Any], None], Any]] = []
+        self._subscribe()
+
+    # -- telemetry ------------------------------------------------------
+
+    def _subscribe(self) -> None:
+        tel = self.telemetry
+        self._handles += [
+            (
+                tel.unsubscribe_position_velocity_ned,
+                tel.subscribe_position_velocity_ned(self._on_pv),
+            ),
+            (tel.unsubscribe_position, tel.subscribe_position(self._on_position)),
+            (tel.unsubscribe_home, tel.subscribe_home(self._on_home)),
+            (tel.unsubscribe_battery, tel.subscribe_battery(self._on_battery)),
+            (tel.unsubscribe_in_air, tel.subscribe_in_air(self._on_in_air)),
+            (tel.unsubscribe_heading, tel.subscribe_heading(self._on_heading)),
+            (
+                self.direct.unsubscribe_message,
+                self.direct.subscribe_message("HEARTBEAT", self._on_heartbeat),
+            ),
+            (
+                self.direct.unsubscribe_message,
+                self.direct.subscribe_message("GPS_GLOBAL_ORIGIN", self._on_origin),
+            ),
+            (
+                self.direct.unsubscribe_message,
+                self.direct.subscribe_message("STATUSTEXT", self._on_statustext),
+            ),
+            (
+                self.direct.unsubscribe_message,
+                self.direct.subscribe_message("ESTIMATOR_STATUS", self._on_estimator_status),
+            ),
+            (
+                self.direct.unsubscribe_message,
+                self.direct.subscribe_message("PARAM_VALUE", self._on_param_value),
+            ),
+        ]
+
+    def _on_pv(self, pv: Any, _ud: Any) -> None:
+        t = time.monotonic()
+        p, v = pv.position, pv.velocity
+        pos = (float(p.north_m), float(p.east_m), float(p.down_m))
+        vel = (float(v.north_m_s), float(v.east_m_s), float(v.down_m_s))
+        with self._lock:
+            self._pos_ned, self._vel_ned, self._t_position = pos, vel, t
+            if self._track is not None:
+                self._track.append((t, *pos, *vel))
+
+    def _on_position(self, p: Any, _ud: Any) -> None:
+        point = GeodeticPoint(
+            float(p.latitude_deg), float(p.longitude_deg), float(p.absolute_altitude_m)
+        )
+        with self._lock:
+            self._position, self._rel_alt = point, float(p.relative_altitude_m)
+
+    def _on_home(self, h: Any, _ud: Any) -> None:
+        point = GeodeticPoint(
+            float(h.latitude_deg), float(h.longitude_deg), float(h.absolute_altitude_m)
+        )
+        with self._lock:
+            self._home = point
+
+    def _on_battery(self, b: Any, _ud: Any) -> None:
+        remaining = float(b.remaining_percent)
+        # MAVSDK reports percent (0..100) from SYS_STATUS / BATTERY_STATUS.
+        with self._lock:
+            self._battery = (remaining / 100.0, float(b.voltage_v))
+
+    def _on_heading(self, h: Any, _ud: Any) -> None:
+        with self._lock:
+            self._heading = float(h.heading_deg)
+
+    def _on_in_air(self, in_air: bool, _ud: Any) -> None:
+        with self._lock:
+            self._in_air = bool(in_air)
+
+    def _on_heartbeat(self, msg: MavlinkMessage, _ud: Any) -> None:
+        if msg.component_id != 1:  # only the autopilot's heartbeat
+            return
+        fields = json.loads(msg.fields_json)
+        custom = int(fields["custom_mode"])
+        try:
+            mode: Px4Mode | None = decode_custom_mode(custom)
+        except UnknownModeError as exc:
+            mode = None  # kept raw in custom_mode; status shows mode=None
+            log.debug("vehicle %s: %s", self.name, exc)
+        armed = bool(int(fields["base_mode"]) & 128)
+        with self._lock:
+            self._custom_mode, self._mode, self._armed = custom, mode, armed
+            self._t_heartbeat = time.monotonic()
+
+    def _on_origin(self, msg: MavlinkMessage, _ud: Any) -> None:
+        f = json.loads(msg.fields_json)
+        point = GeodeticPoint(f["latitude"] * 1e-7, f["longitude"] * 1e-7, f["altitude"] * 1e-3)
+        with self._lock:
+            self._origin = point
+
+    def _on_statustext(self, msg: MavlinkMessage, _ud: Any) -> None:
+        if msg.system_id != self.spec.sysid:
+            return
+        f = json.loads(msg.fields_json)
+        text = f.get("text", "")
+        if isinstance(text, list):  # a char array may come as its codes
+            text = "".join(chr(c) for c in text if c)
+        with self._lock:
+            self._texts.append((time.monotonic(), int(f.get("severity", 6)), str(text)))
+            del self._texts[:-_KEPT_TEXTS]
+
+    def _on_estimator_status(self, msg: MavlinkMessage, _ud: Any) -> None:
+        f = json.loads(msg.fields_json)
+        acc = (
+            float(f.get("pos_horiz_accuracy", math.nan)),
+            float(f.get("pos_vert_accuracy", math.nan)),
+        )
+        with self._lock:
+            self._pos_accuracy = acc
+
+    def _on_param_value(self, msg: MavlinkMessage, _ud: Any) -> None:
+        f = json.loads(msg.fields_json)
+        name = f.get("param_id", "")
+        if isinstance(name, list):
+            name = "".join(chr(c) for c in name if c)
+        name = str(name).rstrip("\x00")
+        value = float(f.get("param_value", math.nan))
+        if int(f.get("param_type", 9)) in _INT_PARAM_TYPES:
+            # PX4 sends integer parameters bit-cast into the float field (MAV_PARAM_TYPE).
+            value = float(np.frombuffer(np.float32(value).tobytes(), dtype=np.int32)[0])
+        with self._lock:
+            self._params[name] = value
+            waiters = self._param_waiters.pop(name, [])
+        for fut in waiters:
+            fut.get_loop().call_soon_threadsafe(resolve_future, fut, value)
+
+    def statustexts(self, since_monotonic_s: float = 0.0) -> list[tuple[int, str]]:
+        """STATUSTEXTs heard since ``since_monotonic_s`` (severity, text), oldest first."""
+        with self._lock:
+            return [(sev, text) for t, sev, text in self._texts if t >= since_monotonic_s]
+
+    @property
+    def position_accuracy_m(self) -> tuple[float, float] | None:
+        """The estimator's reported (horizontal, vertical) position accuracy, 1-sigma metres
+        (ESTIMATOR_STATUS), ``None`` before one arrived."""
+        with self._lock:
+            return self._pos_accuracy
+
+    def _send_param_message(self, message: str, name: str, **fields: float | int) -> None:
+        """Send PARAM_REQUEST_READ / PARAM_SET for parameter ``name`` to the autopilot."""
+        body = {"target_system": self.spec.sysid, "target_component": 1, "param_id": name}
+        self.direct.send_message(
+            MavlinkMessage(
+                message_name=message,
+                target_system_id=self.spec.sysid,
+                target_component_id=1,
+                fields_json=json.dumps({**body, **fields}),
+            )
+        )
+
+    async def param(self, name: str, *, timeout_s: float = 1.0, retries: int = 3) -> float | None:
+        """The vehicle's parameter ``name`` (PARAM_REQUEST_READ; integers as their value).
+
+        Sent through mavlink_direct, so it never blocks the event loop (MAVSDK's param
+        plugin does); ``None`` if the vehicle did not answer (unknown name, lossy link).
+        """
+        with self._lock:
+            if name in self._params:
+                return self._params[name]
+        loop = asyncio.get_running_loop()
+        for _ in range(retries):
+            fut: asyncio.Future[float] = loop.create_future()
+            with self._lock:
+                self._param_waiters.setdefault(name, []).append(fut)
+            self._send_param_message("PARAM_REQUEST_READ", name, param_index=-1)
+            try:
+                return await asyncio.wait_for(fut, timeout_s)
+            except TimeoutError:
+                continue
+        return None
+
+    async def set_param_int(self, name: str, value: int, *, timeout_s: float = 1.0) -> None:
+        """Set an INT32 parameter (PARAM_SET, the integer bit-cast into the float field as
+        PX4 expects) and require the vehicle's PARAM_VALUE echo to carry it.
+
+        Raises:
+            CommandError: no echo, or the vehicle kept another value.
+        """
+        raw = float(np.frombuffer(np.int32(value).tobytes(), dtype=np.float32)[0])
+        loop = asyncio.get_running_loop()
+        for _ in range(3):
+            fut: asyncio.Future[float] = loop.create_future()
+            with self._lock:
+                self._params.pop(name, None)
+                self._param_waiters.setdefault(name, []).append(fut)
+            self._send_param_message("PARAM_SET", name, param_value=raw, param_type=6)  # INT32
+            try:
+                got = await asyncio.wait_for(fut, timeout_s)
+            except TimeoutError:
+                continue
+            if int(got) != int(value):
+                raise self._fail(f"set {name} = {value}", f"the vehicle kept {int(got)}")
+            return
+        raise self._fail(f"set {name} = {value}", "TIMEOUT")
+
+    def status(self, now: float | None = None) -> VehicleStatus:
+        """A consistent snapshot of the vehicle's state."""
+        now = time.monotonic() if now is None else now
+        with self._lock:
+            hb_age = None if self._t_heartbeat is None else now - self._t_heartbeat
+            pos_age = None if self._t_position is None else now - self._t_position
+            return VehicleStatus(
+                name=self.name,
+                sysid=self.spec.sysid,
+                url=self.url,
+                connected=hb_age is not None and hb_age <= self.link_timeout_s,
+                armed=self._armed,
+                in_air=self._in_air,
+                mode=self._mode,
+                custom_mode=self._custom_mode,
+                pos_ned_m=self._pos_ned,
+                vel_ned_m_s=self._vel_ned,
+                position=self._position,
+                relative_alt_m=self._rel_alt,
+                home=self._home,
+                origin=self._origin,
+                battery_remaining=None if self._battery is None else self._battery[0],
+                battery_voltage_v=None if self._battery is None else self._battery[1],
+                heartbeat_age_s=hb_age,
+                position_age_s=pos_age,
+                heading_deg=self._heading,
+            )
+
+    # -- recording of the flown track ----------------------------------
+
+    def start_track(self) -> None:
+        """Start recording every LOCAL_POSITION_NED sample (receive time, pos, vel), and the
+        worst estimator accuracy reported meanwhile (:attr:`track_accuracy_m`)."""
+        with self._lock:
+            self._track = []
+            self._track_accuracy = self._pos_accuracy
+
+    @property
+    def track_accuracy_m(self) -> tuple[float, float] | None:
+        """The worst (horizontal, vertical) position accuracy ESTIMATOR_STATUS reported while
+        the track was recorded (1-sigma, m); ``None`` if none was reported."""
+        with self._lock:
+            return self._track_accuracy
+
+    def stop_track(self) -> np.ndarray:
+        """Stop recording; ``(k, 7)`` rows ``(t_monotonic_s, n, e, d, vn, ve, vd)``."""
+        with self._lock:
+            rows, self._track = self._track, None
+        if not rows:
+            return np.zeros((0, 7))
+        return np.asarray(rows, dtype=float)
+
+    # -- commands -------------------------------------------------------
+
+    def _fail(self, what: str, result: Any) -> CommandError:
+        name = getattr(result, "name", str(result))
+        return CommandError(f"{what} failed: {name}", result=name, vehicle=self.name, url=self.url)
+
+    async def _action(self, what: str, start: Callable[..., None], *args: Any) -> None:
+        try:
+            result = await mavsdk_call(start, *args)
+        except TimeoutError:
+            raise self._fail(what, "TIMEOUT") from None
+        if result != ActionResult.SUCCESS:
+            raise self._fail(what, result)
+
+    async def arm(self) -> None:
+        """Arm (MAV_CMD_COMPONENT_ARM_DISARM)."""
+        await self._action("arm", self.action.arm_async)
+
+    async def disarm(self) -> None:
+        """Disarm."""
+        await self._action("disarm", self.action.disarm_async)
+
+    async def hold(self) -> None:
+        """Switch to Hold (AUTO.LOITER) where the vehicle is."""
+        await self._action("hold", self.action.hold_async)
+
+    async def land(self) -> None:
+        """Land where the vehicle is (AUTO.LAND)."""
+        await self._action("land", self.action.land_async)
+
+    async def return_to_launch(self) -> None:
+        """Return to launch (AUTO.RTL)."""
+        await self._action("return to launch", self.action.return_to_launch_async)
+
+    async def command_long(self, what: str, command: int, *params: float) -> None:
+        """Send COMMAND_LONG ``command`` (params 1..7, missing ones 0) and require ACCEPTED.
+
+        Goes through MAVSDK's mavlink_direct ``send_command`` (retransmission
+        until the final COMMAND_ACK), for commands MAVSDK has no action for.
+
+        Raises:
+            CommandError: no final ack, or a result other than ACCEPTED.
+        """
+        if len(params) > 7:
+            raise ValueError("COMMAND_LONG has 7 params")
+        p = [float(x) for x in params] + [0.0] * (7 - len(params))
+        fields: dict[str, float | int] = {
+            "target_system": self.spec.sysid,
+            "target_component": 1,
+            "command": int(command),
+            "confirmation": 0,
+        }
+        fields.update({f"param{i + 1}": (None if math.isnan(x) else x) for i, x in enumerate(p)})  # type: ignore[misc]
+        msg = MavlinkMessage(
+            message_name="COMMAND_LONG",
+            target_system_id=self.spec.sysid,
+            target_component_id=1,
+            fields_json=json.dumps(fields),
+        )
+        try:
+            result, ack = await mavsdk_call(self.direct.send_command_async, msg)
+        except TimeoutError:
+            raise self._fail(what, "TIMEOUT") from None
+        if result != MavlinkDirectResult.SUCCESS:
+            raise self._fail(what, result)
+        code = int(json.loads(ack.fields_json)["result"])
+        if code != 0:
+            raise self._fail(what, MAV_RESULT_NAMES.get(code, f"MAV_RESULT {code}"))
+
+    async def set_mode(self, mode: Px4Mode) -> None:
+        """Switch to any PX4 mode with MAV_CMD_DO_SET_MODE (params from :mod:`px4_modes`)."""
+        await self.command_long(
+            f"set mode {mode.label}", MAV_CMD_DO_SET_MODE, *set_mode_params(mode)
+        )
+
+    async def takeoff_to(self, alt_amsl_m: float, yaw_deg: float = math.nan) -> None:
+        """Take off (AUTO.TAKEOFF) straight up to ``alt_amsl_m`` (metres AMSL), turning to
+        ``yaw_deg`` (NED heading, degrees; NaN keeps the heading) on the way.
+
+        MAV_CMD_NAV_TAKEOFF with param7 the altitude, param4 the yaw and NaN lat/lon (here),
+        as PX4 accepts it. MAVSDK's ``Action.takeoff`` would first need
+        ``set_takeoff_altitude`` (the MIS_TAKEOFF_ALT parameter), whose
+        ``*_async`` form in MAVSDK 4.1.0 blocks the calling thread for the
+        whole parameter transaction (measured: 3 s, its timeout, when the
+        vehicle answers on the same event loop) - unusable from asyncio.
+        """
+        nan = float("nan")
+        await self.command_long(
+            "takeoff",
+            MAV_CMD_NAV_TAKEOFF,
+            0.0,
+            0.0,
+            0.0,
+            float(yaw_deg),
+            nan,
+            nan,
+            float(alt_amsl_m),
+        )
+
+    async def goto(self, lat_deg: float, lon_deg: float, alt_amsl_m: float, yaw_deg: float) -> None:
+        """Fly to a point and hold there (MAV_CMD_DO_REPOSITION as COMMAND_INT, via MAVSDK's
+        ``goto_location``: lat/lon at 1e-7 degrees, not float32)."""
+        await self._action(
+            "go to", self.action.goto_location_async, lat_deg, lon_deg, alt_amsl_m, yaw_deg
+        )
+
+    async def set_current_item(self, seq: int) -> None:
+        """Make mission item ``seq`` the current one (where AUTO.MISSION starts)."""
+        from mavsdk.plugins.mission_raw import MissionRawResult
+
+        try:
+            result = await mavsdk_call(self.mission_raw.set_current_mission_item_async, int(seq))
+        except TimeoutError:
+            result = "TIMEOUT"
+        if result != MissionRawResult.SUCCESS:
+            raise self._fail(f"set current mission item {seq}", result)
+
+    async def request_origin(self, timeout_s: float = 5.0) -> GeodeticPoint:
+        """The EKF origin of the vehicle's local frame (GPS_GLOBAL_ORIGIN).
+
+        Uses the last streamed GPS_GLOBAL_ORIGIN if one arrived, else asks
+        for it (MAVSDK sends MAV_CMD_REQUEST_MESSAGE).
+
+        Raises:
+            LinkError: the vehicle did not report an origin.
+        """
+        with self._lock:
+            if self._origin is not None:
+                return self._origin
+        try:
+            result, origin = await mavsdk_call(
+                self.telemetry.get_gps_global_origin_async, timeout_s=timeout_s
+            )
+        except TimeoutError:
+            result, origin = "TIMEOUT", None
+        if result != TelemetryResult.SUCCESS:
+            name = getattr(result, "name", str(result))
+            raise LinkError(
+                f"no GPS_GLOBAL_ORIGIN (EKF origin) from the vehicle: {name}",
+                vehicle=self.name,
+                url=self.url,
+            )
+        point = GeodeticPoint(
+            float(origin.latitude_deg), float(origin.longitude_deg), float(origin.altitude_m)
+        )
+        with self._lock:
+            self._origin = point
+        return point
+
+    async def wait_for(
+        self,
+        predicate: Callable[[VehicleStatus], bool],
+        what: str,
+        *,
+        timeout_s: float,
+        poll_s: float = 0.05,
+    ) -> VehicleStatus:
+        """Wait until ``predicate(status())`` holds.
+
+        Raises:
+            LinkLostError: the link timed out meanwhile.
+            LinkError: ``what`` did not happen within ``timeout_s``.
+        """
+        deadline = time.monotonic() + timeout_s
+        while True:
+            st = self.status()
+            if predicate(st):
+                return st
+            if st.heartbeat_age_s is not None and not st.connected:
+                raise LinkLostError(
+                    f"link lost (no heartbeat for {st.heartbeat_age_s:.1f} s) while waiting for {what}",
+                    vehicle=self.name,
+                    url=self.url,
+                )
+            if time.monotonic() >= deadline:
+                raise LinkError(
+                    f"timed out after {timeout_s:.1f} s waiting for {what} "
+                    f"(mode {st.mode.label if st.mode else st.custom_mode}, "
+                    f"armed {st.armed}, position NED {_fmt(st.pos_ned_m)})",
+                    vehicle=self.name,
+                    url=self.url,
+                )
+            await asyncio.sleep(poll_s)
+
+    async def set_telemetry_rate(self, rate_hz: float, *, retry_for_s: float = 0.0) -> None:
+        """Ask for LOCAL_POSITION_NED and GLOBAL_POSITION_INT at ``rate_hz``.
+
+        A request left unanswered (MAVSDK's own command retries all lost on a bad link) is
+        sent again for up to ``retry_for_s`` seconds; setting a rate twice is harmless. A
+        refusal (DENIED, UNSUPPORTED) is not retried.
+
+        Raises:
+            CommandError: refused, or still unanswered after ``retry_for_s`` (names the
+                attempts).
+        """
+        deadline = time.monotonic() + retry_for_s
+        for what, start in (
+            ("set rate of local position", self.telemetry.set_rate_position_velocity_ned_async),
+            ("set rate of global position", self.telemetry.set_rate_position_async),
+        ):
+            attempts = 0
+            while True:
+                attempts += 1
+                try:
+                    result = await mavsdk_call(start, float(rate_hz))
+                except TimeoutError:
+                    result = "TIMEOUT"
+                if result == TelemetryResult.SUCCESS:
+                    break
+                name = getattr(result, "name", str(result))
+                if name not in _UNANSWERED or time.monotonic() >= deadline:
+                    tries = f" ({attempts} attempts in {retry_for_s:.1f} s)" if attempts > 1 else ""
+                    raise self._fail(what + tries, result)
+
+    def close(self) -> None:
+        """Drop the telemetry subscriptions (the plugins die with the Mavsdk instance)."""
+        handles, self._handles = self._handles, []
+        for unsubscribe, handle in handles:
+            unsubscribe(handle)
+
+
+def _fmt(p: tuple[float, float, float] | None) -> str:
+    return "unknown" if p is None else "(" + ", ".join(f"{x:.2f}" for x in p) + ")"

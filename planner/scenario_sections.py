@@ -1,0 +1,410 @@
+"""Reading a scenario's YAML sections: typed values with key paths, boxes, limits, vehicles, solver.
+
+:class:`ScenarioError` and ``_Reader`` turn every wrong value into one line naming the file
+and the key path (``vehicles[2].start``); the section readers here build the parts of a
+:class:`planner.problem.Problem`: boxes of the workspace and the regions, per-axis limits,
+the vehicles (a list, or a generator with grid starts and groups by fraction) and the solver
+options.  A room of its own: everything that checks one YAML value against its type and
+range, apart from how :func:`planner.scenario.parse_scenario` puts the sections together
+and how :mod:`planner.scenario_spec` expands the spec.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import re
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from planner.errors import FileFieldError
+from planner.predicates import PREDICATES
+from planner.problem import QP_SOLVERS, SolverMethod, SolverOptions, Vehicle
+from planner.regions import Region, RegionKind
+
+__all__ = ["ScenarioError"]
+
+
+class ScenarioError(FileFieldError):
+    """A mistake in a scenario file: ``"<file>: <key path>: <problem>"``."""
+
+
+_NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+_RESERVED = {
+    "true",
+    "false",
+    "not",
+    "and",
+    "or",
+    "implies",
+    "always",
+    "eventually",
+    "until",
+    "G",
+    "F",
+    "U",
+    "pairs",
+    "in",
+    # The spec's function names (planner.scenario_spec.FUNCTION_NAMES has the same keys).
+    *PREDICATES,
+}
+
+
+class _Reader:
+    """Typed access to YAML values that raises ScenarioError with the key path."""
+
+    def __init__(self, source: str) -> None:
+        self.source = source
+
+    def fail(self, path: str, problem: str) -> ScenarioError:
+        return ScenarioError(self.source, path, problem)
+
+    def mapping(self, value: Any, path: str, allowed: set[str] | None = None) -> dict[str, Any]:
+        if not isinstance(value, dict):
+            raise self.fail(path, f"expected a mapping, got {_kind(value)}")
+        for key in value:
+            if not isinstance(key, str):
+                raise self.fail(path, f"keys must be strings, got {key!r}")
+            if allowed is not None and key not in allowed:
+                raise self.fail(
+                    _join(path, key), f"unknown key (allowed: {', '.join(sorted(allowed))})"
+                )
+        return value
+
+    def require(self, m: Mapping[str, Any], key: str, path: str) -> Any:
+        if key not in m:
+            raise self.fail(_join(path, key), "missing")
+        return m[key]
+
+    def number(
+        self,
+        value: Any,
+        path: str,
+        *,
+        positive: bool = False,
+        nonnegative: bool = False,
+    ) -> float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise self.fail(path, f"expected a number, got {_kind(value)}")
+        x = float(value)
+        if not math.isfinite(x):
+            raise self.fail(path, f"must be finite, got {x}")
+        if positive and x <= 0:
+            raise self.fail(path, f"must be > 0, got {x:g}")
+        if nonnegative and x < 0:
+            raise self.fail(path, f"must be >= 0, got {x:g}")
+        return x
+
+    def integer(self, value: Any, path: str, *, minimum: int | None = None) -> int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.fail(path, f"expected an integer, got {_kind(value)}")
+        if minimum is not None and value < minimum:
+            raise self.fail(path, f"must be >= {minimum}, got {value}")
+        return int(value)
+
+    def vec3(self, value: Any, path: str) -> tuple[float, float, float]:
+        if not isinstance(value, list | tuple) or len(value) != 3:
+            raise self.fail(path, f"expected a list of 3 numbers [x, y, z], got {_kind(value)}")
+        x, y, z = (self.number(v, f"{path}[{i}]") for i, v in enumerate(value))
+        return (x, y, z)
+
+    def per_axis(self, value: Any, path: str) -> tuple[float, float, float]:
+        """A positive limit: one number for all axes or [x, y, z]."""
+        if isinstance(value, list | tuple):
+            vals = self.vec3(value, path)
+            for i, v in enumerate(vals):
+                if v <= 0:
+                    raise self.fail(f"{path}[{i}]", f"must be > 0, got {v:g}")
+            return vals
+        v = self.number(value, path, positive=True)
+        return (v, v, v)
+
+    def name(self, value: Any, path: str) -> str:
+        if not isinstance(value, str) or not _NAME_RE.match(value):
+            raise self.fail(path, f"expected an identifier (letters, digits, _), got {value!r}")
+        if value in _RESERVED:
+            raise self.fail(path, f"{value!r} is a reserved word of the spec language")
+        return value
+
+
+def _kind(value: Any) -> str:
+    if value is None:
+        return "nothing"
+    return f"{type(value).__name__} {value!r}" if not isinstance(value, dict) else "a mapping"
+
+
+def _join(path: str, key: str | int) -> str:
+    if isinstance(key, int):
+        return f"{path}[{key}]"
+    return f"{path}.{key}" if path else key
+
+
+def _box(rd: _Reader, value: Any, path: str) -> tuple[np.ndarray, np.ndarray]:
+    """A box given as {min, max} or {center, half_size} (half_size scalar or per axis)."""
+    m = rd.mapping(value, path, {"min", "max", "center", "half_size", "kind"})
+    if "min" in m or "max" in m:
+        if "center" in m or "half_size" in m:
+            raise rd.fail(path, "give either min/max or center/half_size, not both")
+        lo = np.array(rd.vec3(rd.require(m, "min", path), _join(path, "min")))
+        hi = np.array(rd.vec3(rd.require(m, "max", path), _join(path, "max")))
+    elif "center" in m:
+        c = np.array(rd.vec3(m["center"], _join(path, "center")))
+        h = np.array(rd.per_axis(rd.require(m, "half_size", path), _join(path, "half_size")))
+        lo, hi = c - h, c + h
+    else:
+        raise rd.fail(path, "a box needs min/max or center/half_size")
+    for i, axis in enumerate("xyz"):
+        if not lo[i] < hi[i]:
+            raise rd.fail(path, f"empty box: min {axis} {lo[i]:g} is not below max {hi[i]:g}")
+    return lo, hi
+
+
+def _region(rd: _Reader, name: str, value: Any, path: str, kind: RegionKind) -> Region:
+    lo, hi = _box(rd, value, path)
+    return Region(name, kind, tuple(lo.tolist()), tuple(hi.tolist()))  # type: ignore[arg-type]
+
+
+def _limits(rd: _Reader, value: Any, path: str, base: dict[str, Any]) -> dict[str, Any]:
+    allowed = {"v_max_m_s", "a_max_m_s2", "thrust_m_s2", "body_rate_max_rad_s"}
+    m = rd.mapping(value, path, allowed)
+    out = dict(base)
+    if "v_max_m_s" in m:
+        out["v_max_m_s"] = rd.per_axis(m["v_max_m_s"], _join(path, "v_max_m_s"))
+    if "a_max_m_s2" in m:
+        out["a_max_m_s2"] = rd.per_axis(m["a_max_m_s2"], _join(path, "a_max_m_s2"))
+    if "thrust_m_s2" in m:
+        p = _join(path, "thrust_m_s2")
+        t = m["thrust_m_s2"]
+        if not isinstance(t, list) or len(t) != 2:
+            raise rd.fail(p, "expected [min, max] mass-normalised thrust in m/s^2")
+        lo = rd.number(t[0], f"{p}[0]", nonnegative=True)
+        hi = rd.number(t[1], f"{p}[1]", positive=True)
+        if not lo < hi:
+            raise rd.fail(p, f"min {lo:g} must be below max {hi:g}")
+        if hi <= 9.81:
+            raise rd.fail(p, f"max thrust {hi:g} m/s^2 cannot hover (needs > 9.81)")
+        out["thrust_min_m_s2"], out["thrust_max_m_s2"] = lo, hi
+    if "body_rate_max_rad_s" in m:
+        out["body_rate_max_rad_s"] = rd.number(
+            m["body_rate_max_rad_s"], _join(path, "body_rate_max_rad_s"), positive=True
+        )
+    return out
+
+
+def _grid_starts(rd: _Reader, value: Any, path: str, count: int) -> list[np.ndarray]:
+    """``count`` deterministic start points: a grid in a box filled x fastest, then y, then z."""
+    m = rd.mapping(value, path, {"grid", "positions"})
+    if "positions" in m:
+        p = _join(path, "positions")
+        pos = m["positions"]
+        if not isinstance(pos, list):
+            raise rd.fail(p, "expected a list of [x, y, z]")
+        if len(pos) < count:
+            raise rd.fail(p, f"{len(pos)} positions for {count} vehicles")
+        return [np.array(rd.vec3(v, f"{p}[{i}]")) for i, v in enumerate(pos[:count])]
+    g_path = _join(path, "grid")
+    g = rd.mapping(rd.require(m, "grid", path), g_path, {"min", "max", "shape"})
+    lo = np.array(rd.vec3(rd.require(g, "min", g_path), _join(g_path, "min")))
+    hi = np.array(rd.vec3(rd.require(g, "max", g_path), _join(g_path, "max")))
+    shape_v = rd.require(g, "shape", g_path)
+    if not isinstance(shape_v, list) or len(shape_v) != 3:
+        raise rd.fail(_join(g_path, "shape"), "expected [nx, ny, nz]")
+    shape = [rd.integer(s, f"{g_path}.shape[{i}]", minimum=1) for i, s in enumerate(shape_v)]
+    if math.prod(shape) < count:
+        raise rd.fail(g_path, f"grid {shape} has {math.prod(shape)} points for {count} vehicles")
+    axes = [np.linspace(lo[i], hi[i], shape[i]) if shape[i] > 1 else [lo[i]] for i in range(3)]
+    pts = list(itertools.product(axes[2], axes[1], axes[0]))[:count]
+    return [np.array(p[::-1], dtype=float) for p in pts]
+
+
+def _vehicles(
+    rd: _Reader,
+    value: Any,
+    limits: dict[str, Any],
+    vehicles_override: int | None,
+) -> tuple[list[Vehicle], dict[str, list[str]]]:
+    groups: dict[str, list[str]] = {}
+    out: list[Vehicle] = []
+    if isinstance(value, list):
+        if vehicles_override is not None:
+            raise rd.fail(
+                "vehicles", "this scenario lists its vehicles; --vehicles needs a generator"
+            )
+        if not value:
+            raise rd.fail("vehicles", "no vehicles")
+        for i, v in enumerate(value):
+            p = f"vehicles[{i}]"
+            m = rd.mapping(v, p, {"name", "start", "sysid", "limits", "groups"})
+            name = rd.name(rd.require(m, "name", p), _join(p, "name"))
+            sysid = rd.integer(m.get("sysid", i + 1), _join(p, "sysid"), minimum=1)
+            start = rd.vec3(rd.require(m, "start", p), _join(p, "start"))
+            lim = _limits(rd, m["limits"], _join(p, "limits"), limits) if "limits" in m else limits
+            gs = m.get("groups", [])
+            if not isinstance(gs, list):
+                raise rd.fail(_join(p, "groups"), "expected a list of group names")
+            g_names = tuple(rd.name(g, f"{p}.groups[{j}]") for j, g in enumerate(gs))
+            for g in g_names:
+                groups.setdefault(g, []).append(name)
+            out.append(_make_vehicle(rd, p, name, sysid, start, lim, g_names))
+        return out, groups
+    p = "vehicles"
+    m = rd.mapping(value, p, {"count", "max_count", "name", "starts", "groups", "limits"})
+    max_count = rd.integer(m.get("max_count", 16), _join(p, "max_count"), minimum=1)
+    count = rd.integer(rd.require(m, "count", p), _join(p, "count"), minimum=1)
+    if vehicles_override is not None:
+        # Every group needs a vehicle: the fewest a grouped scenario takes is its groups.
+        g_count = len(m["groups"]) if isinstance(m.get("groups"), list) else 0
+        min_count = max(1, g_count)
+        if not min_count <= vehicles_override <= max_count:
+            why = f" ({g_count} groups)" if g_count > 1 else ""
+            raise rd.fail(
+                p,
+                f"--vehicles {vehicles_override} is outside {min_count}..{max_count} "
+                f"for this scenario{why}",
+            )
+        count = vehicles_override
+    if count > max_count:
+        raise rd.fail(_join(p, "count"), f"{count} exceeds max_count {max_count}")
+    pattern = m.get("name", "d{i}")
+    if not isinstance(pattern, str) or "{i}" not in pattern:
+        raise rd.fail(_join(p, "name"), "expected a pattern containing {i}, e.g. 'd{i}'")
+    starts = _grid_starts(rd, rd.require(m, "starts", p), _join(p, "starts"), count)
+    lim = _limits(rd, m["limits"], _join(p, "limits"), limits) if "limits" in m else limits
+    # Groups by fraction: contiguous blocks in vehicle order, sizes rounded so that they sum
+    # to the count (the first groups get the extra vehicle).
+    g_spec = m.get("groups", [])
+    if not isinstance(g_spec, list):
+        raise rd.fail(_join(p, "groups"), "expected a list of {name, fraction}")
+    fractions: list[tuple[str, float]] = []
+    for j, g in enumerate(g_spec):
+        gp = f"{p}.groups[{j}]"
+        gm = rd.mapping(g, gp, {"name", "fraction"})
+        fractions.append(
+            (
+                rd.name(rd.require(gm, "name", gp), _join(gp, "name")),
+                rd.number(rd.require(gm, "fraction", gp), _join(gp, "fraction"), positive=True),
+            )
+        )
+    if fractions and abs(sum(f for _, f in fractions) - 1.0) > 1e-9:
+        raise rd.fail(_join(p, "groups"), "fractions must sum to 1")
+    if fractions and count < len(fractions):
+        raise rd.fail(p, f"{count} vehicles cannot fill {len(fractions)} groups")
+    sizes = [math.floor(f * count) for _, f in fractions]
+    for j in range(count - sum(sizes) if sizes else 0):
+        sizes[j % len(sizes)] += 1
+    member_of: list[tuple[str, ...]] = [() for _ in range(count)]
+    idx = 0
+    for (g, _), size in zip(fractions, sizes, strict=True):
+        for _ in range(size):
+            member_of[idx] = (g,)
+            idx += 1
+    for i in range(count):
+        name = pattern.replace("{i}", str(i + 1))
+        rd.name(name, _join(p, "name"))
+        for g in member_of[i]:
+            groups.setdefault(g, []).append(name)
+        start = tuple(starts[i].tolist())
+        out.append(_make_vehicle(rd, p, name, i + 1, start, lim, member_of[i]))  # type: ignore[arg-type]
+    return out, groups
+
+
+def _make_vehicle(
+    rd: _Reader,
+    path: str,
+    name: str,
+    sysid: int,
+    start: tuple[float, float, float],
+    lim: dict[str, Any],
+    groups: tuple[str, ...],
+) -> Vehicle:
+    for key in ("v_max_m_s", "a_max_m_s2"):
+        if key not in lim:
+            raise rd.fail(_join(path, "limits"), f"{key} missing (give it in limits)")
+    return Vehicle(
+        name=name,
+        sysid=sysid,
+        start_enu_m=start,
+        v_max_m_s=lim["v_max_m_s"],
+        a_max_m_s2=lim["a_max_m_s2"],
+        thrust_min_m_s2=lim.get("thrust_min_m_s2"),
+        thrust_max_m_s2=lim.get("thrust_max_m_s2"),
+        body_rate_max_rad_s=lim.get("body_rate_max_rad_s"),
+        groups=groups,
+    )
+
+
+def _solver(rd: _Reader, value: Any) -> SolverOptions:
+    allowed = {
+        "method",
+        "hessian",
+        "max_iter",
+        "tol",
+        "k",
+        "continuation",
+        "robustness_constraint",
+        "constraint_dt_s",
+        "robustness_cap_m",
+        "lbfgs_history",
+        "qpsol",
+        "separation_curvature",
+        "print_level",
+    }
+    m = rd.mapping(value, "solver", allowed)
+    kw: dict[str, Any] = {}
+    if "method" in m:
+        try:
+            kw["method"] = SolverMethod(m["method"])
+        except ValueError:
+            raise rd.fail(
+                "solver.method", f"unknown method {m['method']!r} (ipopt, sqpmethod)"
+            ) from None
+    if "hessian" in m:
+        if m["hessian"] not in ("exact", "limited-memory"):
+            raise rd.fail("solver.hessian", "expected 'exact' or 'limited-memory'")
+        kw["hessian"] = m["hessian"]
+    elif kw.get("method") is SolverMethod.SQP:
+        # sqpmethod's measured default: an exact (indefinite) Hessian has to be regularised
+        # into crawling steps (benchmarks/bench_solvers.py); BFGS converges.
+        kw["hessian"] = "limited-memory"
+    if "max_iter" in m:
+        kw["max_iter"] = rd.integer(m["max_iter"], "solver.max_iter", minimum=1)
+    if "tol" in m:
+        kw["tol"] = rd.number(m["tol"], "solver.tol", positive=True)
+    if "k" in m and m["k"] != "auto":
+        kw["k"] = rd.number(m["k"], "solver.k", positive=True)
+    if "continuation" in m:
+        c = m["continuation"]
+        if not isinstance(c, list):
+            raise rd.fail("solver.continuation", "expected a list of k values")
+        kw["continuation"] = tuple(
+            rd.number(x, f"solver.continuation[{i}]", positive=True) for i, x in enumerate(c)
+        )
+    if "robustness_constraint" in m:
+        if not isinstance(m["robustness_constraint"], bool):
+            raise rd.fail("solver.robustness_constraint", "expected true or false")
+        kw["robustness_constraint"] = m["robustness_constraint"]
+    if "constraint_dt_s" in m:
+        kw["constraint_dt_s"] = rd.number(
+            m["constraint_dt_s"], "solver.constraint_dt_s", positive=True
+        )
+    if "robustness_cap_m" in m:
+        kw["robustness_cap_m"] = rd.number(
+            m["robustness_cap_m"], "solver.robustness_cap_m", positive=True
+        )
+    if "qpsol" in m:
+        if m["qpsol"] not in QP_SOLVERS:
+            raise rd.fail(
+                "solver.qpsol", f"unknown QP solver {m['qpsol']!r} ({', '.join(QP_SOLVERS)})"
+            )
+        kw["qpsol"] = m["qpsol"]
+    if "lbfgs_history" in m:
+        kw["lbfgs_history"] = rd.integer(m["lbfgs_history"], "solver.lbfgs_history", minimum=1)
+    if "separation_curvature" in m:
+        if not isinstance(m["separation_curvature"], bool):
+            raise rd.fail("solver.separation_curvature", "expected true or false")
+        kw["separation_curvature"] = m["separation_curvature"]
+    if "print_level" in m:
+        kw["print_level"] = rd.integer(m["print_level"], "solver.print_level", minimum=0)
+    return SolverOptions(**kw)
