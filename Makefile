@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: test test-fast demo lint venv clean
+.PHONY: test test-fast demo lint typecheck venv clean
 
 venv: $(STAMP)
 
@@ -18,14 +18,18 @@ lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 
+# planner, mavlink and gcs ([tool.mypy] in pyproject.toml; every def typed in planner and gcs)
+typecheck: $(STAMP)
+	$(BIN)/mypy
+
 # Two workers: most tests wait on real-time flights (the machine
 # idles), so two at a time halve the wall time without crowding the CPU.
-test: $(STAMP) lint
+test: $(STAMP) lint typecheck
 	$(BIN)/python -m pytest -q -n 2 --dist load
 
 # The fast tier: everything but the tests marked slow (real-time flights and transfers over
 # UDP, the calibration flights); for the edit-test loop, not for CI.
-test-fast: $(STAMP) lint
+test-fast: $(STAMP) lint typecheck
 	$(BIN)/python -m pytest -q -n 2 --dist load -m "not slow"
 
 demo: $(STAMP)

@@ -84,7 +84,7 @@ def plan_grid(plan: Plan, dt_s: float | None = None) -> tuple[NDArray[np.float64
     if not (math.isfinite(dt) and dt > 0):
         raise InputFileError(f"--dt: must be a positive number of seconds, got {dt_s!r}")
     n = round(plan.horizon_s / dt) + 1
-    return np.arange(n) * dt, dt
+    return np.asarray(np.arange(n) * dt, dtype=np.float64), dt
 
 
 def _curve(clause: Formula, signals: Mapping[str, Any], dt: float) -> tuple[str, NDArray]:

@@ -9,10 +9,13 @@ Each subcommand lives in ``gcs/commands/<name>.py`` and exposes::
 Only subcommands whose module exists are offered, so ``gcs --help`` never
 lists a command that does not work.
 
-Exit statuses (DESIGN.md section 9): 0 ok, 1 a check failed, 2 bad user
-input.  User errors are exceptions derived from :class:`gcs.errors.UserError`
-(or the packages' own input errors, see :data:`gcs.errors.USER_ERRORS`); they
-are printed as one line, without a traceback unless ``--debug`` is given.
+Exit statuses (DESIGN.md section 9, one meaning each; :mod:`gcs.errors`): 0 ok, 1 a check
+failed or the mission was not met, 2 bad user input, 3 a vehicle or its link failed (a refused
+command, a lost link), 130 interrupted.  User errors are exceptions derived from
+:class:`gcs.errors.UserError` or the packages' own input errors
+(:data:`gcs.errors.USER_ERRORS`); a vehicle's failure is one of
+:data:`gcs.errors.VEHICLE_ERRORS`.  Either is printed as one line, without a traceback unless
+``--debug`` is given.
 
 A reader that closes standard output early (``gcs plan --print-spec | head -1``) ends the
 command quietly with status 141 (128 + SIGPIPE), as a Unix tool killed by SIGPIPE does; the
@@ -30,7 +33,15 @@ import select
 import sys
 from collections.abc import Sequence
 
-from gcs.errors import USER_ERRORS, format_user_error
+from gcs.errors import (
+    CHECK_ERRORS,
+    EXIT_BAD_INPUT,
+    EXIT_INTERRUPTED,
+    USER_ERRORS,
+    VEHICLE_ERRORS,
+    exit_status_of,
+    format_user_error,
+)
 
 #: Subcommands in the order ``gcs --help`` lists them (DESIGN.md section 9).
 COMMAND_NAMES: tuple[str, ...] = (
@@ -45,9 +56,6 @@ COMMAND_NAMES: tuple[str, ...] = (
     "demo",
 )
 
-EXIT_OK = 0
-EXIT_CHECK_FAILED = 1
-EXIT_BAD_INPUT = 2
 #: Standard output closed by its reader: 128 + SIGPIPE, what a shell shows for ``yes | head``.
 EXIT_STDOUT_CLOSED = 141
 
@@ -130,12 +138,14 @@ def _main(argv: Sequence[str] | None) -> int:
         return int(args._run(args))
     except KeyboardInterrupt:
         print("gcs: interrupted", file=sys.stderr)
-        return 130
-    except USER_ERRORS as exc:
+        return EXIT_INTERRUPTED
+    except (*VEHICLE_ERRORS, *CHECK_ERRORS, *USER_ERRORS) as exc:
         if args.debug:
             raise
         print(f"gcs {args.command}: error: {format_user_error(exc)}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        status = exit_status_of(exc)
+        assert status is not None
+        return status
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -54,7 +54,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from gcs.dryrun import free_udp_ports
-from gcs.errors import InputFileError, UserError
+from gcs.errors import GcsError, InputFileError, UserError
 from gcs.evaluation import evaluate_flight, plan_formula
 from gcs.outcome import FlightMode, FlightOutcome
 from gcs.progress import FlightClock, FlightProgress
@@ -82,7 +82,7 @@ __all__ = [
 DEFAULT_CONNECT_TIMEOUT_S = 10.0
 
 
-class FlightRefused(Exception):
+class FlightRefused(GcsError):
     """A check before the flight failed; nothing was armed.
 
     Attributes:

@@ -32,6 +32,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from gcs.errors import GcsError
+
 if TYPE_CHECKING:
     from gcs.flight import FlyOptions
     from gcs.missions import MissionConversion
@@ -73,7 +75,7 @@ class MissionFlight:
     notes: list[str] = field(default_factory=list)
 
 
-class MissionRefused(Exception):
+class MissionRefused(GcsError):
     """The predicted mission robustness is below the plan's epsilon (no ``--force``)."""
 
 

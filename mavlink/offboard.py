@@ -192,7 +192,7 @@ async def _stop_offboard(v: Vehicle) -> None:
 async def _end(v: Vehicle, action: EndAction, cfg: OffboardConfig | None = None) -> None:
     await _stop_offboard(v)
     at = cfg.land_at.get(v.name) if cfg is not None else None
-    if action is EndAction.LAND and at is not None:
+    if action is EndAction.LAND and at is not None and cfg is not None:
         # not straight down: to the landing point first, at the altitude given, then land
         lat, lon, alt = at
         st = v.status()
@@ -287,7 +287,7 @@ async def _end_task(task: asyncio.Task[Any], stop: asyncio.Event) -> BaseExcepti
     current = asyncio.current_task()
     if current is not None and current.cancelling():
         task.cancel()
-    (outcome,) = await asyncio.gather(task, return_exceptions=True)
+    outcome: Any = (await asyncio.gather(task, return_exceptions=True))[0]
     return outcome if isinstance(outcome, BaseException) else None
 
 

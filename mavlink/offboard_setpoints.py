@@ -28,7 +28,7 @@ from mavsdk.plugins.offboard import (
 
 from mavlink.errors import LinkError
 from mavlink.preflight import TAKEOFF_MARGIN_M
-from mavlink.stream import MAX_RATE_HZ, NedSetpoints
+from mavlink.stream import MAX_RATE_HZ, NedSetpoints, Setpoint
 from planner.frames import GeodeticPoint, enu_to_ned, enu_vector_to_ned, yaw_enu_to_ned
 from planner.trajectory import Trajectory
 
@@ -153,7 +153,7 @@ def plan_setpoints_ned(
     vehicle_origin: GeodeticPoint,
     *,
     t_offset_s: float = 0.0,
-    drag_per_s: float | Mapping[str, float] = 0.0,
+    drag_per_s: float = 0.0,
 ) -> NedSetpoints:
     """Sample ``trajectory`` at ``rate_hz`` and express it in the vehicle's local NED frame.
 
@@ -189,26 +189,16 @@ def plan_setpoints_ned(
     )
 
 
-def offboard_sender(offboard: Offboard) -> Callable[..., None]:
-    """A :class:`StreamTarget` sender over MAVSDK's blocking-free setpoint call."""
+def offboard_sender(offboard: Offboard) -> Callable[[Setpoint], None]:
+    """A :class:`~mavlink.stream.StreamTarget` sender over MAVSDK's blocking-free setpoint
+    call."""
     set_pva = offboard.set_position_velocity_acceleration_ned
 
-    def send(
-        n: float,
-        e: float,
-        d: float,
-        vn: float,
-        ve: float,
-        vd: float,
-        an: float,
-        ae: float,
-        ad: float,
-        yaw_deg: float,
-    ) -> None:
+    def send(sp: Setpoint) -> None:
         set_pva(
-            PositionNedYaw(n, e, d, yaw_deg),
-            VelocityNedYaw(vn, ve, vd, yaw_deg),
-            AccelerationNed(an, ae, ad),
+            PositionNedYaw(sp.n_m, sp.e_m, sp.d_m, sp.yaw_deg),
+            VelocityNedYaw(sp.vn_m_s, sp.ve_m_s, sp.vd_m_s, sp.yaw_deg),
+            AccelerationNed(sp.an_m_s2, sp.ae_m_s2, sp.ad_m_s2),
         )
 
     return send

@@ -77,7 +77,7 @@ class _Listener(asyncio.DatagramProtocol):
         self.url = url
         self.heard = heard
 
-    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:  # type: ignore[override]
+    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
         frame = parse_frame(data)
         if frame is None:
             return

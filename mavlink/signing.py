@@ -177,7 +177,7 @@ class ProxyStats:
 
 
 class _Side(asyncio.DatagramProtocol):
-    def __init__(self, on_datagram) -> None:  # type: ignore[no-untyped-def]
+    def __init__(self, on_datagram) -> None:
         self.on_datagram = on_datagram
 
     def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:

@@ -18,6 +18,7 @@ import math
 import time
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -128,19 +129,34 @@ def send_offsets(n_vehicles: int, rate_hz: float, groups: int) -> np.ndarray:
     return (np.arange(n_vehicles) % groups) / groups / rate_hz
 
 
+class Setpoint(NamedTuple):
+    """One setpoint as it goes on the wire: local NED, plain floats (the hot path builds
+    them once, before the flight, and never touches numpy)."""
+
+    n_m: float
+    e_m: float
+    d_m: float
+    vn_m_s: float
+    ve_m_s: float
+    vd_m_s: float
+    an_m_s2: float
+    ae_m_s2: float
+    ad_m_s2: float
+    yaw_deg: float
+
+
 @dataclass(frozen=True, slots=True)
 class StreamTarget:
     """What to stream to one vehicle.
 
     Attributes:
         name: vehicle name.
-        send: non-blocking call ``send(n, e, d, vn, ve, vd, an, ae, ad, yaw_deg)``
-            (metres, m/s, m/s^2, degrees; NED), run on the event loop thread.
+        send: non-blocking call ``send(setpoint)`` run on the event loop thread.
         setpoints: the vehicle's setpoints.
     """
 
     name: str
-    send: Callable[..., None]
+    send: Callable[[Setpoint], None]
     setpoints: NedSetpoints
 
 
@@ -197,14 +213,17 @@ class SetpointStreamer:
         self.n_ticks = max(len(t.setpoints) for t in self.targets)
         # Plain Python floats per setpoint: the hot loop must not touch numpy.
         self._rows = [
-            np.column_stack(
-                [
-                    t.setpoints.pos_ned_m,
-                    t.setpoints.vel_ned_m_s,
-                    t.setpoints.acc_ned_m_s2,
-                    np.degrees(t.setpoints.yaw_ned_rad),
-                ]
-            ).tolist()
+            [
+                Setpoint(*row)
+                for row in np.column_stack(
+                    [
+                        t.setpoints.pos_ned_m,
+                        t.setpoints.vel_ned_m_s,
+                        t.setpoints.acc_ned_m_s2,
+                        np.degrees(t.setpoints.yaw_ned_rad),
+                    ]
+                ).tolist()
+            ]
             for t in self.targets
         ]
 
@@ -266,7 +285,7 @@ class SetpointStreamer:
                 i = group[(start + m) % len(group)]
                 r = rows[i][min(k, last[i])]
                 try:
-                    sends[i](*r)
+                    sends[i](r)
                 except Exception as exc:  # counted and reported below
                     failed[i] += 1
                     errors[i] = exc

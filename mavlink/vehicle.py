@@ -48,6 +48,11 @@ MAV_CMD_NAV_TAKEOFF = 22
 
 #: STATUSTEXTs kept per vehicle (the latest).
 _KEPT_TEXTS = 50
+#: STATUSTEXT severities up to this one (MAV_SEVERITY_WARNING) explain a refusal
+_WARNING = 4
+#: how long a refusal waits for the vehicle's STATUSTEXT giving its reason (PX4 sends it with
+#: the COMMAND_ACK, over the same link)
+_REASON_GRACE_S = 0.1
 #: MAV_PARAM_TYPE values of integer parameters (UINT8 .. INT64).
 _INT_PARAM_TYPES = frozenset(range(1, 9))
 
@@ -425,17 +430,26 @@ class Vehicle:
 
     # -- commands -------------------------------------------------------
 
-    def _fail(self, what: str, result: Any) -> CommandError:
+    def _fail(self, what: str, result: Any, since_s: float | None = None) -> CommandError:
+        """The refusal of ``what``, with the reasons the vehicle gave in STATUSTEXT (warning
+        or worse) since ``since_s`` (``time.monotonic()``), e.g. PX4's "Arming denied: ..."."""
         name = getattr(result, "name", str(result))
-        return CommandError(f"{what} failed: {name}", result=name, vehicle=self.name, url=self.url)
+        said = [] if since_s is None else self.statustexts(since_s)
+        reasons = list(dict.fromkeys(text for sev, text in said if sev <= _WARNING))
+        why = f' (the vehicle said: "{"; ".join(reasons)}")' if reasons else ""
+        return CommandError(
+            f"{what} failed: {name}{why}", result=name, vehicle=self.name, url=self.url
+        )
 
     async def _action(self, what: str, start: Callable[..., None], *args: Any) -> None:
+        t0 = time.monotonic()
         try:
             result = await mavsdk_call(start, *args)
         except TimeoutError:
-            raise self._fail(what, "TIMEOUT") from None
+            raise self._fail(what, "TIMEOUT", t0) from None
         if result != ActionResult.SUCCESS:
-            raise self._fail(what, result)
+            await asyncio.sleep(_REASON_GRACE_S)  # a reason sent just after the refusal
+            raise self._fail(what, result, t0)
 
     async def arm(self) -> None:
         """Arm (MAV_CMD_COMPONENT_ARM_DISARM)."""

@@ -18,15 +18,18 @@ that ``planner.trajectory`` users do not pay for CasADi):
 * :mod:`planner.stl`, :mod:`planner.dynamics`, :mod:`planner.trajectory`,
   :mod:`planner.frames`: the STL engine, motion models, trajectories and frames.
 
-Error tree (each a ``ValueError``, each message names the file/field/position)::
+Error tree (each message names the file/field/position)::
 
-    planner.errors.FileFieldError       a mistake in an input file (file, key path, problem)
-      planner.scenario_sections.ScenarioError ... in a scenario file
-      planner.planfile.PlanFileError    ... in a plan file (missing, not JSON, not a plan)
-    planner.stl.STLError                STL engine errors (SpecError: syntax, line/column, ...)
-    planner.dynamics.DynamicsError      bad model parameters
-    planner.trajectory.TrajectoryError  bad segment data
-    planner.frames.FrameError           bad geodetic/frame input
+    planner.errors.PlannerError             the root: bad input to the planner
+      planner.errors.FileFieldError         a mistake in an input file (file, key path,
+                                            problem; a ValueError)
+        planner.scenario_sections.ScenarioError   ... in a scenario file
+        planner.planfile.PlanFileError            ... in a plan file (missing, not JSON, ...)
+      planner.stl.STLError                  STL engine errors (SpecError: syntax,
+                                            line/column; EvaluationError: unknown signal, ...)
+      planner.dynamics.DynamicsError        bad model parameters (a ValueError)
+      planner.trajectory.TrajectoryError    bad segment data (a ValueError)
+      planner.frames.FrameError             bad geodetic/frame input (a ValueError)
 
 A failed optimisation is not an error: ``plan`` returns ``PlanResult(success=False, ...)``.
 """

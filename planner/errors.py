@@ -1,9 +1,16 @@
-"""The base of the planner's file-input errors (scenario and plan files)."""
+"""The root of the planner's errors and the base of its file-input errors.
+
+The tree is in :mod:`planner`'s docstring.
+"""
 
 from __future__ import annotations
 
 
-class FileFieldError(ValueError):
+class PlannerError(Exception):
+    """Any error the planner raises on purpose (bad input to it, never a failed solve)."""
+
+
+class FileFieldError(PlannerError, ValueError):
     """A mistake in an input file: ``"<file>: <key path>: <problem>"`` (no key path: the file).
 
     Attributes:

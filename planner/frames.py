@@ -36,6 +36,8 @@ import numpy as np
 import pymap3d
 from numpy.typing import ArrayLike, NDArray
 
+from planner.errors import PlannerError
+
 __all__ = [
     "FrameError",
     "GeodeticPoint",
@@ -50,7 +52,7 @@ __all__ = [
 ]
 
 
-class FrameError(ValueError):
+class FrameError(PlannerError, ValueError):
     """Invalid input to a frame conversion."""
 
 

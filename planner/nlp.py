@@ -92,7 +92,7 @@ def _ca_expr(e: Expr, rows: Mapping[str, Any], fns: Mapping[str, Callable[..., A
 # ------------------------------------------------------------------------------ build
 
 
-class IterationWatch(ca.Callback):  # type: ignore[misc]
+class IterationWatch(ca.Callback):
     """Called by the solver after every iteration: counts them, shows the iterate to
     ``on_iteration`` (decision vector, objective), and asks the solver to stop once
     ``time.perf_counter()`` passes ``deadline`` (IPOPT then returns User_Requested_Stop
@@ -127,7 +127,7 @@ class IterationWatch(ca.Callback):  # type: ignore[misc]
     def get_sparsity_out(self, i: int) -> Any:
         return ca.Sparsity.scalar()
 
-    def eval(self, arg: list[Any]) -> list[Any]:
+    def eval(self, arg: Sequence[Any]) -> list[Any]:
         self.iterations += 1
         if self.on_iteration is not None:
             self.on_iteration(np.asarray(arg[0]).reshape(-1), float(arg[1]))
@@ -208,10 +208,10 @@ def _leaf_values(
 ) -> Any:
     """SX column of a row-wise leaf's robustness at ``steps`` (from the lifted positions)."""
     rows = rows_of(steps)
-    if role_of(leaf) is Role.TARGET_BOX:  # exact linear face margins
-        region = problem.region(leaf.call.args[1])
-        return ca.vec(ca_box_margins(rows[leaf.call.args[0]], region))
     if isinstance(leaf, Predicate):
+        if role_of(leaf) is Role.TARGET_BOX:  # exact linear face margins
+            region = problem.region(leaf.call.args[1])
+            return ca.vec(ca_box_margins(rows[leaf.call.args[0]], region))
         return fns[leaf.call.name](leaf.call.args, rows)
     assert isinstance(leaf, Comparison)
     out = comparison_margin(leaf.op, _ca_expr(leaf.lhs, rows, fns), _ca_expr(leaf.rhs, rows, fns))
@@ -333,7 +333,7 @@ def _build(problem: Problem, model: Any, formula: Formula) -> _Structure:
     wm = ca.MX.sym("w", w.shape[0])
     pm = ca.MX.sym("p", p.shape[0])
 
-    solvers = []
+    solvers: list[tuple[float, Any]] = []
     leaf_fn = None
     watch = IterationWatch(int(w.shape[0]), n_sx + len(smooth_items), int(p.shape[0]))
     for k in k_list:

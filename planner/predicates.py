@@ -44,7 +44,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from planner.regions import Region
-from planner.stl import Call, EvaluationError, Formula, FunctionRegistry, Predicate
+from planner.stl import Call, EvaluationError, Expr, Formula, FunctionRegistry, Predicate
 
 __all__ = [
     "DIST_DELTA_M",
@@ -109,7 +109,7 @@ PREDICATES: dict[str, PredicateKind] = {
 }
 
 
-def role_of(node: Formula | Call) -> Role | None:
+def role_of(node: Formula | Expr) -> Role | None:
     """The role of a predicate atom or call (``None``: anything else)."""
     call = node.call if isinstance(node, Predicate) else node
     if not isinstance(call, Call):

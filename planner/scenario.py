@@ -233,7 +233,7 @@ def parse_scenario(
     if len(vlist) > 1 and sep > 0:
         d = np.linalg.norm(starts[:, None, :] - starts[None, :, :], axis=-1)
         d[np.diag_indices(len(vlist))] = np.inf
-        i, j = np.unravel_index(np.argmin(d), d.shape)
+        i, j = (int(x) for x in np.unravel_index(np.argmin(d), d.shape))
         if d[i, j] < sep:
             raise rd.fail(
                 "vehicles",

@@ -163,7 +163,7 @@ def _box(rd: _Reader, value: Any, path: str) -> tuple[np.ndarray, np.ndarray]:
 
 def _region(rd: _Reader, name: str, value: Any, path: str, kind: RegionKind) -> Region:
     lo, hi = _box(rd, value, path)
-    return Region(name, kind, tuple(lo.tolist()), tuple(hi.tolist()))  # type: ignore[arg-type]
+    return Region(name, kind, tuple(lo.tolist()), tuple(hi.tolist()))
 
 
 def _limits(rd: _Reader, value: Any, path: str, base: dict[str, Any]) -> dict[str, Any]:
@@ -306,7 +306,7 @@ def _vehicles(
         for g in member_of[i]:
             groups.setdefault(g, []).append(name)
         start = tuple(starts[i].tolist())
-        out.append(_make_vehicle(rd, p, name, i + 1, start, lim, member_of[i]))  # type: ignore[arg-type]
+        out.append(_make_vehicle(rd, p, name, i + 1, start, lim, member_of[i]))
     return out, groups
 
 

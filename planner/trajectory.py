@@ -46,10 +46,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from planner.errors import PlannerError
+
 __all__ = ["Setpoints", "Trajectory", "TrajectoryError", "YawMode", "YawPolicy"]
 
 
-class TrajectoryError(ValueError):
+class TrajectoryError(PlannerError, ValueError):
     """Invalid trajectory data; the message names the segment index and field."""
 
 

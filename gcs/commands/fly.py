@@ -32,8 +32,6 @@ from gcs.commands import add_link_arguments, add_mock_vehicle_arguments, parse_p
 
 HELP = "fly a plan in offboard (or mission) mode on PX4 vehicles, or on mock ones with --dry-run"
 
-EXIT_INTERRUPTED = 130
-
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``gcs fly``."""
@@ -95,7 +93,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Fly; see the module docstring for the exit statuses."""
     from gcs.dryrun import mock_vehicles
-    from gcs.errors import UserError
+    from gcs.errors import EXIT_INTERRUPTED, UserError
     from gcs.flight import (
         FlightRefused,
         FlyOptions,

@@ -352,8 +352,9 @@ def table(rows: list[UploadRow]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Upload; 0 when every read-back is as sent (and, with --start, every start happened)."""
-    from gcs.errors import UserError
+    """Upload; 0 when every read-back is as sent (and, with --start, every start happened),
+    1 when a check refused it, 3 when a vehicle failed it."""
+    from gcs.errors import EXIT_CHECK_FAILED, EXIT_OK, EXIT_VEHICLE_FAILED, UserError
     from gcs.flight import FlightRefused, preflight_interlock, signed_links, vehicle_specs
     from gcs.mission_flight import MissionRefused
     from mavlink.errors import CommandError, PreflightError
@@ -375,7 +376,7 @@ def run(args: argparse.Namespace) -> int:
         preflight_interlock(plan, force=args.force)
     except FlightRefused as exc:
         print(f"gcs upload: {exc}", file=sys.stderr)
-        return 1
+        return EXIT_CHECK_FAILED
 
     if args.fence_action is not None and not args.fence:
         raise UserError("--fence-action: applies with --fence only")
@@ -406,9 +407,12 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         rows, conv, fp = asyncio.run(signed_upload())
-    except (PreflightError, MissionRefused, CommandError) as exc:
+    except (PreflightError, MissionRefused) as exc:  # refused before anything was stored
         print(f"gcs upload: {exc}", file=sys.stderr)
-        return 1
+        return EXIT_CHECK_FAILED
+    except CommandError as exc:  # a vehicle refused a command
+        print(f"gcs upload: {exc}", file=sys.stderr)
+        return EXIT_VEHICLE_FAILED
     ok = all(r.verified for r in rows) and (not args.start or all(r.started for r in rows))
     if args.json:
         out: dict[str, Any] = {
@@ -454,7 +458,8 @@ def run(args: argparse.Namespace) -> int:
         else:
             failed = [r.vehicle for r in rows if not r.verified or (args.start and not r.started)]
             print(f"FAILED: {len(failed)} vehicle(s): {', '.join(failed)}")
-    return 0 if ok else 1
+    # a transfer that gave up or read back wrong, a start PX4 refused: the vehicles failed
+    return EXIT_OK if ok else EXIT_VEHICLE_FAILED
 
 
 def parse_budget_s(text: str) -> float:

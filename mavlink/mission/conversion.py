@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mavlink.errors import MissionError, MissionResult
-from mavlink.mission.items import Cmd, Frame, MissionEnd, MissionItem, MissionType, _e7
+from mavlink.mission.items import Cmd, Frame, MissionEnd, MissionItem, MissionType, deg_e7
 from planner.frames import GeodeticPoint, enu_to_geodetic, yaw_enu_to_ned
 from planner.trajectory import Trajectory
 
@@ -102,9 +102,9 @@ def trajectory_to_mission(
     hover_speed_m_s: float = 0.05,
     end: MissionEnd = MissionEnd.LAND,
     name: str | None = None,
-    leg_speed_m_s: Sequence[float] | None = None,
+    leg_speed_m_s: Sequence[float] | np.ndarray | None = None,
     pass_lag_s: float = 0.0,
-    land_at_enu_m: Sequence[float] | None = None,
+    land_at_enu_m: Sequence[float] | np.ndarray | None = None,
 ) -> MissionPlan:
     """Convert one mission-frame trajectory into PX4 mission items (module docstring).
 
@@ -235,8 +235,8 @@ def trajectory_to_mission(
         0.0,
         0.0,
         float(yaw_deg[0]),
-        _e7(lat[0]),
-        _e7(lon[0]),
+        deg_e7(lat[0]),
+        deg_e7(lon[0]),
         float(alt[0]),
     )
     add(
@@ -246,8 +246,8 @@ def trajectory_to_mission(
         acceptance_radius_m,
         0.0,
         float(yaw_deg[0]),
-        _e7(lat[0]),
-        _e7(lon[0]),
+        deg_e7(lat[0]),
+        deg_e7(lon[0]),
         float(alt[0]),
     )
     for j in range(1, wp.shape[0]):
@@ -259,8 +259,8 @@ def trajectory_to_mission(
             float(radius[j]),
             0.0,
             float(yaw_deg[j]),
-            _e7(lat[j]),
-            _e7(lon[j]),
+            deg_e7(lat[j]),
+            deg_e7(lon[j]),
             float(alt[j]),
         )
     if end is MissionEnd.LAND:
@@ -275,10 +275,10 @@ def trajectory_to_mission(
             # clear point rather than up to 2 m short of it, beside what it keeps clear of.
             add(
                 Cmd.NAV_WAYPOINT, g, 0.0, float(acceptance_radius_m), 0.0, float("nan"),
-                _e7(land_lat), _e7(land_lon), float(alt[-1]),
+                deg_e7(land_lat), deg_e7(land_lon), float(alt[-1]),
             )  # fmt: skip
         add(
-            Cmd.NAV_LAND, g, 0.0, 0.0, 0.0, float("nan"), _e7(land_lat), _e7(land_lon),
+            Cmd.NAV_LAND, g, 0.0, 0.0, 0.0, float("nan"), deg_e7(land_lat), deg_e7(land_lon),
             float(alt[-1]),
         )  # fmt: skip
     elif end is MissionEnd.RETURN:

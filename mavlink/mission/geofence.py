@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from mavlink.mission.items import Cmd, Frame, MissionItem, MissionType, _e7
+from mavlink.mission.items import Cmd, Frame, MissionItem, MissionType, deg_e7
 from planner.frames import GeodeticPoint, enu_to_geodetic
 
 
@@ -71,13 +71,14 @@ def fence_boxes(
             (:func:`braking_distance_m`). Exclusions are never shrunk (they stay exact).
     """
     ws_lo_z, ws_hi_z = float(workspace.lo_enu_m[2]), float(workspace.hi_enu_m[2])
-    lo = tuple(float(c) - (inflate_m if a < 2 else 0.0) for a, c in enumerate(workspace.lo_enu_m))
-    hi = tuple(float(c) + (inflate_m if a < 2 else 0.0) for a, c in enumerate(workspace.hi_enu_m))
+    widen = np.array([inflate_m, inflate_m, 0.0])
+    lo = _xyz(np.asarray(workspace.lo_enu_m, dtype=float) - widen)
+    hi = _xyz(np.asarray(workspace.hi_enu_m, dtype=float) + widen)
     out = [FenceBox(workspace.name, lo, hi, inclusion=True)]
     for r in regions:
         full_height = r.lo_enu_m[2] <= ws_lo_z and r.hi_enu_m[2] >= ws_hi_z
         if r.kind.value in exclude_kinds and full_height:
-            out.append(FenceBox(r.name, tuple(r.lo_enu_m), tuple(r.hi_enu_m), inclusion=False))
+            out.append(FenceBox(r.name, _xyz(r.lo_enu_m), _xyz(r.hi_enu_m), inclusion=False))
     return tuple(out)
 
 
@@ -105,10 +106,14 @@ def geofence_items(boxes: Sequence[FenceBox], origin: GeodeticPoint) -> tuple[Mi
                     param2=0.0,  # inclusion group
                     param3=0.0,
                     param4=0.0,
-                    x=_e7(lat[k]),
-                    y=_e7(lon[k]),
+                    x=deg_e7(lat[k]),
+                    y=deg_e7(lon[k]),
                     z=0.0,
                     mission_type=MissionType.FENCE,
                 )
             )
     return tuple(items)
+
+
+def _xyz(corner: Sequence[float] | np.ndarray) -> tuple[float, float, float]:
+    return (float(corner[0]), float(corner[1]), float(corner[2]))

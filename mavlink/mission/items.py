@@ -85,7 +85,7 @@ class MissionItem:
         return cls(**{f.name: getattr(item, f.name) for f in fields(cls)})
 
 
-def _e7(deg: float) -> int:
+def deg_e7(deg: float) -> int:
     return round(deg * 1e7)
 
 

@@ -14,7 +14,7 @@ vehicle's command surface, apart from how the vehicle then flies (navigator, off
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, ClassVar, TypeAlias
 
 import numpy as np
@@ -35,6 +35,9 @@ UNSUPPORTED = mavlink2.MAV_RESULT_UNSUPPORTED
 FAILED = mavlink2.MAV_RESULT_FAILED
 
 _FORCE_MAGIC = 21196.0
+
+#: A handler's answer: the ACK's result and what to run after the ACK (or nothing).
+_Reply: TypeAlias = tuple[int, Callable[[], None] | None]
 
 
 class CommandsMixin(VehicleParts):
@@ -70,7 +73,7 @@ class CommandsMixin(VehicleParts):
         if after is not None:
             after()
 
-    def _cmd_arm_disarm(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+    def _cmd_arm_disarm(self, p: Sequence[float], frame: int, is_int: bool) -> _Reply:
         force = abs(p[1] - _FORCE_MAGIC) < 0.5
         if p[0] >= 0.5:
             return self.arm(force=force), None
@@ -125,7 +128,7 @@ class CommandsMixin(VehicleParts):
         self.phys.armed[self.index] = False
         self.statustext(mavlink2.MAV_SEVERITY_INFO, why)
 
-    def _cmd_set_mode(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+    def _cmd_set_mode(self, p: Sequence[float], frame: int, is_int: bool) -> _Reply:
         if not (int(p[0]) & mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED):
             return UNSUPPORTED, None
         mode = Px4Mode.from_main_sub(int(p[1]), int(p[2]))
@@ -246,7 +249,7 @@ class CommandsMixin(VehicleParts):
             np.zeros(3),
         )
 
-    def _cmd_takeoff(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+    def _cmd_takeoff(self, p: Sequence[float], frame: int, is_int: bool) -> _Reply:
         alt = p[6]
         down = None
         if math.isfinite(alt):
@@ -259,17 +262,17 @@ class CommandsMixin(VehicleParts):
         self.set_mode(Px4Mode.AUTO_TAKEOFF, takeoff_down_m=down)
         return ACCEPTED, None
 
-    def _cmd_land(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+    def _cmd_land(self, p: Sequence[float], frame: int, is_int: bool) -> _Reply:
         self.failsafe = False
         self.set_mode(Px4Mode.AUTO_LAND)
         return ACCEPTED, None
 
-    def _cmd_rtl(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+    def _cmd_rtl(self, p: Sequence[float], frame: int, is_int: bool) -> _Reply:
         self.failsafe = False
         self.set_mode(Px4Mode.AUTO_RTL)
         return ACCEPTED, None
 
-    def _cmd_mission_start(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+    def _cmd_mission_start(self, p: Sequence[float], frame: int, is_int: bool) -> _Reply:
         plan = self.missions.plans[MISSION]
         if not plan:
             self.statustext(mavlink2.MAV_SEVERITY_CRITICAL, "Mission rejected: no mission")
@@ -289,7 +292,7 @@ class CommandsMixin(VehicleParts):
         self._mission_start_item(self.mission_seq)
         return ACCEPTED, None
 
-    def _cmd_set_mission_current(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+    def _cmd_set_mission_current(self, p: Sequence[float], frame: int, is_int: bool) -> _Reply:
         seq = int(p[0]) if math.isfinite(p[0]) else -1
         if not self.set_mission_current(seq):
             return DENIED, None
@@ -310,7 +313,7 @@ class CommandsMixin(VehicleParts):
         if self._for_me(msg):
             self.set_mission_current(msg.seq)
 
-    def _cmd_reposition(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+    def _cmd_reposition(self, p: Sequence[float], frame: int, is_int: bool) -> _Reply:
         if not self.armed or self.landed:
             return TEMPORARILY_REJECTED, None
         i = self.index
@@ -334,7 +337,7 @@ class CommandsMixin(VehicleParts):
             self.phys.sp_yaw_rad[i] = float(p[3])
         return ACCEPTED, None
 
-    def _cmd_change_speed(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+    def _cmd_change_speed(self, p: Sequence[float], frame: int, is_int: bool) -> _Reply:
         if p[1] > 0:
             self.cruise_speed_m_s = float(p[1])
         elif p[1] == -1:
@@ -342,7 +345,7 @@ class CommandsMixin(VehicleParts):
         self._apply_limits()
         return ACCEPTED, None
 
-    def _cmd_set_home(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+    def _cmd_set_home(self, p: Sequence[float], frame: int, is_int: bool) -> _Reply:
         if p[0] >= 0.5:
             self.home_ned_m = self.phys.pos_ned_m[self.index].copy()
         else:
@@ -356,7 +359,7 @@ class CommandsMixin(VehicleParts):
         self.send(self._msg_home_position())
         return ACCEPTED, None
 
-    def _cmd_request_message(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+    def _cmd_request_message(self, p: Sequence[float], frame: int, is_int: bool) -> _Reply:
         msg_id = int(p[0])
         build = self._builders.get(msg_id)
         if build is None:
@@ -369,10 +372,10 @@ class CommandsMixin(VehicleParts):
 
         return ACCEPTED, send_it
 
-    def _cmd_request_capabilities(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+    def _cmd_request_capabilities(self, p: Sequence[float], frame: int, is_int: bool) -> _Reply:
         return ACCEPTED, lambda: self.send(self._msg_autopilot_version())
 
-    def _cmd_set_message_interval(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+    def _cmd_set_message_interval(self, p: Sequence[float], frame: int, is_int: bool) -> _Reply:
         msg_id = int(p[0])
         build = self._builders.get(msg_id)
         if build is None:
@@ -394,7 +397,7 @@ class CommandsMixin(VehicleParts):
         self._streams[msg_id] = _Stream(msg_id, interval_s, self._now(), build)
         return ACCEPTED, None
 
-    def _cmd_get_message_interval(self, p, frame, is_int):  # type: ignore[no-untyped-def]
+    def _cmd_get_message_interval(self, p: Sequence[float], frame: int, is_int: bool) -> _Reply:
         msg_id = int(p[0])
         stream = self._streams.get(msg_id)
         interval_us = -1 if stream is None else round(stream.interval_s * 1e6)
@@ -404,7 +407,7 @@ class CommandsMixin(VehicleParts):
             mavlink2.MAVLink_message_interval_message(msg_id, interval_us)
         )
 
-    _COMMANDS: ClassVar[dict[int, Callable[..., tuple[int, Callable[[], None] | None]]]] = {
+    _COMMANDS: ClassVar[dict[int, Callable[..., _Reply]]] = {
         mavlink2.MAV_CMD_COMPONENT_ARM_DISARM: _cmd_arm_disarm,
         mavlink2.MAV_CMD_DO_SET_MODE: _cmd_set_mode,
         mavlink2.MAV_CMD_NAV_TAKEOFF: _cmd_takeoff,

@@ -22,6 +22,7 @@ import asyncio
 import contextlib
 import dataclasses
 import errno
+import functools
 import random
 import threading
 from collections.abc import Iterator, Mapping, Sequence
@@ -296,7 +297,7 @@ class MockFleet:
                 port = self.vehicle_ports[v.index]
                 try:
                     transport, protocol = await loop.create_datagram_endpoint(
-                        lambda v=v: _VehicleProtocol(v), local_addr=(self.bind_host, port)
+                        functools.partial(_VehicleProtocol, v), local_addr=(self.bind_host, port)
                     )
                 except OSError as exc:
                     hint = (
@@ -462,7 +463,8 @@ class MockFleet:
     def link_stats(self) -> list[dict[str, Any]]:
         """Datagram counters per vehicle: uplink/downlink offered, dropped, ..."""
         out = []
-        for v, proto in zip(self.vehicles, self._protocols or [None] * self.n, strict=False):
+        protocols: list[_VehicleProtocol | None] = [*self._protocols] or [None] * self.n
+        for v, proto in zip(self.vehicles, protocols, strict=False):
             out.append(
                 {
                     "sysid": v.sysid,

@@ -58,6 +58,10 @@ class VehicleParts:
     _fence_breached: bool
     _rtl_phase: str
     _jump_counts: dict[int, int]
+    _seq_reached: int
+    _mis_reached_sent: int
+    _reached_resends: int
+    _reached_next_s: float
     _mc_rng: random.Random
     _mission_valid_s: float
     # offboard: the last setpoint, when setpoints last came and since when they stream
@@ -98,6 +102,12 @@ class VehicleParts:
         def _item_target_ned(
             self, frame: int, x_e7: int, y_e7: int, z_m: float, default: np.ndarray
         ) -> np.ndarray: ...
+
+        def _alt_to_down(self, frame: int, alt_m: float) -> float: ...
+
+        def _msg_home_position(self) -> Any: ...
+
+        def _msg_autopilot_version(self) -> Any: ...
 
         def _apply_limits(self) -> None: ...
 

@@ -420,17 +420,17 @@ class MockVehicle(
         return VehicleState(
             sysid=self.sysid,
             time_s=self.fleet.time_s,
-            pos_ned_m=tuple(float(v) for v in true_local),
-            vel_ned_m_s=tuple(float(v) for v in p.true_vel_ned_m_s[i]),
+            pos_ned_m=_vec3(true_local),
+            vel_ned_m_s=_vec3(p.true_vel_ned_m_s[i]),
             yaw_rad=float(p.yaw_rad[i]),
             mode=self.mode,
             armed=self.armed,
             landed=self.landed,
             failsafe=self.failsafe,
             mission_seq=self.mission_seq,
-            home_ned_m=tuple(float(v) for v in self.home_ned_m),
-            est_pos_ned_m=tuple(float(v) for v in p.pos_ned_m[i]),
-            est_vel_ned_m_s=tuple(float(v) for v in p.vel_ned_m_s[i]),
+            home_ned_m=_vec3(self.home_ned_m),
+            est_pos_ned_m=_vec3(p.pos_ned_m[i]),
+            est_vel_ned_m_s=_vec3(p.vel_ned_m_s[i]),
         )
 
     def mission_items(self, mission_type: int = MISSION) -> tuple[MissionItem, ...]:
@@ -576,3 +576,7 @@ class MockVehicle(
 
 def _radio_status_only(_mav: mavlink2.MAVLink, msg_id: int) -> bool:
     return msg_id == mavlink2.MAVLINK_MSG_ID_RADIO_STATUS
+
+
+def _vec3(a: np.ndarray) -> tuple[float, float, float]:
+    return (float(a[0]), float(a[1]), float(a[2]))

@@ -117,7 +117,7 @@ class MinimumJerkChain(PiecewisePolynomialModel):
             sample_dt_s=float(sample_dt_s),
             n_dec=n_dec,
             n_init=3,
-            segment_t0_s=np.arange(n) * self.segment_s,
+            segment_t0_s=np.asarray(np.arange(n) * self.segment_s, dtype=np.float64),
             segment_duration_s=np.full(n, self.segment_s),
             coef_maps=coef,
             limit_subdivisions=limit_subdivisions,

@@ -79,7 +79,7 @@ class DoubleIntegrator(PiecewisePolynomialModel):
             sample_dt_s=float(sample_dt_s if sample_dt_s is not None else dt_s),
             n_dec=n,
             n_init=2,
-            segment_t0_s=np.arange(n) * dt,
+            segment_t0_s=np.asarray(np.arange(n) * dt, dtype=np.float64),
             segment_duration_s=np.full(n, dt),
             coef_maps=coef,
             limit_subdivisions=1,

@@ -2,13 +2,15 @@
 
 Error tree::
 
-    DynamicsError(ValueError)      bad model parameters, shapes or limits
+    DynamicsError(PlannerError, ValueError)  bad model parameters, shapes or limits
 """
 
 from __future__ import annotations
 
+from planner.errors import PlannerError
+
 __all__ = ["DynamicsError"]
 
 
-class DynamicsError(ValueError):
+class DynamicsError(PlannerError, ValueError):
     """Invalid input to a dynamics model (parameter, array shape or limit); the message names it."""

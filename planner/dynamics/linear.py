@@ -183,7 +183,7 @@ class PiecewisePolynomialModel:
         self.yaw_policy = yaw_policy
         n_steps = _ratio_steps(horizon_s, sample_dt_s, "horizon_s / sample_dt_s")
         self.n_samples = n_steps + 1
-        self.times_s = np.arange(self.n_samples) * self.sample_dt_s
+        self.times_s = np.asarray(np.arange(self.n_samples) * self.sample_dt_s, dtype=np.float64)
         seg = np.clip(
             np.searchsorted(segment_t0_s, self.times_s + 1e-12, side="right") - 1,
             0,

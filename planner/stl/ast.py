@@ -162,16 +162,16 @@ class Expr:
     def __neg__(self) -> Neg:
         return Neg(self)
 
-    def __ge__(self, other: Expr | float) -> Comparison:  # type: ignore[override]
+    def __ge__(self, other: Expr | float) -> Comparison:
         return Comparison(self, CmpOp.GE, as_expr(other))
 
-    def __gt__(self, other: Expr | float) -> Comparison:  # type: ignore[override]
+    def __gt__(self, other: Expr | float) -> Comparison:
         return Comparison(self, CmpOp.GT, as_expr(other))
 
-    def __le__(self, other: Expr | float) -> Comparison:  # type: ignore[override]
+    def __le__(self, other: Expr | float) -> Comparison:
         return Comparison(self, CmpOp.LE, as_expr(other))
 
-    def __lt__(self, other: Expr | float) -> Comparison:  # type: ignore[override]
+    def __lt__(self, other: Expr | float) -> Comparison:
         return Comparison(self, CmpOp.LT, as_expr(other))
 
     @property

@@ -117,14 +117,14 @@ class ClauseBatch:
         if cached is not None or names in self._slot_cache:
             return cached
         row = {n: k for k, n in enumerate(names)}
-        out: list[tuple[_Group, list[np.ndarray]]] | None = []
+        out: list[tuple[_Group, list[np.ndarray]]] = []
         for g in self._groups:
             j_count = len(g.bindings[0])
             try:
                 idx = [np.array([row[b[j]] for b in g.bindings], dtype=int) for j in range(j_count)]
             except KeyError:
-                out = None
-                break
+                self._slot_cache[names] = None
+                return None
             out.append((g, idx))
         self._slot_cache[names] = out
         return out

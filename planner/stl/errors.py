@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from planner.errors import PlannerError
 
-class STLError(Exception):
+
+class STLError(PlannerError):
     """Root of every error raised by :mod:`planner.stl`."""
 
 

@@ -421,6 +421,7 @@ class SmoothEvaluator:
                 neg_q = -k * ops.sub(q, j - ta, j - ta + rows)
                 neg_inner = neg_q if neg_prefix is None else ops.lae(neg_prefix, neg_q)
                 outer = -neg_inner if outer is None else ops.lae(outer, -neg_inner)
+        assert outer is not None  # j = ta <= tb is in the loop
         return outer / k
 
     def _expr(self, node: Expr, lo: int, hi: int) -> Any:

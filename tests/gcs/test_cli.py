@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from gcs import cli
+from gcs.errors import EXIT_BAD_INPUT
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -25,7 +26,7 @@ def test_help_lists_only_installed_subcommands(capsys: pytest.CaptureFixture[str
 
 
 def test_no_subcommand_is_bad_input(capsys: pytest.CaptureFixture[str]) -> None:
-    assert cli.main([]) == cli.EXIT_BAD_INPUT
+    assert cli.main([]) == EXIT_BAD_INPUT
 
 
 def test_unknown_subcommand_exits_2() -> None:

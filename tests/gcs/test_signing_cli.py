@@ -40,8 +40,8 @@ def test_upload_reaches_signed_vehicles_only_with_the_key(
     fleet, connections = signed_mock
     key_file = tmp_path / "fleet.key"
     key_file.write_text(KEY.hex())
-    # Unsigned: the vehicles refuse the transfer; nothing is stored.
-    assert main(["upload", str(PLAN), "--timeout", "5", *connections]) == 1
+    # Unsigned: the vehicles refuse the transfer (a vehicle failure, exit 3); nothing stored.
+    assert main(["upload", str(PLAN), "--timeout", "5", *connections]) == 3
     assert all(not v.mission_items(0) for v in fleet.vehicles)
     assert sum(v.signing_rejected for v in fleet.vehicles) > 0
     capsys.readouterr()

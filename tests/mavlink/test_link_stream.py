@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mavlink.errors import StreamError
-from mavlink.stream import NedSetpoints, SetpointStreamer, StreamTarget
+from mavlink.stream import NedSetpoints, Setpoint, SetpointStreamer, StreamTarget
 
 
 class SimClock:
@@ -37,9 +37,9 @@ def test_every_setpoint_is_sent_in_order_at_its_absolute_deadline() -> None:
     cost_s = 0.0004  # each send takes 0.4 ms of (simulated) time
 
     def sender(name: str):
-        def send(n, e, d, vn, ve, vd, an, ae, ad, yaw_deg):
+        def send(sp: Setpoint) -> None:
             clock.t += cost_s
-            log[name].append((clock.t, n, e))
+            log[name].append((clock.t, sp.n_m, sp.e_m))
 
         return send
 
@@ -67,7 +67,8 @@ def test_a_stall_skips_stale_setpoints_instead_of_bunching_them() -> None:
     rate = 20.0
     sent: list[float] = []
 
-    def send(n, *_):
+    def send(sp: Setpoint) -> None:
+        n = sp.n_m
         sent.append(n)
         if n == 5:
             clock.t += 3.5 / rate  # a 175 ms stall after setpoint 5
@@ -88,7 +89,8 @@ def test_a_stall_skips_stale_setpoints_instead_of_bunching_them() -> None:
 def test_failing_sends_are_counted_and_the_stream_goes_on() -> None:
     clock = SimClock()
 
-    def send(n, *_):
+    def send(sp: Setpoint) -> None:
+        n = sp.n_m
         if n in (3, 4):
             raise OSError("network unreachable")
 
@@ -104,7 +106,8 @@ def test_stop_event_ends_the_stream_before_the_next_tick() -> None:
     clock = SimClock()
     stop = asyncio.Event()
 
-    def send(n, *_):
+    def send(sp: Setpoint) -> None:
+        n = sp.n_m
         if n == 4:
             stop.set()
 
@@ -132,7 +135,8 @@ def test_send_groups_spread_the_fleet_over_the_period() -> None:
     log: list[tuple[str, float, float]] = []
 
     def sender(name: str):
-        def send(n, *_):
+        def send(sp: Setpoint) -> None:
+            n = sp.n_m
             log.append((name, clock.t, n))
 
         return send
