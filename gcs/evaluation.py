@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from mavlink.tlog import FlownTrack
+    from mavlink.tracks import FlownTrack
     from planner.planfile import Plan
     from planner.stl import Formula
 

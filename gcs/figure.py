@@ -39,7 +39,8 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
     from gcs.clause_traces import ClauseTrace
-    from gcs.telemetry import FlownPath, Telemetry
+    from gcs.telemetry import Telemetry
+    from mavlink.tracks import FlownTrack
     from planner.planfile import Plan
 
 __all__ = ["figure_png", "render_figure"]
@@ -330,7 +331,7 @@ def _draw_robustness(
 _FLOWN_VEL_WINDOW_S = 0.25
 
 
-def flown_velocity(path: FlownPath) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def flown_velocity(path: FlownTrack) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """``(t, v)``: the flown velocity ``(m, 3)``, central differences over
     :data:`_FLOWN_VEL_WINDOW_S`, at the sample times whose window lies inside the track."""
     t = path.t_s

@@ -65,7 +65,7 @@ if TYPE_CHECKING:
     from gcs.tuning import VehicleTuning
     from mavlink.fleet import Fleet
     from mavlink.offboard_setpoints import EndAction
-    from mavlink.tlog import FlownTrack
+    from mavlink.tracks import FlownTrack
     from mavlink.vehicle import Vehicle, VehicleSpec
     from planner.frames import GeodeticPoint
     from planner.planfile import Plan
@@ -257,7 +257,7 @@ def _tracks_from_rows(
     origins: Mapping[str, GeodeticPoint],
 ) -> dict[str, FlownTrack]:
     """FlownTracks from :meth:`Vehicle.stop_track` rows ``(t, n, e, d, vn, ve, vd)``."""
-    from mavlink.tlog import FlownTrack
+    from mavlink.tracks import FlownTrack
     from planner.frames import ned_to_enu, ned_vector_to_enu
 
     out = {}
@@ -376,7 +376,8 @@ async def fly_plan(
     from gcs.mission_flight import fly_mission_plan
     from gcs.tuning import expected_error_m, margin_warnings, read_tuning
     from mavlink.fleet import Fleet
-    from mavlink.tlog import TlogRecorder, write_tracks_csv
+    from mavlink.tlog import TlogRecorder
+    from mavlink.tracks import write_tracks_csv
 
     opts = options or FlyOptions()
     _make_log_dir(opts.log_dir)

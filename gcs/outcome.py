@@ -23,7 +23,8 @@ if TYPE_CHECKING:
     from mavlink.mission import MissionRun
     from mavlink.monitor import MonitorStats, SafetyEvent
     from mavlink.stream import StreamStats
-    from mavlink.tlog import FlownTrack, TlogStats
+    from mavlink.tlog import TlogStats
+    from mavlink.tracks import FlownTrack
     from planner.planfile import Plan
 
 __all__ = ["FlightMode", "FlightOutcome", "format_outcome", "outcome_json"]

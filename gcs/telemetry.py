@@ -1,5 +1,7 @@
-"""Flown telemetry for the plan's pictures and checks: each vehicle's recorded positions
-(:class:`FlownPath`) by vehicle name (:class:`Telemetry`), read by :func:`load_telemetry`.
+"""Flown telemetry for the plan's pictures and checks: each vehicle's recorded track
+(:class:`mavlink.tracks.FlownTrack`) by vehicle name (:class:`Telemetry`), read by
+:func:`load_telemetry`, the one reader of flown-track files (the flight's ``flight.csv``
+among them).
 
 A room of its own because reading a file is not drawing: ``gcs plot --telemetry`` and
 ``gcs verify --telemetry`` both read flown data here, and :mod:`gcs.clause_traces` and
@@ -30,14 +32,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import NDArray
 
 from gcs.errors import InputFileError
+from mavlink.tracks import FlownTrack
 
 if TYPE_CHECKING:
     from planner.planfile import Plan
 
-__all__ = ["TELEMETRY_COLUMNS", "FlownPath", "Telemetry", "load_telemetry"]
+__all__ = ["TELEMETRY_COLUMNS", "Telemetry", "load_telemetry"]
 
 #: Columns a telemetry CSV must have (more are allowed).
 TELEMETRY_COLUMNS = ("t", "vehicle", "x", "y", "z")
@@ -52,29 +54,12 @@ _TELEMETRY_ALIASES: dict[str, tuple[str, ...]] = {
 }
 
 
-@dataclass(frozen=True, slots=True, eq=False)
-class FlownPath:
-    """One vehicle's recorded positions.
-
-    Attributes:
-        t_s: ``(n,)`` non-decreasing seconds from the plan's start.
-        pos_enu_m: ``(n, 3)`` mission-frame ENU positions in m.
-    """
-
-    t_s: NDArray[np.float64]
-    pos_enu_m: NDArray[np.float64]
-
-    def position(self, t_s: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Positions ``(m, 3)`` at times ``t_s`` ``(m,)``: linear between samples, held outside."""
-        return np.column_stack([np.interp(t_s, self.t_s, self.pos_enu_m[:, a]) for a in range(3)])
-
-
 @dataclass(frozen=True, slots=True)
 class Telemetry:
     """Flown paths by vehicle name, read from ``source``."""
 
     source: str
-    vehicles: Mapping[str, FlownPath]
+    vehicles: Mapping[str, FlownTrack]
 
 
 def _column_map(header: list[str]) -> dict[str, int] | None:
@@ -154,11 +139,11 @@ def load_telemetry(
         rows.setdefault(name, []).append((vals[0], vals[1], vals[2], vals[3]))
     if not rows:
         raise InputFileError(f"{src}: no telemetry rows after the header")
-    vehicles: dict[str, FlownPath] = {}
+    vehicles: dict[str, FlownTrack] = {}
     for name, r in rows.items():
         a = np.asarray(r, dtype=float)
         a = a[np.argsort(a[:, 0], kind="stable")]
-        vehicles[name] = FlownPath(t_s=a[:, 0], pos_enu_m=a[:, 1:4])
+        vehicles[name] = FlownTrack(name, t_s=a[:, 0], pos_enu_m=a[:, 1:4])
     return Telemetry(source=src, vehicles=vehicles)
 
 
@@ -178,10 +163,4 @@ def _load_tlog(p: Path, plan: Plan | None, t0_unix_s: float | None) -> Telemetry
     )
     if not tracks:
         raise InputFileError(f"{p}: no LOCAL_POSITION_NED from the plan's vehicles")
-    return Telemetry(
-        source=str(p),
-        vehicles={
-            name: FlownPath(t_s=np.asarray(tr.t_s), pos_enu_m=np.asarray(tr.pos_enu_m))
-            for name, tr in tracks.items()
-        },
-    )
+    return Telemetry(source=str(p), vehicles=tracks)

@@ -66,7 +66,8 @@ from mavlink.stream import (
     auto_send_groups,
     send_offsets,
 )
-from mavlink.tlog import FlownTrack, TlogRecorder, TlogStats, write_tracks_csv
+from mavlink.tlog import TlogRecorder, TlogStats
+from mavlink.tracks import FlownTrack, write_tracks_csv
 from mavlink.vehicle import Vehicle, VehicleStatus
 from planner.frames import GeodeticPoint, enu_to_geodetic, ned_to_enu, ned_vector_to_enu
 from planner.trajectory import Trajectory

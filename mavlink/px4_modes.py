@@ -43,7 +43,11 @@ class AutoSubMode(IntEnum):
 
 
 class Px4Mode(Enum):
-    """A complete PX4 mode; the value is ``(main, sub)``."""
+    """A complete PX4 mode; the value is ``(main, sub)``.
+
+    The mock vehicle has its own (:class:`mavlink.mock.px4.Px4Mode`) on purpose: the vehicle's
+    side shares only the wire with the ground station it tests.
+    """
 
     MANUAL = (MainMode.MANUAL, 0)
     ALTCTL = (MainMode.ALTCTL, 0)

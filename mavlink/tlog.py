@@ -12,18 +12,14 @@ know are counted in :attr:`TlogStats.unknown`, never dropped silently. Only
 what the vehicles send is recorded (the GCS's own setpoints are in the
 flight result's statistics).
 
-CSV (:func:`write_tracks_csv`, :func:`read_tracks_csv`): one row per
-LOCAL_POSITION_NED sample of each vehicle with mission-frame ENU position and
-velocity, the input of ``gcs verify`` on flown data. :func:`tracks_from_tlog`
-rebuilds the same tracks from a ``.tlog`` alone (GPS_GLOBAL_ORIGIN and
+:func:`tracks_from_tlog` rebuilds the flown tracks (:class:`mavlink.tracks.FlownTrack`, whose
+CSV is :func:`mavlink.tracks.write_tracks_csv`) from a ``.tlog`` alone (GPS_GLOBAL_ORIGIN and
 LOCAL_POSITION_NED per system id).
 """
 
 from __future__ import annotations
 
-import csv
 import json
-import math
 import struct
 import threading
 import time
@@ -38,24 +34,11 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mav
 
 from mavlink.errors import LinkError
+from mavlink.tracks import FlownTrack
 from planner.frames import GeodeticPoint, ned_to_enu, ned_vector_to_enu
 
 if TYPE_CHECKING:
     from mavlink.fleet import Fleet
-
-CSV_COLUMNS = (
-    "vehicle",
-    "t_s",
-    "x_enu_m",
-    "y_enu_m",
-    "z_enu_m",
-    "vx_enu_m_s",
-    "vy_enu_m_s",
-    "vz_enu_m_s",
-    "north_m",
-    "east_m",
-    "down_m",
-)
 
 
 @dataclass(frozen=True, slots=True)
@@ -168,97 +151,6 @@ def _field_value(value: Any) -> Any:
     if isinstance(value, str):
         return value.encode("utf-8")
     return value
-
-
-@dataclass(frozen=True, slots=True, eq=False)
-class FlownTrack:
-    """What one vehicle reported during the flight, in the mission frame.
-
-    Attributes:
-        name: vehicle name.
-        t_s: ``(k,)`` receive times, seconds from the shared start.
-        pos_enu_m: ``(k, 3)`` mission-frame ENU positions.
-        vel_enu_m_s: ``(k, 3)`` mission-frame ENU velocities.
-        pos_ned_m: ``(k, 3)`` the raw LOCAL_POSITION_NED positions.
-    """
-
-    name: str
-    t_s: np.ndarray
-    pos_enu_m: np.ndarray
-    vel_enu_m_s: np.ndarray
-    pos_ned_m: np.ndarray
-
-    def resample(self, dt_s: float, t_end_s: float) -> np.ndarray:
-        """Positions ``(n, 3)`` at ``t = 0, dt, ..., t_end`` by linear interpolation.
-
-        Raises:
-            LinkError: the track does not cover ``[0, t_end]`` (names the gap).
-        """
-        n = math.floor(t_end_s / dt_s + 1e-9) + 1
-        t = np.arange(n) * dt_s
-        if self.t_s.size < 2 or self.t_s[0] > dt_s or self.t_s[-1] < t[-1] - dt_s:
-            covered = f"{self.t_s[0]:.2f}..{self.t_s[-1]:.2f} s" if self.t_s.size else "no samples"
-            raise LinkError(
-                f"flown track covers {covered}, need 0..{t[-1]:.2f} s", vehicle=self.name
-            )
-        return np.column_stack([np.interp(t, self.t_s, self.pos_enu_m[:, a]) for a in range(3)])
-
-
-# --------------------------------------------------------------------------
-# CSV tracks
-# --------------------------------------------------------------------------
-
-
-def write_tracks_csv(path: str | Path, tracks: Mapping[str, FlownTrack]) -> Path:
-    """Write flown tracks as CSV (columns :data:`CSV_COLUMNS`, times from the plan's start)."""
-    p = Path(path)
-    with p.open("w", newline="", encoding="utf-8") as f:
-        w = csv.writer(f)
-        w.writerow(CSV_COLUMNS)
-        for name, tr in tracks.items():
-            for k in range(tr.t_s.size):
-                w.writerow(
-                    [
-                        name,
-                        repr(float(tr.t_s[k])),
-                        *(repr(float(x)) for x in tr.pos_enu_m[k]),
-                        *(repr(float(x)) for x in tr.vel_enu_m_s[k]),
-                        *(repr(float(x)) for x in tr.pos_ned_m[k]),
-                    ]
-                )
-    return p
-
-
-def read_tracks_csv(path: str | Path) -> dict[str, FlownTrack]:
-    """Read :func:`write_tracks_csv` output back.
-
-    Raises:
-        LinkError: missing columns or a malformed number (naming the line).
-    """
-    p = Path(path)
-    rows: dict[str, list[list[float]]] = {}
-    try:
-        with p.open(newline="", encoding="utf-8") as f:
-            reader = csv.reader(f)
-            header = next(reader, None)
-            if header is None or tuple(header) != CSV_COLUMNS:
-                raise LinkError(f"{p}: line 1: expected the columns {', '.join(CSV_COLUMNS)}")
-            for line, row in enumerate(reader, start=2):
-                if len(row) != len(CSV_COLUMNS):
-                    raise LinkError(
-                        f"{p}: line {line}: expected {len(CSV_COLUMNS)} fields, got {len(row)}"
-                    )
-                try:
-                    rows.setdefault(row[0], []).append([float(x) for x in row[1:]])
-                except ValueError:
-                    raise LinkError(f"{p}: line {line}: malformed number") from None
-    except OSError as exc:
-        raise LinkError(f"cannot read {p}: {exc.strerror or exc}") from None
-    out = {}
-    for name, data in rows.items():
-        a = np.asarray(data)
-        out[name] = FlownTrack(name, a[:, 0], a[:, 1:4], a[:, 4:7], a[:, 7:10])
-    return out
 
 
 def tracks_from_tlog(

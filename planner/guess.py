@@ -12,6 +12,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from planner.cache import BoundedCache
 from planner.nlp import _limit_bounds, _two_sided_rows
 from planner.predicates import Role, role_of
 from planner.problem import Problem
@@ -324,19 +325,20 @@ def _fit_within_limits(
     return out
 
 
-_QP_CACHE: dict[tuple[int, int], Any] = {}
+#: the initial guess's QP solvers by size (oldest forgotten first)
+_QP_SOLVERS: BoundedCache[Any] = BoundedCache(16)
 
 
 def _guess_qp(n_dec: int, A: np.ndarray) -> Any:
-    key = (n_dec, A.shape[0])
-    if key not in _QP_CACHE:
-        _QP_CACHE[key] = ca.conic(
+    def build() -> Any:
+        return ca.conic(
             "guess_fit",
             "daqp",
             {"h": ca.Sparsity.dense(n_dec, n_dec), "a": ca.Sparsity.dense(*A.shape)},
             {"error_on_fail": False},
         )
-    return _QP_CACHE[key]
+
+    return _QP_SOLVERS.get_or_build((n_dec, A.shape[0]), build)[0]
 
 
 def _box_slots(

@@ -20,7 +20,7 @@ with ``z`` the stacked decision matrices of the leaf's vehicles (``vec(Z_v)``, c
 (``lo_enu_m`` then ``hi_enu_m`` per region).  Every leaf of that shape is then a *call* of
 the same functions with its own arguments, so the symbolic work is done once per shape, not
 once per vehicle (power-line N = 4: 8 leaves, 2 shapes), and it is cached for the process
-(the latest ``_TEMPLATES_MAX``): re-planning with another fleet size, or with boxes moved,
+(the latest 64): re-planning with another fleet size, or with boxes moved,
 reuses it; a change of the smallest box's size changes the fitted sharpness and so the
 templates.
 
@@ -39,6 +39,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from planner.cache import BoundedCache
 from planner.predicates import build_registry
 from planner.regions import Region, RegionKind
 from planner.stl import Call, Expr, Formula
@@ -155,10 +156,8 @@ class LeafTemplate:
     n_regions: int
 
 
-_TEMPLATES: dict[Any, LeafTemplate] = {}
-#: Templates kept per process (oldest forgotten first): a ground station re-planning with
-#: other boxes must not grow without bound.
-_TEMPLATES_MAX = 64
+#: Templates kept per process (oldest forgotten first)
+_TEMPLATES: BoundedCache[LeafTemplate] = BoundedCache(64)
 
 
 def clear_templates() -> None:
@@ -189,12 +188,10 @@ def template(
     """
     shape_text, vehicles, regions = canonical_leaf(leaf)
     key = (shape_text, step, dt, k, k_pred, _model_key(model))
-    tpl = _TEMPLATES.get(key)
-    if tpl is None:
-        tpl = _build_template(leaf, step, model, dt, k, k_pred, len(vehicles), len(regions))
-        while len(_TEMPLATES) >= _TEMPLATES_MAX:
-            _TEMPLATES.pop(next(iter(_TEMPLATES)))
-        _TEMPLATES[key] = tpl
+    tpl, _ = _TEMPLATES.get_or_build(
+        key,
+        lambda: _build_template(leaf, step, model, dt, k, k_pred, len(vehicles), len(regions)),
+    )
     return tpl, vehicles, regions
 
 

@@ -22,6 +22,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import casadi as ca
 import numpy as np
 
+from planner.cache import BoundedCache
 from planner.leaf_templates import (
     LeafInstance,
     clear_templates,
@@ -161,13 +162,13 @@ class _Structure:
     build_s: float
 
 
-_CACHE: dict[Any, _Structure] = {}
-_CACHE_SIZE = 8
+#: Built NLPs and solvers by problem structure (oldest forgotten first)
+STRUCTURES: BoundedCache[_Structure] = BoundedCache(8)
 
 
 def clear_cache() -> None:
     """Forget built solvers and leaf templates (benchmarks measure cold builds with this)."""
-    _CACHE.clear()
+    STRUCTURES.clear()
     clear_templates()
 
 

@@ -68,9 +68,8 @@ from planner.checks import LimitReport, check_trajectories
 from planner.dynamics import DoubleIntegrator, MinimumJerkChain
 from planner.guess import _initial_guess
 from planner.nlp import (
-    _CACHE,
-    _CACHE_SIZE,
     K_MIN,
+    STRUCTURES,
     _build,
     _limit_bounds,
     _Structure,
@@ -174,14 +173,12 @@ def plan(
     p_val = np.concatenate([x.reshape(-1, order="F") for x in x0s])
 
     key = _structure_key(problem)
-    cached = key in _CACHE
-    if not cached:
+
+    def build() -> _Structure:
         say(f"building the NLP for {len(problem.vehicles)} vehicle(s)")
-        struct = _build(problem, model, formula)
-        if len(_CACHE) >= _CACHE_SIZE:
-            _CACHE.pop(next(iter(_CACHE)))
-        _CACHE[key] = struct
-    struct = _CACHE[key]
+        return _build(problem, model, formula)
+
+    struct, cached = STRUCTURES.get_or_build(key, build)
     build_s = struct.build_s if not cached else 0.0
     watch = struct.watch
     watch.deadline = math.inf if time_limit_s is None else t_start + float(time_limit_s)

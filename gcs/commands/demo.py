@@ -131,7 +131,7 @@ def run_demo(
     from gcs.plot import plot_plan
     from gcs.progress import FlightProgress
     from gcs.report import write_report
-    from gcs.telemetry import FlownPath, Telemetry
+    from gcs.telemetry import Telemetry
     from planner.optimize import plan as solve
     from planner.planfile import load_plan, save_plan
     from planner.scenario import load_scenario
@@ -190,7 +190,7 @@ def run_demo(
     t = time.perf_counter()
     telemetry = Telemetry(
         source=str(outcome.files.get("csv", "flight")),
-        vehicles={n: FlownPath(tr.t_s, tr.pos_enu_m) for n, tr in outcome.tracks.items()},
+        vehicles=dict(outcome.tracks),
     )
     picture = plot_plan(plan, out / "demo.png", telemetry, name=f"{scenario.stem} (demo)").path
     files["picture"] = picture

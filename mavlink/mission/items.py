@@ -59,7 +59,11 @@ class MissionEnd(Enum):
 
 @dataclass(frozen=True, slots=True)
 class MissionItem:
-    """One MISSION_ITEM_INT (lat/lon in degE7, altitude in metres, AMSL in GLOBAL_INT)."""
+    """One MISSION_ITEM_INT (lat/lon in degE7, altitude in metres, AMSL in GLOBAL_INT).
+
+    The mock vehicle stores its own (:class:`mavlink.mock.mission.MissionItem`) on purpose: the
+    vehicle's side shares only the wire with the ground station it tests.
+    """
 
     seq: int
     frame: int

@@ -140,7 +140,12 @@ SUPPORTED_COMMANDS: dict[int, frozenset[int]] = {
 
 @dataclass(frozen=True, slots=True)
 class MissionItem:
-    """One stored plan item, the fields of ``MISSION_ITEM_INT`` (x, y: degE7 or raw int)."""
+    """One stored plan item, the fields of ``MISSION_ITEM_INT`` (x, y: degE7 or raw int).
+
+    The ground station has its own (:class:`mavlink.mission.items.MissionItem`) on purpose: the
+    mock is the vehicle's side and shares nothing with the client it tests but the wire, so a
+    mistake in one cannot hide the same mistake in the other.
+    """
 
     seq: int
     frame: int

@@ -47,7 +47,12 @@ class AutoSubMode(enum.IntEnum):
 
 
 class Px4Mode(enum.Enum):
-    """A PX4 flight mode as the (main, sub) pair of its custom mode."""
+    """A PX4 flight mode as the (main, sub) pair of its custom mode.
+
+    Kept apart from the ground station's :class:`mavlink.px4_modes.Px4Mode` on purpose (the
+    vehicle's side shares only the wire with the client it tests); a test checks that the two
+    encode every mode alike.
+    """
 
     MANUAL = (1, 0)
     ALTCTL = (2, 0)

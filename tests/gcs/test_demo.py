@@ -17,7 +17,7 @@ import pytest
 from gcs.cli import main
 from gcs.commands.demo import SCENARIO, find_config
 from gcs.evaluation import plan_formula
-from mavlink.tlog import read_tracks_csv
+from gcs.telemetry import load_telemetry
 from planner.planfile import load_plan
 
 pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)
@@ -45,7 +45,7 @@ def test_demo_pipeline_flies_the_plan_and_reports_the_flown_robustness(
     # The printed flown robustness is the spec's exact value on the recorded tracks.
     flown = float(re.search(r"flown robustness ([+-]\d+\.\d+); flight completed", text)[1])  # type: ignore[index]
     plan = load_plan(out / "plan.json")
-    tracks = read_tracks_csv(out / "flight.csv")
+    tracks = load_telemetry(out / "flight.csv").vehicles
     dt = plan.check_dt_s
     signals = {n: tr.resample(dt, plan.horizon_s) for n, tr in tracks.items()}
     assert plan_formula(plan).robustness(signals, dt) == pytest.approx(flown, abs=6e-5)

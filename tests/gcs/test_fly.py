@@ -22,7 +22,8 @@ from pymavlink import mavutil
 from gcs.cli import main
 from gcs.dryrun import free_udp_ports
 from gcs.evaluation import plan_formula
-from mavlink.tlog import read_tracks_csv, tracks_from_tlog
+from gcs.telemetry import load_telemetry
+from mavlink.tlog import tracks_from_tlog
 from planner.planfile import load_plan
 from tests.procutil import interruptible
 
@@ -84,7 +85,7 @@ def test_plan_verify_export_and_dry_run_flight_satisfy_the_spec(
         kinds.add((m.get_srcSystem(), m.get_type()))
     assert {(1, "HEARTBEAT"), (2, "HEARTBEAT"), (1, "LOCAL_POSITION_NED")} <= kinds
     # The CSV holds the same flight, in the mission frame, close to the plan.
-    csv_tracks = read_tracks_csv(log / "flight.csv")
+    csv_tracks = load_telemetry(log / "flight.csv").vehicles
     for v in plan.vehicles:
         tr = csv_tracks[v.name]
         inside = (tr.t_s >= 0) & (tr.t_s <= plan.horizon_s)
@@ -275,7 +276,7 @@ def test_mission_mode_flies_the_uploaded_missions_over_the_whole_horizon(
 
 def test_evaluation_finds_the_delay_of_a_late_track_and_judges_it_exactly() -> None:
     from gcs.evaluation import evaluate_flight
-    from mavlink.tlog import FlownTrack
+    from mavlink.tracks import FlownTrack
 
     plan = load_plan(
         Path(__file__).resolve().parents[1] / "mavlink" / "data" / "reach_avoid_2.plan.json"

@@ -13,7 +13,7 @@ import yaml
 
 from mavlink.fleet import Fleet
 from mavlink.mock.fleet import MockFleet
-from mavlink.tlog import FlownTrack
+from mavlink.tracks import FlownTrack
 from mavlink.vehicle import VehicleSpec
 from planner.planfile import Plan, load_plan
 from planner.predicates import build_registry

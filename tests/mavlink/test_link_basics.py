@@ -97,6 +97,18 @@ def test_custom_mode_matches_px4_bit_layout() -> None:
     assert Px4Mode.AUTO_LAND.main is MainMode.AUTO and Px4Mode.AUTO_LAND.sub == AutoSubMode.LAND
 
 
+def test_the_mock_and_the_ground_station_encode_every_px4_mode_alike() -> None:
+    # two enums on purpose (the vehicle's side shares only the wire with the client it
+    # tests): the same modes, the same (main, sub) custom-mode pairs
+    from mavlink.mock.px4 import Px4Mode as MockMode
+
+    assert [m.name for m in MockMode] == [m.name for m in Px4Mode]
+    for mode in Px4Mode:
+        main, sub = MockMode[mode.name].value
+        assert (int(mode.value[0]), int(mode.value[1])) == (main, sub)
+        assert decode_custom_mode(encode_custom_mode(mode)) is mode
+
+
 @pytest.mark.parametrize(
     "value", [0, 9 << 16, (4 << 16) | (9 << 24), (6 << 16) | 1, (3 << 16) | (1 << 24), -1]
 )

@@ -15,13 +15,14 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
+from gcs.telemetry import load_telemetry
 from mavlink.errors import PreflightError
 from mavlink.mock.config import FaultConfig, Outage
 from mavlink.mock.px4 import Px4Mode as MockMode
 from mavlink.monitor import SafetyMonitor, Verdict, always_clauses
 from mavlink.offboard import FlightResult, fly_offboard
 from mavlink.offboard_setpoints import OffboardConfig
-from mavlink.tlog import read_tracks_csv, tracks_from_tlog
+from mavlink.tlog import tracks_from_tlog
 from planner.frames import GeodeticPoint, ned_to_enu
 from tests.mavlink.linkutil import (
     flown_robustness,
@@ -149,7 +150,7 @@ def test_fleet_flies_planned_reach_avoid_and_the_flown_telemetry_satisfies_the_s
     rho_tlog = flown_robustness(spec, from_tlog, dt, horizon)
     assert rho_tlog == pytest.approx(rho_flown, abs=0.02)
     # CSV round trip for `gcs verify`.
-    back = read_tracks_csv(csv)
+    back = load_telemetry(csv).vehicles
     for name in names:
         np.testing.assert_array_equal(back[name].pos_enu_m, result.tracks[name].pos_enu_m)
         np.testing.assert_array_equal(back[name].t_s, result.tracks[name].t_s)
