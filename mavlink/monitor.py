@@ -34,7 +34,7 @@ from __future__ import annotations
 import asyncio
 import math
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from enum import Enum
@@ -352,6 +352,10 @@ class SafetyMonitor:
         max_off_plan_m: stop the flight when a vehicle is farther than this from its plan
             (``None``: never).
         on_warning: called with one line for the operator (on the monitor's thread).
+        clock: the monotonic clock (seconds) the ticks and ages are read on; tests inject a
+            simulated one together with ``wait``.
+        wait: ``await wait(stop, delay_s)`` waits until ``stop`` is set or ``delay_s`` has
+            passed and returns whether ``stop`` is set (default: on the event loop's clock).
     """
 
     def __init__(
@@ -368,6 +372,8 @@ class SafetyMonitor:
         warn_off_plan_m: float | None = None,
         max_off_plan_m: float | None = None,
         on_warning: Callable[[str], None] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        wait: Callable[[asyncio.Event, float], Awaitable[bool]] | None = None,
     ) -> None:
         if not (math.isfinite(horizon_s) and horizon_s >= 0):
             raise LinkError(f"monitor horizon_s must be >= 0, got {horizon_s!r}")
@@ -389,6 +395,8 @@ class SafetyMonitor:
         self.warn_off_plan_m = warn_off_plan_m
         self.max_off_plan_m = max_off_plan_m
         self.on_warning = on_warning
+        self._clock = clock
+        self._wait = _wait_for_stop if wait is None else wait
         self._batch = ClauseBatch([c.formula for c in self.clauses])
         # the signals the clauses read, and per clause the rows of its vehicles (padded with
         # the extra last row, always "present")
@@ -539,7 +547,7 @@ class SafetyMonitor:
     ) -> _Finding | None:
         """One evaluation on a snapshot of the telemetry (runs on the monitor's thread)."""
         t_cpu = time.perf_counter()
-        now = time.monotonic()
+        now = self._clock()
         t_s = now - t0_monotonic_s
         statuses = {v.name: v.status(now) for v in vehicles}
         try:
@@ -688,14 +696,10 @@ class SafetyMonitor:
             while not stop.is_set():
                 # Half a period after the setpoint ticks, so an evaluation never delays a send.
                 deadline = t0_monotonic_s + (k + 0.5) * period
-                delay = deadline - time.monotonic()
-                if delay > 0:
-                    try:
-                        await asyncio.wait_for(stop.wait(), delay)
-                        break
-                    except TimeoutError:
-                        pass
-                k = max(k + 1, int((time.monotonic() - t0_monotonic_s) / period - 0.5) + 1)
+                delay = deadline - self._clock()
+                if delay > 0 and await self._wait(stop, delay):
+                    break
+                k = max(k + 1, int((self._clock() - t0_monotonic_s) / period - 0.5) + 1)
                 found = await loop.run_in_executor(
                     worker, self._tick, vehicles, t0_monotonic_s, maps, origins, plans,
                     expected_mode, mode_grace_s,
@@ -709,7 +713,7 @@ class SafetyMonitor:
     async def _stop(self, fleet: Fleet, stop: asyncio.Event, found: _Finding) -> SafetyEvent:
         stop.set()
         others = [v for v in fleet if v.name not in found.exclude]
-        t_command = time.monotonic()
+        t_command = self._clock()
         failures = await fleet.for_each(lambda v: safe_stop(v, self.action), others)
         return SafetyEvent(
             verdict=found.verdict,
@@ -723,3 +727,12 @@ class SafetyMonitor:
             detail=found.detail,
             latency_s=t_command - found.sample_monotonic_s,
         )
+
+
+async def _wait_for_stop(stop: asyncio.Event, delay_s: float) -> bool:
+    """Wait until ``stop`` is set or ``delay_s`` has passed; whether it is set."""
+    try:
+        await asyncio.wait_for(stop.wait(), delay_s)
+    except TimeoutError:
+        return stop.is_set()
+    return True

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import asyncio
 import threading
-import time
 import types
 from pathlib import Path
 
@@ -140,6 +139,25 @@ class FakeVehicle:
         )  # fmt: skip
 
 
+class SimTime:
+    """The monitor's clock and wait on simulated time: waiting advances the clock, and the run
+    is stopped once ``until_s`` has passed (no wall-clock sleeping, exact tick counts)."""
+
+    def __init__(self, until_s: float) -> None:
+        self.t = 1000.0
+        self.end = self.t + until_s
+
+    def __call__(self) -> float:
+        return self.t
+
+    async def wait(self, stop: asyncio.Event, delay_s: float) -> bool:
+        self.t += delay_s
+        if self.t >= self.end:
+            stop.set()
+        await asyncio.sleep(0)
+        return stop.is_set()
+
+
 def test_the_run_evaluates_on_its_own_thread_and_reports_late_vehicles() -> None:
     _, spec = fleet_spec(2)
     names = ["d1", "d2"]
@@ -154,7 +172,8 @@ def test_the_run_evaluates_on_its_own_thread_and_reports_late_vehicles() -> None
         )
         for n in names
     ]
-    mon = SafetyMonitor(always_clauses(spec, names), horizon_s=0.5)
+    sim = SimTime(until_s=0.5)
+    mon = SafetyMonitor(always_clauses(spec, names), horizon_s=0.5, clock=sim, wait=sim.wait)
     threads = set()
     evaluate = mon.evaluate
 
@@ -171,19 +190,18 @@ def test_the_run_evaluates_on_its_own_thread_and_reports_late_vehicles() -> None
             mon.run(
                 None,  # type: ignore[arg-type]  (the fleet: only needed to stop)
                 vehicles,
-                t0_monotonic_s=time.monotonic(),
+                t0_monotonic_s=sim.t,
                 mission_origin=origin,
                 origins=origins,
                 stop=stop,
                 expected_mode=Px4Mode.OFFBOARD,
             )
         )
-        await asyncio.sleep(0.5)
-        stop.set()
         return await task, loop_thread
 
     event, loop_thread = asyncio.run(run())
-    assert event is None and mon.checks >= 5
+    # 20 Hz, half a period after each tick: 0.025, 0.075, ..., 0.475 s in 0.5 s
+    assert event is None and mon.checks == 10
     assert threads and loop_thread not in threads
     assert mon.stats.stale == {"d2": mon.checks}
     assert mon.stats.stale_max_age_s["d2"] == pytest.approx(0.6)
@@ -224,8 +242,9 @@ def test_the_tracking_alarm_warns_past_the_margin_once_and_holds_past_the_bound(
     vehicles = [FakeVehicle(n, enu_to_ned(flown[n], origin, origin), 0.02, origin) for n in plans]
     fleet = FakeFleet(vehicles)
     lines: list[str] = []
+    sim = SimTime(until_s=0.4)
     mon = SafetyMonitor((), horizon_s=0.5, warn_off_plan_m=0.5, max_off_plan_m=bound,
-                        on_warning=lines.append)  # fmt: skip
+                        on_warning=lines.append, clock=sim, wait=sim.wait)  # fmt: skip
 
     async def run():  # type: ignore[no-untyped-def]
         stop = asyncio.Event()
@@ -233,15 +252,13 @@ def test_the_tracking_alarm_warns_past_the_margin_once_and_holds_past_the_bound(
             mon.run(
                 fleet,  # type: ignore[arg-type]
                 vehicles,  # type: ignore[arg-type]
-                t0_monotonic_s=time.monotonic(),
+                t0_monotonic_s=sim.t,
                 mission_origin=origin,
                 origins=dict.fromkeys(plans, origin),
                 stop=stop,
                 plans=plans,
             )
         )
-        await asyncio.sleep(0.4)
-        stop.set()
         return await task
 
     event = asyncio.run(run())
@@ -251,7 +268,7 @@ def test_the_tracking_alarm_warns_past_the_margin_once_and_holds_past_the_bound(
     assert list(mon.stats.warned) == ["d2"] and len(lines) == 1  # once, however many ticks
     assert "d2 is 1.30 m from its plan" in lines[0] and "margin 0.50 m" in lines[0]
     if bound is None:
-        assert event is None and mon.checks >= 3 and fleet.stopped == []
+        assert event is None and mon.checks == 8 and fleet.stopped == []
     else:
         assert event is not None and event.verdict is Verdict.OFF_PLAN
         assert event.vehicles == ("d2",) and fleet.stopped == ["d1", "d2"]
