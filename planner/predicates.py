@@ -169,17 +169,9 @@ def _ca_softmin_rows(m: Any, k: float) -> Any:
 
 
 def _ca_softmax_rows_lower(m: Any, k: float) -> Any:
-    """Row-wise soft-max minus its bound (n, 1); in [max - log(c)/k, max]."""
-    import casadi as ca
-
-    c = m.shape[1]
-    mx = m[:, 0]
-    for j in range(1, c):
-        mx = ca.fmax(mx, m[:, j])
-    s = 0
-    for j in range(c):
-        s = s + ca.exp(k * (m[:, j] - mx))
-    return mx + ca.log(s) / k - math.log(c) / k
+    """Row-wise soft-max minus its bound (n, 1); in [max - log(c)/k, max]: the soft-min of
+    ``-m``, negated and shifted down by ``log(c)/k``."""
+    return -_ca_softmin_rows(-m, k) - math.log(m.shape[1]) / k
 
 
 def _vehicle_signal(signals: Mapping[str, Any], name: str) -> Any:
