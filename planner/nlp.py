@@ -219,158 +219,226 @@ def _leaf_values(
     return out * ca.DM.ones(len(steps), 1) if not hasattr(out, "shape") else out
 
 
-def _build(problem: Problem, model: Any, formula: Formula) -> _Structure:
-    t0 = time.perf_counter()
-    dt = problem.timing.sample_dt_s
-    n = len(model.times_s)
-    names = [v.name for v in problem.vehicles]
-    nv = len(names)
-    opts = problem.solver
+class NlpBuilder:
+    """The NLP put together from composable pieces, in the spirit of stlpy's ``STLSolver``.
 
-    # Lifted formulation: the sampled positions P_i (n, 3) are variables tied to Z_i by
-    # linear equalities.  Row-wise leaves (separation, obstacles, boxes) then touch a few
-    # variables each, so the constraint Jacobian and the Lagrangian Hessian are very sparse
-    # and CasADi's symbolic derivatives need few directions (colouring) whatever N is.
-    # Smooth leaves couple many samples (a window's soft max): they are written in Z (the
-    # same positions through Mp), where their dense Hessian block is n_dec*3 wide, not n*3.
-    leaves: dict[Formula, set[int]] = {}
-    _decompose(formula, np.array([0]), dt, leaves)
-    smooth_leaves = [leaf for leaf in leaves if not _is_direct(leaf)]
-    k_final, margin = _fit_k(problem, smooth_leaves, dt)
-    k_list = [*[kk for kk in opts.continuation if kk < k_final], k_final]
-    k_pred = predicate_sharpness(problem)
-    fns = casadi_functions(problem, k_pred)
-    c_dt = opts.constraint_dt_s if opts.constraint_dt_s is not None else max(dt, 0.1)
-    stride = max(1, round(c_dt / dt))
-    direct_steps: dict[Formula, list[int]] = {}
-    for leaf, steps_set in leaves.items():
-        if _is_direct(leaf):
-            steps = sorted(steps_set)
-            direct_steps[leaf] = sorted(set(steps[::stride]) | {steps[-1]})
-    # The workspace bounds the lifted positions, so every constraint step of the horizon is
-    # lifted, whether or not the spec itself constrains it there.
-    grid = {*range(0, n, stride), n - 1}
-    used = sorted(grid.union(*direct_steps.values()))
-    row_of = {st: i for i, st in enumerate(used)}
+    Each ``add_*`` method contributes one part: the dynamics (lifting equalities, per-vehicle
+    limits, rest at the end, the model's own equalities), the spec's row-wise leaves as
+    constraints on the epigraph variable ``r``, the robustness objective, and the variable
+    bounds (the workspace, and the robustness cap as ``r``'s upper bound); :meth:`solvers`
+    builds one solver per stage of the k continuation.  The paper's eq. (1) (``r >= epsilon +
+    margin``) is not a separate structure: it is a lower bound on ``r`` that
+    :func:`planner.optimize.plan` sets per solve (:attr:`_Structure.lbx`), like the limits'
+    bounds.  :func:`_build` calls the pieces in order; the rows keep that order.
+    """
 
-    Z = [ca.SX.sym(f"Z_{nm}", model.n_dec, 3) for nm in names]
-    P = [ca.SX.sym(f"P_{nm}", len(used), 3) for nm in names]
-    X0 = [ca.SX.sym(f"X0_{nm}", model.n_init, 3) for nm in names]
-    r = ca.SX.sym("r")
-    w = ca.vertcat(*[ca.vec(z) for z in Z], *[ca.vec(q) for q in P], r)
-    p = ca.vertcat(*[ca.vec(x) for x in X0])
-    Mp, Np = ca.sparsify(ca.DM(model.Mp)), ca.sparsify(ca.DM(model.Np))
-    pos_from_z = {nm: ca.mtimes(Mp, Z[i]) + ca.mtimes(Np, X0[i]) for i, nm in enumerate(names)}
-    Pd = dict(zip(names, P, strict=True))
+    def __init__(self, problem: Problem, model: Any, formula: Formula) -> None:
+        self.t0 = time.perf_counter()
+        self.problem, self.model = problem, model
+        self.dt = problem.timing.sample_dt_s
+        self.n = len(model.times_s)
+        self.names = [v.name for v in problem.vehicles]
+        self.opts = opts = problem.solver
+        # Lifted formulation: the sampled positions P_i (n, 3) are variables tied to Z_i by
+        # linear equalities.  Row-wise leaves (separation, obstacles, boxes) then touch a few
+        # variables each, so the constraint Jacobian and the Lagrangian Hessian are very
+        # sparse and CasADi's symbolic derivatives need few directions (colouring) whatever N
+        # is.  Smooth leaves couple many samples (a window's soft max): they are written in Z
+        # (the same positions through Mp), where their dense Hessian block is n_dec*3 wide,
+        # not n*3.
+        self.leaves: dict[Formula, set[int]] = {}
+        _decompose(formula, np.array([0]), self.dt, self.leaves)
+        self.smooth_leaves = [leaf for leaf in self.leaves if not _is_direct(leaf)]
+        self.k_final, self.margin = _fit_k(problem, self.smooth_leaves, self.dt)
+        self.k_list = [*[kk for kk in opts.continuation if kk < self.k_final], self.k_final]
+        self.k_pred = predicate_sharpness(problem)
+        self.fns = casadi_functions(problem, self.k_pred)
+        c_dt = opts.constraint_dt_s if opts.constraint_dt_s is not None else max(self.dt, 0.1)
+        stride = max(1, round(c_dt / self.dt))
+        self.direct_steps: dict[Formula, list[int]] = {}
+        for leaf, steps_set in self.leaves.items():
+            if _is_direct(leaf):
+                steps = sorted(steps_set)
+                self.direct_steps[leaf] = sorted(set(steps[::stride]) | {steps[-1]})
+        # The workspace bounds the lifted positions, so every constraint step of the horizon
+        # is lifted, whether or not the spec itself constrains it there.
+        grid = {*range(0, self.n, stride), self.n - 1}
+        self.used = sorted(grid.union(*self.direct_steps.values()))
+        self.row_of = {st: i for i, st in enumerate(self.used)}
 
-    def rows_of(steps: list[int]) -> dict[str, Any]:
-        idx = [row_of[st] for st in steps]
-        return {nm: q[idx, :] for nm, q in Pd.items()}
+        names = self.names
+        self.Z = [ca.SX.sym(f"Z_{nm}", model.n_dec, 3) for nm in names]
+        self.P = [ca.SX.sym(f"P_{nm}", len(self.used), 3) for nm in names]
+        self.X0 = [ca.SX.sym(f"X0_{nm}", model.n_init, 3) for nm in names]
+        self.r = ca.SX.sym("r")
+        self.w = ca.vertcat(*[ca.vec(z) for z in self.Z], *[ca.vec(q) for q in self.P], self.r)
+        self.p = ca.vertcat(*[ca.vec(x) for x in self.X0])
+        self.n_z = model.n_dec * 3 * len(names)
+        # the parts, filled by the add_* methods
+        self.linear: list[Any] = []
+        self.nonlinear: list[Any] = []
+        self.direct: Any = ca.SX(0, 1)
+        self.f: Any = None
+        self.lbx = self.ubx = np.zeros(0)
+        self.n_lift = self.n_lim = self.n_eq = 0
+        self.lim_slices: list[slice] = []
+        self.lim_half = 0
 
-    direct_parts = [
-        _leaf_values(leaf, steps, rows_of, problem, fns) for leaf, steps in direct_steps.items()
-    ]
-    direct = ca.vertcat(*direct_parts) if direct_parts else ca.SX(0, 1)
+    def add_dynamics_constraints(self) -> NlpBuilder:
+        """Linear rows: the lifting equalities, the limits, rest at the end, the model's own
+        equalities (the acceleration chain of an explicit-acc primitive chain)."""
+        model, nv = self.model, len(self.names)
+        Z, P, X0 = self.Z, self.P, self.X0
+        Mp, Np = ca.sparsify(ca.DM(model.Mp)), ca.sparsify(ca.DM(model.Np))
+        pos_from_z = [ca.mtimes(Mp, Z[i]) + ca.mtimes(Np, X0[i]) for i in range(nv)]
+        lift_g = [ca.vec(P[i] - pos_from_z[i][self.used, :]) for i in range(nv)]
+        self.n_lift = len(self.used) * 3 * nv
+        lim_g = []
+        row = self.n_lift
+        cons = model.limit_constraints(np.ones(3), np.ones(3))
+        self.lim_half = half = _two_sided_rows(cons)
+        G = ca.sparsify(ca.DM(cons.G[:half]))
+        H = ca.sparsify(ca.DM(cons.H[:half]))
+        for i in range(nv):
+            gi = ca.vec(ca.mtimes(G, Z[i]) + ca.mtimes(H, X0[i]))
+            lim_g.append(gi)
+            self.lim_slices.append(slice(row, row + gi.shape[0]))
+            row += gi.shape[0]
+        self.n_lim = row - self.n_lift
+        Mv_end = ca.DM(model.Mv[-1:, :])
+        Nv_end = ca.DM(model.Nv[-1:, :])
+        end_g = [ca.vec(ca.mtimes(Mv_end, Z[i]) + ca.mtimes(Nv_end, X0[i])) for i in range(nv)]
+        Ge, He = (ca.sparsify(ca.DM(m)) for m in model.equality_constraints())
+        eq_g = [ca.vec(ca.mtimes(Ge, Z[i]) + ca.mtimes(He, X0[i])) for i in range(nv)]
+        self.n_eq = Ge.shape[0] * 3 * nv
+        self.linear = [*lift_g, *lim_g, *end_g, *eq_g]
+        return self
 
-    # Linear parts: lifting equalities, limits, rest at the end.
-    lift_g = [ca.vec(P[i] - pos_from_z[nm][used, :]) for i, nm in enumerate(names)]
-    n_lift = len(used) * 3 * nv
-    lim_g, lim_slices = [], []
-    row = n_lift
-    cons = model.limit_constraints(np.ones(3), np.ones(3))
-    half = _two_sided_rows(cons)
-    G = ca.sparsify(ca.DM(cons.G[:half]))
-    H = ca.sparsify(ca.DM(cons.H[:half]))
-    for i in range(nv):
-        gi = ca.vec(ca.mtimes(G, Z[i]) + ca.mtimes(H, X0[i]))
-        lim_g.append(gi)
-        lim_slices.append(slice(row, row + gi.shape[0]))
-        row += gi.shape[0]
-    n_lim = row - n_lift
-    Mv_end = ca.DM(model.Mv[-1:, :])
-    Nv_end = ca.DM(model.Nv[-1:, :])
-    end_g = [ca.vec(ca.mtimes(Mv_end, Z[i]) + ca.mtimes(Nv_end, X0[i])) for i in range(nv)]
-    # The model's own equalities (the acceleration chain of an explicit-acc primitive chain).
-    Ge, He = (ca.sparsify(ca.DM(m)) for m in model.equality_constraints())
-    eq_g = [ca.vec(ca.mtimes(Ge, Z[i]) + ca.mtimes(He, X0[i])) for i in range(nv)]
-    n_eq = Ge.shape[0] * 3 * nv
+    def add_spec_constraints(self) -> NlpBuilder:
+        """The row-wise leaves, each ``>= r`` at its constraint steps (the smooth leaves join
+        per k in :meth:`solvers`, as calls of shared templates)."""
+        Pd = dict(zip(self.names, self.P, strict=True))
 
-    # A small acceleration penalty gives the NLP curvature in the directions r does not
-    # care about (the max-min objective is flat there); measured to cut iterations.
-    Ma, Na = ca.sparsify(ca.DM(model.Ma)), ca.sparsify(ca.DM(model.Na))
-    acc_sq = 0
-    for i in range(nv):
-        acc = ca.mtimes(Ma, Z[i]) + ca.mtimes(Na, X0[i])
-        acc_sq = acc_sq + ca.sumsqr(acc)
-    reg_term = _REG_WEIGHT * acc_sq / (n * nv)
+        def rows_of(steps: list[int]) -> dict[str, Any]:
+            idx = [self.row_of[st] for st in steps]
+            return {nm: q[idx, :] for nm, q in Pd.items()}
 
-    # Workspace: simple bounds on the lifted positions.
-    ws = problem.workspace
-    n_z = model.n_dec * 3 * nv
-    m = len(used)
-    lbx = np.concatenate([np.full(n_z, -np.inf), np.tile(np.repeat(ws.lo_enu_m, m), nv), [-np.inf]])
-    r_hi = _R_MAX if opts.robustness_cap_m is None else opts.robustness_cap_m + margin
-    ubx = np.concatenate([np.full(n_z, np.inf), np.tile(np.repeat(ws.hi_enu_m, m), nv), [r_hi]])
-
-    # The linear and row-wise blocks (SX, differentiated block by block) do not depend on
-    # the temporal sharpness k; the smooth leaves are calls of shared templates, assembled
-    # with them into MX functions per k (see :mod:`planner.leaf_templates`).
-    linear = [*lift_g, *lim_g, *end_g, *eq_g]
-    n_lin = sum(int(b.shape[0]) for b in linear)
-    nonlinear = [part - r for part in direct_parts]
-    f = -r + reg_term
-    # Separation rows enter the Hessian flat unless asked otherwise (see _derivatives).
-    flat = [_is_separation(leaf) and not opts.separation_curvature for leaf in direct_steps]
-    exact = opts.hessian == "exact"
-    sx_derivs = _derivatives(w, p, f, linear, nonlinear, exact, flat)
-    # Values and derivatives are separate functions: nlpsol differentiates the MX values once
-    # more (reverse mode, for the multipliers) and must not go through derivative outputs.
-    sx_derivs["f"] = ca.Function("nlp_f", [w, p], [f])
-    sx_derivs["grad_f"] = ca.Function("nlp_grad_f", [w, p], [f, ca.gradient(f, w)])
-    sx_derivs["g"] = ca.Function("nlp_g", [w, p], [ca.vertcat(*linear, *nonlinear)])
-    n_sx = n_lin + int(direct.shape[0])
-    vehicle_index = {nm: i for i, nm in enumerate(names)}
-    smooth_items = [(leaf, st) for leaf in smooth_leaves for st in sorted(leaves[leaf])]
-    wm = ca.MX.sym("w", w.shape[0])
-    pm = ca.MX.sym("p", p.shape[0])
-
-    solvers: list[tuple[float, Any]] = []
-    leaf_fn = None
-    watch = IterationWatch(int(w.shape[0]), n_sx + len(smooth_items), int(p.shape[0]))
-    for k in k_list:
-        insts = [
-            instance(leaf, st, model, dt, k, k_pred, vehicle_index, problem.region)
-            for leaf, st in smooth_items
+        direct_parts = [
+            _leaf_values(leaf, steps, rows_of, self.problem, self.fns)
+            for leaf, steps in self.direct_steps.items()
         ]
-        nlp, derivs, leaf_fn = _assemble(wm, pm, sx_derivs, insts, n_lin, n_sx, exact)
-        solvers.append((k, _nlpsol(nlp, problem, derivs, watch, warm=bool(solvers))))
-    n_g = n_sx + len(smooth_items)
-    n_leaf = n_g - n_lin
-    lbg_fixed = np.concatenate(
-        [np.zeros(n_lift), np.full(n_lim, -np.inf), np.zeros(3 * nv + n_eq), np.zeros(n_leaf)]
-    )  # the limit rows' bounds are set per vehicle in plan()
-    ubg_fixed = np.concatenate(
-        [np.zeros(n_lift), np.zeros(n_lim), np.zeros(3 * nv + n_eq), np.full(n_leaf, np.inf)]
-    )
-    return _Structure(
-        solvers=solvers,
-        watch=watch,
-        leaf_fn=leaf_fn,
-        n_w=int(w.shape[0]),
-        n_z=n_z,
-        n_g=n_g,
-        lbx=lbx,
-        ubx=ubx,
-        lbg_fixed=lbg_fixed,
-        ubg_fixed=ubg_fixed,
-        lim_slices=lim_slices,
-        lim_half=half,
-        leaves=leaves,
-        used_steps=used,
-        n_smooth=len(smooth_items),
-        k=k_final,
-        margin=margin,
-        build_s=time.perf_counter() - t0,
+        self.direct = ca.vertcat(*direct_parts) if direct_parts else ca.SX(0, 1)
+        self.nonlinear = [part - self.r for part in direct_parts]
+        return self
+
+    def add_robustness_cost(self) -> NlpBuilder:
+        """Maximise ``r``; a small acceleration penalty gives the NLP curvature in the
+        directions ``r`` does not care about (the max-min objective is flat there; measured
+        to cut iterations)."""
+        model, nv = self.model, len(self.names)
+        Ma, Na = ca.sparsify(ca.DM(model.Ma)), ca.sparsify(ca.DM(model.Na))
+        acc_sq = 0
+        for i in range(nv):
+            acc = ca.mtimes(Ma, self.Z[i]) + ca.mtimes(Na, self.X0[i])
+            acc_sq = acc_sq + ca.sumsqr(acc)
+        self.f = -self.r + _REG_WEIGHT * acc_sq / (self.n * nv)
+        return self
+
+    def add_bounds(self) -> NlpBuilder:
+        """Simple bounds: the workspace on the lifted positions; on ``r`` the robustness cap
+        (``solver.robustness_cap_m``) above, and nothing below (eq. (1) sets it per solve)."""
+        ws, nv, m = self.problem.workspace, len(self.names), len(self.used)
+        cap = self.opts.robustness_cap_m
+        r_hi = _R_MAX if cap is None else cap + self.margin
+        n_z = self.n_z
+        self.lbx = np.concatenate(
+            [np.full(n_z, -np.inf), np.tile(np.repeat(ws.lo_enu_m, m), nv), [-np.inf]]
+        )
+        self.ubx = np.concatenate(
+            [np.full(n_z, np.inf), np.tile(np.repeat(ws.hi_enu_m, m), nv), [r_hi]]
+        )
+        return self
+
+    def solvers(self) -> _Structure:
+        """One solver per stage of the k continuation (warm-started from the stage before),
+        and the structure :func:`planner.optimize.plan` solves with."""
+        problem, model, nv = self.problem, self.model, len(self.names)
+        w, p = self.w, self.p
+        # The linear and row-wise blocks (SX, differentiated block by block) do not depend on
+        # the temporal sharpness k; the smooth leaves are calls of shared templates, assembled
+        # with them into MX functions per k (see :mod:`planner.leaf_templates`).
+        n_lin = sum(int(b.shape[0]) for b in self.linear)
+        # Separation rows enter the Hessian flat unless asked otherwise (see _derivatives).
+        flat = [
+            _is_separation(leaf) and not self.opts.separation_curvature
+            for leaf in self.direct_steps
+        ]
+        exact = self.opts.hessian == "exact"
+        sx_derivs = _derivatives(w, p, self.f, self.linear, self.nonlinear, exact, flat)
+        # Values and derivatives are separate functions: nlpsol differentiates the MX values
+        # once more (reverse mode, for the multipliers) and must not go through derivative
+        # outputs.
+        sx_derivs["f"] = ca.Function("nlp_f", [w, p], [self.f])
+        sx_derivs["grad_f"] = ca.Function("nlp_grad_f", [w, p], [self.f, ca.gradient(self.f, w)])
+        sx_derivs["g"] = ca.Function("nlp_g", [w, p], [ca.vertcat(*self.linear, *self.nonlinear)])
+        n_sx = n_lin + int(self.direct.shape[0])
+        vehicle_index = {nm: i for i, nm in enumerate(self.names)}
+        smooth_items = [
+            (leaf, st) for leaf in self.smooth_leaves for st in sorted(self.leaves[leaf])
+        ]
+        wm = ca.MX.sym("w", w.shape[0])
+        pm = ca.MX.sym("p", p.shape[0])
+
+        solvers: list[tuple[float, Any]] = []
+        leaf_fn = None
+        watch = IterationWatch(int(w.shape[0]), n_sx + len(smooth_items), int(p.shape[0]))
+        for k in self.k_list:
+            insts = [
+                instance(leaf, st, model, self.dt, k, self.k_pred, vehicle_index, problem.region)
+                for leaf, st in smooth_items
+            ]
+            nlp, derivs, leaf_fn = _assemble(wm, pm, sx_derivs, insts, n_lin, n_sx, exact)
+            solvers.append((k, _nlpsol(nlp, problem, derivs, watch, warm=bool(solvers))))
+        n_g = n_sx + len(smooth_items)
+        n_leaf = n_g - n_lin
+        n_lift, n_lim, n_eq = self.n_lift, self.n_lim, self.n_eq
+        lbg_fixed = np.concatenate(
+            [np.zeros(n_lift), np.full(n_lim, -np.inf), np.zeros(3 * nv + n_eq), np.zeros(n_leaf)]
+        )  # the limit rows' bounds are set per vehicle in plan()
+        ubg_fixed = np.concatenate(
+            [np.zeros(n_lift), np.zeros(n_lim), np.zeros(3 * nv + n_eq), np.full(n_leaf, np.inf)]
+        )
+        return _Structure(
+            solvers=solvers,
+            watch=watch,
+            leaf_fn=leaf_fn,
+            n_w=int(w.shape[0]),
+            n_z=self.n_z,
+            n_g=n_g,
+            lbx=self.lbx,
+            ubx=self.ubx,
+            lbg_fixed=lbg_fixed,
+            ubg_fixed=ubg_fixed,
+            lim_slices=self.lim_slices,
+            lim_half=self.lim_half,
+            leaves=self.leaves,
+            used_steps=self.used,
+            n_smooth=len(smooth_items),
+            k=self.k_final,
+            margin=self.margin,
+            build_s=time.perf_counter() - self.t0,
+        )
+
+
+def _build(problem: Problem, model: Any, formula: Formula) -> _Structure:
+    """The NLP of ``problem``: its pieces in order (:class:`NlpBuilder`)."""
+    return (
+        NlpBuilder(problem, model, formula)
+        .add_spec_constraints()
+        .add_dynamics_constraints()
+        .add_robustness_cost()
+        .add_bounds()
+        .solvers()
     )
 
 
