@@ -191,7 +191,14 @@ async def _stop_offboard(v: Vehicle) -> None:
 
 
 async def _end(v: Vehicle, action: EndAction, cfg: OffboardConfig | None = None) -> None:
-    await _stop_offboard(v)
+    # Hold first, while MAVSDK still re-sends the last setpoint, and only then stop the
+    # setpoints: stopping first leaves the vehicle without setpoints until the Hold command
+    # arrives, and on a lossy or busy link that can outlast COM_OF_LOSS_T, so PX4's own
+    # offboard-loss failsafe (COM_OBL_RC_ACT: possibly Land or RTL) would decide the end
+    try:
+        await v.hold()
+    finally:
+        await _stop_offboard(v)
     at = cfg.land_at.get(v.name) if cfg is not None else None
     if action is EndAction.LAND and at is not None and cfg is not None:
         # not straight down: to the landing point first, at the altitude given, then land
