@@ -34,11 +34,8 @@ import sys
 from collections.abc import Sequence
 
 from gcs.errors import (
-    CHECK_ERRORS,
     EXIT_BAD_INPUT,
     EXIT_INTERRUPTED,
-    USER_ERRORS,
-    VEHICLE_ERRORS,
     exit_status_of,
     format_user_error,
 )
@@ -139,12 +136,11 @@ def _main(argv: Sequence[str] | None) -> int:
     except KeyboardInterrupt:
         print("gcs: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except (*VEHICLE_ERRORS, *CHECK_ERRORS, *USER_ERRORS) as exc:
-        if args.debug:
-            raise
-        print(f"gcs {args.command}: error: {format_user_error(exc)}", file=sys.stderr)
+    except Exception as exc:
         status = exit_status_of(exc)
-        assert status is not None
+        if status is None or args.debug:
+            raise  # a bug: its traceback is what a report needs
+        print(f"gcs {args.command}: error: {format_user_error(exc)}", file=sys.stderr)
         return status
 
 

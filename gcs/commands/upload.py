@@ -357,7 +357,7 @@ def run(args: argparse.Namespace) -> int:
     from gcs.errors import EXIT_CHECK_FAILED, EXIT_OK, EXIT_VEHICLE_FAILED, UserError
     from gcs.flight import FlightRefused, preflight_interlock, signed_links, vehicle_specs
     from gcs.mission_flight import MissionRefused
-    from mavlink.errors import CommandError, PreflightError
+    from mavlink.errors import PreflightError
     from planner.planfile import load_plan
 
     budget_s = parse_budget_s(args.timeout)
@@ -410,9 +410,6 @@ def run(args: argparse.Namespace) -> int:
     except (PreflightError, MissionRefused) as exc:  # refused before anything was stored
         print(f"gcs upload: {exc}", file=sys.stderr)
         return EXIT_CHECK_FAILED
-    except CommandError as exc:  # a vehicle refused a command
-        print(f"gcs upload: {exc}", file=sys.stderr)
-        return EXIT_VEHICLE_FAILED
     ok = all(r.verified for r in rows) and (not args.start or all(r.started for r in rows))
     if args.json:
         out: dict[str, Any] = {

@@ -23,8 +23,8 @@ QUIET = {
 NO_CREEP = {"MOCK_GE_RATE": 0.0}
 
 
-def fleet(n: int = 1, seed: int = 0, **params: float) -> MockFleet:
-    f = MockFleet(n=n, seed=seed, params=params or None, ready_after_s=0.0)
+def fleet(n: int = 1, seed: int = 0, profile: str = "px4", **params: float) -> MockFleet:
+    f = MockFleet(n=n, seed=seed, profile=profile, params=params or None, ready_after_s=0.0)
     f.offline_links()
     return f
 

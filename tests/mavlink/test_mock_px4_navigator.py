@@ -295,8 +295,7 @@ def test_a_waypoint_is_reported_reached_when_its_hold_is_over_and_a_loiter_unlim
     # completed, a waypoint after its hold (param1), so its report comes at the end of the
     # hold and the mission's last report is its finish; LOITER_UNLIM never completes. The
     # ideal vehicle reports on arrival.
-    f = MockFleet(n=1, seed=3, profile=profile, ready_after_s=0.0)
-    f.offline_links()
+    f = fleet(seed=3, profile=profile)
     v = f.vehicles[0]
     airborne(f, v, 4.0, 10.0)
     items = mission_items(v, [(0.0, 0.0), (5.0, 0.0)], 4.0, 1.0, hold_s=3.0)
@@ -393,8 +392,7 @@ def test_a_mission_land_flies_to_its_point_then_descends_at_px4s_graded_land_spe
     # 0.7 m/s (MPC_LAND_SPEED) below MPC_LAND_ALT2 = 5 m, linear between
     # (FlightTaskAuto::_prepareLandSetpoints). The ideal vehicle descends at MPC_LAND_SPEED
     # and reports the land when it has landed.
-    f = MockFleet(n=1, seed=5, profile=profile, ready_after_s=0.0)
-    f.offline_links()
+    f = fleet(seed=5, profile=profile)
     v = f.vehicles[0]
     airborne(f, v, 12.0, 14.0)
     home_alt = v._home_alt_amsl()
