@@ -51,6 +51,7 @@ COMMAND_NAMES: tuple[str, ...] = (
     "upload",
     "status",
     "demo",
+    "assess",
 )
 
 #: Standard output closed by its reader: 128 + SIGPIPE, what a shell shows for ``yes | head``.

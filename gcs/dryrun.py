@@ -12,12 +12,13 @@ from __future__ import annotations
 
 import contextlib
 import socket
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from mavlink.mock import MockFleet
+    from mavlink.mock.config import MockVehicleConfig, WindConfig
     from planner.planfile import Plan
 
 __all__ = ["DryRun", "free_udp_ports", "ground_spawns", "mock_vehicles"]
@@ -56,12 +57,16 @@ def mock_vehicles(
     seed: int = 0,
     profile: str = "px4",
     params: Mapping[str, float] | None = None,
+    vehicle_configs: Sequence[MockVehicleConfig] | None = None,
+    wind: WindConfig | None = None,
 ) -> Iterator[DryRun]:
     """Mock PX4 vehicles on the ground below the plan's starts, in a background thread.
 
     Vehicle ``i`` has system id ``i + 1`` and sends to a free loopback port, reached at
     ``udpin://127.0.0.1:PORT`` (the URLs yielded, plan order).  ``profile`` and
-    ``params`` choose the vehicle (:mod:`mavlink.mock.profiles`: ``px4`` by default).
+    ``params`` choose the vehicle (:mod:`mavlink.mock.profiles`: ``px4`` by default);
+    ``vehicle_configs`` (one per vehicle, plan order: spawn, link faults, parameters) replace
+    them where each vehicle differs (``gcs assess --replay --realtime``), and ``wind`` blows on all.
     """
     from mavlink.mock import MockFleet
 
@@ -76,6 +81,8 @@ def mock_vehicles(
         seed=seed,
         profile=profile,
         params=params,
+        vehicle_configs=vehicle_configs,
+        wind=wind,
     )
     with mock.running_in_thread():
         yield DryRun(

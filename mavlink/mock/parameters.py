@@ -12,18 +12,91 @@ of its own because it is the one place where parameters become behaviour.
 from __future__ import annotations
 
 import math
-from typing import Any, TypeAlias
+from collections.abc import Mapping
+from typing import Any, NamedTuple, TypeAlias
 
+import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.mock import px4
 from mavlink.mock.estimator import EstimatorParams
 from mavlink.mock.parts import VehicleParts
-from mavlink.mock.physics import GRAVITY_M_S2
+from mavlink.mock.physics import GRAVITY_M_S2, FleetPhysics
 from mavlink.mock.px4 import Px4Mode
 
 #: A pymavlink message (its fields are per message type: untyped to mypy).
 Msg: TypeAlias = Any
+#: Rows of the fleet's physics: one index, a slice or an index array.
+Rows: TypeAlias = int | slice | np.ndarray
+
+
+class ModeLimits(NamedTuple):
+    """The speed, acceleration and yaw-rate limits PX4's controller applies in one mode."""
+
+    vel_xy_max_m_s: float
+    vel_up_max_m_s: float
+    vel_dn_max_m_s: float
+    acc_xy_max_m_s2: float
+    acc_up_max_m_s2: float
+    acc_dn_max_m_s2: float
+    yaw_rate_max_rad_s: float
+
+
+def mode_limits(prm: Mapping[str, float], mode: Px4Mode, cruise_speed_m_s: float) -> ModeLimits:
+    """The limits of ``mode`` from a vehicle's parameters (``cruise_speed_m_s``: the auto
+    modes' cruise speed, DO_CHANGE_SPEED's or MPC_XY_CRUISE)."""
+    auto = mode.value[0] == 4
+    px4_nav = prm["MOCK_PX4_NAV"] >= 0.5
+    if px4_nav:
+        # PX4's position controller limits the acceleration only by the tilt; the
+        # trajectory generators of the auto modes respect MPC_ACC_HOR themselves
+        acc_xy = GRAVITY_M_S2 * math.tan(math.radians(prm["MPC_TILTMAX_AIR"]))
+    else:
+        acc_xy = prm["MPC_ACC_HOR"] if auto else prm["MPC_ACC_HOR_MAX"]
+    yaw_max = prm["MC_YAWRATE_MAX"] if mode is Px4Mode.OFFBOARD else prm["MPC_YAWRAUTO_MAX"]
+    return ModeLimits(
+        vel_xy_max_m_s=min(cruise_speed_m_s, prm["MPC_XY_VEL_MAX"])
+        if auto
+        else prm["MPC_XY_VEL_MAX"],
+        vel_up_max_m_s=(
+            prm["MPC_TKO_SPEED"] if mode is Px4Mode.AUTO_TAKEOFF else prm["MPC_Z_VEL_MAX_UP"]
+        ),
+        vel_dn_max_m_s=prm["MPC_Z_VEL_MAX_DN"],
+        acc_xy_max_m_s2=acc_xy,
+        acc_up_max_m_s2=prm["MPC_ACC_UP_MAX"],
+        acc_dn_max_m_s2=prm["MPC_ACC_DOWN_MAX"],
+        yaw_rate_max_rad_s=math.radians(yaw_max),
+    )
+
+
+def apply_limits(phys: FleetPhysics, rows: Rows, limits: ModeLimits) -> None:
+    """Write ``limits`` into the physics rows ``rows`` (an index, a slice or an index array)."""
+    phys.vel_xy_max_m_s[rows] = limits.vel_xy_max_m_s
+    phys.vel_up_max_m_s[rows] = limits.vel_up_max_m_s
+    phys.vel_dn_max_m_s[rows] = limits.vel_dn_max_m_s
+    phys.acc_xy_max_m_s2[rows] = limits.acc_xy_max_m_s2
+    phys.acc_up_max_m_s2[rows] = limits.acc_up_max_m_s2
+    phys.acc_dn_max_m_s2[rows] = limits.acc_dn_max_m_s2
+    phys.yaw_rate_max_rad_s[rows] = limits.yaw_rate_max_rad_s
+
+
+def apply_controller_params(phys: FleetPhysics, rows: Rows, prm: Mapping[str, float]) -> None:
+    """What a vehicle's parameters make of its physics rows ``rows``: the controller's gains,
+    SIH's drag, the attitude and thrust lags (not the estimator, not the mode's limits).
+
+    The one place where PX4's parameter values become the vehicle model, for the real-time
+    mock vehicle (one row) and the batch simulator (:mod:`mavlink.mock.batch`, many rows).
+    """
+    phys.kp_pos[rows] = (prm["MPC_XY_P"], prm["MPC_XY_P"], prm["MPC_Z_P"])
+    phys.kp_vel[rows] = (prm["MPC_XY_VEL_P_ACC"], prm["MPC_XY_VEL_P_ACC"], prm["MPC_Z_VEL_P_ACC"])
+    phys.ki_vel[rows] = (prm["MPC_XY_VEL_I_ACC"], prm["MPC_XY_VEL_I_ACC"], prm["MPC_Z_VEL_I_ACC"])
+    phys.kd_vel[rows] = (prm["MPC_XY_VEL_D_ACC"], prm["MPC_XY_VEL_D_ACC"], prm["MPC_Z_VEL_D_ACC"])
+    phys.kdv_per_s[rows] = prm["SIH_KDV"] / prm["SIH_MASS"]  # SIH: force per m/s over mass
+    phys.yaw_p[rows] = prm["MC_YAW_P"]
+    # the tilt follows PX4's attitude loop (1 / MC_ROLL_P, MC_PITCH_P: the slower one)
+    gain = min(prm["MC_ROLL_P"], prm["MC_PITCH_P"])
+    phys.att_tau_s[rows] = 1.0 / gain if prm["MOCK_ATT_DYN"] >= 0.5 and gain > 0.0 else 0.0
+    phys.set_thrust_tau(rows, prm["SIH_T_TAU"])
 
 
 class ParametersMixin(VehicleParts):
@@ -31,16 +104,7 @@ class ParametersMixin(VehicleParts):
 
     def _apply_params(self) -> None:
         i, p, prm = self.index, self.phys, self.params
-        p.kp_pos[i] = (prm["MPC_XY_P"], prm["MPC_XY_P"], prm["MPC_Z_P"])
-        p.kp_vel[i] = (prm["MPC_XY_VEL_P_ACC"], prm["MPC_XY_VEL_P_ACC"], prm["MPC_Z_VEL_P_ACC"])
-        p.ki_vel[i] = (prm["MPC_XY_VEL_I_ACC"], prm["MPC_XY_VEL_I_ACC"], prm["MPC_Z_VEL_I_ACC"])
-        p.kd_vel[i] = (prm["MPC_XY_VEL_D_ACC"], prm["MPC_XY_VEL_D_ACC"], prm["MPC_Z_VEL_D_ACC"])
-        p.kdv_per_s[i] = prm["SIH_KDV"] / prm["SIH_MASS"]  # SIH: force per m/s over mass
-        p.yaw_p[i] = prm["MC_YAW_P"]
-        # the tilt follows PX4's attitude loop (1 / MC_ROLL_P, MC_PITCH_P: the slower one)
-        gain = min(prm["MC_ROLL_P"], prm["MC_PITCH_P"])
-        p.att_tau_s[i] = 1.0 / gain if prm["MOCK_ATT_DYN"] >= 0.5 and gain > 0.0 else 0.0
-        p.set_thrust_tau(i, prm["SIH_T_TAU"])
+        apply_controller_params(p, i, prm)
         p.estimator.configure(i, EstimatorParams.from_params(prm), new_boot=False)
         self._apply_limits()
 
@@ -51,28 +115,9 @@ class ParametersMixin(VehicleParts):
 
     def _apply_limits(self) -> None:
         """Speed/acceleration limits of the current mode from the parameters."""
-        i, p, prm = self.index, self.phys, self.params
-        auto = self.mode.value[0] == 4
-        p.vel_xy_max_m_s[i] = (
-            min(self.cruise_speed_m_s, prm["MPC_XY_VEL_MAX"]) if auto else prm["MPC_XY_VEL_MAX"]
-        )
-        self._vel_up_base = (
-            prm["MPC_TKO_SPEED"] if self.mode is Px4Mode.AUTO_TAKEOFF else prm["MPC_Z_VEL_MAX_UP"]
-        )
-        p.vel_up_max_m_s[i] = self._vel_up_base
-        p.vel_dn_max_m_s[i] = prm["MPC_Z_VEL_MAX_DN"]
-        if self.px4_nav:
-            # PX4's position controller limits the acceleration only by the tilt; the
-            # trajectory generators of the auto modes respect MPC_ACC_HOR themselves
-            p.acc_xy_max_m_s2[i] = GRAVITY_M_S2 * math.tan(math.radians(prm["MPC_TILTMAX_AIR"]))
-        else:
-            p.acc_xy_max_m_s2[i] = prm["MPC_ACC_HOR"] if auto else prm["MPC_ACC_HOR_MAX"]
-        p.acc_up_max_m_s2[i] = prm["MPC_ACC_UP_MAX"]
-        p.acc_dn_max_m_s2[i] = prm["MPC_ACC_DOWN_MAX"]
-        yaw_max = (
-            prm["MC_YAWRATE_MAX"] if self.mode is Px4Mode.OFFBOARD else prm["MPC_YAWRAUTO_MAX"]
-        )
-        p.yaw_rate_max_rad_s[i] = math.radians(yaw_max)
+        limits = mode_limits(self.params, self.mode, self.cruise_speed_m_s)
+        self._vel_up_base = limits.vel_up_max_m_s
+        apply_limits(self.phys, self.index, limits)
 
     def _param_value_msg(self, name: str) -> Msg:
         spec = self._param_specs[name]

@@ -62,6 +62,12 @@ class FleetPhysics:
         self.dt_s = dt_s
         self.rng = rng
         self.wind = wind or WindConfig()
+        #: per vehicle: the mean wind (north, east, m/s), the gusts' stationary std per
+        #: horizontal axis and their correlation time (from ``wind``; the batch simulator
+        #: (:mod:`mavlink.mock.batch`) gives every row its own)
+        self.wind_mean_ne_m_s = np.tile(np.asarray(self.wind.mean_ne_m_s, dtype=float), (n, 1))
+        self.gust_sigma_m_s = np.full(n, self.wind.gust_sigma_m_s)
+        self.gust_tau_s = np.full(n, self.wind.gust_tau_s)
         self.noise = noise or NoiseConfig()
         self._alpha = np.full(n, min(1.0, dt_s / thrust_tau_s))
         #: per vehicle: the tilt's time constant (1 / MC_ROLL_P; 0: the tilt follows at once)
@@ -110,13 +116,15 @@ class FleetPhysics:
         self._gust_ne_m_s = np.zeros((n, 2))
         self.noise_pos_m = np.zeros((n, 3))
         self.noise_vel_m_s = np.zeros((n, 3))
+        #: compute the attitude the specific force implies (ATTITUDE telemetry) every step
+        self.attitude = True
         self.roll_rad = np.zeros(n)
         self.pitch_rad = np.zeros(n)
         self.roll_rate_rad_s = np.zeros(n)
         self.pitch_rate_rad_s = np.zeros(n)
 
-    def set_thrust_tau(self, i: int, tau_s: float) -> None:
-        """The rotors' first-order time constant of vehicle ``i`` (SIH_T_TAU)."""
+    def set_thrust_tau(self, i: int | slice | np.ndarray, tau_s: float) -> None:
+        """The rotors' first-order time constant of vehicle(s) ``i`` (SIH_T_TAU)."""
         self._alpha[i] = min(1.0, self.dt_s / max(tau_s, 1e-9))
 
     def update_estimate(self) -> None:
@@ -230,14 +238,13 @@ class FleetPhysics:
         pos, vel = self.true_pos_ned_m, self.true_vel_ned_m_s
         airborne = pos[:, 2] < _GROUND_D_M - 1e-3
         w = self.wind
-        wind_ne = np.zeros((self.n, 2))
-        if w.gust_sigma_m_s > 0.0 or w.mean_ne_m_s != (0.0, 0.0):
-            if w.gust_sigma_m_s > 0.0:
-                decay = dt / w.gust_tau_s
-                self._gust_ne_m_s += -self._gust_ne_m_s * decay + w.gust_sigma_m_s * np.sqrt(
-                    2.0 * decay
-                ) * self.rng.standard_normal((self.n, 2))
-            wind_ne = np.asarray(w.mean_ne_m_s) + self._gust_ne_m_s
+        gusty = self.gust_sigma_m_s > 0.0
+        if gusty.any():
+            decay = dt / self.gust_tau_s
+            self._gust_ne_m_s += -self._gust_ne_m_s * decay[:, None] + (
+                self.gust_sigma_m_s * np.sqrt(2.0 * decay)
+            )[:, None] * self.rng.standard_normal((self.n, 2))
+        wind_ne = self.wind_mean_ne_m_s + self._gust_ne_m_s
         kdv = self.kdv_per_s
         has_drag = kdv > 0.0
         # ideal profile: wind as a force through WindConfig.drag_per_s, no drag on motion
@@ -270,15 +277,8 @@ class FleetPhysics:
         self.yaw_rate_rad_s = rate
         self.yaw_rad = np.angle(np.exp(1j * (self.yaw_rad + rate * dt)))
         # attitude implied by the specific force (for ATTITUDE telemetry)
-        c, s = np.cos(self.yaw_rad), np.sin(self.yaw_rad)
-        a_fwd = acc[:, 0] * c + acc[:, 1] * s
-        a_right = -acc[:, 0] * s + acc[:, 1] * c
-        lift = GRAVITY_M_S2 - acc[:, 2]
-        pitch = np.arctan2(-a_fwd, lift)
-        roll = np.arctan2(a_right * np.cos(pitch), lift)
-        self.roll_rate_rad_s = (roll - self.roll_rad) / dt
-        self.pitch_rate_rad_s = (pitch - self.pitch_rad) / dt
-        self.roll_rad, self.pitch_rad = roll, pitch
+        if self.attitude:
+            self._attitude(acc, dt)
         # what the vehicle believes (its controller's input in the next step)
         # (the ground-effect creep runs whenever the motors spin: armed, idling or not)
         self.estimator.step(pos, vel, rate, self.armed, self.pos_ned_m, self.vel_ned_m_s)
@@ -288,3 +288,15 @@ class FleetPhysics:
             draw = self.rng.standard_normal((self.n, 6))
             self.noise_pos_m = draw[:, :3] * nz.pos_m
             self.noise_vel_m_s = draw[:, 3:] * nz.vel_m_s
+
+    def _attitude(self, acc: np.ndarray, dt: float) -> None:
+        """Roll and pitch (and their rates) implied by the specific force ``acc``."""
+        c, s = np.cos(self.yaw_rad), np.sin(self.yaw_rad)
+        a_fwd = acc[:, 0] * c + acc[:, 1] * s
+        a_right = -acc[:, 0] * s + acc[:, 1] * c
+        lift = GRAVITY_M_S2 - acc[:, 2]
+        pitch = np.arctan2(-a_fwd, lift)
+        roll = np.arctan2(a_right * np.cos(pitch), lift)
+        self.roll_rate_rad_s = (roll - self.roll_rad) / dt
+        self.pitch_rate_rad_s = (pitch - self.pitch_rad) / dt
+        self.roll_rad, self.pitch_rad = roll, pitch

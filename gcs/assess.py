@@ -1,0 +1,358 @@
+"""How likely is a plan to hold? A statistical assessment campaign (``gcs assess``).
+
+A campaign flies the plan ``runs`` times in the batch simulator
+(:mod:`mavlink.mock.batch`: the mock PX4 vehicle's own physics, controller and estimator,
+stepped for many runs at once), each run under disturbances drawn from the user's
+distributions (:mod:`mavlink.mock.disturbances`), and judges every run with the exact STL
+semantics: the spec and each top-level clause, on where the vehicles really were (*true*) and
+on what they reported (*reported*, what ``gcs fly`` evaluates).  The spec *holds* in a run when
+its exact robustness on the true positions is > 0.
+
+The runs are split into batches; a batch is one task: in this process (``workers=0``), or on
+Ray, started locally for the campaign (``ray_address=None``) or an existing cluster.  A run is
+determined by its seed (:func:`mavlink.mock.batch.run_seed` of the campaign seed and its
+index), so the statistics are the same whatever the split and wherever the batches run.
+Batches come back as they finish (``on_batch``); an interrupt keeps the finished ones.
+
+Layering (DESIGN.md section 2): the simulator is the mock's; the orchestration, the
+statistics and the report are here; the statistics are in :mod:`gcs.assess_stats`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import socket
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from gcs.assess_stats import AssessResult, summarise
+from gcs.errors import UserError
+from gcs.evaluation import plan_formula
+
+if TYPE_CHECKING:
+    from mavlink.mock.batch import BatchFlights, SimSetup
+    from mavlink.mock.disturbances import Distribution
+    from planner.planfile import Plan
+
+__all__ = [
+    "AssessOptions",
+    "BatchOutcome",
+    "CampaignProgress",
+    "assess",
+    "evaluate_batch",
+    "fly_batch",
+    "replay",
+]
+
+
+@dataclass(frozen=True, slots=True)
+class AssessOptions:
+    """Settings of a campaign.
+
+    Attributes:
+        runs: how many runs (> 0).
+        seed: the campaign seed (run ``i``'s seed is ``run_seed(seed, i)``).
+        disturbances: per disturbance name, its distribution as text (others: defaults).
+        profile: the simulated vehicle (``px4`` or ``ideal``, :mod:`mavlink.mock.profiles`).
+        params: PX4 parameters over the profile.
+        rate_hz: setpoint rate, as ``gcs fly --rate``.
+        drag_per_s: drag fed forward (1/s); ``None``: the vehicle's own, as ``gcs fly``.
+        batch_size: runs per task.
+        workers: 0 runs every batch in this process; otherwise on Ray with this many CPUs
+            (``None``: all of this machine's, or the cluster's).
+        ray_address: an existing Ray cluster (``None``: start one here for the campaign,
+            or use ``RAY_ADDRESS`` when set).
+        worst: how many of the worst runs to keep with their seeds.
+    """
+
+    runs: int
+    seed: int = 0
+    disturbances: Mapping[str, str] = field(default_factory=dict)
+    profile: str = "px4"
+    params: Mapping[str, float] = field(default_factory=dict)
+    rate_hz: float = 20.0
+    drag_per_s: float | None = None
+    batch_size: int = 250
+    workers: int | None = None
+    ray_address: str | None = None
+    worst: int = 5
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.runs, int) and self.runs > 0):
+            raise UserError(f"--runs: must be a whole number > 0, got {self.runs!r}")
+        if not (isinstance(self.batch_size, int) and self.batch_size > 0):
+            raise UserError(f"--batch-size: must be a whole number > 0, got {self.batch_size!r}")
+        if self.workers is not None and not (isinstance(self.workers, int) and self.workers >= 0):
+            raise UserError(f"--workers: must be a whole number >= 0, got {self.workers!r}")
+        if not (isinstance(self.seed, int) and self.seed >= 0):
+            raise UserError(f"--seed: must be a whole number >= 0, got {self.seed!r}")
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class BatchOutcome:
+    """What one batch sends back: per run its seed, robustness and draws (no tracks).
+
+    Attributes:
+        index: the first run's index in the campaign.
+        seeds: ``(R,)`` the runs' seeds.
+        true: ``(R,)`` the spec's exact robustness on the true positions.
+        reported: ``(R,)`` on the reported positions (what ``gcs fly`` evaluates).
+        clause_true, clause_reported: ``(R, C)`` per top-level clause.
+        failsafe_s: ``(R,)`` the first offboard-loss failsafe of the run (NaN: none).
+        draws: per disturbance ``(R,)`` (per run) or ``(R, V)`` (per vehicle).
+        sim_s: seconds the batch took to fly and judge.
+    """
+
+    index: int
+    seeds: np.ndarray
+    true: np.ndarray
+    reported: np.ndarray
+    clause_true: np.ndarray
+    clause_reported: np.ndarray
+    failsafe_s: np.ndarray
+    draws: dict[str, np.ndarray]
+    sim_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class CampaignProgress:
+    """Where a campaign stands after a batch: runs done of all, holds so far, elapsed time."""
+
+    done: int
+    total: int
+    holds: int
+    elapsed_s: float
+
+
+def _clause_values(
+    formula: Any, positions: np.ndarray, names: Sequence[str], dt: float
+) -> np.ndarray:
+    """Robustness at t = 0 of ``formula`` for every run of ``positions`` ``(R, V, S, 3)``.
+
+    Exact and vectorised over runs: the runs' signals are laid end to end and the robustness
+    trace is read at each run's first sample.  That is each run's own robustness, because the
+    trace at a step reads the signals only over the formula's horizon (``<= S - 1`` steps for
+    a formula of the plan), so never past the end of the run's block
+    (:mod:`planner.stl.batch` uses the same argument for clause templates).
+    """
+    n_runs, _, samples, _ = positions.shape
+    signals = {n: positions[:, v].reshape(n_runs * samples, 3) for v, n in enumerate(names)}
+    trace = formula.robustness_trace(signals, dt)
+    return np.asarray(trace[::samples], dtype=float)
+
+
+def evaluate_batch(plan: Plan, flights: BatchFlights) -> tuple[np.ndarray, ...]:
+    """Per run: the spec's robustness (true, reported) and per clause (true, reported)."""
+    phi = plan_formula(plan)
+    names = [v.name for v in plan.vehicles]
+    dt = plan.check_dt_s
+    clauses = phi.clauses
+    c_true = np.column_stack([_clause_values(c, flights.true_enu_m, names, dt) for c in clauses])
+    c_rep = np.column_stack([_clause_values(c, flights.reported_enu_m, names, dt) for c in clauses])
+    return c_true.min(axis=1), c_rep.min(axis=1), c_true, c_rep
+
+
+def fly_batch(
+    plan: Plan,
+    setup: SimSetup,
+    index: int,
+    seeds: Sequence[int],
+    dists: Mapping[str, Distribution],
+) -> BatchOutcome:
+    """Fly and judge one batch of runs (the task a Ray worker runs)."""
+    from mavlink.mock.batch import simulate
+
+    t0 = time.perf_counter()
+    flights = simulate(setup, seeds, dists)
+    true, rep, c_true, c_rep = evaluate_batch(plan, flights)
+    fs = flights.failsafe_s
+    first_fs = np.where(
+        np.isnan(fs).all(axis=1), np.nan, np.nanmin(np.where(np.isnan(fs), np.inf, fs), axis=1)
+    )
+    return BatchOutcome(
+        index=index,
+        seeds=flights.seeds,
+        true=true,
+        reported=rep,
+        clause_true=c_true,
+        clause_reported=c_rep,
+        failsafe_s=first_fs,
+        draws={k: (v[:, 0] if v.shape[1] == 1 else v) for k, v in flights.draws.items()},
+        sim_s=time.perf_counter() - t0,
+    )
+
+
+def prepare_campaign(
+    plan: Plan, opts: AssessOptions
+) -> tuple[SimSetup, dict[str, Distribution], list[int]]:
+    """The shared set-up, the distributions and every run's seed (bad input: UserError)."""
+    from mavlink.mock.batch import prepare, run_seed
+    from mavlink.mock.disturbances import parse_disturbances
+    from mavlink.mock.errors import MockConfigError
+
+    try:
+        dists = parse_disturbances(opts.disturbances)
+        setup = prepare(
+            plan,
+            profile=opts.profile,
+            params=opts.params,
+            rate_hz=opts.rate_hz,
+            drag_per_s=opts.drag_per_s,
+        )
+    except MockConfigError as exc:
+        raise UserError(str(exc)) from None
+    plan_formula(plan)  # a plan whose spec does not parse fails here, before any run
+    seeds = [run_seed(opts.seed, i) for i in range(opts.runs)]
+    return setup, dists, seeds
+
+
+def _batches(seeds: Sequence[int], size: int) -> Iterator[tuple[int, Sequence[int]]]:
+    for start in range(0, len(seeds), size):
+        yield start, seeds[start : start + size]
+
+
+def assess(
+    plan: Plan,
+    opts: AssessOptions,
+    *,
+    on_batch: Callable[[CampaignProgress], None] | None = None,
+) -> AssessResult:
+    """Run the campaign and summarise it (see the module docstring).
+
+    ``on_batch`` is called after every finished batch.  A ``KeyboardInterrupt`` stops the
+    campaign: the result holds the batches that finished and says it was interrupted.
+
+    Raises:
+        UserError: bad options or distributions, an unreachable Ray address.
+    """
+    setup, dists, seeds = prepare_campaign(plan, opts)
+    t0 = time.perf_counter()
+    outcomes: list[BatchOutcome] = []
+    interrupted = False
+
+    def got(o: BatchOutcome) -> None:
+        outcomes.append(o)
+        if on_batch is not None:
+            done = sum(len(x.seeds) for x in outcomes)
+            holds = sum(int((x.true > 0).sum()) for x in outcomes)
+            on_batch(CampaignProgress(done, len(seeds), holds, time.perf_counter() - t0))
+
+    engine = "this process"
+    try:
+        if opts.workers == 0:
+            for start, chunk in _batches(seeds, opts.batch_size):
+                got(fly_batch(plan, setup, start, chunk, dists))
+        else:
+            with ray_session(opts.ray_address, opts.workers) as where:
+                engine = where
+                for o in _ray_batches(plan, setup, seeds, dists, opts.batch_size):
+                    got(o)
+    except KeyboardInterrupt:
+        interrupted = True
+    return summarise(
+        plan,
+        outcomes,
+        opts=opts,
+        dists=dists,
+        elapsed_s=time.perf_counter() - t0,
+        interrupted=interrupted,
+        engine=engine,
+    )
+
+
+# ------------------------------------------------------------------------------------- Ray
+
+
+def _reachable(address: str, timeout_s: float = 3.0) -> bool:
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    try:
+        with socket.create_connection((host or "127.0.0.1", int(port)), timeout=timeout_s):
+            return True
+    except (OSError, ValueError):
+        return False
+
+
+@contextlib.contextmanager
+def ray_session(address: str | None, workers: int | None) -> Iterator[str]:
+    """Ray for one campaign: an existing cluster at ``address`` (or ``RAY_ADDRESS``), or a
+    local instance started here with ``workers`` CPUs (``None``: all) and shut down after.
+
+    Yields a description of where the batches run.
+    """
+    import logging
+
+    try:
+        import ray
+    except ImportError:  # pragma: no cover - ray is a dependency
+        raise UserError("Ray is not installed: pip install 'ray>=2.40'") from None
+    address = address or os.environ.get("RAY_ADDRESS") or None
+    if address is not None and address != "auto" and not _reachable(address):
+        raise UserError(f"--ray-address {address}: no Ray cluster answers there")
+    started_here = not ray.is_initialized()
+    if started_here:
+        kwargs: dict[str, Any] = {
+            "include_dashboard": False,
+            "log_to_driver": False,
+            "logging_level": logging.ERROR,
+        }
+        if address is None:
+            kwargs["num_cpus"] = workers or os.cpu_count() or 1
+        try:
+            ray.init(address=address, **kwargs)
+        except (ConnectionError, RuntimeError, ValueError) as exc:
+            raise UserError(f"--ray-address {address}: {exc}".splitlines()[0]) from None
+    cpus = int(ray.cluster_resources().get("CPU", 0))
+    nodes = len([n for n in ray.nodes() if n.get("Alive")])
+    where = f"Ray ({nodes} node{'s' if nodes != 1 else ''}, {cpus} CPU{'s' if cpus != 1 else ''})"
+    try:
+        yield where
+    finally:
+        if started_here:
+            ray.shutdown()
+
+
+def _ray_batches(
+    plan: Plan,
+    setup: SimSetup,
+    seeds: Sequence[int],
+    dists: Mapping[str, Distribution],
+    size: int,
+) -> Iterator[BatchOutcome]:
+    """Every batch as a Ray task; outcomes as they finish; on interrupt the rest cancelled."""
+    import ray
+
+    task = ray.remote(num_cpus=1, max_retries=2)(fly_batch)
+    plan_ref, setup_ref = ray.put(plan), ray.put(setup)
+    dists_ref: Any = ray.put(dict(dists))
+    pending = [
+        task.remote(plan_ref, setup_ref, start, list(chunk), dists_ref)
+        for start, chunk in _batches(seeds, size)
+    ]
+    try:
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            yield ray.get(ready[0])
+    finally:
+        for ref in pending:
+            with contextlib.suppress(Exception):
+                ray.cancel(ref, force=True)
+
+
+# ---------------------------------------------------------------------------------- replay
+
+
+def replay(plan: Plan, opts: AssessOptions, seed: int) -> BatchFlights:
+    """Fly the run with ``seed`` again, alone: the same disturbances, the same flight."""
+    from mavlink.mock.batch import simulate
+
+    setup, dists, _ = prepare_campaign(plan, AssessOptions(**{**_fields(opts), "runs": 1}))
+    return simulate(setup, [seed], dists)
+
+
+def _fields(opts: AssessOptions) -> dict[str, Any]:
+    return {f: getattr(opts, f) for f in AssessOptions.__dataclass_fields__}

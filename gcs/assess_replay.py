@@ -1,0 +1,156 @@
+"""One run of an assessment again: its tracks as CSV, or its disturbances flown in real time.
+
+``gcs assess PLAN --replay SEED`` flies the run with that seed again in the batch simulator
+(the same draws, the same noise, the same flight) and writes its true and reported tracks as
+CSV that ``gcs verify --telemetry`` and ``gcs plot --telemetry`` read.  With ``--realtime`` it
+flies the run's disturbances against the real-time mock vehicles as ``gcs fly --dry-run`` does
+(MAVLink over UDP, MAVSDK, the safety monitor): the same mean wind and gust strength, the same
+link latency, jitter and loss, the same estimator and EKF-origin magnitudes, the same derated
+limits.  What cannot be the same there is the random *realisation* (the gusts' and the
+estimate's noise, the EKF origin's direction, the start error), which the real-time mock draws
+from its own seed on its own clock.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from gcs.assess import AssessOptions
+    from gcs.outcome import FlightOutcome
+    from mavlink.mock.batch import BatchFlights
+    from planner.planfile import Plan
+
+__all__ = ["fly_realtime", "realtime_configs", "write_replay_csv"]
+
+
+def write_replay_csv(flights: BatchFlights, names: tuple[str, ...], out_dir: Path) -> list[Path]:
+    """``replay_SEED_true.csv`` and ``replay_SEED_reported.csv`` (columns ``t,vehicle,x,y,z``,
+    mission ENU, the plan's check grid) of the first run of ``flights``."""
+    seed = int(flights.seeds[0])
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for what, arr in (("true", flights.true_enu_m), ("reported", flights.reported_enu_m)):
+        path = out_dir / f"replay_{seed}_{what}.csv"
+        lines = ["t,vehicle,x,y,z"]
+        for v, name in enumerate(names):
+            for t, p in zip(flights.t_s, arr[0, v], strict=True):
+                lines.append(f"{t:.3f},{name},{p[0]:.4f},{p[1]:.4f},{p[2]:.4f}")
+        path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+        paths.append(path)
+    return paths
+
+
+def _derated(prm: Mapping[str, float], d: float) -> dict[str, float]:
+    """The limits ``derate`` scales, as PX4 parameters (the tilt through its tangent)."""
+    out = {
+        k: prm[k] * d
+        for k in (
+            "MPC_XY_VEL_MAX",
+            "MPC_Z_VEL_MAX_UP",
+            "MPC_Z_VEL_MAX_DN",
+            "MPC_ACC_HOR",
+            "MPC_ACC_HOR_MAX",
+            "MPC_ACC_UP_MAX",
+            "MPC_ACC_DOWN_MAX",
+        )
+    }
+    tilt = math.radians(prm["MPC_TILTMAX_AIR"])
+    out["MPC_TILTMAX_AIR"] = math.degrees(math.atan(d * math.tan(tilt)))
+    return out
+
+
+def _scaled_estimator(prm: Mapping[str, float], noise: float, origin: float) -> dict[str, float]:
+    out = {k: prm[k] * noise for k in ("MOCK_EST_SLOW_B", "MOCK_EST_P_N", "MOCK_EST_V_N",
+                                       "MOCK_EST_VB", "MOCK_EST_YAW_V")}  # fmt: skip
+    for k in ("MOCK_ORG_XY_MIN", "MOCK_ORG_XY_MAX", "MOCK_ORG_Z_MIN", "MOCK_ORG_Z_MAX"):
+        out[k] = prm[k] * origin
+    return out
+
+
+def realtime_configs(plan: Plan, opts: AssessOptions, flights: BatchFlights) -> tuple[Any, Any]:
+    """The real-time mock's vehicle configurations and wind for the first run of ``flights``.
+
+    Raises:
+        UserError: a drawn value the real-time mock cannot take (a parameter out of range).
+    """
+    from gcs.dryrun import ground_spawns
+    from gcs.errors import UserError
+    from mavlink.mock.batch import vehicle_params
+    from mavlink.mock.config import FaultConfig, MockVehicleConfig, WindConfig
+    from mavlink.mock.errors import MockConfigError
+    from mavlink.mock.px4 import PARAM_SPECS
+
+    specs = {p.name: p for p in PARAM_SPECS}
+    prm = vehicle_params(opts.profile, opts.params)
+    d = {k: np.asarray(v)[0] for k, v in flights.draws.items()}
+
+    def one(name: str, v: int) -> float:
+        a = np.atleast_1d(d[name])
+        return float(a[v] if a.size > 1 else a[0])
+
+    configs = []
+    try:
+        for v, spawn in enumerate(ground_spawns(plan)):
+            params = dict(opts.params)
+            params.update(_scaled_estimator(prm, one("estimator", v), one("ekf_origin", v)))
+            params.update(_derated(prm, one("derate", v)))
+            for k, value in params.items():
+                spec = specs[k]
+                if not spec.accepts(value):
+                    raise UserError(
+                        f"--realtime: {k} = {value:g} outside what the mock takes "
+                        f"[{spec.min:g}, {spec.max:g}]"
+                    )
+            faults = FaultConfig(
+                loss_to_vehicle=one("loss", v),
+                latency_s=one("latency_s", v),
+                jitter_s=one("jitter_s", v),
+            )
+            configs.append(
+                MockVehicleConfig(
+                    spawn_enu_m=spawn,
+                    faults=faults,
+                    params=tuple(params.items()),
+                    profile=opts.profile,
+                )
+            )
+        speed, frm = one("wind_m_s", 0), math.radians(one("wind_from_deg", 0))
+        wind = WindConfig(
+            mean_ne_m_s=(-speed * math.cos(frm), -speed * math.sin(frm)),
+            gust_sigma_m_s=one("gust_m_s", 0),
+            gust_tau_s=one("gust_tau_s", 0),
+        )
+    except MockConfigError as exc:
+        raise UserError(f"--realtime: {exc}") from None
+    return configs, wind
+
+
+def fly_realtime(
+    plan: Plan, opts: AssessOptions, flights: BatchFlights, *, seed: int, out: Any = None
+) -> FlightOutcome:
+    """Fly the first run's disturbances of ``flights`` on real-time mock vehicles
+    (``gcs fly --dry-run``'s path: take-off, arrival gate, offboard at ``opts.rate_hz``)."""
+    from gcs.dryrun import mock_vehicles
+    from gcs.flight import FlyOptions, fly_plan, signed_links, vehicle_specs
+    from gcs.progress import FlightProgress
+
+    configs, wind = realtime_configs(plan, opts, flights)
+    options = FlyOptions(rate_hz=opts.rate_hz, drag_per_s=opts.drag_per_s)
+    with mock_vehicles(
+        plan, seed=seed % (2**32), profile=opts.profile, vehicle_configs=configs, wind=wind
+    ) as dry:
+        specs = vehicle_specs(plan, list(dry.urls))
+        progress = FlightProgress(plan, out) if out is not None else None
+
+        async def flight() -> FlightOutcome:
+            async with signed_links(specs, None) as links:
+                return await fly_plan(plan, links, options, progress=progress)
+
+        return asyncio.run(flight())

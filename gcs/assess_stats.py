@@ -1,0 +1,305 @@
+"""The statistics of an assessment campaign: P(spec holds) with its exact interval, the
+robustness quantiles, per clause how often it failed, the worst runs, the margin a plan would
+need, and the runs table.
+
+A room of its own because it is pure computation on the batches' numbers (no simulation, no
+Ray, no printing): :func:`gcs.assess.assess` calls :func:`summarise` once the batches are in,
+and the tests check it against independent references (scipy's binomial test, numpy's
+quantiles over the concatenated runs).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from gcs.evaluation import plan_formula
+
+if TYPE_CHECKING:
+    from gcs.assess import AssessOptions, BatchOutcome
+    from mavlink.mock.disturbances import Distribution
+    from planner.planfile import Plan
+
+__all__ = ["QUANTILES", "AssessResult", "ClauseStats", "RunSummary", "clopper_pearson", "summarise"]
+
+#: The quantiles reported for robustness (fractions).
+QUANTILES = (0.01, 0.05, 0.25, 0.5, 0.75, 0.95, 0.99)
+#: The probability the needed margin is computed for.
+TARGET_P = 0.99
+
+
+def clopper_pearson(k: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
+    """The exact (Clopper-Pearson) interval of a binomial proportion ``k / n``
+    (:func:`scipy.stats.binomtest`); ``(0, 1)`` for ``n = 0``."""
+    from scipy.stats import binomtest
+
+    if n <= 0:
+        return (0.0, 1.0)
+    ci = binomtest(k, n).proportion_ci(confidence_level=confidence, method="exact")
+    return float(ci.low), float(ci.high)
+
+
+def _quantiles(x: np.ndarray) -> dict[str, float]:
+    if x.size == 0:
+        return {}
+    q = np.quantile(x, QUANTILES)
+    out = {"min": float(x.min())}
+    out.update({f"p{round(p * 100):02d}": float(v) for p, v in zip(QUANTILES, q, strict=True)})
+    out["max"] = float(x.max())
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class ClauseStats:
+    """One top-level clause over the campaign.
+
+    Attributes:
+        text: the clause.
+        planned: its robustness on the plan.
+        failures: runs where it failed (true positions, robustness <= 0).
+        failures_reported: runs where it failed on the reported positions.
+        first_to_fail: runs where it was the weakest clause and failed (it broke first).
+        quantiles: its true robustness's quantiles.
+    """
+
+    text: str
+    planned: float
+    failures: int
+    failures_reported: int
+    first_to_fail: int
+    quantiles: dict[str, float]
+
+
+@dataclass(frozen=True, slots=True)
+class RunSummary:
+    """One run: its index and seed (``gcs assess --replay SEED``), robustness, weakest clause
+    and what it drew (per-run disturbances; per-vehicle ones as their largest value)."""
+
+    index: int
+    seed: int
+    true: float
+    reported: float
+    weakest_clause: int
+    failsafe_s: float
+    draws: dict[str, float]
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class AssessResult:
+    """A campaign's result (see :func:`gcs.assess.assess`).
+
+    Attributes:
+        runs: runs judged (fewer than asked when interrupted).
+        asked: runs asked for.
+        holds: runs where the spec held on the true positions (robustness > 0).
+        p: ``holds / runs``; ``ci``: its 95 % Clopper-Pearson interval.
+        holds_reported, p_reported, ci_reported: the same on the reported positions.
+        planned: the plan's own exact robustness.
+        quantiles, quantiles_reported: the spec's robustness quantiles (true, reported).
+        clauses: per top-level clause.
+        worst: the worst runs (lowest true robustness first).
+        margin_needed_m: the planned robustness a plan would need for P(holds) >= 0.99 if it
+            lost as much as this one does: the 99th percentile of ``planned - true``
+            (``None`` with fewer than 100 runs).
+        failsafes: runs where a vehicle met PX4's offboard-loss failsafe.
+        runs_table: one row per run (numpy structured array, index order).
+        disturbances: per name, the distribution used.
+        elapsed_s: wall time; sim_s: time the batches took where they ran (summed).
+        engine: where the batches ran; interrupted: the campaign was stopped early.
+        seed: the campaign seed.
+    """
+
+    runs: int
+    asked: int
+    holds: int
+    p: float
+    ci: tuple[float, float]
+    holds_reported: int
+    p_reported: float
+    ci_reported: tuple[float, float]
+    planned: float
+    quantiles: dict[str, float]
+    quantiles_reported: dict[str, float]
+    clauses: tuple[ClauseStats, ...]
+    worst: tuple[RunSummary, ...]
+    margin_needed_m: float | None
+    failsafes: int
+    runs_table: np.ndarray
+    disturbances: dict[str, str]
+    elapsed_s: float
+    sim_s: float
+    engine: str
+    interrupted: bool
+    seed: int
+
+    @property
+    def runs_per_s(self) -> float:
+        """Runs judged per second of wall time."""
+        return self.runs / self.elapsed_s if self.elapsed_s > 0 else math.inf
+
+    def as_json(self) -> dict[str, Any]:
+        """Everything but the runs table, as JSON-ready values."""
+        return {
+            "runs": self.runs,
+            "asked": self.asked,
+            "seed": self.seed,
+            "interrupted": self.interrupted,
+            "p_holds": self.p,
+            "ci95": list(self.ci),
+            "holds": self.holds,
+            "p_holds_reported": self.p_reported,
+            "ci95_reported": list(self.ci_reported),
+            "planned_robustness": self.planned,
+            "robustness": self.quantiles,
+            "robustness_reported": self.quantiles_reported,
+            "margin_needed_m_for_p99": self.margin_needed_m,
+            "failsafes": self.failsafes,
+            "clauses": [
+                {
+                    "clause": c.text,
+                    "planned": c.planned,
+                    "failures": c.failures,
+                    "failures_reported": c.failures_reported,
+                    "first_to_fail": c.first_to_fail,
+                    "robustness": c.quantiles,
+                }
+                for c in self.clauses
+            ],
+            "worst": [
+                {
+                    "run": w.index,
+                    "seed": w.seed,
+                    "robustness": w.true,
+                    "reported": w.reported,
+                    "weakest": self.clauses[w.weakest_clause].text if self.clauses else "",
+                    "failsafe_s": None if math.isnan(w.failsafe_s) else w.failsafe_s,
+                    "draws": w.draws,
+                }
+                for w in self.worst
+            ],
+            "disturbances": self.disturbances,
+            "engine": self.engine,
+            "elapsed_s": self.elapsed_s,
+            "sim_s": self.sim_s,
+            "runs_per_s": self.runs_per_s,
+        }
+
+
+def _runs_table(
+    outcomes: Sequence[BatchOutcome], true: np.ndarray, rep: np.ndarray, weakest: np.ndarray
+) -> np.ndarray:
+    names = sorted(outcomes[0].draws) if outcomes else []
+    dtype = [
+        ("run", np.int64),
+        ("seed", np.int64),
+        ("robustness", np.float64),
+        ("reported", np.float64),
+        ("weakest_clause", np.int64),
+        ("failsafe_s", np.float64),
+    ] + [(n, np.float64) for n in names]
+    table = np.zeros(true.size, dtype=dtype)
+    if not outcomes:
+        return table
+    table["run"] = np.concatenate([o.index + np.arange(len(o.seeds)) for o in outcomes])
+    table["seed"] = np.concatenate([o.seeds for o in outcomes])
+    table["robustness"] = true
+    table["reported"] = rep
+    table["weakest_clause"] = weakest
+    table["failsafe_s"] = np.concatenate([o.failsafe_s for o in outcomes])
+    for n in names:
+        # a per-vehicle draw: its largest value in the run
+        cols = [o.draws[n] if o.draws[n].ndim == 1 else o.draws[n].max(axis=1) for o in outcomes]
+        table[n] = np.concatenate(cols)
+    return table
+
+
+def summarise(
+    plan: Plan,
+    outcomes: Sequence[BatchOutcome],
+    *,
+    opts: AssessOptions,
+    dists: Mapping[str, Distribution],
+    elapsed_s: float,
+    interrupted: bool,
+    engine: str,
+) -> AssessResult:
+    """The campaign's statistics from its batches (in any order: sorted by run index)."""
+    outcomes = sorted(outcomes, key=lambda o: o.index)
+    phi = plan_formula(plan)
+    clauses = phi.clauses
+    n_c = len(clauses)
+    if outcomes:
+        true = np.concatenate([o.true for o in outcomes])
+        rep = np.concatenate([o.reported for o in outcomes])
+        c_true = np.concatenate([o.clause_true for o in outcomes])
+        c_rep = np.concatenate([o.clause_reported for o in outcomes])
+    else:
+        true = rep = np.zeros(0)
+        c_true = c_rep = np.zeros((0, n_c))
+    n = int(true.size)
+    holds = int((true > 0).sum())
+    holds_rep = int((rep > 0).sum())
+    weakest = np.argmin(c_true, axis=1) if n and n_c else np.zeros(n, dtype=int)
+    table = _runs_table(outcomes, true, rep, weakest)
+    t = np.arange(round(plan.horizon_s / plan.check_dt_s) + 1) * plan.check_dt_s
+    planned_sig = {v.name: v.trajectory.position(t) for v in plan.vehicles}
+    clause_stats = []
+    for i, c in enumerate(clauses):
+        failed = c_true[:, i] <= 0
+        clause_stats.append(
+            ClauseStats(
+                text=str(c),
+                planned=float(c.robustness(planned_sig, plan.check_dt_s)),
+                failures=int(failed.sum()),
+                failures_reported=int((c_rep[:, i] <= 0).sum()),
+                first_to_fail=int((failed & (weakest == i)).sum()),
+                quantiles=_quantiles(c_true[:, i]),
+            )
+        )
+    planned = float(phi.robustness(planned_sig, plan.check_dt_s))
+    order = np.argsort(true, kind="stable")[: max(0, opts.worst)]
+    draw_names = [nm for nm in table.dtype.names or () if nm not in _FIXED]
+    worst = tuple(
+        RunSummary(
+            index=int(table["run"][j]),
+            seed=int(table["seed"][j]),
+            true=float(true[j]),
+            reported=float(rep[j]),
+            weakest_clause=int(weakest[j]),
+            failsafe_s=float(table["failsafe_s"][j]),
+            draws={nm: float(table[nm][j]) for nm in draw_names},
+        )
+        for j in order
+    )
+    margin = float(np.quantile(planned - true, TARGET_P)) if n >= 100 else None
+    return AssessResult(
+        runs=n,
+        asked=opts.runs,
+        holds=holds,
+        p=holds / n if n else math.nan,
+        ci=clopper_pearson(holds, n),
+        holds_reported=holds_rep,
+        p_reported=holds_rep / n if n else math.nan,
+        ci_reported=clopper_pearson(holds_rep, n),
+        planned=planned,
+        quantiles=_quantiles(true),
+        quantiles_reported=_quantiles(rep),
+        clauses=tuple(clause_stats),
+        worst=worst,
+        margin_needed_m=margin,
+        failsafes=int(np.isfinite(table["failsafe_s"]).sum()),
+        runs_table=table,
+        disturbances={k: str(v) for k, v in dists.items()},
+        elapsed_s=elapsed_s,
+        sim_s=float(sum(o.sim_s for o in outcomes)),
+        engine=engine,
+        interrupted=interrupted,
+        seed=opts.seed,
+    )
+
+
+_FIXED = ("run", "seed", "robustness", "reported", "weakest_clause", "failsafe_s")

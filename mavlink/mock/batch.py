@@ -1,0 +1,514 @@
+"""Many offboard flights of one plan at once, faster than real time: the batch simulator.
+
+``gcs assess`` flies a plan hundreds or thousands of times under drawn disturbances
+(:mod:`mavlink.mock.disturbances`).  Here every run and every vehicle is one row of one
+:class:`~mavlink.mock.physics.FleetPhysics`, stepped together as numpy arrays at the physics
+rate, with no UDP, no asyncio and no MAVLink: the *same* physics, controller and estimator
+code as the real-time mock vehicle (``gcs mock``, ``gcs fly --dry-run``), set up from the same
+PX4 parameters by the same functions (:func:`mavlink.mock.parameters.apply_controller_params`,
+:func:`~mavlink.mock.parameters.mode_limits`, :meth:`FleetEstimator.configure`).
+
+What a run flies is what ``gcs fly`` streams in offboard mode (DESIGN.md section 7): the plan
+sampled at ``rate_hz`` into local-NED setpoints by :func:`mavlink.offboard_setpoints.plan_setpoints_ned`
+(position, velocity and acceleration with the drag fed forward, yaw), preceded by the start
+setpoint for ``settle_s`` (the pre-stream and the arrival gate).  The setpoint link is modelled
+per setpoint: it arrives ``latency + U(0, jitter)`` after it was sent, or never (``loss``); the
+vehicle flies the last one that arrived; and when none has arrived for ``COM_OF_LOSS_T`` it
+leaves offboard for good, as PX4 does (``COM_OBL_RC_ACT``: Hold, Land or disarm).
+
+A run starts hovering at equilibrium in its wind, ``start_error_m`` from its start; it is
+recorded on the plan's check grid ``t = 0, check_dt, ..., horizon``: the position the vehicle
+*reported* (its estimate, in the mission frame through its EKF origin, what ``gcs fly``
+evaluates) and its *true* position.
+
+Reproducibility: a run is determined by its seed alone (with the plan, the distributions and
+the vehicle profile).  Its disturbances, its gusts, its estimator noise and its link each draw
+from a generator of their own, spawned from the run's seed; the physics draws its noise per
+row from those per-run generators (:class:`_RowStreams`), so a run flies the same whichever
+batch it is in and wherever that batch runs.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
+
+from mavlink.mock import px4
+from mavlink.mock.config import NoiseConfig
+from mavlink.mock.disturbances import Distribution, draw_disturbances
+from mavlink.mock.errors import MockConfigError
+from mavlink.mock.estimator import EstimatorParams
+from mavlink.mock.parameters import apply_controller_params, apply_limits, mode_limits
+from mavlink.mock.physics import FleetPhysics
+from mavlink.mock.profiles import DEFAULT_PROFILE, profile_params
+from mavlink.mock.px4 import Px4Mode
+
+if TYPE_CHECKING:
+    from planner.frames import GeodeticPoint, NedToEnuMap
+    from planner.trajectory import Trajectory
+
+
+class PlannedVehicleLike(Protocol):
+    """What the simulator reads of a planned vehicle (:class:`planner.planfile.PlannedVehicle`)."""
+
+    @property
+    def name(self) -> str: ...
+    @property
+    def start_enu_m(self) -> Any: ...
+    @property
+    def trajectory(self) -> Trajectory: ...
+
+
+class PlanLike(Protocol):
+    """What the simulator reads of a plan (:class:`planner.planfile.Plan`; the link layer
+    does not import the plan file, DESIGN.md section 2)."""
+
+    @property
+    def origin(self) -> GeodeticPoint: ...
+    @property
+    def horizon_s(self) -> float: ...
+    @property
+    def check_dt_s(self) -> float: ...
+    @property
+    def vehicles(self) -> Sequence[PlannedVehicleLike]: ...
+
+
+__all__ = ["BatchFlights", "SimSetup", "prepare", "run_seed", "simulate"]
+
+#: How the offboard-loss failsafe ends a run's flight, by COM_OBL_RC_ACT.
+_FAILSAFE_KIND = {Px4Mode.AUTO_LOITER: "hold", Px4Mode.AUTO_LAND: "land", None: "disarm"}
+
+
+def run_seed(campaign_seed: int, run: int) -> int:
+    """The seed of run ``run`` of a campaign: a 63-bit integer that alone reproduces the run
+    (independent of how many runs the campaign has and how they are split)."""
+    state = np.random.SeedSequence(campaign_seed, spawn_key=(run,)).generate_state(2, np.uint32)
+    return (int(state[0]) << 31) ^ int(state[1])
+
+
+class _RowStreams:
+    """A stand-in for ``numpy.random.Generator`` that the physics and the estimator draw from:
+    ``standard_normal((rows, k))`` gives each run's rows numbers from that run's own generator.
+
+    Every run of a batch is asked for the same amount at the same time (``rows`` = runs x
+    vehicles, run-major), so a shared cursor serves all; each run's numbers come from its own
+    generator in blocks, so they do not depend on the batch.
+    """
+
+    def __init__(
+        self, rngs: Sequence[np.random.Generator], per_run: int, k: int, block_ticks: int
+    ) -> None:
+        self._rngs = rngs
+        self._need = per_run * k  # numbers per run and call (one call site per stream)
+        self._k = k
+        # float32 draws: twice as fast, and far finer than the noise they scale
+        self._buf = np.empty((len(rngs), self._need * block_ticks), dtype=np.float32)
+        self._cur = self._buf.shape[1]
+
+    def standard_normal(self, shape: tuple[int, int]) -> np.ndarray:
+        rows, k = shape
+        if k != self._k:
+            raise ValueError(f"this stream serves (rows, {self._k}), asked for {shape}")
+        if self._cur + self._need > self._buf.shape[1]:
+            for g, row in zip(self._rngs, self._buf, strict=True):
+                g.standard_normal(out=row, dtype=np.float32)
+            self._cur = 0
+        out = self._buf[:, self._cur : self._cur + self._need].reshape(rows, k)
+        self._cur += self._need
+        return out
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class SimSetup:
+    """What every run of a plan shares: the vehicle's parameters and the setpoint stream.
+
+    Attributes:
+        names: the vehicles, plan order.
+        params: the vehicles' PX4 parameters (profile plus overrides).
+        dt_s: physics step.
+        rate_hz: setpoint rate.
+        settle_s: how long the start setpoint is streamed before the plan's start.
+        stride: physics steps per check-grid step.
+        samples: check-grid samples (``horizon / check_dt + 1``).
+        t_send_s: ``(K,)`` when each setpoint is sent (s from the plan's start; negative:
+            the start setpoint before it).
+        sp_pos_ned_m, sp_vel_ned_m_s, sp_acc_ned_m_s2: ``(V, K, 3)`` setpoints of each
+            vehicle in its *spawn* frame (NED, origin at the true spawn point).
+        sp_yaw_rad: ``(V, K)`` headings.
+        to_mission: per vehicle, the spawn frame's NED -> mission ENU map.
+        failsafe: what the offboard-loss failsafe does (``hold``, ``land``, ``disarm``).
+        drag_per_s: the drag fed forward (1/s).
+    """
+
+    names: tuple[str, ...]
+    params: Mapping[str, float]
+    dt_s: float
+    rate_hz: float
+    settle_s: float
+    stride: int
+    samples: int
+    t_send_s: np.ndarray
+    sp_pos_ned_m: np.ndarray
+    sp_vel_ned_m_s: np.ndarray
+    sp_acc_ned_m_s2: np.ndarray
+    sp_yaw_rad: np.ndarray
+    to_mission: tuple[NedToEnuMap, ...]
+    failsafe: str
+    drag_per_s: float
+
+    @property
+    def ticks(self) -> int:
+        """Physics steps of a run: the settling and the plan's horizon."""
+        return round(self.settle_s / self.dt_s) + (self.samples - 1) * self.stride
+
+
+def vehicle_params(profile: str, overrides: Mapping[str, float] | None) -> dict[str, float]:
+    """Every PX4 parameter of the simulated vehicle: defaults, the profile, the overrides.
+
+    Raises:
+        MockConfigError: an unknown profile or parameter, or a value outside its range.
+    """
+    prm = {p.name: float(p.default) for p in px4.PARAM_SPECS}
+    prm.update(profile_params(profile))
+    specs = {p.name: p for p in px4.PARAM_SPECS}
+    for name, value in (overrides or {}).items():
+        spec = specs.get(name)
+        if spec is None:
+            raise MockConfigError(f"unknown parameter {name!r}")
+        if not spec.accepts(float(value)):
+            raise MockConfigError(
+                f"parameter {name} = {value!r} outside [{spec.min:g}, {spec.max:g}]"
+            )
+        prm[name] = float(value)
+    return prm
+
+
+def prepare(
+    plan: PlanLike,
+    *,
+    profile: str = DEFAULT_PROFILE,
+    params: Mapping[str, float] | None = None,
+    rate_hz: float = 20.0,
+    drag_per_s: float | None = None,
+    settle_s: float = 3.0,
+    physics_rate_hz: float = 100.0,
+) -> SimSetup:
+    """The shared part of a plan's runs (see :class:`SimSetup`).
+
+    Each vehicle spawns on the ground below its planned start (as in a dry run,
+    :func:`gcs.dryrun.ground_spawns`); ``drag_per_s`` ``None`` feeds forward the vehicle's
+    own drag (SIH_KDV / SIH_MASS), as ``gcs fly`` does after reading it from the vehicle.
+
+    Raises:
+        MockConfigError: bad parameters, a check step that is not a whole number of physics
+            steps, or an offboard-loss action the simulator does not fly (Return).
+    """
+    from mavlink.offboard_setpoints import plan_setpoints_ned
+    from planner.frames import GeodeticPoint as Geo
+    from planner.frames import NedToEnuMap, enu_to_geodetic
+
+    prm = vehicle_params(profile, params)
+    if not (2.0 < rate_hz <= 100.0):
+        raise MockConfigError(f"setpoint rate {rate_hz!r} Hz outside (2, 100]")
+    if not (math.isfinite(settle_s) and settle_s >= 1.0):
+        raise MockConfigError(f"settle_s must be >= 1 s (PX4's pre-stream), got {settle_s!r}")
+    dt = 1.0 / physics_rate_hz
+    stride = round(plan.check_dt_s / dt)
+    if stride < 1 or abs(stride * dt - plan.check_dt_s) > 1e-9:
+        raise MockConfigError(
+            f"the plan's check step {plan.check_dt_s:g} s is not a whole number of physics "
+            f"steps ({dt:g} s)"
+        )
+    action = px4.OBL_ACTION_MODES.get(int(prm["COM_OBL_RC_ACT"]), Px4Mode.AUTO_LOITER)
+    if action not in _FAILSAFE_KIND:
+        what = action.name if action is not None else "?"
+        raise MockConfigError(
+            f"COM_OBL_RC_ACT = {int(prm['COM_OBL_RC_ACT'])} (offboard loss: {what}) is "
+            "not simulated: choose Hold (0), Land (4) or Disarm (7)"
+        )
+    kdv = prm["SIH_KDV"] / prm["SIH_MASS"]
+    drag = kdv if drag_per_s is None else float(drag_per_s)
+    pre = round(settle_s * rate_hz)
+    pos, vel, acc, yaw, maps = [], [], [], [], []
+    for v in plan.vehicles:
+        spawn = np.array([v.start_enu_m[0], v.start_enu_m[1], 0.0])
+        lat, lon, alt = enu_to_geodetic(spawn, plan.origin)
+        spawn_geo = Geo(float(lat), float(lon), float(alt))
+        sp = plan_setpoints_ned(v.trajectory, rate_hz, plan.origin, spawn_geo, drag_per_s=drag)
+        still = np.zeros((pre, 3))
+        pos.append(np.vstack([np.repeat(sp.pos_ned_m[:1], pre, axis=0), sp.pos_ned_m]))
+        vel.append(np.vstack([still, sp.vel_ned_m_s]))
+        acc.append(np.vstack([still, sp.acc_ned_m_s2]))
+        yaw.append(np.concatenate([np.repeat(sp.yaw_ned_rad[:1], pre), sp.yaw_ned_rad]))
+        maps.append(NedToEnuMap.between(plan.origin, spawn_geo))
+    k = min(len(p) for p in pos)
+    t_send = (np.arange(k) - pre) / rate_hz
+    return SimSetup(
+        names=tuple(v.name for v in plan.vehicles),
+        params=dict(prm),
+        dt_s=dt,
+        rate_hz=float(rate_hz),
+        settle_s=pre / rate_hz,
+        stride=stride,
+        samples=round(plan.horizon_s / plan.check_dt_s) + 1,
+        t_send_s=t_send,
+        sp_pos_ned_m=np.stack([p[:k] for p in pos]),
+        sp_vel_ned_m_s=np.stack([p[:k] for p in vel]),
+        sp_acc_ned_m_s2=np.stack([p[:k] for p in acc]),
+        sp_yaw_rad=np.stack([p[:k] for p in yaw]),
+        to_mission=tuple(maps),
+        failsafe=_FAILSAFE_KIND[action],
+        drag_per_s=drag,
+    )
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class BatchFlights:
+    """The recorded runs of one batch.
+
+    Attributes:
+        seeds: ``(R,)`` each run's seed.
+        t_s: ``(S,)`` the check grid (s from the plan's start).
+        reported_enu_m: ``(R, V, S, 3)`` what each vehicle reported (its estimate), mission ENU.
+        true_enu_m: ``(R, V, S, 3)`` where it really was.
+        failsafe_s: ``(R, V)`` when the offboard-loss failsafe took it (NaN: never).
+        draws: per disturbance, ``(R, 1)`` or ``(R, V)`` the values drawn.
+    """
+
+    seeds: np.ndarray
+    t_s: np.ndarray
+    reported_enu_m: np.ndarray
+    true_enu_m: np.ndarray
+    failsafe_s: np.ndarray
+    draws: dict[str, np.ndarray]
+
+
+def _scaled_estimator(prm: Mapping[str, float], noise: float, origin: float) -> EstimatorParams:
+    base = EstimatorParams.from_params(dict(prm))
+    return replace(
+        base,
+        origin_xy_m=(base.origin_xy_m[0] * origin, base.origin_xy_m[1] * origin),
+        origin_z_m=(base.origin_z_m[0] * origin, base.origin_z_m[1] * origin),
+        bias_slow_m=base.bias_slow_m * noise,
+        pos_noise_m=base.pos_noise_m * noise,
+        vel_noise_m_s=base.vel_noise_m_s * noise,
+        vel_bias_m_s=base.vel_bias_m_s * noise,
+        yaw_vel_m_s_per_rad_s=base.yaw_vel_m_s_per_rad_s * noise,
+    )
+
+
+def simulate(
+    setup: SimSetup,
+    seeds: Sequence[int],
+    dists: Mapping[str, Distribution],
+    *,
+    block_ticks: int = 250,
+) -> BatchFlights:
+    """Fly one batch of runs (one per seed) of the plan in ``setup`` under ``dists``."""
+    n_runs, n_veh = len(seeds), len(setup.names)
+    rows = n_runs * n_veh
+    dt = setup.dt_s
+    children = [np.random.SeedSequence(int(s)).spawn(4) for s in seeds]
+    draw_rngs = [np.random.default_rng(c[0]) for c in children]
+    gusts = _RowStreams([np.random.default_rng(c[1]) for c in children], n_veh, 2, block_ticks)
+    est_noise = _RowStreams([np.random.default_rng(c[2]) for c in children], n_veh, 11, block_ticks)
+    link_rngs = [np.random.default_rng(c[3]) for c in children]
+
+    phys = FleetPhysics(rows, dt, np.random.default_rng(0), noise=NoiseConfig(0.0, 0.0))
+    phys.attitude = False  # no ATTITUDE telemetry here
+    phys.rng = gusts  # type: ignore[assignment]
+    est = phys.estimator
+    prm = setup.params
+    apply_controller_params(phys, slice(None), prm)
+    np.repeat(np.arange(n_runs), n_veh)
+    veh_of = np.tile(np.arange(n_veh), n_runs)
+
+    # ---- each run's disturbances, its EKF origins and biases (the mock's own draws)
+    draws = [draw_disturbances(dists, g, n_veh) for g in draw_rngs]
+    table = {
+        name: np.stack([d[name] for d in draws]) for name in (draws[0] if draws else {})
+    }  # (R, 1) or (R, V)
+
+    def per_row(name: str) -> np.ndarray:
+        a = table[name]
+        return np.repeat(a[:, 0], n_veh) if a.shape[1] == 1 else a.reshape(-1)
+
+    for r, g in enumerate(draw_rngs):
+        est.rng = g
+        prm_r = _scaled_estimator(
+            prm, float(table["estimator"][r, 0]), float(table["ekf_origin"][r, 0])
+        )
+        for v in range(n_veh):
+            est.configure(r * n_veh + v, prm_r, new_boot=True)
+    est.rng = est_noise  # type: ignore[assignment]
+    # the offboard mode's limits, derated per vehicle
+    derate = per_row("derate")
+    limits = mode_limits(prm, Px4Mode.OFFBOARD, prm["MPC_XY_CRUISE"])
+    apply_limits(phys, slice(None), limits)
+    for arr in (
+        phys.vel_xy_max_m_s, phys.vel_up_max_m_s, phys.vel_dn_max_m_s,
+        phys.acc_xy_max_m_s2, phys.acc_up_max_m_s2, phys.acc_dn_max_m_s2,
+    ):  # fmt: skip
+        arr *= derate
+    # wind: the mean from its compass direction (the air moves the other way), the gusts
+    speed = per_row("wind_m_s")
+    frm = np.radians(per_row("wind_from_deg"))
+    phys.wind_mean_ne_m_s = np.column_stack([-speed * np.cos(frm), -speed * np.sin(frm)])
+    phys.gust_sigma_m_s = per_row("gust_m_s")
+    phys.gust_tau_s = per_row("gust_tau_s")
+
+    # ---- the start: hovering at equilibrium in the wind, start_error_m off the start
+    start_err = per_row("start_error_m")
+    ang = (
+        np.concatenate([g.uniform(0.0, 2.0 * np.pi, n_veh) for g in draw_rngs])
+        if rows
+        else np.zeros(0)
+    )
+    origin = est.origin_ned_m  # the EKF origins in the spawn frames
+    phys.true_pos_ned_m[:] = setup.sp_pos_ned_m[veh_of, 0]
+    phys.true_pos_ned_m[:, 0] += start_err * np.cos(ang)
+    phys.true_pos_ned_m[:, 1] += start_err * np.sin(ang)
+    phys.yaw_rad[:] = setup.sp_yaw_rad[veh_of, 0]
+    phys.armed[:] = True
+    phys.idle[:] = False
+    kdv = phys.kdv_per_s
+    wind_force = np.where(
+        (kdv > 0.0)[:, None],
+        kdv[:, None] * phys.wind_mean_ne_m_s,
+        phys.wind.drag_per_s * phys.wind_mean_ne_m_s,
+    )
+    phys._vel_int[:, :2] = -wind_force
+    phys._acc_tilt[:] = -wind_force
+    phys.acc_ned_m_s2[:, :2] = -wind_force
+    phys.update_estimate()
+
+    # ---- the setpoint link: when each setpoint arrives at each row (-1: lost)
+    n_sp = setup.t_send_s.size
+    settle_ticks = round(setup.settle_s / dt)
+    latency = per_row("latency_s")
+    jitter = per_row("jitter_s")
+    loss = per_row("loss")
+    u_jit = (
+        np.concatenate([g.random((n_veh, n_sp)) for g in link_rngs])
+        if rows
+        else np.zeros((0, n_sp))
+    )
+    u_loss = (
+        np.concatenate([g.random((n_veh, n_sp)) for g in link_rngs])
+        if rows
+        else np.zeros((0, n_sp))
+    )
+    arrive_s = setup.t_send_s[None, :] + setup.settle_s + latency[:, None] + jitter[:, None] * u_jit
+    arrive_tick = np.ceil(arrive_s / dt - 1e-9).astype(np.int64)
+    arrive_tick[u_loss < loss[:, None]] = -1
+    arrive_tick[:, 0] = 0  # the vehicle already flies the start setpoint
+    ev_row, ev_k = np.nonzero(arrive_tick >= 0)
+    ev_tick = arrive_tick[ev_row, ev_k]
+    order = np.lexsort((ev_k, ev_tick))
+    ev_row, ev_k, ev_tick = ev_row[order], ev_k[order], ev_tick[order]
+    n_ticks = setup.ticks
+    bounds = np.searchsorted(ev_tick, np.arange(n_ticks + 2))
+
+    cur = np.zeros(rows, dtype=np.int64)
+    last_arrival_s = np.zeros(rows)
+    loss_t = prm["COM_OF_LOSS_T"]
+    failed = np.zeros(rows, dtype=bool)
+    failsafe_s = np.full(rows, np.nan)
+    auto_limits = mode_limits(prm, Px4Mode.AUTO_LOITER, prm["MPC_XY_CRUISE"])
+    newest = np.full(rows, -1, dtype=np.int64)
+    rec_rep = np.zeros((rows, setup.samples, 3))
+    rec_true = np.zeros((rows, setup.samples, 3))
+    phys.m_pos[:] = 1.0
+    phys.m_vel[:] = 1.0
+    phys.m_acc[:] = 1.0
+    phys.m_yaw[:] = True
+    for n in range(n_ticks + 1):
+        t_n = n * dt
+        lo, hi = bounds[n], bounds[n + 1]
+        if hi > lo:
+            r_e, k_e = ev_row[lo:hi], ev_k[lo:hi]
+            np.maximum.at(newest, r_e, k_e)  # two in one step: the later setpoint wins
+            got = newest >= 0
+            cur[got] = newest[got]
+            last_arrival_s[got] = t_n
+            newest[r_e] = -1
+        lost = ~failed & (t_n - last_arrival_s > loss_t)
+        if lost.any():
+            _failsafe(phys, lost, setup.failsafe, prm, auto_limits, derate)
+            failed |= lost
+            failsafe_s[lost] = t_n - setup.settle_s
+        fly = ~failed
+        if hi == lo and not lost.any():
+            pass  # nothing new arrived: the setpoints stay
+        elif fly.all():
+            phys.sp_pos_ned_m[:] = setup.sp_pos_ned_m[veh_of, cur] - origin
+            phys.sp_vel_ned_m_s[:] = setup.sp_vel_ned_m_s[veh_of, cur]
+            phys.sp_acc_ned_m_s2[:] = setup.sp_acc_ned_m_s2[veh_of, cur]
+            phys.sp_yaw_rad[:] = setup.sp_yaw_rad[veh_of, cur]
+        else:
+            idx, v_i = cur[fly], veh_of[fly]
+            phys.sp_pos_ned_m[fly] = setup.sp_pos_ned_m[v_i, idx] - origin[fly]
+            phys.sp_vel_ned_m_s[fly] = setup.sp_vel_ned_m_s[v_i, idx]
+            phys.sp_acc_ned_m_s2[fly] = setup.sp_acc_ned_m_s2[v_i, idx]
+            phys.sp_yaw_rad[fly] = setup.sp_yaw_rad[v_i, idx]
+        j, rem = divmod(n - settle_ticks, setup.stride)
+        if n >= settle_ticks and rem == 0:
+            # the state at this instant, before the step that leaves it
+            rec_rep[:, j] = phys.pos_ned_m + origin
+            rec_true[:, j] = phys.true_pos_ned_m
+        if n < n_ticks:
+            phys.step()
+
+    # ---- into the mission frame, per vehicle
+    rep = np.empty((n_runs, n_veh, setup.samples, 3))
+    true = np.empty_like(rep)
+    by_run_rep = rec_rep.reshape(n_runs, n_veh, setup.samples, 3)
+    by_run_true = rec_true.reshape(n_runs, n_veh, setup.samples, 3)
+    for v, m in enumerate(setup.to_mission):
+        rep[:, v] = m.position(by_run_rep[:, v])
+        true[:, v] = m.position(by_run_true[:, v])
+    return BatchFlights(
+        seeds=np.asarray(seeds, dtype=np.int64),
+        t_s=np.arange(setup.samples) * setup.stride * dt,
+        reported_enu_m=rep,
+        true_enu_m=true,
+        failsafe_s=failsafe_s.reshape(n_runs, n_veh),
+        draws=table,
+    )
+
+
+def _failsafe(
+    phys: FleetPhysics,
+    rows: np.ndarray,
+    kind: str,
+    prm: Mapping[str, float],
+    limits: object,
+    derate: np.ndarray,
+) -> None:
+    """PX4 leaves offboard for good on ``rows``: Hold where it is, Land, or disarm."""
+    from mavlink.mock.parameters import ModeLimits
+
+    assert isinstance(limits, ModeLimits)
+    apply_limits(phys, rows, limits)
+    for arr in (
+        phys.vel_xy_max_m_s, phys.vel_up_max_m_s, phys.vel_dn_max_m_s,
+        phys.acc_xy_max_m_s2, phys.acc_up_max_m_s2, phys.acc_dn_max_m_s2,
+    ):  # fmt: skip
+        arr[rows] *= derate[rows]
+    phys.sp_pos_ned_m[rows] = phys.pos_ned_m[rows]
+    phys.sp_vel_ned_m_s[rows] = 0.0
+    phys.sp_acc_ned_m_s2[rows] = 0.0
+    phys.m_pos[rows] = 1.0
+    phys.m_vel[rows] = 0.0
+    phys.m_acc[rows] = 0.0
+    phys.sp_yaw_rad[rows] = phys.yaw_rad[rows]
+    if kind == "land":
+        phys.m_pos[rows, 2] = 0.0
+        phys.m_vel[rows, 2] = 1.0
+        phys.sp_vel_ned_m_s[rows, 2] = prm["MPC_LAND_SPEED"]
+    elif kind == "disarm":
+        phys.armed[rows] = False

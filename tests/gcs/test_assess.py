@@ -1,0 +1,171 @@
+"""``gcs assess``: the campaign's statistics against independent references (the ordinary STL
+evaluation of each run, scipy's binomial distribution), its reproducibility, its bad input,
+and its files.  Ray itself is in ``test_assess_ray.py`` (slow: Ray's start-up)."""
+
+from __future__ import annotations
+
+import json
+import socket
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.stats import binom
+
+from gcs import cli
+from gcs.assess import AssessOptions, assess, evaluate_batch, replay
+from gcs.assess_stats import clopper_pearson
+from gcs.errors import UserError
+from gcs.evaluation import plan_formula
+from mavlink.mock.batch import prepare, run_seed, simulate
+from mavlink.mock.disturbances import parse_disturbances
+from planner.planfile import load_plan
+
+PLAN = Path(__file__).resolve().parents[1] / "mavlink" / "data" / "reach_avoid_2.plan.json"
+
+
+@pytest.fixture(scope="module")
+def plan():  # type: ignore[no-untyped-def]
+    return load_plan(PLAN)
+
+
+def test_the_robustness_of_every_run_is_the_ordinary_exact_robustness(plan) -> None:  # type: ignore[no-untyped-def]
+    setup = prepare(plan)
+    flights = simulate(
+        setup, [run_seed(1, r) for r in range(6)], parse_disturbances({"wind_m_s": "uniform(0, 8)"})
+    )
+    true, rep, c_true, _c_rep = evaluate_batch(plan, flights)
+    phi = plan_formula(plan)
+    names = [v.name for v in plan.vehicles]
+    for r in range(6):
+        sig = {n: flights.true_enu_m[r, i] for i, n in enumerate(names)}
+        sig_rep = {n: flights.reported_enu_m[r, i] for i, n in enumerate(names)}
+        assert true[r] == pytest.approx(phi.robustness(sig, plan.check_dt_s), abs=1e-12)
+        assert rep[r] == pytest.approx(phi.robustness(sig_rep, plan.check_dt_s), abs=1e-12)
+        for k, c in enumerate(phi.clauses):
+            assert c_true[r, k] == pytest.approx(c.robustness(sig, plan.check_dt_s), abs=1e-12)
+    assert len(set(np.round(true, 6))) > 1  # the runs differ
+
+
+@pytest.mark.parametrize("k,n", [(0, 10), (3, 10), (10, 10), (171, 200), (999, 1000)])
+def test_clopper_pearson_is_the_exact_binomial_interval(k: int, n: int) -> None:
+    lo, hi = clopper_pearson(k, n)
+    assert 0.0 <= lo <= k / n <= hi <= 1.0
+    # the bounds are where the binomial tails hold 2.5 % each (or the ends of [0, 1])
+    if k > 0:
+        assert binom.sf(k - 1, n, lo) == pytest.approx(0.025, abs=1e-6)
+    else:
+        assert lo == 0.0
+    if k < n:
+        assert binom.cdf(k, n, hi) == pytest.approx(0.025, abs=1e-6)
+    else:
+        assert hi == 1.0
+
+
+def test_a_campaign_is_the_same_whatever_its_split_and_replays_run_by_run(plan) -> None:  # type: ignore[no-untyped-def]
+    dist = {"wind_m_s": "uniform(0, 10)"}
+    a = assess(plan, AssessOptions(runs=30, seed=5, disturbances=dist, workers=0, batch_size=30))
+    b = assess(plan, AssessOptions(runs=30, seed=5, disturbances=dist, workers=0, batch_size=7))
+    for name in a.runs_table.dtype.names or ():
+        np.testing.assert_array_equal(a.runs_table[name], b.runs_table[name])
+    assert (a.p, a.ci, a.quantiles) == (b.p, b.ci, b.quantiles)
+    assert a.runs == 30 and a.holds == int((a.runs_table["robustness"] > 0).sum())
+    assert a.p == a.holds / 30
+    assert a.ci == clopper_pearson(a.holds, 30)
+    worst = a.worst[0]
+    assert worst.true == a.runs_table["robustness"].min()
+    again = replay(plan, AssessOptions(runs=1, seed=5, disturbances=dist, workers=0), worst.seed)
+    true, _, _, _ = evaluate_batch(plan, again)
+    assert float(true[0]) == worst.true
+    # per clause: failures counted on the true positions
+    assert sum(c.first_to_fail for c in a.clauses) == a.runs - a.holds
+
+
+def test_strong_wind_breaks_a_plan_that_holds_in_calm_air(plan) -> None:  # type: ignore[no-untyped-def]
+    calm = assess(plan, AssessOptions(runs=20, workers=0, disturbances={"wind_m_s": "0"}))
+    storm = assess(plan, AssessOptions(runs=20, workers=0, disturbances={"wind_m_s": "14"}))
+    assert storm.quantiles["p50"] < calm.quantiles["p50"] - 0.1
+    assert storm.p <= calm.p
+
+
+def test_the_command_reports_and_writes_its_files(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "rep"
+    args = ["assess", str(PLAN), "--runs", "12", "--workers", "0", "--batch-size", "5"]
+    assert cli.main([*args, "-o", str(out), "--wind", "uniform(0, 4)"]) == 0
+    text = capsys.readouterr().out
+    assert "P(spec holds) = " in text and "Clopper-Pearson" in text and "worst runs" in text
+    report = json.loads((out / "report.json").read_text())
+    assert report["runs"] == 12 and report["disturbances"]["wind_m_s"] == "uniform(0, 4)"
+    rows = (out / "runs.csv").read_text().splitlines()
+    assert rows[0].startswith("run,seed,robustness,reported") and len(rows) == 13
+    assert (out / "assess.png").stat().st_size > 10_000
+    assert cli.main([*args, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["runs"] == 12
+
+
+def test_replay_writes_the_runs_tracks_for_gcs_verify(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    seed = run_seed(0, 3)
+    assert cli.main(["assess", str(PLAN), "--replay", str(seed), "-o", str(tmp_path)]) == 0
+    true_csv = tmp_path / f"replay_{seed}_true.csv"
+    assert true_csv.exists() and (tmp_path / f"replay_{seed}_reported.csv").exists()
+    capsys.readouterr()
+    status = cli.main(["verify", str(PLAN), "--telemetry", str(true_csv)])
+    assert status in (0, 1)  # it reads the tracks and judges them
+    assert "flown" in capsys.readouterr().out
+
+
+def _closed_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.mark.parametrize(
+    "extra,words",
+    [
+        (["--runs", "0"], "--runs: must be a whole number > 0"),
+        (["-d", "wnd=1"], "unknown disturbance 'wnd'"),
+        (["-d", "wind_m_s=weibull(1, 2)"], "unknown distribution 'weibull'"),
+        (["-d", "loss=-0.5"], "loss: const(-0.5) lies outside [0, 1]"),
+        (["-d", "latency_s"], "expected NAME=DIST"),
+        (["--rate", "1"], "--rate"),
+        (["--realtime"], "--realtime needs --replay"),
+        (["--param", "NOPE=1"], "no parameter 'NOPE'"),
+        (["--ray-address", "127.0.0.1:PORT", "--workers", "2"], "no Ray cluster answers there"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_2(
+    extra: list[str], words: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    extra = [e.replace("PORT", str(_closed_port())) for e in extra]
+    out = tmp_path / "never"
+    assert (
+        cli.main(["assess", str(PLAN), "--runs", "3", "--workers", "0", *extra, "-o", str(out)])
+        == 2
+    )
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0], err
+    assert not out.exists()  # nothing half-written
+
+
+def test_a_missing_plan_file_is_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["assess", str(tmp_path / "none.json"), "--workers", "0"]) == 2
+    assert "none.json" in capsys.readouterr().err
+
+
+def test_options_are_checked_in_the_python_api() -> None:
+    with pytest.raises(UserError, match="--runs"):
+        AssessOptions(runs=-1)
+    with pytest.raises(UserError, match="--batch-size"):
+        AssessOptions(runs=1, batch_size=0)
+
+
+def test_list_disturbances_names_every_one(capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["assess", "--list-disturbances"]) == 0
+    text = capsys.readouterr().out
+    for name in ("wind_m_s", "gust_m_s", "estimator", "ekf_origin", "latency_s", "loss", "derate"):
+        assert name in text
