@@ -21,6 +21,7 @@ statistics and the report are here; the statistics are in :mod:`gcs.assess_stats
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import socket
 import time
@@ -171,9 +172,8 @@ def fly_batch(
     flights = simulate(setup, seeds, dists)
     true, rep, c_true, c_rep = evaluate_batch(plan, flights)
     fs = flights.failsafe_s
-    first_fs = np.where(
-        np.isnan(fs).all(axis=1), np.nan, np.nanmin(np.where(np.isnan(fs), np.inf, fs), axis=1)
-    )
+    first = np.where(np.isnan(fs), np.inf, fs).min(axis=1)  # the run's first failsafe
+    first_fs = np.where(np.isinf(first), np.nan, first)
     return BatchOutcome(
         index=index,
         seeds=flights.seeds,
@@ -350,9 +350,5 @@ def replay(plan: Plan, opts: AssessOptions, seed: int) -> BatchFlights:
     """Fly the run with ``seed`` again, alone: the same disturbances, the same flight."""
     from mavlink.mock.batch import simulate
 
-    setup, dists, _ = prepare_campaign(plan, AssessOptions(**{**_fields(opts), "runs": 1}))
+    setup, dists, _ = prepare_campaign(plan, dataclasses.replace(opts, runs=1))
     return simulate(setup, [seed], dists)
-
-
-def _fields(opts: AssessOptions) -> dict[str, Any]:
-    return {f: getattr(opts, f) for f in AssessOptions.__dataclass_fields__}

@@ -66,14 +66,6 @@ def _derated(prm: Mapping[str, float], d: float) -> dict[str, float]:
     return out
 
 
-def _scaled_estimator(prm: Mapping[str, float], noise: float, origin: float) -> dict[str, float]:
-    out = {k: prm[k] * noise for k in ("MOCK_EST_SLOW_B", "MOCK_EST_P_N", "MOCK_EST_V_N",
-                                       "MOCK_EST_VB", "MOCK_EST_YAW_V")}  # fmt: skip
-    for k in ("MOCK_ORG_XY_MIN", "MOCK_ORG_XY_MAX", "MOCK_ORG_Z_MIN", "MOCK_ORG_Z_MAX"):
-        out[k] = prm[k] * origin
-    return out
-
-
 def realtime_configs(plan: Plan, opts: AssessOptions, flights: BatchFlights) -> tuple[Any, Any]:
     """The real-time mock's vehicle configurations and wind for the first run of ``flights``.
 
@@ -82,9 +74,10 @@ def realtime_configs(plan: Plan, opts: AssessOptions, flights: BatchFlights) -> 
     """
     from gcs.dryrun import ground_spawns
     from gcs.errors import UserError
-    from mavlink.mock.batch import vehicle_params
+    from mavlink.mock.batch import estimator_overrides
     from mavlink.mock.config import FaultConfig, MockVehicleConfig, WindConfig
     from mavlink.mock.errors import MockConfigError
+    from mavlink.mock.parameters import vehicle_params
     from mavlink.mock.px4 import PARAM_SPECS
 
     specs = {p.name: p for p in PARAM_SPECS}
@@ -99,7 +92,7 @@ def realtime_configs(plan: Plan, opts: AssessOptions, flights: BatchFlights) -> 
     try:
         for v, spawn in enumerate(ground_spawns(plan)):
             params = dict(opts.params)
-            params.update(_scaled_estimator(prm, one("estimator", v), one("ekf_origin", v)))
+            params.update(estimator_overrides(prm, one("estimator", v), one("ekf_origin", v)))
             params.update(_derated(prm, one("derate", v)))
             for k, value in params.items():
                 spec = specs[k]

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -42,9 +42,15 @@ from mavlink.mock.config import NoiseConfig
 from mavlink.mock.disturbances import Distribution, draw_disturbances
 from mavlink.mock.errors import MockConfigError
 from mavlink.mock.estimator import EstimatorParams
-from mavlink.mock.parameters import apply_controller_params, apply_limits, mode_limits
+from mavlink.mock.parameters import (
+    ModeLimits,
+    apply_controller_params,
+    apply_limits,
+    mode_limits,
+    vehicle_params,
+)
 from mavlink.mock.physics import FleetPhysics
-from mavlink.mock.profiles import DEFAULT_PROFILE, profile_params
+from mavlink.mock.profiles import DEFAULT_PROFILE
 from mavlink.mock.px4 import Px4Mode
 
 if TYPE_CHECKING:
@@ -77,7 +83,14 @@ class PlanLike(Protocol):
     def vehicles(self) -> Sequence[PlannedVehicleLike]: ...
 
 
-__all__ = ["BatchFlights", "SimSetup", "prepare", "run_seed", "simulate"]
+__all__ = [
+    "BatchFlights",
+    "SimSetup",
+    "estimator_overrides",
+    "prepare",
+    "run_seed",
+    "simulate",
+]
 
 #: How the offboard-loss failsafe ends a run's flight, by COM_OBL_RC_ACT.
 _FAILSAFE_KIND = {Px4Mode.AUTO_LOITER: "hold", Px4Mode.AUTO_LAND: "land", None: "disarm"}
@@ -164,27 +177,6 @@ class SimSetup:
     def ticks(self) -> int:
         """Physics steps of a run: the settling and the plan's horizon."""
         return round(self.settle_s / self.dt_s) + (self.samples - 1) * self.stride
-
-
-def vehicle_params(profile: str, overrides: Mapping[str, float] | None) -> dict[str, float]:
-    """Every PX4 parameter of the simulated vehicle: defaults, the profile, the overrides.
-
-    Raises:
-        MockConfigError: an unknown profile or parameter, or a value outside its range.
-    """
-    prm = {p.name: float(p.default) for p in px4.PARAM_SPECS}
-    prm.update(profile_params(profile))
-    specs = {p.name: p for p in px4.PARAM_SPECS}
-    for name, value in (overrides or {}).items():
-        spec = specs.get(name)
-        if spec is None:
-            raise MockConfigError(f"unknown parameter {name!r}")
-        if not spec.accepts(float(value)):
-            raise MockConfigError(
-                f"parameter {name} = {value!r} outside [{spec.min:g}, {spec.max:g}]"
-            )
-        prm[name] = float(value)
-    return prm
 
 
 def prepare(
@@ -287,18 +279,15 @@ class BatchFlights:
     draws: dict[str, np.ndarray]
 
 
-def _scaled_estimator(prm: Mapping[str, float], noise: float, origin: float) -> EstimatorParams:
-    base = EstimatorParams.from_params(dict(prm))
-    return replace(
-        base,
-        origin_xy_m=(base.origin_xy_m[0] * origin, base.origin_xy_m[1] * origin),
-        origin_z_m=(base.origin_z_m[0] * origin, base.origin_z_m[1] * origin),
-        bias_slow_m=base.bias_slow_m * noise,
-        pos_noise_m=base.pos_noise_m * noise,
-        vel_noise_m_s=base.vel_noise_m_s * noise,
-        vel_bias_m_s=base.vel_bias_m_s * noise,
-        yaw_vel_m_s_per_rad_s=base.yaw_vel_m_s_per_rad_s * noise,
-    )
+def estimator_overrides(prm: Mapping[str, float], noise: float, origin: float) -> dict[str, float]:
+    """The ``MOCK_*`` estimator parameters of a run: the estimate's noise and biases scaled by
+    ``noise``, the EKF origin's offset by ``origin`` (the disturbances ``estimator`` and
+    ``ekf_origin``); the simulator and ``gcs assess --realtime``'s mock vehicles both use it."""
+    out = {k: prm[k] * noise for k in ("MOCK_EST_SLOW_B", "MOCK_EST_P_N", "MOCK_EST_V_N",
+                                       "MOCK_EST_VB", "MOCK_EST_YAW_V")}  # fmt: skip
+    for k in ("MOCK_ORG_XY_MIN", "MOCK_ORG_XY_MAX", "MOCK_ORG_Z_MIN", "MOCK_ORG_Z_MAX"):
+        out[k] = prm[k] * origin
+    return out
 
 
 def simulate(
@@ -324,7 +313,6 @@ def simulate(
     est = phys.estimator
     prm = setup.params
     apply_controller_params(phys, slice(None), prm)
-    np.repeat(np.arange(n_runs), n_veh)
     veh_of = np.tile(np.arange(n_veh), n_runs)
 
     # ---- each run's disturbances, its EKF origins and biases (the mock's own draws)
@@ -339,21 +327,17 @@ def simulate(
 
     for r, g in enumerate(draw_rngs):
         est.rng = g
-        prm_r = _scaled_estimator(
+        over = estimator_overrides(
             prm, float(table["estimator"][r, 0]), float(table["ekf_origin"][r, 0])
         )
+        prm_r = EstimatorParams.from_params({**prm, **over})
         for v in range(n_veh):
             est.configure(r * n_veh + v, prm_r, new_boot=True)
     est.rng = est_noise  # type: ignore[assignment]
     # the offboard mode's limits, derated per vehicle
     derate = per_row("derate")
     limits = mode_limits(prm, Px4Mode.OFFBOARD, prm["MPC_XY_CRUISE"])
-    apply_limits(phys, slice(None), limits)
-    for arr in (
-        phys.vel_xy_max_m_s, phys.vel_up_max_m_s, phys.vel_dn_max_m_s,
-        phys.acc_xy_max_m_s2, phys.acc_up_max_m_s2, phys.acc_dn_max_m_s2,
-    ):  # fmt: skip
-        arr *= derate
+    apply_limits(phys, slice(None), limits, derate)
     # wind: the mean from its compass direction (the air moves the other way), the gusts
     speed = per_row("wind_m_s")
     frm = np.radians(per_row("wind_from_deg"))
@@ -441,15 +425,8 @@ def simulate(
             _failsafe(phys, lost, setup.failsafe, prm, auto_limits, derate)
             failed |= lost
             failsafe_s[lost] = t_n - setup.settle_s
-        fly = ~failed
-        if hi == lo and not lost.any():
-            pass  # nothing new arrived: the setpoints stay
-        elif fly.all():
-            phys.sp_pos_ned_m[:] = setup.sp_pos_ned_m[veh_of, cur] - origin
-            phys.sp_vel_ned_m_s[:] = setup.sp_vel_ned_m_s[veh_of, cur]
-            phys.sp_acc_ned_m_s2[:] = setup.sp_acc_ned_m_s2[veh_of, cur]
-            phys.sp_yaw_rad[:] = setup.sp_yaw_rad[veh_of, cur]
-        else:
+        if hi > lo or lost.any():  # else nothing new arrived: the setpoints stay
+            fly: slice | np.ndarray = slice(None) if not failed.any() else ~failed
             idx, v_i = cur[fly], veh_of[fly]
             phys.sp_pos_ned_m[fly] = setup.sp_pos_ned_m[v_i, idx] - origin[fly]
             phys.sp_vel_ned_m_s[fly] = setup.sp_vel_ned_m_s[v_i, idx]
@@ -486,26 +463,12 @@ def _failsafe(
     rows: np.ndarray,
     kind: str,
     prm: Mapping[str, float],
-    limits: object,
+    limits: ModeLimits,
     derate: np.ndarray,
 ) -> None:
     """PX4 leaves offboard for good on ``rows``: Hold where it is, Land, or disarm."""
-    from mavlink.mock.parameters import ModeLimits
-
-    assert isinstance(limits, ModeLimits)
-    apply_limits(phys, rows, limits)
-    for arr in (
-        phys.vel_xy_max_m_s, phys.vel_up_max_m_s, phys.vel_dn_max_m_s,
-        phys.acc_xy_max_m_s2, phys.acc_up_max_m_s2, phys.acc_dn_max_m_s2,
-    ):  # fmt: skip
-        arr[rows] *= derate[rows]
-    phys.sp_pos_ned_m[rows] = phys.pos_ned_m[rows]
-    phys.sp_vel_ned_m_s[rows] = 0.0
-    phys.sp_acc_ned_m_s2[rows] = 0.0
-    phys.m_pos[rows] = 1.0
-    phys.m_vel[rows] = 0.0
-    phys.m_acc[rows] = 0.0
-    phys.sp_yaw_rad[rows] = phys.yaw_rad[rows]
+    apply_limits(phys, rows, limits, derate[rows])
+    phys.hold_here(rows)
     if kind == "land":
         phys.m_pos[rows, 2] = 0.0
         phys.m_vel[rows, 2] = 1.0

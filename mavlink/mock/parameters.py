@@ -19,9 +19,11 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.mock import px4
+from mavlink.mock.errors import MockConfigError
 from mavlink.mock.estimator import EstimatorParams
 from mavlink.mock.parts import VehicleParts
 from mavlink.mock.physics import GRAVITY_M_S2, FleetPhysics
+from mavlink.mock.profiles import profile_params
 from mavlink.mock.px4 import Px4Mode
 
 #: A pymavlink message (its fields are per message type: untyped to mypy).
@@ -40,6 +42,27 @@ class ModeLimits(NamedTuple):
     acc_up_max_m_s2: float
     acc_dn_max_m_s2: float
     yaw_rate_max_rad_s: float
+
+
+def vehicle_params(profile: str, overrides: Mapping[str, float] | None) -> dict[str, float]:
+    """Every PX4 parameter of a mock vehicle: PX4's defaults, the profile's, the overrides.
+
+    Raises:
+        MockConfigError: an unknown profile or parameter, or a value outside its range.
+    """
+    prm = {p.name: float(p.default) for p in px4.PARAM_SPECS}
+    prm.update(profile_params(profile))
+    specs = {p.name: p for p in px4.PARAM_SPECS}
+    for name, value in (overrides or {}).items():
+        spec = specs.get(name)
+        if spec is None:
+            raise MockConfigError(f"unknown parameter {name!r}")
+        if not spec.accepts(float(value)):
+            raise MockConfigError(
+                f"parameter {name} = {value!r} outside [{spec.min:g}, {spec.max:g}]"
+            )
+        prm[name] = float(value)
+    return prm
 
 
 def mode_limits(prm: Mapping[str, float], mode: Px4Mode, cruise_speed_m_s: float) -> ModeLimits:
@@ -69,14 +92,18 @@ def mode_limits(prm: Mapping[str, float], mode: Px4Mode, cruise_speed_m_s: float
     )
 
 
-def apply_limits(phys: FleetPhysics, rows: Rows, limits: ModeLimits) -> None:
-    """Write ``limits`` into the physics rows ``rows`` (an index, a slice or an index array)."""
-    phys.vel_xy_max_m_s[rows] = limits.vel_xy_max_m_s
-    phys.vel_up_max_m_s[rows] = limits.vel_up_max_m_s
-    phys.vel_dn_max_m_s[rows] = limits.vel_dn_max_m_s
-    phys.acc_xy_max_m_s2[rows] = limits.acc_xy_max_m_s2
-    phys.acc_up_max_m_s2[rows] = limits.acc_up_max_m_s2
-    phys.acc_dn_max_m_s2[rows] = limits.acc_dn_max_m_s2
+def apply_limits(
+    phys: FleetPhysics, rows: Rows, limits: ModeLimits, scale: float | np.ndarray = 1.0
+) -> None:
+    """Write ``limits`` into the physics rows ``rows`` (an index, a slice or an index array),
+    the speed and acceleration limits times ``scale`` (one factor, or one per row: a vehicle
+    derated to that fraction of its limits; the yaw rate is not scaled)."""
+    phys.vel_xy_max_m_s[rows] = limits.vel_xy_max_m_s * scale
+    phys.vel_up_max_m_s[rows] = limits.vel_up_max_m_s * scale
+    phys.vel_dn_max_m_s[rows] = limits.vel_dn_max_m_s * scale
+    phys.acc_xy_max_m_s2[rows] = limits.acc_xy_max_m_s2 * scale
+    phys.acc_up_max_m_s2[rows] = limits.acc_up_max_m_s2 * scale
+    phys.acc_dn_max_m_s2[rows] = limits.acc_dn_max_m_s2 * scale
     phys.yaw_rate_max_rad_s[rows] = limits.yaw_rate_max_rad_s
 
 

@@ -134,8 +134,8 @@ class FleetPhysics:
             np.zeros(self.n, dtype=bool), self.pos_ned_m, self.vel_ned_m_s,
         )  # fmt: skip
 
-    def hold_here(self, i: int) -> None:
-        """Make vehicle ``i`` hold its current position (and yaw)."""
+    def hold_here(self, i: int | np.ndarray) -> None:
+        """Make vehicle ``i`` (or the rows ``i`` selects) hold its current position and yaw."""
         self.set_position(i, self.pos_ned_m[i].copy())
         self.sp_yaw_rad[i] = self.yaw_rad[i]
         self.m_yaw[i] = True
@@ -143,7 +143,7 @@ class FleetPhysics:
 
     def set_position(
         self,
-        i: int,
+        i: int | np.ndarray,
         pos_ned_m: np.ndarray,
         vel_ff_ned_m_s: np.ndarray | None = None,
         acc_ff_ned_m_s2: np.ndarray | None = None,

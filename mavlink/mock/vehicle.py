@@ -42,9 +42,8 @@ from mavlink.mock.mission import MISSION, MissionItem, MissionServer
 from mavlink.mock.navigator import NavigatorMixin
 from mavlink.mock.offboard import OffboardMixin, _Setpoint
 from mavlink.mock.origin import OriginMixin
-from mavlink.mock.parameters import ParametersMixin
+from mavlink.mock.parameters import ParametersMixin, vehicle_params
 from mavlink.mock.physics import FleetPhysics
-from mavlink.mock.profiles import profile_params
 from mavlink.mock.px4 import Px4Mode
 from mavlink.mock.telemetry import DEFAULT_RATES_HZ, TelemetryMixin, _Stream
 from mavlink.signing import signing_timestamp
@@ -139,20 +138,12 @@ class MockVehicle(
             self._mav.signing.sign_outgoing = True
             self._mav.signing.link_id = 0
             self._mav.signing.timestamp = signing_timestamp()
-        self.params: dict[str, float] = {p.name: float(p.default) for p in px4.PARAM_SPECS}
+        try:
+            self.params: dict[str, float] = vehicle_params(config.profile, dict(config.params))
+        except MockConfigError as exc:
+            raise MockConfigError(f"vehicle {index}: {exc}") from None
         self._param_specs = {p.name: p for p in px4.PARAM_SPECS}
         self._param_names = [p.name for p in px4.PARAM_SPECS]
-        self.params.update(profile_params(config.profile))
-        for name, value in config.params:
-            spec = self._param_specs.get(name)
-            if spec is None:
-                raise MockConfigError(f"vehicle {index}: unknown parameter {name!r}")
-            if not spec.accepts(value):
-                raise MockConfigError(
-                    f"vehicle {index}: parameter {name} = {value!r} outside "
-                    f"[{spec.min:g}, {spec.max:g}]"
-                )
-            self.params[name] = value
         # the EKF origin: the first (noisy) GPS fix, drawn anew at every boot
         est = self.phys.estimator
         est.configure(index, EstimatorParams.from_params(self.params), new_boot=True)
