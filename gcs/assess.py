@@ -14,6 +14,11 @@ determined by its seed (:func:`mavlink.mock.batch.run_seed` of the campaign seed
 index), so the statistics are the same whatever the split and wherever the batches run.
 Batches come back as they finish (``on_batch``); an interrupt keeps the finished ones.
 
+With ``monitor``, each batch is flown a second time on the same seeds under the flight-time
+safety monitor of ``gcs fly`` (:meth:`mavlink.monitor.SafetyMonitor.evaluate_runs` inside the
+simulator), which may stop a run; the statistics then say how often it stopped the flight,
+why, and whether the stops were needed (:class:`gcs.assess_stats.MonitorSummary`).
+
 Layering (DESIGN.md section 2): the simulator is the mock's; the orchestration, the
 statistics and the report are here; the statistics are in :mod:`gcs.assess_stats`.
 """
@@ -22,6 +27,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import math
 import os
 import socket
 import time
@@ -38,6 +44,7 @@ from gcs.evaluation import plan_formula
 if TYPE_CHECKING:
     from mavlink.mock.batch import BatchFlights, SimSetup
     from mavlink.mock.disturbances import Distribution
+    from mavlink.monitor import SafetyMonitor
     from planner.planfile import Plan
 
 __all__ = [
@@ -69,6 +76,10 @@ class AssessOptions:
         ray_address: an existing Ray cluster (``None``: start one here for the campaign,
             or use ``RAY_ADDRESS`` when set).
         worst: how many of the worst runs to keep with their seeds.
+        monitor: also fly every run under ``gcs fly``'s safety monitor, which may stop it
+            (the run is flown twice on the same draws: without the monitor, then with it).
+        max_off_plan_m: the monitor's off-plan bound, as ``gcs fly --max-off-plan``
+            (``None``: none).
     """
 
     runs: int
@@ -82,8 +93,13 @@ class AssessOptions:
     workers: int | None = None
     ray_address: str | None = None
     worst: int = 5
+    monitor: bool = False
+    max_off_plan_m: float | None = 3.0
 
     def __post_init__(self) -> None:
+        bound = self.max_off_plan_m
+        if bound is not None and not (math.isfinite(bound) and bound > 0):
+            raise UserError(f"--max-off-plan: must be a number > 0 m, got {bound!r}")
         if not (isinstance(self.runs, int) and self.runs > 0):
             raise UserError(f"--runs: must be a whole number > 0, got {self.runs!r}")
         if not (isinstance(self.batch_size, int) and self.batch_size > 0):
@@ -107,6 +123,7 @@ class BatchOutcome:
         failsafe_s: ``(R,)`` the first offboard-loss failsafe of the run (NaN: none).
         draws: per disturbance ``(R,)`` (per run) or ``(R, V)`` (per vehicle).
         sim_s: seconds the batch took to fly and judge.
+        monitored: with the safety monitor, the same runs flown under it.
     """
 
     index: int
@@ -118,6 +135,31 @@ class BatchOutcome:
     failsafe_s: np.ndarray
     draws: dict[str, np.ndarray]
     sim_s: float
+    monitored: MonitoredRuns | None = None
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class MonitoredRuns:
+    """A batch's runs flown again under the safety monitor (same seeds, same draws).
+
+    Attributes:
+        true, reported: ``(R,)`` the spec's exact robustness (true, reported positions).
+        clause_true: ``(R, C)`` per top-level clause, on the true positions.
+        stop_s: ``(R,)`` when the monitor stopped the run (s from the plan's start; NaN:
+            it did not).
+        stop_code: ``(R,)`` why (:class:`mavlink.monitor.RunFindings` codes; 0: no stop).
+        stop_clause: ``(R,)`` the top-level clause it stopped for (-1: none, or not a clause).
+        stop_value: ``(R,)`` the clause's robustness (now or predicted), or for the off-plan
+            alarm the distance from the plan (m).
+    """
+
+    true: np.ndarray
+    reported: np.ndarray
+    clause_true: np.ndarray
+    stop_s: np.ndarray
+    stop_code: np.ndarray
+    stop_clause: np.ndarray
+    stop_value: np.ndarray
 
 
 @dataclass(frozen=True, slots=True)
@@ -164,8 +206,10 @@ def fly_batch(
     index: int,
     seeds: Sequence[int],
     dists: Mapping[str, Distribution],
+    monitor: MonitorSettings | None = None,
 ) -> BatchOutcome:
-    """Fly and judge one batch of runs (the task a Ray worker runs)."""
+    """Fly and judge one batch of runs (the task a Ray worker runs); with ``monitor``, fly
+    them again under the safety monitor."""
     from mavlink.mock.batch import simulate
 
     t0 = time.perf_counter()
@@ -174,6 +218,24 @@ def fly_batch(
     fs = flights.failsafe_s
     first = np.where(np.isnan(fs), np.inf, fs).min(axis=1)  # the run's first failsafe
     first_fs = np.where(np.isinf(first), np.nan, first)
+    monitored = None
+    if monitor is not None:
+        watched, clause_index = monitor.build(plan)
+        again = simulate(setup, seeds, dists, monitor=watched)
+        m_true, m_rep, m_c_true, _ = evaluate_batch(plan, again)
+        assert again.stop is not None and again.stop_s is not None
+        stop_clause = np.where(
+            again.stop.clause >= 0, clause_index[np.maximum(again.stop.clause, 0)], -1
+        )
+        monitored = MonitoredRuns(
+            true=m_true,
+            reported=m_rep,
+            clause_true=m_c_true,
+            stop_s=again.stop_s,
+            stop_code=again.stop.code,
+            stop_clause=stop_clause,
+            stop_value=again.stop.value,
+        )
     return BatchOutcome(
         index=index,
         seeds=flights.seeds,
@@ -184,7 +246,24 @@ def fly_batch(
         failsafe_s=first_fs,
         draws={k: (v[:, 0] if v.shape[1] == 1 else v) for k, v in flights.draws.items()},
         sim_s=time.perf_counter() - t0,
+        monitored=monitored,
     )
+
+
+@dataclass(frozen=True, slots=True)
+class MonitorSettings:
+    """The safety monitor of a campaign, as ``gcs fly`` sets it up (what a task is sent)."""
+
+    max_off_plan_m: float | None
+
+    def build(self, plan: Plan) -> tuple[SafetyMonitor, np.ndarray]:
+        """The monitor, and for each of its clauses the index of its top-level clause."""
+        from mavlink.monitor import SafetyMonitor, always_clause_indices, always_clauses
+
+        phi = plan_formula(plan)
+        clauses = always_clauses(phi, [v.name for v in plan.vehicles])
+        index = np.array(always_clause_indices(phi), dtype=np.int64)
+        return SafetyMonitor(clauses, horizon_s=0.5, max_off_plan_m=self.max_off_plan_m), index
 
 
 def prepare_campaign(
@@ -231,6 +310,7 @@ def assess(
         UserError: bad options or distributions, an unreachable Ray address.
     """
     setup, dists, seeds = prepare_campaign(plan, opts)
+    watch = MonitorSettings(opts.max_off_plan_m) if opts.monitor else None
     t0 = time.perf_counter()
     outcomes: list[BatchOutcome] = []
     interrupted = False
@@ -246,11 +326,11 @@ def assess(
     try:
         if opts.workers == 0:
             for start, chunk in _batches(seeds, opts.batch_size):
-                got(fly_batch(plan, setup, start, chunk, dists))
+                got(fly_batch(plan, setup, start, chunk, dists, watch))
         else:
             with ray_session(opts.ray_address, opts.workers) as where:
                 engine = where
-                for o in _ray_batches(plan, setup, seeds, dists, opts.batch_size):
+                for o in _ray_batches(plan, setup, seeds, dists, opts.batch_size, watch):
                     got(o)
     except KeyboardInterrupt:
         interrupted = True
@@ -316,23 +396,30 @@ def ray_session(address: str | None, workers: int | None) -> Iterator[str]:
             ray.shutdown()
 
 
+def _batch_task(
+    shared: tuple[Plan, SimSetup, Mapping[str, Distribution], MonitorSettings | None],
+    index: int,
+    seeds: Sequence[int],
+) -> BatchOutcome:
+    """:func:`fly_batch` as a Ray task: what every batch shares arrives as one object."""
+    plan, setup, dists, watch = shared
+    return fly_batch(plan, setup, index, seeds, dists, watch)
+
+
 def _ray_batches(
     plan: Plan,
     setup: SimSetup,
     seeds: Sequence[int],
     dists: Mapping[str, Distribution],
     size: int,
+    watch: MonitorSettings | None,
 ) -> Iterator[BatchOutcome]:
     """Every batch as a Ray task; outcomes as they finish; on interrupt the rest cancelled."""
     import ray
 
-    task = ray.remote(num_cpus=1, max_retries=2)(fly_batch)
-    plan_ref, setup_ref = ray.put(plan), ray.put(setup)
-    dists_ref: Any = ray.put(dict(dists))
-    pending = [
-        task.remote(plan_ref, setup_ref, start, list(chunk), dists_ref)
-        for start, chunk in _batches(seeds, size)
-    ]
+    task = ray.remote(num_cpus=1, max_retries=2)(_batch_task)
+    shared: Any = ray.put((plan, setup, dict(dists), watch))  # sent to each node once
+    pending = [task.remote(shared, start, list(chunk)) for start, chunk in _batches(seeds, size)]
     try:
         while pending:
             ready, pending = ray.wait(pending, num_returns=1)
@@ -347,8 +434,10 @@ def _ray_batches(
 
 
 def replay(plan: Plan, opts: AssessOptions, seed: int) -> BatchFlights:
-    """Fly the run with ``seed`` again, alone: the same disturbances, the same flight."""
+    """Fly the run with ``seed`` again, alone: the same disturbances, the same flight (under
+    the safety monitor with ``opts.monitor``)."""
     from mavlink.mock.batch import simulate
 
     setup, dists, _ = prepare_campaign(plan, dataclasses.replace(opts, runs=1))
-    return simulate(setup, [seed], dists)
+    watched = MonitorSettings(opts.max_off_plan_m).build(plan)[0] if opts.monitor else None
+    return simulate(setup, [seed], dists, monitor=watched)

@@ -88,6 +88,59 @@ class RunSummary:
     draws: dict[str, float]
 
 
+@dataclass(frozen=True, slots=True)
+class MonitorSummary:
+    """What ``gcs fly``'s safety monitor did over the campaign (``gcs assess --monitor``):
+    every run was flown twice on the same draws, without the monitor and under it.
+
+    Attributes:
+        watched: the top-level clauses the monitor watches (the always-clauses).
+        stops: runs it stopped; ``p_stop`` and ``ci_stop``: the rate and its interval.
+        reasons: ``(why, runs)``, most frequent first.
+        stop_s_median: the stops' median time (s from the plan's start; NaN: no stop).
+        holds, p, ci: runs where the spec held under the monitor (true positions).
+        safe, safe_monitored: runs where every watched clause held (true positions),
+            without and under the monitor.
+        needed: stopped runs whose unmonitored flight broke a watched clause.
+        spurious: stopped runs whose unmonitored flight held the whole spec.
+        missed: runs under the monitor in which a watched clause still broke.
+    """
+
+    watched: tuple[int, ...]
+    stops: int
+    p_stop: float
+    ci_stop: tuple[float, float]
+    reasons: tuple[tuple[str, int], ...]
+    stop_s_median: float
+    holds: int
+    p: float
+    ci: tuple[float, float]
+    safe: int
+    safe_monitored: int
+    needed: int
+    spurious: int
+    missed: int
+
+    def as_json(self, clauses: Sequence[ClauseStats]) -> dict[str, Any]:
+        """JSON-ready values (``clauses``: the campaign's, to name the watched ones)."""
+        return {
+            "watched": [clauses[i].text for i in self.watched],
+            "stops": self.stops,
+            "p_stop": self.p_stop,
+            "ci95_stop": list(self.ci_stop),
+            "reasons": [{"why": w, "runs": k} for w, k in self.reasons],
+            "stop_s_median": None if math.isnan(self.stop_s_median) else self.stop_s_median,
+            "holds": self.holds,
+            "p_holds": self.p,
+            "ci95": list(self.ci),
+            "safe_unmonitored": self.safe,
+            "safe_monitored": self.safe_monitored,
+            "stops_needed": self.needed,
+            "stops_spurious": self.spurious,
+            "missed": self.missed,
+        }
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class AssessResult:
     """A campaign's result (see :func:`gcs.assess.assess`).
@@ -111,6 +164,7 @@ class AssessResult:
         elapsed_s: wall time; sim_s: time the batches took where they ran (summed).
         engine: where the batches ran; interrupted: the campaign was stopped early.
         seed: the campaign seed.
+        monitor: with ``--monitor``, what the safety monitor did.
     """
 
     runs: int
@@ -135,6 +189,7 @@ class AssessResult:
     engine: str
     interrupted: bool
     seed: int
+    monitor: MonitorSummary | None = None
 
     @property
     def runs_per_s(self) -> float:
@@ -181,6 +236,7 @@ class AssessResult:
                 }
                 for w in self.worst
             ],
+            "monitor": None if self.monitor is None else self.monitor.as_json(self.clauses),
             "disturbances": self.disturbances,
             "engine": self.engine,
             "elapsed_s": self.elapsed_s,
@@ -200,7 +256,10 @@ def _runs_table(
         ("reported", np.float64),
         ("weakest_clause", np.int64),
         ("failsafe_s", np.float64),
-    ] + [(n, np.float64) for n in names]
+    ]
+    if outcomes and outcomes[0].monitored is not None:
+        dtype += [("monitored", np.float64), ("stop_s", np.float64), ("stop_code", np.int64)]
+    dtype += [(n, np.float64) for n in names]
     table = np.zeros(true.size, dtype=dtype)
     if not outcomes:
         return table
@@ -210,6 +269,12 @@ def _runs_table(
     table["reported"] = rep
     table["weakest_clause"] = weakest
     table["failsafe_s"] = np.concatenate([o.failsafe_s for o in outcomes])
+    if "stop_s" in (table.dtype.names or ()):
+        mon = [o.monitored for o in outcomes]
+        assert all(m is not None for m in mon)
+        table["monitored"] = np.concatenate([m.true for m in mon if m is not None])
+        table["stop_s"] = np.concatenate([m.stop_s for m in mon if m is not None])
+        table["stop_code"] = np.concatenate([m.stop_code for m in mon if m is not None])
     for n in names:
         # a per-vehicle draw: its largest value in the run
         cols = [o.draws[n] if o.draws[n].ndim == 1 else o.draws[n].max(axis=1) for o in outcomes]
@@ -299,7 +364,58 @@ def summarise(
         engine=engine,
         interrupted=interrupted,
         seed=opts.seed,
+        monitor=_monitor_summary(phi, outcomes, true, c_true),
     )
 
 
-_FIXED = ("run", "seed", "robustness", "reported", "weakest_clause", "failsafe_s")
+def _monitor_summary(
+    phi: Any, outcomes: Sequence[BatchOutcome], true: np.ndarray, c_true: np.ndarray
+) -> MonitorSummary | None:
+    from mavlink.monitor import RunFindings, Verdict, always_clause_indices
+
+    mon = [o.monitored for o in outcomes]
+    if not mon or any(m is None for m in mon):
+        return None
+    cat = {
+        name: np.concatenate([getattr(m, name) for m in mon if m is not None])
+        for name in ("true", "clause_true", "stop_s", "stop_code", "stop_clause")
+    }
+    n = true.size
+    watched = always_clause_indices(phi)
+    w = list(watched)
+    safe = c_true[:, w].min(axis=1) > 0 if w else np.ones(n, dtype=bool)
+    safe_mon = cat["clause_true"][:, w].min(axis=1) > 0 if w else np.ones(n, dtype=bool)
+    stopped = cat["stop_code"] != 0
+    reasons: dict[str, int] = {}
+    labels = {
+        Verdict.OFF_PLAN: "off its plan (tracking alarm)",
+        Verdict.LEFT_MODE: "a vehicle left offboard (its failsafe)",
+    }
+    for code, clause in zip(cat["stop_code"][stopped], cat["stop_clause"][stopped], strict=True):
+        verdict = RunFindings.VERDICTS[int(code) - 1]
+        why = labels.get(verdict) or f"{verdict.value}: {phi.clauses[int(clause)]}"
+        reasons[why] = reasons.get(why, 0) + 1
+    holds = int((cat["true"] > 0).sum())
+    stops = int(stopped.sum())
+    return MonitorSummary(
+        watched=watched,
+        stops=stops,
+        p_stop=stops / n if n else math.nan,
+        ci_stop=clopper_pearson(stops, n),
+        reasons=tuple(sorted(reasons.items(), key=lambda kv: (-kv[1], kv[0]))),
+        stop_s_median=float(np.median(cat["stop_s"][stopped])) if stops else math.nan,
+        holds=holds,
+        p=holds / n if n else math.nan,
+        ci=clopper_pearson(holds, n),
+        safe=int(safe.sum()),
+        safe_monitored=int(safe_mon.sum()),
+        needed=int((stopped & ~safe).sum()),
+        spurious=int((stopped & (true > 0)).sum()),
+        missed=int((~safe_mon).sum()),
+    )
+
+
+_FIXED = (
+    "run", "seed", "robustness", "reported", "weakest_clause", "failsafe_s",
+    "monitored", "stop_s", "stop_code",
+)  # fmt: skip

@@ -38,7 +38,7 @@ from collections.abc import Awaitable, Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 from mavsdk.plugins.offboard import OffboardResult
@@ -108,13 +108,58 @@ def always_clauses(spec: Formula, vehicle_names: Sequence[str]) -> tuple[SafetyC
     """
     out = []
     names = set(vehicle_names)
-    for clause in spec.clauses:
+    for i in always_clause_indices(spec):
+        clause = spec.clauses[i]
+        assert isinstance(clause, Always)
+        reads = tuple(sorted(names & set(clause.child.signal_names())))
+        out.append(SafetyClause(str(clause), clause.child, clause.start_s, clause.end_s, reads))
+    return tuple(out)
+
+
+def always_clause_indices(spec: Formula) -> tuple[int, ...]:
+    """Which top-level conjuncts of ``spec`` :func:`always_clauses` watches (their indices)."""
+    out = []
+    for i, clause in enumerate(spec.clauses):
         if isinstance(clause, Always) and clause.child.horizon == 0.0:
             if any(isinstance(node, Always) or node.horizon > 0 for node in clause.child.walk()):
                 continue
-            reads = tuple(sorted(names & set(clause.child.signal_names())))
-            out.append(SafetyClause(str(clause), clause.child, clause.start_s, clause.end_s, reads))
+            out.append(i)
     return tuple(out)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class RunFindings:
+    """What one monitor tick found in each of many simultaneous flights
+    (:meth:`SafetyMonitor.evaluate_runs`).
+
+    Attributes:
+        code: ``(R,)`` 0 where nothing was found, else ``1 + VERDICTS.index(verdict)``.
+        clause: ``(R,)`` the failing clause's index (-1: none, or the tracking alarm).
+        value: ``(R,)`` the clause's robustness (now, or its predicted minimum); for the
+            tracking alarm the largest distance from the plan (m).
+        ahead_s: ``(R,)`` for a prediction, how far ahead the violation is (else 0).
+    """
+
+    VERDICTS: ClassVar[tuple[Verdict, ...]] = tuple(Verdict)
+    code: np.ndarray
+    clause: np.ndarray
+    value: np.ndarray
+    ahead_s: np.ndarray
+
+    @classmethod
+    def none(cls, n: int) -> RunFindings:
+        """Nothing found in ``n`` runs."""
+        return cls(np.zeros(n, np.int8), np.full(n, -1), np.full(n, np.nan), np.zeros(n))
+
+    @classmethod
+    def code_of(cls, verdict: Verdict) -> int:
+        """The code of ``verdict``."""
+        return 1 + cls.VERDICTS.index(verdict)
+
+    def verdict(self, run: int) -> Verdict | None:
+        """The verdict of run ``run`` (``None``: nothing found)."""
+        c = int(self.code[run])
+        return None if c == 0 else self.VERDICTS[c - 1]
 
 
 @dataclass(frozen=True, slots=True)
@@ -534,6 +579,83 @@ class SafetyMonitor:
         i = int(np.argmax(bad.any(axis=1)))
         j = int(np.argmax(bad[i]))
         return Verdict.PREDICTED, self.clauses[i], float(traces[i][inside[i]].min()), j * dt
+
+    def evaluate_runs(
+        self,
+        t_s: float,
+        names: Sequence[str],
+        pos_enu_m: np.ndarray,
+        vel_enu_m_s: np.ndarray,
+        plans: Mapping[str, Trajectory] | None = None,
+    ) -> RunFindings:
+        """One tick of many simultaneous flights of the same fleet (the batch simulator).
+
+        Per run, what a :meth:`run` tick would decide on that run's fresh telemetry: the
+        tracking alarm past ``max_off_plan_m`` first, then :meth:`evaluate` (a clause
+        violated now, then one predicted to fail), vectorised over runs: the runs'
+        predicted samples are laid end to end, which is exact because the clauses are
+        atemporal (each sample's robustness reads that sample only).
+
+        Args:
+            t_s: seconds from the plan's start (the same for every run).
+            names: the vehicles, in the order of the arrays' second axis.
+            pos_enu_m, vel_enu_m_s: ``(R, V, 3)`` every run's vehicles, mission ENU.
+            plans: the vehicles' planned trajectories.
+        """
+        pos = np.asarray(pos_enu_m, dtype=float)
+        vel = np.asarray(vel_enu_m_s, dtype=float)
+        n_runs, n_veh, _ = pos.shape
+        out = RunFindings.none(n_runs)
+        table = self._plan_table(tuple(names), plans)
+        dt = self.horizon_s / self.steps if self.horizon_s > 0 else 1.0
+        tau = np.arange(self.steps + 1) * dt if self.horizon_s > 0 else np.zeros(1)
+        rows = tau.size
+        # each vehicle's plan is the same in every run: evaluated once per vehicle
+        ref = table.state(np.broadcast_to(t_s + tau, (n_veh, rows)), 0)  # (V, S, 3)
+        ref0 = table.state(np.full((n_veh, 1), t_s), 0)[:, 0]
+        vref0 = table.state(np.full((n_veh, 1), t_s), 1)[:, 0]
+        has = table.has[None, :, None, None]
+        pred = np.where(
+            has,
+            ref[None] + (pos - ref0)[:, :, None] + tau[:, None] * (vel - vref0)[:, :, None],
+            pos[:, :, None] + tau[:, None] * vel[:, :, None],
+        )  # (R, V, S, 3)
+        if self.max_off_plan_m is not None and table.has.any():
+            off = np.where(table.has, np.linalg.norm(pos - ref0, axis=2), 0.0)  # (R, V)
+            far = (off > self.max_off_plan_m).any(axis=1)
+            out.code[far] = RunFindings.code_of(Verdict.OFF_PLAN)
+            out.value[far] = off[far].max(axis=1)
+        if not self.clauses:
+            return out
+        active = (self._starts <= t_s) & (t_s <= self._ends)
+        if not active.any():
+            return out
+        row_of = {n: k for k, n in enumerate(names)}
+        missing = [s for s in self._signals if s not in row_of]
+        if missing:
+            raise LinkError(f"evaluate_runs: no state for {', '.join(missing)}")
+        stack = np.stack([pred[:, row_of[s]].reshape(n_runs * rows, 3) for s in self._signals])
+        traces = self._batch.traces_of(stack, self._signals, dt).reshape(-1, n_runs, rows)
+        open_ = out.code == 0
+        now = active[:, None] & (traces[:, :, 0] < 0)  # (C, R)
+        hit = open_ & now.any(axis=0)
+        first = np.argmax(now, axis=0)
+        out.code[hit] = RunFindings.code_of(Verdict.VIOLATED)
+        out.clause[hit] = first[hit]
+        out.value[hit] = traces[first[hit], np.flatnonzero(hit), 0]
+        inside = (t_s + tau)[None, :] <= self._ends[:, None]  # (C, S)
+        bad = active[:, None, None] & inside[:, None, :] & (traces < 0)  # (C, R, S)
+        later = open_ & ~hit & bad.any(axis=(0, 2))
+        if later.any():
+            runs = np.flatnonzero(later)
+            c = np.argmax(bad[:, runs].any(axis=2), axis=0)
+            s = np.argmax(bad[c, runs], axis=1)
+            masked = np.where(inside[c], traces[c, runs], np.inf)
+            out.code[runs] = RunFindings.code_of(Verdict.PREDICTED)
+            out.clause[runs] = c
+            out.value[runs] = masked.min(axis=1)
+            out.ahead_s[runs] = s * dt
+        return out
 
     def _tick(
         self,

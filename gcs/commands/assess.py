@@ -11,6 +11,8 @@ the command (all cores), or a cluster (``--ray-address``/``RAY_ADDRESS``); ``--w
 runs them in this process.  ``-o DIR`` writes ``report.json``, ``runs.csv`` and
 ``assess.png``.  ``--replay SEED`` flies one run again and writes its tracks as CSV;
 with ``--realtime`` it flies that run's disturbances on real-time mock vehicles.
+``--monitor`` flies every run again under ``gcs fly``'s safety monitor and reports how often
+it stops the flight, why, and whether the stops were needed.
 
 Exit 0 when the campaign ran (whatever P is), 2 for bad input (an unknown disturbance or
 distribution, N <= 0, an unreachable Ray address, an unreadable plan), 130 when interrupted
@@ -66,6 +68,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, help="CPUs for a local Ray (default all; 0: no Ray)")
     p.add_argument("--ray-address", metavar="ADDRESS",
                    help="an existing Ray cluster (default: RAY_ADDRESS, else a local Ray)")  # fmt: skip
+    p.add_argument("--monitor", action="store_true",
+                   help="also fly every run under gcs fly's safety monitor: how often it stops "
+                   "the flight, why, and whether the stops were needed")  # fmt: skip
+    p.add_argument("--max-off-plan", type=float, default=3.0, metavar="M",
+                   help="with --monitor: its off-plan bound, as gcs fly (default 3 m; 0: none)")  # fmt: skip
     p.add_argument("-o", "--out", metavar="DIR", help="write report.json, runs.csv, assess.png")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--replay", type=int, metavar="SEED", help="fly the run with this seed again")
@@ -93,6 +100,8 @@ def _options(args: argparse.Namespace) -> Any:
         raise UserError(f"--replay: a run's seed is a whole number >= 0, got {args.replay}")
     if args.realtime and args.replay is None:
         raise UserError("--realtime needs --replay SEED")
+    if not (math.isfinite(args.max_off_plan) and args.max_off_plan >= 0):
+        raise UserError(f"--max-off-plan: must be a number >= 0 m, got {args.max_off_plan:g}")
     return AssessOptions(
         runs=args.runs,
         seed=args.seed,
@@ -104,6 +113,8 @@ def _options(args: argparse.Namespace) -> Any:
         batch_size=args.batch_size,
         workers=args.workers,
         ray_address=args.ray_address,
+        monitor=args.monitor,
+        max_off_plan_m=args.max_off_plan or None,
     )
 
 
@@ -173,6 +184,8 @@ def format_result(plan_name: str, r: AssessResult) -> str:
     else:
         lines.append("margin needed for P >= 0.99: needs at least 100 runs")
     lines.append(f"offboard-loss failsafes: {r.failsafes} run(s)")
+    if r.monitor is not None:
+        lines.extend(_format_monitor(r))
     failing = sorted(
         (c for c in r.clauses if c.failures or c.failures_reported),
         key=lambda c: -c.failures,
@@ -196,6 +209,29 @@ def format_result(plan_name: str, r: AssessResult) -> str:
                 f"  weakest: {weakest}"
             )
     return "\n".join(lines)
+
+
+def _format_monitor(r: AssessResult) -> list[str]:
+    m = r.monitor
+    assert m is not None
+    n = r.runs
+    lines = [
+        f"safety monitor (--monitor; every run flown again under it): stopped {m.stops} of {n} "
+        f"runs, P(stop) = {m.p_stop:.3f} [{m.ci_stop[0]:.3f}, {m.ci_stop[1]:.3f}]"
+        + (f", median at t = {m.stop_s_median:.1f} s" if m.stops else ""),
+    ]
+    for why, k in m.reasons[:6]:
+        lines.append(f"  {k:6d}  {why}")
+    lines += [
+        f"  P(spec holds) under the monitor = {m.p:.3f} [{m.ci[0]:.3f}, {m.ci[1]:.3f}] "
+        f"(without: {r.p:.3f})",
+        f"  safety clauses ({len(m.watched)} always-clauses) held in {m.safe_monitored} of {n} "
+        f"runs under the monitor, {m.safe} without",
+        f"  stops needed (the flight without the monitor broke a safety clause): {m.needed}; "
+        f"spurious (it held the whole spec): {m.spurious}; safety broken despite the "
+        f"monitor: {m.missed}",
+    ]
+    return lines
 
 
 def _verify_first(plan: Plan, path: str, out: TextIO) -> None:
@@ -256,6 +292,14 @@ def run(args: argparse.Namespace) -> int:
             f"{float(rep[0]):+.3f} m (reported)",
             file=out,
         )
+        if flights.stop is not None and flights.stop_s is not None:
+            verdict = flights.stop.verdict(0)
+            print(
+                "safety monitor: "
+                + ("no stop" if verdict is None
+                   else f"stopped the flight at t = {float(flights.stop_s[0]):.2f} s ({verdict.value})"),
+                file=out,
+            )  # fmt: skip
         for p in write_replay_csv(flights, tuple(v.name for v in plan.vehicles),
                                   Path(args.out or ".")):  # fmt: skip
             print(f"wrote {p}", file=out)

@@ -54,6 +54,7 @@ from mavlink.mock.profiles import DEFAULT_PROFILE
 from mavlink.mock.px4 import Px4Mode
 
 if TYPE_CHECKING:
+    from mavlink.monitor import RunFindings, SafetyMonitor
     from planner.frames import GeodeticPoint, NedToEnuMap
     from planner.trajectory import Trajectory
 
@@ -155,6 +156,7 @@ class SimSetup:
         to_mission: per vehicle, the spawn frame's NED -> mission ENU map.
         failsafe: what the offboard-loss failsafe does (``hold``, ``land``, ``disarm``).
         drag_per_s: the drag fed forward (1/s).
+        plans: per vehicle, its planned trajectory (what the safety monitor predicts from).
     """
 
     names: tuple[str, ...]
@@ -172,6 +174,7 @@ class SimSetup:
     to_mission: tuple[NedToEnuMap, ...]
     failsafe: str
     drag_per_s: float
+    plans: Mapping[str, Trajectory]
 
     @property
     def ticks(self) -> int:
@@ -255,6 +258,7 @@ def prepare(
         to_mission=tuple(maps),
         failsafe=_FAILSAFE_KIND[action],
         drag_per_s=drag,
+        plans={v.name: v.trajectory for v in plan.vehicles},
     )
 
 
@@ -269,6 +273,9 @@ class BatchFlights:
         true_enu_m: ``(R, V, S, 3)`` where it really was.
         failsafe_s: ``(R, V)`` when the offboard-loss failsafe took it (NaN: never).
         draws: per disturbance, ``(R, 1)`` or ``(R, V)`` the values drawn.
+        stop_s: ``(R,)`` with a safety monitor, when it stopped the run (s from the plan's
+            start; NaN: never); ``None`` without a monitor.
+        stop: with a safety monitor, what it found when it stopped each run.
     """
 
     seeds: np.ndarray
@@ -277,6 +284,8 @@ class BatchFlights:
     true_enu_m: np.ndarray
     failsafe_s: np.ndarray
     draws: dict[str, np.ndarray]
+    stop_s: np.ndarray | None = None
+    stop: RunFindings | None = None
 
 
 def estimator_overrides(prm: Mapping[str, float], noise: float, origin: float) -> dict[str, float]:
@@ -295,9 +304,20 @@ def simulate(
     seeds: Sequence[int],
     dists: Mapping[str, Distribution],
     *,
+    monitor: SafetyMonitor | None = None,
     block_ticks: int = 250,
 ) -> BatchFlights:
-    """Fly one batch of runs (one per seed) of the plan in ``setup`` under ``dists``."""
+    """Fly one batch of runs (one per seed) of the plan in ``setup`` under ``dists``.
+
+    With ``monitor``, the flight-time safety monitor of ``gcs fly`` watches every run as it
+    would a real flight: at its rate (half a period after the setpoints), on the reported
+    positions and velocities, it stops a run when a clause is violated or predicted to fail,
+    a vehicle strays past its off-plan bound, or a vehicle's own failsafe took it (the mode
+    left); every vehicle of a stopped run then gets the monitor's action (Hold or Land),
+    arriving after its link latency, and flies no more setpoints.  Not modelled: telemetry
+    delay and loss (the monitor reads each tick's state), the heartbeat that reports a mode
+    change (seen at the next tick).
+    """
     n_runs, n_veh = len(seeds), len(setup.names)
     rows = n_runs * n_veh
     dt = setup.dt_s
@@ -400,8 +420,12 @@ def simulate(
     cur = np.zeros(rows, dtype=np.int64)
     last_arrival_s = np.zeros(rows)
     loss_t = prm["COM_OF_LOSS_T"]
-    failed = np.zeros(rows, dtype=bool)
+    failed = np.zeros(rows, dtype=bool)  # the offboard-loss failsafe took it
+    off = np.zeros(rows, dtype=bool)  # no longer flies setpoints (failsafe, or stopped)
     failsafe_s = np.full(rows, np.nan)
+    watch = (
+        _MonitorState(monitor, setup, n_runs, n_ticks, settle_ticks, latency) if monitor else None
+    )
     auto_limits = mode_limits(prm, Px4Mode.AUTO_LOITER, prm["MPC_XY_CRUISE"])
     newest = np.full(rows, -1, dtype=np.int64)
     rec_rep = np.zeros((rows, setup.samples, 3))
@@ -420,13 +444,20 @@ def simulate(
             cur[got] = newest[got]
             last_arrival_s[got] = t_n
             newest[r_e] = -1
-        lost = ~failed & (t_n - last_arrival_s > loss_t)
+        lost = ~off & (t_n - last_arrival_s > loss_t)
         if lost.any():
             _failsafe(phys, lost, setup.failsafe, prm, auto_limits, derate)
             failed |= lost
+            off |= lost
             failsafe_s[lost] = t_n - setup.settle_s
+        held = None
+        if watch is not None:
+            held = watch.tick(n, phys, origin, failed, off)
+            if held is not None:
+                _failsafe(phys, held, watch.action, prm, auto_limits, derate)
+                off |= held
         if hi > lo or lost.any():  # else nothing new arrived: the setpoints stay
-            fly: slice | np.ndarray = slice(None) if not failed.any() else ~failed
+            fly: slice | np.ndarray = slice(None) if not off.any() else ~off
             idx, v_i = cur[fly], veh_of[fly]
             phys.sp_pos_ned_m[fly] = setup.sp_pos_ned_m[v_i, idx] - origin[fly]
             phys.sp_vel_ned_m_s[fly] = setup.sp_vel_ned_m_s[v_i, idx]
@@ -455,7 +486,84 @@ def simulate(
         true_enu_m=true,
         failsafe_s=failsafe_s.reshape(n_runs, n_veh),
         draws=table,
+        stop_s=None if watch is None else watch.stop_s,
+        stop=None if watch is None else watch.found,
     )
+
+
+class _MonitorState:
+    """The safety monitor over a batch's runs: when it ticks, what it found, which stop
+    commands are on their way (see :func:`simulate`)."""
+
+    def __init__(
+        self,
+        monitor: SafetyMonitor,
+        setup: SimSetup,
+        n_runs: int,
+        n_ticks: int,
+        settle_ticks: int,
+        latency_s: np.ndarray,
+    ) -> None:
+        from mavlink.monitor import RunFindings, SafetyAction, Verdict
+
+        self.monitor = monitor
+        self.setup = setup
+        self.n_runs = n_runs
+        self.n_veh = len(setup.names)
+        self.settle_ticks = settle_ticks
+        self.action = "land" if monitor.action is SafetyAction.LAND else "hold"
+        period = 1.0 / (monitor.rate_hz * setup.dt_s)  # physics ticks per evaluation
+        k = np.arange(int(n_ticks / period) + 1)
+        ticks = settle_ticks + np.floor((k + 0.5) * period + 1e-9).astype(np.int64)
+        self.is_tick = np.zeros(n_ticks + 1, dtype=bool)
+        self.is_tick[ticks[ticks <= n_ticks]] = True
+        self.delay = np.ceil(latency_s / setup.dt_s - 1e-9).astype(np.int64)  # per row
+        self.arrives = np.full(n_runs * self.n_veh, -1, dtype=np.int64)
+        self.stopped = np.zeros(n_runs, dtype=bool)
+        self.stop_s = np.full(n_runs, np.nan)
+        self.found = RunFindings.none(n_runs)
+        self._left = RunFindings.code_of(Verdict.LEFT_MODE)
+
+    def tick(
+        self, n: int, phys: FleetPhysics, origin: np.ndarray, failed: np.ndarray, off: np.ndarray
+    ) -> np.ndarray | None:
+        """Evaluate at physics tick ``n`` if it is a monitor tick; the rows whose stop
+        command arrives now (``None``: none)."""
+        if self.is_tick[n]:
+            self._evaluate(n, phys, origin, failed)
+        due = (self.arrives == n) & ~off
+        return due if due.any() else None
+
+    def _evaluate(self, n: int, phys: FleetPhysics, origin: np.ndarray, failed: np.ndarray) -> None:
+        live = ~self.stopped
+        if not live.any():
+            return
+        t_s = (n - self.settle_ticks) * self.setup.dt_s
+        shape = (self.n_runs, self.n_veh, 3)
+        pos = (phys.pos_ned_m + origin).reshape(shape)[live]
+        vel = phys.vel_ned_m_s.reshape(shape)[live]
+        pos_enu = np.empty_like(pos)
+        vel_enu = np.empty_like(vel)
+        for v, m in enumerate(self.setup.to_mission):
+            pos_enu[:, v] = m.position(pos[:, v])
+            vel_enu[:, v] = m.vector(vel[:, v])
+        got = self.monitor.evaluate_runs(t_s, self.setup.names, pos_enu, vel_enu, self.setup.plans)
+        # a vehicle that left offboard (its own failsafe) stops the flight first, as the
+        # flight's mode check runs before the clauses
+        left = failed.reshape(self.n_runs, self.n_veh)[live].any(axis=1)
+        got.code[left] = self._left
+        got.clause[left] = -1
+        got.value[left] = np.nan
+        hit = got.code != 0
+        if not hit.any():
+            return
+        runs = np.flatnonzero(live)[hit]
+        for name in ("code", "clause", "value", "ahead_s"):
+            getattr(self.found, name)[runs] = getattr(got, name)[hit]
+        self.stopped[runs] = True
+        self.stop_s[runs] = t_s
+        rows = (runs[:, None] * self.n_veh + np.arange(self.n_veh)).ravel()
+        self.arrives[rows] = n + self.delay[rows]
 
 
 def _failsafe(

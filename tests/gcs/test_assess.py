@@ -4,6 +4,7 @@ and its files.  Ray itself is in ``test_assess_ray.py`` (slow: Ray's start-up)."
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import socket
 from pathlib import Path
@@ -118,6 +119,68 @@ def test_replay_writes_the_runs_tracks_for_gcs_verify(
     assert "flown" in capsys.readouterr().out
 
 
+CALM = {"gust_m_s": "0", "estimator": "0", "ekf_origin": "0", "wind_m_s": "0"}
+
+
+def test_the_monitor_stops_runs_and_every_vehicle_then_holds_where_it_was(plan) -> None:  # type: ignore[no-untyped-def]
+    """``--monitor``: each run flown twice on the same draws.  The unmonitored flights are the
+    campaign without the monitor; a stop is decided on the run's reported state and every
+    vehicle then holds (it stops following the plan, which goes on moving); the counts agree
+    with the runs table."""
+    tight = AssessOptions(runs=10, seed=4, workers=0, monitor=True, max_off_plan_m=0.2,
+                          disturbances=CALM)  # fmt: skip
+    r = assess(plan, tight)
+    plain = assess(plan, dataclasses.replace(tight, monitor=False))
+    np.testing.assert_array_equal(r.runs_table["robustness"], plain.runs_table["robustness"])
+    m = r.monitor
+    assert m is not None and plain.monitor is None
+    table = r.runs_table
+    stopped = table["stop_code"] != 0
+    assert m.stops == int(stopped.sum()) >= 3 and sum(k for _, k in m.reasons) == m.stops
+    assert m.p_stop == m.stops / 10 and m.ci_stop == clopper_pearson(m.stops, 10)
+    assert m.holds == int((table["monitored"] > 0).sum())
+    assert m.spurious == int((stopped & (table["robustness"] > 0)).sum())
+    assert np.isnan(table["stop_s"][~stopped]).all()
+    # a run the monitor left alone flies as without it
+    np.testing.assert_array_equal(table["monitored"][~stopped], table["robustness"][~stopped])
+    for row in table[stopped][:2]:
+        seed = int(row["seed"])
+        held = replay(plan, tight, seed)
+        free = replay(plan, dataclasses.replace(tight, monitor=False), seed)
+        assert held.stop_s is not None and held.stop_s[0] == row["stop_s"]
+        assert held.stop is not None and held.stop.verdict(0) is not None
+        k = int(np.ceil(row["stop_s"] / plan.check_dt_s))
+        later = slice(k + int(3.0 / plan.check_dt_s), None)
+        assert k + int(3.0 / plan.check_dt_s) < held.t_s.size - 10  # seconds of hold seen
+        # held: within a few dm of where it was at the stop, and still
+        drift = np.linalg.norm(
+            held.true_enu_m[0, :, later] - held.true_enu_m[0, :, k : k + 1], axis=2
+        )
+        assert drift.max() < 0.4
+        # the same run without the monitor flies on along its plan
+        moved = np.linalg.norm(
+            free.true_enu_m[0, :, later] - free.true_enu_m[0, :, k : k + 1], axis=2
+        )
+        assert moved.max() > 2.0
+
+
+def test_the_monitor_in_the_command_report_and_replay(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    args = ["assess", str(PLAN), "--runs", "6", "--workers", "0", "--monitor",
+            "--max-off-plan", "0.2", "-d", "gust_m_s=0"]  # fmt: skip
+    assert cli.main(args) == 0
+    text = capsys.readouterr().out
+    assert "safety monitor (--monitor" in text and "off its plan (tracking alarm)" in text
+    assert cli.main([*args, "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)["monitor"]
+    assert doc["stops"] >= 1 and len(doc["watched"]) == 3
+    assert sum(x["runs"] for x in doc["reasons"]) == doc["stops"]
+    seed = run_seed(0, 0)
+    assert cli.main([*args, "--replay", str(seed), "-o", str(tmp_path)]) == 0
+    assert "safety monitor: stopped the flight at t = " in capsys.readouterr().out
+
+
 def _closed_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -134,6 +197,7 @@ def _closed_port() -> int:
         (["-d", "latency_s"], "expected NAME=DIST"),
         (["--rate", "1"], "--rate"),
         (["--realtime"], "--realtime needs --replay"),
+        (["--monitor", "--max-off-plan", "-1"], "--max-off-plan: must be a number >= 0"),
         (["--param", "NOPE=1"], "no parameter 'NOPE'"),
         (["--ray-address", "127.0.0.1:PORT", "--workers", "2"], "no Ray cluster answers there"),
     ],

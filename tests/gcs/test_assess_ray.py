@@ -1,5 +1,5 @@
-"""``gcs assess`` on Ray: a local Ray with 2 CPUs gives the campaign exactly as one process does
-(slow: Ray's start-up takes seconds)."""
+"""``gcs assess`` on Ray: a local Ray with 2 CPUs gives the campaign exactly as one process does,
+the safety monitor's flights included (slow: Ray's start-up takes seconds)."""
 
 from __future__ import annotations
 
@@ -22,10 +22,10 @@ def test_a_campaign_on_a_local_ray_equals_the_same_campaign_in_one_process() -> 
     seen = []
     on_ray = assess(
         plan,
-        AssessOptions(runs=40, seed=11, disturbances=dist, workers=2, batch_size=9),
+        AssessOptions(runs=40, seed=11, disturbances=dist, workers=2, batch_size=9, monitor=True),
         on_batch=seen.append,
     )
-    here = assess(plan, AssessOptions(runs=40, seed=11, disturbances=dist, workers=0))
+    here = assess(plan, AssessOptions(runs=40, seed=11, disturbances=dist, workers=0, monitor=True))
     assert on_ray.engine.startswith("Ray (1 node, 2 CPUs)")
     assert here.engine == "this process"
     # results streamed back batch by batch, in whatever order they finished
@@ -33,3 +33,5 @@ def test_a_campaign_on_a_local_ray_equals_the_same_campaign_in_one_process() -> 
     for name in here.runs_table.dtype.names or ():
         np.testing.assert_array_equal(on_ray.runs_table[name], here.runs_table[name])
     assert (on_ray.p, on_ray.ci, on_ray.clauses) == (here.p, here.ci, here.clauses)
+    # the safety monitor's runs too (the second flight of each run, in the same task)
+    assert on_ray.monitor == here.monitor and here.monitor is not None and here.monitor.stops > 0

@@ -274,3 +274,45 @@ def test_the_tracking_alarm_warns_past_the_margin_once_and_holds_past_the_bound(
         assert event.vehicles == ("d2",) and fleet.stopped == ["d1", "d2"]
         assert "d2 1.30 m from the plan, more than the bound 1 m" in event.describe()
     assert mon.stats.as_json()["off_plan_warned"]["d2"]["off_m"] == pytest.approx(off, abs=1e-6)  # type: ignore[index]  # fmt: skip
+
+
+def test_many_runs_at_once_decide_as_each_flight_would_alone() -> None:
+    """:meth:`SafetyMonitor.evaluate_runs` (the batch simulator's monitor) against
+    :meth:`SafetyMonitor.evaluate` run by run, and the off-plan alarm against the distance
+    to the plan computed here."""
+    plan = Path(__file__).resolve().parent / "data" / "reach_avoid_2.plan.json"
+    from gcs.evaluation import plan_formula
+    from planner.planfile import load_plan
+
+    p = load_plan(plan)
+    names = [v.name for v in p.vehicles]
+    plans = {v.name: v.trajectory for v in p.vehicles}
+    mon = SafetyMonitor(always_clauses(plan_formula(p), names), horizon_s=0.5, max_off_plan_m=2.0)
+    rng = np.random.default_rng(7)
+    seen: set[str] = set()
+    for t in np.linspace(0.0, p.horizon_s, 9):
+        at = np.array([t])
+        ref = np.array([v.trajectory.position(at)[0] for v in p.vehicles])
+        vref = np.array([v.trajectory.derivative(at, 1)[0] for v in p.vehicles])
+        runs = 60
+        pos = ref + rng.normal(0.0, 1.0, (runs, 2, 3)) * rng.uniform(0.0, 2.0, (runs, 1, 1))
+        vel = vref + rng.normal(0.0, 1.0, (runs, 2, 3))
+        got = mon.evaluate_runs(float(t), names, pos, vel, plans)
+        for r in range(runs):
+            far = np.linalg.norm(pos[r] - ref, axis=1).max()
+            verdict = got.verdict(r)
+            seen.add("none" if verdict is None else verdict.value)
+            if far > 2.0:
+                assert verdict is Verdict.OFF_PLAN and got.value[r] == pytest.approx(far)
+                continue
+            one = mon.evaluate(float(t), {n: (pos[r, i], vel[r, i]) for i, n in enumerate(names)},
+                               plans)  # fmt: skip
+            if one is None:
+                assert verdict is None
+                continue
+            v1, clause, rho, ahead = one
+            assert verdict is v1
+            assert mon.clauses[int(got.clause[r])] is clause
+            assert got.value[r] == pytest.approx(rho, abs=1e-12)
+            assert got.ahead_s[r] == pytest.approx(ahead, abs=1e-12)
+    assert seen == {"none", "off_plan", "violated", "predicted"}  # every branch was met
