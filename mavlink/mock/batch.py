@@ -17,9 +17,12 @@ vehicle flies the last one that arrived; and when none has arrived for ``COM_OF_
 leaves offboard for good, as PX4 does (``COM_OBL_RC_ACT``: Hold, Land or disarm).
 
 A run starts hovering at equilibrium in its wind, ``start_error_m`` from its start; it is
-recorded on the plan's check grid ``t = 0, check_dt, ..., horizon``: the position the vehicle
-*reported* (its estimate, in the mission frame through its EKF origin, what ``gcs fly``
-evaluates) and its *true* position.
+recorded on the plan's check grid ``t = 0, check_dt, ..., horizon``: its *true* position at
+every sample, and the position it *reported* (its estimate, in the mission frame through its
+EKF origin) as ``gcs fly`` sees it: sampled at the telemetry rate and interpolated linearly
+onto the grid, as ``gcs fly`` resamples its telemetry before judging the flight (judged at
+every physics step instead, the estimate's noise would count several times more often and
+read systematically lower robustness than the flight reports).
 
 Reproducibility: a run is determined by its seed alone (with the plan, the distributions and
 the vehicle profile).  Its disturbances, its gusts, its estimator noise and its link each draw
@@ -157,6 +160,8 @@ class SimSetup:
         failsafe: what the offboard-loss failsafe does (``hold``, ``land``, ``disarm``).
         drag_per_s: the drag fed forward (1/s).
         plans: per vehicle, its planned trajectory (what the safety monitor predicts from).
+        telemetry_hz: how often the reported position is sampled (``gcs fly`` asks each
+            vehicle for 20 Hz, :class:`mavlink.fleet.Fleet`).
     """
 
     names: tuple[str, ...]
@@ -175,6 +180,7 @@ class SimSetup:
     failsafe: str
     drag_per_s: float
     plans: Mapping[str, Trajectory]
+    telemetry_hz: float
 
     @property
     def ticks(self) -> int:
@@ -191,6 +197,7 @@ def prepare(
     drag_per_s: float | None = None,
     settle_s: float = 3.0,
     physics_rate_hz: float = 100.0,
+    telemetry_hz: float = 20.0,
 ) -> SimSetup:
     """The shared part of a plan's runs (see :class:`SimSetup`).
 
@@ -212,6 +219,11 @@ def prepare(
     if not (math.isfinite(settle_s) and settle_s >= 1.0):
         raise MockConfigError(f"settle_s must be >= 1 s (PX4's pre-stream), got {settle_s!r}")
     dt = 1.0 / physics_rate_hz
+    tel = 1.0 / (telemetry_hz * dt)
+    if not (math.isfinite(tel) and tel >= 1.0 and abs(tel - round(tel)) < 1e-9):
+        raise MockConfigError(
+            f"telemetry at {telemetry_hz!r} Hz is not a whole number of physics steps ({dt:g} s)"
+        )
     stride = round(plan.check_dt_s / dt)
     if stride < 1 or abs(stride * dt - plan.check_dt_s) > 1e-9:
         raise MockConfigError(
@@ -259,6 +271,7 @@ def prepare(
         failsafe=_FAILSAFE_KIND[action],
         drag_per_s=drag,
         plans={v.name: v.trajectory for v in plan.vehicles},
+        telemetry_hz=float(telemetry_hz),
     )
 
 
@@ -428,7 +441,9 @@ def simulate(
     )
     auto_limits = mode_limits(prm, Px4Mode.AUTO_LOITER, prm["MPC_XY_CRUISE"])
     newest = np.full(rows, -1, dtype=np.int64)
-    rec_rep = np.zeros((rows, setup.samples, 3))
+    tel_stride = round(1.0 / (setup.telemetry_hz * dt))
+    n_tel = (setup.samples - 1) * setup.stride // tel_stride + 1
+    rec_rep = np.zeros((rows, n_tel, 3))  # the reported position, at the telemetry rate
     rec_true = np.zeros((rows, setup.samples, 3))
     phys.m_pos[:] = 1.0
     phys.m_vel[:] = 1.0
@@ -463,14 +478,24 @@ def simulate(
             phys.sp_vel_ned_m_s[fly] = setup.sp_vel_ned_m_s[v_i, idx]
             phys.sp_acc_ned_m_s2[fly] = setup.sp_acc_ned_m_s2[v_i, idx]
             phys.sp_yaw_rad[fly] = setup.sp_yaw_rad[v_i, idx]
-        j, rem = divmod(n - settle_ticks, setup.stride)
-        if n >= settle_ticks and rem == 0:
+        if n >= settle_ticks:
             # the state at this instant, before the step that leaves it
-            rec_rep[:, j] = phys.pos_ned_m + origin
-            rec_true[:, j] = phys.true_pos_ned_m
+            j, rem = divmod(n - settle_ticks, setup.stride)
+            if rem == 0:
+                rec_true[:, j] = phys.true_pos_ned_m
+            j, rem = divmod(n - settle_ticks, tel_stride)
+            if rem == 0 and j < n_tel:
+                rec_rep[:, j] = phys.pos_ned_m + origin
         if n < n_ticks:
             phys.step()
 
+    # ---- the reported track on the check grid as gcs fly makes it from the telemetry: linear
+    # interpolation (mavlink.tracks.FlownTrack.resample), the last sample held past the end
+    u = np.arange(setup.samples) * setup.stride / tel_stride  # check grid, in telemetry samples
+    i0 = np.minimum(np.floor(u + 1e-9).astype(np.int64), n_tel - 1)
+    i1 = np.minimum(i0 + 1, n_tel - 1)
+    w = np.clip(u - i0, 0.0, 1.0)[None, :, None]
+    rec_rep = rec_rep[:, i0] * (1.0 - w) + rec_rep[:, i1] * w
     # ---- into the mission frame, per vehicle
     rep = np.empty((n_runs, n_veh, setup.samples, 3))
     true = np.empty_like(rep)
