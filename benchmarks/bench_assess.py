@@ -1,5 +1,5 @@
 """Figures of ``gcs assess`` (issue 22): runs per second, Ray scaling, P(spec holds) against
-wind, and (``--agreement N``) agreement with the real-time mock.
+wind, the safety monitor, and (``--agreement N``) agreement with the real-time mock.
 
     .venv/bin/python benchmarks/bench_assess.py [--runs 10000] [--wind-runs 500] [--agreement 0]
 
@@ -10,9 +10,12 @@ wind, and (``--agreement N``) agreement with the real-time mock.
 2. P(spec holds) with its 95 % Clopper-Pearson interval at 0, 3, 6, 9 m/s mean wind (any
    direction, the other disturbances at their calm-day defaults) for the power-line and the
    reach-avoid plans;
-3. with ``--agreement N``: N runs with deterministic disturbances (wind, no noise) flown in
-   the simulator and on the real-time mock (``--replay --realtime``): median and worst
-   |difference| of the flown (reported) robustness.
+3. the safety monitor (``--monitor``) on the power-line plan in wind of 0-9 m/s: its cost,
+   how often it stops the flight and whether the stops were needed;
+4. with ``--agreement N``: N runs with deterministic disturbances (wind, setpoint latency,
+   derating; no noise) flown in the simulator and on the real-time mock
+   (``--replay --realtime``): median and worst |difference| of the flown (reported)
+   robustness.
 
 Prints a table and one JSON line.  Ray's processes are stopped at the end (``ray stop``).
 """
@@ -119,12 +122,31 @@ def main() -> None:
                 table.append({"plan": name, "wind_m_s": wind, "p": r.p, "ci": r.ci,
                               "median": r.quantiles["p50"], "p_reported": r.p_reported})  # fmt: skip
         out["wind_table"] = table
+        # the safety monitor: each run flown again under it (same draws)
+        m_runs = max(500, args.runs // 5)
+        mon = assess(pl, AssessOptions(runs=m_runs, ray_address=address, batch_size=250,
+                                       monitor=True, disturbances={"wind_m_s": "uniform(0, 9)"}))  # fmt: skip
+        ref = assess(pl, AssessOptions(runs=m_runs, ray_address=address, batch_size=250,
+                                       disturbances={"wind_m_s": "uniform(0, 9)"}))  # fmt: skip
+        m = mon.monitor
+        assert m is not None
+        print(f"\n--monitor, power-line, wind 0-9 m/s, {m_runs} runs: {mon.runs_per_s:.0f} runs/s "
+              f"({mon.elapsed_s / ref.elapsed_s:.2f} x the time without)")  # fmt: skip
+        print(f"  P(stop) {m.p_stop:.3f} [{m.ci_stop[0]:.3f}, {m.ci_stop[1]:.3f}]; stops needed "
+              f"{m.needed}, spurious {m.spurious}; always-clauses held {m.safe_monitored} "
+              f"(without: {m.safe}); P(holds) {m.p:.3f} (without: {mon.p:.3f})")  # fmt: skip
+        for why, k in m.reasons[:4]:
+            print(f"  {k:6d}  {why[:90]}")
+        out["monitor"] = {"runs": m_runs, "runs_per_s": mon.runs_per_s,
+                          "time_ratio": mon.elapsed_s / ref.elapsed_s, **m.as_json(mon.clauses)}  # fmt: skip
     finally:
         subprocess.run([RAY, "stop", "--force"], capture_output=True)
     if args.agreement:
         diffs = []
         for k in range(args.agreement):
-            dist = dict(QUIET, wind_m_s="uniform(0, 4)")
+            # the deterministic disturbances (as tests/gcs/test_assess_agreement.py)
+            dist = dict(QUIET, wind_m_s="uniform(0, 4)", latency_s="uniform(0.005, 0.05)",
+                        derate="uniform(0.8, 1)")  # fmt: skip
             opts = AssessOptions(runs=1, workers=0, disturbances=dist)
             seed = 1000 + k
             flights = replay(pl, opts, seed)
