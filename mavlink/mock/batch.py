@@ -465,7 +465,6 @@ def simulate(
             failed |= lost
             off |= lost
             failsafe_s[lost] = t_n - setup.settle_s
-        held = None
         if watch is not None:
             held = watch.tick(n, phys, origin, failed, off)
             if held is not None:
