@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from planner.dynamics.feasibility import FeasibilityReport, InputLimits, check_input_feasibility
+from planner.limits import vehicle_bounds
 from planner.trajectory import Trajectory
 
 
@@ -49,10 +50,11 @@ def check_trajectories(
     dt_s: float,
     horizon_s: float,
 ) -> tuple[LimitReport, ...]:
-    """Dense checks per vehicle: max speed/acc per axis vs limits, workspace, Mueller test.
+    """Dense checks per vehicle: speed/acc vs limits (per axis, up/down, horizontal norm:
+    :func:`planner.limits.vehicle_bounds`), workspace, Mueller test.
 
     ``problem_like`` has a ``workspace`` region; ``vehicles`` have the scenario's limit
-    fields (``v_max_m_s``, ``a_max_m_s2``, optional thrust/body-rate limits).
+    fields (``v_max_m_s``, ``a_max_m_s2``, the optional PX4-like ones, thrust/body rates).
     """
     n = round(horizon_s / dt_s) + 1
     t = np.arange(n) * dt_s
@@ -62,8 +64,8 @@ def check_trajectories(
         pos = tr.position(t)
         vel = tr.velocity(t)
         acc = tr.acceleration(t)
-        v_ratio = float(np.max(np.abs(vel) / np.asarray(v.v_max_m_s)))
-        a_ratio = float(np.max(np.abs(acc) / np.asarray(v.a_max_m_s2)))
+        vb, ab = vehicle_bounds(v)
+        v_ratio, a_ratio = vb.ratio(vel), ab.ratio(acc)
         margin = float(
             np.min(np.concatenate([pos - np.asarray(ws.lo_enu_m), np.asarray(ws.hi_enu_m) - pos]))
         )

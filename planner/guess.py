@@ -13,6 +13,7 @@ import casadi as ca
 import numpy as np
 
 from planner.cache import BoundedCache
+from planner.limits import vehicle_bounds
 from planner.nlp import _limit_bounds, _two_sided_rows
 from planner.predicates import Role, role_of
 from planner.problem import Problem
@@ -244,8 +245,11 @@ def _initial_guess(
             options.append([np.tile(pts[0], (len(times), 1))])
             continue
         legs = [_grid_path(problem, avoid, [a, b]) for a, b in itertools.pairwise(pts)]
-        v_lim = _GUESS_LIMIT_FRACTION * np.asarray(v.v_max_m_s, dtype=float)
-        a_lim = _GUESS_LIMIT_FRACTION * np.asarray(v.a_max_m_s2, dtype=float)
+        # per axis, the slower direction (the profile flies both ways), horizontally the
+        # box inside the norm's polygon
+        (vlo, vhi), (alo, ahi) = (b.box() for b in vehicle_bounds(v))
+        v_lim = _GUESS_LIMIT_FRACTION * np.minimum(vhi, -vlo)
+        a_lim = _GUESS_LIMIT_FRACTION * np.minimum(ahi, -alo)
         prof = [
             _leg_profile(np.abs(np.diff(leg, axis=0)).sum(axis=0), v_lim, a_lim) for leg in legs
         ]
@@ -297,7 +301,8 @@ def _fit_within_limits(
     least-squares fit with only the equalities (end at rest, the model's own).
     """
     Mp, Np = np.asarray(model.Mp), np.asarray(model.Np)
-    cons = model.limit_constraints(vehicle.v_max_m_s, vehicle.a_max_m_s2)
+    (vlo, vhi), (alo, ahi) = (b.box() for b in vehicle_bounds(vehicle))
+    cons = model.limit_constraints(vhi, ahi, -vlo, -alo)
     half = _two_sided_rows(cons)
     lo_all, hi_all = _limit_bounds(cons, half)
     Ge, He = model.equality_constraints()

@@ -30,6 +30,7 @@ from planner.leaf_templates import (
     local_hessian,
     selection,
 )
+from planner.limits import NORM_DIRECTIONS, vehicle_bounds
 from planner.predicates import (
     Role,
     ca_box_margins,
@@ -154,6 +155,7 @@ class _Structure:
     ubg_fixed: np.ndarray
     lim_slices: list[slice]  # g rows of each vehicle's limits
     lim_half: int  # rows of the model's limits kept (two-sided rows when they pair up)
+    norm_rows: bool  # whether each vehicle's limit rows end with the horizontal-norm rows
     leaves: dict[Formula, set[int]]
     used_steps: list[int]  # planning steps whose positions are lifted into variables
     n_smooth: int
@@ -182,7 +184,13 @@ def _structure_key(problem: Problem) -> Any:
         tuple(v.name for v in problem.vehicles),
         s,
         problem.epsilon,
+        _has_norm_limits(problem),
     )
+
+
+def _has_norm_limits(problem: Problem) -> bool:
+    """Whether a vehicle bounds a horizontal norm (then the NLP has the polygon's rows)."""
+    return any(b.has_norm for v in problem.vehicles for b in vehicle_bounds(v))
 
 
 def _fit_k(problem: Problem, smooth_leaves: Sequence[Formula], dt: float) -> tuple[float, float]:
@@ -283,6 +291,7 @@ class NlpBuilder:
         self.n_lift = self.n_lim = self.n_eq = 0
         self.lim_slices: list[slice] = []
         self.lim_half = 0
+        self.norm_rows = _has_norm_limits(problem)
 
     def add_dynamics_constraints(self) -> NlpBuilder:
         """Linear rows: the lifting equalities, the limits, rest at the end, the model's own
@@ -300,7 +309,10 @@ class NlpBuilder:
         G = ca.sparsify(ca.DM(cons.G[:half]))
         H = ca.sparsify(ca.DM(cons.H[:half]))
         for i in range(nv):
-            gi = ca.vec(ca.mtimes(G, Z[i]) + ca.mtimes(H, X0[i]))
+            ctrl = ca.mtimes(G, Z[i]) + ca.mtimes(H, X0[i])  # control points (half, 3)
+            gi = ca.vec(ctrl)
+            if self.norm_rows:  # the inscribed polygon's rows coupling x and y
+                gi = ca.vertcat(gi, *[c * ctrl[:, 0] + s * ctrl[:, 1] for c, s in NORM_DIRECTIONS])
             lim_g.append(gi)
             self.lim_slices.append(slice(row, row + gi.shape[0]))
             row += gi.shape[0]
@@ -421,6 +433,7 @@ class NlpBuilder:
             ubg_fixed=ubg_fixed,
             lim_slices=self.lim_slices,
             lim_half=self.lim_half,
+            norm_rows=self.norm_rows,
             leaves=self.leaves,
             used_steps=self.used,
             n_smooth=len(smooth_items),
@@ -509,18 +522,37 @@ def _is_separation(leaf: Formula) -> bool:
 
 
 def _two_sided_rows(cons: Any) -> int:
-    """Rows of ``cons`` to keep: ``n/2`` when the limits come as ``[A; -A]`` with equal
-    right-hand sides (then each kept row is two-sided, ``-h <= A z <= h``, which halves the
-    limit rows IPOPT sees), else all of them (one-sided, as given)."""
+    """Rows of ``cons`` to keep: ``n/2`` when the limits come as ``[A; -A]`` (then each kept
+    row is two-sided, ``-h_lower <= A z <= h_upper``, which halves the limit rows IPOPT
+    sees), else all of them (one-sided, as given)."""
     n = cons.G.shape[0]
     half = n // 2
     paired = (
         n % 2 == 0
         and np.array_equal(cons.G[half:], -cons.G[:half])
         and np.array_equal(cons.H[half:], -cons.H[:half])
-        and np.array_equal(cons.h[half:], cons.h[:half])
     )
     return half if paired else n
+
+
+def vehicle_limit_bounds(
+    model: Any, vehicle: Any, half: int, norm_rows: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(lo, hi)`` of one vehicle's limit rows as :class:`NlpBuilder` lays them out: the
+    kept model rows per axis (column after column), then, with ``norm_rows``, the
+    :data:`planner.limits.NORM_DIRECTIONS` rows (``inf`` for a vehicle without a norm
+    bound). Together they are :meth:`planner.limits.Bounds.linear` on every control point."""
+    vel, acc = vehicle_bounds(vehicle)
+    (vlo, vhi, vb), (alo, ahi, ab) = vel.linear(), acc.linear()
+    cons = model.limit_constraints(vhi, ahi, -vlo, -alo)
+    lo, hi = _limit_bounds(cons, half)
+    lo_parts, hi_parts = [lo.reshape(-1, order="F")], [hi.reshape(-1, order="F")]
+    if norm_rows:
+        b = np.where(cons.kind[:half] == "vel", vb, ab)
+        for _ in NORM_DIRECTIONS:
+            lo_parts.append(-b)
+            hi_parts.append(b)
+    return np.concatenate(lo_parts), np.concatenate(hi_parts)
 
 
 def _derivatives(

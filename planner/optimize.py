@@ -6,6 +6,7 @@ Formulation (for vehicles ``i`` with decision matrices ``Z_i`` of the chosen
     maximise    r
     subject to  c_l(Z) >= r                  every conjunctive leaf l (see below)
                 G Z_i + H X0_i <= h_i        continuous-time |v|, |a| limits per axis
+                                             (and horizontal norms: planner.limits)
                 v_i(horizon) = 0             every vehicle ends at rest (then holds)
                 lo_ws <= p_i(t_k) <= hi_ws   workspace, at every constraint sample
                 [r >= epsilon + margin]      the paper's eq. (1) constraint, if asked for
@@ -67,14 +68,15 @@ import numpy as np
 from planner.checks import LimitReport, check_trajectories
 from planner.dynamics import DoubleIntegrator, MinimumJerkChain
 from planner.guess import _initial_guess
+from planner.limits import vehicle_bounds
 from planner.nlp import (
     K_MIN,
     STRUCTURES,
     _build,
-    _limit_bounds,
     _Structure,
     _structure_key,
     clear_cache,
+    vehicle_limit_bounds,
 )
 from planner.predicates import (
     build_registry,
@@ -188,13 +190,11 @@ def plan(
     # Numeric bounds: limits per vehicle into lbg/ubg, r bounds.
     lbg = struct.lbg_fixed.copy()
     ubg = struct.ubg_fixed.copy()
-    half = struct.lim_half
     cons_cache: dict[tuple[Any, Any], tuple[np.ndarray, np.ndarray]] = {}
     for i, v in enumerate(problem.vehicles):
-        keyl = (v.v_max_m_s, v.a_max_m_s2)
+        keyl = vehicle_bounds(v)
         if keyl not in cons_cache:
-            lo, hi = _limit_bounds(model.limit_constraints(v.v_max_m_s, v.a_max_m_s2), half)
-            cons_cache[keyl] = (lo.reshape(-1, order="F"), hi.reshape(-1, order="F"))
+            cons_cache[keyl] = vehicle_limit_bounds(model, v, struct.lim_half, struct.norm_rows)
         lbg[struct.lim_slices[i]], ubg[struct.lim_slices[i]] = cons_cache[keyl]
     lbx = struct.lbx.copy()
     ubx = struct.ubx.copy()

@@ -43,6 +43,7 @@ import numpy as np
 
 from planner.errors import FileFieldError
 from planner.frames import GeodeticPoint
+from planner.limits import PX4_LIMIT_KEYS
 from planner.problem import MAX_HORIZON_S
 from planner.regions import Region, RegionKind
 from planner.scenario_checks import horizon_sum
@@ -90,6 +91,14 @@ class PlannedVehicle:
     thrust_min_m_s2: float | None = None
     thrust_max_m_s2: float | None = None
     body_rate_max_rad_s: float | None = None
+    #: PX4-like limits (:mod:`planner.limits`): horizontal norm, vertical up/down (None: none
+    #: beyond the per-axis ``v_max_m_s`` / ``a_max_m_s2``).
+    v_xy_max_m_s: float | None = None
+    v_up_max_m_s: float | None = None
+    v_down_max_m_s: float | None = None
+    a_xy_max_m_s2: float | None = None
+    a_up_max_m_s2: float | None = None
+    a_down_max_m_s2: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -157,6 +166,9 @@ def plan_to_json(plan: Plan) -> dict[str, Any]:
     for v in plan.vehicles:
         sp = v.trajectory.sample(1.0 / plan.sample_dt_s)
         limits: dict[str, Any] = {"v_max_m_s": list(v.v_max_m_s), "a_max_m_s2": list(v.a_max_m_s2)}
+        for key in PX4_LIMIT_KEYS:
+            if getattr(v, key) is not None:
+                limits[key] = getattr(v, key)
         if v.thrust_min_m_s2 is not None and v.thrust_max_m_s2 is not None:
             limits["thrust_m_s2"] = [v.thrust_min_m_s2, v.thrust_max_m_s2]
         if v.body_rate_max_rad_s is not None:
@@ -372,6 +384,14 @@ def load_plan(path: str | Path) -> Plan:
         br = lim.get("body_rate_max_rad_s")
         if br is not None and (isinstance(br, bool) or not isinstance(br, int | float)):
             raise rd.fail(f"{vp}.limits.body_rate_max_rad_s", "expected a number")
+        px4_like = {}
+        for key in PX4_LIMIT_KEYS:
+            val = lim.get(key)
+            if val is not None and (
+                isinstance(val, bool) or not isinstance(val, int | float) or not val > 0
+            ):
+                raise rd.fail(f"{vp}.limits.{key}", f"expected a number > 0, got {val!r}")
+            px4_like[key] = None if val is None else float(val)
         sysid = rd.get(v, "sysid", vp, int)
         if isinstance(sysid, bool) or not 1 <= sysid <= 255:
             raise rd.fail(f"{vp}.sysid", f"expected 1..255, got {sysid!r}")
@@ -386,6 +406,7 @@ def load_plan(path: str | Path) -> Plan:
                 thrust_min_m_s2=None if thrust is None else float(thrust[0]),
                 thrust_max_m_s2=None if thrust is None else float(thrust[1]),
                 body_rate_max_rad_s=None if br is None else float(br),
+                **px4_like,
             )
         )
     for key, val in (("robustness", rob), ("smooth_robustness", srob)):

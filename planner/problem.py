@@ -51,7 +51,8 @@ class SolverMethod(enum.Enum):
 
 @dataclass(frozen=True, slots=True)
 class Vehicle:
-    """One vehicle: start state at rest and its per-axis limits (ENU axes)."""
+    """One vehicle: start state at rest and its limits (per ENU axis, and optionally PX4-like:
+    horizontal norm and vertical up/down; :func:`planner.limits.vehicle_bounds` combines them)."""
 
     name: str
     sysid: int
@@ -64,6 +65,14 @@ class Vehicle:
     #: Body-rate bound (rad/s) for Mueller's feasibility check, or None.
     body_rate_max_rad_s: float | None = None
     groups: tuple[str, ...] = ()
+    #: PX4-like limits (:mod:`planner.limits`): horizontal norm, vertical up/down (None: none
+    #: beyond the per-axis ``v_max_m_s`` / ``a_max_m_s2``).
+    v_xy_max_m_s: float | None = None
+    v_up_max_m_s: float | None = None
+    v_down_max_m_s: float | None = None
+    a_xy_max_m_s2: float | None = None
+    a_up_max_m_s2: float | None = None
+    a_down_max_m_s2: float | None = None
 
 
 @dataclass(frozen=True, slots=True)

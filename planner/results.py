@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from planner.checks import LimitReport
+from planner.limits import PX4_LIMIT_KEYS
 from planner.planfile import Plan, PlannedVehicle
 from planner.problem import Problem
 from planner.trajectory import Trajectory
@@ -99,6 +100,7 @@ class PlanResult:
                 thrust_min_m_s2=v.thrust_min_m_s2,
                 thrust_max_m_s2=v.thrust_max_m_s2,
                 body_rate_max_rad_s=v.body_rate_max_rad_s,
+                **{key: getattr(v, key) for key in PX4_LIMIT_KEYS},
             )
             for v, tr in zip(p.vehicles, self.trajectories, strict=True)
         )

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from planner.limits import vehicle_bounds
 from planner.predicates import Role, role_of
 from planner.regions import KEEP_OUT_KINDS
 from planner.stl import Always, And, Eventually, Formula, Predicate, Until
@@ -166,22 +167,39 @@ def reach_m(t_s: float, v_max: float, a_max: float) -> float:
 
 
 def _out_of_reach(v: Vehicle, region: Region, deadline_s: float) -> str | None:
+    """Why ``v`` cannot be in ``region`` by ``deadline_s`` from rest, or None: per axis
+    within the bound of the direction it must fly (up and down may differ), and
+    horizontally within a norm bound."""
     s = np.asarray(v.start_enu_m, dtype=float)
-    gap = np.maximum(np.maximum(np.asarray(region.lo_enu_m) - s, s - np.asarray(region.hi_enu_m)), 0.0)  # fmt: skip
-    worst: tuple[float, int, float] | None = None
+    lo, hi = np.asarray(region.lo_enu_m), np.asarray(region.hi_enu_m)
+    gap = np.maximum(np.maximum(lo - s, s - hi), 0.0)
+    vb, ab = vehicle_bounds(v)
+    worst: tuple[float, str] | None = None
     for i in range(3):
-        reach = reach_m(deadline_s, v.v_max_m_s[i], v.a_max_m_s2[i])
+        ahead = bool(s[i] < lo[i])
+        vm = vb.hi[i] if ahead else -vb.lo[i]
+        am = ab.hi[i] if ahead else -ab.lo[i]
+        reach = reach_m(deadline_s, vm, am)
         if gap[i] > reach and (worst is None or gap[i] - reach > worst[0]):
-            worst = (gap[i] - reach, i, reach)
-    if worst is None:
-        return None
-    _, i, reach = worst
-    return (
-        f"{region.name} is {gap[i]:.4g} m {_direction(i, s[i] < region.lo_enu_m[i])} "
-        f"{v.name}'s start and {v.name} covers at most {reach:.4g} m that way in "
-        f"{format_number(deadline_s)} s from rest (limits {format_number(v.v_max_m_s[i])} m/s, "
-        f"{format_number(v.a_max_m_s2[i])} m/s^2)"
-    )
+            why = (
+                f"{region.name} is {gap[i]:.4g} m {_direction(i, ahead)} {v.name}'s start and "
+                f"{v.name} covers at most {reach:.4g} m that way in "
+                f"{format_number(deadline_s)} s from rest (limits {format_number(vm)} m/s, "
+                f"{format_number(am)} m/s^2)"
+            )
+            worst = (gap[i] - reach, why)
+    if vb.has_norm:
+        a_xy = ab.xy if ab.has_norm else float(np.hypot(ab.hi[0], ab.hi[1]))
+        g = float(np.hypot(gap[0], gap[1]))
+        reach = reach_m(deadline_s, vb.xy, a_xy)
+        if g > reach and (worst is None or g - reach > worst[0]):
+            why = (
+                f"{region.name} is {g:.4g} m horizontally from {v.name}'s start and {v.name} "
+                f"covers at most {reach:.4g} m horizontally in {format_number(deadline_s)} s "
+                f"from rest (limits {format_number(vb.xy)} m/s, {format_number(a_xy)} m/s^2)"
+            )
+            worst = (g - reach, why)
+    return None if worst is None else worst[1]
 
 
 _DIRECTIONS = (("west of", "east of"), ("south of", "north of"), ("below", "above"))

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from planner.errors import FileFieldError
+from planner.limits import PX4_LIMIT_KEYS
 from planner.predicates import PREDICATES
 from planner.problem import QP_SOLVERS, SolverMethod, SolverOptions, Vehicle
 from planner.regions import Region, RegionKind
@@ -166,14 +167,39 @@ def _region(rd: _Reader, name: str, value: Any, path: str, kind: RegionKind) -> 
     return Region(name, kind, tuple(lo.tolist()), tuple(hi.tolist()))
 
 
+#: PX4-like limits (:mod:`planner.limits`): horizontal norm and vertical up/down, for the
+#: velocity and the acceleration; with the per-axis ``v_max_m_s``/``a_max_m_s2`` each holds.
+_PX4_LIMITS = PX4_LIMIT_KEYS
+
+
+def _per_axis_caps(
+    rd: _Reader, path: str, lim: dict[str, Any], per_axis: str, xy: str, up: str, down: str
+) -> tuple[float, float, float]:
+    """The per-axis caps of a vehicle: as given, or from the PX4-like limits when only
+    those are (``[xy, xy, max(up, down)]``: every bound then still holds on its own)."""
+    if per_axis in lim:
+        return tuple(lim[per_axis])
+    missing = [k for k in (xy, up, down) if k not in lim]
+    if missing:
+        raise rd.fail(
+            _join(path, "limits"),
+            f"{per_axis} missing (give it in limits, or all of {xy}, {up}, {down}; "
+            f"missing: {', '.join(missing)})",
+        )
+    return (lim[xy], lim[xy], max(lim[up], lim[down]))
+
+
 def _limits(rd: _Reader, value: Any, path: str, base: dict[str, Any]) -> dict[str, Any]:
-    allowed = {"v_max_m_s", "a_max_m_s2", "thrust_m_s2", "body_rate_max_rad_s"}
+    allowed = {"v_max_m_s", "a_max_m_s2", "thrust_m_s2", "body_rate_max_rad_s", *_PX4_LIMITS}
     m = rd.mapping(value, path, allowed)
     out = dict(base)
     if "v_max_m_s" in m:
         out["v_max_m_s"] = rd.per_axis(m["v_max_m_s"], _join(path, "v_max_m_s"))
     if "a_max_m_s2" in m:
         out["a_max_m_s2"] = rd.per_axis(m["a_max_m_s2"], _join(path, "a_max_m_s2"))
+    for key in _PX4_LIMITS:
+        if key in m:
+            out[key] = rd.number(m[key], _join(path, key), positive=True)
     if "thrust_m_s2" in m:
         p = _join(path, "thrust_m_s2")
         t = m["thrust_m_s2"]
@@ -319,15 +345,19 @@ def _make_vehicle(
     lim: dict[str, Any],
     groups: tuple[str, ...],
 ) -> Vehicle:
-    for key in ("v_max_m_s", "a_max_m_s2"):
-        if key not in lim:
-            raise rd.fail(_join(path, "limits"), f"{key} missing (give it in limits)")
+    v_max = _per_axis_caps(
+        rd, path, lim, "v_max_m_s", "v_xy_max_m_s", "v_up_max_m_s", "v_down_max_m_s"
+    )
+    a_max = _per_axis_caps(
+        rd, path, lim, "a_max_m_s2", "a_xy_max_m_s2", "a_up_max_m_s2", "a_down_max_m_s2"
+    )
     return Vehicle(
         name=name,
         sysid=sysid,
         start_enu_m=start,
-        v_max_m_s=lim["v_max_m_s"],
-        a_max_m_s2=lim["a_max_m_s2"],
+        v_max_m_s=v_max,
+        a_max_m_s2=a_max,
+        **{key: lim.get(key) for key in _PX4_LIMITS},
         thrust_min_m_s2=lim.get("thrust_min_m_s2"),
         thrust_max_m_s2=lim.get("thrust_max_m_s2"),
         body_rate_max_rad_s=lim.get("body_rate_max_rad_s"),

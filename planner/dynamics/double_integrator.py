@@ -86,25 +86,42 @@ class DoubleIntegrator(PiecewisePolynomialModel):
             yaw_policy=yaw_policy if yaw_policy is not None else YawPolicy(),
         )
 
-    def limit_constraints(self, v_max: ArrayLike, a_max: ArrayLike = np.inf) -> LimitConstraints:
-        """Exact limits: ``|v_i(t)| <= v_max[i]`` and ``|u_i| <= min(a_max[i], u_max[i])``.
+    def limit_constraints(
+        self,
+        v_max: ArrayLike,
+        a_max: ArrayLike = np.inf,
+        v_down: ArrayLike | None = None,
+        a_down: ArrayLike | None = None,
+    ) -> LimitConstraints:
+        """Exact limits: ``-v_down[i] <= v_i(t) <= v_max[i]`` and
+        ``-min(a_down[i], u_max[i]) <= u_i <= min(a_max[i], u_max[i])`` (``v_down``,
+        ``a_down`` default to ``v_max``, ``a_max``).
 
         Infinite bounds are allowed here (rows with ``h = inf`` are always satisfied).
         With ``dims=2`` the up-axis input bound is 0.
         """
         vm = np.broadcast_to(np.asarray(v_max, dtype=float), (3,))
         am = np.broadcast_to(np.asarray(a_max, dtype=float), (3,))
-        if np.any(np.isnan(vm)) or np.any(vm < 0) or np.any(np.isnan(am)) or np.any(am < 0):
+        vd = vm if v_down is None else np.broadcast_to(np.asarray(v_down, dtype=float), (3,))
+        ad = am if a_down is None else np.broadcast_to(np.asarray(a_down, dtype=float), (3,))
+        if any(np.any(np.isnan(x)) or np.any(x < 0) for x in (vm, am, vd, ad)):
             raise DynamicsError("v_max and a_max must be >= 0 (scalar or 3 per-axis values)")
-        acc = np.minimum(am, self.u_max)
+        acc_hi, acc_lo = np.minimum(am, self.u_max), np.minimum(ad, self.u_max)
         if self.dims == 2:
-            acc = acc.copy()
-            acc[2] = 0.0
+            acc_hi, acc_lo = acc_hi.copy(), acc_lo.copy()
+            acc_hi[2] = acc_lo[2] = 0.0
         # Parent validates finiteness; pass finite placeholders, then restore inf bounds.
         cons = PiecewisePolynomialModel.limit_constraints(
             self, _as_axis_limit(np.where(np.isfinite(vm), vm, 0.0), "v_max"), np.zeros(3)
         )
-        h = np.where((cons.kind == "vel")[:, None], vm[None, :], acc[None, :])
+        n = len(cons.kind) // 2
+        vel = (cons.kind[:n] == "vel")[:, None]
+        h = np.vstack(
+            [
+                np.where(vel, vm[None, :], acc_hi[None, :]),
+                np.where(vel, vd[None, :], acc_lo[None, :]),
+            ]
+        )
         return LimitConstraints(G=cons.G, H=cons.H, h=h, kind=cons.kind)
 
     def initial_guess(self, start: ArrayLike, goal: ArrayLike) -> NDArray[np.float64]:

@@ -7,8 +7,9 @@ matrix ``Z`` ``(n_dec, 3)`` (one column per ENU axis) and the initial state ``X0
 
     POS = Mp @ Z + Np @ X0,   VEL = Mv @ Z + Nv @ X0,   ACC = Ma @ Z + Na @ X0
 
-(``(n_samples, 3)``), and continuous-time per-axis limits ``|v| <= v_max``,
-``|a| <= a_max`` as ``G @ Z + H @ X0 <= h`` (elementwise, ``(n_con, 3)``).
+(``(n_samples, 3)``), and continuous-time per-axis limits ``-v_down <= v <= v_max``,
+``-a_down <= a <= a_max`` as ``G @ Z + H @ X0 <= h`` (elementwise, ``(n_con, 3)``; rows
+``[A; -A]``, the upper bounds then the lower ones).
 
 Soundness of the limits (why they hold on the whole trajectory, not only at samples):
 inside each segment the velocity and acceleration are polynomials; on a sub-interval a
@@ -80,7 +81,13 @@ class LinearModel(Protocol):
     Ma: NDArray[np.float64]
     Na: NDArray[np.float64]
 
-    def limit_constraints(self, v_max: ArrayLike, a_max: ArrayLike) -> LimitConstraints: ...
+    def limit_constraints(
+        self,
+        v_max: ArrayLike,
+        a_max: ArrayLike,
+        v_down: ArrayLike | None = None,
+        a_down: ArrayLike | None = None,
+    ) -> LimitConstraints: ...
 
     def initial_guess(self, start: ArrayLike, goal: ArrayLike) -> NDArray[np.float64]: ...
 
@@ -240,25 +247,38 @@ class PiecewisePolynomialModel:
         a model whose ``Z`` carries redundant variables ties them down here)."""
         return np.zeros((0, self.n_dec)), np.zeros((0, self.n_init))
 
-    def limit_constraints(self, v_max: ArrayLike, a_max: ArrayLike) -> LimitConstraints:
-        """Sound continuous-time limits ``|v_i(t)| <= v_max[i]``, ``|a_i(t)| <= a_max[i]``.
+    def limit_constraints(
+        self,
+        v_max: ArrayLike,
+        a_max: ArrayLike,
+        v_down: ArrayLike | None = None,
+        a_down: ArrayLike | None = None,
+    ) -> LimitConstraints:
+        """Sound continuous-time limits ``-v_down[i] <= v_i(t) <= v_max[i]``,
+        ``-a_down[i] <= a_i(t) <= a_max[i]``.
 
         Args:
-            v_max: m/s, scalar or per-axis ``(3,)``.
+            v_max: m/s, scalar or per-axis ``(3,)``: the upper bounds.
             a_max: m/s^2, scalar or per-axis ``(3,)``.
+            v_down, a_down: the lower bounds' magnitudes (default: ``v_max``, ``a_max``,
+                symmetric limits).
 
         Returns:
-            :class:`LimitConstraints` with ``G @ Z + H @ X0 <= h`` meaning all limits hold
-            for every ``t`` in ``[0, horizon_s]`` (see module docstring).
+            :class:`LimitConstraints` ``[A; -A]`` with ``G @ Z + H @ X0 <= h`` meaning all
+            limits hold for every ``t`` in ``[0, horizon_s]`` (see module docstring).
         """
         vm = _as_axis_limit(v_max, "v_max")
         am = _as_axis_limit(a_max, "a_max")
+        vd = vm if v_down is None else _as_axis_limit(v_down, "v_down")
+        ad = am if a_down is None else _as_axis_limit(a_down, "a_down")
         A, kinds = self._limit_rows
-        lim = np.where((kinds == "vel")[:, None], vm[None, :], am[None, :])
+        vel = (kinds == "vel")[:, None]
+        upper = np.where(vel, vm[None, :], am[None, :])
+        lower = np.where(vel, vd[None, :], ad[None, :])
         G = np.vstack([A[:, : self.n_dec], -A[:, : self.n_dec]])
         H = np.vstack([A[:, self.n_dec :], -A[:, self.n_dec :]])
         return LimitConstraints(
-            G=G, H=H, h=np.vstack([lim, lim]), kind=np.concatenate([kinds, kinds])
+            G=G, H=H, h=np.vstack([upper, lower]), kind=np.concatenate([kinds, kinds])
         )
 
     def _check_state(self, Z: Any, X0: Any) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
