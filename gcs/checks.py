@@ -124,7 +124,26 @@ def verify_plan(plan: Any, dt_s: float | None = None) -> list[Check]:
     for v in plan.vehicles:
         err = float(np.linalg.norm(v.trajectory.position(np.array([0.0]))[0] - v.start_enu_m))
         checks.append(Check(f"{v.name} start offset m", err, 1e-6, err <= 1e-6))
+    for v in plan.vehicles:
+        # a plan must leave every vehicle at rest, to hold there (timing.end: free does not)
+        speed = float(np.linalg.norm(v.trajectory.velocity(np.array([plan.horizon_s]))[0]))
+        checks.append(
+            Check(
+                f"{v.name} speed at the end m/s",
+                speed,
+                _END_SPEED_M_S,
+                speed <= _END_SPEED_M_S,
+                ""
+                if speed <= _END_SPEED_M_S
+                else "it would coast on after the plan (planned with timing.end: free?)",
+            )
+        )
     return checks
+
+
+#: The speed (m/s) a plan may end with and still count as at rest (the planner's end rows
+#: hold to IPOPT's constraint tolerance, 1e-8).
+_END_SPEED_M_S = 1e-3
 
 
 def weakest_detail(chain: Sequence[Any]) -> str:

@@ -283,13 +283,13 @@ def _initial_guess(
             break
     cols = []
     for path, x0, v in zip(chosen, x0s, problem.vehicles, strict=True):
-        Zv = _fit_within_limits(model, path, x0, v, problem.workspace)
+        Zv = _fit_within_limits(model, path, x0, v, problem.workspace, problem.timing.end_at_rest)
         cols.append(Zv.reshape(-1, order="F"))
     return np.concatenate(cols)
 
 
 def _fit_within_limits(
-    model: Any, path: np.ndarray, x0: np.ndarray, vehicle: Any, ws: Any
+    model: Any, path: np.ndarray, x0: np.ndarray, vehicle: Any, ws: Any, end_at_rest: bool = True
 ) -> np.ndarray:
     """``Z`` (n_dec, 3) whose samples are closest (least squares) to ``path`` (n, 3) among
     the trajectories that respect the vehicle's limits, end at rest and stay in the
@@ -307,6 +307,9 @@ def _fit_within_limits(
     lo_all, hi_all = _limit_bounds(cons, half)
     Ge, He = model.equality_constraints()
     n_fix = 1 + len(Ge)  # rows held at 0: the end velocity, the model's equalities
+    fix_lo, fix_hi = np.zeros(n_fix), np.zeros(n_fix)
+    if not end_at_rest:  # the end velocity free
+        fix_lo[0], fix_hi[0] = -np.inf, np.inf
     A = np.vstack([model.Mv[-1:], Ge, cons.G[:half], Mp])
     qp = _guess_qp(model.n_dec, A)
     H = 2 * (Mp.T @ Mp) + 1e-6 * np.eye(model.n_dec)
@@ -315,16 +318,17 @@ def _fit_within_limits(
         xa = x0[:, a]
         off = np.concatenate([model.Nv[-1:] @ xa, He @ xa, cons.H[:half] @ xa, Np @ xa])
         lo_lim, hi_lim = lo_all[:, a], hi_all[:, a]
-        lba = np.concatenate([np.zeros(n_fix), lo_lim, np.full(len(Mp), ws.lo_enu_m[a])]) - off
-        uba = np.concatenate([np.zeros(n_fix), hi_lim, np.full(len(Mp), ws.hi_enu_m[a])]) - off
+        lba = np.concatenate([fix_lo, lo_lim, np.full(len(Mp), ws.lo_enu_m[a])]) - off
+        uba = np.concatenate([fix_hi, hi_lim, np.full(len(Mp), ws.hi_enu_m[a])]) - off
         g = -2 * Mp.T @ (path[:, a] - Np @ xa)
         sol = qp(h=H, g=g, a=A, lba=lba, uba=uba)
         za = np.asarray(sol["x"]).reshape(-1)
         if not qp.stats().get("success", False) or not np.all(np.isfinite(za)):
             # Equality-constrained least squares only (limits and workspace dropped).
-            E = A[:n_fix]
-            kkt = np.block([[H, E.T], [E, np.zeros((n_fix, n_fix))]])
-            rhs = np.concatenate([-g, -off[:n_fix]])
+            held = slice(0 if end_at_rest else 1, n_fix)
+            E = A[held]
+            kkt = np.block([[H, E.T], [E, np.zeros((len(E), len(E)))]])
+            rhs = np.concatenate([-g, -off[held]])
             za = np.linalg.lstsq(kkt, rhs, rcond=None)[0][: model.n_dec]
         out[:, a] = za
     return out

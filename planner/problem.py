@@ -77,12 +77,17 @@ class Vehicle:
 
 @dataclass(frozen=True, slots=True)
 class Timing:
-    """Time grid: horizon, primitive segment length, planning sample step, checking step (s)."""
+    """Time grid: horizon, primitive segment length, planning sample step, checking step (s),
+    and whether the plan ends at rest."""
 
     horizon_s: float
     segment_s: float
     sample_dt_s: float
     check_dt_s: float
+    #: Every vehicle ends the horizon at rest (``timing.end: rest``, the default: a vehicle
+    #: can fly the plan and hold after it); ``False`` (``end: free``) leaves the end state to
+    #: the optimiser, for planning studies (``gcs verify`` then fails a plan that ends moving).
+    end_at_rest: bool = True
 
     @property
     def n_samples(self) -> int:

@@ -16,7 +16,7 @@ A scenario names everything the planner needs (see ``configs/*.yaml`` for commen
     #            starts: {grid: {min: [...], max: [...], shape: [nx, ny, nz]}},
     #            groups: [{name: g1, fraction: 0.5}, {name: g2, fraction: 0.5}]}
     groups: {pair: [d1, d2]}                                # optional; `all` always exists
-    timing: {horizon_s: 6, segment_s: 1, Ts_s: 0.05}
+    timing: {horizon_s: 6, segment_s: 1, Ts_s: 0.05}          # end: rest (default) or free
     separation_m: 0.2
     epsilon: 0.01
     model: minimum_jerk                                     # or double_integrator
@@ -181,7 +181,9 @@ def parse_scenario(
     groups["all"] = names
 
     t = rd.mapping(
-        rd.require(top, "timing", ""), "timing", {"horizon_s", "segment_s", "Ts_s", "check_dt_s"}
+        rd.require(top, "timing", ""),
+        "timing",
+        {"horizon_s", "segment_s", "Ts_s", "check_dt_s", "end"},
     )
     horizon = rd.number(rd.require(t, "horizon_s", "timing"), "timing.horizon_s", positive=True)
     if horizon > MAX_HORIZON_S:
@@ -206,7 +208,10 @@ def parse_scenario(
     check_dt = rd.number(t.get("check_dt_s", ts / 5), "timing.check_dt_s", positive=True)
     if check_dt > ts:
         raise rd.fail("timing.check_dt_s", f"check step {check_dt:g} s is coarser than Ts")
-    timing = Timing(horizon, seg, ts, check_dt)
+    end = t.get("end", "rest")
+    if end not in ("rest", "free"):
+        raise rd.fail("timing.end", f"expected 'rest' or 'free', got {end!r}")
+    timing = Timing(horizon, seg, ts, check_dt, end_at_rest=end == "rest")
 
     sep = rd.number(top.get("separation_m", 0.0), "separation_m", nonnegative=True)
     eps = rd.number(top.get("epsilon", 0.0), "epsilon", nonnegative=True)
