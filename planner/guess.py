@@ -13,53 +13,100 @@ import casadi as ca
 import numpy as np
 
 from planner.cache import BoundedCache
+from planner.geometry import Place, keep_out, place
 from planner.limits import vehicle_bounds
 from planner.nlp import _limit_bounds, _two_sided_rows
-from planner.predicates import Role, role_of
 from planner.problem import Problem
 from planner.stl import (
     Always,
+    And,
     Formula,
+    Implies,
     Not,
     Or,
-    Predicate,
 )
 
 # ------------------------------------------------------------------------ initial guess
 
 
-def _targets(formula: Formula, vehicle: str, problem: Problem) -> list[str]:
-    """Boxes ``vehicle`` must be inside somewhere (not under a negation), in spec order."""
-    out: list[str] = []
+def _route_length(cursor: np.ndarray, places: Sequence[Place]) -> float:
+    pts = [cursor, *(p.point for p in places)]
+    return float(sum(np.linalg.norm(b - a) for a, b in itertools.pairwise(pts)))
 
-    def walk(node: Formula, negated: bool) -> None:
-        if isinstance(node, Not):
-            walk(node.child, not negated)
-            return
-        if isinstance(node, Or):
-            walk(node.operands[0], negated)  # the guess takes the first alternative
-            return
-        if isinstance(node, Predicate) and role_of(node) is Role.TARGET_BOX and not negated:
-            v, reg = node.call.args
-            if v == vehicle and reg != problem.workspace.name and reg not in out:
-                out.append(reg)
-        for child in node.children:
-            walk(child, negated)
 
-    walk(formula, False)
+def _places_in(
+    node: Formula, vehicle: str, cursor: np.ndarray, visited: Sequence[Place], problem: Problem
+) -> list[Place]:
+    """The places ``node`` sends ``vehicle`` to, in the order it visits them (spec order;
+    of a disjunction's options the one with the shortest route from ``cursor``).  A place
+    the vehicle is already in (the workspace, a height band, a right of way it flies in) or
+    has visited asks it to stay, not to go."""
+    if isinstance(node, Not | Implies):
+        return []  # what a negation or a condition asks for is not a place to go
+    pl = place(node, problem)
+    if pl is not None:
+        done = pl.contains(cursor) or any(pl.key == q.key for q in visited)
+        return [pl] if pl.vehicle == vehicle and not done else []
+    if isinstance(node, Or):
+        options = [_places_in(c, vehicle, cursor, visited, problem) for c in node.operands]
+        return min(options, key=lambda opt: _route_length(cursor, opt))
+    out: list[Place] = []
+    for child in node.children:
+        here = out[-1].point if out else cursor
+        out.extend(_places_in(child, vehicle, here, [*visited, *out], problem))
     return out
 
 
-def _avoided(leaves: Mapping[Formula, Any], vehicle: str, problem: Problem) -> list[Any]:
-    """Boxes the vehicle must always stay out of (``outside`` leaves of the conjunction)."""
-    out = []
-    for leaf in leaves:
-        if (
-            isinstance(leaf, Predicate)
-            and role_of(leaf) is Role.KEEP_OUT
-            and leaf.call.args[0] == vehicle
-        ):
-            out.append(problem.region(leaf.call.args[1]))
+def _targets(formula: Formula, vehicle: str, problem: Problem, start: np.ndarray) -> list[Place]:
+    """The places ``vehicle`` must visit, in visiting order.
+
+    Whatever the spelling (:mod:`planner.geometry`). The clauses of the spec's conjunction
+    are visited by deadline (their horizon, earliest first); among clauses with the same
+    deadline, and among a disjunction's options, the nearest route from where the vehicle
+    is goes first (a greedy tour: "visit one target of each group" picks and orders them;
+    an option already visited costs nothing). Inside a clause the spec's order stands
+    (nested eventually, until).
+    """
+    clauses = list(formula.operands) if isinstance(formula, And) else [formula]
+    pending = sorted(range(len(clauses)), key=lambda i: (clauses[i].horizon, i))
+    out: list[Place] = []
+    cursor = start
+    while pending:
+        deadline = clauses[pending[0]].horizon
+        best: tuple[float, int, list[Place]] | None = None
+        for i in (i for i in pending if clauses[i].horizon == deadline):
+            got = _places_in(clauses[i], vehicle, cursor, out, problem)
+            cost = _route_length(cursor, got) if got else np.inf
+            if best is None or cost < best[0]:
+                best = (cost, i, got)
+        assert best is not None
+        _, i, got = best
+        pending.remove(i)
+        out.extend(got)
+        if got:
+            cursor = got[-1].point
+    return out
+
+
+def _avoided(formula: Formula, vehicle: str, problem: Problem) -> list[Place]:
+    """The places the vehicle must always keep out of (``always`` keep-outs of the spec's
+    conjunction, whatever their spelling: :func:`planner.geometry.keep_out`)."""
+    out: list[Place] = []
+
+    def walk(node: Formula, always: bool) -> None:
+        if always:
+            ko = keep_out(node, problem)
+            if ko is not None:
+                if ko.vehicle == vehicle and all(ko.key != q.key for q in out):
+                    out.append(ko)
+                return
+        if isinstance(node, And):
+            for child in node.operands:
+                walk(child, always)
+        elif isinstance(node, Always):
+            walk(node.child, True)
+
+    walk(formula, False)
     return out
 
 
@@ -145,20 +192,20 @@ _GUESS_LIMIT_FRACTION = 0.75
 _GUESS_DWELL_MARGIN_S = 0.75
 
 
-def _hover_times(formula: Formula, vehicle: str) -> dict[str, float]:
-    """Longest ``always[a, b] inside(vehicle, box)`` window (b - a, s) per box."""
+def _box_key(pl: Place) -> tuple[float, ...]:
+    return tuple(np.round(np.concatenate([pl.lo_enu_m, pl.hi_enu_m]), 9).tolist())
+
+
+def _hover_times(formula: Formula, vehicle: str, problem: Problem) -> dict[str, float]:
+    """Longest ``always[a, b] place`` window (b - a, s) per place of the vehicle (by name)."""
     out: dict[str, float] = {}
 
     def walk(node: Formula) -> None:
         if isinstance(node, Always):
-            c = node.child
-            if (
-                isinstance(c, Predicate)
-                and role_of(c) is Role.TARGET_BOX
-                and c.call.args[0] == vehicle
-            ):
-                reg = c.call.args[1]
-                out[reg] = max(out.get(reg, 0.0), node.end_s - node.start_s)
+            pl = place(node.child, problem)
+            if pl is not None and pl.vehicle == vehicle:
+                out[pl.name] = max(out.get(pl.name, 0.0), node.end_s - node.start_s)
+                return
         for child in node.children:
             walk(child)
 
@@ -202,7 +249,6 @@ def _initial_guess(
     model: Any,
     formula: Formula,
     x0s: list[np.ndarray],
-    leaves: Mapping[Formula, Any],
 ) -> np.ndarray:
     """Shortest grid paths through each vehicle's target boxes around the boxes it must
     avoid, fitted to Z by least squares.
@@ -219,27 +265,27 @@ def _initial_guess(
     """
     times = np.asarray(model.times_s)
     horizon = problem.timing.horizon_s
-    per_vehicle = {v.name: _targets(formula, v.name, problem) for v in problem.vehicles}
-    sharing: dict[str, list[str]] = {}
-    for name, regs in per_vehicle.items():
-        for reg in regs:
-            sharing.setdefault(reg, []).append(name)
-
     starts = {v.name: np.asarray(v.start_enu_m, dtype=float) for v in problem.vehicles}
-    sep = float(problem.separation_m or 0.0)
-    slots = {
-        reg: _box_slots(problem.region(reg), users, starts, sep) for reg, users in sharing.items()
+    per_vehicle = {
+        v.name: _targets(formula, v.name, problem, starts[v.name]) for v in problem.vehicles
     }
-
-    def point(reg: str, name: str) -> np.ndarray:
-        return slots[reg][name]
+    # Vehicles sent to the same place (the same box, whoever's predicate names it) share it.
+    sharing: dict[Any, list[str]] = {}
+    boxes: dict[Any, Place] = {}
+    for name, places in per_vehicle.items():
+        for pl in places:
+            key = _box_key(pl)
+            boxes.setdefault(key, pl)
+            sharing.setdefault(key, []).append(name)
+    sep = float(problem.separation_m or 0.0)
+    slots = {key: _box_slots(boxes[key], users, starts, sep) for key, users in sharing.items()}
 
     options: list[list[np.ndarray]] = []
     avoids: list[list[Any]] = []
     for v in problem.vehicles:
         targets = per_vehicle[v.name]
-        pts = [np.asarray(v.start_enu_m), *(point(r, v.name) for r in targets)]
-        avoid = _avoided(leaves, v.name, problem)
+        pts = [starts[v.name], *(slots[_box_key(pl)][v.name] for pl in targets)]
+        avoid = _avoided(formula, v.name, problem)
         avoids.append(avoid)
         if len(pts) == 1:
             options.append([np.tile(pts[0], (len(times), 1))])
@@ -255,8 +301,8 @@ def _initial_guess(
         ]
         leg_s = np.array([d for d, _ in prof])
         phis = [ph for _, ph in prof]
-        hovers = _hover_times(formula, v.name)
-        dwell_s = np.array([hovers.get(r, 0.0) + _GUESS_DWELL_MARGIN_S for r in targets])
+        hovers = _hover_times(formula, v.name, problem)
+        dwell_s = np.array([hovers.get(pl.name, 0.0) + _GUESS_DWELL_MARGIN_S for pl in targets])
         slack = horizon - leg_s.sum() - dwell_s.sum()
         if slack > 0:
             leg_s = leg_s + 0.5 * slack * leg_s / max(leg_s.sum(), 1e-9)

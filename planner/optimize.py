@@ -202,7 +202,7 @@ def plan(
         _lower_r(lbx, ubx, problem.epsilon + struct.margin)
 
     if initial_guess is None:
-        z0 = _initial_guess(problem, model, formula, x0s, struct.leaves)
+        z0 = _initial_guess(problem, model, formula, x0s)
     else:
         z0 = np.asarray(initial_guess, dtype=float).reshape(-1)[: struct.n_z]
     Mp, Np = np.asarray(model.Mp), np.asarray(model.Np)
