@@ -64,14 +64,19 @@ class Place:
     depth_m: float
 
     @property
-    def key(self) -> tuple[Any, ...]:
-        """The same for the same polytope of the same vehicle, whatever its spelling (a box:
+    def shape(self) -> tuple[Any, ...]:
+        """The same for the same polytope, whatever its spelling and whoever's it is (a box:
         its bounds within the workspace; else its face rows)."""
         if bool(np.all(np.abs(self.A).max(axis=1) >= 1.0 - _AXIS_TOL)):
             rows = np.round(np.concatenate([self.lo_enu_m, self.hi_enu_m]), 9) + 0.0
-            return (self.vehicle, "box", *rows.tolist())
+            return ("box", *rows.tolist())
         face = np.round(np.column_stack([self.A, self.b]), 9) + 0.0
-        return (self.vehicle, "polytope", *sorted(set(map(tuple, face.tolist()))))
+        return ("polytope", *sorted(set(map(tuple, face.tolist()))))
+
+    @property
+    def key(self) -> tuple[Any, ...]:
+        """:attr:`shape` of this vehicle's place (the same place, however spelled)."""
+        return (self.vehicle, *self.shape)
 
     def contains(self, p: np.ndarray, margin: float = 0.0) -> bool:
         """Whether ``p`` (3,) lies inside, at least ``margin`` from every face."""

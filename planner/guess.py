@@ -192,10 +192,6 @@ _GUESS_LIMIT_FRACTION = 0.75
 _GUESS_DWELL_MARGIN_S = 0.75
 
 
-def _box_key(pl: Place) -> tuple[float, ...]:
-    return tuple(np.round(np.concatenate([pl.lo_enu_m, pl.hi_enu_m]), 9).tolist())
-
-
 def _hover_times(formula: Formula, vehicle: str, problem: Problem) -> dict[str, float]:
     """Longest ``always[a, b] place`` window (b - a, s) per place of the vehicle (by name)."""
     out: dict[str, float] = {}
@@ -269,12 +265,12 @@ def _initial_guess(
     per_vehicle = {
         v.name: _targets(formula, v.name, problem, starts[v.name]) for v in problem.vehicles
     }
-    # Vehicles sent to the same place (the same box, whoever's predicate names it) share it.
+    # Vehicles sent to the same place (the same shape, whoever's predicate names it) share it.
     sharing: dict[Any, list[str]] = {}
     boxes: dict[Any, Place] = {}
     for name, places in per_vehicle.items():
         for pl in places:
-            key = _box_key(pl)
+            key = pl.shape
             boxes.setdefault(key, pl)
             sharing.setdefault(key, []).append(name)
     sep = float(problem.separation_m or 0.0)
@@ -284,7 +280,7 @@ def _initial_guess(
     avoids: list[list[Any]] = []
     for v in problem.vehicles:
         targets = per_vehicle[v.name]
-        pts = [starts[v.name], *(slots[_box_key(pl)][v.name] for pl in targets)]
+        pts = [starts[v.name], *(slots[pl.shape][v.name] for pl in targets)]
         avoid = _avoided(formula, v.name, problem)
         avoids.append(avoid)
         if len(pts) == 1:

@@ -294,8 +294,9 @@ class NlpBuilder:
         self.norm_rows = _has_norm_limits(problem)
 
     def add_dynamics_constraints(self) -> NlpBuilder:
-        """Linear rows: the lifting equalities, the limits, rest at the end (the rows stay, free,
-        with ``timing.end: free``), the model's own equalities (the acceleration chain of an explicit-acc primitive chain)."""
+        """Linear rows: the lifting equalities, the limits, rest at the end (the rows stay,
+        free, with ``timing.end: free``), the model's own equalities (the acceleration chain
+        of an explicit-acc primitive chain)."""
         model, nv = self.model, len(self.names)
         Z, P, X0 = self.Z, self.P, self.X0
         Mp, Np = ca.sparsify(ca.DM(model.Mp)), ca.sparsify(ca.DM(model.Np))
@@ -414,20 +415,11 @@ class NlpBuilder:
         n_g = n_sx + len(smooth_items)
         n_leaf = n_g - n_lin
         n_lift, n_lim, n_eq = self.n_lift, self.n_lim, self.n_eq
-        end = 0.0 if self.problem.timing.end_at_rest else np.inf  # v(horizon) = 0, or free
-        lbg_fixed = np.concatenate(
-            [
-                np.zeros(n_lift),
-                np.full(n_lim, -np.inf),
-                np.full(3 * nv, -end),
-                np.zeros(n_eq),
-                np.zeros(n_leaf),
-            ]
-        )  # fmt: skip  (the limit rows' bounds are set per vehicle in plan())
-        ubg_fixed = np.concatenate(
-            [np.zeros(n_lift), np.zeros(n_lim), np.full(3 * nv, end), np.zeros(n_eq),
-             np.full(n_leaf, np.inf)]
-        )  # fmt: skip
+        # v(horizon) = 0, or free; the limit rows' bounds are set per vehicle in plan()
+        end = np.full(3 * nv, 0.0 if self.problem.timing.end_at_rest else np.inf)
+        lift, eq = np.zeros(n_lift), np.zeros(n_eq)
+        lbg_fixed = np.concatenate([lift, np.full(n_lim, -np.inf), -end, eq, np.zeros(n_leaf)])
+        ubg_fixed = np.concatenate([lift, np.zeros(n_lim), end, eq, np.full(n_leaf, np.inf)])
         return _Structure(
             solvers=solvers,
             watch=watch,
