@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import casadi as ca
@@ -34,13 +35,36 @@ def _route_length(cursor: np.ndarray, places: Sequence[Place]) -> float:
     return float(sum(np.linalg.norm(b - a) for a, b in itertools.pairwise(pts)))
 
 
+class _Choices:
+    """The choices of one vehicle's route (:func:`_targets`), in the order they are made:
+    each takes the cheapest candidate, or the second cheapest where ``flips`` names it (a
+    start of the multi-start, :func:`starts`).  ``regrets`` records what each choice's
+    runner-up would have cost more (``inf`` where there is none)."""
+
+    def __init__(self, flips: frozenset[int] = frozenset()) -> None:
+        self.flips = flips
+        self.regrets: list[float] = []
+
+    def pick(self, costs: Sequence[float]) -> int:
+        order = sorted(range(len(costs)), key=lambda j: (costs[j], j))
+        index = len(self.regrets)
+        second = costs[order[1]] if len(order) > 1 else math.inf
+        self.regrets.append(second - costs[order[0]] if math.isfinite(second) else math.inf)
+        return order[1] if index in self.flips and math.isfinite(second) else order[0]
+
+
 def _places_in(
-    node: Formula, vehicle: str, cursor: np.ndarray, visited: Sequence[Place], problem: Problem
+    node: Formula,
+    vehicle: str,
+    cursor: np.ndarray,
+    visited: Sequence[Place],
+    problem: Problem,
+    choices: _Choices,
 ) -> list[Place]:
     """The places ``node`` sends ``vehicle`` to, in the order it visits them (spec order;
-    of a disjunction's options the one with the shortest route from ``cursor``).  A place
-    the vehicle is already in (the workspace, a height band, a right of way it flies in) or
-    has visited asks it to stay, not to go."""
+    of a disjunction's options the one with the shortest route from ``cursor``, as
+    ``choices`` picks).  A place the vehicle is already in (the workspace, a height band, a
+    right of way it flies in) or has visited asks it to stay, not to go."""
     if isinstance(node, Not | Implies):
         return []  # what a negation or a condition asks for is not a place to go
     pl = place(node, problem)
@@ -48,16 +72,22 @@ def _places_in(
         done = pl.contains(cursor) or any(pl.key == q.key for q in visited)
         return [pl] if pl.vehicle == vehicle and not done else []
     if isinstance(node, Or):
-        options = [_places_in(c, vehicle, cursor, visited, problem) for c in node.operands]
-        return min(options, key=lambda opt: _route_length(cursor, opt))
+        options = [_places_in(c, vehicle, cursor, visited, problem, choices) for c in node.operands]
+        return options[choices.pick([_route_length(cursor, opt) for opt in options])]
     out: list[Place] = []
     for child in node.children:
         here = out[-1].point if out else cursor
-        out.extend(_places_in(child, vehicle, here, [*visited, *out], problem))
+        out.extend(_places_in(child, vehicle, here, [*visited, *out], problem, choices))
     return out
 
 
-def _targets(formula: Formula, vehicle: str, problem: Problem, start: np.ndarray) -> list[Place]:
+def _targets(
+    formula: Formula,
+    vehicle: str,
+    problem: Problem,
+    start: np.ndarray,
+    choices: _Choices | None = None,
+) -> list[Place]:
     """The places ``vehicle`` must visit, in visiting order.
 
     Whatever the spelling (:mod:`planner.geometry`). The clauses of the spec's conjunction
@@ -65,26 +95,23 @@ def _targets(formula: Formula, vehicle: str, problem: Problem, start: np.ndarray
     deadline, and among a disjunction's options, the nearest route from where the vehicle
     is goes first (a greedy tour: "visit one target of each group" picks and orders them;
     an option already visited costs nothing). Inside a clause the spec's order stands
-    (nested eventually, until).
+    (nested eventually, until).  ``choices`` may turn any of these choices to its runner-up.
     """
+    choices = _Choices() if choices is None else choices
     clauses = list(formula.operands) if isinstance(formula, And) else [formula]
     pending = sorted(range(len(clauses)), key=lambda i: (clauses[i].horizon, i))
     out: list[Place] = []
     cursor = start
     while pending:
         deadline = clauses[pending[0]].horizon
-        best: tuple[float, int, list[Place]] | None = None
-        for i in (i for i in pending if clauses[i].horizon == deadline):
-            got = _places_in(clauses[i], vehicle, cursor, out, problem)
-            cost = _route_length(cursor, got) if got else np.inf
-            if best is None or cost < best[0]:
-                best = (cost, i, got)
-        assert best is not None
-        _, i, got = best
-        pending.remove(i)
-        out.extend(got)
-        if got:
-            cursor = got[-1].point
+        due = [i for i in pending if clauses[i].horizon == deadline]
+        routes = [_places_in(clauses[i], vehicle, cursor, out, problem, choices) for i in due]
+        costs = [_route_length(cursor, got) if got else math.inf for got in routes]
+        j = choices.pick(costs) if len(due) > 1 else 0
+        pending.remove(due[j])
+        out.extend(routes[j])
+        if routes[j]:
+            cursor = routes[j][-1].point
     return out
 
 
@@ -240,11 +267,109 @@ def _trapezoid_s(t_s: np.ndarray, duration_s: float, phi: float) -> np.ndarray:
     )
 
 
+@dataclass(frozen=True, slots=True)
+class Start:
+    """One start of the multi-start (:func:`starts`): the route choices of :func:`_targets`
+    turned to their runner-up (``(vehicle, choice index)``), and a sideways shift (m, left
+    of each leg's direction) of every leg of the guess."""
+
+    flips: frozenset[tuple[str, int]] = frozenset()
+    offset_m: float = 0.0
+
+    def choices(self, vehicle: str) -> _Choices:
+        return _Choices(frozenset(i for v, i in self.flips if v == vehicle))
+
+    def describe(self, problem: Problem, formula: Formula) -> str:
+        """What this start does differently, in words."""
+        parts = []
+        for name in sorted({v for v, _ in self.flips}):
+            x0 = _start_of(problem, name)
+            route = _targets(formula, name, problem, x0, self.choices(name))
+            parts.append(f"{name} via " + " -> ".join(pl.name for pl in route))
+        if self.offset_m:
+            side = "left" if self.offset_m > 0 else "right"
+            parts.append(f"legs {abs(self.offset_m):g} m to the {side}")
+        return "; ".join(parts) or "the nearest choices, straight legs"
+
+
+#: Starts the multi-start tries at most (the first included) when a solve falls short.
+MAX_STARTS = 4
+
+
+def _start_of(problem: Problem, vehicle: str) -> np.ndarray:
+    return next(
+        np.asarray(v.start_enu_m, dtype=float) for v in problem.vehicles if v.name == vehicle
+    )
+
+
+def starts(problem: Problem, formula: Formula, limit: int = MAX_STARTS) -> Iterator[Start]:
+    """The starts of the multi-start, best first, each with a route or a shape none before it
+    had (at most ``limit``).
+
+    The first takes the nearest choice everywhere (:func:`_targets`). The next ones turn one
+    route choice of one vehicle to its runner-up, the choices that cost least extra first
+    (another option of a disjunction, another order of clauses), alternating with the first
+    route's legs shifted to either side (around a keep-out the other way; off a symmetric
+    saddle).  Generated lazily: a plan met by the first start costs nothing here.
+    """
+    yield Start()
+    base: dict[str, tuple[Any, ...]] = {}
+    regrets: list[tuple[float, str, int]] = []
+    for v in problem.vehicles:
+        ch = _Choices()
+        base[v.name] = _route_key(
+            _targets(formula, v.name, problem, _start_of(problem, v.name), ch)
+        )
+        regrets.extend((r, v.name, i) for i, r in enumerate(ch.regrets) if math.isfinite(r))
+    regrets.sort()
+    shift = _shift_m(problem, formula)
+    shifts = iter((Start(offset_m=-shift), Start(offset_m=shift)))
+
+    def flips() -> Iterator[Start]:
+        seen = {(name, key) for name, key in base.items()}
+        for _, name, i in regrets:
+            key = _route_key(
+                _targets(formula, name, problem, _start_of(problem, name), _Choices(frozenset({i})))
+            )
+            if (name, key) not in seen:
+                seen.add((name, key))
+                yield Start(flips=frozenset({(name, i)}))
+
+    given = 1
+    sources = [flips(), shifts]
+    while given < limit and sources:
+        for src in list(sources):
+            if given >= limit:
+                break
+            nxt = next(src, None)
+            if nxt is None:
+                sources.remove(src)
+                continue
+            given += 1
+            yield nxt
+
+
+def _route_key(route: Sequence[Place]) -> tuple[Any, ...]:
+    return tuple(pl.key for pl in route)
+
+
+def _shift_m(problem: Problem, formula: Formula) -> float:
+    """The sideways shift of the shifted starts: the smallest horizontal half-size of a
+    keep-out (at least 1 m), so a leg grazing one passes it on the other side."""
+    halves = [
+        0.5 * float(np.min(np.subtract(ko.hi_enu_m, ko.lo_enu_m)[:2]))
+        for v in problem.vehicles
+        for ko in _avoided(formula, v.name, problem)
+    ]
+    return max(1.0, min(halves, default=1.0))
+
+
 def _initial_guess(
     problem: Problem,
     model: Any,
     formula: Formula,
     x0s: list[np.ndarray],
+    start: Start | None = None,
 ) -> np.ndarray:
     """Shortest grid paths through each vehicle's target boxes around the boxes it must
     avoid, fitted to Z by least squares.
@@ -258,12 +383,17 @@ def _initial_guess(
     the legs (slower is easier on the limits), half lengthens the dwells.  Vehicles sharing
     a target box get points spread along its longest side, so the guess does not put them on
     top of each other.
+
+    ``start`` (default: the first, :class:`Start`) turns some route choices to their
+    runner-up and shifts every leg sideways (a start of the multi-start).
     """
+    start = Start() if start is None else start
     times = np.asarray(model.times_s)
     horizon = problem.timing.horizon_s
     starts = {v.name: np.asarray(v.start_enu_m, dtype=float) for v in problem.vehicles}
     per_vehicle = {
-        v.name: _targets(formula, v.name, problem, starts[v.name]) for v in problem.vehicles
+        v.name: _targets(formula, v.name, problem, starts[v.name], start.choices(v.name))
+        for v in problem.vehicles
     }
     # Vehicles sent to the same place (the same shape, whoever's predicate names it) share it.
     sharing: dict[Any, list[str]] = {}
@@ -308,7 +438,9 @@ def _initial_guess(
             leg_s, dwell_s = leg_s * scale, dwell_s * scale
         options.append(
             [
-                _timed_path(times, legs, leg_s, phis, dwell_s, lane * _GUESS_LANE_SEP * sep)
+                _timed_path(
+                    times, legs, leg_s, phis, dwell_s, lane * _GUESS_LANE_SEP * sep + start.offset_m
+                )
                 for lane in _GUESS_LANES
             ]
         )

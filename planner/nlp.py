@@ -7,6 +7,7 @@ Formulation and why it is shaped so: :mod:`planner.optimize`; what each choice m
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import time
@@ -182,7 +183,7 @@ def _structure_key(problem: Problem) -> Any:
         problem.timing,
         problem.model,
         tuple(v.name for v in problem.vehicles),
-        s,
+        dataclasses.replace(s, starts=1, polish_s=0.0),  # the starts share one NLP
         problem.epsilon,
         _has_norm_limits(problem),
     )

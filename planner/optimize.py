@@ -67,7 +67,7 @@ import numpy as np
 
 from planner.checks import LimitReport, check_trajectories
 from planner.dynamics import DoubleIntegrator, MinimumJerkChain
-from planner.guess import _initial_guess
+from planner.guess import _initial_guess, starts
 from planner.limits import vehicle_bounds
 from planner.nlp import (
     K_MIN,
@@ -183,7 +183,8 @@ def plan(
     struct, cached = STRUCTURES.get_or_build(key, build)
     build_s = struct.build_s if not cached else 0.0
     watch = struct.watch
-    watch.deadline = math.inf if time_limit_s is None else t_start + float(time_limit_s)
+    deadline = math.inf if time_limit_s is None else t_start + float(time_limit_s)
+    watch.deadline = deadline
     watch.iterations = 0
     watch.stopped = False
 
@@ -198,25 +199,24 @@ def plan(
         lbg[struct.lim_slices[i]], ubg[struct.lim_slices[i]] = cons_cache[keyl]
     lbx = struct.lbx.copy()
     ubx = struct.ubx.copy()
-    if problem.solver.robustness_constraint:
-        _lower_r(lbx, ubx, problem.epsilon + struct.margin)
 
-    if initial_guess is None:
-        z0 = _initial_guess(problem, model, formula, x0s)
-    else:
-        z0 = np.asarray(initial_guess, dtype=float).reshape(-1)[: struct.n_z]
     Mp, Np = np.asarray(model.Mp), np.asarray(model.Np)
     nd = model.n_dec * 3
     used = struct.used_steps
-    p0 = [
-        (Mp @ z0[i * nd : (i + 1) * nd].reshape((model.n_dec, 3), order="F") + Np @ x0)[
-            used
-        ].reshape(-1, order="F")
-        for i, x0 in enumerate(x0s)
-    ]
-    w0 = np.concatenate([z0, *p0, [0.0]])
-    w0[-1] = _min_leaf(struct, w0, p_val, default=0.0)
     bounds = {"p": p_val, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg}
+
+    def lifted(z0: np.ndarray) -> np.ndarray:
+        """The NLP's start point for decisions ``z0``: the sampled positions lifted, and r
+        at the smallest leaf value there."""
+        p0 = [
+            (Mp @ z0[i * nd : (i + 1) * nd].reshape((model.n_dec, 3), order="F") + Np @ x0)[
+                used
+            ].reshape(-1, order="F")
+            for i, x0 in enumerate(x0s)
+        ]
+        w0 = np.concatenate([z0, *p0, [0.0]])
+        w0[-1] = _min_leaf(struct, w0, p_val, default=0.0)
+        return w0
 
     def trajectories_of(w: np.ndarray) -> list[Trajectory]:
         return [
@@ -252,57 +252,106 @@ def plan(
         )
 
     watch.on_iteration = on_iteration
+    check_s = 0.0
 
-    # Ctrl-C stops the solve in hand and any after it; the best point so far is the plan
-    with _watch_sigint() as stop:
+    def attempt(w0: np.ndarray, stop: _SigintWatch) -> _Attempt:
+        """One start: the maximisation from ``w0`` (with the eq. (1) rounds if asked for)."""
+        nonlocal check_s
         run = _run_solvers(struct, w0, bounds, say, problem.solver.method.value, stop)
         w_opt, status = run.w, run.status
-        converged = _solved(status)  # of the solve whose point is returned
-        check_s = 0.0
-        if problem.solver.robustness_constraint:
-            # The paper's eq. (1): smooth robustness >= epsilon + margin as a constraint.  The
-            # margin starts at the smooth leaves' error bound; if the exact robustness on the
-            # dense samples still falls short (dips between constraint samples), the margin
-            # grows by the deficit and the solve restarts from the point it reached.  The best
-            # point of these rounds is kept.
-            eps = problem.epsilon
-            margin = struct.margin
+        t_check = time.perf_counter()
+        rob = exact_of(w_opt)
+        check_s += time.perf_counter() - t_check
+        if not problem.solver.robustness_constraint:
+            return _Attempt(rob, w_opt, status, _solved(status), run)
+        # The paper's eq. (1): smooth robustness >= epsilon + margin as a constraint.  The
+        # margin starts at the smooth leaves' error bound; if the exact robustness on the
+        # dense samples still falls short (dips between constraint samples), the margin
+        # grows by the deficit and the solve restarts from the point it reached.  The best
+        # point of these rounds is kept.
+        eps = problem.epsilon
+        margin = struct.margin
+        best = (rob, w_opt, status)
+        for _ in range(_EPS_ROUNDS):
+            if rob >= eps or not _solved(status) or stop.hit or watch.stopped:
+                break
+            margin += eps - rob + _EPS_MARGIN_STEP_M
+            _lower_r(lbx, ubx, eps + margin)
+            w_start = w_opt.copy()
+            w_start[-1] = lbx[-1]
+            run = run.then(_run_solvers(struct, w_start, bounds, say, "eq. (1) margin", stop))
+            w_opt, status = run.w, run.status
             t_check = time.perf_counter()
-            best = (exact_of(w_opt), w_opt, status)
+            rob = exact_of(w_opt)
             check_s += time.perf_counter() - t_check
-            rob = best[0]
-            for _ in range(_EPS_ROUNDS):
-                if rob >= eps or not _solved(status) or stop.hit or watch.stopped:
-                    break
-                margin += eps - rob + _EPS_MARGIN_STEP_M
-                _lower_r(lbx, ubx, eps + margin)
-                w_start = w_opt.copy()
-                w_start[-1] = lbx[-1]
-                run = run.then(_run_solvers(struct, w_start, bounds, say, "eq. (1) margin", stop))
-                w_opt, status = run.w, run.status
-                t_check = time.perf_counter()
-                rob = exact_of(w_opt)
-                check_s += time.perf_counter() - t_check
-                if rob > best[0]:
-                    best = (rob, w_opt, status)
-            rob, w_opt, status = best
-            converged = _solved(status)
-            if rob < eps and not stop.hit and not watch.stopped:
-                # Infeasible as constrained: the plain maximisation from the same start finds
-                # the best trajectories there are (a failed result carries the best found).
-                lbx[-1], ubx[-1] = struct.lbx[-1], struct.ubx[-1]
-                plain = _run_solvers(struct, w0, bounds, say, "plain maximisation", stop)
-                t_check = time.perf_counter()
-                if exact_of(plain.w) > rob:
-                    w_opt = plain.w
-                    converged = _solved(plain.status)
-                    status = (
-                        f"eq. (1) constraint not met ({status}); plain maximisation: {plain.status}"
-                    )
-                check_s += time.perf_counter() - t_check
-                run = run.then(plain)
+            if rob > best[0]:
+                best = (rob, w_opt, status)
+        rob, w_opt, status = best
+        converged = _solved(status)
+        if rob < eps and not stop.hit and not watch.stopped:
+            # Infeasible as constrained: the plain maximisation from the same start finds
+            # the best trajectories there are (a failed result carries the best found).
+            lbx[-1], ubx[-1] = struct.lbx[-1], struct.ubx[-1]
+            plain = _run_solvers(struct, w0, bounds, say, "plain maximisation", stop)
+            t_check = time.perf_counter()
+            rob_plain = exact_of(plain.w)
+            check_s += time.perf_counter() - t_check
+            if rob_plain > rob:
+                rob, w_opt = rob_plain, plain.w
+                converged = _solved(plain.status)
+                status = (
+                    f"eq. (1) constraint not met ({status}); plain maximisation: {plain.status}"
+                )
+            run = run.then(plain)
+        return _Attempt(rob, w_opt, status, converged, run)
 
+    # Multi-start: the first start's plan, unless it falls short of the mission; then the
+    # next starts (other route choices, legs shifted) in turn until one meets it, the
+    # limit on starts or time comes, or Ctrl-C; once met, more starts while they are cheap
+    # (solver.polish_s).  The best exact robustness wins.
+    if initial_guess is not None:
+        given = np.asarray(initial_guess, dtype=float).reshape(-1)[: struct.n_z]
+        candidates: Iterator[tuple[str, np.ndarray]] = iter([("the given guess", given)])
+    else:
+        candidates = (
+            (st.describe(problem, formula), _initial_guess(problem, model, formula, x0s, st))
+            for st in starts(problem, formula, problem.solver.starts)
+        )
+    best: _Attempt | None = None
+    best_start = (0, "")
+    met_at: float | None = None  # when a start first met the mission
+    n_starts = 0
+    spent: _Run | None = None
+    with _watch_sigint() as stop:
+        for what, z0 in candidates:
+            if n_starts and (stop.hit or watch.stopped):
+                break
+            n_starts += 1
+            if n_starts > 1:
+                say(f"start {n_starts}: {what}")
+            lbx[-1], ubx[-1] = struct.lbx[-1], struct.ubx[-1]
+            if problem.solver.robustness_constraint:
+                _lower_r(lbx, ubx, problem.epsilon + struct.margin)
+            got = attempt(lifted(z0), stop)
+            spent = got.run if spent is None else spent.then(got.run)
+            say(f"start {n_starts}: exact robustness {got.robustness:+.4f}")
+            if best is None or got.robustness > best.robustness:
+                best, best_start = got, (n_starts, what)
+            if best.robustness >= problem.epsilon:
+                # Met: more starts for a larger margin only within the polish budget (the
+                # solver stops at its end like at the time limit; the best plan stands).
+                if met_at is None:
+                    met_at = time.perf_counter()
+                    watch.deadline = min(deadline, met_at + problem.solver.polish_s)
+                if time.perf_counter() >= watch.deadline:
+                    break
+    assert best is not None and spent is not None
+    watch.stopped = watch.stopped and time.perf_counter() >= deadline  # not by the polish
+    w_opt, status, converged = best.w, best.status, best.converged
+    run = spent
     watch.on_iteration = None
+    if n_starts > 1:
+        status = f"{status}; start {best_start[0]} of {n_starts}: {best_start[1]}"
     if (stop.hit or watch.stopped) and seen["w"] is not None and seen["rho"] > exact_of(w_opt):
         w_opt = seen["w"]  # an earlier iterate was better than the one the solver stopped at
     say("checking on dense samples")
@@ -342,6 +391,7 @@ def plan(
         k=struct.k,
         solver=problem.solver.method.value,
         cached=cached,
+        starts=n_starts,
     )
     return PlanResult(
         problem=problem,
@@ -428,6 +478,17 @@ def _solved(status: str) -> bool:
         "Solved_To_Acceptable_Level",
         "Search_Direction_Becomes_Too_Small",
     )
+
+
+@dataclass(frozen=True, slots=True)
+class _Attempt:
+    """What one start of the multi-start reached: the exact robustness of its plan."""
+
+    robustness: float
+    w: np.ndarray
+    status: str
+    converged: bool
+    run: _Run
 
 
 @dataclass(frozen=True, slots=True)

@@ -134,6 +134,12 @@ class SolverOptions:
     #: IPOPT correct the inertia, i.e. factorise again, in most iterations.
     separation_curvature: bool = False
     print_level: int = 0
+    #: Starts of the multi-start (initial guesses with other route choices or shifted legs)
+    #: tried in turn while the plan falls short of the mission; 1: the first guess only.
+    starts: int = 4
+    #: Once a start meets the mission, go on with the next starts for this long (s) and keep
+    #: the best plan (a larger margin); 0: stop at the first plan that meets it.
+    polish_s: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

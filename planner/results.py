@@ -49,6 +49,8 @@ class SolveStats:
     k: float
     solver: str
     cached: bool
+    #: starts of the multi-start solved (1: the first guess met the mission, or was the only)
+    starts: int = 1
 
 
 @dataclass(frozen=True, slots=True)

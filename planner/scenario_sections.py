@@ -380,6 +380,8 @@ def _solver(rd: _Reader, value: Any) -> SolverOptions:
         "qpsol",
         "separation_curvature",
         "print_level",
+        "starts",
+        "polish_s",
     }
     m = rd.mapping(value, "solver", allowed)
     kw: dict[str, Any] = {}
@@ -437,4 +439,8 @@ def _solver(rd: _Reader, value: Any) -> SolverOptions:
         kw["separation_curvature"] = m["separation_curvature"]
     if "print_level" in m:
         kw["print_level"] = rd.integer(m["print_level"], "solver.print_level", minimum=0)
+    if "starts" in m:
+        kw["starts"] = rd.integer(m["starts"], "solver.starts", minimum=1)
+    if "polish_s" in m:
+        kw["polish_s"] = rd.number(m["polish_s"], "solver.polish_s", nonnegative=True)
     return SolverOptions(**kw)

@@ -92,6 +92,7 @@ def summary(result: Any, output: str | None) -> dict[str, Any]:
             "n_constraints": s.n_constraints,
             "k": s.k,
             "solver": s.solver,
+            "starts": s.starts,
         },
         "output": output,
     }
@@ -130,6 +131,7 @@ def _table(result: Any) -> str:
         f"smooth {result.smooth_robustness:.4f}); {result.iterations} iterations, "
         f"{result.solve_time_s:.2f} s"
         + (f" (build {s.build_s:.2f}, solver {s.solver_s:.2f}, check {s.check_s:.2f})" if s else "")
+        + (f", {s.starts} starts" if s and s.starts > 1 else "")
     )
     lines.append(("OK: " if result.success else "FAILED: ") + result.status)
     return "\n".join(lines)
