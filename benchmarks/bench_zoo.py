@@ -3,7 +3,8 @@
 Each scenario is planned in a fresh ``gcs plan FILE -o TMP --time-limit S --json`` process (a
 cold build: no structure cache survives between scenarios), one at a time.  Measured per
 scenario: the wall time of the process; read from its output: the exact robustness, the
-iterations, the build time, the status and the weakest clause; solved = exit status 0 (the
+iterations, the starts of the multi-start, the build time, the status and the weakest clause;
+solved = exit status 0 (the
 mission is met: exact robustness >= epsilon and every check passes).  Each scenario file says
 ``# expected: feasible`` or ``# expected: infeasible`` in its header.  For the stlpy benchmarks
 (``stlpy_<name>_<spelling>.yaml``) the certified MILP optimum (Kurtz & Lin 2022, Gurobi) and
@@ -113,6 +114,7 @@ def run_one(path: Path, time_limit: float, gcs: Path) -> Row:
             weakest_clause=weakest.get("clause"),
             n_variables=stats.get("n_variables"),
             n_constraints=stats.get("n_constraints"),
+            starts=stats.get("starts"),
         )
     else:  # no summary: a load error (exit 2, one line on stderr) or a crash
         lines = [ln for ln in stderr.splitlines() if ln.strip() and not ln.startswith("gcs plan:")]
@@ -133,7 +135,7 @@ def _num(x: object, fmt: str, width: int) -> str:
 
 def table_header() -> str:
     head = (f"{'scenario':<38} {'expected':>10} {'solved':>6} {'robust':>9} {'wall s':>7} "
-            f"{'iter':>5} {'build s':>7} {'optimum':>8} {'ratio':>6}")  # fmt: skip
+            f"{'iter':>5} {'starts':>6} {'build s':>7} {'optimum':>8} {'ratio':>6}")  # fmt: skip
     return head + "\n" + "-" * len(head)
 
 
@@ -142,7 +144,7 @@ def table_line(r: Row) -> str:
         f"{r['scenario']!s:<38} {r['expected']!s:>10} "
         f"{'yes' if r['solved'] else 'no':>6} {_num(r.get('robustness'), '.4f', 9)} "
         f"{_num(r.get('wall_s'), '.1f', 7)} {_num(r.get('iterations'), 'd', 5)} "
-        f"{_num(r.get('build_s'), '.2f', 7)} {_num(r.get('certified'), '.4g', 8)} "
+        f"{_num(r.get('starts'), 'd', 6)} {_num(r.get('build_s'), '.2f', 7)} {_num(r.get('certified'), '.4g', 8)} "
         f"{_num(r.get('ratio'), '.2f', 6)}"
     )
 
