@@ -4,11 +4,10 @@ Each scenario is planned in a fresh ``gcs plan FILE -o TMP --time-limit S --json
 cold build: no structure cache survives between scenarios), one at a time.  Measured per
 scenario: the wall time of the process; read from its output: the exact robustness, the
 iterations, the starts of the multi-start, the build time, the status and the weakest clause;
-solved = exit status 0 (the
-mission is met: exact robustness >= epsilon and every check passes).  Each scenario file says
-``# expected: feasible`` or ``# expected: infeasible`` in its header.  For the stlpy benchmarks
-(``stlpy_<name>_<spelling>.yaml``) the certified MILP optimum (Kurtz & Lin 2022, Gurobi) and
-the ratio robustness / optimum are shown.
+solved = exit status 0 (the mission is met: exact robustness >= epsilon and every check
+passes).  Each scenario file says ``# expected: feasible`` or ``# expected: infeasible`` in its
+header.  For the stlpy benchmarks (``stlpy_<name>_<spelling>.yaml``) the certified MILP optimum
+(Kurtz & Lin 2022, Gurobi) and the ratio robustness / optimum are shown.
 
 Printed: a table, the failures with their weakest clause, summary lines (feasible scenarios
 solved, any over the time limit, median wall time, stlpy satisfied per spelling, median ratio
