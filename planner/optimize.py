@@ -307,8 +307,8 @@ def plan(
 
     # Multi-start: the first start's plan, unless it falls short of the mission; then the
     # next starts (other route choices, legs shifted) in turn until one meets it, the
-    # limit on starts or time comes, or Ctrl-C; once met, more starts while they are cheap
-    # (solver.polish_s).  The best exact robustness wins.
+    # limit on starts or time comes, or Ctrl-C; once met, more starts only for
+    # solver.polish_s seconds (default 0).  The best exact robustness wins.
     if initial_guess is not None:
         given = np.asarray(initial_guess, dtype=float).reshape(-1)[: struct.n_z]
         candidates: Iterator[tuple[str, np.ndarray]] = iter([("the given guess", given)])
@@ -334,7 +334,8 @@ def plan(
                 _lower_r(lbx, ubx, problem.epsilon + struct.margin)
             got = attempt(lifted(z0), stop)
             spent = got.run if spent is None else spent.then(got.run)
-            say(f"start {n_starts}: exact robustness {got.robustness:+.4f}")
+            if n_starts > 1 or got.robustness < problem.epsilon:
+                say(f"start {n_starts}: exact robustness {got.robustness:+.4f}")
             if best is None or got.robustness > best.robustness:
                 best, best_start = got, (n_starts, what)
             if best.robustness >= problem.epsilon:
