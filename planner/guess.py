@@ -292,19 +292,15 @@ class Start:
         return "; ".join(parts) or "the nearest choices, straight legs"
 
 
-#: Starts the multi-start tries at most (the first included) when a solve falls short.
-MAX_STARTS = 4
-
-
 def _start_of(problem: Problem, vehicle: str) -> np.ndarray:
     return next(
         np.asarray(v.start_enu_m, dtype=float) for v in problem.vehicles if v.name == vehicle
     )
 
 
-def starts(problem: Problem, formula: Formula, limit: int = MAX_STARTS) -> Iterator[Start]:
+def starts(problem: Problem, formula: Formula, limit: int) -> Iterator[Start]:
     """The starts of the multi-start, best first, each with a route or a shape none before it
-    had (at most ``limit``).
+    had (at most ``limit``: ``solver.starts``).
 
     The first takes the nearest choice everywhere (:func:`_targets`). The next ones turn one
     route choice of one vehicle to its runner-up, the choices that cost least extra first
