@@ -52,6 +52,8 @@ class Place:
             is one; else the cube inscribed in its Chebyshev ball), clipped to the workspace.
         point: a point deep inside (the box's centre; the Chebyshev centre).
         depth_m: how deep ``point`` is (the Chebyshev radius; 0 for an empty polytope).
+        clear_of: keep-outs the route to this place must stay out of until it gets there
+            (the left side of ``phi until psi`` when ``phi`` is a keep-out's negation).
     """
 
     vehicle: str
@@ -62,6 +64,7 @@ class Place:
     hi_enu_m: tuple[float, float, float]
     point: np.ndarray
     depth_m: float
+    clear_of: tuple[Place, ...] = ()
 
     @property
     def shape(self) -> tuple[Any, ...]:

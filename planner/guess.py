@@ -4,6 +4,7 @@ targets, in lanes, fitted to the limits (``docs/solver-notes.md`` says what each
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from collections.abc import Iterator, Mapping, Sequence
@@ -25,6 +26,7 @@ from planner.stl import (
     Implies,
     Not,
     Or,
+    Until,
 )
 
 # ------------------------------------------------------------------------ initial guess
@@ -74,6 +76,12 @@ def _places_in(
     if isinstance(node, Or):
         options = [_places_in(c, vehicle, cursor, visited, problem, choices) for c in node.operands]
         return options[choices.pick([_route_length(cursor, opt) for opt in options])]
+    if isinstance(node, Until):
+        ko = keep_out(node.lhs, problem)
+        if ko is not None and ko.vehicle == vehicle:
+            # "stay out of K until psi": psi's places, reached without entering K
+            got = _places_in(node.rhs, vehicle, cursor, visited, problem, choices)
+            return [dataclasses.replace(pl, clear_of=(*pl.clear_of, ko)) for pl in got]
     out: list[Place] = []
     for child in node.children:
         here = out[-1].point if out else cursor
@@ -106,13 +114,33 @@ def _targets(
         deadline = clauses[pending[0]].horizon
         due = [i for i in pending if clauses[i].horizon == deadline]
         routes = [_places_in(clauses[i], vehicle, cursor, out, problem, choices) for i in due]
-        costs = [_route_length(cursor, got) if got else math.inf for got in routes]
+        # A route into a place that another pending clause's ``until`` keeps the vehicle
+        # out of (until it gets somewhere) waits for that clause.
+        held = [
+            ko
+            for i in pending
+            for pl in _places_in(clauses[i], vehicle, cursor, out, problem, _Choices())
+            for ko in pl.clear_of
+        ]
+        costs = [
+            (
+                _route_length(cursor, got)
+                + _HELD_M * any(ko.contains(p.point) for p in got for ko in held)
+            )
+            if got
+            else math.inf
+            for got in routes
+        ]
         j = choices.pick(costs) if len(due) > 1 else 0
         pending.remove(due[j])
         out.extend(routes[j])
         if routes[j]:
             cursor = routes[j][-1].point
     return out
+
+
+#: Extra route length (m) that puts a route into a keep-out of a pending ``until`` last.
+_HELD_M = 1e6
 
 
 def _avoided(formula: Formula, vehicle: str, problem: Problem) -> list[Place]:
@@ -135,6 +163,30 @@ def _avoided(formula: Formula, vehicle: str, problem: Problem) -> list[Place]:
 
     walk(formula, False)
     return out
+
+
+#: Room (m) a leg keeps from the keep-out of an ``until`` (``phi until psi`` with ``phi`` a
+#: keep-out's negation): the least-squares fit to the limits rounds the grid path's corners
+#: by about a sample's flight, and a corner taken close ends inside (paddock clearance,
+#: climb then cross: -0.39 m with the keep-out as it is, met with 1.5 m of room).
+_UNTIL_ROOM_M = 1.5
+
+
+def _clear_of(later: Sequence[Place]) -> list[Place]:
+    """The keep-outs (grown by ``_UNTIL_ROOM_M``) a leg must stay out of because a place it
+    leads to, or a later one, is to be reached without entering them (``until``)."""
+    out: list[Place] = []
+    for pl in later:
+        out.extend(ko for ko in pl.clear_of if all(ko.key != q.key for q in out))
+    room = _UNTIL_ROOM_M
+    return [
+        dataclasses.replace(
+            ko,
+            lo_enu_m=tuple(np.subtract(ko.lo_enu_m, room)),
+            hi_enu_m=tuple(np.add(ko.hi_enu_m, room)),
+        )
+        for ko in out
+    ]
 
 
 #: Cells of the initial-guess search grid (at most).
@@ -412,7 +464,10 @@ def _initial_guess(
         if len(pts) == 1:
             options.append([np.tile(pts[0], (len(times), 1))])
             continue
-        legs = [_grid_path(problem, avoid, [a, b]) for a, b in itertools.pairwise(pts)]
+        legs = [
+            _grid_path(problem, [*avoid, *_clear_of(targets[i:])], [a, b])
+            for i, (a, b) in enumerate(itertools.pairwise(pts))
+        ]
         # per axis, the slower direction (the profile flies both ways), horizontally the
         # box inside the norm's polygon
         (vlo, vhi), (alo, ahi) = (b.box() for b in vehicle_bounds(v))

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -42,7 +42,7 @@ import numpy as np
 from planner.cache import BoundedCache
 from planner.predicates import build_registry
 from planner.regions import Region, RegionKind
-from planner.stl import Call, Expr, Formula
+from planner.stl import Always, Call, Eventually, Expr, Formula
 
 __all__ = ["LeafInstance", "LeafTemplate", "canonical_leaf", "clear_templates", "local_hessian"]
 
@@ -165,20 +165,32 @@ def clear_templates() -> None:
     _TEMPLATES.clear()
 
 
-def _model_key(model: Any) -> tuple[Any, ...]:
-    digest = hashlib.sha1()
-    for m in (model.Mp, model.Np):
-        a = np.ascontiguousarray(m, dtype=float)
-        digest.update(repr(a.shape).encode())
-        digest.update(a.tobytes())
-    return (type(model).__name__, model.n_dec, model.n_init, digest.hexdigest())
+def _shifted(leaf: Formula, step: int, dt: float) -> tuple[Formula, int]:
+    """``eventually[a, b] psi`` (or ``always``) at ``step`` as the same leaf from 0 at
+    ``step + a``: the same values, and one shape for every window of the same width."""
+    if isinstance(leaf, Eventually | Always) and leaf.start_s > 0:
+        a, b = leaf.steps(dt)
+        return type(leaf)(leaf.child, 0.0, (b - a) * dt), step + a
+    return leaf, step
+
+
+def _local_block(model: Any, step: int, hz: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(columns, Mp block, Np block)`` of the samples ``step .. step + hz``: the rows of
+    ``Mp`` restricted to the decision rows they use, and those rows of ``Np``.  A leaf
+    depends only on the decisions of the segments its window touches, and away from the
+    start those blocks are the same for every window of the same width and phase."""
+    rows = np.arange(step, step + hz + 1)
+    mp = np.asarray(model.Mp)[rows]
+    cols = np.nonzero(np.any(np.abs(mp) > 0.0, axis=0))[0]
+    return cols, mp[:, cols], np.asarray(model.Np)[rows]
 
 
 def template(
     leaf: Formula, step: int, model: Any, dt: float, k: float, k_pred: float
-) -> tuple[LeafTemplate, tuple[str, ...], tuple[str, ...]]:
-    """The template of ``leaf`` evaluated at sample ``step`` (built or from the cache), and
-    the leaf's vehicles and regions in the template's argument order.
+) -> tuple[LeafTemplate, tuple[str, ...], tuple[str, ...], np.ndarray]:
+    """The template of ``leaf`` evaluated at sample ``step`` (built or from the cache), the
+    leaf's vehicles and regions in the template's argument order, and the decision rows
+    (of a vehicle's ``Z``) the template's ``z`` holds per vehicle.
 
     Args:
         leaf: a sub-formula whose robustness is a smooth expression of vehicle positions.
@@ -186,26 +198,37 @@ def template(
         model: the linear model (``Mp``, ``Np`` map decisions and start to sampled positions).
         dt: planning sample step (s); k: temporal sharpness; k_pred: predicate sharpness.
     """
+    leaf, step = _shifted(leaf, step, dt)
     shape_text, vehicles, regions = canonical_leaf(leaf)
-    key = (shape_text, step, dt, k, k_pred, _model_key(model))
+    cols, mp, np_ = _local_block(model, step, leaf.horizon_steps(dt))
+    digest = hashlib.sha1()
+    for a in (mp, np_):
+        a = np.ascontiguousarray(a, dtype=float)
+        digest.update(repr(a.shape).encode())
+        digest.update(a.tobytes())
+    key = (shape_text, digest.hexdigest(), model.n_init, dt, k, k_pred)
     tpl, _ = _TEMPLATES.get_or_build(
         key,
-        lambda: _build_template(leaf, step, model, dt, k, k_pred, len(vehicles), len(regions)),
+        lambda: _build_template(
+            leaf, mp, np_, model.n_init, dt, k, k_pred, len(vehicles), len(regions)
+        ),
     )
-    return tpl, vehicles, regions
+    return tpl, vehicles, regions, cols
 
 
 def _build_template(
     leaf: Formula,
-    step: int,
-    model: Any,
+    mp: np.ndarray,
+    np_: np.ndarray,
+    n_init: int,
     dt: float,
     k: float,
     k_pred: float,
     n_veh: int,
     n_reg: int,
 ) -> LeafTemplate:
-    nd, ni = model.n_dec * 3, model.n_init * 3
+    n_loc = mp.shape[1]
+    nd, ni = n_loc * 3, n_init * 3
     z = ca.SX.sym("z", nd * n_veh)
     x0 = ca.SX.sym("x0", ni * n_veh)
     b = ca.SX.sym("b", 6 * n_reg)
@@ -216,13 +239,12 @@ def _build_template(
     registry = build_registry(_SymbolicRegions(sym_regions), k_pred)
     shape, _, _ = _canonical_tree(leaf, registry)
     hz = shape.horizon_steps(dt)
-    rows = list(range(step, step + hz + 1))
-    Mp = ca.sparsify(ca.DM(np.asarray(model.Mp)[rows]))
-    Np = ca.sparsify(ca.DM(np.asarray(model.Np)[rows]))
+    Mp = ca.sparsify(ca.DM(mp))
+    Np = ca.sparsify(ca.DM(np_))
     view = {}
     for j in range(n_veh):
-        Zj = ca.reshape(z[j * nd : (j + 1) * nd], model.n_dec, 3)
-        X0j = ca.reshape(x0[j * ni : (j + 1) * ni], model.n_init, 3)
+        Zj = ca.reshape(z[j * nd : (j + 1) * nd], n_loc, 3)
+        X0j = ca.reshape(x0[j * ni : (j + 1) * ni], n_init, 3)
         view[f"v{j}"] = ca.mtimes(Mp, Zj) + ca.mtimes(Np, X0j)
     if not view:
         # A leaf of constants only (``eventually[0, 1] (1 >= 0)``): the engine still needs
@@ -254,7 +276,8 @@ class LeafInstance:
 
     Attributes:
         template: the shape's functions.
-        z_index: entries of the NLP vector ``w`` forming the template's ``z``.
+        z_index: entries of the NLP vector ``w`` forming the template's ``z`` (per vehicle,
+            the decision rows its window uses, axis by axis).
         x0_index: entries of the NLP parameter ``p`` forming its ``x0``.
         bounds: the template's ``b`` (numbers: the named boxes' bounds).
     """
@@ -278,21 +301,17 @@ def instance(
     """The :class:`LeafInstance` of ``leaf`` at ``step`` in an NLP whose ``w`` starts with
     the vehicles' ``vec(Z)`` blocks and whose ``p`` is their ``vec(X0)`` blocks, in the
     order of ``vehicle_index``."""
-    tpl, vehicles, regions = template(leaf, step, model, dt, k, k_pred)
+    tpl, vehicles, regions, cols = template(leaf, step, model, dt, k, k_pred)
     nd, ni = model.n_dec * 3, model.n_init * 3
     z_index: list[int] = []
     x0_index: list[int] = []
     for name in vehicles:
         i = vehicle_index[name]
-        z_index.extend(range(i * nd, (i + 1) * nd))
+        for axis in range(3):
+            z_index.extend((i * nd + axis * model.n_dec + cols).tolist())
         x0_index.extend(range(i * ni, (i + 1) * ni))
     bounds = np.concatenate(
         [np.concatenate([region_of(r).lo_enu_m, region_of(r).hi_enu_m]) for r in regions]
         or [np.zeros(0)]
     )
     return LeafInstance(tpl, tuple(z_index), tuple(x0_index), bounds.astype(float))
-
-
-def selection(index: Sequence[int], n: int) -> Any:
-    """The (len(index), n) 0/1 matrix picking ``index`` out of a length-n vector."""
-    return ca.DM(ca.Sparsity.triplet(len(index), n, list(range(len(index))), list(index)), 1.0)

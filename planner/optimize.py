@@ -67,6 +67,7 @@ import numpy as np
 
 from planner.checks import LimitReport, check_trajectories
 from planner.dynamics import DoubleIntegrator, MinimumJerkChain
+from planner.explain import needs
 from planner.guess import _initial_guess, starts
 from planner.limits import vehicle_bounds
 from planner.nlp import (
@@ -81,7 +82,7 @@ from planner.nlp import (
 from planner.predicates import (
     build_registry,
 )
-from planner.problem import DynamicsModel, Problem
+from planner.problem import DynamicsModel, Problem, SolverMethod
 from planner.results import ClauseReport, PlanResult, SolveStats, Weakest
 from planner.scenario_spec import parse_clause
 from planner.stl import (
@@ -214,7 +215,9 @@ def plan(
             ].reshape(-1, order="F")
             for i, x0 in enumerate(x0s)
         ]
-        w0 = np.concatenate([z0, *p0, [0.0]])
+        w0 = np.concatenate([z0, *p0, np.zeros(struct.n_s), [0.0]])
+        if struct.n_s:  # the chunks' values there (planner.nlp._chunks)
+            w0[-1 - struct.n_s : -1] = np.asarray(struct.chunk_fn(w0, p_val)).reshape(-1)
         w0[-1] = _min_leaf(struct, w0, p_val, default=0.0)
         return w0
 
@@ -257,11 +260,22 @@ def plan(
     def attempt(w0: np.ndarray, stop: _SigintWatch) -> _Attempt:
         """One start: the maximisation from ``w0`` (with the eq. (1) rounds if asked for)."""
         nonlocal check_s
-        run = _run_solvers(struct, w0, bounds, say, problem.solver.method.value, stop)
+        t_check = time.perf_counter()
+        rob_start = exact_of(w0)
+        check_s += time.perf_counter() - t_check
+        refine = rob_start >= problem.epsilon and problem.solver.method is SolverMethod.IPOPT
+        run = _run_solvers(struct, w0, bounds, say, problem.solver.method.value, stop, refine)
         w_opt, status = run.w, run.status
         t_check = time.perf_counter()
         rob = exact_of(w_opt)
         check_s += time.perf_counter() - t_check
+        if rob < problem.epsilon and rob_start > rob:
+            # The solver fell short from a start that was better (it met the mission, or
+            # fell short by less): keep the start, and say so.  A solved point that meets the mission
+            # stands even below its start (the robustness cap says more margin is not
+            # wanted; the solved point is the smoother).
+            status = f"{status}; kept the start point ({rob_start:.4g}; the solver's {rob:.4g})"
+            rob, w_opt = rob_start, w0
         if not problem.solver.robustness_constraint:
             return _Attempt(rob, w_opt, status, _solved(status), run)
         # The paper's eq. (1): smooth robustness >= epsilon + margin as a constraint.  The
@@ -417,6 +431,17 @@ def plan(
         limits=limits,
         decision=w_opt,
         stats=stats,
+        needs=tuple(
+            needs(
+                problem,
+                formula,
+                solver_status=status,
+                stopped_by_time=watch.stopped and not stop.hit,
+                starts=n_starts,
+            )
+            if rob < problem.epsilon
+            else ()
+        ),
     )
 
 
@@ -474,7 +499,8 @@ def _user_status(
 
 
 def _solved(status: str) -> bool:
-    return status in (
+    """Whether the solver's status (before any note after a ``;``) is a converged one."""
+    return status.split(";", 1)[0] in (
         "Solve_Succeeded",
         "Solved_To_Acceptable_Level",
         "Search_Direction_Becomes_Too_Small",
@@ -551,16 +577,18 @@ def _run_solvers(
     say: Callable[[str], None],
     what: str,
     stop: _SigintWatch,
+    refine: bool = False,
 ) -> _Run:
     """Run the structure's solvers in turn (the k continuation), each warm started from the
     previous one's primal-dual point, until one is interrupted (``stop``).  ``bounds`` are
-    read at call time (``lbx`` may change between calls)."""
+    read at call time (``lbx`` may change between calls).  ``refine``: ``w0`` meets the
+    mission, and the solvers that refine such a start run (``planner.nlp._MU_MAX``)."""
     iterations = 0
     solver_s = eval_s = 0.0
     status = "not solved"
     w_opt = w0
     lam_x = lam_g = None
-    for k, solver in struct.solvers:
+    for k, solver in struct.refining() if refine else struct.solvers:
         if stop.hit or struct.watch.stopped:
             break
         say(f"solving with {what} (k={k:.3g})")

@@ -71,6 +71,8 @@ class PlanResult:
         limits: per vehicle dense checks.
         decision: flat optimal decision vector (warm start for a re-solve).
         stats: sizes and time breakdown.
+        needs: when the mission is not met, what the plan would need, one line each
+            (:func:`planner.explain.needs`).
     """
 
     problem: Problem
@@ -87,6 +89,7 @@ class PlanResult:
     limits: tuple[LimitReport, ...]
     decision: np.ndarray = field(repr=False)
     stats: SolveStats | None = None
+    needs: tuple[str, ...] = ()
 
     def to_plan(self, scenario_path: str | None = None) -> Plan:
         """The plan-file view of this result (:mod:`planner.planfile`)."""

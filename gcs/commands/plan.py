@@ -94,6 +94,7 @@ def summary(result: Any, output: str | None) -> dict[str, Any]:
             "solver": s.solver,
             "starts": s.starts,
         },
+        "needs": list(result.needs),
         "output": output,
     }
 
@@ -125,6 +126,7 @@ def _table(result: Any) -> str:
         lines.append(
             f"weakest: {w.formula} = {w.robustness:.4f} at t = {w.t_s:g} s ({w.clause_key})"
         )
+    lines.extend(f"needs {line}" for line in result.needs)
     s = result.stats
     lines.append(
         f"robustness {result.robustness:.4f} (planning grid {result.robustness_planning_grid:.4f}, "

@@ -56,21 +56,26 @@ def test_the_starts_are_the_nearest_route_then_runners_up_and_shifted_legs() -> 
     assert len(list(starts(problem, formula, limit=1))) == 1
 
 
-@pytest.mark.parametrize("spelling", ["regions", "halfplanes"])
-def test_either_or_is_met_by_the_other_option(spelling: str) -> None:
-    # The nearer target (target1) leaves too little time for the goal; IPOPT stops at its
-    # iteration limit below zero.  The runner-up option (target2) meets the mission.
-    one = plan(_zoo(f"stlpy_either_or_{spelling}", starts=1))
+def test_a_runner_up_option_meets_what_the_nearest_choices_do_not() -> None:
+    # Stepping stones (half-planes): the nearest stones first leave the plan short of the
+    # mission; turning one choice to its runner-up stone meets it.
+    one = plan(_zoo("stlpy_stepping_stones_halfplanes", starts=1))
     assert not one.success and one.stats is not None and one.stats.starts == 1
-    many = plan(_zoo(f"stlpy_either_or_{spelling}"))
+    many = plan(_zoo("stlpy_stepping_stones_halfplanes"))
     assert many.success, many.status
     assert many.stats is not None and many.stats.starts >= 2
-    assert 0.0 <= many.robustness <= 0.5 + 1e-6  # the certified optimum bounds it
+    assert 0.0 <= many.robustness <= 0.0527 + 1e-6  # the certified optimum bounds it
     # the status says which start the plan came from
     assert f"of {many.stats.starts}: d1 via " in many.status
-    assert "target2" in many.status or "y(d1) >= 4.5" in many.status
     # the iterations of every start are counted
     assert many.iterations > one.iterations
+
+
+@pytest.mark.parametrize("spelling", ["regions", "halfplanes"])
+def test_either_or_is_met_in_both_spellings(spelling: str) -> None:
+    got = plan(_zoo(f"stlpy_either_or_{spelling}"))
+    assert got.success, got.status
+    assert 0.0 <= got.robustness <= 0.5 + 1e-6  # the certified optimum bounds it
 
 
 def test_reach_avoid_leaves_the_obstacle_corner_on_a_shifted_start() -> None:
