@@ -15,9 +15,13 @@ one :class:`LeafTemplate` per shape, sample step and sharpness holds two CasADi 
 ``value_grad(z, x0, b) -> (value, d value / d z)``
 ``hess(z, x0, b, lam) -> lam * d2 value / d z2``
 
-with ``z`` the stacked decision matrices of the leaf's vehicles (``vec(Z_v)``, column-major,
-``n_dec * 3`` each), ``x0`` their start states (``vec(X0_v)``) and ``b`` the boxes' bounds
-(``lo_enu_m`` then ``hi_enu_m`` per region).  Every leaf of that shape is then a *call* of
+with ``z`` the leaf's vehicles' decisions that its window's samples use (per vehicle the
+rows of ``Z_v`` those samples depend on, axis after axis), ``x0`` their start states
+(``vec(X0_v)``) and ``b`` the boxes' bounds (``lo_enu_m`` then ``hi_enu_m`` per region).  A
+window ``[a, b]`` at a step is the same leaf from 0 at ``step + a``, and the template is keyed
+by its block of the sample matrices, so windows of the same width and phase share one
+wherever they lie (the chunks of a long ``eventually``, :func:`planner.nlp._chunks`).  Every
+leaf of that shape is then a *call* of
 the same functions with its own arguments, so the symbolic work is done once per shape, not
 once per vehicle (power-line N = 4: 8 leaves, 2 shapes), and it is cached for the process
 (the latest 64): re-planning with another fleet size, or with boxes moved,
