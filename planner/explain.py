@@ -16,10 +16,20 @@ result (``PlanResult.needs``) and ``gcs plan`` prints them.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
-from planner.guess import _Choices, _hover_times, _leg_profile, _places_in, _start_of, _targets
-from planner.limits import vehicle_bounds
+from planner.geometry import Place
+from planner.guess import (
+    _Choices,
+    _hover_times,
+    _leg_profile,
+    _places_in,
+    _start_of,
+    _targets,
+    axis_limits,
+)
 from planner.problem import Problem
 from planner.stl import And, Formula
 
@@ -29,16 +39,15 @@ __all__ = ["needs"]
 _LATE_S = 0.5
 
 
-def _arrivals(problem: Problem, formula: Formula, vehicle: str) -> tuple[list, dict, float]:
+def _arrivals(
+    problem: Problem, formula: Formula, vehicle: Any, start: np.ndarray, hovers: dict[str, float]
+) -> tuple[list[Place], dict[Any, float], float]:
     """The vehicle's route, the time it first gets to each place on it (by place key), and
     when the route ends (s), at its limits."""
-    v = next(x for x in problem.vehicles if x.name == vehicle)
-    route = _targets(formula, vehicle, problem, _start_of(problem, vehicle))
-    (vlo, vhi), (alo, ahi) = (b.box() for b in vehicle_bounds(v))
-    v_lim, a_lim = np.minimum(vhi, -vlo), np.minimum(ahi, -alo)
-    hovers = _hover_times(formula, vehicle, problem)
-    at: dict = {}
-    t, here = 0.0, _start_of(problem, vehicle)
+    route = _targets(formula, vehicle.name, problem, start)
+    v_lim, a_lim = axis_limits(vehicle)
+    at: dict[Any, float] = {}
+    t, here = 0.0, start
     for pl in route:
         t += _leg_profile(np.asarray(pl.point) - here, v_lim, a_lim)[0]
         at.setdefault(pl.key, t)
@@ -61,13 +70,14 @@ def needs(
     clauses = list(formula.operands) if isinstance(formula, And) else [formula]
     horizon = problem.timing.horizon_s
     for v in problem.vehicles:
-        route, at, end = _arrivals(problem, formula, v.name)
+        start = _start_of(problem, v.name)
+        hovers = _hover_times(formula, v.name, problem)
+        route, at, end = _arrivals(problem, formula, v, start, hovers)
         if not route:
             continue
         names = " -> ".join(pl.name for pl in route)
-        hovers = _hover_times(formula, v.name, problem)
         for clause in clauses:
-            places = _places_in(clause, v.name, _start_of(problem, v.name), [], problem, _Choices())
+            places = _places_in(clause, v.name, start, [], problem, _Choices())
             if not places or places[-1].key not in at:
                 continue
             last = places[-1]

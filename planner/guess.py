@@ -288,6 +288,13 @@ def _hover_times(formula: Formula, vehicle: str, problem: Problem) -> dict[str, 
     return out
 
 
+def axis_limits(vehicle: Any) -> tuple[np.ndarray, np.ndarray]:
+    """``(v_max, a_max)`` (3,) per axis that hold both ways (a rest-to-rest leg flies both):
+    the slower direction, horizontally the box inside the norm's polygon."""
+    (vlo, vhi), (alo, ahi) = (b.box() for b in vehicle_bounds(vehicle))
+    return np.minimum(vhi, -vlo), np.minimum(ahi, -alo)
+
+
 def _leg_profile(dist_m: np.ndarray, v_max: np.ndarray, a_max: np.ndarray) -> tuple[float, float]:
     """(duration s, accelerating fraction of it) of the fastest rest-to-rest trapezoidal
     profile over per-axis distances ``dist_m`` (3,) within per-axis ``v_max``/``a_max``.
@@ -468,11 +475,7 @@ def _initial_guess(
             _grid_path(problem, [*avoid, *_clear_of(targets[i:])], [a, b])
             for i, (a, b) in enumerate(itertools.pairwise(pts))
         ]
-        # per axis, the slower direction (the profile flies both ways), horizontally the
-        # box inside the norm's polygon
-        (vlo, vhi), (alo, ahi) = (b.box() for b in vehicle_bounds(v))
-        v_lim = _GUESS_LIMIT_FRACTION * np.minimum(vhi, -vlo)
-        a_lim = _GUESS_LIMIT_FRACTION * np.minimum(ahi, -alo)
+        v_lim, a_lim = (_GUESS_LIMIT_FRACTION * lim for lim in axis_limits(v))
         prof = [
             _leg_profile(np.abs(np.diff(leg, axis=0)).sum(axis=0), v_lim, a_lim) for leg in legs
         ]

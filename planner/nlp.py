@@ -358,8 +358,9 @@ class NlpBuilder:
             (leaf, st) for leaf in self.smooth_leaves for st in sorted(self.leaves[leaf])
         ]
         per_segment = max(1, round(problem.timing.segment_s / self.dt))
+        chunked = _local_positions(model)
         self.chunks = [
-            _chunks(leaf, st, self.dt, per_segment) if _local_positions(model) else []
+            _chunks(leaf, st, self.dt, per_segment) if chunked else []
             for leaf, st in self.smooth_items
         ]
         self.n_s = sum(len(c) for c in self.chunks)
@@ -631,17 +632,13 @@ def _assemble(
     jac_sx = sx["jac_g"](wm, pm)[1]
     n_chunks = sum(len(it) for it in items if not isinstance(it, LeafInstance))
     lam_g = ca.MX.sym("lam_g", n_sx + n_items + n_chunks)
-    # one entry per row: (value, gradient (1, n_i), w entries, its Hessian's function of lam)
-    vals: list[Any] = []
-    grads: list[Any] = []
-    index: list[list[int]] = []
-    hess: list[Callable[[Any], Any]] = []
-    against: list[int] = []  # the w column each row subtracts (r, or the chunk's s_c)
-    leaf_vals: list[Any] = []
-    chunk_vals: list[Any] = []
-    chunk_rows: list[tuple[Any, Any, list[int], Callable[[Any], Any]]] = []
+    # a row: (value, gradient (1, n_i), w entries, its Hessian's function of lam)
+    Row = tuple[Any, Any, list[int], Callable[[Any], Any]]
+    leaf_rows: list[Row] = []
+    chunk_rows: list[Row] = []
+    leaf_vals: list[Any] = []  # the smooth leaves' values, for leaf_fn
 
-    def template_row(inst: LeafInstance) -> tuple[Any, Any, list[int], Callable[[Any], Any]]:
+    def template_row(inst: LeafInstance) -> Row:
         args = (wm[list(inst.z_index)], pm[list(inst.x0_index)], ca.DM(inst.bounds))
         tpl = inst.template
         return (
@@ -662,7 +659,6 @@ def _assemble(
             s_vec = wm[cols]
             rows = [template_row(inst) for inst in item]
             chunk_rows.extend(rows)
-            chunk_vals.extend(rw[0] for rw in rows)
             leaf_vals.append(lse.value(ca.vertcat(*[rw[0] for rw in rows])))
             row = (
                 lse.value(s_vec),
@@ -670,19 +666,13 @@ def _assemble(
                 cols,
                 functools.partial(lse.hess, s_vec),
             )
-        vals.append(row[0])
-        grads.append(row[1])
-        index.append(row[2])
-        hess.append(row[3])
-        against.append(n_w - 1)
-    for j, row in enumerate(chunk_rows):
-        vals.append(row[0])
-        grads.append(row[1])
-        index.append(row[2])
-        hess.append(row[3])
-        against.append(s0 + j)
-    n_mx = len(vals)
+        leaf_rows.append(row)
+    chunk_vals = [rw[0] for rw in chunk_rows]
+    # the w column each row subtracts: r for a leaf, its s_c for a chunk
+    against = [n_w - 1] * len(leaf_rows) + list(range(s0, s0 + len(chunk_rows)))
+    n_mx = len(against)
     if n_mx:
+        vals, grads, index, hess = (list(col) for col in zip(*leaf_rows, *chunk_rows, strict=True))
         flat = [i for idx in index for i in idx]
         sel = ca.DM(ca.Sparsity.triplet(len(flat), n_w, list(range(len(flat))), flat), 1.0)
         minus = ca.DM(ca.Sparsity.triplet(n_mx, n_w, list(range(n_mx)), against), -1.0)

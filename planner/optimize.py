@@ -271,9 +271,9 @@ def plan(
         check_s += time.perf_counter() - t_check
         if rob < problem.epsilon and rob_start > rob:
             # The solver fell short from a start that was better (it met the mission, or
-            # fell short by less): keep the start, and say so.  A solved point that meets the mission
-            # stands even below its start (the robustness cap says more margin is not
-            # wanted; the solved point is the smoother).
+            # fell short by less): keep the start, and say so.  A solved point that meets
+            # the mission stands even below its start (the robustness cap says more margin
+            # is not wanted; the solved point is the smoother).
             status = f"{status}; kept the start point ({rob_start:.4g}; the solver's {rob:.4g})"
             rob, w_opt = rob_start, w0
         if not problem.solver.robustness_constraint:

@@ -134,7 +134,7 @@ def test_a_chunked_leaf_is_the_smooth_value_of_its_whole_window_with_casadis_der
     assert np.count_nonzero(got[-1 - b.n_s : -1, -1 - b.n_s : -1])  # the chunks' LSE
 
 
-def _z_block_nonzeros(hess_fn, n_z: int, n_vehicle_z: int) -> int:
+def _z_block_nonzeros(hess_fn, n_vehicle_z: int) -> int:
     sp = hess_fn.sparsity_out(0)
     rows, cols = np.asarray(sp.get_triplet()[0]), np.asarray(sp.get_triplet()[1])
     first = (rows < n_vehicle_z) & (cols < n_vehicle_z)  # d1's decisions
@@ -145,11 +145,11 @@ def test_chunks_make_the_leaf_hessian_banded_not_dense(monkeypatch) -> None:
     problem = parse_scenario(SCENARIO)
     b, model = _builder(problem)
     per_vehicle = model.n_dec * 3
-    chunked = _z_block_nonzeros(b.assemble(40.0)[1]["hess_lag"], b.n_z, per_vehicle)
+    chunked = _z_block_nonzeros(b.assemble(40.0)[1]["hess_lag"], per_vehicle)
     monkeypatch.setattr(nlp_mod, "CHUNK_ABOVE_SEGMENTS", 10**6)
     whole, _ = _builder(problem)
     assert whole.n_s == 0
-    dense = _z_block_nonzeros(whole.assemble(40.0)[1]["hess_lag"], whole.n_z, per_vehicle)
+    dense = _z_block_nonzeros(whole.assemble(40.0)[1]["hess_lag"], per_vehicle)
     # the whole window couples (almost) every pair of d1's decisions
     assert dense > 0.9 * per_vehicle * (per_vehicle + 1) // 2
     assert chunked < dense / 3
