@@ -230,6 +230,11 @@ class _Structure:
     norm_rows: bool  # whether each vehicle's limit rows end with the horizontal-norm rows
     leaves: dict[Formula, set[int]]
     used_steps: list[int]  # planning steps whose positions are lifted into variables
+    n_lin: int  # g's rows before the leaf rows (which follow: direct rows, smooth rows)
+    n_x0: int  # p's start states (the leaf rows' weights on r follow)
+    leaf_group: np.ndarray  # each leaf row's leaf, an index into leaf_names
+    leaf_at_start: np.ndarray  # whether the row is a direct leaf at t = 0 (start states only)
+    leaf_names: list[str]
     n_smooth: int
     k: float
     margin: float
@@ -261,7 +266,7 @@ def _structure_key(problem: Problem) -> Any:
         problem.timing,
         problem.model,
         tuple(v.name for v in problem.vehicles),
-        dataclasses.replace(s, starts=1, polish_s=0.0),  # the starts share one NLP
+        dataclasses.replace(s, starts=1, polish_s=0.0, lexicographic_rounds=0),  # one NLP
         problem.epsilon,
         _has_norm_limits(problem),
     )
@@ -374,9 +379,11 @@ class NlpBuilder:
         self.w = ca.vertcat(
             *[ca.vec(z) for z in self.Z], *[ca.vec(q) for q in self.P], self.S, self.r
         )
-        self.p = ca.vertcat(*[ca.vec(x) for x in self.X0])
         self.wm = ca.MX.sym("w", self.w.shape[0])
-        self.pm = ca.MX.sym("p", self.p.shape[0])
+        # p: the start states, then each leaf row's weight on r (1: the row is ``>= r``; 0:
+        # it is held at a fixed floor instead, :func:`planner.optimize` settling it).
+        self.n_x0 = model.n_init * 3 * len(names)
+        self._set_parameters(ca.SX(0, 1))
         self._sx: dict[str, Any] | None = None
         self.n_z = model.n_dec * 3 * len(names)
         # the parts, filled by the add_* methods
@@ -386,6 +393,7 @@ class NlpBuilder:
         self.f: Any = None
         self.lbx = self.ubx = np.zeros(0)
         self.n_lift = self.n_lim = self.n_eq = 0
+        self.direct_rows: list[int] = []  # rows of each direct leaf (direct_steps' order)
         self.lim_slices: list[slice] = []
         self.lim_half = 0
         self.norm_rows = _has_norm_limits(problem)
@@ -438,8 +446,26 @@ class NlpBuilder:
             for leaf, steps in self.direct_steps.items()
         ]
         self.direct = ca.vertcat(*direct_parts) if direct_parts else ca.SX(0, 1)
-        self.nonlinear = [part - self.r for part in direct_parts]
+        self.direct_rows = [int(part.shape[0]) for part in direct_parts]
+        self._set_parameters(ca.SX.sym("A", self.direct.shape[0]))
+        weights, row = [], 0
+        for part in direct_parts:
+            weights.append(self.a_direct[row : row + part.shape[0]])
+            row += part.shape[0]
+        self.nonlinear = [part - a * self.r for part, a in zip(direct_parts, weights, strict=True)]
         return self
+
+    def _set_parameters(self, a_direct: Any) -> None:
+        """p = [start states, the direct rows' weights on r, the smooth rows' weights]."""
+        self.a_direct = a_direct
+        a_smooth = ca.SX.sym("A_smooth", len(self.smooth_items))
+        self.p = ca.vertcat(*[ca.vec(x) for x in self.X0], a_direct, a_smooth)
+        self.pm = ca.MX.sym("p", self.p.shape[0])
+
+    def parameters(self, x0s: Sequence[np.ndarray]) -> np.ndarray:
+        """The value of p for start states ``x0s``: every leaf row ``>= r``."""
+        starts = [np.asarray(x).reshape(-1, order="F") for x in x0s]
+        return np.concatenate([*starts, np.ones(int(self.p.shape[0]) - self.n_x0)])
 
     def add_robustness_cost(self) -> NlpBuilder:
         """Maximise ``r``; a small acceleration penalty gives the NLP curvature in the
@@ -512,6 +538,7 @@ class NlpBuilder:
             self.n_lin,
             self.n_sx,
             self.n_w - 1 - self.n_s,
+            self.n_x0,
             k,
             self.opts.hessian == "exact",
         )
@@ -554,6 +581,19 @@ class NlpBuilder:
             ]
 
         n_leaf = n_sx + n_items - n_lin
+        # Each leaf row's leaf (the direct rows of a leaf are its steps times its faces, in
+        # CasADi's column order: the steps run fastest) and whether it is fixed by the start.
+        leaf_names: list[str] = []
+        group: list[int] = []
+        at_start: list[bool] = []
+        for (leaf, steps), rows in zip(self.direct_steps.items(), self.direct_rows, strict=True):
+            leaf_names.append(str(leaf))
+            group.extend([len(leaf_names) - 1] * rows)
+            at_start.extend(np.tile(np.asarray(steps) == 0, rows // len(steps)).tolist())
+        index = {leaf: i for i, leaf in enumerate(self.smooth_leaves, start=len(leaf_names))}
+        leaf_names.extend(str(leaf) for leaf in self.smooth_leaves)
+        group.extend(index[leaf] for leaf, _st in self.smooth_items)
+        at_start.extend([False] * n_items)
         n_lift, n_lim, n_eq = self.n_lift, self.n_lim, self.n_eq
         # v(horizon) = 0, or free; the limit rows' bounds are set per vehicle in plan()
         end = np.full(3 * nv, 0.0 if self.problem.timing.end_at_rest else np.inf)
@@ -584,6 +624,11 @@ class NlpBuilder:
             norm_rows=self.norm_rows,
             leaves=self.leaves,
             used_steps=self.used,
+            n_lin=n_lin,
+            n_x0=self.n_x0,
+            leaf_group=np.asarray(group, dtype=int),
+            leaf_at_start=np.asarray(at_start, dtype=bool),
+            leaf_names=leaf_names,
             n_smooth=n_items,
             k=self.k_final,
             margin=self.margin,
@@ -611,6 +656,7 @@ def _assemble(
     n_lin: int,
     n_sx: int,
     s0: int,
+    a0: int,
     k: float,
     exact: bool,
 ) -> tuple[dict[str, Any], dict[str, Any], Any, Any]:
@@ -620,6 +666,8 @@ def _assemble(
     ``g`` is the SX blocks' rows (linear, then row-wise leaves ``- r``), then one row per
     smooth leaf (``value - r``; a chunked leaf's value is the log-sum-exp of its chunks'
     variables ``s_c``, :func:`_chunks`), then one row per chunk (``value - s_c``, held at 0).
+    A leaf row subtracts ``a * r`` with its weight ``a`` from ``p`` (from ``a0`` on: the
+    direct rows', then the smooth rows'; 1, or 0 for a row :mod:`planner.optimize` settled).
     ``items[i]`` is a leaf's template instance, or its chunks' instances.  Each row's
     Jacobian is its template's gradient scattered into ``w`` (and ``-1`` in the column of
     ``r`` or ``s_c``), its Hessian the template's ``lam * H`` scattered (upper triangle, as
@@ -628,6 +676,8 @@ def _assemble(
     n_w = wm.shape[0]
     n_items = len(items)
     r = wm[n_w - 1]
+    a_direct = pm[a0 : a0 + n_sx - n_lin]
+    a_smooth = pm[a0 + n_sx - n_lin : a0 + n_sx - n_lin + n_items]
     g_sx = sx["g"](wm, pm)
     jac_sx = sx["jac_g"](wm, pm)[1]
     n_chunks = sum(len(it) for it in items if not isinstance(it, LeafInstance))
@@ -668,19 +718,26 @@ def _assemble(
             )
         leaf_rows.append(row)
     chunk_vals = [rw[0] for rw in chunk_rows]
-    # the w column each row subtracts: r for a leaf, its s_c for a chunk
-    against = [n_w - 1] * len(leaf_rows) + list(range(s0, s0 + len(chunk_rows)))
+    # the w column each row subtracts: r (times the row's weight) for a leaf, its s_c for a
+    # chunk
+    chunk_cols = list(range(s0, s0 + len(chunk_rows)))
+    against = [n_w - 1] * len(leaf_rows) + chunk_cols
     n_mx = len(against)
     if n_mx:
         vals, grads, index, hess = (list(col) for col in zip(*leaf_rows, *chunk_rows, strict=True))
         flat = [i for idx in index for i in idx]
         sel = ca.DM(ca.Sparsity.triplet(len(flat), n_w, list(range(len(flat))), flat), 1.0)
-        minus = ca.DM(ca.Sparsity.triplet(n_mx, n_w, list(range(n_mx)), against), -1.0)
-        g = ca.vertcat(g_sx, ca.vertcat(*vals) - wm[against])
+        # nonzeros in column order: the chunks' columns come before r's (the last)
+        minus = ca.MX(
+            ca.Sparsity.triplet(n_mx, n_w, list(range(n_mx)), against),
+            -ca.vertcat(ca.DM.ones(len(chunk_cols)), a_smooth),
+        )
+        subtracted = ca.vertcat(a_smooth * r, wm[chunk_cols])
+        g = ca.vertcat(g_sx, ca.vertcat(*vals) - subtracted)
         jac = ca.vertcat(jac_sx, ca.mtimes(ca.diagcat(*grads), sel) + minus)
     else:
         g, jac = g_sx, jac_sx
-    leaf_all = ca.vertcat(g_sx[n_lin:] + r, *leaf_vals)
+    leaf_all = ca.vertcat(g_sx[n_lin:] + a_direct * r, *leaf_vals)
     derivs = {"jac_g": ca.Function("nlp_jac_g", [wm, pm], [g, jac], ["x", "p"], ["g", "jac_g_x"])}
     if exact:
         lam_f = ca.MX.sym("lam_f")

@@ -74,6 +74,7 @@ from planner.nlp import (
     K_MIN,
     STRUCTURES,
     _build,
+    _is_direct,
     _Structure,
     _structure_key,
     clear_cache,
@@ -83,7 +84,7 @@ from planner.predicates import (
     build_registry,
 )
 from planner.problem import DynamicsModel, Problem, SolverMethod
-from planner.results import ClauseReport, PlanResult, SolveStats, Weakest
+from planner.results import ClauseReport, PlanResult, SolveStats, StartBound, Weakest
 from planner.scenario_spec import parse_clause
 from planner.stl import (
     Formula,
@@ -173,7 +174,6 @@ def plan(
     formula = conjunction(formulas)
     model = make_model(problem)
     x0s = _x0(problem, model)
-    p_val = np.concatenate([x.reshape(-1, order="F") for x in x0s])
 
     key = _structure_key(problem)
 
@@ -182,6 +182,10 @@ def plan(
         return _build(problem, model, formula)
 
     struct, cached = STRUCTURES.get_or_build(key, build)
+    # p: the start states, and every leaf row >= r (weight 1; _raise_the_rest settles rows)
+    p_val = np.concatenate(
+        [*[x.reshape(-1, order="F") for x in x0s], np.ones(struct.leaf_group.size)]
+    )
     build_s = struct.build_s if not cached else 0.0
     watch = struct.watch
     deadline = math.inf if time_limit_s is None else t_start + float(time_limit_s)
@@ -231,6 +235,11 @@ def plan(
 
     def exact_of(w: np.ndarray) -> float:
         return _evaluate(problem, formula, formulas, trajectories_of(w))[0]
+
+    def clauses_of(w: np.ndarray) -> np.ndarray:
+        """Each clause's exact robustness (dense samples)."""
+        sig = {tr.name: tr.position(_dense_times(problem)) for tr in trajectories_of(w)}
+        return np.array([f.robustness(sig, problem.timing.check_dt_s) for f in formulas])
 
     # During a solve: every progress_every_s, the iterate's exact robustness (the best one
     # kept: a solve stopped by the time limit or Ctrl-C returns the better of it and its
@@ -369,6 +378,18 @@ def plan(
         status = f"{status}; start {best_start[0]} of {n_starts}: {best_start[1]}"
     if (stop.hit or watch.stopped) and seen["w"] is not None and seen["rho"] > exact_of(w_opt):
         w_opt = seen["w"]  # an earlier iterate was better than the one the solver stopped at
+    elif problem.solver.lexicographic_rounds and not problem.solver.robustness_constraint:
+        # at most half the time spent so far (at least _RAISE_MIN_S)
+        budget = max(_RAISE_MIN_S, 0.5 * (time.perf_counter() - t_start))
+        lam_g = best.run.lam_g if best.run.w is w_opt else None
+        raised = _raise_the_rest(
+            struct, w_opt, lam_g, bounds, problem, clauses_of, say, stop, deadline, budget
+        )
+        run = run if raised.run is None else run.then(raised.run)
+        watch.deadline = deadline
+        watch.stopped = watch.stopped and time.perf_counter() >= deadline  # not by the budget
+        if raised.note:
+            w_opt, status = raised.w, f"{status}; {raised.note}"
     say("checking on dense samples")
     # The smooth value at the point returned (r itself may sit on a bound, eq. (1)).
     smooth = _min_leaf(struct, w_opt, p_val, default=float(w_opt[-1]))
@@ -442,7 +463,146 @@ def plan(
             if rob < problem.epsilon
             else ()
         ),
+        start_bound=_start_bound(problem, formulas, trajectories, clauses, weakest),
     )
+
+
+#: Leaf rows within this (m) of the weakest are settled with it, each held at the weakest
+#: value less this, in :func:`_raise_the_rest`; clause robustness within twice this counts
+#: as equal when its result is compared.
+_SETTLE_M = 1e-3
+#: A leaf row at the weakest value holds r down when its multiplier is at least this share
+#: of the leaf rows' (which sum to 1 at a max-min's optimum); the others there are settled
+#: only by the start.
+_HOLDING_SHARE = 1e-2
+#: How far (m) one solve of :func:`_raise_the_rest` may raise r above its start: a trust
+#: region.  Unbounded, IPOPT left the refined point and wandered (the ground-start line:
+#: 434 iterations with the adaptive barrier, 1,000 and worse with it capped); 0.2 m per
+#: solve took 10 iterations.
+_RAISE_STEP_M = 0.2
+#: The least time (s) :func:`_raise_the_rest` may take (its budget is half the time the
+#: plan took before it, at least this).
+_RAISE_MIN_S = 2.0
+
+
+@dataclass(frozen=True, slots=True)
+class _Raised:
+    """What :func:`_raise_the_rest` did: the point and a note for the status ("" when it
+    kept the plan it was given), and the solver runs it cost."""
+
+    w: np.ndarray
+    note: str
+    run: _Run | None
+
+
+def _raise_the_rest(
+    struct: _Structure,
+    w: np.ndarray,
+    lam_g: np.ndarray | None,
+    bounds: Mapping[str, np.ndarray],
+    problem: Problem,
+    clauses_of: Callable[[np.ndarray], np.ndarray],
+    say: Callable[[str], None],
+    stop: _SigintWatch,
+    deadline: float,
+    budget_s: float,
+) -> _Raised:
+    """Lexicographic refinement after the max-min: hold the weakest leaves, raise the rest.
+
+    The max-min stops at its bottleneck.  When a leaf's margin at t = 0 is that bottleneck
+    (fixed by the start state: a drone 1 m up with the floor at 0.5 m), or when the plan
+    falls short (one unreachable clause), nothing pushes the other leaves up.  Here the
+    leaves whose rows hold r down at the weakest value (the start's rows when the start sets
+    it, else the rows with a share of the multipliers, ``lam_g``) are settled (their rows' weight on r becomes 0, their floor that
+    value less :data:`_SETTLE_M`) and r is maximised over the other
+    rows from the plan's point, with the refining solvers (the point is feasible) and r at
+    most :data:`_RAISE_STEP_M` above its start; a solve that reaches that step is followed by
+    another.  A solve's plan is kept only if its clause robustness, sorted, is better in the
+    leximin order (the weakest first, within ``2 * _SETTLE_M``) and it does not lose the
+    mission.  At most ``solver.lexicographic_rounds`` solves, all of them within ``budget_s``
+    (and ``deadline``, the user's time limit), each kept only if it converged.
+    """
+    eps = problem.epsilon
+    until = time.perf_counter() + budget_s
+    p, lbg, ubx = bounds["p"].copy(), bounds["lbg"].copy(), bounds["ubx"].copy()
+    weight = p[struct.n_x0 :]  # a view: each leaf row's weight on r
+    rows = np.arange(struct.leaf_group.size) + struct.n_lin  # the leaf rows of g
+    clause_rob = clauses_of(w)
+    spent: _Run | None = None
+    notes: list[str] = []  # the settles whose solves were kept
+    pending = ""
+    settle = True
+    for _ in range(problem.solver.lexicographic_rounds):
+        if stop.hit or struct.watch.stopped:
+            break
+        values = np.asarray(struct.leaf_fn(w, p)).reshape(-1)
+        if settle:
+            free = weight > 0
+            weakest = float(values[free].min()) if free.any() else 0.0
+            at_bottleneck = free & (values <= weakest + _SETTLE_M)
+            by_start = bool(np.any(at_bottleneck & struct.leaf_at_start))
+            if not by_start and clause_rob.min() >= eps:
+                break  # met, and the weakest is the plan's own: nothing more is asked
+            # The start's rows are the bottleneck for certain (constants); other rows there
+            # may only have had no reason to rise above it: the ones that hold r down carry
+            # its multiplier (the leaf rows' multipliers sum to 1 at a max-min's optimum).
+            if by_start:
+                held_rows = at_bottleneck & struct.leaf_at_start
+            elif lam_g is not None:
+                share = np.abs(lam_g[rows])
+                held_rows = at_bottleneck & (share >= _HOLDING_SHARE * max(share.sum(), 1e-12))
+            else:
+                held_rows = at_bottleneck
+            held_rows = held_rows if held_rows.any() else at_bottleneck
+            settled = free & np.isin(struct.leaf_group, struct.leaf_group[held_rows])
+            if settled.sum() == free.sum():
+                break
+            weight[settled] = 0.0
+            lbg[rows[settled]] = weakest - _SETTLE_M
+            names = sorted({struct.leaf_names[i] for i in struct.leaf_group[settled]})
+            held = ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+            why = "the start sets it" if by_start else "the plan falls short"
+            pending = f"then raised the other clauses with {held} held at {weakest:.4g} ({why})"
+            say(f"raising the other clauses, {held} held at {weakest:.4g} ({why})")
+        start = w.copy()
+        start[-1] = float(values[weight > 0].min())
+        step = _RAISE_STEP_M + max(0.0, eps - start[-1])  # a failing leaf may reach epsilon
+        ubx[-1] = min(bounds["ubx"][-1], start[-1] + step)
+        struct.watch.deadline = min(deadline, until)
+        run = _run_solvers(
+            struct,
+            start,
+            {**bounds, "p": p, "lbg": lbg, "ubx": ubx},
+            say,
+            "the rest raised",
+            stop,
+            refine=True,
+        )
+        spent = run if spent is None else spent.then(run)
+        got = clauses_of(run.w)
+        if (
+            not _solved(run.status)  # an iterate off the dynamics' rows is no plan
+            or not _leximin_better(got, clause_rob, 2 * _SETTLE_M)
+            or clause_rob.min() >= eps > got.min()
+        ):
+            break
+        w, clause_rob, lam_g = run.w, got, run.lam_g
+        if pending:
+            notes.append(pending)
+            pending = ""
+        settle = bool(w[-1] < ubx[-1] - _SETTLE_M)  # below the step: its own bottleneck
+    return _Raised(w, "; ".join(notes), spent)
+
+
+def _leximin_better(a: np.ndarray, b: np.ndarray, tol: float) -> bool:
+    """Whether ``a`` beats ``b`` in the leximin order: sorted ascending, the first entry
+    that differs by more than ``tol`` is larger in ``a``."""
+    for x, y in zip(np.sort(a), np.sort(b), strict=True):
+        if x > y + tol:
+            return True
+        if x < y - tol:
+            return False
+    return False
 
 
 #: Rounds of margin growth for the eq. (1) constraint, and the extra step (m) per round.
@@ -527,6 +687,7 @@ class _Run:
     iterations: int
     solver_s: float
     eval_s: float
+    lam_g: np.ndarray | None = None  # the constraints' multipliers at w (the last solve's)
 
     def then(self, later: _Run) -> _Run:
         """``later``'s end point, with the costs of both."""
@@ -536,6 +697,7 @@ class _Run:
             self.iterations + later.iterations,
             self.solver_s + later.solver_s,
             self.eval_s + later.eval_s,
+            later.lam_g,
         )
 
 
@@ -582,7 +744,8 @@ def _run_solvers(
     """Run the structure's solvers in turn (the k continuation), each warm started from the
     previous one's primal-dual point, until one is interrupted (``stop``).  ``bounds`` are
     read at call time (``lbx`` may change between calls).  ``refine``: ``w0`` meets the
-    mission, and the solvers that refine such a start run (``planner.nlp._MU_MAX``)."""
+    mission (or the constraints of :func:`_raise_the_rest`), and the solvers that refine
+    such a start run (``planner.nlp._MU_MAX``)."""
     iterations = 0
     solver_s = eval_s = 0.0
     status = "not solved"
@@ -617,7 +780,7 @@ def _run_solvers(
             w_opt = w_new
             lam_x = np.asarray(sol["lam_x"]).reshape(-1)
             lam_g = np.asarray(sol["lam_g"]).reshape(-1)
-    return _Run(w_opt, status, iterations, solver_s, eval_s)
+    return _Run(w_opt, status, iterations, solver_s, eval_s, lam_g)
 
 
 def _evaluate(
@@ -652,6 +815,33 @@ def _evaluate(
             clause_key=problem.clauses[i].key_path,
         )
     return rob, rob_grid, weakest, clauses
+
+
+def _start_bound(
+    problem: Problem,
+    formulas: Sequence[Formula],
+    trajectories: Sequence[Trajectory],
+    clauses: Sequence[ClauseReport],
+    weakest: Weakest | None,
+) -> StartBound | None:
+    """Whether the headline figure is a margin of the start state: the weakest sub-formula
+    is a predicate of positions at t = 0 (the vehicles' given starts); then the least
+    robustness of the clauses whose own weakest point is elsewhere."""
+    if weakest is None or weakest.t_s != 0.0:
+        return None
+    t_dense = _dense_times(problem)
+    sig = {tr.name: tr.position(t_dense) for tr in trajectories}
+    dt = problem.timing.check_dt_s
+
+    def at_start(f: Formula) -> bool:
+        leaf = f.weakest(sig, dt)[-1]
+        return _witness_time(leaf, dt) == 0.0 and _is_direct(_witness_formula(leaf))
+
+    i = min(range(len(clauses)), key=lambda j: clauses[j].robustness)
+    if not at_start(formulas[i]):
+        return None
+    others = [c.robustness for f, c in zip(formulas, clauses, strict=True) if not at_start(f)]
+    return StartBound(min(others) if others else None)
 
 
 def _witness_formula(w: Any) -> Any:

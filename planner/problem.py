@@ -140,6 +140,10 @@ class SolverOptions:
     #: Once a start meets the mission, go on with the next starts for this long (s) and keep
     #: the best plan (a larger margin); 0: stop at the first plan that meets it.
     polish_s: float = 0.0
+    #: Rounds of lexicographic refinement after the max-min: when a margin the start state
+    #: fixes is the weakest, or the plan falls short of the mission, the weakest leaves are
+    #: held at their margin and the others raised (planner.optimize); 0: off.
+    lexicographic_rounds: int = 4
 
 
 @dataclass(frozen=True, slots=True)

@@ -27,6 +27,16 @@ class Weakest:
 
 
 @dataclass(frozen=True, slots=True)
+class StartBound:
+    """The headline robustness is a margin at t = 0, where the vehicles start: no plan
+    changes it (a drone 1 m up with the workspace floor at 0.5 m: 0.5).  ``others`` is the
+    least robustness of the clauses whose weakest point the plan does set (None: every
+    clause's weakest point is at the start)."""
+
+    others: float | None
+
+
+@dataclass(frozen=True, slots=True)
 class ClauseReport:
     """Exact robustness of one top-level clause of the expanded spec (dense samples)."""
 
@@ -73,6 +83,8 @@ class PlanResult:
         stats: sizes and time breakdown.
         needs: when the mission is not met, what the plan would need, one line each
             (:func:`planner.explain.needs`).
+        start_bound: when the start state sets the headline robustness, the figure the
+            plan sets for the other clauses (None otherwise).
     """
 
     problem: Problem
@@ -90,6 +102,7 @@ class PlanResult:
     decision: np.ndarray = field(repr=False)
     stats: SolveStats | None = None
     needs: tuple[str, ...] = ()
+    start_bound: StartBound | None = None
 
     def to_plan(self, scenario_path: str | None = None) -> Plan:
         """The plan-file view of this result (:mod:`planner.planfile`)."""

@@ -95,6 +95,9 @@ def summary(result: Any, output: str | None) -> dict[str, Any]:
             "starts": s.starts,
         },
         "needs": list(result.needs),
+        "start_bound": None
+        if result.start_bound is None
+        else {"others_robustness": result.start_bound.others},
         "output": output,
     }
 
@@ -125,6 +128,13 @@ def _table(result: Any) -> str:
     if w is not None:
         lines.append(
             f"weakest: {w.formula} = {w.robustness:.4f} at t = {w.t_s:g} s ({w.clause_key})"
+        )
+    if result.start_bound is not None:
+        others = result.start_bound.others
+        lines.append(
+            "the start sets this figure (at t = 0 the vehicles are where the scenario puts "
+            "them)"
+            + ("" if others is None else f"; the clauses the plan sets have at least {others:.4f}")
         )
     lines.extend(f"needs {line}" for line in result.needs)
     s = result.stats

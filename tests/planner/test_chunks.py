@@ -82,8 +82,12 @@ def test_a_chunked_leaf_is_the_smooth_value_of_its_whole_window_with_casadis_der
     k = 40.0
     nlp, derivs, leaf_fn, chunk_fn = b.assemble(k)
     x0s = _x0(problem, model)
-    p = np.concatenate([x.reshape(-1, order="F") for x in x0s])
     rng = np.random.default_rng(3)
+    # every leaf row's weight on r drawn in [0, 1] (1: ">= r"; 0: settled, planner.optimize)
+    p = b.parameters(x0s)
+    weights = p[b.n_x0 :]
+    assert np.all(weights == 1.0)
+    weights[:] = rng.uniform(size=weights.size)
     nd = model.n_dec * 3
     # A point: random decisions, their lifted positions, the chunks' values, some r.
     z = rng.normal(scale=1.0, size=b.n_z)
@@ -106,11 +110,19 @@ def test_a_chunked_leaf_is_the_smooth_value_of_its_whole_window_with_casadis_der
         ref_fn = ca.Function("ref", list(sym.values()), [written])
         ref = float(ref_fn(*[q[st : st + hz + 1] for q in signals.values()]))
         np.testing.assert_allclose(value, ref, rtol=1e-10, atol=1e-10)
-    # The chunk rows hold at their values, and the leaf rows equal value - r.
+    # The chunk rows hold at their values, and the leaf rows equal value - weight * r.
     g = np.asarray(ca.Function("g", [nlp["x"], nlp["p"]], [nlp["g"]])(w, p)).ravel()
     n_items = len(b.smooth_items)
     np.testing.assert_allclose(g[len(g) - b.n_s :], 0.0, atol=1e-12)
-    np.testing.assert_allclose(g[b.n_sx : b.n_sx + n_items], values - w[-1], atol=1e-10)
+    smooth_weights = weights[weights.size - n_items :]
+    np.testing.assert_allclose(
+        g[b.n_sx : b.n_sx + n_items], values - smooth_weights * w[-1], atol=1e-10
+    )
+    direct = np.asarray(leaf_fn(w, p)).ravel()[: b.n_sx - b.n_lin]
+    assert direct.size  # the row-wise leaves (the workspace box) are weighted too
+    np.testing.assert_allclose(
+        g[b.n_lin : b.n_sx], direct - weights[: direct.size] * w[-1], atol=1e-10
+    )
     # Derivatives against CasADi's AD of the assembled rows.
     wm, pm = nlp["x"], nlp["p"]
     jac_ref = ca.Function("j", [wm, pm], [ca.jacobian(nlp["g"], wm)])

@@ -59,7 +59,8 @@ def test_the_starts_are_the_nearest_route_then_runners_up_and_shifted_legs() -> 
 def test_a_runner_up_option_meets_what_the_nearest_choices_do_not() -> None:
     # Stepping stones (half-planes): the nearest stones first leave the plan short of the
     # mission; turning one choice to its runner-up stone meets it.
-    one = plan(_zoo("stlpy_stepping_stones_halfplanes", starts=1))
+    # (no lexicographic rounds: they would raise the other clauses of the failed plan)
+    one = plan(_zoo("stlpy_stepping_stones_halfplanes", starts=1, lexicographic_rounds=0))
     assert not one.success and one.stats is not None and one.stats.starts == 1
     many = plan(_zoo("stlpy_stepping_stones_halfplanes"))
     assert many.success, many.status
