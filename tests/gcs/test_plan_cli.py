@@ -8,8 +8,10 @@ import sys
 from pathlib import Path
 
 import pytest
+import yaml
 
 from gcs import cli
+from tests.planner.test_lexicographic import FLOOR
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
@@ -150,3 +152,23 @@ def test_a_bad_time_limit_is_one_line_exit_2(
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--time-limit: must be a number of seconds >= 0" in err
     assert not (tmp_path / "p.json").exists()
+
+
+def test_plan_says_when_the_start_sets_the_figure(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # A drone 1 m up over a 0.5 m floor: 0.5 m at t = 0 whatever the plan; the inspection
+    # box (3 m each side) allows up to 1.5 m.
+    scenario = tmp_path / "floor.yaml"
+    scenario.write_text(yaml.safe_dump(FLOOR))
+    out = tmp_path / "p.json"
+    assert cli.main(["plan", str(scenario), "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "weakest: inside(d1, workspace) = 0.5000 at t = 0 s" in text
+    line = next(ln for ln in text.splitlines() if ln.startswith("the start sets this figure"))
+    others = float(line.rsplit(" ", 1)[1])
+    assert 1.3 <= others <= 1.5
+    assert cli.main(["plan", str(scenario), "-o", str(out), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["start_bound"]["others_robustness"] == pytest.approx(others, abs=1e-4)
+    assert summary["robustness"] == pytest.approx(0.5, abs=1e-9)
