@@ -539,6 +539,8 @@ def _raise_the_rest(
         if settle:
             free = weight > 0
             weakest = float(values[free].min()) if free.any() else 0.0
+            if weakest >= bounds["ubx"][-1] - _SETTLE_M:
+                break  # every row is above the robustness cap: no more is asked
             at_bottleneck = free & (values <= weakest + _SETTLE_M)
             by_start = bool(np.any(at_bottleneck & struct.leaf_at_start))
             if not by_start and clause_rob.min() >= eps:
