@@ -513,14 +513,15 @@ def _raise_the_rest(
     (fixed by the start state: a drone 1 m up with the floor at 0.5 m), or when the plan
     falls short (one unreachable clause), nothing pushes the other leaves up.  Here the
     leaves whose rows hold r down at the weakest value (the start's rows when the start sets
-    it, else the rows with a share of the multipliers, ``lam_g``) are settled (their rows' weight on r becomes 0, their floor that
-    value less :data:`_SETTLE_M`) and r is maximised over the other
-    rows from the plan's point, with the refining solvers (the point is feasible) and r at
-    most :data:`_RAISE_STEP_M` above its start; a solve that reaches that step is followed by
-    another.  A solve's plan is kept only if its clause robustness, sorted, is better in the
-    leximin order (the weakest first, within ``2 * _SETTLE_M``) and it does not lose the
-    mission.  At most ``solver.lexicographic_rounds`` solves, all of them within ``budget_s``
-    (and ``deadline``, the user's time limit), each kept only if it converged.
+    it, else the rows with a share of the multipliers ``lam_g``) are settled: their rows'
+    weight on r becomes 0, their floor that value less :data:`_SETTLE_M`.  Then r is
+    maximised over the other rows from the plan's point, with the refining solvers (the
+    point is feasible) and r at most :data:`_RAISE_STEP_M` above its start; a solve that
+    reaches that step is followed by another.  A solve's plan is kept only if it converged,
+    its clause robustness, sorted, is better in the leximin order (the weakest first, within
+    ``2 * _SETTLE_M``), and it does not lose the mission.  At most
+    ``solver.lexicographic_rounds`` solves, all within ``budget_s`` (and ``deadline``, the
+    user's time limit).
     """
     eps = problem.epsilon
     until = time.perf_counter() + budget_s
