@@ -233,13 +233,13 @@ def plan(
             for i, (v, x0) in enumerate(zip(problem.vehicles, x0s, strict=True))
         ]
 
-    def exact_of(w: np.ndarray) -> float:
-        return _evaluate(problem, formula, formulas, trajectories_of(w))[0]
-
     def clauses_of(w: np.ndarray) -> np.ndarray:
         """Each clause's exact robustness (dense samples)."""
-        sig = {tr.name: tr.position(_dense_times(problem)) for tr in trajectories_of(w)}
-        return np.array([f.robustness(sig, problem.timing.check_dt_s) for f in formulas])
+        return _clause_robustness(problem, formulas, _dense_signals(problem, trajectories_of(w)))
+
+    def exact_of(w: np.ndarray) -> float:
+        rob = clauses_of(w)
+        return float(rob.min()) if rob.size else math.inf
 
     # During a solve: every progress_every_s, the iterate's exact robustness (the best one
     # kept: a solve stopped by the time limit or Ctrl-C returns the better of it and its
@@ -793,10 +793,9 @@ def _evaluate(
     trajectories: Sequence[Trajectory],
 ) -> tuple[float, float, Weakest | None, tuple[ClauseReport, ...]]:
     """Exact robustness (dense and planning grid), weakest sub-formula, per clause."""
-    t_dense = _dense_times(problem)
-    sig = {tr.name: tr.position(t_dense) for tr in trajectories}
+    sig = _dense_signals(problem, trajectories)
     dt = problem.timing.check_dt_s
-    clause_rob = [f.robustness(sig, dt) for f in formulas]
+    clause_rob = _clause_robustness(problem, formulas, sig).tolist()
     clauses = tuple(
         ClauseReport(c.key_path, c.text, r)
         for c, r in zip(problem.clauses, clause_rob, strict=True)
@@ -820,6 +819,20 @@ def _evaluate(
     return rob, rob_grid, weakest, clauses
 
 
+def _dense_signals(problem: Problem, trajectories: Sequence[Trajectory]) -> dict[str, Any]:
+    """Each vehicle's positions on the exact check's dense samples (every check_dt_s)."""
+    t_dense = _dense_times(problem)
+    return {tr.name: tr.position(t_dense) for tr in trajectories}
+
+
+def _clause_robustness(
+    problem: Problem, formulas: Sequence[Formula], sig: Mapping[str, Any]
+) -> np.ndarray:
+    """Each clause's exact robustness on the dense signals ``sig``."""
+    dt = problem.timing.check_dt_s
+    return np.array([f.robustness(sig, dt) for f in formulas], dtype=float)
+
+
 def _start_bound(
     problem: Problem,
     formulas: Sequence[Formula],
@@ -832,8 +845,7 @@ def _start_bound(
     robustness of the clauses whose own weakest point is elsewhere."""
     if weakest is None or weakest.t_s != 0.0:
         return None
-    t_dense = _dense_times(problem)
-    sig = {tr.name: tr.position(t_dense) for tr in trajectories}
+    sig = _dense_signals(problem, trajectories)
     dt = problem.timing.check_dt_s
 
     def at_start(f: Formula) -> bool:
