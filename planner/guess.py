@@ -165,6 +165,38 @@ def _avoided(formula: Formula, vehicle: str, problem: Problem) -> list[Place]:
     return out
 
 
+def _stay_within(formula: Formula, vehicle: str, problem: Problem) -> list[list[Place]]:
+    """The unions of places the vehicle must be in at every sample of the whole plan:
+    ``always[0, T] (P1 or P2 or ...)`` (or one place) of the spec's conjunction, with ``T``
+    the horizon and each option a place of this vehicle, whatever its spelling (stlpy's
+    stepping stones, an L-shaped right of way, the workspace).  A window shorter than the
+    plan does not bind the whole route and is left to the NLP."""
+    horizon = problem.timing.horizon_s
+    out: list[list[Place]] = []
+
+    def union(node: Formula) -> list[Place] | None:
+        options = list(node.operands) if isinstance(node, Or) else [node]
+        places = [place(c, problem) for c in options]
+        if any(pl is None or pl.vehicle != vehicle for pl in places):
+            return None
+        return [pl for pl in places if pl is not None]
+
+    def walk(node: Formula, whole: bool) -> None:
+        if whole:
+            got = union(node)
+            if got is not None:
+                out.append(got)
+                return
+        if isinstance(node, And):
+            for child in node.operands:
+                walk(child, whole)
+        elif isinstance(node, Always) and not whole:
+            walk(node.child, node.start_s == 0.0 and node.end_s >= horizon - 1e-9)
+
+    walk(formula, False)
+    return out
+
+
 #: Room (m) a leg keeps from the keep-out of an ``until`` (``phi until psi`` with ``phi`` a
 #: keep-out's negation): the least-squares fit to the limits rounds the grid path's corners
 #: by about a sample's flight, and a corner taken close ends inside (paddock clearance,
@@ -193,12 +225,27 @@ def _clear_of(later: Sequence[Place]) -> list[Place]:
 _GRID_CELLS = 40_000
 
 
-def _grid_path(problem: Problem, avoid: Sequence[Any], points: Sequence[np.ndarray]) -> np.ndarray:
-    """Shortest polyline through ``points`` (in order) on a voxel grid, around ``avoid`` boxes.
+#: Cost factor of a grid step between the places of a stay-within union (in the reach
+#: around them): the route crosses gaps where they are narrow and keeps to the places.
+_GAP_COST = 3.0
 
-    A 26-connected grid over the workspace (cell size from the smallest avoided box and a
-    cell budget); cells whose centre lies in a box grown by half a cell are blocked.
-    Returns (m, 3) vertices; falls back to straight segments where no path exists.
+
+def _grid_path(
+    problem: Problem,
+    avoid: Sequence[Any],
+    points: Sequence[np.ndarray],
+    within: Sequence[Sequence[Place]] = (),
+    reach_m: np.ndarray | None = None,
+) -> np.ndarray:
+    """Shortest polyline through ``points`` (in order) on a voxel grid, around ``avoid``
+    boxes and within each of the unions ``within`` (:func:`_stay_within`).
+
+    A 26-connected grid over the workspace (cell size from the smallest box and a cell
+    budget); cells whose centre lies in an avoided box grown by half a cell are blocked, and
+    so are those outside a union's places grown by ``reach_m`` (3,) per axis: the exact
+    semantics looks at samples, so the path may cross a gap between two places that one
+    sample's flight spans, at ``_GAP_COST`` times the length.  Returns (m, 3) vertices;
+    falls back to straight segments where no path exists.
     """
     from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import dijkstra
@@ -207,6 +254,9 @@ def _grid_path(problem: Problem, avoid: Sequence[Any], points: Sequence[np.ndarr
     hi = np.asarray(problem.workspace.hi_enu_m)
     ext = hi - lo
     feature = min((float(np.min(np.subtract(b.hi_enu_m, b.lo_enu_m))) for b in avoid), default=1.0)
+    for pl in (p for u in within for p in u):  # a stay-within place smaller than that
+        size = np.subtract(pl.hi_enu_m, pl.lo_enu_m)
+        feature = min(feature, float(np.min(size[size > 0], initial=feature)))
     cell = max(feature / 2.0, float((np.prod(ext) / _GRID_CELLS) ** (1 / 3)))
     shape = np.maximum(1, np.floor(ext / cell).astype(int))
     axes = [lo[a] + (np.arange(shape[a]) + 0.5) * ext[a] / shape[a] for a in range(3)]
@@ -221,6 +271,17 @@ def _grid_path(problem: Problem, avoid: Sequence[Any], points: Sequence[np.ndarr
             axis=1,
         )
         blocked |= inside
+    gap = np.zeros(len(centres), dtype=bool)
+    reach = np.zeros(3) if reach_m is None else np.asarray(reach_m, dtype=float)
+    for places in within:
+        near = np.zeros(len(centres), dtype=bool)
+        on = np.zeros(len(centres), dtype=bool)
+        for pl in places:
+            slack = centres @ pl.A.T - pl.b  # <= 0 inside, per face
+            near |= np.all(slack <= np.abs(pl.A) @ reach, axis=1)
+            on |= np.all(slack <= 0.0, axis=1)
+        blocked |= ~near
+        gap |= near & ~on
     idx = np.arange(len(centres)).reshape(shape)
     rows, cols, wts = [], [], []
     for off in (
@@ -237,7 +298,8 @@ def _grid_path(problem: Problem, avoid: Sequence[Any], points: Sequence[np.ndarr
         ok = ~blocked[src] & ~blocked[dst]
         rows.append(src[ok])
         cols.append(dst[ok])
-        wts.append(np.full(int(ok.sum()), float(np.linalg.norm(off * step))))
+        cost = np.where(gap[src[ok]] | gap[dst[ok]], _GAP_COST, 1.0)
+        wts.append(cost * float(np.linalg.norm(off * step)))
     graph = csr_matrix(
         (np.concatenate(wts), (np.concatenate(rows), np.concatenate(cols))),
         shape=(len(centres), len(centres)),
@@ -471,8 +533,10 @@ def _initial_guess(
         if len(pts) == 1:
             options.append([np.tile(pts[0], (len(times), 1))])
             continue
+        within = _stay_within(formula, v.name, problem)
+        reach = 0.5 * axis_limits(v)[0] * problem.timing.check_dt_s
         legs = [
-            _grid_path(problem, [*avoid, *_clear_of(targets[i:])], [a, b])
+            _grid_path(problem, [*avoid, *_clear_of(targets[i:])], [a, b], within, reach)
             for i, (a, b) in enumerate(itertools.pairwise(pts))
         ]
         v_lim, a_lim = (_GUESS_LIMIT_FRACTION * lim for lim in axis_limits(v))

@@ -38,6 +38,7 @@ from planner.predicates import (
     casadi_functions,
     predicate_sharpness,
     role_of,
+    smoothing_terms,
 )
 from planner.problem import Problem, SolverMethod
 from planner.stl import (
@@ -239,6 +240,9 @@ class _Structure:
     k: float
     margin: float
     build_s: float
+    #: the error bound of the smooth leaves' box predicates (log(6)/k_pred; 0 when they
+    #: have none, or when they are smoothed at the leaves' own k: ``sharp``)
+    box_bound: float
     _refining: list[tuple[float, Any]] | None = None
 
     def refining(self) -> list[tuple[float, Any]]:
@@ -258,9 +262,10 @@ def clear_cache() -> None:
     clear_templates()
 
 
-def _structure_key(problem: Problem) -> Any:
+def _structure_key(problem: Problem, sharp: bool = False) -> Any:
     s = problem.solver
     return (
+        sharp,
         problem.spec_text,
         tuple((r.name, r.lo_enu_m, r.hi_enu_m) for r in problem.all_regions),
         problem.timing,
@@ -277,8 +282,11 @@ def _has_norm_limits(problem: Problem) -> bool:
     return any(b.has_norm for v in problem.vehicles for b in vehicle_bounds(v))
 
 
-def _fit_k(problem: Problem, smooth_leaves: Sequence[Formula], dt: float) -> tuple[float, float]:
-    """(k, error bound at k) for the smooth leaves: bound = 6 % of the smallest half-size."""
+def _fit_k(
+    problem: Problem, smooth_leaves: Sequence[Formula], dt: float, sharp: bool = False
+) -> tuple[float, float]:
+    """(k, error bound at k) for the smooth leaves: bound = 6 % of the smallest half-size
+    (with ``sharp``, the leaves' box predicates smoothed at the same k count in it)."""
     if problem.solver.k is not None:
         k = problem.solver.k
     elif not smooth_leaves:
@@ -286,10 +294,18 @@ def _fit_k(problem: Problem, smooth_leaves: Sequence[Formula], dt: float) -> tup
     else:
         halves = [0.5 * (np.asarray(r.hi_enu_m) - r.lo_enu_m) for r in problem.all_regions]
         tol = _K_TOLERANCE * float(min(np.min(h) for h in halves))
-        unit = max(leaf.smooth_error_bound(1.0, dt) for leaf in smooth_leaves)
+        unit = max(_smooth_bound(leaf, 1.0, dt, sharp) for leaf in smooth_leaves)
         k = max(K_MIN, unit / tol)
-    bound = max((leaf.smooth_error_bound(k, dt) for leaf in smooth_leaves), default=0.0)
+    bound = max((_smooth_bound(leaf, k, dt, sharp) for leaf in smooth_leaves), default=0.0)
     return k, bound
+
+
+def _smooth_bound(leaf: Formula, k: float, dt: float, sharp: bool) -> float:
+    """Bound on a smooth leaf's error at sharpness ``k``: its temporal operators', and with
+    ``sharp`` its predicates' (smoothed at the same ``k``,
+    :func:`planner.predicates.smoothing_terms`)."""
+    own = smoothing_terms(leaf) / k if sharp else 0.0
+    return leaf.smooth_error_bound(k, dt) + own
 
 
 def _leaf_values(
@@ -324,8 +340,9 @@ class NlpBuilder:
     bounds.  :func:`_build` calls the pieces in order; the rows keep that order.
     """
 
-    def __init__(self, problem: Problem, model: Any, formula: Formula) -> None:
+    def __init__(self, problem: Problem, model: Any, formula: Formula, sharp: bool = False) -> None:
         self.t0 = time.perf_counter()
+        self.sharp = sharp
         self.problem, self.model = problem, model
         self.dt = problem.timing.sample_dt_s
         self.n = len(model.times_s)
@@ -341,9 +358,10 @@ class NlpBuilder:
         self.leaves: dict[Formula, set[int]] = {}
         _decompose(formula, np.array([0]), self.dt, self.leaves)
         self.smooth_leaves = [leaf for leaf in self.leaves if not _is_direct(leaf)]
-        self.k_final, self.margin = _fit_k(problem, self.smooth_leaves, self.dt)
+        self.box_terms = max((smoothing_terms(leaf) for leaf in self.smooth_leaves), default=0.0)
+        self.k_final, self.margin = _fit_k(problem, self.smooth_leaves, self.dt, sharp)
         self.k_list = [*[kk for kk in opts.continuation if kk < self.k_final], self.k_final]
-        self.k_pred = predicate_sharpness(problem)
+        self.k_pred = predicate_sharpness(problem)  # the direct rows' (outside: the obstacles)
         self.fns = casadi_functions(problem, self.k_pred)
         c_dt = opts.constraint_dt_s if opts.constraint_dt_s is not None else max(self.dt, 0.1)
         stride = max(1, round(c_dt / self.dt))
@@ -521,9 +539,11 @@ class NlpBuilder:
         smooth leaves' template instances (a chunked leaf's chunks, :func:`_chunks`)."""
         vehicle_index = {nm: i for i, nm in enumerate(self.names)}
 
+        k_pred = k if self.sharp else self.k_pred
+
         def inst(leaf: Formula, st: int) -> LeafInstance:
             return instance(
-                leaf, st, self.model, self.dt, k, self.k_pred, vehicle_index, self.problem.region
+                leaf, st, self.model, self.dt, k, k_pred, vehicle_index, self.problem.region
             )
 
         items: list[LeafInstance | list[LeafInstance]] = [
@@ -633,13 +653,15 @@ class NlpBuilder:
             k=self.k_final,
             margin=self.margin,
             build_s=time.perf_counter() - self.t0,
+            box_bound=0.0 if self.sharp else self.box_terms / self.k_pred,
         )
 
 
-def _build(problem: Problem, model: Any, formula: Formula) -> _Structure:
-    """The NLP of ``problem``: its pieces in order (:class:`NlpBuilder`)."""
+def _build(problem: Problem, model: Any, formula: Formula, sharp: bool = False) -> _Structure:
+    """The NLP of ``problem``: its pieces in order (:class:`NlpBuilder`); with ``sharp``, the
+    smooth leaves' box predicates at the leaves' own sharpness."""
     return (
-        NlpBuilder(problem, model, formula)
+        NlpBuilder(problem, model, formula, sharp)
         .add_spec_constraints()
         .add_dynamics_constraints()
         .add_robustness_cost()

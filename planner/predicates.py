@@ -28,9 +28,14 @@ so a smooth margin >= 0 implies an exact margin >= 0:
 * ``dist``: ``sqrt(|p1 - p2|^2 + delta^2) - delta`` with ``delta = 1e-4`` m; lies in
   ``[exact - delta, exact]`` and is smooth where the exact distance is not (at 0).
 
-``k`` here is the *predicate* sharpness (1/m), fitted by :func:`predicate_sharpness` so that
-the bound ``log(6)/k`` is 10 % of the smallest region half-size (measured: 2 % made
-the obstacle margins so sharp that IPOPT stalled inside the obstacle on reach-avoid).
+A box predicate is the conjunction (disjunction) of its six face half-spaces, and inside a
+smooth leaf of the planner (a formula under ``eventually``, ``or``, ``until``) it is
+smoothed as that conjunction would be: at the leaf's own sharpness ``k``, its ``log(6)/k``
+counted in the leaf's error bound (:func:`smoothing_terms`), so that ``inside(d, box)`` and
+the same box spelled as four or six comparisons give the same NLP.  Where a predicate is a
+row of its own (``always outside(d, box)``) ``k`` is :func:`predicate_sharpness`: the bound
+``log(6)/k`` is 10 % of the smallest region half-size (measured: 2 % made the obstacle
+margins so sharp that IPOPT stalled inside the obstacle on reach-avoid).
 """
 
 from __future__ import annotations
@@ -56,6 +61,7 @@ __all__ = [
     "casadi_functions",
     "predicate_sharpness",
     "role_of",
+    "smoothing_terms",
 ]
 
 #: Smoothing offset of ``dist`` in metres (see module docstring).
@@ -87,19 +93,22 @@ class PredicateKind:
         name: its name in the spec.
         args: the kind of each argument: ``"v"`` a vehicle, ``"r"`` a region.
         role: how the planner treats it (:class:`Role`).
+        terms: how many margins its smooth version soft-mins or soft-maxes over (its error
+            is at most ``log(terms)/k``; 1: smooth only by a fixed offset, or exact).
     """
 
     name: str
     args: tuple[str, ...]
     role: Role
+    terms: int = 1
 
 
 #: Every function a spec may call, by name.
 PREDICATES: dict[str, PredicateKind] = {
     p.name: p
     for p in (
-        PredicateKind("inside", ("v", "r"), Role.TARGET_BOX),
-        PredicateKind("outside", ("v", "r"), Role.KEEP_OUT),
+        PredicateKind("inside", ("v", "r"), Role.TARGET_BOX, terms=6),
+        PredicateKind("outside", ("v", "r"), Role.KEEP_OUT, terms=6),
         PredicateKind("dist", ("v", "v"), Role.KEEP_APART),
         PredicateKind("alt", ("v",), Role.COORDINATE),
         PredicateKind("x", ("v",), Role.COORDINATE),
@@ -116,6 +125,31 @@ def role_of(node: Formula | Expr) -> Role | None:
         return None
     kind = PREDICATES.get(call.name)
     return None if kind is None else kind.role
+
+
+def smoothing_terms(formula: Formula) -> float:
+    """``log`` of the most margins a predicate called in ``formula`` smooths over (0 when
+    none does): at sharpness ``k`` its smooth value is within ``that / k`` of the exact one,
+    to add to the temporal bound (:meth:`Formula.smooth_error_bound`).  A call inside
+    arithmetic (``2 * inside(d, box) >= 1``) is counted unscaled."""
+    most = 1
+
+    def visit_expr(e: Expr) -> None:
+        nonlocal most
+        if isinstance(e, Call):
+            kind = PREDICATES.get(e.name)
+            most = max(most, 1 if kind is None else kind.terms)
+        for child in (getattr(e, f, None) for f in ("operand", "lhs", "rhs")):
+            if isinstance(child, Expr):
+                visit_expr(child)
+
+    for node in formula.walk():
+        if isinstance(node, Predicate):
+            visit_expr(node.call)
+        for side in (getattr(node, "lhs", None), getattr(node, "rhs", None)):
+            if isinstance(side, Expr):
+                visit_expr(side)
+    return math.log(most)
 
 
 class RegionSource(Protocol):

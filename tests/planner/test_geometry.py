@@ -8,6 +8,7 @@ brute-force Chebyshev centre on a grid, and exact plans of the same mission in b
 from __future__ import annotations
 
 import copy
+import itertools
 from pathlib import Path
 from typing import Any
 
@@ -173,3 +174,76 @@ def test_the_narrow_passage_plans_in_both_spellings() -> None:
     halves = plan(parse_scenario(data, "half_planes.yaml"))
     assert regions.success and halves.success, (regions.status, halves.status)
     assert halves.robustness > 0.05
+
+
+def test_a_box_in_a_smooth_leaf_is_the_same_nlp_whatever_its_spelling() -> None:
+    # inside(d1, goal) is the conjunction of its six faces; under `eventually` (a smooth
+    # leaf), in the sharp NLP (planner.optimize._sharpen), both spellings get the same
+    # sharpness and the same smooth value, everywhere.
+    import casadi as ca
+
+    from planner.nlp import NlpBuilder
+    from planner.optimize import _x0, make_model
+
+    faces = "x(d1) >= 7 and x(d1) <= 8 and y(d1) >= 8 and y(d1) <= 9 and z(d1) >= 0 and z(d1) <= 2"
+    built = []
+    for text in ("eventually[0, 12] inside(d1, goal)", f"eventually[0, 12] ({faces})"):
+        pr = _problem(text)
+        model = make_model(pr)
+        b = NlpBuilder(pr, model, conjunction(list(pr.formulas)), sharp=True)
+        b.add_spec_constraints().add_dynamics_constraints().add_robustness_cost().add_bounds()
+        built.append((b, model, pr))
+    (b1, model, pr), (b2, _, _) = built
+    assert b1.k_final == pytest.approx(b2.k_final, rel=1e-12)
+    rng = np.random.default_rng(7)
+    p = b1.parameters(_x0(pr, model))
+    for _ in range(5):
+        w = rng.normal(scale=3.0, size=b1.w.shape[0])
+        values = []
+        for b in (b1, b2):
+            nlp = b.assemble(b.k_final)[0]
+            g = np.asarray(ca.Function("g", [nlp["x"], nlp["p"]], [nlp["g"]])(w, p)).ravel()
+            values.append(g)
+        np.testing.assert_allclose(values[0], values[1], rtol=1e-9, atol=1e-9)
+
+
+_ZOO = Path(__file__).resolve().parents[2] / "benchmarks" / "scenarios"
+
+
+def test_a_route_that_must_stay_on_stepping_stones_hops_between_them() -> None:
+    # stlpy's SteppingStones: `always (inside(s0) or ... or inside(s14))`, reach s14.  The
+    # guess routes inside the stones, crossing only gaps one sample's flight spans (before:
+    # a straight line over the gaps, and the regions spelling failed at -0.46).
+    from planner.guess import _grid_path, _stay_within, axis_limits
+
+    pr = parse_scenario(
+        yaml.safe_load((_ZOO / "stlpy_stepping_stones_regions.yaml").read_text()), "ss.yaml"
+    )
+    f = conjunction(list(pr.formulas))
+    (stones,) = _stay_within(f, "d1", pr)
+    assert len(stones) == 15
+    reach = 0.5 * axis_limits(pr.vehicles[0])[0] * pr.timing.check_dt_s
+    path = _grid_path(pr, [], [np.array([2.0, 1.3, 1.0]), stones[14].point], [stones], reach)
+    dense = np.concatenate([np.linspace(a, b, 20) for a, b in itertools.pairwise(path)])
+
+    def gap(p: np.ndarray) -> float:  # per-axis distance to the nearest stone
+        return min(float(np.max(np.maximum(s.A[::2] @ p - s.b[::2], 0))) for s in stones)
+
+    assert max(gap(p) for p in dense) <= 0.5 + 1e-9  # never further than half a hop
+    on = np.mean([gap(p) == 0.0 for p in dense])
+    assert on > 0.5, on  # mostly on the stones
+    # A window shorter than the plan does not bind the route; nor does a clause of d2.
+    pr2 = _problem(
+        "always[5, 20] (inside(d1, near) or inside(d1, far))", "always[0, 20] x(d2) >= 5"
+    )
+    f2 = conjunction(list(pr2.formulas))
+    assert _stay_within(f2, "d1", pr2) == []
+    assert [[_box(p)[0] for p in u] for u in _stay_within(f2, "d2", pr2)] == [[5.0]]
+
+
+@pytest.mark.parametrize("spelling", ["regions", "halfplanes"])
+def test_stepping_stones_plans_near_the_certified_optimum_in_both_spellings(spelling) -> None:
+    data = yaml.safe_load((_ZOO / f"stlpy_stepping_stones_{spelling}.yaml").read_text())
+    res = plan(parse_scenario(data, "ss.yaml"))
+    assert res.success, res.status
+    assert res.robustness >= 0.8 * 0.0527  # stlpy's certified MILP optimum
