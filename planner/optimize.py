@@ -376,13 +376,13 @@ def plan(
         budget = max(_RAISE_MIN_S, 0.5 * (time.perf_counter() - t_start))
         sharp = _sharpen(problem, model, formula, best, bounds, p_val, exact_of, say, stop,
                          min(deadline, time.perf_counter() + budget), watch.on_iteration)  # fmt: skip
-        watch.deadline = deadline
         if sharp is not None:
             struct, best, bounds, sharp_build_s = sharp
             build_s += sharp_build_s
             spent = spent.then(best.run)
             watch.on_iteration = None
             watch = struct.watch
+        watch.deadline = deadline
         watch.stopped = watch.stopped and time.perf_counter() >= deadline  # not by the budget
     w_opt, status, converged = best.w, best.status, best.converged
     run = spent

@@ -28,14 +28,15 @@ so a smooth margin >= 0 implies an exact margin >= 0:
 * ``dist``: ``sqrt(|p1 - p2|^2 + delta^2) - delta`` with ``delta = 1e-4`` m; lies in
   ``[exact - delta, exact]`` and is smooth where the exact distance is not (at 0).
 
-A box predicate is the conjunction (disjunction) of its six face half-spaces, and inside a
-smooth leaf of the planner (a formula under ``eventually``, ``or``, ``until``) it is
-smoothed as that conjunction would be: at the leaf's own sharpness ``k``, its ``log(6)/k``
-counted in the leaf's error bound (:func:`smoothing_terms`), so that ``inside(d, box)`` and
-the same box spelled as four or six comparisons give the same NLP.  Where a predicate is a
-row of its own (``always outside(d, box)``) ``k`` is :func:`predicate_sharpness`: the bound
-``log(6)/k`` is 10 % of the smallest region half-size (measured: 2 % made the obstacle
-margins so sharp that IPOPT stalled inside the obstacle on reach-avoid).
+``k`` here is the *predicate* sharpness (1/m), fitted by :func:`predicate_sharpness` so that
+the bound ``log(6)/k`` is 10 % of the smallest region half-size (measured: 2 % made
+the obstacle margins so sharp that IPOPT stalled inside the obstacle on reach-avoid).
+A box is the conjunction (disjunction) of its six face half-spaces.  The planner's second,
+sharp solve (:func:`planner.optimize._sharpen`, when a plan's margin is within that 10 %)
+smooths a box in a smooth leaf (a formula under ``eventually``, ``or``, ``until``) as that
+conjunction would be: at the leaf's own sharpness, with its ``log(6)/k`` counted in the
+leaf's error bound (:func:`smoothing_terms`).  ``inside(d, box)`` and the same box spelled as
+six comparisons then give the same NLP.
 """
 
 from __future__ import annotations
