@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -44,11 +45,18 @@ import casadi as ca
 import numpy as np
 
 from planner.cache import BoundedCache
-from planner.predicates import build_registry
+from planner.predicates import PREDICATES, build_registry
 from planner.regions import Region, RegionKind
 from planner.stl import Always, Call, Eventually, Expr, Formula
 
-__all__ = ["LeafInstance", "LeafTemplate", "canonical_leaf", "clear_templates", "local_hessian"]
+__all__ = [
+    "LeafInstance",
+    "LeafTemplate",
+    "canonical_leaf",
+    "clear_templates",
+    "local_hessian",
+    "smoothing_terms",
+]
 
 
 def local_hessian(expr: Any, w: Any) -> Any:
@@ -90,6 +98,24 @@ def _rebuild(node: Any, on_call: Callable[[Call], Call]) -> Any:
         if new is not value:
             changes[f.name] = new
     return dataclasses.replace(node, **changes) if changes else node
+
+
+def smoothing_terms(formula: Formula) -> float:
+    """``log`` of the most margins a predicate called in ``formula`` smooths over (0 when
+    none does; :attr:`planner.predicates.PredicateKind.terms`): at sharpness ``k`` its smooth
+    value is within ``that / k`` of the exact one, to add to the temporal bound
+    (:meth:`Formula.smooth_error_bound`).  A call inside arithmetic
+    (``2 * inside(d, box) >= 1``) is counted unscaled."""
+    most = 1
+
+    def see(call: Call) -> Call:
+        nonlocal most
+        kind = PREDICATES.get(call.name)
+        most = max(most, 1 if kind is None else kind.terms)
+        return call
+
+    _rebuild(formula, see)  # every call, wherever it is; the tree is returned unchanged
+    return math.log(most)
 
 
 def _canonical_tree(

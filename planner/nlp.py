@@ -30,6 +30,7 @@ from planner.leaf_templates import (
     clear_templates,
     instance,
     local_hessian,
+    smoothing_terms,
 )
 from planner.limits import NORM_DIRECTIONS, vehicle_bounds
 from planner.predicates import (
@@ -38,7 +39,6 @@ from planner.predicates import (
     casadi_functions,
     predicate_sharpness,
     role_of,
-    smoothing_terms,
 )
 from planner.problem import Problem, SolverMethod
 from planner.stl import (
@@ -303,7 +303,7 @@ def _fit_k(
 def _smooth_bound(leaf: Formula, k: float, dt: float, sharp: bool) -> float:
     """Bound on a smooth leaf's error at sharpness ``k``: its temporal operators', and with
     ``sharp`` its predicates' (smoothed at the same ``k``,
-    :func:`planner.predicates.smoothing_terms`)."""
+    :func:`planner.leaf_templates.smoothing_terms`)."""
     own = smoothing_terms(leaf) / k if sharp else 0.0
     return leaf.smooth_error_bound(k, dt) + own
 

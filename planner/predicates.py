@@ -35,8 +35,8 @@ A box is the conjunction (disjunction) of its six face half-spaces.  The planner
 sharp solve (:func:`planner.optimize._sharpen`, when a plan's margin is within that 10 %)
 smooths a box in a smooth leaf (a formula under ``eventually``, ``or``, ``until``) as that
 conjunction would be: at the leaf's own sharpness, with its ``log(6)/k`` counted in the
-leaf's error bound (:func:`smoothing_terms`).  ``inside(d, box)`` and the same box spelled as
-six comparisons then give the same NLP.
+leaf's error bound (:func:`planner.leaf_templates.smoothing_terms`).  ``inside(d, box)`` and
+the same box spelled as six comparisons then give the same NLP.
 """
 
 from __future__ import annotations
@@ -62,7 +62,6 @@ __all__ = [
     "casadi_functions",
     "predicate_sharpness",
     "role_of",
-    "smoothing_terms",
 ]
 
 #: Smoothing offset of ``dist`` in metres (see module docstring).
@@ -126,31 +125,6 @@ def role_of(node: Formula | Expr) -> Role | None:
         return None
     kind = PREDICATES.get(call.name)
     return None if kind is None else kind.role
-
-
-def smoothing_terms(formula: Formula) -> float:
-    """``log`` of the most margins a predicate called in ``formula`` smooths over (0 when
-    none does): at sharpness ``k`` its smooth value is within ``that / k`` of the exact one,
-    to add to the temporal bound (:meth:`Formula.smooth_error_bound`).  A call inside
-    arithmetic (``2 * inside(d, box) >= 1``) is counted unscaled."""
-    most = 1
-
-    def visit_expr(e: Expr) -> None:
-        nonlocal most
-        if isinstance(e, Call):
-            kind = PREDICATES.get(e.name)
-            most = max(most, 1 if kind is None else kind.terms)
-        for child in (getattr(e, f, None) for f in ("operand", "lhs", "rhs")):
-            if isinstance(child, Expr):
-                visit_expr(child)
-
-    for node in formula.walk():
-        if isinstance(node, Predicate):
-            visit_expr(node.call)
-        for side in (getattr(node, "lhs", None), getattr(node, "rhs", None)):
-            if isinstance(side, Expr):
-                visit_expr(side)
-    return math.log(most)
 
 
 class RegionSource(Protocol):
