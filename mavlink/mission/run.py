@@ -62,7 +62,9 @@ async def start_mission_confirmed(
     (PX4-BEHAVIOUR.md). So a start counts only when the heartbeat shows AUTO.MISSION and
     armed; a late rejection or a mode that does not change within ``mode_wait_s`` (PX4
     heartbeats come at 1 Hz) is retried until ``timeout_s`` (re-arming a vehicle that
-    disarmed meanwhile). With ``climb_m`` the vehicle must also leave the ground: in air
+    disarmed meanwhile). A heartbeat after the start that shows AUTO.MISSION but disarmed is
+    PX4 having taken the start and disarmed the vehicle on the ground: not started, and not
+    retried. With ``climb_m`` the vehicle must also leave the ground: in air
     (EXTENDED_SYS_STATE) and ``climb_m`` above where it started, within ``climb_timeout_s``
     (PX4 skips the take-off of a mission whose first waypoint is within NAV_MC_ALT_RAD of the
     vehicle, and auto-disarms it on the ground).
@@ -118,7 +120,7 @@ async def start_mission_confirmed(
             t_wait = time.monotonic() + mode_wait_s
             while time.monotonic() < t_wait and not any(t >= t_cmd for t, _ in late):
                 st = v.status()
-                if st.mode is Px4Mode.AUTO_MISSION and st.armed:
+                if st.mode is Px4Mode.AUTO_MISSION and (st.armed or _heard_since(st, t_cmd)):
                     break
                 await asyncio.sleep(0.02)
             rejected = [r for t, r in late if t >= t_cmd]
@@ -127,6 +129,17 @@ async def start_mission_confirmed(
                 t_ok = t_cmd
                 break
             mode = st.mode.label if st.mode is not None else str(st.custom_mode)
+            if st.mode is Px4Mode.AUTO_MISSION and not rejected and _heard_since(st, t_cmd):
+                # PX4 took the start and disarmed the vehicle on the ground (the take-off it
+                # skipped, then COM_DISARM_PRFLT) before its 1 Hz heartbeat showed it armed:
+                # re-arming and starting again would be a second start nobody asked for.
+                return MissionStart(
+                    v.name,
+                    False,
+                    attempts,
+                    f"AUTO.MISSION accepted but the vehicle never left the ground (PX4 "
+                    f"disarmed it in {mode}){texts()}",
+                )
             if rejected:
                 from mavlink.mavsdk_glue import MAV_RESULT_NAMES
 
@@ -177,6 +190,12 @@ async def start_mission_confirmed(
         f"AUTO.MISSION accepted but the vehicle did not climb {climb_m:.1f} m in "
         f"{climb_timeout_s:.0f} s{texts()}",
     )
+
+
+def _heard_since(st: VehicleStatus, t: float) -> bool:
+    """The heartbeat behind ``st`` arrived after monotonic time ``t``."""
+    age = st.heartbeat_age_s
+    return age is not None and time.monotonic() - age > t
 
 
 @dataclass(frozen=True, slots=True)

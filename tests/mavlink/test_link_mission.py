@@ -362,3 +362,13 @@ def test_a_mission_whose_takeoff_px4_skips_is_not_reported_as_started() -> None:
     assert not result.started, result
     assert "never left the ground" in result.detail or "did not climb" in result.detail
     assert not state.armed and agl < 0.05, (state, agl)  # on the ground, disarmed
+
+
+def test_a_mission_px4_disarms_before_its_heartbeat_shows_it_armed_is_not_started_again() -> None:
+    # The same skipped take-off, with the auto-disarm (0.3 s) before PX4's 1 Hz heartbeat can
+    # show the vehicle armed in AUTO.MISSION: PX4 took the start, so the vehicle is not armed
+    # and started a second time (it was, under load, and then climbed: "started")
+    result, state, agl = _start_case({"COM_DISARM_PRFLT": 0.3, "MOCK_GE_RATE": 0.0}, 0.3, 1.1)
+    assert not result.started, result
+    assert "PX4 disarmed it in AUTO.MISSION" in result.detail, result
+    assert not state.armed and agl < 0.05, (state, agl)
