@@ -107,6 +107,10 @@ def _targets(
     """
     choices = _Choices() if choices is None else choices
     clauses = list(formula.operands) if isinstance(formula, And) else [formula]
+    # A clause that does not name the vehicle sends it nowhere; the loop below reads every
+    # pending clause once per visit, so the others (reach-avoid N = 16: 120 separation
+    # clauses, 1.2 s for nothing) are left out first.
+    clauses = [c for c in clauses if vehicle in c.signal_names()]
     pending = sorted(range(len(clauses)), key=lambda i: (clauses[i].horizon, i))
     out: list[Place] = []
     cursor = start
