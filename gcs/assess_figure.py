@@ -69,11 +69,10 @@ def plot_assessment(
             f = worst.true_enu_m[0, k]
             ax.plot(f[:, 0], f[:, 1], color=line[0].get_color(), lw=1.5, ls=":",
                     label="worst run (true)" if k == 0 else None)  # fmt: skip
-    for r in plan.regions:
-        lo_, hi_ = np.asarray(r.lo_enu_m), np.asarray(r.hi_enu_m)
+    for r in plan.regions:  # seen from above: a box's rectangle, a prism's polygon, a circle
         ax.add_patch(
-            matplotlib.patches.Rectangle(
-                (lo_[0], lo_[1]), hi_[0] - lo_[0], hi_[1] - lo_[1], fill=False, lw=0.6, color="0.5"
+            matplotlib.patches.Polygon(
+                r.footprint_xy(), closed=True, fill=False, lw=0.6, color="0.5"
             )
         )
     title = "worst run over the plan"

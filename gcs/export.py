@@ -8,7 +8,7 @@ hold times, a speed change per leg, land/return/hold; the acceptance radius chos
 timed against PX4's predicted flight, as ``gcs upload`` does with the vehicles' own
 parameters), and this module only writes each item in QGC's JSON form, so QGC (and
 MAVSDK's importer, ``mission_raw.import_qgroundcontrol_mission``) read back the same
-``MISSION_ITEM_INT`` fields. The geofence polygons are the link's fence items
+``MISSION_ITEM_INT`` fields. The geofence polygons and circles are the link's fence items
 of ``gcs upload --fence`` (:func:`gcs.missions.fence_plan`: the workspace moved out by
 PX4's braking distance, full-height stay-out regions exact). Layout (QGC plan format,
 ``fileType`` "Plan" version 1)::
@@ -22,8 +22,10 @@ PX4's braking distance, full-height stay-out regions exact). Layout (QGC plan fo
                             "params": [p1, p2, p3, p4, lat, lon, alt],   # null for NaN
                             "AMSLAltAboveTerrain": null, "Altitude": alt, "AltitudeMode": 2},
                            ...]},
-     "geoFence": {"version": 2, "circles": [],
-                  "polygons": [{"inclusion": true, "polygon": [[lat, lon], ...], "version": 1}]},
+     "geoFence": {"version": 2,
+                  "polygons": [{"inclusion": true, "polygon": [[lat, lon], ...], "version": 1}],
+                  "circles": [{"circle": {"center": [lat, lon], "radius": r_m},
+                               "inclusion": false, "version": 1}]},
      "rallyPoints": {"version": 2, "points": []}}
 
 Choices and why:
@@ -41,7 +43,10 @@ Choices and why:
   leg speed; the legs themselves carry their own ``DO_CHANGE_SPEED``.
 * The fence is what ``gcs upload --fence`` sends (:func:`gcs.missions.fence_plan`): the
   workspace's footprint moved out by PX4's braking distance as inclusion, the full-height
-  obstacles' and no-fly zones' footprints as exclusions, one 4-vertex polygon each.
+  obstacles', poles' and no-fly zones' footprints as exclusions: a box a 4-vertex polygon, a
+  prism the polygon of its corners, a cylinder a circle (QGC's ``circles``). The link sends
+  the circles after all polygons, the order in which MAVSDK's importer (and QGC's upload)
+  turns a plan file's fence into items, so the import gives back the very items.
 
 Setpoints (CSV and JSON)
 ------------------------
@@ -108,6 +113,7 @@ QGC_MISSION_VERSION = 2
 QGC_GEOFENCE_VERSION = 2
 QGC_RALLY_VERSION = 2
 QGC_POLYGON_VERSION = 1
+QGC_CIRCLE_VERSION = 1
 GROUND_STATION = "stl-gcs"
 MAV_AUTOPILOT_PX4 = 12
 MAV_TYPE_QUADROTOR = 2
@@ -190,19 +196,37 @@ def mission_item_to_qgc(item: MissionItem) -> dict[str, Any]:
     return out
 
 
-def _fence_polygons(items: Sequence[MissionItem]) -> list[dict[str, Any]]:
-    """FENCE polygon-vertex items (consecutive runs of ``param1`` vertices) -> QGC polygons."""
+def _fence_qgc(items: Sequence[MissionItem]) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """FENCE items -> QGC ``(polygons, circles)``: polygon-vertex items (consecutive runs of
+    ``param1`` vertices) and circle items (``param1`` the radius, m)."""
     from mavlink.mission import Cmd
 
+    vertex = (Cmd.NAV_FENCE_POLYGON_VERTEX_INCLUSION, Cmd.NAV_FENCE_POLYGON_VERTEX_EXCLUSION)
+    circle = (Cmd.NAV_FENCE_CIRCLE_INCLUSION, Cmd.NAV_FENCE_CIRCLE_EXCLUSION)
     polygons: list[dict[str, Any]] = []
+    circles: list[dict[str, Any]] = []
     i = 0
     while i < len(items):
         first = items[i]
-        if first.command not in (
-            Cmd.NAV_FENCE_POLYGON_VERTEX_INCLUSION,
-            Cmd.NAV_FENCE_POLYGON_VERTEX_EXCLUSION,
-        ):
-            raise UserError(f"fence item {i}: command {first.command} is not a polygon vertex")
+        if first.command in circle:
+            if not first.param1 > 0:
+                raise UserError(f"fence item {i}: circle radius {first.param1} is not > 0")
+            circles.append(
+                {
+                    "circle": {
+                        "center": [first.x / 1e7, first.y / 1e7],
+                        "radius": float(first.param1),
+                    },
+                    "inclusion": first.command == Cmd.NAV_FENCE_CIRCLE_INCLUSION,
+                    "version": QGC_CIRCLE_VERSION,
+                }
+            )
+            i += 1
+            continue
+        if first.command not in vertex:
+            raise UserError(
+                f"fence item {i}: command {first.command} is not a polygon vertex or circle"
+            )
         n = round(first.param1)
         run = items[i : i + n]
         if n < 3 or len(run) != n or any(it.command != first.command for it in run):
@@ -215,7 +239,7 @@ def _fence_polygons(items: Sequence[MissionItem]) -> list[dict[str, Any]]:
             }
         )
         i += n
-    return polygons
+    return polygons, circles
 
 
 def qgc_missions(plan: Plan, options: QgcOptions | None = None) -> dict[str, MissionPlan]:
@@ -247,9 +271,10 @@ def qgc_plan(
     home_lat, home_lon, home_alt = enu_to_geodetic(np.array([x0, y0, 0.0]), plan.origin)
     legs = np.asarray(mission.leg_speed_m_s, dtype=float)
     speed = float(legs.mean()) if legs.size else float(min(vehicle.v_max_m_s[:2]))
-    fence = []
+    polygons: list[dict[str, Any]] = []
+    circles: list[dict[str, Any]] = []
     if opts.fence:
-        fence = _fence_polygons(fence_plan(plan).items)  # as gcs upload --fence sends it
+        polygons, circles = _fence_qgc(fence_plan(plan).items)  # as gcs upload --fence sends it
     return {
         "fileType": QGC_FILE_TYPE,
         "version": QGC_PLAN_VERSION,
@@ -264,7 +289,7 @@ def qgc_plan(
             "plannedHomePosition": [float(home_lat), float(home_lon), float(home_alt)],
             "items": [mission_item_to_qgc(it) for it in mission.items],
         },
-        "geoFence": {"version": QGC_GEOFENCE_VERSION, "circles": [], "polygons": fence},
+        "geoFence": {"version": QGC_GEOFENCE_VERSION, "circles": circles, "polygons": polygons},
         "rallyPoints": {"version": QGC_RALLY_VERSION, "points": []},
     }
 

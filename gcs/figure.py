@@ -1,9 +1,11 @@
 """The plan's picture as one matplotlib figure (:func:`render_figure`), panel by panel:
 
-* **3-D view**: every region box of the plan drawn by kind (obstacles and no-fly zones red,
+* **3-D view**: every region of the plan drawn by kind (obstacles and no-fly zones red,
   inspection boxes and goals green, poles grey, conductor corridors orange, other regions
-  blue, the workspace as a dashed outline), each vehicle's path with a start (o) and end
-  (square) marker; flown paths broad and faint over the planned ones when telemetry is given.
+  blue, the workspace as a dashed outline) as it is: a box, a prism (its polygon extruded from
+  floor to roof: an oriented box, a no-fly area), a cylinder (a 48-gon extruded); each
+  vehicle's path with a start (o) and end (square) marker; flown paths broad and faint over
+  the planned ones when telemetry is given.
 * **Robustness over time** of every top-level clause of the spec, exact semantics
   (:mod:`planner.stl`) on the dense grid ``t = 0, dt, ..., horizon`` (``dt`` the plan's
   ``check_dt_s``). For a clause ``always[a,b] body`` or ``eventually[a,b] body`` the curve is
@@ -34,6 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gcs.clause_traces import plan_grid
+from planner.regions import Cylinder, Prism
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -42,6 +45,7 @@ if TYPE_CHECKING:
     from gcs.telemetry import Telemetry
     from mavlink.tracks import FlownTrack
     from planner.planfile import Plan
+    from planner.regions import Region
 
 __all__ = ["figure_png", "render_figure"]
 
@@ -93,6 +97,60 @@ def _box_edges(lo: Sequence[float], hi: Sequence[float]) -> list[NDArray[np.floa
     return edges
 
 
+def _prism_faces(
+    footprint_xy: NDArray[np.float64], z0: float, z1: float
+) -> list[NDArray[np.float64]]:
+    """Floor, roof and the ``m`` walls of the footprint ``(m, 2)`` extruded from ``z0`` to
+    ``z1``: ``(m, 3)``, ``(m, 3)``, then ``m`` faces ``(4, 3)``."""
+    m = len(footprint_xy)
+    bottom = np.column_stack([footprint_xy, np.full(m, z0)])
+    top = np.column_stack([footprint_xy, np.full(m, z1)])
+    walls = [np.array([bottom[i], bottom[(i + 1) % m], top[(i + 1) % m], top[i]]) for i in range(m)]
+    return [bottom, top, *walls]
+
+
+def _prism_edges(
+    footprint_xy: NDArray[np.float64], z0: float, z1: float, verticals: int | None = None
+) -> list[NDArray[np.float64]]:
+    """Edges of the extruded footprint, each ``(2, 3)``: the floor's and roof's outlines and
+    vertical edges at every corner (``verticals``: that many, evenly spaced: a cylinder's
+    48-gon would be all lines)."""
+    m = len(footprint_xy)
+    bottom = np.column_stack([footprint_xy, np.full(m, z0)])
+    top = np.column_stack([footprint_xy, np.full(m, z1)])
+    edges = [np.array([ring[i], ring[(i + 1) % m]]) for ring in (bottom, top) for i in range(m)]
+    step = 1 if verticals is None else max(1, m // verticals)
+    edges += [np.array([bottom[i], top[i]]) for i in range(0, m, step)]
+    return edges
+
+
+#: Vertical edges drawn on a cylinder's outline.
+_CYLINDER_VERTICALS = 4
+
+
+def region_faces(region: Region) -> list[NDArray[np.float64]]:
+    """The faces of a region (:class:`planner.regions.Region`) as drawn: a box's six
+    ``(4, 3)``; a prism's or cylinder's floor and roof ``(m, 3)`` and ``m`` walls."""
+    if region.shape is None:
+        return _box_faces(region.lo_enu_m, region.hi_enu_m)
+    return _prism_faces(region.footprint_xy(), region.shape.z_lo_m, region.shape.z_hi_m)
+
+
+def region_edges(region: Region) -> list[NDArray[np.float64]]:
+    """The edges of a region as drawn in outline, each ``(2, 3)``."""
+    if region.shape is None:
+        return _box_edges(region.lo_enu_m, region.hi_enu_m)
+    verticals = None if isinstance(region.shape, Prism) else _CYLINDER_VERTICALS
+    return _prism_edges(region.footprint_xy(), region.shape.z_lo_m, region.shape.z_hi_m, verticals)
+
+
+def _footprint_area(xy: NDArray[np.float64]) -> float:
+    """Area of a polygon ``(m, 2)`` (shoelace)."""
+    return 0.5 * abs(
+        float(np.sum(xy[:, 0] * np.roll(xy[:, 1], -1) - np.roll(xy[:, 0], -1) * xy[:, 1]))
+    )
+
+
 def _vehicle_colours(n: int) -> list[Any]:
     from matplotlib import colormaps
 
@@ -110,15 +168,20 @@ _TARGET_KINDS = ("inspection", "goal")
 
 
 def is_large(region: Any, workspace: Any) -> bool:
-    """Whether ``region`` is drawn as an outline (see :data:`_LARGE_AREA`)."""
+    """Whether ``region`` is drawn as an outline (see :data:`_LARGE_AREA`; a shaped region's
+    area is its footprint's, its span its bounding box's)."""
     span = np.asarray(region.hi_enu_m) - np.asarray(region.lo_enu_m)
     ws = np.asarray(workspace.hi_enu_m) - np.asarray(workspace.lo_enu_m)
-    area = float(span[0] * span[1]) / max(float(ws[0] * ws[1]), 1e-12)
+    own = float(span[0] * span[1])
+    if getattr(region, "shape", None) is not None:
+        own = _footprint_area(region.footprint_xy())
+    area = own / max(float(ws[0] * ws[1]), 1e-12)
     return area > _LARGE_AREA or bool(np.any(span[:2] > _LARGE_SPAN * ws[:2]))
 
 
 def _draw_regions(ax: Any, plan: Plan) -> list[Any]:
-    """Draw the workspace outline and region boxes; returns legend handles (one per kind).
+    """Draw the workspace outline and the regions (:func:`region_faces`,
+    :func:`region_edges`); returns legend handles (one per kind).
 
     Large regions are outlines, others translucent solids; inspection boxes and goals are
     drawn last and more opaque, so one inside a keep-out stays visible."""
@@ -139,23 +202,25 @@ def _draw_regions(ax: Any, plan: Plan) -> list[Any]:
     for r in ordered:
         face, alpha, edge, label = _KIND_STYLE.get(r.kind.value, _KIND_STYLE["region"])
         if is_large(r, ws):
-            ax.add_collection3d(
-                Line3DCollection(_box_edges(r.lo_enu_m, r.hi_enu_m), colors=edge, linewidths=1.1)
-            )
+            ax.add_collection3d(Line3DCollection(region_edges(r), colors=edge, linewidths=1.1))
             label = f"{label} (outline)"
             handles.setdefault(label, Line2D([], [], color=edge, lw=1.1, label=label))
         else:
             target = r.kind.value in _TARGET_KINDS
+            faces = region_faces(r)
+            edges: Any = edge
+            if isinstance(r.shape, Cylinder):  # no line along each side of its 48-gon
+                edges = [edge, edge] + ["none"] * (len(faces) - 2)
             poly = Poly3DCollection(
-                _box_faces(r.lo_enu_m, r.hi_enu_m),
+                faces,
                 facecolors=face,
-                edgecolors=edge,
+                edgecolors=edges,
                 linewidths=0.9 if target else 0.5,
                 alpha=min(1.0, 1.6 * alpha) if target else alpha,
             )
             ax.add_collection3d(poly)
             handles.setdefault(label, Patch(facecolor=face, edgecolor=edge, alpha=0.5, label=label))
-        top = (np.asarray(r.lo_enu_m) + np.asarray(r.hi_enu_m)) / 2.0
+        top = r.center_enu_m  # the label at the top centre
         ax.text(top[0], top[1], r.hi_enu_m[2], r.name, fontsize=7, color=edge, ha="center")
     return list(handles.values())
 

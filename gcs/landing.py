@@ -2,7 +2,7 @@
 
 ``gcs fly --end land`` (offboard and mission) and ``gcs upload --end land`` land each vehicle
 where its plan ends, unless the column below it, widened by :data:`CLEARANCE_M` (the drift of
-a descent), meets a box that is a keep-out by kind
+a descent), meets a region that is a keep-out by kind
 (obstacle, no-fly zone, pole, conductor): a drone that ends its inspection beside a pole or
 above a conductor must not descend there.  Then the vehicle first flies, at the altitude it
 ends at, to the nearest point whose column is clear and to which the straight transit at that
@@ -11,7 +11,11 @@ vehicle's planned start (a place it stood), then rings of points around the end,
 first, up to :data:`SEARCH_M`.  When none is clear, :func:`landing_point` says so and the
 caller refuses ``--end land`` before anything flies.
 
-Geometry is the mission frame (ENU metres); regions are axis-aligned boxes.
+Geometry is the mission frame (ENU metres). A keep-out is taken as it is: an axis-aligned box
+(grown by the clearance on every side), a prism over a convex polygon (an oriented box among
+them: its walls moved out by the clearance, its margin ``> -CLEARANCE_M``) or a vertical
+cylinder (its radius grown by the clearance); never its bounding box, which would block the
+empty corners around a turned box or a pole.
 """
 
 from __future__ import annotations
@@ -22,12 +26,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from planner.regions import KEEP_OUT_KINDS, Region
+from planner.regions import KEEP_OUT_KINDS, Cylinder, Prism, Region
 
 if TYPE_CHECKING:
     from planner.planfile import Plan
 
-#: Horizontal clearance from a keep-out box, for the descent and for the transit, m. It
+#: Horizontal clearance from a keep-out, for the descent and for the transit, m. It
 #: covers a descent's drift (the px4 mock's vehicles land within 0.5 m of where they began
 #: it: tests/mavlink/test_mock_mavsdk.py), not a vehicle that ended its plan off track: the
 #: landing point is chosen from the plan's end, and the tracking alarm (``gcs fly
@@ -86,12 +90,29 @@ def keep_outs(plan: Plan) -> tuple[Region, ...]:
     return tuple(r for r in plan.regions if r.kind in KEEP_OUT_KINDS)
 
 
+def _wall_margins(r: Region, xy: np.ndarray) -> np.ndarray:
+    """Signed horizontal margins of points ``(n, 2)`` to a shaped region's walls, ``(n, k)``
+    (a prism's ``k`` walls, a cylinder's mantle): > 0 inside each (:meth:`Region.face_margins`
+    without floor and roof)."""
+    p = np.asarray(xy, dtype=float).reshape(-1, 2)
+    z = 0.5 * (r.lo_enu_m[2] + r.hi_enu_m[2])  # level with it: only the walls count here
+    faces = r.face_margins(np.column_stack([p, np.full(len(p), z)]))
+    walls = r.shape.walls if isinstance(r.shape, Prism) else 1
+    return faces[:, :walls]
+
+
 def column_blocker(xy: np.ndarray, top_m: float, boxes: tuple[Region, ...]) -> Region | None:
-    """The first box whose footprint (widened by the clearance) holds ``xy`` and which
-    reaches down below ``top_m``: a descent from ``top_m`` to the ground would meet it."""
+    """The first keep-out whose footprint (widened by the clearance) holds ``xy`` and which
+    reaches down below ``top_m``: a descent from ``top_m`` to the ground would meet it.
+
+    A box's footprint is widened by the clearance on every side; a prism's or cylinder's holds
+    ``xy`` where its horizontal margin is ``>= -CLEARANCE_M`` (walls moved out, radius grown)."""
     for r in boxes:
         lo, hi = np.asarray(r.lo_enu_m), np.asarray(r.hi_enu_m)
-        inside = np.all(xy >= lo[:2] - CLEARANCE_M) and np.all(xy <= hi[:2] + CLEARANCE_M)
+        if r.shape is None:
+            inside = bool(np.all(xy >= lo[:2] - CLEARANCE_M) and np.all(xy <= hi[:2] + CLEARANCE_M))
+        else:
+            inside = bool(_wall_margins(r, xy).min() >= -CLEARANCE_M)
         if inside and lo[2] <= top_m:
             return r
     return None
@@ -99,27 +120,60 @@ def column_blocker(xy: np.ndarray, top_m: float, boxes: tuple[Region, ...]) -> R
 
 def transit_clear(a: np.ndarray, b: np.ndarray, z_m: float, boxes: tuple[Region, ...]) -> bool:
     """True if the straight horizontal flight ``a`` -> ``b`` (xy) at ``z_m`` keeps the
-    clearance from every box it is level with (slab test of the segment against each box
-    widened horizontally; a box wholly below or above ``z_m`` is passed over or under)."""
+    clearance from every keep-out it is level with (a keep-out wholly below or above ``z_m``
+    is passed over or under).
+
+    Exact for each shape: the slab test of the segment against a box widened horizontally;
+    the same clipping against a prism's walls moved out by the clearance (Cyrus-Beck); the
+    segment's distance to a cylinder's axis against its radius plus the clearance."""
     d = b - a
     for r in boxes:
-        lo = np.asarray(r.lo_enu_m) - CLEARANCE_M
-        hi = np.asarray(r.hi_enu_m) + CLEARANCE_M
         if not r.lo_enu_m[2] <= z_m <= r.hi_enu_m[2]:
             continue
-        t0, t1 = 0.0, 1.0
-        for k in range(2):
-            if abs(d[k]) < 1e-12:
-                if not lo[k] <= a[k] <= hi[k]:
-                    break
-                continue
-            u, v = (lo[k] - a[k]) / d[k], (hi[k] - a[k]) / d[k]
-            t0, t1 = max(t0, min(u, v)), min(t1, max(u, v))
-            if t0 > t1:
-                break
+        if isinstance(r.shape, Cylinder):
+            if _segment_distance(a, d, np.asarray(r.shape.center_xy)) <= (
+                r.shape.radius_m + CLEARANCE_M
+            ):
+                return False
+            continue
+        if isinstance(r.shape, Prism):
+            normals = np.asarray(r.shape.normals_xy)
+            offsets = np.asarray(r.shape.offsets_m) + CLEARANCE_M
         else:
+            lo = np.asarray(r.lo_enu_m) - CLEARANCE_M
+            hi = np.asarray(r.hi_enu_m) + CLEARANCE_M
+            normals = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+            offsets = np.array([hi[0], hi[1], -lo[0], -lo[1]])
+        if _segment_meets(a, d, normals, offsets):
             return False
     return True
+
+
+def _segment_meets(a: np.ndarray, d: np.ndarray, normals: np.ndarray, offsets: np.ndarray) -> bool:
+    """Whether the segment ``a + t d``, ``t`` in [0, 1], meets the closed convex polygon
+    ``normals @ p <= offsets`` (clipping ``t`` against each side)."""
+    t0, t1 = 0.0, 1.0
+    for n, off in zip(normals, offsets, strict=True):
+        room = float(off - n @ a)  # >= 0: a is on the inner side
+        rate = float(n @ d)
+        if abs(rate) < 1e-12:
+            if room < 0.0:
+                return False
+            continue
+        if rate > 0.0:
+            t1 = min(t1, room / rate)
+        else:
+            t0 = max(t0, room / rate)
+        if t0 > t1:
+            return False
+    return True
+
+
+def _segment_distance(a: np.ndarray, d: np.ndarray, c: np.ndarray) -> float:
+    """Distance from the point ``c`` to the segment ``a + t d``, ``t`` in [0, 1]."""
+    dd = float(d @ d)
+    t = 0.0 if dd < 1e-24 else min(max(float((c - a) @ d) / dd, 0.0), 1.0)
+    return float(np.hypot(*(a + t * d - c)))
 
 
 def landing_point(plan: Plan, name: str) -> LandingPoint:

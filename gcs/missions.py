@@ -243,7 +243,9 @@ class FencePlan:
 
 
 def fence_plan(plan: Plan, *, acc_hor_m_s2: float = 3.0, allowance_m: float = 0.5) -> FencePlan:
-    """The workspace (inflated) and full-height stay-out regions as PX4 fence polygons.
+    """The workspace (inflated) and full-height stay-out regions as PX4 fence polygons and
+    circles (:func:`mavlink.mission.fence_zones`: boxes and prisms as polygons, cylinders as
+    circles).
 
     PX4's fence is predictive: it fires when the braking distance at the current speed
     (:func:`mavlink.mission.braking_distance_m`) would cross it. The workspace polygon is
@@ -251,7 +253,7 @@ def fence_plan(plan: Plan, *, acc_hor_m_s2: float = 3.0, allowance_m: float = 0.
     ``allowance_m`` (tracking and estimator error); exclusions stay exact, and where the
     plan itself comes closer to one than its braking distance, a note says where and when.
     """
-    from mavlink.mission import braking_distance_m, fence_boxes, geofence_items
+    from mavlink.mission import braking_distance_m, fence_zones, geofence_items
 
     t = np.arange(0.0, plan.horizon_s + 1e-9, plan.check_dt_s)
     peak = 0.0
@@ -262,34 +264,33 @@ def fence_plan(plan: Plan, *, acc_hor_m_s2: float = 3.0, allowance_m: float = 0.
         tracks[pv.name] = (pos, speed)
         peak = max(peak, float(speed.max()))
     inflate = braking_distance_m(peak, acc_hor_m_s2) + allowance_m
-    boxes = fence_boxes(plan.workspace, plan.regions, inflate_m=inflate)
+    zones = fence_zones(plan.workspace, plan.regions, inflate_m=inflate)
     notes = [
         f"fence: the workspace polygon lies {inflate:.2f} m outside the workspace (PX4's "
         f"braking distance at the plan's peak {peak:.2f} m/s, plus {allowance_m:g} m)"
     ]
-    fenced = {b.name for b in boxes}
+    fenced = {z.name for z in zones}
     for r in plan.regions:
         if r.kind.value in ("obstacle", "no_fly", "pole") and r.name not in fenced:
             notes.append(
                 f"fence: {r.name} is not fenced: it does not span the workspace's height, and "
-                "PX4's fence polygons have no floor or ceiling (the plan's own checks keep it)"
+                "PX4's fence polygons and circles have no floor or ceiling (the plan's own "
+                "checks keep it)"
             )
-    for b in boxes:
-        if b.inclusion:
+    for zone in zones:
+        if zone.inclusion:
             continue
-        (x0, y0, _), (x1, y1, _) = b.lo_enu_m, b.hi_enu_m
         for name, (pos, speed) in tracks.items():
-            dx = np.maximum(np.maximum(x0 - pos[:, 0], 0.0), pos[:, 0] - x1)
-            dy = np.maximum(np.maximum(y0 - pos[:, 1], 0.0), pos[:, 1] - y1)
-            gap = np.hypot(dx, dy) - np.array([braking_distance_m(v, acc_hor_m_s2) for v in speed])
+            dist = zone.distance_m(pos[:, :2])  # to the zone's true footprint (0 inside)
+            gap = dist - np.array([braking_distance_m(v, acc_hor_m_s2) for v in speed])
             k = int(np.argmin(gap))
             if gap[k] < 0:
                 notes.append(
-                    f"fence: PX4's predictive fence may stop {name} near {b.name} at t = "
-                    f"{t[k]:.1f} s ({np.hypot(dx[k], dy[k]):.2f} m from it at {speed[k]:.1f} "
+                    f"fence: PX4's predictive fence may stop {name} near {zone.name} at t = "
+                    f"{t[k]:.1f} s ({dist[k]:.2f} m from it at {speed[k]:.1f} "
                     f"m/s, braking distance {braking_distance_m(speed[k], acc_hor_m_s2):.2f} m)"
                 )
-    return FencePlan(geofence_items(boxes, plan.origin), inflate, tuple(notes))
+    return FencePlan(geofence_items(zones, plan.origin), inflate, tuple(notes))
 
 
 async def convert_plan_apart(plan: Plan, **kwargs: Any) -> MissionConversion:

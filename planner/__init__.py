@@ -7,7 +7,8 @@ that ``planner.trajectory`` users do not pay for CasADi):
   expansion of the spec over vehicles, groups and pairs), reading its sections with
   :mod:`planner.scenario_sections`, the spec with :mod:`planner.scenario_spec`, checking
   mistakes with :mod:`planner.scenario_checks`; the result types are in
-  :mod:`planner.problem`, the regions in :mod:`planner.regions`.
+  :mod:`planner.problem`, the regions (boxes, prisms, cylinders) in :mod:`planner.regions`,
+  a power line's regions from its poles (the ``line:`` section) in :mod:`planner.line`.
 * :mod:`planner.predicates`: the spec's functions ``inside``, ``outside``, ``dist``, ``alt``,
   ``x``, ``y``, ``z`` (numpy exact, CasADi smooth), ``build_registry(problem)``.
 * :mod:`planner.optimize`: ``plan(problem) -> PlanResult`` (CasADi/IPOPT), built from
@@ -30,6 +31,9 @@ Error tree (each message names the file/field/position)::
       planner.dynamics.DynamicsError        bad model parameters (a ValueError)
       planner.trajectory.TrajectoryError    bad segment data (a ValueError)
       planner.frames.FrameError             bad geodetic/frame input (a ValueError)
+      planner.regions.ShapeError            a shape that cannot be: a polygon not convex, an
+                                            empty height range (a ValueError; the scenario
+                                            reader names the field)
 
 A failed optimisation is not an error: ``plan`` returns ``PlanResult(success=False, ...)``.
 """

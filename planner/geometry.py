@@ -3,7 +3,8 @@
 A *place* of vehicle ``d`` is a convex polytope ``{p : A p <= b}`` in its position, read from
 any formula that means one:
 
-* ``inside(d, R)`` (the box's six faces), ``not outside(d, R)``;
+* ``inside(d, R)`` (the region's faces: :meth:`planner.regions.Region.half_spaces`),
+  ``not outside(d, R)``;
 * a comparison affine in ``d``'s coordinates: ``x(d) >= 3``, ``-y(d) <= 2``,
   ``x(d) + y(d) <= 5``, ``z(d) - 1 > 0`` (found by evaluating the comparison's exact margin,
   so any arithmetic the spec language allows is understood, and a non-affine one refused);
@@ -86,16 +87,20 @@ class Place:
         return bool(np.all(self.A @ np.asarray(p, dtype=float) <= self.b - margin))
 
 
-def _half_spaces(node: Formula, positive: bool, problem: Any) -> tuple[str, list[Any]] | None:
+def _half_spaces(
+    node: Formula, positive: bool, problem: Any, outer: bool = False
+) -> tuple[str, list[Any]] | None:
     """``(vehicle, [(a, c), ...])`` with ``node`` (negated unless ``positive``) equivalent to
-    ``a . p <= c`` for all rows; ``None`` if it is not such a conjunction of one vehicle."""
+    ``a . p <= c`` for all rows; ``None`` if it is not such a conjunction of one vehicle.  A
+    cylinder is the prism over the polygon inscribed in its circle (``outer``: circumscribed
+    about it, for a keep-out)."""
     if isinstance(node, Not):
-        return _half_spaces(node.child, not positive, problem)
+        return _half_spaces(node.child, not positive, problem, outer)
     if isinstance(node, And if positive else Or):
         vehicle: str | None = None
         rows: list[Any] = []
         for child in node.operands:
-            got = _half_spaces(child, positive, problem)
+            got = _half_spaces(child, positive, problem, outer)
             if got is None or (vehicle is not None and got[0] != vehicle):
                 return None
             vehicle = got[0]
@@ -108,13 +113,8 @@ def _half_spaces(node: Formula, positive: bool, problem: Any) -> tuple[str, list
         vehicle, region = node.call.args
         if (role is Role.TARGET_BOX) != positive:
             return None  # outside (or not inside) is a keep-out, not a conjunction
-        box = problem.region(region)
-        rows = []
-        for i in range(3):
-            e = np.zeros(3)
-            e[i] = 1.0
-            rows += [(e, float(box.hi_enu_m[i])), (-e, -float(box.lo_enu_m[i]))]
-        return vehicle, rows
+        A, b = problem.region(region).half_spaces(outer)
+        return vehicle, [(a, float(c)) for a, c in zip(A, b, strict=True)]
     if isinstance(node, Comparison):
         names = node.signal_names()
         if len(names) != 1:
@@ -218,5 +218,5 @@ def place(node: Formula, problem: Any) -> Place | None:
 
 def keep_out(node: Formula, problem: Any) -> Place | None:
     """The place ``node`` keeps its vehicle out of (``node`` is ``not place``), or ``None``."""
-    got = _half_spaces(node, False, problem)
+    got = _half_spaces(node, False, problem, outer=True)
     return None if got is None else _make(got[0], str(node), got[1], problem, outer=True)

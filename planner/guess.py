@@ -218,6 +218,7 @@ def _clear_of(later: Sequence[Place]) -> list[Place]:
     return [
         dataclasses.replace(
             ko,
+            b=ko.b + room,
             lo_enu_m=tuple(np.subtract(ko.lo_enu_m, room)),
             hi_enu_m=tuple(np.add(ko.hi_enu_m, room)),
         )
@@ -257,7 +258,7 @@ def _grid_path(
     lo = np.asarray(problem.workspace.lo_enu_m)
     hi = np.asarray(problem.workspace.hi_enu_m)
     ext = hi - lo
-    feature = min((float(np.min(np.subtract(b.hi_enu_m, b.lo_enu_m))) for b in avoid), default=1.0)
+    feature = min((2.0 * b.depth_m for b in avoid), default=1.0)  # a box: its smallest side
     for pl in (p for u in within for p in u):  # a stay-within place smaller than that
         size = np.subtract(pl.hi_enu_m, pl.lo_enu_m)
         feature = min(feature, float(np.min(size[size > 0], initial=feature)))
@@ -268,13 +269,9 @@ def _grid_path(
     centres = np.column_stack([cx.ravel(), cy.ravel(), cz.ravel()])
     step = ext / shape
     blocked = np.zeros(len(centres), dtype=bool)
-    for b in avoid:
+    for b in avoid:  # within half a cell (and 5 % of the feature) of every face
         grow = 0.5 * step + 0.05 * feature
-        inside = np.all(
-            (centres > np.asarray(b.lo_enu_m) - grow) & (centres < np.asarray(b.hi_enu_m) + grow),
-            axis=1,
-        )
-        blocked |= inside
+        blocked |= np.all(centres @ b.A.T - b.b < np.abs(b.A) @ grow, axis=1)
     gap = np.zeros(len(centres), dtype=bool)
     reach = np.zeros(3) if reach_m is None else np.asarray(reach_m, dtype=float)
     for places in within:
@@ -479,6 +476,8 @@ def _shift_m(problem: Problem, formula: Formula) -> float:
     keep-out (at least 1 m), so a leg grazing one passes it on the other side."""
     halves = [
         0.5 * float(np.min(np.subtract(ko.hi_enu_m, ko.lo_enu_m)[:2]))
+        if ko.shape[0] == "box"
+        else ko.depth_m  # a keep-out turned about the vertical: not its bounding box's
         for v in problem.vehicles
         for ko in _avoided(formula, v.name, problem)
     ]
@@ -741,16 +740,7 @@ def _pick_lane(
     the paths already placed; else the clear one farthest from them."""
     best, best_d = candidates[0], -np.inf
     for path in candidates:
-        clear = all(
-            np.all(
-                np.max(
-                    np.maximum(np.asarray(b.lo_enu_m) - path, path - np.asarray(b.hi_enu_m)),
-                    axis=1,
-                )
-                >= 0.3
-            )
-            for b in avoid
-        )
+        clear = all(np.all(np.max(path @ b.A.T - b.b, axis=1) >= 0.3) for b in avoid)
         if not clear:
             continue
         d = min((float(np.min(np.linalg.norm(path - q, axis=1))) for q in placed), default=np.inf)

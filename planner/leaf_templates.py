@@ -17,7 +17,8 @@ one :class:`LeafTemplate` per shape, sample step and sharpness holds two CasADi 
 
 with ``z`` the leaf's vehicles' decisions that its window's samples use (per vehicle the
 rows of ``Z_v`` those samples depend on, axis after axis), ``x0`` their start states
-(``vec(X0_v)``) and ``b`` the boxes' bounds (``lo_enu_m`` then ``hi_enu_m`` per region).  A
+(``vec(X0_v)``) and ``b`` the regions' numbers (a box's ``lo_enu_m`` then ``hi_enu_m``; a
+prism's or cylinder's :meth:`planner.regions.Region.params`, its kind part of the key).  A
 window ``[a, b]`` at a step is the same leaf from 0 at ``step + a``, and the template is keyed
 by its block of the sample matrices, so windows of the same width and phase share one
 wherever they lie (the chunks of a long ``eventually``, :func:`planner.nlp._chunks`).  Every
@@ -46,7 +47,7 @@ import numpy as np
 
 from planner.cache import BoundedCache
 from planner.predicates import PREDICATES, build_registry
-from planner.regions import Region, RegionKind
+from planner.regions import Region
 from planner.stl import Always, Call, Eventually, Expr, Formula
 
 __all__ = [
@@ -100,10 +101,11 @@ def _rebuild(node: Any, on_call: Callable[[Call], Call]) -> Any:
     return dataclasses.replace(node, **changes) if changes else node
 
 
-def smoothing_terms(formula: Formula) -> float:
+def smoothing_terms(formula: Formula, regions: Any = None) -> float:
     """``log`` of the most margins a predicate called in ``formula`` smooths over (0 when
-    none does; :attr:`planner.predicates.PredicateKind.terms`): at sharpness ``k`` its smooth
-    value is within ``that / k`` of the exact one, to add to the temporal bound
+    none does; :attr:`planner.predicates.PredicateKind.terms`, or with ``regions`` (a
+    region source) the faces of the region it names): at sharpness ``k`` its smooth value is
+    within ``that / k`` of the exact one, to add to the temporal bound
     (:meth:`Formula.smooth_error_bound`).  A call inside arithmetic
     (``2 * inside(d, box) >= 1``) is counted unscaled."""
     most = 1
@@ -111,7 +113,13 @@ def smoothing_terms(formula: Formula) -> float:
     def see(call: Call) -> Call:
         nonlocal most
         kind = PREDICATES.get(call.name)
-        most = max(most, 1 if kind is None else kind.terms)
+        if kind is None:
+            return call
+        terms = kind.terms
+        if regions is not None and terms > 1:
+            named = [a for a, r in zip(call.args, kind.args, strict=False) if r == "r"]
+            terms = max([regions.region(a).faces for a in named] or [terms])
+        most = max(most, terms)
         return call
 
     _rebuild(formula, see)  # every call, wherever it is; the tree is returned unchanged
@@ -176,7 +184,8 @@ class LeafTemplate:
         hess: ``(z, x0, b, lam) -> lam * Hessian (n_z, n_z)``, nonzero only in the entries
             of ``z`` the leaf depends on twice.
         n_vehicles: vehicles the shape names (``z`` holds ``n_vehicles`` decision blocks).
-        n_regions: boxes the shape names (``b`` has ``6 n_regions`` entries).
+        n_regions: regions the shape names (``b`` holds their :meth:`Region.params`, in
+            order: 6 entries for a box).
     """
 
     value: Any
@@ -216,7 +225,13 @@ def _local_block(model: Any, step: int, hz: int) -> tuple[np.ndarray, np.ndarray
 
 
 def template(
-    leaf: Formula, step: int, model: Any, dt: float, k: float, k_pred: float
+    leaf: Formula,
+    step: int,
+    model: Any,
+    dt: float,
+    k: float,
+    k_pred: float,
+    region_of: Callable[[str], Region] | None = None,
 ) -> tuple[LeafTemplate, tuple[str, ...], tuple[str, ...], np.ndarray]:
     """The template of ``leaf`` evaluated at sample ``step`` (built or from the cache), the
     leaf's vehicles and regions in the template's argument order, and the decision rows
@@ -227,20 +242,23 @@ def template(
         step: the planning sample the leaf is evaluated at (its window starts there).
         model: the linear model (``Mp``, ``Np`` map decisions and start to sampled positions).
         dt: planning sample step (s); k: temporal sharpness; k_pred: predicate sharpness.
+        region_of: the regions by name (their kinds of shape, :attr:`Region.signature`, are
+            part of the template; default: every region a box).
     """
     leaf, step = _shifted(leaf, step, dt)
     shape_text, vehicles, regions = canonical_leaf(leaf)
+    signatures = tuple(("box",) if region_of is None else region_of(r).signature for r in regions)
     cols, mp, np_ = _local_block(model, step, leaf.horizon_steps(dt))
     digest = hashlib.sha1()
     for a in (mp, np_):
         a = np.ascontiguousarray(a, dtype=float)
         digest.update(repr(a.shape).encode())
         digest.update(a.tobytes())
-    key = (shape_text, digest.hexdigest(), model.n_init, dt, k, k_pred)
+    key = (shape_text, signatures, digest.hexdigest(), model.n_init, dt, k, k_pred)
     tpl, _ = _TEMPLATES.get_or_build(
         key,
         lambda: _build_template(
-            leaf, mp, np_, model.n_init, dt, k, k_pred, len(vehicles), len(regions)
+            leaf, mp, np_, model.n_init, dt, k, k_pred, len(vehicles), signatures
         ),
     )
     return tpl, vehicles, regions, cols
@@ -255,16 +273,17 @@ def _build_template(
     k: float,
     k_pred: float,
     n_veh: int,
-    n_reg: int,
+    signatures: tuple[tuple[Any, ...], ...],
 ) -> LeafTemplate:
     n_loc = mp.shape[1]
     nd, ni = n_loc * 3, n_init * 3
     z = ca.SX.sym("z", nd * n_veh)
     x0 = ca.SX.sym("x0", ni * n_veh)
-    b = ca.SX.sym("b", 6 * n_reg)
+    sizes = [Region.params_size(sig) for sig in signatures]
+    b = ca.SX.sym("b", sum(sizes))
+    at = np.concatenate([[0], np.cumsum(sizes)]).astype(int).tolist()
     sym_regions = tuple(
-        Region(f"r{j}", RegionKind.REGION, b[6 * j : 6 * j + 3], b[6 * j + 3 : 6 * j + 6])  # type: ignore[arg-type]
-        for j in range(n_reg)
+        Region.symbolic(f"r{j}", sig, b[at[j] : at[j + 1]]) for j, sig in enumerate(signatures)
     )
     registry = build_registry(_SymbolicRegions(sym_regions), k_pred)
     shape, _, _ = _canonical_tree(leaf, registry)
@@ -296,7 +315,7 @@ def _build_template(
             ["hess"],
         ),
         n_vehicles=n_veh,
-        n_regions=n_reg,
+        n_regions=len(signatures),
     )
 
 
@@ -331,7 +350,7 @@ def instance(
     """The :class:`LeafInstance` of ``leaf`` at ``step`` in an NLP whose ``w`` starts with
     the vehicles' ``vec(Z)`` blocks and whose ``p`` is their ``vec(X0)`` blocks, in the
     order of ``vehicle_index``."""
-    tpl, vehicles, regions, cols = template(leaf, step, model, dt, k, k_pred)
+    tpl, vehicles, regions, cols = template(leaf, step, model, dt, k, k_pred, region_of)
     nd, ni = model.n_dec * 3, model.n_init * 3
     z_index: list[int] = []
     x0_index: list[int] = []
@@ -340,8 +359,5 @@ def instance(
         for axis in range(3):
             z_index.extend((i * nd + axis * model.n_dec + cols).tolist())
         x0_index.extend(range(i * ni, (i + 1) * ni))
-    bounds = np.concatenate(
-        [np.concatenate([region_of(r).lo_enu_m, region_of(r).hi_enu_m]) for r in regions]
-        or [np.zeros(0)]
-    )
+    bounds = np.concatenate([region_of(r).params() for r in regions] or [np.zeros(0)])
     return LeafInstance(tpl, tuple(z_index), tuple(x0_index), bounds.astype(float))

@@ -267,7 +267,7 @@ def _structure_key(problem: Problem, sharp: bool = False) -> Any:
     return (
         sharp,
         problem.spec_text,
-        tuple((r.name, r.lo_enu_m, r.hi_enu_m) for r in problem.all_regions),
+        tuple((r.name, r.lo_enu_m, r.hi_enu_m, r.shape) for r in problem.all_regions),
         problem.timing,
         problem.model,
         tuple(v.name for v in problem.vehicles),
@@ -292,19 +292,18 @@ def _fit_k(
     elif not smooth_leaves:
         k = K_MIN
     else:
-        halves = [0.5 * (np.asarray(r.hi_enu_m) - r.lo_enu_m) for r in problem.all_regions]
-        tol = _K_TOLERANCE * float(min(np.min(h) for h in halves))
-        unit = max(_smooth_bound(leaf, 1.0, dt, sharp) for leaf in smooth_leaves)
+        tol = _K_TOLERANCE * min(r.min_half_m for r in problem.all_regions)
+        unit = max(_smooth_bound(leaf, 1.0, dt, sharp, problem) for leaf in smooth_leaves)
         k = max(K_MIN, unit / tol)
-    bound = max((_smooth_bound(leaf, k, dt, sharp) for leaf in smooth_leaves), default=0.0)
+    bound = max((_smooth_bound(leaf, k, dt, sharp, problem) for leaf in smooth_leaves), default=0.0)
     return k, bound
 
 
-def _smooth_bound(leaf: Formula, k: float, dt: float, sharp: bool) -> float:
+def _smooth_bound(leaf: Formula, k: float, dt: float, sharp: bool, problem: Problem) -> float:
     """Bound on a smooth leaf's error at sharpness ``k``: its temporal operators', and with
     ``sharp`` its predicates' (smoothed at the same ``k``,
     :func:`planner.leaf_templates.smoothing_terms`)."""
-    own = smoothing_terms(leaf) / k if sharp else 0.0
+    own = smoothing_terms(leaf, problem) / k if sharp else 0.0
     return leaf.smooth_error_bound(k, dt) + own
 
 
@@ -358,7 +357,9 @@ class NlpBuilder:
         self.leaves: dict[Formula, set[int]] = {}
         _decompose(formula, np.array([0]), self.dt, self.leaves)
         self.smooth_leaves = [leaf for leaf in self.leaves if not _is_direct(leaf)]
-        self.box_terms = max((smoothing_terms(leaf) for leaf in self.smooth_leaves), default=0.0)
+        self.box_terms = max(
+            (smoothing_terms(leaf, problem) for leaf in self.smooth_leaves), default=0.0
+        )
         self.k_final, self.margin = _fit_k(problem, self.smooth_leaves, self.dt, sharp)
         self.k_list = [*[kk for kk in opts.continuation if kk < self.k_final], self.k_final]
         self.k_pred = predicate_sharpness(problem)  # the direct rows' (outside: the obstacles)

@@ -45,7 +45,7 @@ from planner.errors import FileFieldError
 from planner.frames import GeodeticPoint
 from planner.limits import PX4_LIMIT_KEYS
 from planner.problem import MAX_HORIZON_S
-from planner.regions import Region, RegionKind
+from planner.regions import Cylinder, Prism, Region, RegionKind, ShapeError
 from planner.scenario_checks import horizon_sum
 from planner.scenario_spec import FUNCTION_NAMES
 from planner.trajectory import Trajectory, TrajectoryError
@@ -157,7 +157,17 @@ class Plan:
 
 
 def _region_json(r: Region) -> dict[str, Any]:
-    return {"kind": r.kind.value, "min": list(r.lo_enu_m), "max": list(r.hi_enu_m)}
+    """``{kind, min, max}`` (a shaped region's bounding box), and a prism's ``polygon`` and
+    ``z``, a cylinder's ``center``, ``radius`` and ``z``."""
+    out: dict[str, Any] = {"kind": r.kind.value, "min": list(r.lo_enu_m), "max": list(r.hi_enu_m)}
+    if isinstance(r.shape, Prism):
+        out.update(
+            polygon=[list(v) for v in r.shape.vertices_xy], z=[r.shape.z_lo_m, r.shape.z_hi_m]
+        )
+    elif isinstance(r.shape, Cylinder):
+        s = r.shape
+        out.update(center=list(s.center_xy), radius=s.radius_m, z=[s.z_lo_m, s.z_hi_m])
+    return out
 
 
 def plan_to_json(plan: Plan) -> dict[str, Any]:
@@ -309,7 +319,24 @@ class _Reader:
         hi = self.vec3(v.get("max"), f"{path}.max")
         if not all(a < b for a, b in zip(lo, hi, strict=True)):
             raise self.fail(path, "empty box (min must be below max)")
-        return Region(name, kind, lo, hi)
+        if "polygon" not in v and "radius" not in v:
+            return Region(name, kind, lo, hi)
+        try:
+            z = v.get("z")
+            if not (isinstance(z, list) and len(z) == 2):
+                raise ShapeError("expected z: [bottom, top]")
+            if "polygon" in v:
+                shape: Prism | Cylinder = Prism.from_polygon(v["polygon"], float(z[0]), float(z[1]))
+            else:
+                c = v.get("center")
+                if not (isinstance(c, list) and len(c) == 2):
+                    raise ShapeError("expected center: [x, y]")
+                shape = Cylinder(
+                    (float(c[0]), float(c[1])), float(v["radius"]), float(z[0]), float(z[1])
+                )
+        except (ShapeError, TypeError, ValueError) as exc:
+            raise self.fail(path, f"bad shape: {exc}") from None
+        return Region.of_shape(name, kind, shape)
 
     def number(
         self, m: dict[str, Any], key: str, *, positive: bool = False, nonnegative: bool = False

@@ -9,9 +9,13 @@ names the function resolves from the scenario or plan (:class:`RegionSource`).
 ========================  ==========================================================
 ``inside(d, box)``        Chebyshev (L-infinity) margin to the box boundary:
                           ``min_i min(p_i - lo_i, hi_i - p_i)``; > 0 strictly inside,
-                          = distance to the nearest face; < 0 outside.
+                          = distance to the nearest face; < 0 outside.  Any region:
+                          the smallest face margin (:meth:`planner.regions.Region.margin`:
+                          a prism's walls, floor and roof; a cylinder's mantle
+                          ``r - |p_xy - c|``, floor and roof).
 ``outside(d, box)``       ``max_i max(lo_i - p_i, p_i - hi_i)``; > 0 outside (the
-                          L-infinity distance to the box), < 0 inside (minus the depth).
+                          L-infinity distance to the box), < 0 inside (minus the depth);
+                          any region: minus its margin.
 ``dist(d1, d2)``          Euclidean distance between two vehicles (m).
 ``alt(d)``, ``z(d)``      height above the mission origin (m); ``x(d)``, ``y(d)`` east, north.
 ========================  ==========================================================
@@ -22,14 +26,16 @@ so a smooth margin >= 0 implies an exact margin >= 0:
 
 * ``inside``: soft-min by log-sum-exp over the six face margins,
   ``-log(sum exp(-k m_j)) / k``, shifted by the exact min for stability; lies in
-  ``[exact - log(6)/k, exact]``.
+  ``[exact - log(6)/k, exact]`` (a region of ``m`` faces: ``log(m)/k``; a cylinder's mantle
+  is ``r - sqrt(|p_xy - c|^2 + delta^2)``, within ``delta`` below the exact one).
 * ``outside``: soft-max minus its bound, ``log(sum exp(k m_j)) / k - log(6)/k``; lies in
-  ``[exact - log(6)/k, exact]``.
+  ``[exact - log(6)/k, exact]`` (the mantle's violation ``sqrt(|p_xy - c|^2 + delta^2) -
+  delta - r``).
 * ``dist``: ``sqrt(|p1 - p2|^2 + delta^2) - delta`` with ``delta = 1e-4`` m; lies in
   ``[exact - delta, exact]`` and is smooth where the exact distance is not (at 0).
 
 ``k`` here is the *predicate* sharpness (1/m), fitted by :func:`predicate_sharpness` so that
-the bound ``log(6)/k`` is 10 % of the smallest region half-size (measured: 2 % made
+the bound ``log(faces)/k`` (6 for boxes) is 10 % of the smallest region half-size (measured: 2 % made
 the obstacle margins so sharp that IPOPT stalled inside the obstacle on reach-avoid).
 A box is the conjunction (disjunction) of its six face half-spaces.  The planner's second,
 sharp solve (:func:`planner.optimize._sharpen`, when a plan's margin is within that 10 %)
@@ -49,7 +55,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from planner.regions import Region
+from planner.regions import Cylinder, Prism, Region
 from planner.stl import Call, EvaluationError, Expr, Formula, FunctionRegistry, Predicate
 
 __all__ = [
@@ -94,7 +100,8 @@ class PredicateKind:
         args: the kind of each argument: ``"v"`` a vehicle, ``"r"`` a region.
         role: how the planner treats it (:class:`Role`).
         terms: how many margins its smooth version soft-mins or soft-maxes over (its error
-            is at most ``log(terms)/k``; 1: smooth only by a fixed offset, or exact).
+            is at most ``log(terms)/k``; 1: smooth only by a fixed offset, or exact): a
+            box's; a region of another shape has its own (``Region.faces``).
     """
 
     name: str
@@ -137,38 +144,63 @@ class RegionSource(Protocol):
 
 
 def predicate_sharpness(problem: RegionSource) -> float:
-    """Sharpness k (1/m) of the smooth box margins: ``log(6)/k = 10 %`` of the smallest half-size."""
-    halves = [0.5 * (np.asarray(r.hi_enu_m) - np.asarray(r.lo_enu_m)) for r in problem.all_regions]
-    smallest = float(min(np.min(h) for h in halves))
-    return math.log(6.0) / (_PRED_TOLERANCE * smallest)
+    """Sharpness k (1/m) of the smooth region margins: ``log(faces)/k = 10 %`` of the smallest
+    half-size (``faces`` the most any region has: 6 with boxes only)."""
+    smallest = min(r.min_half_m for r in problem.all_regions)
+    faces = max(r.faces for r in problem.all_regions)
+    return math.log(max(6, faces)) / (_PRED_TOLERANCE * smallest)
 
 
 def box_margins(pos_enu_m: np.ndarray, region: Region) -> np.ndarray:
-    """Signed face margins of points to a box, shape (n, 6): ``p - lo`` then ``hi - p``."""
-    p = np.asarray(pos_enu_m, dtype=float).reshape(-1, 3)
-    return np.concatenate([p - np.asarray(region.lo_enu_m), np.asarray(region.hi_enu_m) - p], 1)
+    """Signed face margins of points to a region, shape (n, faces); a box's ``p - lo`` then
+    ``hi - p`` (:meth:`planner.regions.Region.face_margins`)."""
+    return region.face_margins(pos_enu_m)
 
 
 def box_margin(pos_enu_m: np.ndarray, region: Region) -> np.ndarray:
-    """The smallest face margin of points to a box, shape (n,): ``box_margins(...).min(1)``,
-    exactly, computed per axis first (four times faster on long signals)."""
-    p = np.asarray(pos_enu_m, dtype=float).reshape(-1, 3)
-    d = np.minimum(p - np.asarray(region.lo_enu_m), np.asarray(region.hi_enu_m) - p)
-    return np.minimum(np.minimum(d[:, 0], d[:, 1]), d[:, 2])
+    """The region's margin at each point, shape (n,): the smallest face margin
+    (:meth:`planner.regions.Region.margin`)."""
+    return region.margin(pos_enu_m)
+
+
+def _ca(v: Any) -> Any:
+    import casadi as ca
+
+    return v if isinstance(v, ca.SX | ca.MX) else ca.DM(v)
 
 
 def ca_box_margins(pos: Any, region: Region) -> Any:
-    """CasADi (n, 6) face margins of an (n, 3) position expression.
+    """CasADi (n, faces) face margins of an (n, 3) position expression, each at most the
+    exact one: linear for a box's and a prism's faces; a cylinder's mantle within
+    ``DIST_DELTA_M`` below.
 
-    The bounds may be numbers or (3, 1) CasADi symbols (the planner's leaf templates,
-    :mod:`planner.leaf_templates`, take boxes as inputs)."""
+    The numbers may be CasADi symbols (the planner's leaf templates,
+    :mod:`planner.leaf_templates`, take regions as inputs: :meth:`Region.symbolic`)."""
     import casadi as ca
 
     n = pos.shape[0]
-    lo, hi = (
-        b if isinstance(b, ca.SX | ca.MX) else ca.DM(b) for b in (region.lo_enu_m, region.hi_enu_m)
-    )
+    s = region.shape
+    if isinstance(s, Prism):
+        normals, offsets = _ca(s.normals_xy), _ca(s.offsets_m)
+        walls = ca.repmat(ca.reshape(offsets, 1, -1), n, 1) - ca.mtimes(pos[:, 0:2], normals.T)
+        return ca.horzcat(walls, pos[:, 2] - s.z_lo_m, s.z_hi_m - pos[:, 2])
+    if isinstance(s, Cylinder):
+        dx, dy = pos[:, 0] - s.center_xy[0], pos[:, 1] - s.center_xy[1]
+        radial = s.radius_m - ca.sqrt(dx**2 + dy**2 + DIST_DELTA_M**2)
+        return ca.horzcat(radial, pos[:, 2] - s.z_lo_m, s.z_hi_m - pos[:, 2])
+    lo, hi = _ca(region.lo_enu_m), _ca(region.hi_enu_m)
     return ca.horzcat(pos - ca.repmat(lo.T, n, 1), ca.repmat(hi.T, n, 1) - pos)
+
+
+def _ca_violations(pos: Any, region: Region) -> Any:
+    """CasADi (n, faces) face violations (minus the margins), each at most the exact one
+    (a cylinder's mantle: ``sqrt(|p_xy - c|^2 + delta^2) - delta - r``)."""
+    import casadi as ca
+
+    m = -ca_box_margins(pos, region)
+    if isinstance(region.shape, Cylinder):
+        m = ca.horzcat(m[:, 0] - DIST_DELTA_M, m[:, 1:])
+    return m
 
 
 def _ca_softmin_rows(m: Any, k: float) -> Any:
@@ -242,8 +274,8 @@ def casadi_functions(problem: RegionSource, k_pred: float) -> dict[str, Callable
         return _ca_softmin_rows(m, k_pred)
 
     def outside(args: tuple[str, ...], signals: Mapping[str, Any]) -> Any:
-        m = ca_box_margins(_vehicle_signal(signals, args[0]), _region(problem, args[1]))
-        return _ca_softmax_rows_lower(-m, k_pred)
+        m = _ca_violations(_vehicle_signal(signals, args[0]), _region(problem, args[1]))
+        return _ca_softmax_rows_lower(m, k_pred)
 
     def dist(args: tuple[str, ...], signals: Mapping[str, Any]) -> Any:
         d = _vehicle_signal(signals, args[0]) - _vehicle_signal(signals, args[1])

@@ -5,9 +5,13 @@ A scenario names everything the planner needs (see ``configs/*.yaml`` for commen
     name: reach_avoid
     origin: {lat: 47.3977, lon: 8.5456, alt: 488.0}        # geodetic, alt AMSL in metres
     workspace: {min: [-2, -2, 0], max: [2, 2, 2]}           # ENU metres
-    regions:                                                # axis-aligned boxes
+    regions:                                                # boxes, prisms, cylinders
       obstacle: {kind: obstacle, min: [-1, -1, 0], max: [1, 1, 1.5]}
       goal: {kind: goal, center: [1.75, 1.75, 0.75], half_size: 0.25}
+      # turned about the vertical: yaw_deg (ccw from east) or bearing_deg (cw from north)
+      # row: {center: [0, 0, 5], half_size: [20, 3, 5], bearing_deg: 37}
+      # nofly: {kind: no_fly, polygon: [[x, y], ...], z: [0, 50]}   # a convex polygon
+      # pole: {kind: pole, center: [x, y], radius: 0.3, z: [0, 12]}
     limits: {v_max_m_s: 0.751, a_max_m_s2: 1.0}             # scalar or [x, y, z] per axis
     vehicles:                                               # a list of vehicles ...
       - {name: d1, start: [-1.5, -1.5, 0.5]}
@@ -81,6 +85,7 @@ _TOP_KEYS = {
     "origin",
     "workspace",
     "regions",
+    "line",
     "limits",
     "vehicles",
     "groups",
@@ -126,6 +131,12 @@ def parse_scenario(
     workspace = _region(
         rd, "workspace", rd.require(top, "workspace", ""), "workspace", RegionKind.WORKSPACE
     )
+    if workspace.shape is not None:
+        raise rd.fail(
+            "workspace",
+            "the workspace is an axis-aligned box (min/max or center/half_size): put a "
+            "turned or polygonal area in regions and keep to it in the spec",
+        )
 
     regions: list[Region] = []
     reg_map = top.get("regions", {}) or {}
@@ -145,6 +156,21 @@ def parse_scenario(
                 f"unknown kind {kind_s!r} (kinds: {', '.join(k.value for k in RegionKind)})",
             ) from None
         regions.append(_region(rd, rname, rval, p, kind))
+
+    line_names: dict[str, list[str]] = {}
+    if "line" in top:
+        from planner.line import line_regions, read_line
+
+        base = Path(source).parent if source and not source.startswith("<") else Path.cwd()
+        model_ = read_line(rd.mapping(top["line"], "line"), origin, base, rd.fail, rd.number)
+        made, line_names = line_regions(model_)
+        taken = {r.name for r in regions}
+        for r in made:
+            if r.name in taken:
+                raise rd.fail(
+                    _join("regions", r.name), f"{r.name!r} is also made by the line section"
+                )
+        regions.extend(made)
 
     limits: dict[str, Any] = {}
     if "limits" in top:
@@ -261,7 +287,12 @@ def parse_scenario(
             raise rd.fail(p, f"${cname} is predefined")
         constants[cname] = rd.number(cval, p)
 
-    clauses = _expand_spec(rd, rd.require(top, "spec", ""), groups, constants)
+    for lname in line_names:
+        if lname in groups:
+            raise rd.fail(
+                _join("groups", lname), f"{lname!r} is the line section's list of its {lname}"
+            )
+    clauses = _expand_spec(rd, rd.require(top, "spec", ""), {**groups, **line_names}, constants)
     _check_calls(rd, clauses, seen, region_names)
 
     problem = Problem(

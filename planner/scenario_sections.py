@@ -23,7 +23,7 @@ from planner.errors import FileFieldError
 from planner.limits import PX4_LIMIT_KEYS
 from planner.predicates import PREDICATES
 from planner.problem import QP_SOLVERS, SolverMethod, SolverOptions, Vehicle
-from planner.regions import Region, RegionKind
+from planner.regions import Cylinder, Prism, Region, RegionKind, ShapeError
 
 __all__ = ["ScenarioError"]
 
@@ -162,7 +162,62 @@ def _box(rd: _Reader, value: Any, path: str) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
+def _pair(rd: _Reader, value: Any, path: str, what: str) -> tuple[float, float]:
+    if not isinstance(value, list | tuple) or len(value) != 2:
+        raise rd.fail(path, f"expected a list of 2 numbers {what}, got {_kind(value)}")
+    a, b = (rd.number(v, f"{path}[{i}]") for i, v in enumerate(value))
+    return (a, b)
+
+
+def _heights(rd: _Reader, m: Mapping[str, Any], path: str) -> tuple[float, float]:
+    z = _pair(rd, rd.require(m, "z", path), _join(path, "z"), "[bottom, top]")
+    if not z[0] < z[1]:
+        raise rd.fail(_join(path, "z"), f"empty height range: {z[0]:g} is not below {z[1]:g}")
+    return z
+
+
 def _region(rd: _Reader, name: str, value: Any, path: str, kind: RegionKind) -> Region:
+    """A region: a box ({min, max} or {center, half_size}), turned about the vertical with
+    ``yaw_deg`` (counter-clockwise from east) or ``bearing_deg`` (of its x axis, clockwise
+    from north); a prism ``{polygon: [[x, y], ...], z: [bottom, top]}`` over a convex
+    polygon; a cylinder ``{center: [x, y], radius: r, z: [bottom, top]}``."""
+    m = rd.mapping(value, path)
+    if "polygon" in m:
+        rd.mapping(value, path, {"polygon", "z", "kind"})
+        poly = m["polygon"]
+        if not isinstance(poly, list) or len(poly) < 3:
+            raise rd.fail(
+                _join(path, "polygon"), f"expected at least 3 corners [x, y], got {_kind(poly)}"
+            )
+        corners = [
+            _pair(rd, c, _join(_join(path, "polygon"), i), "[x, y]") for i, c in enumerate(poly)
+        ]
+        z = _heights(rd, m, path)
+        try:
+            return Region.of_shape(name, kind, Prism.from_polygon(corners, *z))
+        except ShapeError as exc:
+            raise rd.fail(_join(path, "polygon"), str(exc)) from None
+    if "radius" in m:
+        rd.mapping(value, path, {"center", "radius", "z", "kind"})
+        c = _pair(rd, rd.require(m, "center", path), _join(path, "center"), "[x, y]")
+        r = rd.number(m["radius"], _join(path, "radius"), positive=True)
+        return Region.of_shape(name, kind, Cylinder(c, r, *_heights(rd, m, path)))
+    turn = [k for k in ("yaw_deg", "bearing_deg") if k in m]
+    if turn:
+        if len(turn) > 1:
+            raise rd.fail(path, "give either yaw_deg or bearing_deg, not both")
+        if "center" not in m:
+            raise rd.fail(path, f"a turned box needs center/half_size (with {turn[0]})")
+        deg = rd.number(m[turn[0]], _join(path, turn[0]))
+        yaw_deg = deg if turn[0] == "yaw_deg" else 90.0 - deg
+        c3 = np.array(rd.vec3(m["center"], _join(path, "center")))
+        h = np.array(rd.per_axis(rd.require(m, "half_size", path), _join(path, "half_size")))
+        rd.mapping(value, path, {"center", "half_size", "kind", turn[0]})
+        if yaw_deg % 360.0 != 0.0:
+            shape = Prism.oriented_box(c3, h, math.radians(yaw_deg))
+            return Region.of_shape(name, kind, shape)
+        lo, hi = c3 - h, c3 + h
+        return Region(name, kind, tuple(lo.tolist()), tuple(hi.tolist()))
     lo, hi = _box(rd, value, path)
     return Region(name, kind, tuple(lo.tolist()), tuple(hi.tolist()))
 

@@ -5,8 +5,9 @@ Each vehicle's trajectory becomes global ``*_INT`` mission items
 land / return / hold), the same items ``gcs export --format qgc`` writes. They are uploaded
 with the MAVLink mission protocol (MAVSDK ``mission_raw``), downloaded again and compared
 field by field at the wire's precision. With ``--fence`` the geofence goes too (the
-workspace's footprint as inclusion polygon, full-height stay-out regions as exclusions:
-:func:`mavlink.mission.fence_boxes`, as ``gcs export`` writes it), also read back. ``--start``
+workspace's footprint as inclusion polygon, full-height stay-out regions as exclusions,
+polygons for boxes and prisms, circles for cylinders: :func:`mavlink.mission.fence_zones`, as
+``gcs export`` writes it), also read back. ``--start``
 then arms every vehicle and starts its mission (after checking each is within ``--tolerance``
 of its planned start, horizontally), and confirms each start.
 

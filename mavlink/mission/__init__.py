@@ -9,7 +9,8 @@ trajectory_to_mission``); each lives in the room named for what it holds::
     mavlink.mission.conversion  trajectory -> MISSION items (MissionPlan), the
                                 piecewise-linear path the mission flies, its deviation
                                 from the plan and its STL robustness
-    mavlink.mission.geofence    workspace and no-fly boxes -> FENCE items, the braking
+    mavlink.mission.geofence    workspace and full-height keep-outs (boxes, prisms,
+                                cylinders) -> FENCE polygons and circles, the braking
                                 distance PX4's predictive fence looks ahead
     mavlink.mission.transfer    one upload / download through MAVSDK's mission_raw,
                                 verified by its read-back; the transfer's timing report
@@ -33,7 +34,16 @@ from mavlink.mission.conversion import (
     path_robustness,
     trajectory_to_mission,
 )
-from mavlink.mission.geofence import FenceBox, braking_distance_m, fence_boxes, geofence_items
+from mavlink.mission.geofence import (
+    FenceBox,
+    FenceCircle,
+    FencePolygon,
+    FenceZone,
+    braking_distance_m,
+    fence_boxes,
+    fence_zones,
+    geofence_items,
+)
 from mavlink.mission.items import (
     COMPARED_FIELDS,
     Cmd,
@@ -64,6 +74,9 @@ __all__ = [
     "COMPARED_FIELDS",
     "Cmd",
     "FenceBox",
+    "FenceCircle",
+    "FencePolygon",
+    "FenceZone",
     "Frame",
     "MissionEnd",
     "MissionFollower",
@@ -82,6 +95,7 @@ __all__ = [
     "compare_items",
     "download",
     "fence_boxes",
+    "fence_zones",
     "fly_missions",
     "geofence_items",
     "path_deviation",

@@ -20,7 +20,7 @@ from gcs.errors import UserError
 from gcs.evaluation import plan_formula
 from mavlink.mock.batch import prepare, run_seed, simulate
 from mavlink.mock.disturbances import parse_disturbances
-from planner.planfile import load_plan
+from planner.planfile import Plan, load_plan
 
 PLAN = Path(__file__).resolve().parents[1] / "mavlink" / "data" / "reach_avoid_2.plan.json"
 
@@ -233,3 +233,48 @@ def test_list_disturbances_names_every_one(capsys: pytest.CaptureFixture[str]) -
     text = capsys.readouterr().out
     for name in ("wind_m_s", "gust_m_s", "estimator", "ekf_origin", "latency_s", "loss", "derate"):
         assert name in text
+
+
+def test_the_assessment_picture_draws_each_region_as_seen_from_above(
+    plan: Plan, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A turned keep-out and a pole are drawn as their footprints (corners; a 48-gon through
+    the circle), a box as its rectangle: the outlines handed to matplotlib, recorded."""
+    import math
+
+    import matplotlib.patches
+
+    from gcs.assess_figure import plot_assessment
+    from planner.regions import Cylinder, Prism, Region, RegionKind
+
+    turned = Prism.oriented_box((2.0, -2.0, 1.5), (0.8, 0.2, 1.5), math.radians(40.0))
+    shaped = dataclasses.replace(
+        plan,
+        regions=(
+            *plan.regions,
+            Region.of_shape("turned", RegionKind.NO_FLY, turned),
+            Region.of_shape("mast", RegionKind.POLE, Cylinder((-2.5, 2.5), 0.3, 0.0, 3.0)),
+        ),
+    )
+    result = assess(shaped, AssessOptions(runs=2, workers=0, batch_size=2))
+    outlines: list[np.ndarray] = []
+
+    class Outline(matplotlib.patches.Polygon):
+        def __init__(self, xy, *args, **kwargs):  # type: ignore[no-untyped-def]
+            outlines.append(np.asarray(xy, dtype=float))
+            super().__init__(xy, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.patches, "Polygon", Outline)
+    path = plot_assessment(shaped, result, None, tmp_path / "a.png")
+    assert path.stat().st_size > 10_000
+    assert len(outlines) == len(shaped.regions)
+    c, s = math.cos(math.radians(40.0)), math.sin(math.radians(40.0))
+    corners = [
+        (2.0 + a * 0.8 * c - b * 0.2 * s, -2.0 + a * 0.8 * s + b * 0.2 * c)
+        for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))
+    ]
+    np.testing.assert_allclose(outlines[-2], corners, atol=1e-12)
+    assert outlines[-1].shape == (48, 2)
+    np.testing.assert_allclose(np.hypot(*(outlines[-1] - [-2.5, 2.5]).T), 0.3, atol=1e-12)
+    (x0, y0, _), (x1, y1, _) = plan.regions[0].lo_enu_m, plan.regions[0].hi_enu_m
+    np.testing.assert_allclose(outlines[0], [[x0, y0], [x1, y0], [x1, y1], [x0, y1]])

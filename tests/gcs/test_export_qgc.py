@@ -11,6 +11,7 @@ network and no vehicle are involved: the importer only parses the file.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
@@ -167,6 +168,54 @@ def test_importer_rejects_what_qgc_rejects(importer: Importer, tmp_path: Path) -
     del plan["rallyPoints"]
     with pytest.raises(MissionRawError):
         importer.load(json.dumps(plan))
+
+
+def test_a_turned_box_and_a_cylinder_export_as_qgc_polygon_and_circle_that_import_back(
+    importer: Importer,
+) -> None:
+    """Full-height keep-outs of other shapes: a no-fly box turned 30 degrees is the polygon of
+    its corners, a pole (vertical cylinder) a QGC circle; MAVSDK's importer gives back the
+    very items ``gcs upload --fence`` sends."""
+    from planner.regions import Cylinder, Prism, Region, RegionKind
+
+    base = reach_avoid_plan()
+    turned = Prism.oriented_box((-1.2, 1.2, 1.0), (0.5, 0.2, 1.0), math.radians(30.0))
+    regions = (
+        *base.regions,
+        Region.of_shape("mast", RegionKind.POLE, Cylinder((1.0, -0.5), 0.25, 0.0, 2.5)),
+        Region.of_shape("turned", RegionKind.NO_FLY, turned),
+    )
+    plan = replace(base, regions=regions)
+    doc = _no_nan(json.dumps(qgc_plan(plan, plan.vehicles[0], QgcOptions())))
+    fence = doc["geoFence"]
+    # workspace, the full-height box no-fly zone and pole1, then the turned box: 4 polygons
+    assert [p["inclusion"] for p in fence["polygons"]] == [True, False, False, False]
+    (circle,) = fence["circles"]
+    assert set(circle) == {"circle", "inclusion", "version"} and set(circle["circle"]) == {
+        "center",
+        "radius",
+    }
+    assert circle["inclusion"] is False and circle["version"] == 1
+    assert circle["circle"]["radius"] == 0.25
+    lat, lon, _ = pymap3d.enu2geodetic(1.0, -0.5, 0.0, ORIGIN.lat_deg, ORIGIN.lon_deg, ORIGIN.alt_m)
+    assert circle["circle"]["center"] == pytest.approx([lat, lon], abs=1.5e-7)
+    # the turned box's corners, computed here from its centre, half sizes and bearing
+    c, s = math.cos(math.radians(30.0)), math.sin(math.radians(30.0))
+    corners = [
+        (-1.2 + a * 0.5 * c - b * 0.2 * s, 1.2 + a * 0.5 * s + b * 0.2 * c)
+        for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))
+    ]
+    polygon = fence["polygons"][3]["polygon"]
+    assert len(polygon) == 4
+    for (x, y), vertex in zip(corners, polygon, strict=True):
+        rlat, rlon, _ = pymap3d.enu2geodetic(x, y, 0.0, ORIGIN.lat_deg, ORIGIN.lon_deg, 488.0)
+        assert vertex == pytest.approx([rlat, rlon], abs=1.5e-7)
+    # MAVSDK's importer: polygons, then the circle, the items the link uploads
+    sent = fence_plan(plan).items
+    assert [it.command for it in sent][-1] == Cmd.NAV_FENCE_CIRCLE_EXCLUSION
+    back = _items(importer.load(json.dumps(doc)).geofence_items)
+    assert compare_items([_as_imported(f) for f in sent], back) == []
+    assert len(back) == 17
 
 
 # ------------------------------------------------------------------------- golden structure

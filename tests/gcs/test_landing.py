@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -122,6 +123,91 @@ def test_missions_land_at_the_clear_point_and_no_clear_point_refuses_land(
     assert main(["fly", str(path), "--end", "land", "--connection", "udpin://127.0.0.1:9", "--connection", "udpin://127.0.0.1:10"]) == 2  # fmt: skip
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no clear landing point" in err and "Traceback" not in err
+
+
+def _turned_excess(p_xy: np.ndarray, centre: tuple[float, float], half: tuple[float, float], yaw: float) -> np.ndarray:  # fmt: skip
+    """Reference for a turned box grown by the clearance, computed in its own axes: how far
+    points ``(n, 2)`` lie outside it (<= 0: within the clearance or inside)."""
+    u = np.array([np.cos(yaw), np.sin(yaw)])
+    w = np.array([-u[1], u[0]])
+    rel = np.atleast_2d(p_xy) - np.asarray(centre)
+    return np.maximum(np.abs(rel @ u) - half[0], np.abs(rel @ w) - half[1]) - CLEARANCE_M
+
+
+def _turned(name: str, centre: tuple[float, float], half: tuple[float, float], yaw: float, top_m: float, kind: RegionKind = RegionKind.NO_FLY) -> Region:  # fmt: skip
+    from planner.regions import Prism
+
+    prism = Prism.oriented_box((*centre, top_m / 2), (*half, top_m / 2), yaw)
+    return Region.of_shape(name, kind, prism)
+
+
+def test_column_and_transit_use_a_turned_box_and_a_cylinder_not_their_bounding_boxes() -> None:
+    from gcs.landing import column_blocker, transit_clear
+    from planner.regions import Cylinder, Prism
+
+    centre, half, yaw = (0.0, 0.0), (2.0, 0.3), math.pi / 4
+    wall = _turned("wall", centre, half, yaw, 3.0)
+    rng = np.random.default_rng(7)
+    pts = rng.uniform(-3.0, 3.0, (3000, 2))
+    excess = _turned_excess(pts, centre, half, yaw)
+    pts, excess = pts[np.abs(excess) > 1e-6], excess[np.abs(excess) > 1e-6]
+    blocked = np.array([column_blocker(q, 2.0, (wall,)) is wall for q in pts])
+    np.testing.assert_array_equal(blocked, excess <= 0.0)
+    # where a test of the bounding box (grown alike) would block, and the turned box does not
+    lo, hi = (
+        np.asarray(wall.lo_enu_m[:2]) - CLEARANCE_M,
+        np.asarray(wall.hi_enu_m[:2]) + CLEARANCE_M,
+    )
+    in_bbox = np.all((pts >= lo) & (pts <= hi), axis=1)
+    assert np.count_nonzero(in_bbox & ~blocked) > 500
+    assert column_blocker(np.array([1.4, -1.4]), 2.0, (wall,)) is None  # 1.68 m off the wall
+    assert column_blocker(np.array([1.4, 1.4]), 2.0, (wall,)) is wall  # on its long axis
+    raised = Region.of_shape("raised", RegionKind.NO_FLY, Prism.oriented_box((0, 0, 4), (2, 0.3, 1), yaw))  # fmt: skip
+    assert column_blocker(np.array([1.4, 1.4]), 2.0, (raised,)) is None  # its floor is above 2 m
+
+    # transits at 2 m (level with the wall): exact vs. 4001 samples along each segment
+    starts, ends = rng.uniform(-3.5, 3.5, (400, 2)), rng.uniform(-3.5, 3.5, (400, 2))
+    s = np.linspace(0.0, 1.0, 4001)[:, None]
+    checked = 0
+    for a, b in zip(starts, ends, strict=True):
+        worst = float(_turned_excess(a + s * (b - a), centre, half, yaw).min())
+        if abs(worst) < 0.01:  # grazing: the sampling cannot tell
+            continue
+        assert transit_clear(a, b, 2.0, (wall,)) == (worst > 0.0), (a, b, worst)
+        checked += 1
+    assert checked > 350
+    # through the bounding box's empty corner: clear; across the wall: not; over it: clear
+    assert transit_clear(np.array([1.0, -2.5]), np.array([2.5, -1.0]), 2.0, (wall,))
+    assert not transit_clear(np.array([-2.0, 1.0]), np.array([1.0, -2.0]), 2.0, (wall,))
+    assert transit_clear(np.array([-2.0, 1.0]), np.array([1.0, -2.0]), 3.5, (wall,))
+
+    pole = Region.of_shape("pole", RegionKind.POLE, Cylinder((0.0, 0.0), 0.5, 0.0, 3.0))
+    reach = 0.5 + CLEARANCE_M
+    assert column_blocker(np.array([0.69, 0.69]), 2.0, (pole,)) is pole  # 0.976 m off the axis
+    assert column_blocker(np.array([0.8, 0.8]), 2.0, (pole,)) is None  # 1.13 m: in its box only
+    for a, b in (((-2.0, 0.95), (2.0, 0.95)), ((-2.0, 1.05), (2.0, 1.05)), ((0.3, 1.5), (1.5, 0.3)), ((0.5, 2.0), (0.5, 1.2))):  # fmt: skip
+        pa, pb = np.array(a), np.array(b)
+        gap = np.hypot(*(pa + s * (pb - pa)).T).min()  # distance to the axis, sampled
+        assert transit_clear(pa, pb, 2.0, (pole,)) == (gap > reach), (a, b, gap)
+
+
+def test_an_end_beside_a_turned_keep_out_lands_straight_down_and_one_over_it_just_clear() -> None:
+    plan = load_plan(PLAN)
+    end = _end(plan, "d1")
+    top = end[2] - 0.3  # below the transit: only the descent can meet it
+    # a long wall turned 45 degrees whose bounding box holds d1's end, the wall itself 1.1 m off
+    wall = _turned("wall", (end[0] + 1.0, end[1] + 1.0), (1.5, 0.2), -math.pi / 4, top)
+    assert np.all(np.abs(end[:2] - wall.center_enu_m[:2]) < np.subtract(wall.hi_enu_m, wall.lo_enu_m)[:2] / 2)  # fmt: skip
+    lp = landing_point(_with(plan, wall), "d1")
+    assert lp.blocked_by is None and lp.moved_m == 0.0
+    # the same wall right under the end: it moves across the wall, not out of its bounding box
+    under = _turned("under", (end[0], end[1]), (1.5, 0.2), -math.pi / 4, top)
+    lp = landing_point(_with(plan, under), "d1")
+    assert lp.blocked_by is under and lp.found
+    assert _turned_excess(lp.point_enu_m[:2], (end[0], end[1]), (1.5, 0.2), -math.pi / 4)[0] > 0
+    half_bbox = (np.subtract(under.hi_enu_m, under.lo_enu_m)[:2] / 2 + CLEARANCE_M).min()
+    assert 0.2 + CLEARANCE_M <= lp.moved_m < half_bbox  # 0.7 m would do; 1.56 m for its box
+    assert lp.point_enu_m[2] == pytest.approx(end[2])
 
 
 @pytest.mark.slow

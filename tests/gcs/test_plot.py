@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import base64
 import csv
+import math
 import re
 import struct
 from pathlib import Path
@@ -22,7 +23,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from gcs import cli
 from gcs.clause_traces import clause_traces
-from gcs.figure import render_figure
+from gcs.figure import figure_png, render_figure
 from gcs.plot import plot_plan
 from gcs.telemetry import load_telemetry
 from planner.planfile import load_plan
@@ -144,6 +145,83 @@ def test_plot_png_is_written_with_all_panels(tmp_path: Path) -> None:
     vx = next(ax for ax in fig.axes if ax.get_title().startswith("velocity east x"))
     levels = {round(ln.get_ydata()[0], 6) for ln in vx.get_lines() if ln.get_linestyle() == "--"}
     assert levels == {3.5, -3.5}
+
+
+def test_prisms_and_cylinders_are_drawn_as_their_shapes_not_their_bounding_boxes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A turned inspection box (solid), a pole cylinder (solid) and a long no-fly strip
+    (outline) go through the plan file and into the 3-D view as their own outlines: the
+    collections handed to matplotlib carry the shapes' corners (recorded on the way in)."""
+    from dataclasses import replace
+
+    from mpl_toolkits.mplot3d import art3d
+
+    from planner.regions import Cylinder, Prism, Region, RegionKind
+
+    yaw = math.radians(25.0)
+    turned = Prism.oriented_box((0.5, 0.6, 1.2), (0.3, 0.12, 0.15), yaw)
+    strip_xy = [(-2.0, -0.2), (2.0, -0.6), (2.0, -0.3), (-2.0, 0.1)]
+    base = reach_avoid_plan()
+    plan = replace(
+        base,
+        regions=(
+            *base.regions,
+            Region.of_shape("turned", RegionKind.INSPECTION, turned),
+            Region.of_shape("mast", RegionKind.POLE, Cylinder((-0.5, 1.2), 0.1, 0.0, 1.8)),
+            Region.of_shape("strip", RegionKind.NO_FLY, Prism.from_polygon(strip_xy, 0.0, 2.0)),
+        ),
+    )
+    plan_path = write_plan(tmp_path / "shapes.json", plan)
+    assert cli.main(["plot", str(plan_path)]) == 0
+    assert imread(tmp_path / "shapes.png").shape[:2] == (1250, 1600)
+
+    recorded: list[tuple[str, list[np.ndarray]]] = []
+
+    class Poly(art3d.Poly3DCollection):
+        def __init__(self, verts, *args, **kwargs):  # type: ignore[no-untyped-def]
+            recorded.append(("solid", [np.asarray(v) for v in verts]))
+            super().__init__(verts, *args, **kwargs)
+
+    class Lines(art3d.Line3DCollection):
+        def __init__(self, segments, *args, **kwargs):  # type: ignore[no-untyped-def]
+            recorded.append(("outline", [np.asarray(v) for v in segments]))
+            super().__init__(segments, *args, **kwargs)
+
+    monkeypatch.setattr(art3d, "Poly3DCollection", Poly)
+    monkeypatch.setattr(art3d, "Line3DCollection", Lines)
+    loaded = load_plan(plan_path)
+    fig = render_figure(loaded, clause_traces(loaded))
+    figure_png(fig)  # draws
+
+    def drawn(kind: str, floor_xy: np.ndarray, z0: float, z1: float) -> bool:
+        """Some recorded collection of ``kind`` holds these corners at both heights."""
+        want = {(round(x, 9), round(y, 9), round(z, 9)) for z in (z0, z1) for x, y in floor_xy}
+        for k, polys in recorded:
+            pts = {tuple(np.round(q, 9)) for poly in polys for q in poly}
+            if k == kind and want <= pts and len(pts) == len(want):
+                return True
+        return False
+
+    # the turned box's corners, from its centre, half sizes and bearing
+    u, w = np.array([math.cos(yaw), math.sin(yaw)]), np.array([-math.sin(yaw), math.cos(yaw)])
+    corners = np.array([[0.5, 0.6] + a * 0.3 * u + b * 0.12 * w for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))])  # fmt: skip
+    assert drawn("solid", corners, 1.05, 1.35)
+    assert drawn("outline", np.array(strip_xy), 0.0, 2.0)
+    ring = np.column_stack([np.cos(np.arange(48) * np.pi / 24), np.sin(np.arange(48) * np.pi / 24)])
+    assert drawn("solid", np.array([-0.5, 1.2]) + 0.1 * ring, 0.0, 1.8)
+    # not their bounding boxes: no box was drawn for them
+    for name in ("turned", "strip", "mast"):
+        r = next(r for r in loaded.regions if r.name == name)
+        (x0, y0, z0), (x1, y1, z1) = r.lo_enu_m, r.hi_enu_m
+        box = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+        assert not drawn("solid", box, z0, z1) and not drawn("outline", box, z0, z1)
+    # a name at the top centre of each
+    ax3 = next(ax for ax in fig.axes if ax.name == "3d")
+    labels = {t.get_text(): t.get_position_3d() for t in ax3.texts}
+    assert labels["turned"] == pytest.approx((0.5, 0.6, 1.35))
+    assert labels["mast"] == pytest.approx((-0.5, 1.2, 1.8))
+    assert labels["strip"] == pytest.approx((0.0, -0.25, 2.0))
 
 
 def test_html_embeds_the_png_and_tabulates_clause_robustness(tmp_path: Path) -> None:

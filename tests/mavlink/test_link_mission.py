@@ -19,6 +19,7 @@ from mavlink.mission import (
     MissionType,
     compare_items,
     fence_boxes,
+    fence_zones,
     fly_missions,
     geofence_items,
     path_deviation,
@@ -286,6 +287,107 @@ def test_fence_excludes_only_stay_out_boxes_that_span_the_workspace_height() -> 
         ("tower", False),
         ("nofly", False),
     ]
+
+
+def _shaped_scenario():  # type: ignore[no-untyped-def]
+    """A workspace with full-height keep-outs of every shape, and a low one (not fenced)."""
+    from planner.regions import Cylinder, Prism, Region, RegionKind
+
+    ws = Region("workspace", RegionKind.WORKSPACE, (-10.0, -10.0, 0.0), (10.0, 10.0, 5.0))
+    kinds = RegionKind
+    regions = [
+        # a cylinder first: its circle still follows every polygon (QGC's order)
+        Region.of_shape("pole", kinds.POLE, Cylinder((-4.0, 3.0), 0.8, 0.0, 6.0)),
+        Region.of_shape(
+            "wall", kinds.NO_FLY, Prism.oriented_box((3.0, 0.0, 2.5), (2.0, 0.3, 2.5), math.pi / 4)
+        ),
+        Region.of_shape(
+            "area",
+            kinds.NO_FLY,
+            Prism.from_polygon([[-8, -8], [-4, -9], [-3, -5], [-7, -4]], 0.0, 5.0),
+        ),
+        Region.of_shape(
+            "low", kinds.OBSTACLE, Prism.oriented_box((0.0, 6.0, 1.0), (1.0, 0.5, 1.0), 0.3)
+        ),
+    ]
+    return ws, regions
+
+
+#: Turned-wall corners, independently: centre (3, 0) +- 2 along (1, 1)/sqrt2 and +- 0.3 across.
+_WALL = [
+    (
+        3.0 + su * 2.0 * math.sqrt(0.5) - sv * 0.3 * math.sqrt(0.5),
+        su * 2.0 * math.sqrt(0.5) + sv * 0.3 * math.sqrt(0.5),
+    )
+    for su, sv in ((-1, -1), (1, -1), (1, 1), (-1, 1))
+]
+_AREA = [(-8.0, -8.0), (-4.0, -9.0), (-3.0, -5.0), (-7.0, -4.0)]
+
+
+def _geodetic_e7(x: float, y: float) -> tuple[int, int]:
+    lat, lon, _ = pymap3d.enu2geodetic(x, y, 0.0, ORIGIN.lat_deg, ORIGIN.lon_deg, ORIGIN.alt_m)
+    return round(lat * 1e7), round(lon * 1e7)
+
+
+def test_full_height_prisms_are_exclusion_polygons_and_cylinders_exclusion_circles() -> None:
+    from mavlink.mission import FenceBox, FenceCircle, FencePolygon, fence_zones
+
+    ws, regions = _shaped_scenario()
+    zones = fence_zones(ws, regions)
+    assert [(type(z), z.name, z.inclusion) for z in zones] == [
+        (FenceBox, "workspace", True),
+        (FenceCircle, "pole", False),
+        (FencePolygon, "wall", False),
+        (FencePolygon, "area", False),
+    ]  # the low turned obstacle can be flown over: no fence
+    items = geofence_items(zones, ORIGIN)
+    assert [i.seq for i in items] == list(range(len(items))) == list(range(13))
+    assert [i.command for i in items] == (
+        [Cmd.NAV_FENCE_POLYGON_VERTEX_INCLUSION] * 4
+        + [Cmd.NAV_FENCE_POLYGON_VERTEX_EXCLUSION] * 8
+        + [Cmd.NAV_FENCE_CIRCLE_EXCLUSION]
+    )
+    assert all(i.mission_type == MissionType.FENCE and i.frame == Frame.GLOBAL_INT for i in items)
+    assert [i.param1 for i in items[:12]] == [4.0] * 12
+    corners = [(-10, -10), (10, -10), (10, 10), (-10, 10), *_WALL, *_AREA]
+    for item, (x, y) in zip(items[:12], corners, strict=True):
+        assert abs(item.x - _geodetic_e7(x, y)[0]) <= 1 and abs(item.y - _geodetic_e7(x, y)[1]) <= 1
+    circle = items[12]
+    assert circle.param1 == 0.8  # the radius, m
+    assert (circle.x, circle.y) == _geodetic_e7(-4.0, 3.0)  # the centre
+    # a cylinder or prism lower than the workspace is not fenced, whatever its bounding box
+    assert [
+        z.name for z in fence_zones(dataclasses.replace(ws, hi_enu_m=(10.0, 10.0, 5.5)), regions)
+    ] == ["workspace", "pole"]
+
+
+def test_the_mock_vehicle_stores_the_shaped_fence_and_breaches_only_the_true_shapes() -> None:
+    ws, regions = _shaped_scenario()
+    fence = geofence_items(fence_zones(ws, regions), ORIGIN)
+
+    async def run():  # type: ignore[no-untyped-def]
+        spawn = [(0.0, -6.0, 0.0)]
+        async with mock_and_fleet(["d1"], ORIGIN, spawn, profile="ideal") as (mock, fleet):
+            # MAVSDK uploads, downloads and compares (upload_and_verify)
+            report = await upload_and_verify(fleet["d1"], fence, MissionType.FENCE)
+            return report, mock.vehicles[0].mission_items(1), mock.vehicles[0]
+
+    report, stored, vehicle = asyncio.run(run())
+    assert report.items == 13
+    assert compare_items(fence, [MissionItem(**dataclasses.asdict(i)) for i in stored]) == []
+
+    def breached(x: float, y: float) -> bool:
+        lat, lon, alt = pymap3d.enu2geodetic(
+            x, y, 2.0, ORIGIN.lat_deg, ORIGIN.lon_deg, ORIGIN.alt_m
+        )
+        return bool(vehicle.fence_violated(vehicle.global_to_ned(lat, lon, alt)))
+
+    # inside each keep-out, and inside each one's bounding box but outside the shape itself
+    assert breached(3.0, 0.0) and not breached(4.3, -1.3)  # the turned wall; its box's corner
+    assert breached(-4.0, 3.0) and not breached(-3.3, 3.7)  # the pole (0.99 m off its axis)
+    assert breached(-6.0, -6.0) and not breached(-3.5, -8.5)  # the polygon area
+    assert not breached(0.0, 6.0)  # over the low obstacle: not fenced
+    assert not breached(0.0, 0.0) and breached(10.5, 0.0)  # the workspace
 
 
 def test_upload_whose_final_ack_is_lost_is_settled_by_the_read_back() -> None:

@@ -1,0 +1,317 @@
+"""A power line from its pole coordinates: the regions a scenario's ``line:`` section makes.
+
+::
+
+    line:
+      poles: [[0, 0], [24, 18], ...]      # ENU [x, y] metres, or {lat: .., lon: ..} each
+      # along: {start: [0, 0], bearing_deg: 37, span_m: 30, count: 10}
+      # file: poles.csv                   # a GIS export: CSV (x,y or lat,lon columns) or
+      #                                   # GeoJSON (Point features, or one LineString)
+      pole: {radius_m: 0.4, height_m: 12}
+      conductors: {half_width_m: 1.8, z: [9, 12], clearance_m: 1.0}
+      inspection: {standoff_m: 1.5, depth_m: 2.2, length_m: 5, z: [9.5, 12.5], side: right}
+
+For pole ``i`` (1-based, in line order) it makes:
+
+* ``pole{i}``: a :class:`~planner.regions.Cylinder` (``radius_m``, ground to ``height_m``);
+* ``span{i}`` (between poles ``i`` and ``i + 1``): the conductors' keep-out, a box along the
+  span, ``half_width_m + clearance_m`` either side of it, reaching ``clearance_m`` past
+  each pole, over ``z`` widened by ``clearance_m``;
+* ``insp{i}``: where a camera inspects the insulators of pole ``i``: a box ``length_m``
+  along the line and ``depth_m`` across it, ``standoff_m`` beyond the conductors'
+  half-width on the ``side`` (``right`` or ``left`` of the line's direction, pole 1 to the
+  last; ``both``: ``insp{i}_left`` and ``insp{i}_right``), turned with the line there (the
+  mean direction of the spans on either side).
+
+and the lists ``poles``, ``spans`` and ``inspections`` of those names, which a clause's
+``each`` may bind (``each: [d in all, s in spans]``).  A straight line along the x or y
+axis makes axis-aligned boxes (the planner's fastest form); any other direction makes
+prisms.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from planner.frames import GeodeticPoint, geodetic_to_enu
+from planner.regions import Cylinder, Prism, Region, RegionKind
+
+__all__ = ["LineModel", "line_regions"]
+
+#: Sides an inspection box may be on.
+SIDES = ("left", "right", "both")
+
+
+@dataclass(frozen=True, slots=True)
+class LineModel:
+    """A line's parameters (see the module docstring), metres.
+
+    Attributes:
+        poles_xy: the poles' ENU positions, (n, 2), in line order.
+        pole_radius_m, pole_height_m: each pole's cylinder.
+        half_width_m, conductor_z_m, clearance_m: the conductors (outer phase's distance
+            from the line's axis, their height range) and the keep-out's clearance.
+        standoff_m, depth_m, length_m, inspection_z_m, side: the inspection boxes.
+    """
+
+    poles_xy: np.ndarray
+    pole_radius_m: float = 0.4
+    pole_height_m: float = 12.0
+    half_width_m: float = 1.8
+    conductor_z_m: tuple[float, float] = (9.0, 12.0)
+    clearance_m: float = 1.0
+    standoff_m: float = 1.5
+    depth_m: float = 2.2
+    length_m: float = 5.0
+    inspection_z_m: tuple[float, float] = (9.5, 12.5)
+    side: str = "right"
+
+
+def _region(name: str, kind: RegionKind, center_xy: np.ndarray, half: Sequence[float],
+            z: tuple[float, float], direction: np.ndarray) -> Region:  # fmt: skip
+    """A box centred at ``center_xy`` with half-sizes ``half`` (along, across), turned along
+    ``direction``; along an axis, the axis-aligned box itself."""
+    u = direction / np.linalg.norm(direction)
+    if abs(u[0]) > 1.0 - 1e-12 or abs(u[1]) > 1.0 - 1e-12:
+        h = np.array(half) if abs(u[0]) > 0.5 else np.array(half[::-1])
+        lo = (*(center_xy - h).tolist(), z[0])
+        hi = (*(center_xy + h).tolist(), z[1])
+        return Region(name, kind, lo, hi)
+    c = [float(center_xy[0]), float(center_xy[1]), 0.5 * (z[0] + z[1])]
+    shape = Prism.oriented_box(c, [half[0], half[1], 0.5 * (z[1] - z[0])], math.atan2(u[1], u[0]))
+    return Region.of_shape(name, kind, shape)
+
+
+def line_regions(model: LineModel) -> tuple[list[Region], dict[str, list[str]]]:
+    """The regions of ``model`` and the name lists ``poles``, ``spans``, ``inspections``."""
+    p = np.asarray(model.poles_xy, dtype=float)
+    spans = np.diff(p, axis=0)
+    regions: list[Region] = []
+    names: dict[str, list[str]] = {"poles": [], "spans": [], "inspections": []}
+    for i, xy in enumerate(p, start=1):
+        name = f"pole{i}"
+        cyl = Cylinder((float(xy[0]), float(xy[1])), model.pole_radius_m, 0.0, model.pole_height_m)
+        regions.append(Region.of_shape(name, RegionKind.POLE, cyl))
+        names["poles"].append(name)
+    c = model.clearance_m
+    z_keep = (model.conductor_z_m[0] - c, model.conductor_z_m[1] + c)
+    for i, d in enumerate(spans, start=1):
+        name = f"span{i}"
+        half = (0.5 * float(np.linalg.norm(d)) + c, model.half_width_m + c)
+        regions.append(_region(name, RegionKind.CONDUCTOR, p[i - 1] + 0.5 * d, half, z_keep, d))
+        names["spans"].append(name)
+    sides = ("left", "right") if model.side == "both" else (model.side,)
+    reach = model.half_width_m + model.standoff_m + 0.5 * model.depth_m
+    for i, xy in enumerate(p, start=1):
+        here = [spans[j] / np.linalg.norm(spans[j]) for j in (i - 2, i - 1) if 0 <= j < len(spans)]
+        direction = np.sum(here, axis=0)
+        if np.linalg.norm(direction) < 1e-9:  # the line turns back on itself here
+            direction = here[-1]
+        u = direction / np.linalg.norm(direction)
+        left = np.array([-u[1], u[0]])
+        for side in sides:
+            name = f"insp{i}" if len(sides) == 1 else f"insp{i}_{side}"
+            normal = left if side == "left" else -left
+            half = (0.5 * model.length_m, 0.5 * model.depth_m)
+            regions.append(
+                _region(
+                    name, RegionKind.INSPECTION, xy + reach * normal, half, model.inspection_z_m, u
+                )
+            )
+            names["inspections"].append(name)
+    return regions, names
+
+
+# ---------------------------------------------------------------------------- reading
+
+
+def read_line(
+    value: Mapping[str, Any],
+    origin: GeodeticPoint,
+    base_dir: Path,
+    fail: Callable[[str, str], Exception],
+    number: Callable[..., float],
+) -> LineModel:
+    """The :class:`LineModel` of a scenario's ``line:`` mapping (``fail(path, problem)``
+    makes the error to raise; ``number(value, path, positive=..)`` reads a number)."""
+    sources = [k for k in ("poles", "along", "file") if k in value]
+    if len(sources) != 1:
+        raise fail("line", "give the poles one way: poles, along or file")
+    src = sources[0]
+    if src == "poles":
+        xy = _pole_list(value["poles"], origin, fail, number)
+    elif src == "along":
+        xy = _along(value["along"], fail, number)
+    else:
+        xy = _pole_file(value["file"], origin, base_dir, fail)
+    if len(xy) < 2:
+        raise fail(f"line.{src}", f"a line needs at least 2 poles, got {len(xy)}")
+    gaps = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+    if np.any(gaps < 1.0):
+        j = int(np.argmin(gaps))
+        raise fail(f"line.{src}", f"poles {j + 1} and {j + 2} are {gaps[j]:.3g} m apart (< 1 m)")
+    kw: dict[str, Any] = {"poles_xy": xy}
+    sections = {
+        "pole": {"radius_m": "pole_radius_m", "height_m": "pole_height_m"},
+        "conductors": {"half_width_m": "half_width_m", "z": "conductor_z_m",
+                       "clearance_m": "clearance_m"},
+        "inspection": {"standoff_m": "standoff_m", "depth_m": "depth_m", "length_m": "length_m",
+                       "z": "inspection_z_m", "side": "side"},
+    }  # fmt: skip
+    unknown = set(value) - {"poles", "along", "file", *sections}
+    if unknown:
+        raise fail(
+            f"line.{sorted(unknown)[0]}",
+            f"unknown key (keys: poles|along|file, {', '.join(sections)})",
+        )
+    for sec, keys in sections.items():
+        m = value.get(sec, {}) or {}
+        if not isinstance(m, dict):
+            raise fail(f"line.{sec}", "expected a mapping")
+        for k, v in m.items():
+            path = f"line.{sec}.{k}"
+            if k not in keys:
+                raise fail(path, f"unknown key (keys: {', '.join(keys)})")
+            if k == "side":
+                if v not in SIDES:
+                    raise fail(path, f"expected one of {', '.join(SIDES)}, got {v!r}")
+                kw["side"] = v
+            elif k == "z":
+                if not isinstance(v, list) or len(v) != 2:
+                    raise fail(path, "expected [bottom, top]")
+                z = (number(v[0], f"{path}[0]"), number(v[1], f"{path}[1]"))
+                if not z[0] < z[1]:
+                    raise fail(path, f"empty height range: {z[0]:g} is not below {z[1]:g}")
+                kw[keys[k]] = z
+            else:
+                kw[keys[k]] = number(
+                    v, path, nonnegative=k == "clearance_m", positive=k != "clearance_m"
+                )
+    return LineModel(**kw)
+
+
+def _xy_or_geodetic(
+    v: Any, path: str, origin: GeodeticPoint, fail: Any, number: Any
+) -> list[float]:
+    if isinstance(v, dict):
+        if set(v) - {"lat", "lon"} or not {"lat", "lon"} <= set(v):
+            raise fail(path, "expected {lat, lon} (degrees) or [x, y] (ENU metres)")
+        lat, lon = number(v["lat"], f"{path}.lat"), number(v["lon"], f"{path}.lon")
+        if not (-90 <= lat <= 90 and -180 <= lon <= 180):
+            raise fail(path, f"not a latitude/longitude: {lat:g}, {lon:g}")
+        enu = geodetic_to_enu(lat, lon, origin.alt_m, origin)
+        return [float(enu[0, 0]), float(enu[0, 1])]
+    if not isinstance(v, list | tuple) or len(v) != 2:
+        raise fail(path, "expected [x, y] (ENU metres) or {lat, lon} (degrees)")
+    return [number(v[0], f"{path}[0]"), number(v[1], f"{path}[1]")]
+
+
+def _pole_list(v: Any, origin: GeodeticPoint, fail: Any, number: Any) -> np.ndarray:
+    if not isinstance(v, list):
+        raise fail("line.poles", "expected a list of [x, y] or {lat, lon}")
+    return np.array(
+        [_xy_or_geodetic(p, f"line.poles[{i}]", origin, fail, number) for i, p in enumerate(v)]
+    )
+
+
+def _along(v: Any, fail: Any, number: Any) -> np.ndarray:
+    keys = {"start", "bearing_deg", "span_m", "count"}
+    if not isinstance(v, dict) or set(v) != keys:
+        raise fail("line.along", f"expected {{{', '.join(sorted(keys))}}}")
+    s = v["start"]
+    if not isinstance(s, list) or len(s) != 2:
+        raise fail("line.along.start", "expected [x, y] (ENU metres)")
+    start = np.array([number(s[0], "line.along.start[0]"), number(s[1], "line.along.start[1]")])
+    bearing = math.radians(number(v["bearing_deg"], "line.along.bearing_deg"))
+    span = number(v["span_m"], "line.along.span_m", positive=True)
+    count = v["count"]
+    if isinstance(count, bool) or not isinstance(count, int) or count < 2:
+        raise fail("line.along.count", f"expected an integer >= 2, got {count!r}")
+    u = np.array([math.sin(bearing), math.cos(bearing)])  # bearing: clockwise from north
+    return start + span * np.arange(count)[:, None] * u
+
+
+def _pole_file(v: Any, origin: GeodeticPoint, base_dir: Path, fail: Any) -> np.ndarray:
+    if not isinstance(v, str):
+        raise fail("line.file", "expected a file name (CSV or GeoJSON)")
+    path = (base_dir / v) if not Path(v).is_absolute() else Path(v)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise fail("line.file", f"cannot read {path}: {exc.strerror or exc}") from None
+    if path.suffix.lower() in (".geojson", ".json"):
+        return _geojson_poles(text, path, origin, fail)
+    return _csv_poles(text, path, origin, fail)
+
+
+def _to_enu(lat: np.ndarray, lon: np.ndarray, origin: GeodeticPoint) -> np.ndarray:
+    return geodetic_to_enu(lat, lon, np.full(len(lat), origin.alt_m), origin)[:, :2]
+
+
+def _csv_poles(text: str, path: Path, origin: GeodeticPoint, fail: Any) -> np.ndarray:
+    rows = list(csv.DictReader(text.splitlines()))
+    cols = {c.strip().lower(): c for c in (rows[0].keys() if rows else [])}
+    pair = next(
+        (p for p in (("x", "y"), ("lat", "lon"), ("latitude", "longitude")) if set(p) <= set(cols)),
+        None,
+    )
+    if pair is None:
+        raise fail(
+            "line.file", f"{path.name}: expected columns x,y (ENU metres) or lat,lon (degrees)"
+        )
+    vals = []
+    for i, r in enumerate(rows, start=2):
+        try:
+            a, b = float(r[cols[pair[0]]]), float(r[cols[pair[1]]])
+        except (TypeError, ValueError):
+            raise fail(
+                "line.file", f"{path.name} line {i}: not a number in {pair[0]}/{pair[1]}"
+            ) from None
+        if not (math.isfinite(a) and math.isfinite(b)):
+            raise fail("line.file", f"{path.name} line {i}: not a finite number")
+        vals.append((a, b))
+    arr = np.array(vals, dtype=float).reshape(-1, 2)
+    if pair == ("x", "y"):
+        return arr
+    if np.any(np.abs(arr[:, 0]) > 90) or np.any(np.abs(arr[:, 1]) > 180):
+        raise fail("line.file", f"{path.name}: a latitude/longitude out of range")
+    return _to_enu(arr[:, 0], arr[:, 1], origin)
+
+
+def _geojson_poles(text: str, path: Path, origin: GeodeticPoint, fail: Any) -> np.ndarray:
+    """Points (a FeatureCollection of Point features, in order) or one LineString's vertices;
+    GeoJSON coordinates are [lon, lat] (RFC 7946)."""
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise fail("line.file", f"{path.name}: not JSON (line {exc.lineno}: {exc.msg})") from None
+    geoms = (
+        [f.get("geometry") or {} for f in doc.get("features", [])]
+        if isinstance(doc, dict) and doc.get("type") == "FeatureCollection"
+        else [doc.get("geometry", doc) if isinstance(doc, dict) else {}]
+    )
+    coords: list[Any] = []
+    for g in geoms:
+        if g.get("type") == "Point":
+            coords.append(g.get("coordinates"))
+        elif g.get("type") == "LineString":
+            coords.extend(g.get("coordinates") or [])
+    try:
+        arr = np.array([[float(c[1]), float(c[0])] for c in coords], dtype=float).reshape(-1, 2)
+    except (TypeError, ValueError, IndexError):
+        raise fail("line.file", f"{path.name}: a coordinate is not [lon, lat]") from None
+    if not len(arr):
+        raise fail("line.file", f"{path.name}: no Point features or LineString found")
+    if np.any(np.abs(arr[:, 0]) > 90) or np.any(np.abs(arr[:, 1]) > 180):
+        raise fail(
+            "line.file", f"{path.name}: a coordinate is out of range (GeoJSON is [lon, lat])"
+        )
+    return _to_enu(arr[:, 0], arr[:, 1], origin)
