@@ -311,7 +311,9 @@ def summarise(
     weakest = np.argmin(c_true, axis=1) if n and n_c else np.zeros(n, dtype=int)
     table = _runs_table(outcomes, true, rep, weakest)
     t = np.arange(round(plan.horizon_s / plan.check_dt_s) + 1) * plan.check_dt_s
-    planned_sig = {v.name: v.trajectory.position(t) for v in plan.vehicles}
+    from planner.planfile import planned_signals
+
+    planned_sig = planned_signals(plan, t)
     clause_stats = []
     for i, c in enumerate(clauses):
         failed = c_true[:, i] <= 0

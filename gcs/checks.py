@@ -66,7 +66,9 @@ def verify_plan(plan: Any, dt_s: float | None = None) -> list[Check]:
     n = round(plan.horizon_s / dt) + 1
     t = np.arange(n) * dt
     trajs = [v.trajectory for v in plan.vehicles]
-    pos = {v.name: v.trajectory.position(t) for v in plan.vehicles}
+    from planner.planfile import planned_signals
+
+    pos = planned_signals(plan, t)
     checks: list[Check] = []
 
     phi = plan_formula(plan)

@@ -140,7 +140,9 @@ def clause_traces(
 
     phi = plan_formula(plan)
     t, dt = plan_grid(plan, dt_s)
-    planned = {v.name: v.trajectory.position(t) for v in plan.vehicles}
+    from planner.planfile import planned_signals
+
+    planned = planned_signals(plan, t)
     flown: dict[str, NDArray[np.float64]] | None = None
     if telemetry is not None:
         known = {v.name for v in plan.vehicles}

@@ -141,7 +141,9 @@ def evaluate_flight(plan: Plan, tracks: Mapping[str, FlownTrack]) -> FlownEvalua
     dt = plan.check_dt_s
     n = round(plan.horizon_s / dt) + 1
     t = np.arange(n) * dt
-    planned = {v.name: v.trajectory.position(t) for v in plan.vehicles}
+    from planner.planfile import planned_signals
+
+    planned = planned_signals(plan, t)
     flown: dict[str, np.ndarray] | None = {}
     problem = ""
     for v in plan.vehicles:

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from planner.dynamics.feasibility import FeasibilityReport, InputLimits, check_input_feasibility
+from planner.heading import YAW_RATE_MAX_DEG_S, yaw_rate_needed
 from planner.limits import vehicle_bounds
 from planner.trajectory import Trajectory
 
@@ -29,16 +30,19 @@ class LimitReport:
     a_ratio: float
     workspace_margin_m: float
     feasibility: FeasibilityReport | None
+    #: the largest turn rate its heading schedule asks for / the yaw-rate limit (0: none)
+    yaw_ratio: float = 0.0
 
     @property
     def ok(self) -> bool:
-        """Limits, workspace and (if checked) thrust/body rates all hold."""
+        """Limits, workspace, the yaw rate and (if checked) thrust/body rates all hold."""
         tol = 1e-6
         feas = self.feasibility is None or self.feasibility.feasible
         return (
             self.v_ratio <= 1 + tol
             and self.a_ratio <= 1 + tol
             and self.workspace_margin_m >= -tol
+            and self.yaw_ratio <= 1 + tol
             and feas
         )
 
@@ -85,6 +89,7 @@ def check_trajectories(
                 a_ratio=a_ratio,
                 workspace_margin_m=margin,
                 feasibility=feas,
+                yaw_ratio=yaw_rate_needed(tr) / YAW_RATE_MAX_DEG_S,
             )
         )
     return tuple(out)

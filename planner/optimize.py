@@ -69,6 +69,7 @@ from planner.checks import LimitReport, check_trajectories
 from planner.dynamics import DoubleIntegrator, MinimumJerkChain
 from planner.explain import needs
 from planner.guess import _initial_guess, starts
+from planner.heading import facing_rules, heading_signals, uses_heading, with_heading
 from planner.limits import vehicle_bounds
 from planner.nlp import (
     K_MIN,
@@ -172,6 +173,10 @@ def plan(
         registry = build_registry(problem)
         formulas = [parse_clause(problem, c, registry) for c in problem.clauses]
     formula = conjunction(formulas)
+    # The heading is derived from the positions (planner.heading): where face(d, T) must hold
+    heading = uses_heading(formulas)
+    rules = facing_rules(formula, problem) if heading else []
+    t_dense = _dense_times(problem)
     model = make_model(problem)
     x0s = _x0(problem, model)
 
@@ -226,16 +231,18 @@ def plan(
         return w0
 
     def trajectories_of(w: np.ndarray) -> list[Trajectory]:
-        return [
+        trs = [
             model.trajectory(
                 w[i * nd : (i + 1) * nd].reshape((model.n_dec, 3), order="F"), x0, v.name
             )
             for i, (v, x0) in enumerate(zip(problem.vehicles, x0s, strict=True))
         ]
+        return with_heading(problem, rules, trs, t_dense) if rules else trs
 
     def clauses_of(w: np.ndarray) -> np.ndarray:
         """Each clause's exact robustness (dense samples)."""
-        return _clause_robustness(problem, formulas, _dense_signals(problem, trajectories_of(w)))
+        sig = _dense_signals(problem, trajectories_of(w), heading)
+        return _clause_robustness(problem, formulas, sig)
 
     def exact_of(w: np.ndarray) -> float:
         rob = clauses_of(w)
@@ -408,7 +415,7 @@ def plan(
     smooth = _min_leaf(struct, w_opt, p_val, default=float(w_opt[-1]))
     t_check = time.perf_counter()
     trajectories = trajectories_of(w_opt)
-    result = _evaluate(problem, formula, formulas, trajectories)
+    result = _evaluate(problem, formula, formulas, trajectories, heading)
     limits = check_trajectories(
         problem, trajectories, problem.vehicles, problem.timing.check_dt_s, problem.timing.horizon_s
     )
@@ -476,7 +483,7 @@ def plan(
             if rob < problem.epsilon
             else ()
         ),
-        start_bound=_start_bound(problem, formulas, trajectories, clauses, weakest),
+        start_bound=_start_bound(problem, formulas, trajectories, clauses, weakest, heading),
     )
 
 
@@ -864,9 +871,10 @@ def _evaluate(
     formula: Formula,
     formulas: Sequence[Formula],
     trajectories: Sequence[Trajectory],
+    heading: bool = False,
 ) -> tuple[float, float, Weakest | None, tuple[ClauseReport, ...]]:
     """Exact robustness (dense and planning grid), weakest sub-formula, per clause."""
-    sig = _dense_signals(problem, trajectories)
+    sig = _dense_signals(problem, trajectories, heading)
     dt = problem.timing.check_dt_s
     clause_rob = _clause_robustness(problem, formulas, sig).tolist()
     clauses = tuple(
@@ -876,7 +884,7 @@ def _evaluate(
     rob = float(min(clause_rob)) if clause_rob else math.inf
     ts = problem.timing.sample_dt_s
     n = problem.timing.n_samples
-    sig_grid = {tr.name: tr.position(np.arange(n) * ts) for tr in trajectories}
+    sig_grid = heading_signals(trajectories, np.arange(n) * ts, heading)
     rob_grid = float(formula.robustness(sig_grid, ts))
     weakest = None
     if formulas:
@@ -892,10 +900,12 @@ def _evaluate(
     return rob, rob_grid, weakest, clauses
 
 
-def _dense_signals(problem: Problem, trajectories: Sequence[Trajectory]) -> dict[str, Any]:
-    """Each vehicle's positions on the exact check's dense samples (every check_dt_s)."""
-    t_dense = _dense_times(problem)
-    return {tr.name: tr.position(t_dense) for tr in trajectories}
+def _dense_signals(
+    problem: Problem, trajectories: Sequence[Trajectory], heading: bool = False
+) -> dict[str, Any]:
+    """Each vehicle's positions on the exact check's dense samples (every check_dt_s), with
+    ``heading`` also its yaw (:func:`planner.heading.heading_signals`)."""
+    return heading_signals(trajectories, _dense_times(problem), heading)
 
 
 def _clause_robustness(
@@ -912,13 +922,14 @@ def _start_bound(
     trajectories: Sequence[Trajectory],
     clauses: Sequence[ClauseReport],
     weakest: Weakest | None,
+    heading: bool = False,
 ) -> StartBound | None:
     """Whether the headline figure is a margin of the start state: the weakest sub-formula
     is a predicate of positions at t = 0 (the vehicles' given starts); then the least
     robustness of the clauses whose own weakest point is elsewhere."""
     if weakest is None or weakest.t_s != 0.0:
         return None
-    sig = _dense_signals(problem, trajectories)
+    sig = _dense_signals(problem, trajectories, heading)
     dt = problem.timing.check_dt_s
 
     def at_start(f: Formula) -> bool:

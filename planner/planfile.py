@@ -470,6 +470,15 @@ def load_plan(path: str | Path) -> Plan:
     )
 
 
+def planned_signals(plan: Plan, t_s: np.ndarray) -> dict[str, np.ndarray]:
+    """Each vehicle's planned signal at ``t_s``: positions (n, 3), with the heading as a
+    fourth column when the spec reads it (``face``: :mod:`planner.heading`)."""
+    from planner.heading import heading_signals, uses_heading
+
+    trajectories = [v.trajectory for v in plan.vehicles]
+    return heading_signals(trajectories, t_s, uses_heading([plan_formula(plan)]))
+
+
 def plan_formula(plan: Plan) -> Formula:
     """The plan's whole spec with the scenario's predicates (exact numpy semantics).
 

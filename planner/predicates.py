@@ -17,6 +17,12 @@ names the function resolves from the scenario or plan (:class:`RegionSource`).
                           L-infinity distance to the box), < 0 inside (minus the depth);
                           any region: minus its margin.
 ``dist(d1, d2)``          Euclidean distance between two vehicles (m).
+``face(d, target)``       the camera (the vehicle's heading) points at the target's centre
+                          (a pole's axis) within ``FACE_TOLERANCE_DEG``:
+                          ``r (tol - |yaw - bearing|)``, ``r`` the horizontal distance to
+                          it: in metres, how far the aim may slip at the target before it
+                          leaves the tolerance.  Needs the heading (a vehicle signal of
+                          shape (n, 4): ENU position, then ENU yaw in rad).
 ``alt(d)``, ``z(d)``      height above the mission origin (m); ``x(d)``, ``y(d)`` east, north.
 ========================  ==========================================================
 
@@ -33,6 +39,9 @@ so a smooth margin >= 0 implies an exact margin >= 0:
   delta - r``).
 * ``dist``: ``sqrt(|p1 - p2|^2 + delta^2) - delta`` with ``delta = 1e-4`` m; lies in
   ``[exact - delta, exact]`` and is smooth where the exact distance is not (at 0).
+* ``face``: ``FACE_NLP_M`` (a constant far above any margin): the heading is not a decision
+  of the NLP; :mod:`planner.heading` derives it from the plan (facing the target wherever
+  the spec asks), and the exact check decides.
 
 ``k`` here is the *predicate* sharpness (1/m), fitted by :func:`predicate_sharpness` so that
 the bound ``log(faces)/k`` (6 for boxes) is 10 % of the smallest region half-size (measured: 2 % made
@@ -60,12 +69,15 @@ from planner.stl import Call, EvaluationError, Expr, Formula, FunctionRegistry, 
 
 __all__ = [
     "DIST_DELTA_M",
+    "FACE_TOLERANCE_DEG",
     "PREDICATES",
     "Role",
     "box_margins",
     "build_registry",
     "ca_box_margins",
     "casadi_functions",
+    "face_margin",
+    "positions",
     "predicate_sharpness",
     "role_of",
 ]
@@ -74,6 +86,10 @@ __all__ = [
 DIST_DELTA_M = 1e-4
 #: Fraction of the smallest region half-size the predicate soft-min/max may lose.
 _PRED_TOLERANCE = 0.1
+#: How far (degrees) the heading may be off the bearing to a ``face`` target.
+FACE_TOLERANCE_DEG = 15.0
+#: ``face`` in the NLP: a value no margin reaches (metres), so it never decides a min.
+FACE_NLP_M = 1.0e3
 
 
 class Role(enum.Enum):
@@ -89,6 +105,9 @@ class Role(enum.Enum):
     KEEP_APART = "keep apart"
     #: ``x(d)``, ``y(d)``, ``z(d)``, ``alt(d)``: one coordinate of a vehicle.
     COORDINATE = "coordinate"
+    #: ``face(d, target)``: the vehicle's heading; derived after the NLP
+    #: (:mod:`planner.heading`), a constant in it.
+    HEADING = "heading"
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,6 +136,7 @@ PREDICATES: dict[str, PredicateKind] = {
         PredicateKind("inside", ("v", "r"), Role.TARGET_BOX, terms=6),
         PredicateKind("outside", ("v", "r"), Role.KEEP_OUT, terms=6),
         PredicateKind("dist", ("v", "v"), Role.KEEP_APART),
+        PredicateKind("face", ("v", "r"), Role.HEADING),
         PredicateKind("alt", ("v",), Role.COORDINATE),
         PredicateKind("x", ("v",), Role.COORDINATE),
         PredicateKind("y", ("v",), Role.COORDINATE),
@@ -228,6 +248,30 @@ def _vehicle_signal(signals: Mapping[str, Any], name: str) -> Any:
     return signals[name]
 
 
+def positions(signal: Any) -> np.ndarray:
+    """A vehicle signal's positions, (n, 3): its first three columns (a signal of shape
+    (n, 4) carries the heading last)."""
+    a = np.asarray(signal, dtype=float)
+    a = a.reshape(-1, a.shape[-1]) if a.ndim else a.reshape(-1, 3)
+    return a[:, :3]
+
+
+def face_margin(signal: Any, target: Region) -> np.ndarray:
+    """``face``'s exact margin (m), shape (n,), from a vehicle signal of shape (n, 4)."""
+    a = np.asarray(signal, dtype=float)
+    a = a.reshape(-1, a.shape[-1]) if a.ndim else a
+    if a.ndim != 2 or a.shape[1] < 4:
+        raise EvaluationError(
+            f"face({target.name}) needs the vehicle's heading, which this evaluation does not "
+            f"have (a signal of shape (n, 4): position, then yaw)"
+        )
+    c = target.center_enu_m
+    d = c[None, :2] - a[:, :2]
+    r = np.hypot(d[:, 0], d[:, 1])
+    err = np.abs(np.angle(np.exp(1j * (a[:, 3] - np.arctan2(d[:, 1], d[:, 0])))))
+    return r * (math.radians(FACE_TOLERANCE_DEG) - err)
+
+
 def _region(problem: RegionSource, name: str) -> Region:
     try:
         return problem.region(name)
@@ -238,19 +282,22 @@ def _region(problem: RegionSource, name: str) -> Region:
 
 def _np_functions(problem: RegionSource) -> dict[str, Callable[..., np.ndarray]]:
     def inside(args: tuple[str, ...], signals: Mapping[str, Any]) -> np.ndarray:
-        return box_margin(_vehicle_signal(signals, args[0]), _region(problem, args[1]))
+        return box_margin(positions(_vehicle_signal(signals, args[0])), _region(problem, args[1]))
 
     def outside(args: tuple[str, ...], signals: Mapping[str, Any]) -> np.ndarray:
-        return -box_margin(_vehicle_signal(signals, args[0]), _region(problem, args[1]))
+        return -box_margin(positions(_vehicle_signal(signals, args[0])), _region(problem, args[1]))
 
     def dist(args: tuple[str, ...], signals: Mapping[str, Any]) -> np.ndarray:
-        a = np.asarray(_vehicle_signal(signals, args[0]), dtype=float).reshape(-1, 3)
-        b = np.asarray(_vehicle_signal(signals, args[1]), dtype=float).reshape(-1, 3)
+        a = positions(_vehicle_signal(signals, args[0]))
+        b = positions(_vehicle_signal(signals, args[1]))
         return np.linalg.norm(a - b, axis=1)
+
+    def face(args: tuple[str, ...], signals: Mapping[str, Any]) -> np.ndarray:
+        return face_margin(_vehicle_signal(signals, args[0]), _region(problem, args[1]))
 
     def axis(i: int) -> Callable[..., np.ndarray]:
         def f(args: tuple[str, ...], signals: Mapping[str, Any]) -> np.ndarray:
-            return np.asarray(_vehicle_signal(signals, args[0]), dtype=float).reshape(-1, 3)[:, i]
+            return positions(_vehicle_signal(signals, args[0]))[:, i]
 
         return f
 
@@ -258,6 +305,7 @@ def _np_functions(problem: RegionSource) -> dict[str, Callable[..., np.ndarray]]
         "inside": inside,
         "outside": outside,
         "dist": dist,
+        "face": face,
         "alt": axis(2),
         "x": axis(0),
         "y": axis(1),
@@ -282,6 +330,9 @@ def casadi_functions(problem: RegionSource, k_pred: float) -> dict[str, Callable
         sq = d[:, 0] ** 2 + d[:, 1] ** 2 + d[:, 2] ** 2
         return ca.sqrt(sq + DIST_DELTA_M**2) - DIST_DELTA_M
 
+    def face(args: tuple[str, ...], signals: Mapping[str, Any]) -> Any:
+        return FACE_NLP_M * ca.DM.ones(_vehicle_signal(signals, args[0]).shape[0], 1)
+
     def axis(i: int) -> Callable[..., Any]:
         def f(args: tuple[str, ...], signals: Mapping[str, Any]) -> Any:
             return _vehicle_signal(signals, args[0])[:, i]
@@ -292,6 +343,7 @@ def casadi_functions(problem: RegionSource, k_pred: float) -> dict[str, Callable
         "inside": inside,
         "outside": outside,
         "dist": dist,
+        "face": face,
         "alt": axis(2),
         "x": axis(0),
         "y": axis(1),

@@ -17,7 +17,9 @@ never spins the vehicle at low speed. ``YawMode.VELOCITY`` faces the horizontal 
 of travel while the horizontal speed is at least ``min_speed_m_s`` and otherwise keeps
 the heading it had the last time it was that fast (``yaw_rad`` before it ever was); it is
 evaluated exactly from the roots of ``|v_xy(t)|^2 - min_speed^2``, so the value at any
-time does not depend on which other times are queried.
+time does not depend on which other times are queried.  ``YawMode.SCHEDULE`` follows knots
+(times and headings, linear in between along the shorter turn): the heading the spec's
+``face`` asks for (:mod:`planner.heading`).
 
 Serialisation (the plan file's ``"segments"``, DESIGN.md section 6):
 :meth:`Trajectory.to_segments` gives JSON-ready lists of Python floats, one dict per
@@ -60,6 +62,7 @@ class YawMode(enum.Enum):
 
     CONSTANT = "constant"
     VELOCITY = "velocity"
+    SCHEDULE = "schedule"
 
 
 @dataclass(frozen=True, slots=True)
@@ -67,28 +70,51 @@ class YawPolicy:
     """Yaw rule of a trajectory.
 
     Attributes:
-        mode: constant heading or facing the horizontal velocity.
+        mode: constant heading, facing the horizontal velocity, or a schedule.
         yaw_rad: ENU yaw (0 = east, CCW) for ``CONSTANT``; initial heading for ``VELOCITY``.
         min_speed_m_s: horizontal speed below which ``VELOCITY`` keeps its last heading.
+        knots_t_s, knots_yaw_rad: ``SCHEDULE``: the heading at these times (increasing),
+            linear in between along the shorter turn, held before the first and after the
+            last (:mod:`planner.heading` makes them from the spec's ``face``).
     """
 
     mode: YawMode = YawMode.CONSTANT
     yaw_rad: float = 0.0
     min_speed_m_s: float = 0.5
+    knots_t_s: tuple[float, ...] = ()
+    knots_yaw_rad: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.yaw_rad):
             raise TrajectoryError("yaw.yaw_rad must be finite")
         if not (math.isfinite(self.min_speed_m_s) and self.min_speed_m_s > 0.0):
             raise TrajectoryError("yaw.min_speed_m_s must be finite and > 0")
+        if self.mode is YawMode.SCHEDULE:
+            t, y = np.asarray(self.knots_t_s, float), np.asarray(self.knots_yaw_rad, float)
+            if t.size == 0 or t.shape != y.shape:
+                raise TrajectoryError(
+                    "yaw: a schedule needs as many knots_t_s as knots_yaw_rad (>= 1)"
+                )
+            if not (np.all(np.isfinite(t)) and np.all(np.isfinite(y)) and np.all(np.diff(t) > 0)):
+                raise TrajectoryError("yaw: a schedule's knots must be finite, at increasing times")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
-        return {
+        out: dict[str, Any] = {
             "mode": self.mode.value,
             "yaw_rad": float(self.yaw_rad),
             "min_speed_m_s": float(self.min_speed_m_s),
         }
+        if self.mode is YawMode.SCHEDULE:
+            out["knots_t_s"] = [float(x) for x in self.knots_t_s]
+            out["knots_yaw_rad"] = [float(x) for x in self.knots_yaw_rad]
+        return out
+
+    def schedule_at(self, t_s: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The scheduled heading at ``t_s`` (unwrapped: the turns as flown)."""
+        t = np.asarray(self.knots_t_s, dtype=float)
+        y = np.unwrap(np.asarray(self.knots_yaw_rad, dtype=float))
+        return np.interp(t_s, t, y)
 
     @classmethod
     def from_dict(cls, data: Any, where: str = "yaw") -> YawPolicy:
@@ -104,7 +130,15 @@ class YawPolicy:
             ) from None
         yaw = _number(data.get("yaw_rad", 0.0), f"{where}.yaw_rad")
         speed = _number(data.get("min_speed_m_s", 0.5), f"{where}.min_speed_m_s")
-        return cls(mode=mode, yaw_rad=yaw, min_speed_m_s=speed)
+        knots: list[tuple[float, ...]] = [(), ()]
+        if mode is YawMode.SCHEDULE:
+            for j, key in enumerate(("knots_t_s", "knots_yaw_rad")):
+                vals = data.get(key)
+                if not isinstance(vals, list):
+                    raise TrajectoryError(f"{where}.{key}: expected a list of numbers")
+                knots[j] = tuple(_number(v, f"{where}.{key}[{i}]") for i, v in enumerate(vals))
+        return cls(mode=mode, yaw_rad=yaw, min_speed_m_s=speed, knots_t_s=knots[0],
+                   knots_yaw_rad=knots[1])  # fmt: skip
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -286,6 +320,10 @@ class Trajectory:
             if not np.all(np.isfinite(t)):
                 raise TrajectoryError("times must be finite")
             return np.full(t.shape, _wrap(self.yaw_policy.yaw_rad))
+        if self.yaw_policy.mode is YawMode.SCHEDULE:
+            if not np.all(np.isfinite(t)):
+                raise TrajectoryError("times must be finite")
+            return _wrap(self.yaw_policy.schedule_at(t))
         tc = np.clip(t, 0.0, self.duration_s)
         v = self.velocity(tc)
         speed2 = v[:, 0] ** 2 + v[:, 1] ** 2

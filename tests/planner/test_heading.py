@@ -1,0 +1,150 @@
+"""The heading the spec asks for: ``face(d, target)`` exactly (against an independent angle
+computation), yaw schedules (the shorter turn, files), and a plan whose inspection hovers
+face their poles, verified from its plan file."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planner.heading import YAW_RATE_MAX_DEG_S, yaw_rate_needed
+from planner.predicates import FACE_TOLERANCE_DEG, face_margin
+from planner.regions import Cylinder, Region, RegionKind
+from planner.stl import EvaluationError
+from planner.trajectory import Trajectory, YawMode, YawPolicy
+
+RNG = np.random.default_rng(21)
+POLE = Region.of_shape("pole3", RegionKind.POLE, Cylinder((4.0, -2.0), 0.4, 0.0, 12.0))
+
+
+def test_face_is_the_aim_slip_at_the_target_within_the_tolerance() -> None:
+    p = RNG.uniform(-10, 10, (500, 3))
+    yaw = RNG.uniform(-np.pi, np.pi, 500)
+    m = face_margin(np.column_stack([p, yaw]), POLE)
+    # independently: the angle between the heading and the direction to the axis (dot product)
+    d = np.array([4.0, -2.0]) - p[:, :2]
+    r = np.linalg.norm(d, axis=1)
+    h = np.column_stack([np.cos(yaw), np.sin(yaw)])
+    err = np.arccos(np.clip(np.einsum("ij,ij->i", h, d) / r, -1, 1))
+    np.testing.assert_allclose(m, r * (math.radians(FACE_TOLERANCE_DEG) - err), atol=1e-9)
+    assert np.array_equal(m > 0, np.degrees(err) < FACE_TOLERANCE_DEG)
+
+
+def test_face_without_the_heading_says_what_it_needs() -> None:
+    with pytest.raises(EvaluationError, match=r"face\(pole3\) needs the vehicle's heading"):
+        face_margin(np.zeros((4, 3)), POLE)
+
+
+def _line(duration_s: float = 10.0) -> Trajectory:
+    coeffs = np.zeros((1, 3, 6))
+    coeffs[0, 0, 1] = 1.0  # east at 1 m/s
+    return Trajectory([0.0], [duration_s], coeffs, "d1")
+
+
+def test_a_schedule_turns_the_shorter_way_and_holds_at_its_ends() -> None:
+    pol = YawPolicy(
+        YawMode.SCHEDULE,
+        knots_t_s=(2.0, 4.0),
+        knots_yaw_rad=(math.radians(170), math.radians(-170)),
+    )
+    tr = Trajectory(_line().segment_t0_s, _line().segment_duration_s, _line().coeffs, "d1", pol)
+    y = np.degrees(tr.yaw_rad(np.array([0.0, 2.0, 3.0, 4.0, 9.0])))
+    np.testing.assert_allclose(np.abs(y), [170, 170, 180, 170, 170], atol=1e-9)  # through 180
+    assert yaw_rate_needed(tr) == pytest.approx(10.0)  # 20 deg in 2 s
+
+
+def test_a_schedule_survives_the_plan_files_segments() -> None:
+    pol = YawPolicy(YawMode.SCHEDULE, knots_t_s=(0.5, 1.5, 6.0), knots_yaw_rad=(0.1, 2.0, -3.0))
+    tr = Trajectory(_line().segment_t0_s, _line().segment_duration_s, _line().coeffs, "d1", pol)
+    back = Trajectory.from_segments(json.loads(json.dumps(tr.to_segments())), name="d1")
+    assert back.yaw_policy == pol
+    t = np.linspace(0, 10, 101)
+    np.testing.assert_array_equal(back.yaw_rad(t), tr.yaw_rad(t))
+
+
+@pytest.mark.parametrize(
+    ("data", "says"),
+    [
+        ({"mode": "schedule", "knots_t_s": [0, 1], "knots_yaw_rad": [0]}, "as many"),
+        ({"mode": "schedule", "knots_t_s": [1, 0], "knots_yaw_rad": [0, 1]}, "increasing"),
+        ({"mode": "schedule", "knots_t_s": "x", "knots_yaw_rad": [0]}, r"yaw\.knots_t_s"),
+    ],
+)
+def test_a_bad_schedule_is_refused_naming_its_field(data: dict, says: str) -> None:  # type: ignore[type-arg]
+    from planner.trajectory import TrajectoryError
+
+    with pytest.raises(TrajectoryError, match=says):
+        YawPolicy.from_dict(data)
+
+
+_SCENARIO = """
+name: facing
+origin: {lat: 47.397742, lon: 8.545594, alt: 488.0}
+workspace: {min: [-40, -40, 0.5], max: [120, 120, 20]}
+line:
+  along: {start: [0, 0], bearing_deg: 37, span_m: 30, count: 3}
+  pole: {radius_m: 0.4, height_m: 12}
+  conductors: {half_width_m: 1.8, z: [9, 12], clearance_m: 1.0}
+  inspection: {standoff_m: 1.5, depth_m: 2.2, length_m: 5, z: [9.5, 12.5], side: right}
+vehicles:
+  - {name: d1, start: [8, -10, 8]}
+limits: {v_max_m_s: 5, a_max_m_s2: 3}
+timing: {horizon_s: 40, segment_s: 2, Ts_s: 0.25}
+separation_m: 1.5
+spec:
+  - formula: eventually[0, 20] always[0, 2] (inside(d1, insp1) and face(d1, pole1))
+  - formula: eventually[0, 37] always[0, 2] (inside(d1, insp3) and face(d1, pole3))
+  - each: [d in all, s in spans]
+    formula: always[0, $horizon] outside(d, s)
+  - each: [d in all, p in poles]
+    formula: always[0, $horizon] outside(d, p)
+"""
+
+
+@pytest.mark.slow
+def test_a_plan_faces_each_pole_while_it_inspects_it_and_verify_agrees(tmp_path: Path) -> None:
+    from planner.optimize import plan
+    from planner.planfile import load_plan, plan_to_json
+    from planner.scenario import load_scenario
+
+    path = tmp_path / "facing.yaml"
+    path.write_text(_SCENARIO)
+    problem = load_scenario(path)
+    result = plan(problem)
+    assert result.success, result.status
+    tr = result.trajectories[0]
+    assert tr.yaw_policy.mode is YawMode.SCHEDULE
+    assert yaw_rate_needed(tr) <= YAW_RATE_MAX_DEG_S
+    # wherever the vehicle is in an inspection box, it faces that box's pole (checked on its
+    # own samples, independently of the planner's rules)
+    t = np.arange(0, 40.0 + 1e-9, 0.05)
+    pos, yaw = tr.position(t), tr.yaw_rad(t)
+    seen = 0
+    for i in (1, 3):
+        inside = problem.region(f"insp{i}").contains(pos)
+        c = problem.region(f"pole{i}").center_enu_m
+        bearing = np.arctan2(c[1] - pos[:, 1], c[0] - pos[:, 0])
+        err = np.degrees(np.abs(np.angle(np.exp(1j * (yaw - bearing)))))
+        assert inside.sum() >= 40, i  # the 2 s hover at least
+        # exact at the knots (every 0.25 s), linear between them as the vehicle drifts
+        assert np.all(err[inside] < 0.5), (i, err[inside].max())
+        seen += int(inside.sum())
+    assert seen > 80
+    # the face clauses' robustness is the inside margin (the aim is exact there)
+    for c in result.clauses[:2]:
+        assert c.robustness >= result.robustness - 1e-9
+    # gcs verify's checks, from the plan file, see the same heading
+    out = tmp_path / "facing.plan.json"
+    out.write_text(json.dumps(plan_to_json(result.to_plan(str(path)))))
+    from gcs.checks import verify_plan
+
+    checks = verify_plan(load_plan(out))
+    assert all(c.ok for c in checks), [c for c in checks if not c.ok]
+    spec_checks = [c for c in checks if "face(d1, pole1)" in c.name]
+    assert spec_checks and spec_checks[0].value == pytest.approx(
+        result.clauses[0].robustness, abs=1e-6
+    )
