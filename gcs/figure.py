@@ -202,7 +202,9 @@ def _draw_regions(ax: Any, plan: Plan) -> list[Any]:
     for r in ordered:
         face, alpha, edge, label = _KIND_STYLE.get(r.kind.value, _KIND_STYLE["region"])
         if is_large(r, ws):
-            ax.add_collection3d(Line3DCollection(region_edges(r), colors=edge, linewidths=1.1))
+            ax.add_collection3d(
+                Line3DCollection(region_edges(r), colors=edge, linewidths=1.1), autolim=False
+            )
             label = f"{label} (outline)"
             handles.setdefault(label, Line2D([], [], color=edge, lw=1.1, label=label))
         else:
@@ -218,7 +220,10 @@ def _draw_regions(ax: Any, plan: Plan) -> list[Any]:
                 linewidths=0.9 if target else 0.5,
                 alpha=min(1.0, 1.6 * alpha) if target else alpha,
             )
-            ax.add_collection3d(poly)
+            # the axes' limits are the workspace's (set after); autoscaling on faces of mixed
+            # sizes (a cylinder's quads and 48-gon caps) reads matplotlib's padding, which is
+            # not always finite
+            ax.add_collection3d(poly, autolim=False)
             handles.setdefault(label, Patch(facecolor=face, edgecolor=edge, alpha=0.5, label=label))
         top = r.center_enu_m  # the label at the top centre
         ax.text(top[0], top[1], r.hi_enu_m[2], r.name, fontsize=7, color=edge, ha="center")

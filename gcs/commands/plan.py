@@ -74,6 +74,7 @@ def summary(result: Any, output: str | None) -> dict[str, Any]:
                 "max_acc_m_s2": lim.max_acc_m_s2,
                 "v_ratio": lim.v_ratio,
                 "a_ratio": lim.a_ratio,
+                "yaw_ratio": lim.yaw_ratio,
                 "limits_ok": lim.ok,
             }
             for lim in result.limits
