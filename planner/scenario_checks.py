@@ -36,7 +36,7 @@ import numpy as np
 
 from planner.limits import vehicle_bounds
 from planner.predicates import Role, role_of
-from planner.regions import KEEP_OUT_KINDS
+from planner.regions import KEEP_OUT_KINDS, Cylinder, Prism
 from planner.stl import Always, And, Eventually, Formula, Predicate, Until
 from planner.stl.ast import format_number
 
@@ -171,6 +171,7 @@ def _out_of_reach(v: Vehicle, region: Region, deadline_s: float) -> str | None:
     within the bound of the direction it must fly (up and down may differ), and
     horizontally within a norm bound."""
     s = np.asarray(v.start_enu_m, dtype=float)
+    # a turned or round region: its bounding box, nearer than the region (a sound test)
     lo, hi = np.asarray(region.lo_enu_m), np.asarray(region.hi_enu_m)
     gap = np.maximum(np.maximum(lo - s, s - hi), 0.0)
     vb, ab = vehicle_bounds(v)
@@ -213,4 +214,11 @@ def _box(r: Region) -> str:
     def vec(x: Sequence[float]) -> str:
         return "[" + ", ".join(format_number(float(c)) for c in x) + "]"
 
+    if isinstance(r.shape, Prism):
+        return (f"a prism over {r.shape.walls} corners, z {format_number(r.shape.z_lo_m)} to "
+                f"{format_number(r.shape.z_hi_m)}")  # fmt: skip
+    if isinstance(r.shape, Cylinder):
+        c = r.shape
+        return (f"a cylinder of radius {format_number(c.radius_m)} about "
+                f"{vec(c.center_xy)}, z {format_number(c.z_lo_m)} to {format_number(c.z_hi_m)}")  # fmt: skip
     return f"{vec(r.lo_enu_m)} to {vec(r.hi_enu_m)}"

@@ -300,3 +300,13 @@ def test_a_turned_mission_plans_as_well_as_the_same_mission_along_the_axes(tmp_p
             assert loaded.region("pole").shape == problem.region("pole").shape
     # both reach the inspection box's 0.6 m half-size, the optimum (within 3 %)
     assert got[0.0] >= 0.97 * 0.6 and got[37.0] >= 0.97 * 0.6, got
+
+
+def test_a_start_inside_a_turned_keep_out_is_refused_describing_its_shape() -> None:
+    text = _scenario(
+        "  goal: {center: [5, 4, 3], half_size: 1}\n"
+        "  wall: {kind: obstacle, center: [-6, -6, 3], half_size: [1, 4, 3], bearing_deg: 37}\n"
+        "  pole: {kind: pole, center: [9, 9], radius: 0.5, z: [0, 8]}\n"
+    )
+    with pytest.raises(ScenarioError, match=r"'wall' \(a prism over 4 corners, z 0 to 6\)"):
+        parse_scenario(yaml.safe_load(text), "s.yaml")
