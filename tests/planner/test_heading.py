@@ -137,6 +137,20 @@ def test_a_plan_faces_each_pole_while_it_inspects_it_and_verify_agrees(tmp_path:
     # the face clauses' robustness is the inside margin (the aim is exact there)
     for c in result.clauses[:2]:
         assert c.robustness >= result.robustness - 1e-9
+    # the capture windows are the two inspection hovers, facing their poles
+    from planner.captures import capture_windows
+    from planner.stl import And
+
+    formula = And(tuple(problem.formulas))
+    windows = capture_windows(formula, problem, result.trajectories, 0.05, 40.0)
+    assert [(w.vehicle, w.target) for w in windows] == [("d1", "pole1"), ("d1", "pole3")]
+    for w in windows:
+        assert w.duration_s >= 2.0 - 1e-9
+        i = w.target[-1]
+        tw = np.arange(w.t_start_s, w.t_end_s + 1e-9, 0.05)
+        assert problem.region(f"insp{i}").contains(tr.position(tw)).all()
+        assert 1.8 + 1.5 - 1e-6 <= w.range_m <= 1.8 + 1.5 + 2.2 + 1.5  # stand-off to far side
+        assert abs(w.gimbal_pitch_deg) < 30.0
     # gcs verify's checks, from the plan file, see the same heading
     out = tmp_path / "facing.plan.json"
     out.write_text(json.dumps(plan_to_json(result.to_plan(str(path)))))
