@@ -89,7 +89,8 @@ def check_trajectories(
                 a_ratio=a_ratio,
                 workspace_margin_m=margin,
                 feasibility=feas,
-                yaw_ratio=yaw_rate_needed(tr) / YAW_RATE_MAX_DEG_S,
+                yaw_ratio=yaw_rate_needed(tr)
+                / (getattr(v, "yaw_rate_max_deg_s", None) or YAW_RATE_MAX_DEG_S),
             )
         )
     return tuple(out)

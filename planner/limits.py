@@ -39,7 +39,9 @@ __all__ = [
 ]
 
 #: The PX4-like limit fields of a vehicle (scenario ``limits:`` keys, plan-file ``limits``
-#: keys and :class:`planner.problem.Vehicle` fields alike; optional, > 0).
+#: keys and :class:`planner.problem.Vehicle` fields alike; optional, > 0).  The last, the
+#: turn rate a heading schedule may ask for (PX4's MPC_YAWRAUTO_MAX), is checked by
+#: :func:`planner.checks.check_trajectories` (45 deg/s when not given).
 PX4_LIMIT_KEYS = (
     "v_xy_max_m_s",
     "v_up_max_m_s",
@@ -47,6 +49,7 @@ PX4_LIMIT_KEYS = (
     "a_xy_max_m_s2",
     "a_up_max_m_s2",
     "a_down_max_m_s2",
+    "yaw_rate_max_deg_s",
 )
 
 #: Sides of the polygon inscribed in the horizontal-norm disc (even, a multiple of 4 so

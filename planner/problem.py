@@ -73,6 +73,8 @@ class Vehicle:
     a_xy_max_m_s2: float | None = None
     a_up_max_m_s2: float | None = None
     a_down_max_m_s2: float | None = None
+    #: the turn rate a yaw schedule may ask for (deg/s; None: 45, PX4's MPC_YAWRAUTO_MAX)
+    yaw_rate_max_deg_s: float | None = None
 
 
 @dataclass(frozen=True, slots=True)

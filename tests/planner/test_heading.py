@@ -162,3 +162,28 @@ def test_a_plan_faces_each_pole_while_it_inspects_it_and_verify_agrees(tmp_path:
     assert spec_checks and spec_checks[0].value == pytest.approx(
         result.clauses[0].robustness, abs=1e-6
     )
+
+
+@pytest.mark.slow
+def test_a_heading_schedule_faster_than_the_vehicle_turns_fails_the_plans_checks(
+    tmp_path: Path,
+) -> None:
+    from planner.optimize import plan
+    from planner.scenario import load_scenario
+
+    path = tmp_path / "slow_yaw.yaml"
+    path.write_text(
+        _SCENARIO.replace(
+            "limits: {v_max_m_s: 5, a_max_m_s2: 3}",
+            "limits: {v_max_m_s: 5, a_max_m_s2: 3, yaw_rate_max_deg_s: 2}",
+        )
+    )
+    problem = load_scenario(path)
+    assert problem.vehicles[0].yaw_rate_max_deg_s == 2.0
+    result = plan(problem)
+    (lim,) = result.limits
+    needed = yaw_rate_needed(result.trajectories[0])
+    assert needed > 2.0 and lim.yaw_ratio == pytest.approx(needed / 2.0)
+    assert not lim.ok and not result.success, result.status
+    saved = result.to_plan(str(path))
+    assert saved.vehicles[0].yaw_rate_max_deg_s == 2.0
