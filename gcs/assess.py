@@ -39,7 +39,7 @@ import numpy as np
 
 from gcs.assess_stats import AssessResult, summarise
 from gcs.errors import UserError
-from gcs.evaluation import plan_formula
+from gcs.evaluation import heading_readers, plan_formula, reads_heading
 
 if TYPE_CHECKING:
     from mavlink.mock.batch import BatchFlights, SimSetup
@@ -173,9 +173,15 @@ class CampaignProgress:
 
 
 def _clause_values(
-    formula: Any, positions: np.ndarray, names: Sequence[str], dt: float
+    formula: Any,
+    positions: np.ndarray,
+    names: Sequence[str],
+    dt: float,
+    yaw: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Robustness at t = 0 of ``formula`` for every run of ``positions`` ``(R, V, S, 3)``.
+    """Robustness at t = 0 of ``formula`` for every run of ``positions`` ``(R, V, S, 3)``
+    (with ``yaw`` ``(R, V, S)``, the headings of the vehicles whose heading ``formula`` reads
+    as a fourth signal column, what ``face`` reads).
 
     Exact and vectorised over runs: the runs' signals are laid end to end and the robustness
     trace is read at each run's first sample.  That is each run's own robustness, because the
@@ -184,19 +190,36 @@ def _clause_values(
     (:mod:`planner.stl.batch` uses the same argument for clause templates).
     """
     n_runs, _, samples, _ = positions.shape
-    signals = {n: positions[:, v].reshape(n_runs * samples, 3) for v, n in enumerate(names)}
+    readers = heading_readers(formula) if yaw is not None else frozenset()
+    signals = {}
+    for v, n in enumerate(names):
+        sig = positions[:, v].reshape(n_runs * samples, 3)
+        if n in readers and yaw is not None:
+            sig = np.column_stack([sig, yaw[:, v].reshape(n_runs * samples)])
+        signals[n] = sig
     trace = formula.robustness_trace(signals, dt)
     return np.asarray(trace[::samples], dtype=float)
 
 
 def evaluate_batch(plan: Plan, flights: BatchFlights) -> tuple[np.ndarray, ...]:
-    """Per run: the spec's robustness (true, reported) and per clause (true, reported)."""
+    """Per run: the spec's robustness (true, reported) and per clause (true, reported), on
+    the headings too where the spec reads them (``face``)."""
     phi = plan_formula(plan)
     names = [v.name for v in plan.vehicles]
     dt = plan.check_dt_s
     clauses = phi.clauses
-    c_true = np.column_stack([_clause_values(c, flights.true_enu_m, names, dt) for c in clauses])
-    c_rep = np.column_stack([_clause_values(c, flights.reported_enu_m, names, dt) for c in clauses])
+    c_true = np.column_stack(
+        [
+            _clause_values(c, flights.true_enu_m, names, dt, flights.true_yaw_enu_rad)
+            for c in clauses
+        ]
+    )
+    c_rep = np.column_stack(
+        [
+            _clause_values(c, flights.reported_enu_m, names, dt, flights.reported_yaw_enu_rad)
+            for c in clauses
+        ]
+    )
     return c_true.min(axis=1), c_rep.min(axis=1), c_true, c_rep
 
 
@@ -261,8 +284,8 @@ class MonitorSettings:
         from mavlink.monitor import SafetyMonitor, always_clause_indices, always_clauses
 
         phi = plan_formula(plan)
-        clauses = always_clauses(phi, [v.name for v in plan.vehicles])
-        index = np.array(always_clause_indices(phi), dtype=np.int64)
+        clauses = always_clauses(phi, [v.name for v in plan.vehicles], reads_heading)
+        index = np.array(always_clause_indices(phi, reads_heading), dtype=np.int64)
         return SafetyMonitor(clauses, horizon_s=0.5, max_off_plan_m=self.max_off_plan_m), index
 
 

@@ -31,17 +31,22 @@ __all__ = ["fly_realtime", "realtime_configs", "write_replay_csv"]
 
 
 def write_replay_csv(flights: BatchFlights, names: tuple[str, ...], out_dir: Path) -> list[Path]:
-    """``replay_SEED_true.csv`` and ``replay_SEED_reported.csv`` (columns ``t,vehicle,x,y,z``,
-    mission ENU, the plan's check grid) of the first run of ``flights``."""
+    """``replay_SEED_true.csv`` and ``replay_SEED_reported.csv`` (columns ``t,vehicle,x,y,z``
+    and, when recorded, ``yaw``: mission ENU, the heading as ENU yaw in rad, the plan's check
+    grid) of the first run of ``flights``."""
     seed = int(flights.seeds[0])
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
-    for what, arr in (("true", flights.true_enu_m), ("reported", flights.reported_enu_m)):
+    for what, arr, yaw in (
+        ("true", flights.true_enu_m, flights.true_yaw_enu_rad),
+        ("reported", flights.reported_enu_m, flights.reported_yaw_enu_rad),
+    ):
         path = out_dir / f"replay_{seed}_{what}.csv"
-        lines = ["t,vehicle,x,y,z"]
+        lines = ["t,vehicle,x,y,z" + (",yaw" if yaw is not None else "")]
         for v, name in enumerate(names):
-            for t, p in zip(flights.t_s, arr[0, v], strict=True):
-                lines.append(f"{t:.3f},{name},{p[0]:.4f},{p[1]:.4f},{p[2]:.4f}")
+            for k, (t, p) in enumerate(zip(flights.t_s, arr[0, v], strict=True)):
+                row = f"{t:.3f},{name},{p[0]:.4f},{p[1]:.4f},{p[2]:.4f}"
+                lines.append(row + (f",{yaw[0, v, k]:.6f}" if yaw is not None else ""))
         path.write_text("\n".join(lines) + "\n", encoding="utf-8")
         paths.append(path)
     return paths

@@ -169,34 +169,69 @@ def verify_telemetry(plan: Any, telemetry: Any, dt_s: float | None = None) -> li
     """Checks of flown data (module docstring): coverage and gaps per vehicle, then each
     top-level clause on the flown positions (bound 0: the flown data satisfies it).
 
+    A spec that reads the heading (``face``) also needs each vehicle's flown heading: a
+    vehicle whose telemetry has none fails ``flown NAME heading`` (saying so), and the
+    clauses that read its heading are not judged; one with a heading has its gaps checked
+    like the positions'.
+
     Args:
         plan: a loaded plan.
         telemetry: a :class:`gcs.telemetry.Telemetry` (flown ENU paths by vehicle name).
         dt_s: check step (default: the plan's ``check_dt_s``).
     """
+    from gcs.evaluation import heading_readers
+    from mavlink.tracks import NO_HEADING
     from planner.planfile import plan_formula
 
     dt = check_step_s(plan, dt_s)
     t = np.arange(round(plan.horizon_s / dt) + 1) * dt
+    phi = plan_formula(plan)
+    readers = heading_readers(phi)
     checks: list[Check] = []
     flown: dict[str, np.ndarray] = {}
+    no_heading: set[str] = set()
     for v in plan.vehicles:
         path = telemetry.vehicles.get(v.name)
         if path is None or len(path.t_s) == 0:
             checks.append(Check(f"flown {v.name} telemetry", 0.0, 1.0, False, "no samples"))
             continue
         ts = np.asarray(path.t_s, dtype=float)
-        gap = float(max(ts[0] - 0.0, plan.horizon_s - ts[-1], np.diff(ts).max(initial=0.0)))
+        gap = _largest_gap(ts, plan.horizon_s)
         ok = gap <= MAX_TELEMETRY_GAP_S
         detail = f"samples {ts[0]:.2f}..{ts[-1]:.2f} s of 0..{plan.horizon_s:g} s"
         checks.append(Check(f"flown {v.name} largest gap s", gap, MAX_TELEMETRY_GAP_S, ok, detail))
+        if not ok:
+            continue
+        flown[v.name] = path.position(t)
+        if v.name not in readers:
+            continue
+        th = path.heading_t_s
+        if th.size == 0:
+            no_heading.add(v.name)
+            why = f"{NO_HEADING}; the spec's face() reads it"
+            checks.append(Check(f"flown {v.name} heading", 0.0, 1.0, False, why))
+            continue
+        gap = _largest_gap(th, plan.horizon_s)
+        ok = gap <= MAX_TELEMETRY_GAP_S
+        detail = f"headings {th[0]:.2f}..{th[-1]:.2f} s of 0..{plan.horizon_s:g} s"
+        name = f"flown {v.name} heading largest gap s"
+        checks.append(Check(name, gap, MAX_TELEMETRY_GAP_S, ok, detail))
         if ok:
-            flown[v.name] = path.position(t)
+            flown[v.name] = path.signal(t, heading=True)
+        else:
+            no_heading.add(v.name)
     if len(flown) == len(plan.vehicles):
         clause_checks = []
-        for clause in plan_formula(plan).clauses:
+        for clause in phi.clauses:
+            if no_heading & heading_readers(clause):
+                continue  # its vehicle's heading check failed and says why
             rho = float(clause.robustness(flown, dt))
             detail = "" if rho >= 0.0 else weakest_detail(clause.weakest(flown, dt))
             clause_checks.append(Check(f"flown spec: {clause}", rho, 0.0, rho >= 0.0, detail))
         checks.extend(sorted(clause_checks, key=lambda c: c.value))  # worst first
     return checks
+
+
+def _largest_gap(t_s: np.ndarray, horizon_s: float) -> float:
+    """The longest stretch of ``[0, horizon_s]`` without a sample (s), ``t_s`` sorted."""
+    return float(max(t_s[0] - 0.0, horizon_s - t_s[-1], np.diff(t_s).max(initial=0.0)))

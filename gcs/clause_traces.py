@@ -11,7 +11,10 @@ the curve whose maximum over its window is its value; any other clause is its ow
 
 Flown robustness is evaluated on the same grid, positions linearly interpolated between
 telemetry samples (:mod:`gcs.telemetry`) and held before the first and after the last sample
-of each vehicle (the HTML table says how much of the horizon the telemetry covers).
+of each vehicle (the HTML table says how much of the horizon the telemetry covers); where the
+spec reads a vehicle's heading (``face``), its flown heading likewise (the shorter turn between
+samples). A clause that reads the heading of a vehicle whose telemetry has none gets no flown
+value, and says why (``flown_problem``).
 
 A room of its own because it is computation, not drawing: numpy and the STL engine, no
 matplotlib, checked by tests against the clauses' own values.
@@ -34,6 +37,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gcs.errors import InputFileError
+from gcs.evaluation import heading_readers
+from mavlink.tracks import NO_HEADING
 
 if TYPE_CHECKING:
     from gcs.telemetry import Telemetry
@@ -63,6 +68,8 @@ class ClauseTrace:
         flown_robustness: the clause on the flown paths (None without telemetry or when the
             telemetry lacks a vehicle the clause reads).
         flown_rho: ``(m,)`` flown counterpart of ``rho`` (or None).
+        flown_problem: why the clause has no flown value although telemetry was given
+            (a vehicle's telemetry without the heading the clause reads), else ``""``.
     """
 
     text: str
@@ -76,6 +83,7 @@ class ClauseTrace:
     flown_robustness: float | None = None
     flown_rho: NDArray[np.float64] | None = None
     vehicles: tuple[str, ...] = ()
+    flown_problem: str = ""
 
 
 def plan_grid(plan: Plan, dt_s: float | None = None) -> tuple[NDArray[np.float64], float]:
@@ -144,6 +152,8 @@ def clause_traces(
 
     planned = planned_signals(plan, t)
     flown: dict[str, NDArray[np.float64]] | None = None
+    readers = heading_readers(phi)
+    headless: set[str] = set()
     if telemetry is not None:
         known = {v.name for v in plan.vehicles}
         if not known & telemetry.vehicles.keys():
@@ -151,7 +161,12 @@ def clause_traces(
                 f"{telemetry.source}: no vehicle of the plan in the telemetry (it has "
                 f"{', '.join(sorted(telemetry.vehicles))}; the plan has {', '.join(sorted(known))})"
             )
-        flown = {name: path.position(t) for name, path in telemetry.vehicles.items()}
+        flown = {}
+        for name, path in telemetry.vehicles.items():
+            heading = name in readers and path.has_heading
+            flown[name] = path.signal(t, heading=heading)
+            if name in readers and not heading:
+                headless.add(name)
     out: list[ClauseTrace] = []
     for i, clause in enumerate(phi.clauses):
         with spec_errors(plan, f"spec clause {i + 1} ({clause})"):
@@ -160,7 +175,9 @@ def clause_traces(
             shown, rho = _curve(clause, planned, dt)
             flown_value: float | None = None
             flown_rho: NDArray[np.float64] | None = None
-            if flown is not None and clause.signal_names() <= flown.keys():
+            missing = sorted(headless & heading_readers(clause))
+            problem = f"vehicle {missing[0]}: {NO_HEADING}" if missing else ""
+            if flown is not None and clause.signal_names() <= flown.keys() and not missing:
                 _, flown_rho = _curve(clause, flown, dt)
                 flown_value = float(clause.robustness(flown, dt))
         k, op, window = _witness(clause, rho, dt)
@@ -177,6 +194,7 @@ def clause_traces(
                 flown_robustness=flown_value,
                 flown_rho=flown_rho,
                 vehicles=tuple(v.name for v in plan.vehicles if v.name in clause.signal_names()),
+                flown_problem=problem,
             )
         )
     return tuple(out)

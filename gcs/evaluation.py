@@ -10,12 +10,15 @@ same :func:`plan_formula`, and the outcome (:mod:`gcs.outcome`) reports what was
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from mavlink.tracks import NO_HEADING
 
 if TYPE_CHECKING:
     from mavlink.tracks import FlownTrack
@@ -27,8 +30,41 @@ __all__ = [
     "FlownEvaluation",
     "TrackingError",
     "evaluate_flight",
+    "heading_readers",
     "plan_formula",
+    "reads_heading",
 ]
+
+
+def heading_readers(formula: Formula) -> frozenset[str]:
+    """The vehicles whose heading ``formula`` reads: the first argument of each heading call
+    (``face(d, target)``) anywhere in it, in arithmetic too (empty: a positions-only formula,
+    :func:`planner.heading.uses_heading` false)."""
+    from planner.predicates import Role, role_of
+    from planner.stl import Call, Expr
+    from planner.stl import Formula as Node
+
+    found: set[str] = set()
+
+    def walk(node: Node | Expr) -> None:
+        if isinstance(node, Call):
+            if role_of(node) is Role.HEADING and node.args:
+                found.add(node.args[0])
+            return
+        for f in dataclasses.fields(node):
+            value = getattr(node, f.name)
+            for x in value if isinstance(value, tuple) else (value,):
+                if isinstance(x, Node | Expr):
+                    walk(x)
+
+    walk(formula)
+    return frozenset(found)
+
+
+def reads_heading(formula: Formula) -> bool:
+    """Whether ``formula`` reads a vehicle's heading (:func:`heading_readers`): the live safety
+    monitor leaves such clauses out (``exclude`` of :func:`mavlink.monitor.always_clauses`)."""
+    return bool(heading_readers(formula))
 
 
 def plan_formula(plan: Plan) -> Formula:
@@ -132,8 +168,11 @@ def evaluate_flight(plan: Plan, tracks: Mapping[str, FlownTrack]) -> FlownEvalua
     """Exact robustness of the flown tracks next to the plan's, per clause and overall.
 
     Flown positions are resampled on the plan's check grid ``t = 0, dt, ..., horizon`` by
-    linear interpolation of the telemetry (:meth:`mavlink.tlog.FlownTrack.resample`, which
-    refuses a track that does not cover the horizon).
+    linear interpolation of the telemetry (:meth:`mavlink.tracks.FlownTrack.resample`, which
+    refuses a track that does not cover the horizon); a vehicle whose heading the spec reads
+    (``face``, :func:`heading_readers`) with its flown heading as a fourth column. A track
+    without a heading leaves the clauses that read it unjudged (``flown`` None) and the
+    overall flown robustness None, ``coverage_problem`` naming the vehicle.
     """
     from mavlink.errors import LinkError
 
@@ -144,26 +183,33 @@ def evaluate_flight(plan: Plan, tracks: Mapping[str, FlownTrack]) -> FlownEvalua
     from planner.planfile import planned_signals
 
     planned = planned_signals(plan, t)
+    readers = heading_readers(phi)
     flown: dict[str, np.ndarray] | None = {}
+    headless: set[str] = set()
     problem = ""
     for v in plan.vehicles:
         tr = tracks.get(v.name)
         if tr is None:
             flown, problem = None, f"no telemetry from {v.name}"
             break
+        heading = v.name in readers and tr.has_heading
         try:
-            flown[v.name] = tr.resample(dt, plan.horizon_s)  # type: ignore[index]
+            flown[v.name] = tr.resample(dt, plan.horizon_s, heading=heading)  # type: ignore[index]
         except LinkError as exc:
             flown, problem = None, str(exc)
             break
+        if v.name in readers and not heading:
+            headless.add(v.name)
+            problem = problem or f"vehicle {v.name}: {NO_HEADING}, which the spec's face() reads"
     clauses = []
     for c in phi.clauses:
+        judged = flown is not None and not headless & heading_readers(c)
         clauses.append(
             ClauseOutcome(
                 text=str(c),
                 vehicles=tuple(sorted(c.signal_names() & planned.keys())),
                 planned=float(c.robustness(planned, dt)),
-                flown=None if flown is None else float(c.robustness(flown, dt)),
+                flown=float(c.robustness(flown, dt)) if judged and flown is not None else None,
             )
         )
     lags = np.round(np.arange(-0.5, 1.0 + 1e-9, 0.01), 6)
@@ -172,10 +218,11 @@ def evaluate_flight(plan: Plan, tracks: Mapping[str, FlownTrack]) -> FlownEvalua
         for v in plan.vehicles
         if v.name in tracks
     )
+    whole = flown is not None and not headless
     return FlownEvaluation(
         dt_s=dt,
         planned_robustness=float(phi.robustness(planned, dt)),
-        flown_robustness=None if flown is None else float(phi.robustness(flown, dt)),
+        flown_robustness=float(phi.robustness(flown, dt)) if whole and flown is not None else None,
         clauses=tuple(clauses),
         tracking=tracking,
         coverage_problem=problem,

@@ -55,7 +55,7 @@ import numpy as np
 
 from gcs.dryrun import free_udp_ports
 from gcs.errors import GcsError, InputFileError, UserError
-from gcs.evaluation import evaluate_flight, plan_formula
+from gcs.evaluation import evaluate_flight, plan_formula, reads_heading
 from gcs.outcome import FlightMode, FlightOutcome
 from gcs.progress import FlightClock, FlightProgress
 
@@ -256,22 +256,14 @@ def _tracks_from_rows(
     mission_origin: GeodeticPoint,
     origins: Mapping[str, GeodeticPoint],
 ) -> dict[str, FlownTrack]:
-    """FlownTracks from :meth:`Vehicle.stop_track` rows ``(t, n, e, d, vn, ve, vd)``."""
-    from mavlink.tracks import FlownTrack
-    from planner.frames import ned_to_enu, ned_vector_to_enu
+    """FlownTracks from :meth:`Vehicle.stop_track` rows ``(t, n, e, d, vn, ve, vd, yaw)``."""
+    from mavlink.tracks import track_from_rows
 
-    out = {}
-    for name, r in rows.items():
-        if r.shape[0] == 0 or name not in t0:
-            continue
-        out[name] = FlownTrack(
-            name=name,
-            t_s=r[:, 0] - t0[name],
-            pos_enu_m=ned_to_enu(r[:, 1:4], mission_origin, origins[name]),
-            vel_enu_m_s=ned_vector_to_enu(r[:, 4:7], mission_origin, origins[name]),
-            pos_ned_m=r[:, 1:4],
-        )
-    return out
+    return {
+        name: track_from_rows(name, r, t0[name], mission_origin, origins[name])
+        for name, r in rows.items()
+        if r.shape[0] > 0 and name in t0
+    }
 
 
 #: The PX4 mode each end action leads to.
@@ -320,7 +312,9 @@ async def _fly_offboard(
         """The shared start time, for the progress view."""
         clock.t0_monotonic_s.update(dict.fromkeys(names, t0_monotonic_s))
 
-    clauses = always_clauses(plan_formula(plan), names) if opts.monitor else ()
+    clauses = (
+        always_clauses(plan_formula(plan), names, exclude=reads_heading) if opts.monitor else ()
+    )
     monitor = SafetyMonitor(
         clauses,
         horizon_s=0.5 if opts.monitor else 0.0,

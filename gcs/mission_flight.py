@@ -118,6 +118,7 @@ async def fly_mission_plan(
             off, not settling at its start, or refusing its mission start.
         mavlink.errors.LinkError: a transfer or link failure before the flight.
     """
+    from gcs.evaluation import reads_heading
     from gcs.missions import convert_plan_apart
     from mavlink.errors import PreflightError
     from mavlink.mission import (
@@ -249,7 +250,7 @@ async def fly_mission_plan(
     follower.t_start = t0
     clock.t0_monotonic_s.update(dict.fromkeys(names, t0))
     stop = asyncio.Event()
-    clauses = always_clauses(_formula(plan), names) if opts.monitor else ()
+    clauses = always_clauses(_formula(plan), names, reads_heading) if opts.monitor else ()
     monitor = SafetyMonitor(clauses, horizon_s=0.5 if opts.monitor else 0.0)
     mon_task = asyncio.create_task(
         monitor.run(

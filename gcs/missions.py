@@ -177,7 +177,7 @@ def convert_plan(
             sample_dt_s=dt if dt >= 0.02 else 0.02,
         )
         runs += 1
-        rho = float(phi.robustness({n: pred.position(n, t) for n in missions}, dt))
+        rho = float(phi.robustness({n: pred.signal(n, t) for n in missions}, dt))
         if best is None or rho > best[0]:
             best = (rho, missions, pred)
         if k + 1 >= iterations or not retime:

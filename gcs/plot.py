@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING
 
 from gcs.clause_traces import ClauseTrace, clause_traces
 from gcs.errors import InputFileError
+from gcs.evaluation import heading_readers, plan_formula
 from gcs.figure import figure_png, render_figure
 
 if TYPE_CHECKING:
@@ -78,14 +79,18 @@ def html_report(
         rows.append("<tr>" + "".join(cells) + "</tr>")
     coverage = ""
     if telemetry is not None:
+        readers = heading_readers(plan_formula(plan))
         parts = []
         for v in plan.vehicles:
             path = telemetry.vehicles.get(v.name)
             if path is None:
                 parts.append(f"{esc(v.name)}: no telemetry")
             else:
+                no_heading = v.name in readers and not path.has_heading
                 parts.append(
-                    f"{esc(v.name)}: {path.t_s[0]:.2f}-{path.t_s[-1]:.2f} s ({path.t_s.size} samples)"
+                    f"{esc(v.name)}: {path.t_s[0]:.2f}-{path.t_s[-1]:.2f} s ({path.t_s.size} samples"
+                    + (", no heading: its face clauses are not judged" if no_heading else "")
+                    + ")"
                 )
         coverage = (
             f"<p>Telemetry <code>{esc(telemetry.source)}</code> covers "

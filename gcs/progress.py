@@ -24,7 +24,8 @@ from typing import TYPE_CHECKING, TextIO
 
 import numpy as np
 
-from gcs.evaluation import plan_formula
+from gcs.evaluation import heading_readers, plan_formula
+from mavlink.tracks import wrap_pi
 
 if TYPE_CHECKING:
     from mavlink.fleet import Fleet
@@ -52,7 +53,9 @@ class FlightProgress:
     On a terminal one status line is rewritten in place (4 times a second); otherwise a
     plain line is printed every ``plain_interval_s``. "Robustness so far" of a vehicle is
     the minimum over the clauses it appears in of their exact robustness on its flown
-    positions up to now followed by the plan for the rest of the horizon.
+    positions up to now followed by the plan for the rest of the horizon; where the spec
+    reads the heading (``face``), its flown heading (ATTITUDE) likewise: NaN (shown
+    ``n/a``) while a vehicle has flown without one.
 
     The work per update is bounded: the flown samples are written into the signals
     incrementally (only the grid steps since the last update), the clauses are evaluated
@@ -84,7 +87,11 @@ class FlightProgress:
         self.dt_s = max(plan.check_dt_s, 0.05)
         n = round(plan.horizon_s / self.dt_s) + 1
         self.t_grid = np.arange(n) * self.dt_s
-        self.planned = {v.name: v.trajectory.position(self.t_grid) for v in plan.vehicles}
+        from planner.planfile import planned_signals
+
+        # with the heading as a fourth column where the spec reads it (face)
+        self.planned = planned_signals(plan, self.t_grid)
+        self._heading = heading_readers(self.phi)
         names = [v.name for v in plan.vehicles]
         clauses = list(self.phi.clauses)
         self._batch = ClauseBatch(clauses)
@@ -92,10 +99,15 @@ class FlightProgress:
             name: np.array([i for i, c in enumerate(clauses) if name in c.signal_names()], int)
             for name in names
         }
-        self._samples: dict[str, list[tuple[float, float, float, float]]] = {n: [] for n in names}
+        self._samples: dict[str, list[tuple[float, ...]]] = {n: [] for n in names}
         # the signals: flown up to _filled[name] grid steps, planned after
         self._signals = {name: p.copy() for name, p in self.planned.items()}
         self._filled = dict.fromkeys(names, 0)
+        self._headless: set[str] = set()  # flown without a known heading the spec reads
+        self._reads_heading = {
+            name: np.array([i for i, c in enumerate(clauses) if name in heading_readers(c)], int)
+            for name in names
+        }
         self._lock = threading.Lock()  # record() and so_far() may run on different threads
         self._maps: dict[GeodeticPoint, NedToEnuMap] = {}  # per EKF origin
         self.lines = 0
@@ -115,11 +127,21 @@ class FlightProgress:
                 return
             # the samples around steps k0..k1-1: from the last one at or before step k0
             t_first = self.t_grid[k0]
-            j = max(0, bisect.bisect_right(rows, (t_first, math.inf, 0.0, 0.0)) - 1)
+            j = max(0, bisect.bisect_right(rows, (t_first, math.inf)) - 1)
             a = np.asarray(rows[j:])
         sig = self._signals[name]
+        t = self.t_grid[k0:k1]
         for ax in range(3):
-            sig[k0:k1, ax] = np.interp(self.t_grid[k0:k1], a[:, 0], a[:, ax + 1])
+            sig[k0:k1, ax] = np.interp(t, a[:, 0], a[:, ax + 1])
+        if sig.shape[1] > 3:
+            # the flown heading, the shorter turn between samples; where none is known yet
+            # (no ATTITUDE) the clauses reading it are unknown (so_far), never judged on the
+            # planned heading the column still holds
+            known = np.isfinite(a[:, 4])
+            if known.any():
+                sig[k0:k1, 3] = wrap_pi(np.interp(t, a[known, 0], np.unwrap(a[known, 4])))
+            else:
+                self._headless.add(name)
         self._filled[name] = k1
 
     def so_far(self, t_now_s: float) -> dict[str, float]:
@@ -127,17 +149,23 @@ class FlightProgress:
         for name in self._signals:
             self._fill(name, t_now_s)
         values = self._batch.values(self._signals, self.dt_s)
+        for name in self._headless:
+            values[self._reads_heading[name]] = math.nan
         return {
             name: float(values[idx].min()) if idx.size else math.nan
             for name, idx in self._members.items()
         }
 
-    def record(self, name: str, t_s: float, pos_enu_m: np.ndarray) -> None:
-        """Add a position sample of ``name`` at plan time ``t_s``."""
+    def record(
+        self, name: str, t_s: float, pos_enu_m: np.ndarray, yaw_enu_rad: float = math.nan
+    ) -> None:
+        """Add a position sample of ``name`` at plan time ``t_s`` (with the heading, mission
+        ENU yaw in rad, NaN: unknown)."""
         with self._lock:
             rows = self._samples[name]
             if not rows or t_s > rows[-1][0]:
-                rows.append((t_s, float(pos_enu_m[0]), float(pos_enu_m[1]), float(pos_enu_m[2])))
+                p = pos_enu_m
+                rows.append((t_s, float(p[0]), float(p[1]), float(p[2]), float(yaw_enu_rad)))
 
     def line(
         self,
@@ -151,7 +179,7 @@ class FlightProgress:
 
         ``with_robustness=False`` only records (the robustness is the costly part).
         """
-        from planner.frames import NedToEnuMap
+        from planner.frames import NedToEnuMap, yaw_ned_to_enu
 
         now = time.monotonic()
         parts = []
@@ -171,13 +199,18 @@ class FlightProgress:
                 ref = v.trajectory.position(np.array([ref_t]))[0]
                 where = f" {float(np.linalg.norm(pos - ref)):5.2f} m"
                 if t is not None and t >= 0.0:
-                    self.record(v.name, t, pos)
+                    yaw = math.nan
+                    if v.name in self._heading and st.yaw_ned_rad is not None:
+                        yaw = float(yaw_ned_to_enu(st.yaw_ned_rad, self.plan.origin, origin))
+                    self.record(v.name, t, pos, yaw)
                     t_plan = t if t_plan is None else max(t_plan, t)
             parts.append(f"{v.name} {mode}{where}")
         if t_plan is not None and with_robustness:
             rho = self.so_far(t_plan)
             parts = [
-                f"{p} rho {rho[v.name]:+.3f}"
+                f"{p} rho n/a (no heading)"
+                if v.name in self._headless and math.isnan(rho[v.name])
+                else f"{p} rho {rho[v.name]:+.3f}"
                 for p, v in zip(parts, self.plan.vehicles, strict=True)
             ]
             head = f"t {min(t_plan, self.plan.horizon_s):5.1f}/{self.plan.horizon_s:g} s"

@@ -10,9 +10,14 @@ A room of its own because reading a file is not drawing: ``gcs plot --telemetry`
 Telemetry (``--telemetry``): a CSV file with a header line and at least the columns
 ``t,vehicle,x,y,z``: time in seconds from the plan's start, the vehicle name of the plan,
 position in the mission ENU frame in metres (extra columns are ignored); the link's track CSV
-(:func:`mavlink.tlog.write_tracks_csv`: ``vehicle,t_s,x_enu_m,y_enu_m,z_enu_m,...``) is read
-alike. A ``.tlog`` goes through :func:`mavlink.tlog.tracks_from_tlog`; since a tlog does not
-record when the plan started, its Unix start time must be given (``--t0``).
+(:func:`mavlink.tracks.write_tracks_csv`: ``vehicle,t_s,x_enu_m,y_enu_m,z_enu_m,...``) is read
+alike. An optional column ``yaw`` (or the link's ``yaw_enu_rad``) holds the heading, the
+mission frame's ENU yaw in radians (0 = east, counter-clockwise), empty where unknown: what a
+spec with ``face(d, target)`` reads; a file without it (an older flight's CSV among them) loads
+with no heading, and judging such a spec on it says that the telemetry has no heading. A
+``.tlog`` goes through :func:`mavlink.tlog.tracks_from_tlog` (the heading from its ATTITUDE
+messages); since a tlog does not record when the plan started, its Unix start time must be
+given (``--t0``).
 
 Errors::
 
@@ -44,7 +49,10 @@ __all__ = ["TELEMETRY_COLUMNS", "Telemetry", "load_telemetry"]
 #: Columns a telemetry CSV must have (more are allowed).
 TELEMETRY_COLUMNS = ("t", "vehicle", "x", "y", "z")
 
-#: Accepted names of those columns: ours, and the link's track CSV (:mod:`mavlink.tlog`).
+#: Accepted names of the optional heading column (ENU yaw, rad; empty where unknown).
+_YAW_ALIASES = ("yaw", "yaw_enu_rad")
+
+#: Accepted names of those columns: ours, and the link's track CSV (:mod:`mavlink.tracks`).
 _TELEMETRY_ALIASES: dict[str, tuple[str, ...]] = {
     "t": ("t", "t_s"),
     "vehicle": ("vehicle",),
@@ -111,7 +119,8 @@ def load_telemetry(
             f"{src}: line 1: missing column(s) {', '.join(missing)} "
             f"(need {','.join(TELEMETRY_COLUMNS)}, or the link's vehicle,t_s,x_enu_m,...)"
         )
-    rows: dict[str, list[tuple[float, float, float, float]]] = {}
+    yaw_col = next((header.index(n) for n in _YAW_ALIASES if n in header), None)
+    rows: dict[str, list[tuple[float, float, float, float, float]]] = {}
     for lineno, row in enumerate(reader, start=2):
         if not row or all(not f.strip() for f in row):
             continue
@@ -136,15 +145,35 @@ def load_telemetry(
         name = row[col["vehicle"]].strip()
         if not name:
             raise InputFileError(f"{src}: line {lineno}: column vehicle: empty")
-        rows.setdefault(name, []).append((vals[0], vals[1], vals[2], vals[3]))
+        yaw = math.nan if yaw_col is None else _yaw_field(src, lineno, header, row, yaw_col)
+        rows.setdefault(name, []).append((vals[0], vals[1], vals[2], vals[3], yaw))
     if not rows:
         raise InputFileError(f"{src}: no telemetry rows after the header")
     vehicles: dict[str, FlownTrack] = {}
     for name, r in rows.items():
         a = np.asarray(r, dtype=float)
         a = a[np.argsort(a[:, 0], kind="stable")]
-        vehicles[name] = FlownTrack(name, t_s=a[:, 0], pos_enu_m=a[:, 1:4])
+        heading = a[:, 4] if np.isfinite(a[:, 4]).any() else None
+        vehicles[name] = FlownTrack(name, t_s=a[:, 0], pos_enu_m=a[:, 1:4], yaw_enu_rad=heading)
     return Telemetry(source=src, vehicles=vehicles)
+
+
+def _yaw_field(src: str, lineno: int, header: list[str], row: list[str], col: int) -> float:
+    """The heading of one row (NaN: the field is empty, the heading unknown there)."""
+    field = row[col].strip()
+    if not field:
+        return math.nan
+    try:
+        v = float(field)
+    except ValueError:
+        raise InputFileError(
+            f"{src}: line {lineno}: column {header[col]}: not a number: {field!r}"
+        ) from None
+    if not math.isfinite(v):
+        raise InputFileError(
+            f"{src}: line {lineno}: column {header[col]}: must be finite (empty where unknown)"
+        )
+    return v
 
 
 def _load_tlog(p: Path, plan: Plan | None, t0_unix_s: float | None) -> Telemetry:

@@ -18,7 +18,8 @@ actions, missions and offboard, pymavlink for logs)::
                         budget, starting and following a mission
     mavlink.monitor     online safety monitor of the spec's always-clauses
     mavlink.scan        who answers on the udpin ports (duplicate system ids)
-    mavlink.tlog        telemetry recording to .tlog and CSV
+    mavlink.tlog        telemetry recording to .tlog, tracks rebuilt from it
+    mavlink.tracks      FlownTrack (positions, heading) and its CSV
     mavlink.mock        the mock PX4 vehicle endpoint (vehicle side)
 
 Error tree (``mavlink.errors``)::
@@ -33,6 +34,7 @@ Error tree (``mavlink.errors``)::
       PreflightError                      a vehicle may not start the plan (too far from
                                           its start, cannot reach it, no offboard)
       StreamError                         setpoints that cannot be streamed (rate, shapes)
+      MissingHeadingError                 a flown track without the heading a spec reads
       MissionError                        mission transfer or verification failed
                                           (.result: MissionResult, .origin: operation)
         TransferGaveUpError                   a retried transfer's time budget ran out
@@ -50,6 +52,7 @@ from mavlink.errors import (
     DuplicateSystemError,
     LinkError,
     LinkLostError,
+    MissingHeadingError,
     MissionError,
     MissionResult,
     PreflightError,
@@ -64,6 +67,7 @@ __all__ = [
     "DuplicateSystemError",
     "LinkError",
     "LinkLostError",
+    "MissingHeadingError",
     "MissionError",
     "MissionResult",
     "PreflightError",

@@ -71,6 +71,11 @@ class PreflightError(LinkError):
     """A vehicle is not in a state to start the plan (position, altitude, mode)."""
 
 
+class MissingHeadingError(LinkError):
+    """A vehicle's heading was asked of a flown track that has none (a spec with ``face``
+    judged on position-only telemetry)."""
+
+
 class StreamError(LinkError):
     """The offboard setpoint stream could not be sent as scheduled."""
 

@@ -2,7 +2,8 @@
 
 The clauses that must hold at every instant of an interval
 (``always[a,b] psi`` with ``psi`` free of temporal operators: separation,
-workspace, no-fly zones) are evaluated during the flight on the vehicles'
+workspace, no-fly zones; not the heading, which the ground station leaves to the
+judgement after the flight) are evaluated during the flight on the vehicles'
 reported positions, converted into the mission frame. At each tick the
 monitor also *predicts* the next ``horizon_s`` seconds: each vehicle is
 assumed to keep following its plan with its current tracking error, the
@@ -99,16 +100,21 @@ class SafetyClause:
     vehicles: tuple[str, ...]
 
 
-def always_clauses(spec: Formula, vehicle_names: Sequence[str]) -> tuple[SafetyClause, ...]:
+def always_clauses(
+    spec: Formula,
+    vehicle_names: Sequence[str],
+    exclude: Callable[[Formula], bool] | None = None,
+) -> tuple[SafetyClause, ...]:
     """The top-level conjuncts of ``spec`` of the form ``always[a,b] psi`` with ``psi`` atemporal.
 
     Args:
         spec: the whole specification.
         vehicle_names: names of the vehicle signals (to list which a clause reads).
+        exclude: clauses ``psi`` not to watch (:func:`always_clause_indices`).
     """
     out = []
     names = set(vehicle_names)
-    for i in always_clause_indices(spec):
+    for i in always_clause_indices(spec, exclude):
         clause = spec.clauses[i]
         assert isinstance(clause, Always)
         reads = tuple(sorted(names & set(clause.child.signal_names())))
@@ -116,12 +122,21 @@ def always_clauses(spec: Formula, vehicle_names: Sequence[str]) -> tuple[SafetyC
     return tuple(out)
 
 
-def always_clause_indices(spec: Formula) -> tuple[int, ...]:
-    """Which top-level conjuncts of ``spec`` :func:`always_clauses` watches (their indices)."""
+def always_clause_indices(
+    spec: Formula, exclude: Callable[[Formula], bool] | None = None
+) -> tuple[int, ...]:
+    """Which top-level conjuncts of ``spec`` :func:`always_clauses` watches (their indices).
+
+    ``exclude(psi)`` true leaves ``always[a,b] psi`` unwatched: the ground station passes the
+    clauses that read a vehicle's heading (``face``), since the monitor evaluates and
+    predicts positions only (such a clause is judged on the flown tracks afterwards).
+    """
     out = []
     for i, clause in enumerate(spec.clauses):
         if isinstance(clause, Always) and clause.child.horizon == 0.0:
             if any(isinstance(node, Always) or node.horizon > 0 for node in clause.child.walk()):
+                continue
+            if exclude is not None and exclude(clause.child):
                 continue
             out.append(i)
     return tuple(out)

@@ -67,9 +67,9 @@ from mavlink.stream import (
     send_offsets,
 )
 from mavlink.tlog import TlogRecorder, TlogStats
-from mavlink.tracks import FlownTrack, write_tracks_csv
+from mavlink.tracks import FlownTrack, track_from_rows, write_tracks_csv
 from mavlink.vehicle import Vehicle, VehicleStatus
-from planner.frames import GeodeticPoint, enu_to_geodetic, ned_to_enu, ned_vector_to_enu
+from planner.frames import GeodeticPoint, enu_to_geodetic
 from planner.trajectory import Trajectory
 
 #: A vehicle sent to a landing point lands once this close to it (m) and nearly still.
@@ -223,22 +223,6 @@ async def _end(v: Vehicle, action: EndAction, cfg: OffboardConfig | None = None)
         await v.land()
     elif action is EndAction.RETURN:
         await v.return_to_launch()
-
-
-def _track(
-    name: str, rows: np.ndarray, t0: float, mission_origin: GeodeticPoint, origin: GeodeticPoint
-) -> FlownTrack:
-    if rows.shape[0] == 0:
-        z = np.zeros((0, 3))
-        return FlownTrack(name, np.zeros(0), z, z.copy(), z.copy())
-    ned = rows[:, 1:4]
-    return FlownTrack(
-        name=name,
-        t_s=rows[:, 0] - t0,
-        pos_enu_m=ned_to_enu(ned, mission_origin, origin),
-        vel_enu_m_s=ned_vector_to_enu(rows[:, 4:7], mission_origin, origin),
-        pos_ned_m=ned,
-    )
 
 
 async def fly_offboard(
@@ -488,7 +472,7 @@ async def _fly(
         failed = await fleet.for_each(lambda v: _end(v, cfg.end_action, cfg), vehicles)
         end_failures = {k: str(e) for k, e in failed.items()}
     tracks = {
-        v.name: _track(v.name, v.stop_track(), t0, mission_origin, origins[v.name])
+        v.name: track_from_rows(v.name, v.stop_track(), t0, mission_origin, origins[v.name])
         for v in vehicles
     }
     completed = event is None and all(s.sent + s.skipped >= main.n_ticks for s in stats.values())

@@ -13,13 +13,14 @@ what the vehicles send is recorded (the GCS's own setpoints are in the
 flight result's statistics).
 
 :func:`tracks_from_tlog` rebuilds the flown tracks (:class:`mavlink.tracks.FlownTrack`, whose
-CSV is :func:`mavlink.tracks.write_tracks_csv`) from a ``.tlog`` alone (GPS_GLOBAL_ORIGIN and
-LOCAL_POSITION_NED per system id).
+CSV is :func:`mavlink.tracks.write_tracks_csv`) from a ``.tlog`` alone (GPS_GLOBAL_ORIGIN,
+LOCAL_POSITION_NED and, for the heading, ATTITUDE per system id).
 """
 
 from __future__ import annotations
 
 import json
+import math
 import struct
 import threading
 import time
@@ -34,8 +35,8 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mav
 
 from mavlink.errors import LinkError
-from mavlink.tracks import FlownTrack
-from planner.frames import GeodeticPoint, ned_to_enu, ned_vector_to_enu
+from mavlink.tracks import FlownTrack, track_from_rows
+from planner.frames import GeodeticPoint
 
 if TYPE_CHECKING:
     from mavlink.fleet import Fleet
@@ -162,7 +163,10 @@ def tracks_from_tlog(
     """Flown tracks from a ``.tlog`` read with pymavlink.
 
     Each vehicle's local frame origin is the last GPS_GLOBAL_ORIGIN it sent
-    before its first LOCAL_POSITION_NED.
+    before its first LOCAL_POSITION_NED. Each position sample carries the latest
+    ATTITUDE.yaw the autopilot sent before it (as the live recording does,
+    :func:`mavlink.tracks.track_from_rows`); a log without ATTITUDE gives tracks without a
+    heading.
 
     Args:
         path: the ``.tlog``.
@@ -178,17 +182,23 @@ def tracks_from_tlog(
     log = mavutil.mavlogfile(str(path), robust_parsing=True)
     origins: dict[int, GeodeticPoint] = {}
     rows: dict[int, list[list[float]]] = {s: [] for s in names_by_sysid}
+    yaw_ned: dict[int, float] = dict.fromkeys(names_by_sysid, math.nan)
     while True:
-        m = log.recv_match(type=["GPS_GLOBAL_ORIGIN", "LOCAL_POSITION_NED"])
+        m = log.recv_match(type=["GPS_GLOBAL_ORIGIN", "LOCAL_POSITION_NED", "ATTITUDE"])
         if m is None:
             break
         sid = m.get_srcSystem()
         if sid not in rows:
             continue
-        if m.get_type() == "GPS_GLOBAL_ORIGIN":
+        kind = m.get_type()
+        if kind == "GPS_GLOBAL_ORIGIN":
             origins[sid] = GeodeticPoint(m.latitude * 1e-7, m.longitude * 1e-7, m.altitude * 1e-3)
+        elif kind == "ATTITUDE":
+            if m.get_srcComponent() == 1 and math.isfinite(m.yaw):
+                yaw_ned[sid] = float(m.yaw)
         else:
-            rows[sid].append([m._timestamp - t0_unix_s, m.x, m.y, m.z, m.vx, m.vy, m.vz])
+            t = m._timestamp - t0_unix_s
+            rows[sid].append([t, m.x, m.y, m.z, m.vx, m.vy, m.vz, yaw_ned[sid]])
     out = {}
     for sid, data in rows.items():
         name = names_by_sysid[sid]
@@ -196,13 +206,5 @@ def tracks_from_tlog(
             continue
         if sid not in origins:
             raise LinkError(f"{path}: no GPS_GLOBAL_ORIGIN from system {sid}", vehicle=name)
-        a = np.asarray(data)
-        ned = a[:, 1:4]
-        out[name] = FlownTrack(
-            name,
-            a[:, 0],
-            ned_to_enu(ned, mission_origin, origins[sid]),
-            ned_vector_to_enu(a[:, 4:7], mission_origin, origins[sid]),
-            ned,
-        )
+        out[name] = track_from_rows(name, np.asarray(data), 0.0, mission_origin, origins[sid])
     return out

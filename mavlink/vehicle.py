@@ -2,8 +2,8 @@
 
 :class:`Vehicle` subscribes to the vehicle's telemetry (MAVSDK's telemetry plugin and
 mavlink_direct messages: HEARTBEAT, GPS_GLOBAL_ORIGIN, STATUSTEXT, ESTIMATOR_STATUS,
-PARAM_VALUE); the callbacks update its state directly on MAVSDK's callback thread under a
-lock, and :meth:`Vehicle.status` takes a consistent :class:`VehicleStatus` snapshot. Its
+PARAM_VALUE, ATTITUDE); the callbacks update its state directly on MAVSDK's callback thread
+under a lock, and :meth:`Vehicle.status` takes a consistent :class:`VehicleStatus` snapshot. Its
 commands (arm, modes, take-off, go-to, COMMAND_LONG, parameters, telemetry rates) are
 coroutines over :func:`mavlink.mavsdk_glue.mavsdk_call`.
 
@@ -104,6 +104,8 @@ class VehicleStatus:
         heartbeat_age_s: seconds since the last heartbeat.
         position_age_s: seconds since the last local position.
         heading_deg: heading, degrees clockwise from north (GLOBAL_POSITION_INT.hdg).
+        yaw_ned_rad: the latest ATTITUDE.yaw, radians clockwise from north in the
+            vehicle's local NED frame.
     """
 
     name: str
@@ -125,6 +127,7 @@ class VehicleStatus:
     heartbeat_age_s: float | None
     position_age_s: float | None
     heading_deg: float | None = None
+    yaw_ned_rad: float | None = None
 
 
 # --------------------------------------------------------------------------
@@ -165,6 +168,7 @@ class Vehicle:
         self._origin: GeodeticPoint | None = None
         self._battery: tuple[float, float] | None = None
         self._heading: float | None = None
+        self._yaw_ned_rad = math.nan  # ATTITUDE.yaw, the latest (NaN: none yet)
         self._t_heartbeat: float | None = None
         self._t_position: float | None = None
         self._track: list[tuple[float, ...]] | None = None
@@ -210,6 +214,10 @@ class Vehicle:
                 self.direct.unsubscribe_message,
                 self.direct.subscribe_message("PARAM_VALUE", self._on_param_value),
             ),
+            (
+                self.direct.unsubscribe_message,
+                self.direct.subscribe_message("ATTITUDE", self._on_attitude),
+            ),
         ]
 
     def _on_pv(self, pv: Any, _ud: Any) -> None:
@@ -220,7 +228,16 @@ class Vehicle:
         with self._lock:
             self._pos_ned, self._vel_ned, self._t_position = pos, vel, t
             if self._track is not None:
-                self._track.append((t, *pos, *vel))
+                self._track.append((t, *pos, *vel, self._yaw_ned_rad))
+
+    def _on_attitude(self, msg: MavlinkMessage, _ud: Any) -> None:
+        if msg.system_id != self.spec.sysid or msg.component_id != 1:
+            return  # the autopilot's attitude only (not a gimbal's, not another vehicle's)
+        yaw = json.loads(msg.fields_json).get("yaw")
+        if not isinstance(yaw, int | float) or not math.isfinite(yaw):
+            return
+        with self._lock:
+            self._yaw_ned_rad = float(yaw)
 
     def _on_position(self, p: Any, _ud: Any) -> None:
         point = GeodeticPoint(
@@ -402,13 +419,15 @@ class Vehicle:
                 heartbeat_age_s=hb_age,
                 position_age_s=pos_age,
                 heading_deg=self._heading,
+                yaw_ned_rad=None if math.isnan(self._yaw_ned_rad) else self._yaw_ned_rad,
             )
 
     # -- recording of the flown track ----------------------------------
 
     def start_track(self) -> None:
-        """Start recording every LOCAL_POSITION_NED sample (receive time, pos, vel), and the
-        worst estimator accuracy reported meanwhile (:attr:`track_accuracy_m`)."""
+        """Start recording every LOCAL_POSITION_NED sample (receive time, pos, vel, and the
+        latest ATTITUDE.yaw heard by then), and the worst estimator accuracy reported
+        meanwhile (:attr:`track_accuracy_m`)."""
         with self._lock:
             self._track = []
             self._track_accuracy = self._pos_accuracy
@@ -421,11 +440,13 @@ class Vehicle:
             return self._track_accuracy
 
     def stop_track(self) -> np.ndarray:
-        """Stop recording; ``(k, 7)`` rows ``(t_monotonic_s, n, e, d, vn, ve, vd)``."""
+        """Stop recording; ``(k, 8)`` rows ``(t_monotonic_s, n, e, d, vn, ve, vd, yaw)``, the
+        yaw the vehicle's NED heading (rad, clockwise from north; NaN before the first
+        ATTITUDE). :func:`mavlink.tracks.track_from_rows` makes them a flown track."""
         with self._lock:
             rows, self._track = self._track, None
         if not rows:
-            return np.zeros((0, 7))
+            return np.zeros((0, 8))
         return np.asarray(rows, dtype=float)
 
     # -- commands -------------------------------------------------------

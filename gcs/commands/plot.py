@@ -9,6 +9,7 @@ clause robustness.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 HELP = "draw a plan: 3-D regions and paths, clause robustness over time, speed/acceleration"
@@ -48,6 +49,9 @@ def run(args: argparse.Namespace) -> int:
     output = args.output or str(Path(args.plan).with_suffix(".png"))
     result = plot_plan(plan, output, telemetry, args.dt, name=Path(args.plan).name)
     worst = min(result.traces, key=lambda c: c.robustness)
+    for problem in dict.fromkeys(c.flown_problem for c in result.traces if c.flown_problem):
+        note = f"gcs plot: note: {problem}: the clauses that read it have no flown value"
+        print(note, file=sys.stderr)
     print(
         f"wrote {result.path} ({len(result.traces)} clauses; "
         f"weakest {worst.robustness:+.4f}: {' '.join(worst.text.split())[:80]})"

@@ -37,6 +37,7 @@ import numpy as np
 
 from mavlink.errors import MissionError, MissionResult
 from mavlink.mission.items import Cmd, Frame, MissionEnd, MissionItem, MissionType, deg_e7
+from mavlink.tracks import wrap_pi
 from planner.frames import GeodeticPoint, enu_to_geodetic, yaw_enu_to_ned
 from planner.trajectory import Trajectory
 
@@ -51,10 +52,13 @@ class PiecewiseLinearPath:
     Attributes:
         knots_t_s: ``(m,)`` non-decreasing times from the plan's start.
         knots_enu_m: ``(m, 3)`` mission-frame positions at those times.
+        knots_yaw_enu_rad: ``(m,)`` the heading at those times (mission ENU yaw, rad,
+            unwrapped: the shorter turn between knots), or ``None``.
     """
 
     knots_t_s: np.ndarray
     knots_enu_m: np.ndarray
+    knots_yaw_enu_rad: np.ndarray | None = None
 
     @property
     def duration_s(self) -> float:
@@ -67,6 +71,16 @@ class PiecewiseLinearPath:
         return np.column_stack(
             [np.interp(t, self.knots_t_s, self.knots_enu_m[:, a]) for a in range(3)]
         )
+
+    def signal(self, t_s: np.ndarray) -> np.ndarray:
+        """The STL signal at ``t_s`` ``(n,)``: positions ``(n, 3)``, with the heading (turned
+        linearly between knots, held outside) a fourth column ``(n, 4)`` when the path has one."""
+        pos = self.position(t_s)
+        if self.knots_yaw_enu_rad is None:
+            return pos
+        t = np.atleast_1d(np.asarray(t_s, dtype=float))
+        yaw = np.interp(t, self.knots_t_s, self.knots_yaw_enu_rad)
+        return np.column_stack([pos, wrap_pi(yaw)])
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -192,9 +206,8 @@ def trajectory_to_mission(
             want = pass_lag_s * v + 0.5 * acceptance_radius_m
             radius[j] = max(radius[j], min(want, 0.45 * min(l_in, l_out)))
     lat, lon, alt = enu_to_geodetic(wp, origin)
-    yaw_deg = np.degrees(
-        np.asarray(yaw_enu_to_ned(trajectory.yaw_rad(np.asarray(arrival))), dtype=float)
-    )
+    yaw_enu = np.asarray(trajectory.yaw_rad(np.asarray(arrival)), dtype=float)
+    yaw_deg = np.degrees(np.asarray(yaw_enu_to_ned(yaw_enu), dtype=float))
 
     items: list[MissionItem] = []
 
@@ -284,13 +297,16 @@ def trajectory_to_mission(
     elif end is MissionEnd.RETURN:
         add(Cmd.NAV_RETURN_TO_LAUNCH, Frame.MISSION, 0.0, 0.0, 0.0, 0.0, 0, 0, 0.0)
 
-    # Knots: arrive at each waypoint at its planned time, hold, leave.
+    # Knots: arrive at each waypoint at its planned time, hold, leave; on the waypoint's
+    # heading (param4) there, turning the shorter way between waypoints.
     kt: list[float] = []
     kp: list[np.ndarray] = []
+    ky: list[float] = []
     for j in range(wp.shape[0]):
         kt += [arrival[j], arrival[j] + hold[j]]
         kp += [wp[j], wp[j]]
-    path = PiecewiseLinearPath(np.asarray(kt), np.asarray(kp))
+        ky += [float(yaw_enu[j]), float(yaw_enu[j])]
+    path = PiecewiseLinearPath(np.asarray(kt), np.asarray(kp), np.unwrap(np.asarray(ky)))
     return MissionPlan(
         name=vname,
         items=tuple(items),
@@ -332,11 +348,12 @@ def path_deviation(
 def path_robustness(
     spec: Formula, paths: Mapping[str, PiecewiseLinearPath], dt_s: float, horizon_s: float
 ) -> float:
-    """Exact STL robustness of the vehicles flying ``paths`` (signals: name -> ``(n, 3)`` ENU).
+    """Exact STL robustness of the vehicles flying ``paths`` (signals: name -> ``(n, 3)`` ENU,
+    ``(n, 4)`` with the heading where the path has one: :meth:`PiecewiseLinearPath.signal`).
 
     Sampled at ``t = 0, dt, ..., horizon`` (paths hold their last point beyond their end).
     """
     n = math.floor(horizon_s / dt_s + 1e-9) + 1
     t = np.arange(n) * dt_s
-    signals = {name: p.position(t) for name, p in paths.items()}
+    signals = {name: p.signal(t) for name, p in paths.items()}
     return float(spec.robustness(signals, dt_s))

@@ -55,6 +55,7 @@ from mavlink.mock.parameters import (
 from mavlink.mock.physics import FleetPhysics
 from mavlink.mock.profiles import DEFAULT_PROFILE
 from mavlink.mock.px4 import Px4Mode
+from mavlink.tracks import wrap_pi
 
 if TYPE_CHECKING:
     from mavlink.monitor import RunFindings, SafetyMonitor
@@ -289,6 +290,11 @@ class BatchFlights:
         stop_s: ``(R,)`` with a safety monitor, when it stopped the run (s from the plan's
             start; NaN: never); ``None`` without a monitor.
         stop: with a safety monitor, what it found when it stopped each run.
+        true_yaw_enu_rad: ``(R, V, S)`` each vehicle's heading (mission ENU yaw, rad, in
+            ``(-pi, pi]``) on the check grid; ``None``: not recorded.
+        reported_yaw_enu_rad: ``(R, V, S)`` the heading as ``gcs fly`` records it (ATTITUDE
+            at the telemetry rate, interpolated along the shorter turn); the mock reports
+            its true heading, so this differs from the truth by the sampling only.
     """
 
     seeds: np.ndarray
@@ -299,6 +305,8 @@ class BatchFlights:
     draws: dict[str, np.ndarray]
     stop_s: np.ndarray | None = None
     stop: RunFindings | None = None
+    true_yaw_enu_rad: np.ndarray | None = None
+    reported_yaw_enu_rad: np.ndarray | None = None
 
 
 def estimator_overrides(prm: Mapping[str, float], noise: float, origin: float) -> dict[str, float]:
@@ -445,6 +453,8 @@ def simulate(
     n_tel = (setup.samples - 1) * setup.stride // tel_stride + 1
     rec_rep = np.zeros((rows, n_tel, 3))  # the reported position, at the telemetry rate
     rec_true = np.zeros((rows, setup.samples, 3))
+    yaw_rep = np.zeros((rows, n_tel))  # the heading (spawn NED): reported, and true
+    yaw_true = np.zeros((rows, setup.samples))
     phys.m_pos[:] = 1.0
     phys.m_vel[:] = 1.0
     phys.m_acc[:] = 1.0
@@ -482,9 +492,11 @@ def simulate(
             j, rem = divmod(n - settle_ticks, setup.stride)
             if rem == 0:
                 rec_true[:, j] = phys.true_pos_ned_m
+                yaw_true[:, j] = phys.yaw_rad
             j, rem = divmod(n - settle_ticks, tel_stride)
             if rem == 0 and j < n_tel:
                 rec_rep[:, j] = phys.pos_ned_m + origin
+                yaw_rep[:, j] = phys.yaw_rad
         if n < n_ticks:
             phys.step()
 
@@ -495,14 +507,22 @@ def simulate(
     i1 = np.minimum(i0 + 1, n_tel - 1)
     w = np.clip(u - i0, 0.0, 1.0)[None, :, None]
     rec_rep = rec_rep[:, i0] * (1.0 - w) + rec_rep[:, i1] * w
+    yaw_rep = np.unwrap(yaw_rep, axis=1)  # the shorter turn between samples
+    yaw_rep = yaw_rep[:, i0] * (1.0 - w[..., 0]) + yaw_rep[:, i1] * w[..., 0]
     # ---- into the mission frame, per vehicle
     rep = np.empty((n_runs, n_veh, setup.samples, 3))
     true = np.empty_like(rep)
     by_run_rep = rec_rep.reshape(n_runs, n_veh, setup.samples, 3)
     by_run_true = rec_true.reshape(n_runs, n_veh, setup.samples, 3)
+    rep_yaw = np.empty((n_runs, n_veh, setup.samples))
+    true_yaw = np.empty_like(rep_yaw)
+    by_run_rep_yaw = yaw_rep.reshape(n_runs, n_veh, setup.samples)
+    by_run_true_yaw = yaw_true.reshape(n_runs, n_veh, setup.samples)
     for v, m in enumerate(setup.to_mission):
         rep[:, v] = m.position(by_run_rep[:, v])
         true[:, v] = m.position(by_run_true[:, v])
+        rep_yaw[:, v] = _yaw_to_mission(m, by_run_rep_yaw[:, v])
+        true_yaw[:, v] = _yaw_to_mission(m, by_run_true_yaw[:, v])
     return BatchFlights(
         seeds=np.asarray(seeds, dtype=np.int64),
         t_s=np.arange(setup.samples) * setup.stride * dt,
@@ -512,7 +532,17 @@ def simulate(
         draws=table,
         stop_s=None if watch is None else watch.stop_s,
         stop=None if watch is None else watch.found,
+        true_yaw_enu_rad=true_yaw,
+        reported_yaw_enu_rad=rep_yaw,
     )
+
+
+def _yaw_to_mission(to_mission: NedToEnuMap, yaw_ned_rad: np.ndarray) -> np.ndarray:
+    """Headings in a spawn's NED frame (rad, clockwise from north) as mission-frame ENU yaws
+    in ``(-pi, pi]``: the heading's unit vector through the same rotation as the positions."""
+    h = np.stack([np.cos(yaw_ned_rad), np.sin(yaw_ned_rad), np.zeros_like(yaw_ned_rad)], axis=-1)
+    enu = to_mission.vector(h)
+    return wrap_pi(np.arctan2(enu[..., 1], enu[..., 0]))
 
 
 class _MonitorState:

@@ -12,7 +12,9 @@ without a takeoff item first climbs to MIS_TAKEOFF_ALT, MISSION_CURRENT is sent
 on every change (PX4: mostly on the next once-a-second report, ``_announce_current``).
 Return to launch climbs to RTL_RETURN_ALT unless within 10 m of home (RTL_MIN_DIST),
 flies home and lands.  Geofence inclusion/exclusion polygons
-and circles are checked while flying; a breach triggers GF_ACTION.
+and circles are checked while flying; a breach triggers GF_ACTION.  A waypoint's yaw
+(param4) is the heading from the moment the item is current, turned to at MPC_YAWRAUTO_MAX
+(PX4's triplet yaw in ``FlightTaskAuto``); without one the vehicle heads for the waypoint.
 
 With ``MOCK_PX4_NAV`` (the ``px4`` profile) the navigator is PX4 v1.17's
 (``shared/PX4-BEHAVIOUR.md``, PX4's ``navigator/`` and ``FlightTaskAuto``):
@@ -47,7 +49,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.mock import px4
-from mavlink.mock.mission import FENCE, MISSION, RALLY
+from mavlink.mock.mission import FENCE, MISSION, RALLY, MissionItem
 from mavlink.mock.parts import VehicleParts
 from mavlink.mock.px4 import Px4Mode
 
@@ -138,6 +140,21 @@ class NavigatorMixin(VehicleParts):
         if math.hypot(dn, de) > 2.0:
             self.phys.sp_yaw_rad[i] = math.atan2(de, dn)
             self.phys.m_yaw[i] = True
+
+    def _head_for(self, item: MissionItem, target: np.ndarray) -> None:
+        """The heading while flying to mission item ``item``: its yaw (param4, degrees) from
+        the moment it becomes current, else toward ``target``.
+
+        PX4 (``MissionBlock::mission_item_to_position_setpoint``, ``FlightTaskAuto``): the
+        current triplet's yaw is the item's, and a finite one is the yaw setpoint at once,
+        turned to at most MPC_YAWRAUTO_MAX (the auto modes' yaw-rate limit here); a NaN one
+        leaves the heading to MPC_YAW_MODE 0, toward the waypoint.
+        """
+        if item.command in _ITEM_YAW_COMMANDS and math.isfinite(item.param4):
+            self.phys.sp_yaw_rad[self.index] = math.radians(item.param4)
+            self.phys.m_yaw[self.index] = True
+        else:
+            self._face(target)
 
     # ================================================================ mission
     def _on_plan_changed(self, mission_type: int) -> None:
@@ -267,7 +284,7 @@ class NavigatorMixin(VehicleParts):
                 prev = self._mis_target.copy() if self._traj_active else pos.copy()
                 self._mis_target = target
                 self.phys.set_position(i, target)
-                self._face(target)
+                self._head_for(item, target)
                 if self._mis_phase in ("goto", "land_approach"):
                     self._traj_begin(target, prev)
         if changed or self._mis_phase:
@@ -455,7 +472,7 @@ class NavigatorMixin(VehicleParts):
             if pos[2] <= self.phys.sp_pos_ned_m[i, 2] + alt_rad:
                 self._mis_phase = "goto"
                 self.phys.set_position(i, tgt)
-                self._face(tgt)
+                self._head_for(item, tgt)
             return
         if phase == "takeoff":
             if abs(pos[2] - tgt[2]) < alt_rad:
@@ -627,6 +644,15 @@ class NavigatorMixin(VehicleParts):
         elif not violated:
             self._fence_breached = False
 
+
+#: Mission items whose param4 is the heading to fly them with (PX4's ``mission_item.yaw``).
+_ITEM_YAW_COMMANDS = frozenset(
+    {
+        mavlink2.MAV_CMD_NAV_WAYPOINT,
+        mavlink2.MAV_CMD_NAV_LOITER_TIME,
+        mavlink2.MAV_CMD_NAV_LOITER_UNLIM,
+    }
+)
 
 _NAV_COMMANDS = frozenset(
     {

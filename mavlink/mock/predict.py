@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -25,6 +25,8 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.mock.fleet import MockFleet
 from mavlink.mock.px4 import Px4Mode
+from mavlink.tracks import wrap_pi
+from planner.frames import GeodeticPoint, yaw_ned_to_enu
 
 #: Parameters that make the px4 vehicle's estimate its truth: the expected flight.
 QUIET_ESTIMATOR = {
@@ -54,18 +56,31 @@ class PredictedMissions:
         pos_enu_m: per vehicle ``(m, 3)`` mission-frame positions (the simulated truth).
         left_s: per vehicle, item seq -> when the vehicle moved past it (MISSION_CURRENT).
         finished_s: per vehicle, when its mission finished (``None``: not within the run).
+        yaw_enu_rad: per vehicle ``(m,)`` its heading, mission-frame ENU yaw (rad, unwrapped).
     """
 
     t_s: np.ndarray
     pos_enu_m: dict[str, np.ndarray]
     left_s: dict[str, dict[int, float]]
     finished_s: dict[str, float | None]
+    yaw_enu_rad: dict[str, np.ndarray] = field(default_factory=dict)
 
     def position(self, name: str, t_s: np.ndarray) -> np.ndarray:
         """``(n, 3)`` predicted positions of ``name`` at ``t_s`` (held outside the run)."""
         t = np.atleast_1d(np.asarray(t_s, dtype=float))
         p = self.pos_enu_m[name]
         return np.column_stack([np.interp(t, self.t_s, p[:, a]) for a in range(3)])
+
+    def signal(self, name: str, t_s: np.ndarray) -> np.ndarray:
+        """The STL signal of ``name`` at ``t_s``: positions with the heading (wrapped to
+        ``(-pi, pi]``) as a fourth column, ``(n, 4)``; ``(n, 3)`` without a heading."""
+        pos = self.position(name, t_s)
+        yaw = self.yaw_enu_rad.get(name)
+        if yaw is None:
+            return pos
+        t = np.atleast_1d(np.asarray(t_s, dtype=float))
+        y = np.interp(t, self.t_s, yaw)
+        return np.column_stack([pos, wrap_pi(y)])
 
 
 def _command_int(v: Any, command: int, *p: float, lat_e7: int = 0, lon_e7: int = 0,
@@ -130,6 +145,8 @@ def predict_missions(
     t = np.arange(steps + 1) * sample_dt_s
     ned = np.empty((steps + 1, len(names), 3))  # the physics' (spawn) frame: cheap to copy
     ned[0] = fleet.physics.true_pos_ned_m
+    heading = np.empty((steps + 1, len(names)))  # the true yaw, NED at each spawn
+    heading[0] = fleet.physics.yaw_rad
     seq_prev = [v.mission_seq for v in vs]
     left: dict[str, dict[int, float]] = {n: {} for n in names}
     finished: dict[str, float | None] = dict.fromkeys(names)
@@ -138,6 +155,7 @@ def predict_missions(
     for k in range(1, steps + 1):
         fleet.advance(sample_dt_s)
         ned[k] = fleet.physics.true_pos_ned_m
+        heading[k] = fleet.physics.yaw_rad
         for j, v in enumerate(vs):
             seq = v.mission_seq
             if seq > seq_prev[j]:
@@ -160,6 +178,14 @@ def predict_missions(
         pos_enu_m={n: pos[:, j] for j, n in enumerate(names)},
         left_s=left,
         finished_s=finished,
+        yaw_enu_rad={
+            n: np.unwrap(
+                yaw_ned_to_enu(
+                    heading[: stop + 1, j], fleet.origin, GeodeticPoint(*vs[j].spawn_lla)
+                )
+            )
+            for j, n in enumerate(names)
+        },
     )
 
 
@@ -200,7 +226,9 @@ def _settle(
                     -1.0,
                     1.0,
                     0.0,
-                    yaw.get(name, math.nan),
+                    # radians, as MAVSDK's goto_location sends it and PX4 reads it (the
+                    # flight repositions with Vehicle.goto; see mock commands' reposition)
+                    math.radians(yaw.get(name, math.nan)),
                     lat_e7=round(lat * 1e7),
                     lon_e7=round(lon * 1e7),
                     alt=alt,

@@ -327,3 +327,97 @@ def test_a_vehicle_falling_behind_its_plan_is_warned_about_then_held(
     res = json.loads(capsys.readouterr().out)
     assert res["safety_event"] is None
     assert max(res["monitor"]["off_plan_max_m"].values()) > 0.6
+
+
+@pytest.fixture(scope="module")
+def face_plan(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A plan whose spec asks d1 to face pole1 while it hovers in insp1 (``gcs plan``)."""
+    from tests.gcs.face_plan import write_face_plan
+
+    return write_face_plan(tmp_path_factory.mktemp("face"))
+
+
+def _aim_error_deg(plan, track, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
+    """Where the track is inside insp1, and its heading's angle off the bearing to pole1's
+    axis (independently of the planner's ``face``: the geometry from the regions)."""
+    p, yaw = track.position(t), track.yaw(t)
+    c = plan.region("pole1").center_enu_m
+    bearing = np.arctan2(c[1] - p[:, 1], c[0] - p[:, 0])
+    return plan.region("insp1").contains(p), np.degrees(np.abs(np.angle(np.exp(1j * (yaw - bearing)))))  # fmt: skip
+
+
+def test_a_face_spec_flown_offboard_is_judged_on_the_recorded_heading(
+    face_plan: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from tests.gcs.face_plan import FACE_CLAUSE
+
+    plan = load_plan(face_plan)
+    log = tmp_path / "log"
+    capsys.readouterr()
+    rc = main(["fly", str(face_plan), "--dry-run", "--profile", "ideal", "--log", str(log),
+               "--json"])  # fmt: skip
+    out, err = capsys.readouterr()
+    assert rc == 0, err
+    res = json.loads(out)
+    assert res["completed"] and res["coverage_problem"] is None
+    (face,) = [c for c in res["clauses"] if c["text"] == FACE_CLAUSE]
+    assert face["flown"] > 0 and res["flown_robustness"] > 0
+    # The flight's CSV carries the heading of every sample (ATTITUDE.yaw, mission frame)
+    track = load_telemetry(log / "flight.csv").vehicles["d1"]
+    assert track.has_heading and track.heading_t_s.size == track.t_s.size
+    t = np.arange(0.0, plan.horizon_s, 0.05)
+    inside, aim = _aim_error_deg(plan, track, t)
+    assert inside.sum() >= 40  # the 2 s hover
+    assert aim[inside].max() < 15.0  # facing the pole while it inspected it
+    # the vehicle turned with its plan's yaw schedule (the mock's own heading, not the plan's)
+    plan_yaw = plan.vehicles[0].trajectory.yaw_rad(t)
+    off = np.degrees(np.abs(np.angle(np.exp(1j * (track.yaw(t) - plan_yaw)))))
+    assert off.max() < 15.0 and off.max() > 0.1
+    # face's value on the flown samples, from the recorded heading, is the clause's
+    from planner.predicates import face_margin
+
+    margin = face_margin(track.signal(t, heading=True), plan.region("pole1"))
+    assert margin[inside].min() > 0.0
+
+    # The .tlog alone rebuilds the same heading (ATTITUDE) and verify judges it
+    tl = tracks_from_tlog(log / "flight.tlog", {1: "d1"}, plan.origin, res["t0_unix_s"])["d1"]
+    same = np.degrees(np.abs(np.angle(np.exp(1j * (tl.yaw(t) - track.yaw(t))))))
+    assert same.max() < 1.0
+    argv = ["verify", str(face_plan), "--telemetry", str(log / "flight.tlog"), "--t0",
+            repr(res["t0_unix_s"]), "--json"]  # fmt: skip
+    assert main(argv) == 0
+    checks = {c["name"]: c for c in json.loads(capsys.readouterr().out)["checks"]}
+    assert checks[f"flown spec: {FACE_CLAUSE}"]["value"] == pytest.approx(face["flown"], abs=0.05)
+
+    # The same CSV without its heading column (an older file): verify says what is missing
+    rows = (log / "flight.csv").read_text(encoding="utf-8").splitlines()
+    old = tmp_path / "old.csv"
+    old.write_text("\n".join(r.rsplit(",", 1)[0] for r in rows) + "\n", encoding="utf-8")
+    assert main(["verify", str(face_plan), "--telemetry", str(old)]) == 1
+    out, err = capsys.readouterr()
+    assert "FAIL flown d1 heading: 0 (bound 1) the telemetry has no heading" in out
+    assert "Traceback" not in out + err
+
+
+def test_a_face_spec_flown_as_a_mission_faces_the_pole_on_the_waypoints_yaw(
+    face_plan: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # The mission carries the plan's heading in its waypoints' yaw (param4), which PX4 (and
+    # the mock) flies from the moment each waypoint is current.
+    from tests.gcs.face_plan import FACE_CLAUSE
+
+    plan = load_plan(face_plan)
+    log = tmp_path / "log"
+    capsys.readouterr()
+    argv = ["fly", str(face_plan), "--dry-run", "--profile", "ideal", "--mode", "mission",
+            "--force", "--log", str(log), "--json"]  # fmt: skip
+    rc = main(argv)
+    out, err = capsys.readouterr()
+    res = json.loads(out)
+    assert res["completed"], err
+    (face,) = [c for c in res["clauses"] if c["text"] == FACE_CLAUSE]
+    assert face["flown"] is not None and rc == (0 if res["flown_robustness"] >= 0 else 1)
+    track = load_telemetry(log / "flight.csv").vehicles["d1"]
+    assert track.has_heading
+    inside, aim = _aim_error_deg(plan, track, np.arange(0.0, plan.horizon_s, 0.05))
+    assert inside.sum() >= 10 and aim[inside].max() < 15.0

@@ -99,3 +99,70 @@ def test_an_unreadable_telemetry_file_is_bad_input(
     assert main(["verify", str(PLAN), "--telemetry", str(missing)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and str(missing) in err and "Traceback" not in err
+
+
+@pytest.fixture(scope="module")
+def face_plan(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A plan whose spec asks d1 to face pole1 while it inspects it (``gcs plan``)."""
+    from tests.gcs.face_plan import write_face_plan
+
+    return write_face_plan(tmp_path_factory.mktemp("face"))
+
+
+def _write_csv_with_yaw(path: Path, t: np.ndarray, pos: np.ndarray, yaw: np.ndarray) -> Path:
+    lines = ["t,vehicle,x,y,z,yaw"]
+    lines += [
+        f"{ti!r},d1,{p[0]!r},{p[1]!r},{p[2]!r},{y!r}"
+        for ti, p, y in zip(t.tolist(), pos.tolist(), yaw.tolist(), strict=True)
+    ]
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path
+
+
+def test_a_flown_heading_is_judged_by_the_face_clause(
+    face_plan: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from planner.planfile import planned_signals
+    from tests.gcs.face_plan import FACE_CLAUSE
+
+    plan = load_plan(face_plan)
+    (v,) = plan.vehicles
+    dt = plan.check_dt_s
+    t = np.arange(round(plan.horizon_s / dt) + 1) * dt  # the check grid: exact interpolation
+    pos, yaw = v.trajectory.position(t), v.trajectory.yaw_rad(t)
+    capsys.readouterr()
+    log = _write_csv_with_yaw(tmp_path / "flown.csv", t, pos, yaw)
+    assert main(["verify", str(face_plan), "--telemetry", str(log), "--json"]) == 0
+    checks = {c["name"]: c for c in json.loads(capsys.readouterr().out)["checks"]}
+    face = checks[f"flown spec: {FACE_CLAUSE}"]
+    (clause,) = [c for c in plan_formula(plan).clauses if str(c) == FACE_CLAUSE]
+    want = clause.robustness(planned_signals(plan, t), dt)
+    assert face["ok"] and face["value"] == pytest.approx(want, abs=1e-9)
+    assert checks["flown d1 heading largest gap s"]["ok"]
+    # the same flight looking 90 degrees away from the pole fails that clause, and only it
+    turned = _write_csv_with_yaw(tmp_path / "turned.csv", t, pos, yaw + np.pi / 2)
+    assert main(["verify", str(face_plan), "--telemetry", str(turned)]) == 1
+    fails = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("FAIL ")]
+    assert len(fails) == 1 and fails[0].startswith(f"FAIL flown spec: {FACE_CLAUSE}: -")
+
+
+def test_telemetry_without_a_heading_fails_on_a_face_spec_saying_so(
+    face_plan: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    plan = load_plan(face_plan)
+    capsys.readouterr()
+    log = _write_csv(tmp_path / "positions.csv", _rows(_flown_as_planned(plan)))
+    assert main(["verify", str(face_plan), "--telemetry", str(log)]) == 1
+    out, err = capsys.readouterr()
+    fails = [ln for ln in out.splitlines() if ln.startswith("FAIL ")]
+    assert fails == [
+        "FAIL flown d1 heading: 0 (bound 1) the telemetry has no heading (no yaw_enu_rad or "
+        "yaw column, no ATTITUDE); the spec's face() reads it"
+    ]
+    assert "Traceback" not in out + err
+    # the clauses that read positions only are still judged; the face clause is not
+    assert main(["verify", str(face_plan), "--telemetry", str(log), "--json"]) == 1
+    names = [c["name"] for c in json.loads(capsys.readouterr().out)["checks"]]
+    flown = [n for n in names if n.startswith("flown spec: ")]
+    assert flown and not any("face(" in n for n in flown)
+    assert len(flown) == len(plan_formula(plan).clauses) - 1

@@ -592,3 +592,45 @@ def test_takeoff_ignores_its_yaw_and_reposition_takes_its_yaw_in_radians() -> No
     assert acks(v, mavlink2.MAV_CMD_DO_REPOSITION) == [mavlink2.MAV_RESULT_ACCEPTED]
     assert abs(math.degrees(f.physics.yaw_rad[0]) - 90.0) < 3.0
     assert math.dist(v.state.est_pos_ned_m, (2.0, 1.0, -3.0)) < 0.2
+
+
+@pytest.mark.parametrize("profile", ["px4", "ideal"])
+def test_a_waypoints_yaw_is_flown_from_when_it_is_current_turning_at_mpc_yawrauto_max(
+    profile: str,
+) -> None:
+    # PX4 (MissionBlock::mission_item_to_position_setpoint, FlightTaskAuto): the current
+    # item's yaw (param4, degrees) is the yaw setpoint from the moment the item is current,
+    # rate-limited to MPC_YAWRAUTO_MAX (45 deg/s); a NaN yaw heads toward the waypoint
+    # (MPC_YAW_MODE 0). ATTITUDE reports the heading flown.
+    f = fleet(seed=5, profile=profile, **QUIET)
+    v = f.vehicles[0]
+    airborne(f, v, 4.0, 10.0)
+    home = v._home_alt_amsl() + 4.0
+    items = [
+        item(0, mavlink2.MAV_CMD_NAV_WAYPOINT, *ne_to_e7(v, 0.0, 0.0), home, p2=1.0, p4=0.0),
+        item(1, mavlink2.MAV_CMD_NAV_WAYPOINT, *ne_to_e7(v, 0.0, 25.0), home, p2=1.0, p4=200.0),
+        item(2, mavlink2.MAV_CMD_NAV_WAYPOINT, *ne_to_e7(v, 25.0, 25.0), home, p2=1.0,
+             p4=math.nan),
+    ]  # fmt: skip
+    upload(f, v, items)
+    start_mission(f, v)
+    yaw, seq, attitude = [], [], []
+    while not v.mission_finished and len(yaw) < 1200:
+        f.advance(0.05)
+        yaw.append(float(f.physics.yaw_rad[0]))
+        seq.append(v.mission_seq)
+        attitude += [m.yaw for m in v.sent_messages() if m.get_type() == "ATTITUDE"]
+    assert v.mission_finished
+    deg = np.degrees(np.unwrap(np.asarray(yaw)))
+    s = np.asarray(seq)
+    on_1 = np.flatnonzero(s == 1)
+    # toward 200 deg (not toward the waypoint, due east) and turned the shorter way, through
+    # 180, at no more than MPC_YAWRAUTO_MAX
+    rate = np.abs(np.diff(deg)) / 0.05
+    assert rate.max() <= v.params["MPC_YAWRAUTO_MAX"] + 1e-6
+    assert abs(deg[on_1[-1]] % 360 - 200.0) < 2.0
+    assert np.all(deg[on_1] <= 0.5)  # 0 -> -160 (= 200): the shorter turn, counter-clockwise
+    # the last waypoint has no yaw: the vehicle turns toward it, due north (0 deg)
+    assert abs((deg[-1] + 180.0) % 360.0 - 180.0) < 5.0
+    # ATTITUDE carries the vehicle's heading
+    assert attitude and abs(math.degrees(attitude[-1]) - ((deg[-1] + 180) % 360 - 180)) < 1.0
