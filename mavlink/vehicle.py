@@ -2,7 +2,7 @@
 
 :class:`Vehicle` subscribes to the vehicle's telemetry (MAVSDK's telemetry plugin and
 mavlink_direct messages: HEARTBEAT, GPS_GLOBAL_ORIGIN, STATUSTEXT, ESTIMATOR_STATUS,
-PARAM_VALUE, ATTITUDE); the callbacks update its state directly on MAVSDK's callback thread
+PARAM_VALUE); the callbacks update its state directly on MAVSDK's callback thread
 under a lock, and :meth:`Vehicle.status` takes a consistent :class:`VehicleStatus` snapshot. Its
 commands (arm, modes, take-off, go-to, COMMAND_LONG, parameters, telemetry rates) are
 coroutines over :func:`mavlink.mavsdk_glue.mavsdk_call`.
@@ -104,8 +104,8 @@ class VehicleStatus:
         heartbeat_age_s: seconds since the last heartbeat.
         position_age_s: seconds since the last local position.
         heading_deg: heading, degrees clockwise from north (GLOBAL_POSITION_INT.hdg).
-        yaw_ned_rad: the latest ATTITUDE.yaw, radians clockwise from north in the
-            vehicle's local NED frame.
+        yaw_ned_rad: the latest heading (GLOBAL_POSITION_INT.hdg), radians clockwise from
+            north in the vehicle's local NED frame.
     """
 
     name: str
@@ -168,7 +168,7 @@ class Vehicle:
         self._origin: GeodeticPoint | None = None
         self._battery: tuple[float, float] | None = None
         self._heading: float | None = None
-        self._yaw_ned_rad = math.nan  # ATTITUDE.yaw, the latest (NaN: none yet)
+        self._yaw_ned_rad = math.nan  # the latest heading, NED rad (NaN: none yet)
         self._t_heartbeat: float | None = None
         self._t_position: float | None = None
         self._track: list[tuple[float, ...]] | None = None
@@ -214,10 +214,6 @@ class Vehicle:
                 self.direct.unsubscribe_message,
                 self.direct.subscribe_message("PARAM_VALUE", self._on_param_value),
             ),
-            (
-                self.direct.unsubscribe_message,
-                self.direct.subscribe_message("ATTITUDE", self._on_attitude),
-            ),
         ]
 
     def _on_pv(self, pv: Any, _ud: Any) -> None:
@@ -230,14 +226,6 @@ class Vehicle:
             if self._track is not None:
                 self._track.append((t, *pos, *vel, self._yaw_ned_rad))
 
-    def _on_attitude(self, msg: MavlinkMessage, _ud: Any) -> None:
-        if msg.system_id != self.spec.sysid or msg.component_id != 1:
-            return  # the autopilot's attitude only (not a gimbal's, not another vehicle's)
-        yaw = json.loads(msg.fields_json).get("yaw")
-        if not isinstance(yaw, int | float) or not math.isfinite(yaw):
-            return
-        with self._lock:
-            self._yaw_ned_rad = float(yaw)
 
     def _on_position(self, p: Any, _ud: Any) -> None:
         point = GeodeticPoint(
@@ -260,8 +248,14 @@ class Vehicle:
             self._battery = (remaining / 100.0, float(b.voltage_v))
 
     def _on_heading(self, h: Any, _ud: Any) -> None:
+        # GLOBAL_POSITION_INT.hdg (PX4: the estimate's heading, 0.01 deg), which MAVSDK's
+        # telemetry already decodes: the track's heading comes from here rather than from a
+        # second, 50 Hz ATTITUDE subscription decoded in Python for every vehicle
+        heading = float(h.heading_deg)
         with self._lock:
-            self._heading = float(h.heading_deg)
+            self._heading = heading
+            if math.isfinite(heading):
+                self._yaw_ned_rad = math.radians(heading)
 
     def _on_in_air(self, in_air: bool, _ud: Any) -> None:
         with self._lock:
@@ -426,8 +420,8 @@ class Vehicle:
 
     def start_track(self) -> None:
         """Start recording every LOCAL_POSITION_NED sample (receive time, pos, vel, and the
-        latest ATTITUDE.yaw heard by then), and the worst estimator accuracy reported
-        meanwhile (:attr:`track_accuracy_m`)."""
+        latest heading heard by then), and the worst estimator accuracy reported meanwhile
+        (:attr:`track_accuracy_m`)."""
         with self._lock:
             self._track = []
             self._track_accuracy = self._pos_accuracy
@@ -442,7 +436,7 @@ class Vehicle:
     def stop_track(self) -> np.ndarray:
         """Stop recording; ``(k, 8)`` rows ``(t_monotonic_s, n, e, d, vn, ve, vd, yaw)``, the
         yaw the vehicle's NED heading (rad, clockwise from north; NaN before the first
-        ATTITUDE). :func:`mavlink.tracks.track_from_rows` makes them a flown track."""
+        heading). :func:`mavlink.tracks.track_from_rows` makes them a flown track."""
         with self._lock:
             rows, self._track = self._track, None
         if not rows:
