@@ -128,20 +128,7 @@ def load_telemetry(
             raise InputFileError(
                 f"{src}: line {lineno}: {len(row)} fields, the header has {len(header)}"
             )
-        vals = []
-        for key in ("t", "x", "y", "z"):
-            field = row[col[key]].strip()
-            try:
-                v = float(field)
-            except ValueError:
-                raise InputFileError(
-                    f"{src}: line {lineno}: column {header[col[key]]}: not a number: {field!r}"
-                ) from None
-            if not math.isfinite(v):
-                raise InputFileError(
-                    f"{src}: line {lineno}: column {header[col[key]]}: must be finite"
-                )
-            vals.append(v)
+        vals = [_number_field(src, lineno, header, row, col[key]) for key in ("t", "x", "y", "z")]
         name = row[col["vehicle"]].strip()
         if not name:
             raise InputFileError(f"{src}: line {lineno}: column vehicle: empty")
@@ -160,9 +147,16 @@ def load_telemetry(
 
 def _yaw_field(src: str, lineno: int, header: list[str], row: list[str], col: int) -> float:
     """The heading of one row (NaN: the field is empty, the heading unknown there)."""
-    field = row[col].strip()
-    if not field:
+    if not row[col].strip():
         return math.nan
+    return _number_field(src, lineno, header, row, col, " (empty where unknown)")
+
+
+def _number_field(
+    src: str, lineno: int, header: list[str], row: list[str], col: int, finite_hint: str = ""
+) -> float:
+    """A finite number from one field, or one line naming the file, line and column."""
+    field = row[col].strip()
     try:
         v = float(field)
     except ValueError:
@@ -171,7 +165,7 @@ def _yaw_field(src: str, lineno: int, header: list[str], row: list[str], col: in
         ) from None
     if not math.isfinite(v):
         raise InputFileError(
-            f"{src}: line {lineno}: column {header[col]}: must be finite (empty where unknown)"
+            f"{src}: line {lineno}: column {header[col]}: must be finite{finite_hint}"
         )
     return v
 
