@@ -226,7 +226,6 @@ class Vehicle:
             if self._track is not None:
                 self._track.append((t, *pos, *vel, self._yaw_ned_rad))
 
-
     def _on_position(self, p: Any, _ud: Any) -> None:
         point = GeodeticPoint(
             float(p.latitude_deg), float(p.longitude_deg), float(p.absolute_altitude_m)
