@@ -10,7 +10,6 @@ same :func:`plan_formula`, and the outcome (:mod:`gcs.outcome`) reports what was
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -19,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from mavlink.tracks import NO_HEADING
+from planner.heading import heading_readers
 
 if TYPE_CHECKING:
     from mavlink.tracks import FlownTrack
@@ -34,31 +34,6 @@ __all__ = [
     "plan_formula",
     "reads_heading",
 ]
-
-
-def heading_readers(formula: Formula) -> frozenset[str]:
-    """The vehicles whose heading ``formula`` reads: the first argument of each heading call
-    (``face(d, target)``) anywhere in it, in arithmetic too (empty: a positions-only formula,
-    :func:`planner.heading.uses_heading` false)."""
-    from planner.predicates import Role, role_of
-    from planner.stl import Call, Expr
-    from planner.stl import Formula as Node
-
-    found: set[str] = set()
-
-    def walk(node: Node | Expr) -> None:
-        if isinstance(node, Call):
-            if role_of(node) is Role.HEADING and node.args:
-                found.add(node.args[0])
-            return
-        for f in dataclasses.fields(node):
-            value = getattr(node, f.name)
-            for x in value if isinstance(value, tuple) else (value,):
-                if isinstance(x, Node | Expr):
-                    walk(x)
-
-    walk(formula)
-    return frozenset(found)
 
 
 def reads_heading(formula: Formula) -> bool:

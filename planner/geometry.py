@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from planner.predicates import Role, role_of
+from planner.regions import chebyshev_ball
 from planner.stl import And, Comparison, Formula, Not, Or, Predicate
 
 __all__ = ["Place", "keep_out", "place"]
@@ -192,22 +193,9 @@ def _chebyshev(
 ) -> tuple[np.ndarray, float]:
     """Centre and radius of the largest ball in ``A p <= b`` within the box ``[lo, hi]`` (an
     LP, HiGHS); the workspace centre and 0 when the polytope is empty there."""
-    from scipy.optimize import linprog
-
     eye = np.eye(3)
-    A_all = np.vstack([A, eye, -eye])
-    b_all = np.concatenate([b, hi, -lo])
-    norms = np.linalg.norm(A_all, axis=1)
-    res = linprog(
-        np.array([0.0, 0.0, 0.0, -1.0]),
-        A_ub=np.column_stack([A_all, norms]),
-        b_ub=b_all,
-        bounds=[(None, None)] * 3 + [(0.0, None)],
-        method="highs",
-    )
-    if res.status != 0:
-        return 0.5 * (lo + hi), 0.0
-    return np.asarray(res.x[:3]), float(res.x[3])
+    centre, radius = chebyshev_ball(np.vstack([A, eye, -eye]), np.concatenate([b, hi, -lo]))
+    return (0.5 * (lo + hi), 0.0) if centre is None else (centre, radius)
 
 
 def place(node: Formula, problem: Any) -> Place | None:

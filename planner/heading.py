@@ -36,6 +36,7 @@ __all__ = [
     "YAW_RATE_MAX_DEG_S",
     "FacingRule",
     "facing_rules",
+    "heading_readers",
     "heading_signals",
     "uses_heading",
     "with_heading",
@@ -172,22 +173,29 @@ def yaw_rate_needed(trajectory: Trajectory) -> float:
     return float(math.degrees(np.max(np.abs(np.diff(y) / np.diff(t)))))
 
 
+def heading_readers(formula: Formula) -> frozenset[str]:
+    """The vehicles whose heading ``formula`` reads: the first argument of each heading call
+    (``face(d, target)``) anywhere in it, in arithmetic too (empty: positions only)."""
+    found: set[str] = set()
+
+    def walk(node: Formula | Expr) -> None:
+        if isinstance(node, Call):
+            if role_of(node) is Role.HEADING and node.args:
+                found.add(node.args[0])
+            return
+        for f in dataclasses.fields(node):
+            value = getattr(node, f.name)
+            for x in value if isinstance(value, tuple) else (value,):
+                if isinstance(x, Formula | Expr):
+                    walk(x)
+
+    walk(formula)
+    return frozenset(found)
+
+
 def uses_heading(formulas: Sequence[Formula]) -> bool:
     """Whether a formula calls a heading predicate (``face``) anywhere (in arithmetic too)."""
-
-    def walk(node: Any) -> bool:
-        if isinstance(node, Call):
-            return role_of(node) is Role.HEADING or any(walk(a) for a in node.args)
-        if not isinstance(node, Formula | Expr):
-            return False
-        for f in dataclasses.fields(node):
-            v = getattr(node, f.name)
-            items = v if isinstance(v, tuple) else (v,)
-            if any(walk(x) for x in items if isinstance(x, Formula | Expr | Call)):
-                return True
-        return False
-
-    return any(walk(f) for f in formulas)
+    return any(heading_readers(f) for f in formulas)
 
 
 def heading_signals(

@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from planner.frames import GeodeticPoint, geodetic_to_enu
-from planner.regions import Cylinder, Prism, Region, RegionKind
+from planner.regions import Cylinder, Region, RegionKind
 
 __all__ = ["LineModel", "line_regions"]
 
@@ -77,17 +77,12 @@ class LineModel:
 
 def _region(name: str, kind: RegionKind, center_xy: np.ndarray, half: Sequence[float],
             z: tuple[float, float], direction: np.ndarray) -> Region:  # fmt: skip
-    """A box centred at ``center_xy`` with half-sizes ``half`` (along, across), turned along
-    ``direction``; along an axis, the axis-aligned box itself."""
-    u = direction / np.linalg.norm(direction)
-    if abs(u[0]) > 1.0 - 1e-12 or abs(u[1]) > 1.0 - 1e-12:
-        h = np.array(half) if abs(u[0]) > 0.5 else np.array(half[::-1])
-        lo = (*(center_xy - h).tolist(), z[0])
-        hi = (*(center_xy + h).tolist(), z[1])
-        return Region(name, kind, lo, hi)
+    """A box centred at ``center_xy`` with half-sizes ``half`` (along, across) over ``z``,
+    turned along ``direction`` (:meth:`Region.turned_box`: along an axis, the axis-aligned
+    box itself)."""
     c = [float(center_xy[0]), float(center_xy[1]), 0.5 * (z[0] + z[1])]
-    shape = Prism.oriented_box(c, [half[0], half[1], 0.5 * (z[1] - z[0])], math.atan2(u[1], u[0]))
-    return Region.of_shape(name, kind, shape)
+    yaw = math.atan2(float(direction[1]), float(direction[0]))
+    return Region.turned_box(name, kind, c, [half[0], half[1], 0.5 * (z[1] - z[0])], yaw)
 
 
 def line_regions(model: LineModel) -> tuple[list[Region], dict[str, list[str]]]:

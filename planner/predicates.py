@@ -248,19 +248,22 @@ def _vehicle_signal(signals: Mapping[str, Any], name: str) -> Any:
     return signals[name]
 
 
+def _rows(signal: Any) -> np.ndarray:
+    """A vehicle signal as rows, (n, columns): a single sample (3,) or (4,) is one row."""
+    a = np.asarray(signal, dtype=float)
+    return a.reshape(-1, a.shape[-1]) if a.ndim else a.reshape(-1, 3)
+
+
 def positions(signal: Any) -> np.ndarray:
     """A vehicle signal's positions, (n, 3): its first three columns (a signal of shape
     (n, 4) carries the heading last)."""
-    a = np.asarray(signal, dtype=float)
-    a = a.reshape(-1, a.shape[-1]) if a.ndim else a.reshape(-1, 3)
-    return a[:, :3]
+    return _rows(signal)[:, :3]
 
 
 def face_margin(signal: Any, target: Region) -> np.ndarray:
     """``face``'s exact margin (m), shape (n,), from a vehicle signal of shape (n, 4)."""
-    a = np.asarray(signal, dtype=float)
-    a = a.reshape(-1, a.shape[-1]) if a.ndim else a
-    if a.ndim != 2 or a.shape[1] < 4:
+    a = _rows(signal)
+    if a.shape[1] < 4:
         raise EvaluationError(
             f"face({target.name}) needs the vehicle's heading, which this evaluation does not "
             f"have (a signal of shape (n, 4): position, then yaw)"

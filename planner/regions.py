@@ -29,7 +29,15 @@ import numpy as np
 
 from planner.errors import PlannerError
 
-__all__ = ["KEEP_OUT_KINDS", "Cylinder", "Prism", "Region", "RegionKind", "ShapeError"]
+__all__ = [
+    "KEEP_OUT_KINDS",
+    "Cylinder",
+    "Prism",
+    "Region",
+    "RegionKind",
+    "ShapeError",
+    "chebyshev_ball",
+]
 
 
 class RegionKind(enum.Enum):
@@ -74,6 +82,7 @@ class Prism:
             to ``i + 1``), ``(m, 2)``.
         offsets_m: ``n_i . p <= offset_i`` inside each wall, ``(m,)``.
         z_lo_m, z_hi_m: floor and roof.
+        inradius_m: radius of the largest circle in the polygon (0 for a symbolic prism).
     """
 
     vertices_xy: tuple[tuple[float, float], ...]
@@ -81,6 +90,7 @@ class Prism:
     offsets_m: tuple[float, ...]
     z_lo_m: float
     z_hi_m: float
+    inradius_m: float = 0.0
 
     @classmethod
     def from_polygon(cls, vertices_xy: Any, z_lo_m: float, z_hi_m: float) -> Prism:
@@ -118,6 +128,7 @@ class Prism:
             tuple(offsets.tolist()),
             float(z_lo_m),
             float(z_hi_m),
+            chebyshev_ball(normals, offsets)[1],
         )
 
     @classmethod
@@ -200,6 +211,22 @@ class Region:
         hi = (float(hi_xy[0]), float(hi_xy[1]), float(shape.z_hi_m))
         return cls(name, kind, lo, hi, shape)
 
+    @classmethod
+    def turned_box(
+        cls, name: str, kind: RegionKind, center_enu_m: Any, half_size_m: Any, yaw_rad: float
+    ) -> Region:
+        """A box with half-sizes ``(hx, hy, hz)`` along its own axes, turned ``yaw_rad`` about
+        the vertical: a prism (:meth:`Prism.oriented_box`), or, turned by a multiple of 90
+        degrees, the axis-aligned box itself (the planner's plainest form)."""
+        c = np.asarray(center_enu_m, dtype=float)
+        h = np.asarray(half_size_m, dtype=float)
+        cos, sin = math.cos(yaw_rad), math.sin(yaw_rad)
+        if abs(cos) > 1.0 - 1e-12 or abs(sin) > 1.0 - 1e-12:
+            if abs(sin) > 0.5:  # a quarter turn: its x half-size lies along north
+                h = np.array([h[1], h[0], h[2]])
+            return cls(name, kind, tuple((c - h).tolist()), tuple((c + h).tolist()))
+        return cls.of_shape(name, kind, Prism.oriented_box(c, h, yaw_rad))
+
     @property
     def center_enu_m(self) -> np.ndarray:
         """Centre of the region, shape (3,): of the box, the polygon's vertex mean, the axis."""
@@ -215,13 +242,13 @@ class Region:
         """Signed margin of points to each face, shape (n, faces); >= 0 inside that face."""
         p = np.asarray(pos_enu_m, dtype=float).reshape(-1, 3)
         z = p[:, 2:3]
-        pr, cy = self.shape, self.shape
-        if isinstance(pr, Prism):
-            walls = np.asarray(pr.offsets_m) - p[:, :2] @ np.asarray(pr.normals_xy).T
-            return np.concatenate([walls, z - pr.z_lo_m, pr.z_hi_m - z], axis=1)
-        if isinstance(cy, Cylinder):
-            radial = cy.radius_m - np.linalg.norm(p[:, :2] - np.asarray(cy.center_xy), axis=1)
-            return np.column_stack([radial, z[:, 0] - cy.z_lo_m, cy.z_hi_m - z[:, 0]])
+        s = self.shape
+        if isinstance(s, Prism):
+            walls = np.asarray(s.offsets_m) - p[:, :2] @ np.asarray(s.normals_xy).T
+            return np.concatenate([walls, z - s.z_lo_m, s.z_hi_m - z], axis=1)
+        if isinstance(s, Cylinder):
+            radial = s.radius_m - np.linalg.norm(p[:, :2] - np.asarray(s.center_xy), axis=1)
+            return np.column_stack([radial, z[:, 0] - s.z_lo_m, s.z_hi_m - z[:, 0]])
         return np.concatenate([p - np.asarray(self.lo_enu_m), np.asarray(self.hi_enu_m) - p], 1)
 
     def margin(self, pos_enu_m: np.ndarray) -> np.ndarray:
@@ -256,7 +283,7 @@ class Region:
         half_h = 0.5 * (s.z_hi_m - s.z_lo_m)
         if isinstance(s, Cylinder):
             return min(half_h, s.radius_m)
-        return min(half_h, _chebyshev_radius_2d(np.asarray(s.normals_xy), np.asarray(s.offsets_m)))
+        return min(half_h, s.inradius_m)
 
     def half_spaces(self, outer: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """``(A (m, 3), b (m,))`` with unit normals: the region as ``A p <= b``; a cylinder
@@ -339,16 +366,20 @@ def ca_reshape_rows(v: Any, rows: int, cols: int) -> Any:
     return ca.reshape(v, cols, rows).T
 
 
-def _chebyshev_radius_2d(normals: np.ndarray, offsets: np.ndarray) -> float:
-    """Radius of the largest circle inside ``normals @ p <= offsets`` (HiGHS, a small LP)."""
+def chebyshev_ball(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray | None, float]:
+    """Centre and radius of the largest ball in ``A p <= b`` (any dimension; an LP, HiGHS);
+    ``(None, 0)`` when there is none (empty or unbounded)."""
     from scipy.optimize import linprog
 
-    m = len(offsets)
+    A = np.asarray(A, dtype=float)
+    dim = A.shape[1]
     res = linprog(
-        c=[0.0, 0.0, -1.0],
-        A_ub=np.column_stack([normals, np.ones(m)]),
-        b_ub=offsets,
-        bounds=[(None, None), (None, None), (0.0, None)],
+        np.concatenate([np.zeros(dim), [-1.0]]),
+        A_ub=np.column_stack([A, np.linalg.norm(A, axis=1)]),
+        b_ub=np.asarray(b, dtype=float),
+        bounds=[(None, None)] * dim + [(0.0, None)],
         method="highs",
     )
-    return float(res.x[2]) if res.status == 0 else 0.0
+    if res.status != 0:
+        return None, 0.0
+    return np.asarray(res.x[:dim]), float(res.x[dim])

@@ -213,11 +213,7 @@ def _region(rd: _Reader, name: str, value: Any, path: str, kind: RegionKind) -> 
         c3 = np.array(rd.vec3(m["center"], _join(path, "center")))
         h = np.array(rd.per_axis(rd.require(m, "half_size", path), _join(path, "half_size")))
         rd.mapping(value, path, {"center", "half_size", "kind", turn[0]})
-        if yaw_deg % 360.0 != 0.0:
-            shape = Prism.oriented_box(c3, h, math.radians(yaw_deg))
-            return Region.of_shape(name, kind, shape)
-        lo, hi = c3 - h, c3 + h
-        return Region(name, kind, tuple(lo.tolist()), tuple(hi.tolist()))
+        return Region.turned_box(name, kind, c3, h, math.radians(yaw_deg))
     lo, hi = _box(rd, value, path)
     return Region(name, kind, tuple(lo.tolist()), tuple(hi.tolist()))
 
