@@ -154,11 +154,14 @@ class QgcOptions:
             (:func:`gcs.missions.auto_acceptance_m`).
         end: what the mission ends with (land, return, hold).
         fence: write the geofence polygons.
+        photo_interval_s: time between pictures where the plan faces an inspection target
+            (camera and gimbal items: :mod:`gcs.payload`); 0: none.
     """
 
     acceptance_radius_m: float | None = None
     end: MissionEnd | None = None
     fence: bool = True
+    photo_interval_s: float = 1.0
 
 
 def _json_number(x: float) -> float | None:
@@ -245,11 +248,15 @@ def _fence_qgc(items: Sequence[MissionItem]) -> tuple[list[dict[str, Any]], list
 def qgc_missions(plan: Plan, options: QgcOptions | None = None) -> dict[str, MissionPlan]:
     """Every vehicle's mission as ``gcs upload`` converts it for PX4's default parameters."""
     from gcs.missions import convert_plan
+    from gcs.payload import capture_spans
     from mavlink.mission import MissionEnd
 
     opts = options if options is not None else QgcOptions()
     conv = convert_plan(
-        plan, end=opts.end or MissionEnd.LAND, acceptance_m=opts.acceptance_radius_m
+        plan,
+        end=opts.end or MissionEnd.LAND,
+        acceptance_m=opts.acceptance_radius_m,
+        captures=capture_spans(plan, opts.photo_interval_s),
     )
     return conv.missions
 

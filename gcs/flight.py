@@ -61,9 +61,13 @@ from gcs.progress import FlightClock, FlightProgress
 
 if TYPE_CHECKING:
     from gcs.checks import Check
+    from gcs.coverage import CoverageReport
     from gcs.mission_flight import MissionFlight
+    from gcs.payload import CameraCommands
     from gcs.tuning import VehicleTuning
+    from mavlink.camera import CameraInfo, CapturedImage
     from mavlink.fleet import Fleet
+    from mavlink.mission import CaptureSpan
     from mavlink.offboard_setpoints import EndAction
     from mavlink.tracks import FlownTrack
     from mavlink.vehicle import Vehicle, VehicleSpec
@@ -119,6 +123,8 @@ class FlyOptions:
         max_off_plan_m: offboard: hold every vehicle when one is farther than this from
             its plan (the monitor's tracking alarm; ``None``: never). Past the plan's margin
             (its robustness) a vehicle is warned about once, in flight and in the report.
+        photo_interval_s: time between pictures where the plan faces an inspection target
+            (:mod:`gcs.payload`); 0: the camera is left alone.
     """
 
     mode: FlightMode = FlightMode.OFFBOARD
@@ -133,6 +139,7 @@ class FlyOptions:
     acceptance_m: float | None = None
     force: bool = False
     max_off_plan_m: float | None = 3.0
+    photo_interval_s: float = 1.0
 
 
 # ---------------------------------------------------------------------------- before flight
@@ -300,17 +307,23 @@ async def _fly_offboard(
     clock: FlightClock,
     tuning: Mapping[str, VehicleTuning],
     note: Callable[[str], None],
+    spans: Mapping[str, Sequence[CaptureSpan]],
+    camera: CameraCommands,
 ) -> Any:
     from gcs.mission_flight import arrive_gate_m
+    from gcs.payload import run_offboard_captures
     from mavlink.monitor import SafetyMonitor, always_clauses
     from mavlink.offboard import fly_offboard
     from mavlink.offboard_setpoints import EndAction, OffboardConfig
 
     names = [v.name for v in plan.vehicles]
+    start: asyncio.Future[float] = asyncio.get_running_loop().create_future()
 
     def started(t0_monotonic_s: float) -> None:
-        """The shared start time, for the progress view."""
+        """The shared start time, for the progress view and the camera's clock."""
         clock.t0_monotonic_s.update(dict.fromkeys(names, t0_monotonic_s))
+        if not start.done():
+            start.set_result(t0_monotonic_s)
 
     clauses = (
         always_clauses(plan_formula(plan), names, exclude=reads_heading) if opts.monitor else ()
@@ -341,7 +354,18 @@ async def _fly_offboard(
             land_at[name] = (lat, lon, alt)
         cfg = dataclasses.replace(cfg, land_at=land_at)
     trajs = {v.name: v.trajectory for v in plan.vehicles}
-    return await fly_offboard(fleet, trajs, plan.origin, cfg, monitor=monitor)
+    shots = (
+        asyncio.create_task(run_offboard_captures(fleet, spans, start, note, camera))
+        if any(spans.values())
+        else None
+    )
+    try:
+        return await fly_offboard(fleet, trajs, plan.origin, cfg, monitor=monitor)
+    finally:
+        if shots is not None:
+            shots.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await shots
 
 
 async def fly_plan(
@@ -368,6 +392,7 @@ async def fly_plan(
         mavlink.errors.LinkError: other link failures before the flight.
     """
     from gcs.mission_flight import fly_mission_plan
+    from gcs.payload import CameraCommands, capture_spans
     from gcs.tuning import expected_error_m, margin_warnings, read_tuning
     from mavlink.fleet import Fleet
     from mavlink.tlog import TlogRecorder
@@ -413,11 +438,18 @@ async def fly_plan(
             else:
                 print(line, file=sys.stderr, flush=True)
 
+        spans = capture_spans(plan, opts.photo_interval_s)
+        camera = CameraCommands() if opts.mode is FlightMode.OFFBOARD else None
+        infos = await _cameras(fleet, [n for n, s in spans.items() if s], note)
+
         try:
             # the flight's own tasks end with it; leaving it abnormally holds every vehicle
             async with fleet.flight() as guard:
                 if opts.mode is FlightMode.OFFBOARD:
-                    result = await _fly_offboard(fleet, plan, opts, clock, tuning, note)
+                    assert camera is not None
+                    result = await _fly_offboard(
+                        fleet, plan, opts, clock, tuning, note, spans, camera
+                    )
                 else:
                     mission = await fly_mission_plan(fleet, plan, opts, clock, tuning)
         except asyncio.CancelledError:
@@ -431,6 +463,11 @@ async def fly_plan(
         finally:
             accuracy = {v.name: v.track_accuracy_m for v in fleet}
             rows = {v.name: v.stop_track() for v in fleet}
+            images = {
+                v.name: tuple(v.images(clock.t0_monotonic_s[v.name]))
+                for v in fleet
+                if v.name in clock.t0_monotonic_s
+            }
             stop_view.set()
             if view is not None:
                 await view
@@ -461,6 +498,7 @@ async def fly_plan(
     if opts.log_dir is not None:
         files["csv"] = write_tracks_csv(opts.log_dir / "flight.csv", tracks)
     evaluation = evaluate_flight(plan, tracks) if tracks else None
+    coverage = _coverage(plan, images, spans, mission, infos, opts.log_dir, files)
     lower = None
     if evaluation is not None and evaluation.flown_robustness is not None:
         errs = [math.hypot(*a) for a in accuracy.values() if a is not None]
@@ -507,4 +545,70 @@ async def fly_plan(
         warnings=tuple(warnings),
         accuracy_m={k: v for k, v in accuracy.items() if v is not None},
         flown_lower_bound=lower,
+        images=images,
+        coverage=coverage,
+        camera=camera if camera is not None and any(spans.values()) else None,
     )
+
+
+async def _cameras(
+    fleet: Fleet, names: Sequence[str], note: Callable[[str], None], wait_s: float = 2.5
+) -> dict[str, CameraInfo]:
+    """The optics of the cameras of vehicles ``names`` (those the plan has pictures for):
+    waits up to ``wait_s`` for each camera's HEARTBEAT (1 Hz), asks for CAMERA_INFORMATION,
+    and says which vehicle has no camera."""
+    if not names:
+        return {}
+    vehicles = [fleet[n] for n in names]
+    deadline = time.monotonic() + wait_s
+    while time.monotonic() < deadline and any(v.camera_component is None for v in vehicles):
+        await asyncio.sleep(0.1)
+    infos = {}
+    for v, info in zip(
+        vehicles,
+        await asyncio.gather(*(v.request_camera_information() for v in vehicles)),
+        strict=True,
+    ):
+        if v.camera_component is None:
+            note(f"{v.name}: no camera heard (no MAVLink camera HEARTBEAT): no pictures")
+        elif info is not None:
+            infos[v.name] = info
+    return infos
+
+
+def _coverage(
+    plan: Plan,
+    images: Mapping[str, Sequence[CapturedImage]],
+    spans: Mapping[str, Sequence[CaptureSpan]],
+    mission: MissionFlight | None,
+    infos: Mapping[str, CameraInfo],
+    log_dir: Path | None,
+    files: dict[str, Path],
+) -> CoverageReport | None:
+    """The flight's coverage report (``None`` when the plan pictures nothing), with the image
+    log and the coverage figure written to ``log_dir``."""
+    from gcs.coverage import compute_coverage, coverage_figure
+    from mavlink.camera import write_images_csv
+
+    if log_dir is not None and any(images.values()):
+        files["images"] = write_images_csv(
+            log_dir / "images.csv",
+            sorted((i for ims in images.values() for i in ims), key=lambda i: i.t_s),
+        )
+    if not any(spans.values()):
+        return None
+    planned: dict[str, int] = {}
+    if mission is not None:
+        for m in mission.conversion.missions.values():
+            for c in m.captures:
+                planned[c.span.target] = planned.get(c.span.target, 0) + c.images
+    else:
+        from gcs.payload import span_images
+
+        for todo in spans.values():
+            for span in todo:
+                planned[span.target] = planned.get(span.target, 0) + span_images(span)
+    report = compute_coverage(plan, images, planned=planned, cameras=infos)
+    if log_dir is not None:
+        files["coverage"] = coverage_figure(plan, report, images, log_dir / "coverage.png")
+    return report

@@ -120,6 +120,7 @@ async def fly_mission_plan(
     """
     from gcs.evaluation import reads_heading
     from gcs.missions import convert_plan_apart
+    from gcs.payload import capture_spans
     from mavlink.errors import PreflightError
     from mavlink.mission import (
         MissionEnd,
@@ -160,6 +161,7 @@ async def fly_mission_plan(
         end=end,
         acceptance_m=opts.acceptance_m,
         params=prediction_params(tuning, known),
+        captures=capture_spans(plan, opts.photo_interval_s),
     )
     if conv.predicted_robustness < plan.epsilon and not opts.force:
         worst = max(conv.late_s.values())

@@ -20,14 +20,14 @@ power-line missions finished 5.5-8.5 s late). :func:`convert_plan`
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 if TYPE_CHECKING:
-    from mavlink.mission import MissionEnd, MissionPlan
+    from mavlink.mission import CaptureSpan, MissionEnd, MissionPlan
     from mavlink.mock.predict import PredictedMissions
     from planner.planfile import Plan
 
@@ -112,6 +112,7 @@ def convert_plan(
     params: Mapping[str, float] | None = None,
     iterations: int = 4,
     retime: bool = True,
+    captures: Mapping[str, Sequence[CaptureSpan]] | None = None,
 ) -> MissionConversion:
     """Missions for every vehicle of ``plan``, timed so PX4 keeps the plan's clock.
 
@@ -123,9 +124,11 @@ def convert_plan(
             MPC_ACC_HOR, SIH_KDV ...), used by the prediction.
         iterations: predictions at most (1: no re-timing, just the prediction).
         retime: re-time the legs (False: the legs' average speeds, predicted once).
+        captures: where each vehicle's camera takes pictures (:func:`gcs.payload.capture_spans`;
+            ``None``: nowhere): camera and gimbal items in its mission.
     """
     from gcs.evaluation import plan_formula
-    from mavlink.mission import Cmd, MissionEnd, path_robustness, trajectory_to_mission
+    from mavlink.mission import MissionEnd, path_robustness, trajectory_to_mission
     from mavlink.mock.predict import predict_missions
 
     prm = dict(params or {})
@@ -154,6 +157,7 @@ def convert_plan(
                 leg_speed_m_s=None if speeds is None else speeds[pv.name],
                 pass_lag_s=lag_s,
                 land_at_enu_m=land_at.get(pv.name),
+                captures=(captures or {}).get(pv.name, ()),
             )
             for pv in plan.vehicles
         }
@@ -185,8 +189,7 @@ def convert_plan(
         changed = False
         for name, m in missions.items():
             # the plan's waypoints (a landing point's waypoint, if any, comes after them)
-            wp_seqs = [it.seq for it in m.items if it.command == Cmd.NAV_WAYPOINT]
-            wp_seqs = wp_seqs[: len(m.hold_s)]
+            wp_seqs = [int(q) for q in m.waypoint_seq]
             left = pred.left_s[name]
             new = speeds[name].copy()
             for j in range(1, len(wp_seqs)):

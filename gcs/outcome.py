@@ -17,9 +17,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from gcs.coverage import CoverageReport
     from gcs.evaluation import FlownEvaluation
     from gcs.mission_flight import MissionFlight
+    from gcs.payload import CameraCommands
     from gcs.tuning import VehicleTuning
+    from mavlink.camera import CapturedImage
     from mavlink.mission import MissionRun
     from mavlink.monitor import MonitorStats, SafetyEvent
     from mavlink.stream import StreamStats
@@ -66,6 +69,10 @@ class FlightOutcome:
         flown_lower_bound: flown robustness minus twice the worst 3-D accuracy: what the
             spec is worth at least if every estimate was within its reported accuracy of
             the truth (flown robustness is computed on the estimates).
+        images: the pictures each vehicle's camera reported (CAMERA_IMAGE_CAPTURED).
+        coverage: what they cover of the inspection targets (``None``: the plan has none).
+        camera: offboard: the camera and gimbal commands sent and refused (``None``:
+            none sent by the ground station; a mission carries them as items).
     """
 
     mode: FlightMode
@@ -89,6 +96,9 @@ class FlightOutcome:
     warnings: tuple[str, ...] = ()
     accuracy_m: dict[str, tuple[float, float]] = field(default_factory=dict)
     flown_lower_bound: float | None = None
+    images: dict[str, tuple[CapturedImage, ...]] = field(default_factory=dict)
+    coverage: CoverageReport | None = None
+    camera: CameraCommands | None = None
 
 
 def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
@@ -173,10 +183,23 @@ def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
             f"{run.duration_s:.1f} s{extra}; "
             + (f"at item {run.current[-1][0]} of {items}" if run.current and items else "")
         )
+    if outcome.camera is not None:
+        for name in outcome.camera.no_camera:
+            lines.append(f"  {name}: no camera heard: no pictures")
+        for refused in outcome.camera.refused.values():
+            lines += [f"  camera command refused: {r}" for r in refused]
+    if outcome.coverage is not None:
+        from gcs.coverage import coverage_lines
+
+        lines += coverage_lines(outcome.coverage)
     if outcome.tlog is not None:
         lines.append(f"telemetry: {outcome.tlog.path} ({outcome.tlog.messages} messages)")
     if "csv" in outcome.files:
         lines.append(f"tracks: {outcome.files['csv']}")
+    if "images" in outcome.files:
+        lines.append(f"pictures: {outcome.files['images']}")
+    if "coverage" in outcome.files:
+        lines.append(f"coverage figure: {outcome.files['coverage']}")
     return "\n".join(lines)
 
 
@@ -294,5 +317,14 @@ def outcome_json(plan: Plan, outcome: FlightOutcome) -> dict[str, Any]:
         "flown_lower_bound": num(outcome.flown_lower_bound),
         "estimator_accuracy_m": {k: list(v) for k, v in outcome.accuracy_m.items()},
         "tlog_messages": None if outcome.tlog is None else outcome.tlog.messages,
+        "images": {name: len(ims) for name, ims in outcome.images.items()},
+        "coverage": None if outcome.coverage is None else _coverage_json(outcome.coverage),
+        "camera_refused": {} if outcome.camera is None else dict(outcome.camera.refused),
         "files": {k: str(p) for k, p in outcome.files.items()},
     }
+
+
+def _coverage_json(report: CoverageReport) -> dict[str, Any]:
+    from gcs.coverage import coverage_json
+
+    return coverage_json(report)

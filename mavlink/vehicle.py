@@ -2,9 +2,11 @@
 
 :class:`Vehicle` subscribes to the vehicle's telemetry (MAVSDK's telemetry plugin and
 mavlink_direct messages: HEARTBEAT, GPS_GLOBAL_ORIGIN, STATUSTEXT, ESTIMATOR_STATUS,
-PARAM_VALUE); the callbacks update its state directly on MAVSDK's callback thread
-under a lock, and :meth:`Vehicle.status` takes a consistent :class:`VehicleStatus` snapshot. Its
-commands (arm, modes, take-off, go-to, COMMAND_LONG, parameters, telemetry rates) are
+PARAM_VALUE, and of its MAVLink camera CAMERA_IMAGE_CAPTURED and CAMERA_INFORMATION); the
+callbacks update its state directly on MAVSDK's callback thread under a lock, and
+:meth:`Vehicle.status` takes a consistent :class:`VehicleStatus` snapshot. Its
+commands (arm, modes, take-off, go-to, COMMAND_LONG to any of its components, parameters,
+telemetry rates) are
 coroutines over :func:`mavlink.mavsdk_glue.mavsdk_call`.
 
 A room of its own, apart from :mod:`mavlink.fleet` (which connects N of them through one
@@ -31,6 +33,15 @@ from mavsdk.plugins.mission_raw import MissionRaw
 from mavsdk.plugins.offboard import Offboard
 from mavsdk.plugins.telemetry import Telemetry, TelemetryResult
 
+from mavlink.camera import (
+    MAV_COMP_ID_CAMERA,
+    MAV_TYPE_CAMERA,
+    CameraInfo,
+    CapturedImage,
+    camera_info_from_fields,
+    image_from_fields,
+    unique_images,
+)
 from mavlink.errors import CommandError, LinkError, LinkLostError
 from mavlink.mavsdk_glue import MAV_RESULT_NAMES, mavsdk_call, resolve_future
 from mavlink.px4_modes import (
@@ -45,6 +56,7 @@ from planner.frames import GeodeticPoint
 log = logging.getLogger(__name__)
 
 MAV_CMD_NAV_TAKEOFF = 22
+_MAV_CMD_REQUEST_MESSAGE = 512
 
 #: STATUSTEXTs kept per vehicle (the latest).
 _KEPT_TEXTS = 50
@@ -178,6 +190,10 @@ class Vehicle:
         self._params: dict[str, float] = {}
         self._param_waiters: dict[str, list[asyncio.Future[float]]] = {}
         self._handles: list[tuple[Callable[[Any], None], Any]] = []
+        # cameras heard (component ids), their optics, and the pictures reported
+        self._cameras: set[int] = set()
+        self._camera_info: dict[int, CameraInfo] = {}
+        self._images: list[tuple[float, int, dict[str, Any]]] = []
         self._subscribe()
 
     # -- telemetry ------------------------------------------------------
@@ -213,6 +229,14 @@ class Vehicle:
             (
                 self.direct.unsubscribe_message,
                 self.direct.subscribe_message("PARAM_VALUE", self._on_param_value),
+            ),
+            (
+                self.direct.unsubscribe_message,
+                self.direct.subscribe_message("CAMERA_IMAGE_CAPTURED", self._on_image),
+            ),
+            (
+                self.direct.unsubscribe_message,
+                self.direct.subscribe_message("CAMERA_INFORMATION", self._on_camera_info),
             ),
         ]
 
@@ -261,7 +285,10 @@ class Vehicle:
             self._in_air = bool(in_air)
 
     def _on_heartbeat(self, msg: MavlinkMessage, _ud: Any) -> None:
-        if msg.component_id != 1:  # only the autopilot's heartbeat
+        if msg.component_id != 1:  # the autopilot's heartbeat decides the mode; a camera's
+            if msg.system_id == self.spec.sysid and _is_camera(msg):
+                with self._lock:
+                    self._cameras.add(int(msg.component_id))
             return
         fields = json.loads(msg.fields_json)
         custom = int(fields["custom_mode"])
@@ -291,6 +318,22 @@ class Vehicle:
         with self._lock:
             self._texts.append((time.monotonic(), int(f.get("severity", 6)), str(text)))
             del self._texts[:-_KEPT_TEXTS]
+
+    def _on_image(self, msg: MavlinkMessage, _ud: Any) -> None:
+        if msg.system_id != self.spec.sysid:
+            return
+        t = time.monotonic()
+        fields = json.loads(msg.fields_json)
+        with self._lock:
+            self._images.append((t, int(msg.component_id), fields))
+
+    def _on_camera_info(self, msg: MavlinkMessage, _ud: Any) -> None:
+        if msg.system_id != self.spec.sysid:
+            return
+        info = camera_info_from_fields(json.loads(msg.fields_json), int(msg.component_id))
+        with self._lock:
+            self._camera_info[info.component] = info
+            self._cameras.add(info.component)
 
     def _on_estimator_status(self, msg: MavlinkMessage, _ud: Any) -> None:
         f = json.loads(msg.fields_json)
@@ -415,6 +458,51 @@ class Vehicle:
                 yaw_ned_rad=None if math.isnan(self._yaw_ned_rad) else self._yaw_ned_rad,
             )
 
+    # -- the camera -----------------------------------------------------
+
+    @property
+    def camera_component(self) -> int | None:
+        """The component id of the vehicle's (first) MAVLink camera heard, or ``None``."""
+        with self._lock:
+            return min(self._cameras) if self._cameras else None
+
+    @property
+    def camera_info(self) -> CameraInfo | None:
+        """The optics of the camera :attr:`camera_component`, once CAMERA_INFORMATION came."""
+        comp = self.camera_component
+        with self._lock:
+            return None if comp is None else self._camera_info.get(comp)
+
+    async def request_camera_information(self, timeout_s: float = 3.0) -> CameraInfo | None:
+        """Ask the camera for CAMERA_INFORMATION (MAV_CMD_REQUEST_MESSAGE 259) and wait for it;
+        ``None`` without a camera, or when it does not answer."""
+        comp = self.camera_component
+        if comp is None:
+            return None
+        try:
+            await self.command_long(
+                "request CAMERA_INFORMATION", _MAV_CMD_REQUEST_MESSAGE, 259.0, component=comp
+            )
+        except CommandError as exc:
+            log.info("vehicle %s: %s", self.name, exc)
+            return None
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            info = self.camera_info
+            if info is not None:
+                return info
+            await asyncio.sleep(0.05)
+        return None
+
+    def images(self, t0_monotonic_s: float) -> list[CapturedImage]:
+        """The pictures reported so far (CAMERA_IMAGE_CAPTURED), each once, by time; ``t_s``
+        from ``t0_monotonic_s`` (the flight's shared start)."""
+        with self._lock:
+            got = list(self._images)
+        return unique_images(
+            image_from_fields(f, self.name, t - t0_monotonic_s, comp) for t, comp, f in got
+        )
+
     # -- recording of the flown track ----------------------------------
 
     def start_track(self) -> None:
@@ -485,8 +573,11 @@ class Vehicle:
         """Return to launch (AUTO.RTL)."""
         await self._action("return to launch", self.action.return_to_launch_async)
 
-    async def command_long(self, what: str, command: int, *params: float) -> None:
-        """Send COMMAND_LONG ``command`` (params 1..7, missing ones 0) and require ACCEPTED.
+    async def command_long(
+        self, what: str, command: int, *params: float, component: int = 1
+    ) -> None:
+        """Send COMMAND_LONG ``command`` (params 1..7, missing ones 0) to the vehicle's
+        ``component`` (the autopilot, 1, unless told) and require ACCEPTED.
 
         Goes through MAVSDK's mavlink_direct ``send_command`` (retransmission
         until the final COMMAND_ACK), for commands MAVSDK has no action for.
@@ -499,7 +590,7 @@ class Vehicle:
         p = [float(x) for x in params] + [0.0] * (7 - len(params))
         fields: dict[str, float | int] = {
             "target_system": self.spec.sysid,
-            "target_component": 1,
+            "target_component": int(component),
             "command": int(command),
             "confirmation": 0,
         }
@@ -507,7 +598,7 @@ class Vehicle:
         msg = MavlinkMessage(
             message_name="COMMAND_LONG",
             target_system_id=self.spec.sysid,
-            target_component_id=1,
+            target_component_id=int(component),
             fields_json=json.dumps(fields),
         )
         try:
@@ -674,3 +765,10 @@ class Vehicle:
 
 def _fmt(p: tuple[float, float, float] | None) -> str:
     return "unknown" if p is None else "(" + ", ".join(f"{x:.2f}" for x in p) + ")"
+
+
+def _is_camera(msg: MavlinkMessage) -> bool:
+    """Whether a HEARTBEAT is a MAVLink camera's (type MAV_TYPE_CAMERA, component 100-105)."""
+    if not MAV_COMP_ID_CAMERA <= msg.component_id <= MAV_COMP_ID_CAMERA + 5:
+        return False
+    return int(json.loads(msg.fields_json).get("type", -1)) == MAV_TYPE_CAMERA

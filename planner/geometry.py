@@ -92,7 +92,8 @@ def _half_spaces(
     node: Formula, positive: bool, problem: Any, outer: bool = False
 ) -> tuple[str, list[Any]] | None:
     """``(vehicle, [(a, c), ...])`` with ``node`` (negated unless ``positive``) equivalent to
-    ``a . p <= c`` for all rows; ``None`` if it is not such a conjunction of one vehicle.  A
+    ``a . p <= c`` for all rows; ``None`` if it is not such a conjunction of one vehicle (a
+    ``face`` in the conjunction asks nothing of the position: the place is the rest).  A
     cylinder is the prism over the polygon inscribed in its circle (``outer``: circumscribed
     about it, for a keep-out)."""
     if isinstance(node, Not):
@@ -101,6 +102,8 @@ def _half_spaces(
         vehicle: str | None = None
         rows: list[Any] = []
         for child in node.operands:
+            if positive and isinstance(child, Predicate) and role_of(child) is Role.HEADING:
+                continue  # a heading asked for in the place: the position is the place's
             got = _half_spaces(child, positive, problem, outer)
             if got is None or (vehicle is not None and got[0] != vehicle):
                 return None

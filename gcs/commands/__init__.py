@@ -94,3 +94,28 @@ def parse_param_overrides(items: list[str], flag: str) -> dict[str, float]:
             raise UserError(f"{flag} {item!r}: {name} must be in [{spec.min:g}, {spec.max:g}]")
         params[name] = number
     return params
+
+
+def add_photo_argument(p: argparse.ArgumentParser) -> None:
+    """``--photo-interval``: the camera's pictures where the plan faces an inspection target
+    (:mod:`gcs.payload`), declared once for ``gcs fly``, ``gcs upload`` and ``gcs export``."""
+    p.add_argument(
+        "--photo-interval",
+        type=float,
+        default=1.0,
+        metavar="S",
+        help="seconds between pictures where the plan faces an inspection target (face(d, T)): "
+        "camera and gimbal commands in missions and offboard (1; 0: leave the camera alone)",
+    )
+
+
+def photo_interval(args: argparse.Namespace) -> float:
+    """``--photo-interval`` checked: a finite number >= 0 (:class:`gcs.errors.UserError`)."""
+    import math
+
+    from gcs.errors import UserError
+
+    value = float(args.photo_interval)
+    if not (math.isfinite(value) and value >= 0):
+        raise UserError(f"--photo-interval: must be a number >= 0 s, got {args.photo_interval:g}")
+    return value

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import argparse
 
+from gcs.commands import add_photo_argument, photo_interval
+
 HELP = "export a plan: QGroundControl .plan files, setpoint CSV or JSON, SITL home positions"
 
 
@@ -52,6 +54,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="qgc: what the mission ends with: land (default), return or hold",
     )
     p.add_argument("--no-fence", action="store_true", help="qgc: leave the geofence out")
+    add_photo_argument(p)
     p.add_argument(
         "--force",
         action="store_true",
@@ -81,7 +84,12 @@ def run(args: argparse.Namespace) -> int:
         radius = args.acceptance_radius
         if radius is not None and not radius > 0:
             raise UserError(f"--acceptance-radius: must be > 0 m, got {radius!r}")
-        qgc = QgcOptions(acceptance_radius_m=radius, end=end, fence=not args.no_fence)
+        qgc = QgcOptions(
+            acceptance_radius_m=radius,
+            end=end,
+            fence=not args.no_fence,
+            photo_interval_s=photo_interval(args),
+        )
     elif args.end is not None or args.acceptance_radius is not None or args.no_fence:
         raise UserError("--end, --acceptance-radius and --no-fence apply to --format qgc only")
     if fmt in (ExportFormat.QGC, ExportFormat.HOMES) and args.rate is not None:

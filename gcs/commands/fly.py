@@ -28,7 +28,13 @@ import math
 import sys
 from pathlib import Path
 
-from gcs.commands import add_link_arguments, add_mock_vehicle_arguments, parse_param_overrides
+from gcs.commands import (
+    add_link_arguments,
+    add_mock_vehicle_arguments,
+    add_photo_argument,
+    parse_param_overrides,
+    photo_interval,
+)
 
 HELP = "fly a plan in offboard (or mission) mode on PX4 vehicles, or on mock ones with --dry-run"
 
@@ -85,6 +91,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "past the plan's margin a vehicle is warned about",
     )
     p.add_argument("--end", choices=["hold", "land", "return"], default="hold")
+    add_photo_argument(p)
     add_link_arguments(p, plan_order=True, timeout_s=10.0, timeout_help="connection timeout (10 s)")
     p.add_argument("--json", action="store_true", help="print the outcome as JSON")
     add_mock_vehicle_arguments(p, param_flag="--mock-param")
@@ -150,6 +157,7 @@ def run(args: argparse.Namespace) -> int:
         acceptance_m=args.acceptance,
         force=args.force,
         max_off_plan_m=args.max_off_plan or None,
+        photo_interval_s=photo_interval(args),
     )
     progress = FlightProgress(plan, out)
 

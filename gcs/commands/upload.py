@@ -49,7 +49,7 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from gcs.commands import add_link_arguments
+from gcs.commands import add_link_arguments, add_photo_argument, photo_interval
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -120,6 +120,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         timeout_help="connection timeout (10 s)",
         timeout_flag="--connect-timeout",
     )
+    add_photo_argument(p)
     p.add_argument("--json", action="store_true", help="print the results as JSON")
 
 
@@ -265,12 +266,15 @@ async def upload_plan(
     fence_action: str | None = None,
     budget_s: float = DEFAULT_BUDGET_S,
     progress: Callable[[TransferProgress], None] | None = None,
+    photo_interval_s: float = 1.0,
 ) -> tuple[list[UploadRow], MissionConversion, FencePlan | None]:
     """Convert (with the vehicles' parameters), upload, read back (and start) every
     vehicle's mission; a row per vehicle, and the conversion with its predicted flight.
 
     Each vehicle's transfers are retried on a bad link within ``budget_s`` for all of them
-    (mission and fence); ``progress`` gets every step (:class:`TransferProgress`).
+    (mission and fence); ``progress`` gets every step (:class:`TransferProgress`). Where the
+    plan faces an inspection target the missions take pictures every ``photo_interval_s``
+    (:mod:`gcs.payload`; 0: none).
 
     Raises:
         mavlink.errors.ConnectTimeoutError: a vehicle never answered.
@@ -282,6 +286,7 @@ async def upload_plan(
 
     from gcs.mission_flight import MissionRefused, prediction_params, read_nav_params
     from gcs.missions import convert_plan_apart, fence_plan
+    from gcs.payload import capture_spans
     from gcs.tuning import read_tuning
     from mavlink.fleet import Fleet
     from mavlink.mission import MissionEnd
@@ -299,6 +304,7 @@ async def upload_plan(
             end=MissionEnd(end),
             acceptance_m=acceptance_m,
             params=prediction_params(tuning, known),
+            captures=capture_spans(plan, photo_interval_s),
         )
         if start and not force and not conv.predicted_robustness >= plan.epsilon:
             raise MissionRefused(
@@ -388,6 +394,8 @@ def run(args: argparse.Namespace) -> int:
         for line in landing_lines(plan):
             print(line, file=sys.stderr)
 
+    interval = photo_interval(args)
+
     async def signed_upload() -> tuple[list[UploadRow], MissionConversion, FencePlan | None]:
         async with signed_links(specs, args.signing_key) as links:
             return await upload_plan(
@@ -404,6 +412,7 @@ def run(args: argparse.Namespace) -> int:
                 fence_action=args.fence_action,
                 budget_s=budget_s,
                 progress=print_progress,
+                photo_interval_s=interval,
             )
 
     try:

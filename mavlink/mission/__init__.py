@@ -6,7 +6,9 @@ trajectory_to_mission``); each lives in the room named for what it holds::
     mavlink.mission.items       MAV_CMD / MAV_FRAME / mission type values, MissionItem
                                 (one MISSION_ITEM_INT), compare_items: a read-back
                                 compared field by field as PX4 stores items
-    mavlink.mission.conversion  trajectory -> MISSION items (MissionPlan), the
+    mavlink.mission.conversion  trajectory -> MISSION items (MissionPlan), with camera and
+                                gimbal items where the camera takes pictures
+                                (CaptureSpan), the
                                 piecewise-linear path the mission flies, its deviation
                                 from the plan and its STL robustness
     mavlink.mission.geofence    workspace and full-height keep-outs (boxes, prisms,
@@ -27,9 +29,11 @@ plan already on the vehicles.
 from __future__ import annotations
 
 from mavlink.mission.conversion import (
+    CaptureSpan,
     MissionPlan,
     PathDeviation,
     PiecewiseLinearPath,
+    ScheduledCapture,
     path_deviation,
     path_robustness,
     trajectory_to_mission,
@@ -72,6 +76,7 @@ from mavlink.mission.transfer import (
 
 __all__ = [
     "COMPARED_FIELDS",
+    "CaptureSpan",
     "Cmd",
     "FenceBox",
     "FenceCircle",
@@ -88,6 +93,7 @@ __all__ = [
     "PathDeviation",
     "PiecewiseLinearPath",
     "RetryPolicy",
+    "ScheduledCapture",
     "TransferProgress",
     "TransferReport",
     "TransferStep",

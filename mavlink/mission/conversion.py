@@ -11,7 +11,18 @@ becomes global ``*_INT`` items (DESIGN.md section 7):
   ``acceptance_radius_m`` (param2) and, where the plan then hovers, the hover
   time as hold time (param1);
 * ``NAV_LAND`` at the last point, ``NAV_RETURN_TO_LAUNCH``, or nothing (PX4
-  then holds at the last waypoint).
+  then holds at the last waypoint);
+* per :class:`CaptureSpan` (a stretch in which the camera takes pictures, from the plan's
+  capture windows): ``DO_GIMBAL_MANAGER_PITCHYAW`` and ``IMAGE_START_CAPTURE`` at its start
+  (for as many pictures as fit in the span at its interval), ``IMAGE_STOP_CAPTURE`` at its
+  end.  PX4 runs a DO item when the NAV item before it is
+  completed (a waypoint after its hold), so a span starting or ending within a hold splits
+  the hold: the waypoint with the hold so far, the DO items, the same waypoint with the rest
+  (a waypoint where the vehicle already is is reached at once).  A span starting on a leg
+  starts at the next waypoint, one ending on a leg stops at the last one (or, when that is
+  the start, by its count), so the pictures are all taken inside the span when the mission
+  keeps the plan's clock; a span with no waypoint in it is dropped
+  (:attr:`MissionPlan.captures` says when each is taken).
 
 A segment whose peak speed stays below ``hover_speed_m_s`` (or which ends
 less than the acceptance radius from where it started) is a hover.
@@ -83,6 +94,60 @@ class PiecewiseLinearPath:
         return np.column_stack([pos, wrap_pi(yaw)])
 
 
+@dataclass(frozen=True, slots=True)
+class CaptureSpan:
+    """A stretch of a vehicle's plan in which its camera takes pictures.
+
+    Attributes:
+        t_start_s, t_end_s: the stretch, seconds from the plan's start.
+        gimbal_pitch_deg: the camera's pitch there (degrees, negative: down), facing forward.
+        interval_s: time between pictures (> 0).
+        target: what it pictures (a name, for the reports).
+    """
+
+    t_start_s: float
+    t_end_s: float
+    gimbal_pitch_deg: float = 0.0
+    interval_s: float = 1.0
+    target: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class ScheduledCapture:
+    """A :class:`CaptureSpan` as the mission takes it: IMAGE_START_CAPTURE at ``start_s``
+    (plan time: a waypoint's arrival, departure or a time within its hold) for as many
+    pictures as fit in the span at its interval, IMAGE_STOP_CAPTURE at ``stop_s`` (the last
+    such time within the span; ``None``: none after the start), or nothing (``start_s``
+    ``None``: no waypoint within the span).
+
+    Attributes:
+        span: the span asked for.
+        start_s, stop_s: when the mission starts and stops capturing, or ``None``.
+        start_seq: the seq of its IMAGE_START_CAPTURE item (-1: dropped).
+    """
+
+    span: CaptureSpan
+    start_s: float | None
+    stop_s: float | None
+    start_seq: int = -1
+
+    @property
+    def images(self) -> int:
+        """Pictures the camera takes in it when the mission keeps the plan's clock (0 when
+        dropped): the START's count, or fewer where the STOP comes first."""
+        if self.start_s is None:
+            return 0
+        n = _count(self.span, self.start_s)
+        if self.stop_s is not None:
+            n = min(n, math.floor((self.stop_s - self.start_s) / self.span.interval_s + 1e-9) + 1)
+        return n
+
+
+def _count(span: CaptureSpan, start_s: float) -> int:
+    """The pictures of ``span`` from ``start_s`` on: one at once, one per interval to its end."""
+    return max(1, math.floor((span.t_end_s - start_s) / span.interval_s + 1e-9) + 1)
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class MissionPlan:
     """A vehicle's mission and what it means in the mission frame.
@@ -96,6 +161,9 @@ class MissionPlan:
         leg_speed_m_s: ``(k-1,)`` commanded speed of each leg.
         acceptance_m: ``(k,)`` acceptance radius of each waypoint (param2).
         path: the piecewise-linear path the mission flies.
+        waypoint_seq: ``(k,)`` the seq of each waypoint's last NAV_WAYPOINT item (the one
+            left at its departure: a hold split for a capture is two items).
+        captures: the capture spans as the mission takes them, in the order given.
     """
 
     name: str
@@ -106,6 +174,30 @@ class MissionPlan:
     leg_speed_m_s: np.ndarray
     acceptance_m: np.ndarray
     path: PiecewiseLinearPath
+    waypoint_seq: np.ndarray
+    captures: tuple[ScheduledCapture, ...] = ()
+
+
+def _capture_times(
+    span: CaptureSpan, arrival: Sequence[float], hold: Sequence[float]
+) -> tuple[tuple[float, int], tuple[float, int] | None] | None:
+    """When and at which waypoint a mission can start and stop ``span`` (module docstring):
+    ``((t_start, j_start), (t_stop, j_stop) or None)``, or ``None`` if no waypoint lies within
+    it (the stop is ``None`` when the last waypoint within it is the start's instant)."""
+    eps = 1e-6
+    start: tuple[float, int] | None = None
+    stop: tuple[float, int] | None = None
+    for j, (a, h) in enumerate(zip(arrival, hold, strict=True)):
+        d = a + h
+        if start is None and d >= span.t_start_s - eps:
+            start = (max(a, span.t_start_s), j)
+        if a <= span.t_end_s + eps:
+            stop = (min(d, span.t_end_s), j)
+    if start is None or start[0] > span.t_end_s + eps:
+        return None
+    if stop is None or stop[0] <= start[0] + eps:
+        return start, None
+    return start, stop
 
 
 def trajectory_to_mission(
@@ -119,6 +211,7 @@ def trajectory_to_mission(
     leg_speed_m_s: Sequence[float] | np.ndarray | None = None,
     pass_lag_s: float = 0.0,
     land_at_enu_m: Sequence[float] | np.ndarray | None = None,
+    captures: Sequence[CaptureSpan] = (),
 ) -> MissionPlan:
     """Convert one mission-frame trajectory into PX4 mission items (module docstring).
 
@@ -141,6 +234,7 @@ def trajectory_to_mission(
             instead of below the last point: a NAV_WAYPOINT there at the last point's
             altitude, then the NAV_LAND (a multicopter's NAV_LAND descends on its way to
             its position); :mod:`gcs.landing` picks the point clear of keep-outs.
+        captures: where the camera takes pictures (:class:`CaptureSpan`; module docstring).
 
     Raises:
         MissionError: ``INVALID_ITEM`` for a non-positive acceptance radius or a speed
@@ -252,30 +346,60 @@ def trajectory_to_mission(
         deg_e7(lon[0]),
         float(alt[0]),
     )
-    add(
-        Cmd.NAV_WAYPOINT,
-        g,
-        hold[0],
-        acceptance_radius_m,
-        0.0,
-        float(yaw_deg[0]),
-        deg_e7(lat[0]),
-        deg_e7(lon[0]),
-        float(alt[0]),
-    )
-    for j in range(1, wp.shape[0]):
-        add(Cmd.DO_CHANGE_SPEED, Frame.MISSION, 1.0, commanded[j - 1], -1.0, 0.0, 0, 0, 0.0)
-        add(
-            Cmd.NAV_WAYPOINT,
-            g,
-            hold[j],
+    # The capture actions per waypoint: (time, order, span index, start?).
+    acts: dict[int, list[tuple[float, int, int, bool]]] = {}
+    times: list[tuple[tuple[float, int], tuple[float, int] | None] | None] = []
+    for which, span in enumerate(captures):
+        got = _capture_times(span, arrival, hold)
+        times.append(got)
+        if got is not None:
+            (ts, js), stop = got
+            acts.setdefault(js, []).append((ts, 1, which, True))
+            if stop is not None:
+                acts.setdefault(stop[1], []).append((stop[0], 0, which, False))  # stop first
+    start_seq: dict[int, int] = {}
+    wp_seq: list[int] = []
+    for j in range(wp.shape[0]):
+        if j > 0:
+            add(Cmd.DO_CHANGE_SPEED, Frame.MISSION, 1.0, commanded[j - 1], -1.0, 0.0, 0, 0, 0.0)
+        here = (
             float(radius[j]),
-            0.0,
             float(yaw_deg[j]),
             deg_e7(lat[j]),
             deg_e7(lon[j]),
             float(alt[j]),
         )
+        r_j, yaw_j, x_j, y_j, z_j = here
+        t_prev = arrival[j]
+        t_dep = arrival[j] + hold[j]
+        pending = sorted(acts.get(j, ()))
+        k = 0
+        while True:
+            t_next = pending[k][0] if k < len(pending) else t_dep
+            if k == len(pending) and pending and t_dep - t_prev <= 1e-6:
+                break  # the last actions ran at the departure: no rest of the hold
+            add(Cmd.NAV_WAYPOINT, g, max(0.0, t_next - t_prev), r_j, 0.0, yaw_j, x_j, y_j, z_j)
+            if k == len(pending):
+                break
+            t_prev = t_next
+            while k < len(pending) and pending[k][0] <= t_next + 1e-9:
+                _, _, which, starts = pending[k]
+                span = captures[which]
+                if starts:
+                    add(
+                        Cmd.DO_GIMBAL_MANAGER_PITCHYAW, Frame.MISSION,
+                        float(span.gimbal_pitch_deg), 0.0, math.nan, math.nan, 0, 0, 0.0,
+                    )  # fmt: skip
+                    start_seq[which] = len(items)
+                    count = _count(span, pending[k][0])
+                    add(
+                        Cmd.IMAGE_START_CAPTURE, Frame.MISSION,
+                        0.0, float(span.interval_s), float(count), 0.0, 0, 0, 0.0,
+                    )  # fmt: skip
+                else:
+                    add(Cmd.IMAGE_STOP_CAPTURE, Frame.MISSION, 0.0, 0.0, 0.0, 0.0, 0, 0, 0.0)
+                k += 1
+        wp_seq.append(next(it.seq for it in reversed(items) if it.command == Cmd.NAV_WAYPOINT))
     if end is MissionEnd.LAND:
         land_lat, land_lon = lat[-1], lon[-1]
         if land_at_enu_m is not None:
@@ -316,6 +440,15 @@ def trajectory_to_mission(
         leg_speed_m_s=np.asarray(commanded),
         acceptance_m=radius,
         path=path,
+        waypoint_seq=np.asarray(wp_seq, dtype=int),
+        captures=tuple(
+            ScheduledCapture(
+                span, got[0][0], got[1][0] if got[1] is not None else None, start_seq[i]
+            )
+            if got is not None
+            else ScheduledCapture(span, None, None)
+            for i, (span, got) in enumerate(zip(captures, times, strict=True))
+        ),
     )
 
 

@@ -187,3 +187,34 @@ def test_a_heading_schedule_faster_than_the_vehicle_turns_fails_the_plans_checks
     assert not lim.ok and not result.success, result.status
     saved = result.to_plan(str(path))
     assert saved.vehicles[0].yaw_rate_max_deg_s == 2.0
+
+
+def test_a_face_in_an_inspection_conjunction_leaves_the_place_the_guess_routes_to(
+    tmp_path: Path,
+) -> None:
+    """``inside(d, insp) and face(d, pole)`` is the place ``insp`` to the initial guess (the
+    heading asks nothing of the position); before the fix the conjunction was no place at
+    all, and the 10-pole camera line planned from its start point to -0.12 in 120 s."""
+    from planner.geometry import place
+    from planner.scenario import load_scenario
+    from planner.stl import And
+
+    path = tmp_path / "facing.yaml"
+    path.write_text(_SCENARIO)
+    problem = load_scenario(path)
+    node = problem.formulas[0]  # eventually[0, 20] always[0, 2] (inside(..) and face(..))
+    while not isinstance(node, And):
+        node = node.child
+    inside, face = node.operands
+    assert str(inside) == "inside(d1, insp1)" and str(face) == "face(d1, pole1)"
+    alone = place(inside, problem)
+    assert alone is not None
+    for node in (And((inside, face)), And((face, inside))):
+        got = place(node, problem)
+        assert got is not None and got.vehicle == "d1"
+        np.testing.assert_array_equal(got.A, alone.A)
+        np.testing.assert_array_equal(got.b, alone.b)
+        np.testing.assert_allclose(got.point, alone.point)
+    # a heading alone is no place, nor two of them
+    assert place(face, problem) is None
+    assert place(And((face, face)), problem) is None

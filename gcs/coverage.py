@@ -1,0 +1,414 @@
+"""What the pictures of a flight cover: per inspection target, covered or not, and from where.
+
+The targets are those of the spec's facing rules (:func:`planner.heading.facing_rules`:
+``face(d, T)`` with the place ``d`` must be in, and the window if any).  A picture
+(:class:`mavlink.camera.CapturedImage`, from the camera's CAMERA_IMAGE_CAPTURED) *counts*
+for a rule's target when
+
+* the rule's vehicle took it, within the rule's window (if any);
+* from within the rule's place, ``place_tolerance_m`` allowed (the place is the
+  inspection box: the stand-off the spec asks for);
+* its optical axis (the camera's attitude ``q``: the vehicle's heading and the gimbal's
+  angles) is within ``view_tolerance_deg`` of the line to the aim point (the target's axis
+  at the camera's height, clamped to the target's heights: :func:`planner.captures.aim_point`),
+  by default ``face``'s own tolerance.
+
+A target is *covered* when at least one picture counts for it.  Each target's row gives the
+pictures that count, the planned ones (the mission's or the offboard schedule's count), and
+the range and view angle of its counting pictures (or of the nearest miss, to say why it is
+not covered).  :func:`coverage_lines` prints the table, :func:`coverage_json` its JSON and
+:func:`coverage_figure` draws the line from above with every picture's position and view
+wedge (the camera's horizontal field of view, out to the range of its target).
+
+A room of its own because it joins the plan (targets, places) and the camera's log; it
+speaks to no vehicle (``gcs fly`` and ``gcs verify --images`` call it).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from mavlink.camera import CameraInfo, CapturedImage
+
+if TYPE_CHECKING:
+    from planner.planfile import Plan
+
+__all__ = [
+    "PLACE_TOLERANCE_M",
+    "CoverageReport",
+    "ImageView",
+    "TargetCoverage",
+    "compute_coverage",
+    "coverage_figure",
+    "coverage_json",
+    "coverage_lines",
+]
+
+#: How far outside the inspection place a picture still counts (m).
+PLACE_TOLERANCE_M = 0.5
+
+
+@dataclass(frozen=True, slots=True)
+class ImageView:
+    """One picture seen from one target.
+
+    Attributes:
+        image: the picture.
+        target: the target's name.
+        range_m: distance from the camera to the aim point.
+        view_deg: angle between the optical axis and the line to the aim point.
+        place_margin_m: the picture's position's margin in the rule's place (>= 0 inside;
+            ``inf`` for a rule without a place).
+        counts: it counts for the target (module docstring).
+    """
+
+    image: CapturedImage
+    target: str
+    range_m: float
+    view_deg: float
+    place_margin_m: float
+    counts: bool
+
+
+@dataclass(frozen=True, slots=True)
+class TargetCoverage:
+    """One inspection target's coverage.
+
+    Attributes:
+        target: its name; vehicles: the vehicles asked to picture it.
+        images: pictures that count for it; planned: pictures planned of it (``None``: not
+            known).
+        views: the counting pictures' views, or (uncovered) the nearest miss alone.
+    """
+
+    target: str
+    vehicles: tuple[str, ...]
+    images: int
+    planned: int | None
+    views: tuple[ImageView, ...]
+
+    @property
+    def covered(self) -> bool:
+        return self.images > 0
+
+    @property
+    def range_m(self) -> tuple[float, float] | None:
+        """Smallest and largest range of the counting pictures (``None``: none)."""
+        r = [v.range_m for v in self.views if v.counts]
+        return (min(r), max(r)) if r else None
+
+    @property
+    def view_deg(self) -> float | None:
+        """Largest view angle of the counting pictures (``None``: none)."""
+        a = [v.view_deg for v in self.views if v.counts]
+        return max(a) if a else None
+
+
+@dataclass(frozen=True, slots=True)
+class CoverageReport:
+    """The coverage of every inspection target of a plan by a flight's pictures.
+
+    Attributes:
+        targets: per target, in spec order.
+        images: pictures taken (all vehicles); unmatched: those counting for no target.
+        view_tolerance_deg, place_tolerance_m: what a picture had to meet.
+        cameras: the optics per vehicle, where CAMERA_INFORMATION came.
+    """
+
+    targets: tuple[TargetCoverage, ...]
+    images: int
+    unmatched: int
+    view_tolerance_deg: float
+    place_tolerance_m: float
+    cameras: Mapping[str, CameraInfo]
+
+    @property
+    def covered(self) -> int:
+        return sum(t.covered for t in self.targets)
+
+    @property
+    def all_covered(self) -> bool:
+        return bool(self.targets) and all(t.covered for t in self.targets)
+
+
+def _view(image: CapturedImage, target: Any, where: Any, origin: Any) -> tuple[float, float, float]:
+    """(range, view angle, place margin) of ``image`` seen from ``target``."""
+    from planner.captures import aim_point
+
+    pos = image.position_enu_m(origin)
+    aim = aim_point(target, pos)[0]
+    d = aim - pos
+    rng = float(np.linalg.norm(d))
+    axis = image.axis_enu()
+    if rng > 0 and np.all(np.isfinite(axis)):
+        c = float(np.dot(axis, d) / (rng * np.linalg.norm(axis)))
+        view = math.degrees(math.acos(max(-1.0, min(1.0, c))))
+    else:
+        view = math.nan
+    margin = math.inf
+    if where is not None:
+        margin = float(np.min(where.b - where.A @ pos))
+    return rng, view, margin
+
+
+def compute_coverage(
+    plan: Plan,
+    images: Mapping[str, Sequence[CapturedImage]],
+    *,
+    planned: Mapping[str, int] | None = None,
+    cameras: Mapping[str, CameraInfo] | None = None,
+    view_tolerance_deg: float | None = None,
+    place_tolerance_m: float = PLACE_TOLERANCE_M,
+    window_slack_s: float = 1.0,
+) -> CoverageReport:
+    """The coverage of ``plan``'s inspection targets by ``images`` (module docstring).
+
+    Args:
+        images: the pictures per vehicle name (any order).
+        planned: pictures planned per target (``None``: not known).
+        cameras: the optics per vehicle (for the figure).
+        view_tolerance_deg: largest view angle that counts (default ``face``'s tolerance).
+        place_tolerance_m: how far outside the place a picture still counts.
+        window_slack_s: how far outside a rule's window a picture still counts.
+    """
+    from planner.heading import facing_rules
+    from planner.planfile import plan_formula
+    from planner.predicates import FACE_TOLERANCE_DEG
+
+    tol = FACE_TOLERANCE_DEG if view_tolerance_deg is None else float(view_tolerance_deg)
+    rules = facing_rules(plan_formula(plan), plan)
+    order: list[str] = []
+    by_target: dict[str, list[Any]] = {}
+    for r in rules:
+        if r.target not in by_target:
+            order.append(r.target)
+        by_target.setdefault(r.target, []).append(r)
+    counted: set[tuple[str, int, int]] = set()
+    rows = []
+    for target in order:
+        region = plan.region(target)
+        views: list[ImageView] = []
+        for r in by_target[target]:
+            for im in images.get(r.vehicle, ()):
+                if not im.ok:
+                    continue
+                rng, view, margin = _view(im, region, r.where, plan.origin)
+                in_window = r.window_s is None or (
+                    r.window_s[0] - window_slack_s <= im.t_s <= r.window_s[1] + window_slack_s
+                )
+                counts = (
+                    in_window
+                    and margin >= -place_tolerance_m
+                    and math.isfinite(view)
+                    and view <= tol
+                )
+                views.append(ImageView(im, target, rng, view, margin, counts))
+        good = [v for v in views if v.counts]
+        for v in good:
+            counted.add((v.image.vehicle, v.image.component, v.image.index))
+        if good:
+            shown = tuple(sorted(good, key=lambda v: v.image.t_s))
+        elif views:
+            shown = (min(views, key=lambda v: (max(0.0, -v.place_margin_m), v.view_deg)),)
+        else:
+            shown = ()
+        rows.append(
+            TargetCoverage(
+                target=target,
+                vehicles=tuple(dict.fromkeys(r.vehicle for r in by_target[target])),
+                images=len(good),
+                planned=None if planned is None else int(planned.get(target, 0)),
+                views=shown,
+            )
+        )
+    total = sum(1 for ims in images.values() for im in ims)
+    unmatched = sum(
+        1
+        for ims in images.values()
+        for im in ims
+        if (im.vehicle, im.component, im.index) not in counted
+    )
+    return CoverageReport(
+        targets=tuple(rows),
+        images=total,
+        unmatched=unmatched,
+        view_tolerance_deg=tol,
+        place_tolerance_m=place_tolerance_m,
+        cameras=dict(cameras or {}),
+    )
+
+
+def _why_not(t: TargetCoverage, tol: float, place_tol: float) -> str:
+    if not t.views:
+        return "no picture by " + ", ".join(t.vehicles)
+    v = t.views[0]
+    why = []
+    if v.place_margin_m < -place_tol:
+        why.append(f"{-v.place_margin_m:.2f} m outside the inspection place")
+    if not (v.view_deg <= tol):
+        why.append(f"view {v.view_deg:.1f} deg > {tol:g}")
+    return "nearest: " + ("; ".join(why) if why else "outside the rule's window")
+
+
+def coverage_lines(report: CoverageReport) -> list[str]:
+    """The coverage table, one line per target, and a summary line."""
+    n = len(report.targets)
+    out = [
+        f"coverage: {report.covered}/{n} inspection targets pictured "
+        f"({report.images} pictures, {report.unmatched} of no target; a picture counts from "
+        f"within {report.place_tolerance_m:g} m of the inspection place, view within "
+        f"{report.view_tolerance_deg:g} deg)"
+    ]
+    for t in report.targets:
+        planned = "" if t.planned is None else f" of {t.planned} planned"
+        if t.covered:
+            lo, hi = t.range_m or (math.nan, math.nan)
+            out.append(
+                f"  {t.target:<10} covered   {t.images:3d} pictures{planned}, range "
+                f"{lo:.2f}-{hi:.2f} m, view <= {t.view_deg:.1f} deg ({', '.join(t.vehicles)})"
+            )
+        else:
+            out.append(
+                f"  {t.target:<10} NOT covered: 0 pictures{planned} "
+                f"({_why_not(t, report.view_tolerance_deg, report.place_tolerance_m)})"
+            )
+    return out
+
+
+def coverage_json(report: CoverageReport) -> dict[str, Any]:
+    """The report as JSON-ready values."""
+
+    def num(x: float | None) -> float | None:
+        return None if x is None or not math.isfinite(x) else round(float(x), 4)
+
+    return {
+        "covered": report.covered,
+        "targets": len(report.targets),
+        "images": report.images,
+        "unmatched": report.unmatched,
+        "view_tolerance_deg": report.view_tolerance_deg,
+        "place_tolerance_m": report.place_tolerance_m,
+        "by_target": [
+            {
+                "target": t.target,
+                "vehicles": list(t.vehicles),
+                "covered": t.covered,
+                "images": t.images,
+                "planned": t.planned,
+                "range_m": None if t.range_m is None else [num(x) for x in t.range_m],
+                "view_deg": num(t.view_deg),
+            }
+            for t in report.targets
+        ],
+    }
+
+
+def coverage_figure(
+    plan: Plan,
+    report: CoverageReport,
+    images: Mapping[str, Sequence[CapturedImage]],
+    path: str | Path,
+) -> Path:
+    """Draw the line from above with the pictures (module docstring); returns the path.
+
+    Regions are their footprints (poles grey, inspection places green, keep-outs red
+    outlines); each picture is a dot at its position with its view wedge (the camera's
+    horizontal field of view, 60 degrees where the camera gave none) out to its target's
+    range: green where it counts, grey where it does not.  Each target is labelled with its
+    count.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.collections import PatchCollection
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Polygon, Wedge
+
+    from gcs.figure import _KIND_STYLE, is_large
+
+    fig = Figure(figsize=(10, 8), layout="constrained")
+    ax = fig.add_subplot(1, 1, 1)
+    ax.set_aspect("equal")
+    for r in plan.all_regions:
+        kind = r.kind.value
+        if kind == "workspace":
+            continue
+        face, alpha, edge, _ = _KIND_STYLE.get(kind, _KIND_STYLE["region"])
+        big = is_large(r, plan.workspace)
+        ax.add_patch(
+            Polygon(
+                r.footprint_xy(),
+                closed=True,
+                facecolor="none" if big else face,
+                alpha=None if big else alpha,
+                edgecolor=edge,
+                linewidth=0.6,
+            )
+        )
+    views = {
+        (v.image.vehicle, v.image.component, v.image.index): v
+        for t in report.targets
+        for v in t.views
+    }
+    good: list[Any] = []
+    bad: list[Any] = []
+    xs: list[float] = []
+    ys: list[float] = []
+    cs: list[str] = []
+    for name, ims in images.items():
+        info = report.cameras.get(name)
+        hfov = info.hfov_deg if info is not None and math.isfinite(info.hfov_deg) else 60.0
+        for im in ims:
+            at = im.position_enu_m(plan.origin)
+            yaw_deg, _ = im.yaw_pitch_deg()
+            heading_enu = 90.0 - yaw_deg  # compass -> ENU angle from east
+            v = views.get((im.vehicle, im.component, im.index))
+            reach = v.range_m if v is not None else 3.0
+            wedge = Wedge((at[0], at[1]), reach, heading_enu - hfov / 2, heading_enu + hfov / 2)
+            (good if v is not None and v.counts else bad).append(wedge)
+            xs.append(float(at[0]))
+            ys.append(float(at[1]))
+            cs.append("#1a701a" if v is not None and v.counts else "#7f7f7f")
+    if bad:
+        ax.add_collection(
+            PatchCollection(bad, facecolor="#bbbbbb", edgecolor="none", alpha=0.25),
+            autolim=False,
+        )
+    if good:
+        ax.add_collection(
+            PatchCollection(good, facecolor="#2ca02c", edgecolor="none", alpha=0.18),
+            autolim=False,
+        )
+    if xs:
+        ax.scatter(xs, ys, s=6, c=cs, zorder=3, label="picture (green: counts)")
+    for t in report.targets:
+        c = plan.region(t.target).center_enu_m
+        label = f"{t.target}: {t.images}" + ("" if t.planned is None else f"/{t.planned}")
+        ax.annotate(
+            label,
+            (c[0], c[1]),
+            xytext=(6, 6),
+            textcoords="offset points",
+            fontsize=8,
+            color="#1a701a" if t.covered else "#d62728",
+        )
+    ws = plan.workspace
+    ax.set_xlim(ws.lo_enu_m[0], ws.hi_enu_m[0])
+    ax.set_ylim(ws.lo_enu_m[1], ws.hi_enu_m[1])
+    ax.set_xlabel("east x (m)")
+    ax.set_ylabel("north y (m)")
+    ax.set_title(
+        f"pictures and coverage: {report.covered}/{len(report.targets)} targets, "
+        f"{report.images} pictures"
+    )
+    if xs:
+        ax.legend(loc="upper left", fontsize=8)
+    p = Path(path)
+    fig.savefig(p, dpi=110)
+    return p
