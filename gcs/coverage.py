@@ -45,6 +45,7 @@ __all__ = [
     "ImageView",
     "TargetCoverage",
     "compute_coverage",
+    "coverage_checks",
     "coverage_figure",
     "coverage_json",
     "coverage_lines",
@@ -278,6 +279,21 @@ def coverage_lines(report: CoverageReport) -> list[str]:
                 f"  {t.target:<10} NOT covered: 0 pictures{planned} "
                 f"({_why_not(t, report.view_tolerance_deg, report.place_tolerance_m)})"
             )
+    return out
+
+
+def coverage_checks(report: CoverageReport) -> list[Any]:
+    """One :class:`gcs.checks.Check` per target: pictured at least once (``gcs verify``)."""
+    from gcs.checks import Check
+
+    out = []
+    for t in report.targets:
+        if t.covered:
+            lo, hi = t.range_m or (math.nan, math.nan)
+            detail = f"range {lo:.2f}-{hi:.2f} m, view <= {t.view_deg:.1f} deg"
+        else:
+            detail = _why_not(t, report.view_tolerance_deg, report.place_tolerance_m)
+        out.append(Check(f"pictures of {t.target}", float(t.images), 1.0, t.covered, detail))
     return out
 
 

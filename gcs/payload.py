@@ -14,9 +14,10 @@ How the spans reach the vehicle depends on how it flies:
   ``IMAGE_START_CAPTURE``, ``IMAGE_STOP_CAPTURE``: :func:`mavlink.mission.trajectory_to_mission`),
   which PX4 runs as it reaches them;
 * in **offboard** flight the ground station sends the same commands on the plan's clock
-  (:func:`run_offboard_captures`): the gimbal's to the autopilot (PX4 is the gimbal manager),
-  the camera's to the camera component PX4 routes to (heard by its HEARTBEAT, type
-  MAV_TYPE_CAMERA).  A vehicle without a camera, or a command refused, is said in one line
+  (:func:`run_offboard_captures`): the gimbal's to the autopilot (PX4 is the gimbal manager,
+  and obeys only the one in control: the ground station takes it first), the camera's to the
+  camera component PX4 routes to (heard by its HEARTBEAT, type MAV_TYPE_CAMERA; PX4 answers
+  IMAGE_START_CAPTURE sent to itself UNSUPPORTED).  A vehicle without a camera, or a command refused, is said in one line
   per vehicle and command (the flight goes on: pictures are not a safety matter), and the
   flight's coverage report then shows what was not pictured.
 
@@ -54,6 +55,9 @@ DEFAULT_INTERVAL_S = 1.0
 TRIM_S = 0.5
 
 MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW = 1000
+MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE = 1001
+#: The ground station's component id (MAVSDK as a ground station: MAV_COMP_ID_MISSIONPLANNER).
+GCS_COMPID = 190
 MAV_CMD_IMAGE_START_CAPTURE = 2000
 MAV_CMD_IMAGE_STOP_CAPTURE = 2001
 
@@ -121,14 +125,19 @@ async def run_offboard_captures(
     """Send each vehicle's camera and gimbal commands on the plan's clock (module docstring).
 
     Waits for ``started`` (the shared start, ``time.monotonic()``), then at each span's start
-    sends DO_GIMBAL_MANAGER_PITCHYAW (to the autopilot) and IMAGE_START_CAPTURE with the
-    span's interval and count (to the camera), and at its end IMAGE_STOP_CAPTURE.  Runs until
-    the last span ends or it is cancelled (the flight ended); never raises for a refusal.
-    What it sent and what was refused goes into ``out`` as it happens.
+    sends, at once and side by side, DO_GIMBAL_MANAGER_PITCHYAW to the autopilot (the first
+    time after DO_GIMBAL_MANAGER_CONFIGURE putting the ground station in control of the
+    gimbal: PX4 denies a PITCHYAW from anyone else) and IMAGE_START_CAPTURE with the span's
+    interval and count to the camera, and at its end IMAGE_STOP_CAPTURE.  A gimbal that does
+    not answer (PX4 without its gimbal module never ACKs) or refuses is not asked again: the
+    camera then looks where it is mounted, straight ahead, which the vehicle's heading aims.
+    Runs until the last span ends or it is cancelled (the flight ended); never raises for a
+    refusal.  What it sent and what was refused goes into ``out`` as it happens.
     """
     import time
 
     from mavlink.errors import CommandError
+    from mavlink.fleet import GCS_SYSID
 
     t0 = await started
     vehicles = {v.name: v for v in fleet}
@@ -140,20 +149,35 @@ async def run_offboard_captures(
             note(f"{v.name}: no camera heard (no MAVLink camera HEARTBEAT): no pictures")
             return
         sent = out.sent.setdefault(v.name, [])
+        gimbal = {"ok": True, "taken": False}
 
-        async def send(when: float, what: str, command: int, *p: float, to: int) -> None:
-            await asyncio.sleep(max(0.0, t0 + when - time.monotonic()))
+        async def send(when: float, what: str, command: int, *p: float, to: int) -> bool:
             try:
                 await v.command_long(what, command, *p, component=to)
             except CommandError as exc:
                 line = f"{v.name}: {what} at t={when:.1f} s: {exc.result}"
                 out.refused.setdefault(v.name, []).append(line)
                 note(line)
-                return
+                return False
             sent.append((when, what))
+            return True
 
-        for span in todo:
-            await send(
+        async def aim(span: CaptureSpan) -> None:
+            if not gimbal["taken"]:
+                gimbal["taken"] = True
+                if not await send(
+                    span.t_start_s,
+                    "take the gimbal",
+                    MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE,
+                    float(GCS_SYSID),
+                    float(GCS_COMPID),
+                    -1.0,
+                    -1.0,
+                    to=1,
+                ):
+                    gimbal["ok"] = False
+                    return
+            gimbal["ok"] = await send(
                 span.t_start_s,
                 f"gimbal pitch {span.gimbal_pitch_deg:+.0f} deg",
                 MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW,
@@ -163,7 +187,10 @@ async def run_offboard_captures(
                 math.nan,
                 to=1,
             )
-            await send(
+
+        for span in todo:
+            await asyncio.sleep(max(0.0, t0 + span.t_start_s - time.monotonic()))
+            start = send(
                 span.t_start_s,
                 f"start capture ({span.target})",
                 MAV_CMD_IMAGE_START_CAPTURE,
@@ -172,6 +199,11 @@ async def run_offboard_captures(
                 float(span_images(span)),
                 to=comp,
             )
+            if gimbal["ok"]:
+                await asyncio.gather(aim(span), start)
+            else:
+                await start
+            await asyncio.sleep(max(0.0, t0 + span.t_end_s - time.monotonic()))
             await send(span.t_end_s, "stop capture", MAV_CMD_IMAGE_STOP_CAPTURE, 0.0, to=comp)
 
     await asyncio.gather(

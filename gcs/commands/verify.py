@@ -16,6 +16,12 @@ for every vehicle without gaps longer than ``MAX_TELEMETRY_GAP_S`` (interpolatin
 hole could hide a violation), and every top-level clause must hold on the flown positions
 (exact robustness >= 0 on the check grid).
 
+Where the spec asks a vehicle to face an inspection target (``face(d, T)``), the flight's
+pictures are checked too (:mod:`gcs.coverage`): every target pictured at least once from
+within its inspection place with the view within face's tolerance, one check per target.
+The pictures come from the ``.tlog`` (CAMERA_IMAGE_CAPTURED) or from the flight's image log
+(``--images images.csv``, which ``gcs fly --log`` writes).
+
 Exit 0 when all hold, 1 when one fails (each failure named, the failing clause included),
 2 for an unreadable or malformed plan file, or a spec that does not fit the plan (an unknown
 vehicle or region, a horizon shorter than the spec), in one line naming the plan file and field.
@@ -25,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from typing import Any
 
 from gcs.checks import MAX_TELEMETRY_GAP_S, Check, check_step_s, verify_plan, verify_telemetry
 
@@ -45,11 +52,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "track CSV) or .tlog (with --t0)",
     )
     p.add_argument("--t0", type=float, metavar="UNIX_S", help="for a .tlog: Unix time of t = 0")
+    p.add_argument(
+        "--images",
+        metavar="CSV",
+        help="the flight's image log (images.csv of gcs fly --log): check that every "
+        "inspection target was pictured (a .tlog telemetry carries its pictures itself)",
+    )
     p.add_argument("--json", action="store_true", help="print the checks as JSON")
 
 
 def run(args: argparse.Namespace) -> int:
     """Verify; 0 if every check holds, 1 otherwise."""
+    from gcs.coverage import coverage_checks, coverage_json, coverage_lines
     from gcs.telemetry import load_telemetry
     from planner.planfile import load_plan
 
@@ -58,6 +72,9 @@ def run(args: argparse.Namespace) -> int:
     if args.telemetry:
         telemetry = load_telemetry(args.telemetry, plan, args.t0)
         checks += verify_telemetry(plan, telemetry, args.dt)
+    report = _coverage(plan, args)
+    if report is not None:
+        checks += coverage_checks(report)
     failed = [c for c in checks if not c.ok]
     if args.json:
         print(
@@ -74,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
                         }
                         for c in checks
                     ],
+                    "coverage": None if report is None else coverage_json(report),
                 }
             )
         )
@@ -87,8 +105,49 @@ def run(args: argparse.Namespace) -> int:
         for c in shown:
             mark = "ok  " if c.ok else "FAIL"
             print(f"{mark} {c.name}: {c.value:.4g} (bound {c.bound:.4g}) {c.detail}".rstrip())
+        if report is not None:
+            print("\n".join(coverage_lines(report)))
         if failed:
             print(f"FAILED: {len(failed)} of {len(checks)} checks; first: {failed[0].name}")
         else:
             print(f"OK: {len(checks)} checks hold")
     return 1 if failed else 0
+
+
+def _coverage(plan: Any, args: argparse.Namespace) -> Any:
+    """The flight's coverage report from ``--images`` or a ``.tlog``'s pictures; ``None``
+    when neither is given.
+
+    Raises:
+        gcs.errors.InputFileError: an unreadable image log (file, line, column), a ``.tlog``
+            without ``--t0``.
+    """
+    from pathlib import Path
+
+    from gcs.coverage import compute_coverage
+    from gcs.errors import InputFileError
+    from mavlink.camera import ImageLogError, images_from_tlog, read_images_csv
+
+    tlog = args.telemetry and Path(args.telemetry).suffix.lower() == ".tlog"
+    if args.images:
+        try:
+            flat = read_images_csv(args.images)
+        except ImageLogError as exc:
+            raise InputFileError(str(exc)) from None
+        images: dict[str, list[Any]] = {}
+        known = {v.name for v in plan.vehicles}
+        for im in flat:
+            if im.vehicle not in known:
+                raise InputFileError(
+                    f"{args.images}: vehicle {im.vehicle!r} is not in the plan "
+                    f"({', '.join(sorted(known))})"
+                )
+            images.setdefault(im.vehicle, []).append(im)
+        infos: dict[str, Any] = {}
+    elif tlog and args.t0 is not None:
+        images, infos = images_from_tlog(
+            args.telemetry, {v.sysid: v.name for v in plan.vehicles}, float(args.t0)
+        )
+    else:
+        return None
+    return compute_coverage(plan, images, cameras=infos)

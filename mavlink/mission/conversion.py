@@ -13,9 +13,16 @@ becomes global ``*_INT`` items (DESIGN.md section 7):
 * ``NAV_LAND`` at the last point, ``NAV_RETURN_TO_LAUNCH``, or nothing (PX4
   then holds at the last waypoint);
 * per :class:`CaptureSpan` (a stretch in which the camera takes pictures, from the plan's
-  capture windows): ``DO_GIMBAL_MANAGER_PITCHYAW`` and ``IMAGE_START_CAPTURE`` at its start
-  (for as many pictures as fit in the span at its interval), ``IMAGE_STOP_CAPTURE`` at its
-  end.  PX4 runs a DO item when the NAV item before it is
+  capture windows): ``DO_GIMBAL_MANAGER_PITCHYAW`` (pitch to the target, yaw straight ahead:
+  the vehicle faces it) and ``IMAGE_START_CAPTURE`` at its start (for as many pictures as fit
+  in the span at its interval), ``IMAGE_STOP_CAPTURE`` at its end; all in MAV_FRAME_MISSION,
+  the one frame PX4 v1.17 accepts them in (``parse_mavlink_mission_item``). Before the first
+  PITCHYAW the mission takes the gimbal (``DO_GIMBAL_MANAGER_CONFIGURE(-2, -2, -1, -1)``, as
+  MAVSDK's mission plugin does): PX4's gimbal manager ignores a PITCHYAW from the mission
+  otherwise, since nobody is in control of it at boot.  The camera's items make at most 4 DO
+  commands in a row (a stop, the configure, the pitch, a start; PX4's vehicle_command queue
+  holds 8 and loses the oldest beyond).  PX4 sends each on to the camera
+  (component 100) as a COMMAND_LONG and never waits for it.  PX4 runs a DO item when the NAV item before it is
   completed (a waypoint after its hold), so a span starting or ending within a hold splits
   the hold: the waypoint with the hold so far, the DO items, the same waypoint with the rest
   (a waypoint where the vehicle already is is reached at once).  A span starting on a leg
@@ -359,6 +366,7 @@ def trajectory_to_mission(
                 acts.setdefault(stop[1], []).append((stop[0], 0, which, False))  # stop first
     start_seq: dict[int, int] = {}
     wp_seq: list[int] = []
+    gimbal_taken = False
     for j in range(wp.shape[0]):
         if j > 0:
             add(Cmd.DO_CHANGE_SPEED, Frame.MISSION, 1.0, commanded[j - 1], -1.0, 0.0, 0, 0, 0.0)
@@ -386,6 +394,12 @@ def trajectory_to_mission(
                 _, _, which, starts = pending[k]
                 span = captures[which]
                 if starts:
+                    if not gimbal_taken:
+                        add(
+                            Cmd.DO_GIMBAL_MANAGER_CONFIGURE, Frame.MISSION,
+                            -2.0, -2.0, -1.0, -1.0, 0, 0, 0.0,
+                        )  # fmt: skip
+                        gimbal_taken = True
                     add(
                         Cmd.DO_GIMBAL_MANAGER_PITCHYAW, Frame.MISSION,
                         float(span.gimbal_pitch_deg), 0.0, math.nan, math.nan, 0, 0, 0.0,

@@ -412,3 +412,37 @@ def test_missions_and_setpoints_of_a_failing_plan_are_refused_unless_forced(
     assert list((tmp_path / "forced").glob("*.plan"))
     # where the vehicles stand is not a flight: written whatever the plan's checks say
     assert main(["export", str(bad), "--format", "homes", "-o", str(tmp_path / "h.txt")]) == 0
+
+
+def test_camera_and_gimbal_items_export_to_qgc_and_import_back_as_sent(
+    importer: Importer, tmp_path: Path
+) -> None:
+    """A plan that faces an inspection target carries the camera's items (gimbal pitch, start
+    and stop capture) in its QGC plan; MAVSDK's importer gives them back as gcs upload sends
+    them, and --photo-interval 0 leaves them out."""
+    from gcs.payload import capture_spans
+    from tests.gcs.face_plan import write_face_plan
+
+    plan_path = write_face_plan(tmp_path)
+    plan = load_plan(plan_path)
+    for interval in (1.0, 0.5, 0.0):
+        out = tmp_path / f"qgc{interval}"
+        argv = ["export", str(plan_path), "--format", "qgc", "-o", str(out)]
+        assert cli.main([*argv, "--photo-interval", str(interval)]) == 0
+        (text,) = [p.read_text() for p in out.glob("*.plan")]
+        sent = convert_plan(
+            plan, end=MissionEnd.LAND, captures=capture_spans(plan, interval)
+        ).missions["d1"]
+        back = _items(importer.load(text).mission_items)
+        assert compare_items(sent.items, back) == []
+        commands = [int(it.command) for it in back]
+        camera = [Cmd.DO_GIMBAL_MANAGER_PITCHYAW, Cmd.IMAGE_START_CAPTURE]
+        if interval == 0:
+            assert not set(camera) & set(commands) and Cmd.IMAGE_STOP_CAPTURE not in commands
+            continue
+        i = commands.index(Cmd.IMAGE_START_CAPTURE)
+        assert commands[i - 1] == Cmd.DO_GIMBAL_MANAGER_PITCHYAW
+        assert back[i].param2 == interval and back[i].param3 == sent.captures[0].images
+        (cap,) = sent.captures
+        assert cap.images >= 2.0 / interval  # the 2 s hover at least
+        assert Cmd.IMAGE_STOP_CAPTURE in commands[i:]

@@ -36,9 +36,10 @@ def _layout(mp) -> list[tuple[int, float]]:  # type: ignore[no-untyped-def]
 def test_a_span_within_a_hold_splits_the_hold_around_its_items() -> None:
     plain = _mission()
     mp = _mission(CaptureSpan(3.5, 5.0, gimbal_pitch_deg=-10.0, interval_s=0.5, target="pole1"))
-    W, S, G, ST, SP = (
+    W, S, C, G, ST, SP = (
         Cmd.NAV_WAYPOINT,
         Cmd.DO_CHANGE_SPEED,
+        Cmd.DO_GIMBAL_MANAGER_CONFIGURE,
         Cmd.DO_GIMBAL_MANAGER_PITCHYAW,
         Cmd.IMAGE_START_CAPTURE,
         Cmd.IMAGE_STOP_CAPTURE,
@@ -47,6 +48,7 @@ def test_a_span_within_a_hold_splits_the_hold_around_its_items() -> None:
         (W, 2.0),  # A, its hold
         (S, 1.0),
         (W, 0.5),  # B: hold until the span starts at 3.5 s
+        (C, -2.0),  # the mission takes the gimbal (PX4 ignores its PITCHYAW otherwise)
         (G, -10.0),  # gimbal pitch
         (ST, 0.0),  # start capture (param1: every camera)
         (W, 1.5),  # B again: the rest of the hold
@@ -58,6 +60,12 @@ def test_a_span_within_a_hold_splits_the_hold_around_its_items() -> None:
     assert (start.param2, start.param3) == (0.5, 4.0)  # interval, count: 3.5, 4, 4.5, 5 s
     gimbal = next(i for i in mp.items if i.command == G)
     assert math.isnan(gimbal.param3) and math.isnan(gimbal.param4)  # rates not used
+    configure = next(i for i in mp.items if i.command == C)
+    assert (configure.param1, configure.param2, configure.param3, configure.param4) == (
+        -2.0, -2.0, -1.0, -1.0,
+    )  # fmt: skip
+    # every camera item is in MAV_FRAME_MISSION, the one frame PX4 accepts them in
+    assert {i.frame for i in mp.items if i.command in (C, G, ST, SP)} == {2}
     assert gimbal.param2 == 0.0  # yaw: straight ahead (the vehicle faces the target)
     # both halves of B are at B, on B's heading
     b = mp.items[3]
@@ -77,15 +85,16 @@ def test_a_span_within_a_hold_splits_the_hold_around_its_items() -> None:
 def test_a_span_starting_on_a_leg_starts_at_the_next_waypoint_and_stops_within_its_hold() -> None:
     mp = _mission(CaptureSpan(2.4, 4.0, interval_s=1.0))
     W = Cmd.NAV_WAYPOINT
-    assert _layout(mp)[1:7] == [
+    assert _layout(mp)[1:8] == [
         (Cmd.DO_CHANGE_SPEED, 1.0),
         (W, 0.0),  # B on arrival (3 s): a waypoint PX4 completes at once
+        (Cmd.DO_GIMBAL_MANAGER_CONFIGURE, -2.0),
         (Cmd.DO_GIMBAL_MANAGER_PITCHYAW, 0.0),
         (Cmd.IMAGE_START_CAPTURE, 0.0),
         (W, 1.0),  # to 4 s
         (Cmd.IMAGE_STOP_CAPTURE, 0.0),
     ]
-    assert _layout(mp)[7] == (W, 1.0)  # the rest of B's hold, 4-5 s
+    assert _layout(mp)[8] == (W, 1.0)  # the rest of B's hold, 4-5 s
     (cap,) = mp.captures
     assert (cap.start_s, cap.stop_s, cap.images) == (3.0, 4.0, 2)
 
@@ -131,5 +140,7 @@ def test_two_spans_at_one_waypoint_are_in_time_order(interval: float) -> None:
     assert sum(holds_at_b) == pytest.approx(2.0)  # B's hold, split in four
     order = [c for c, _ in kinds[1:] if c != W]
     assert order == [ST, SP, ST, SP]
+    configures = [i for i in mp.items if i.command == Cmd.DO_GIMBAL_MANAGER_CONFIGURE]
+    assert len(configures) == 1  # the gimbal is taken once, before the first pitch
     a, b = mp.captures
     assert (a.start_s, a.stop_s, b.start_s, b.stop_s) == (3.2, 3.8, 4.0, 5.0)
