@@ -180,9 +180,9 @@ def compute_coverage(
     """
     from planner.heading import facing_rules
     from planner.planfile import plan_formula
-    from planner.predicates import FACE_TOLERANCE_DEG
+    from planner.predicates import face_tolerance_deg
 
-    tol = FACE_TOLERANCE_DEG if view_tolerance_deg is None else float(view_tolerance_deg)
+    tol = face_tolerance_deg(plan) if view_tolerance_deg is None else float(view_tolerance_deg)
     rules = facing_rules(plan_formula(plan), plan)
     order: list[str] = []
     by_target: dict[str, list[Any]] = {}

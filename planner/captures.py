@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from planner.heading import facing_rules
-from planner.predicates import face_margin
+from planner.predicates import face_margin, face_tolerance_deg
 from planner.stl import Formula
 from planner.trajectory import Trajectory
 
@@ -81,6 +81,7 @@ def capture_windows(
         min_s: the shortest stretch that counts.
     """
     rules = facing_rules(formula, problem)
+    tol = face_tolerance_deg(problem)
     t = np.arange(math.floor(horizon_s / dt_s + 1e-9) + 1) * dt_s
     out: list[CaptureWindow] = []
     for tr in trajectories:
@@ -96,7 +97,7 @@ def capture_windows(
             if rule.where is not None:
                 on &= np.all(pos @ rule.where.A.T <= rule.where.b + 1e-9, axis=1)
             target = problem.region(rule.target)
-            on &= face_margin(sig, target) >= 0.0
+            on &= face_margin(sig, target, tol) >= 0.0
             idx = np.nonzero(on)[0]
             if idx.size == 0:
                 continue

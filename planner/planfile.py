@@ -123,6 +123,8 @@ class Plan:
     horizon_s: float
     sample_dt_s: float
     check_dt_s: float
+    #: How far (degrees) a ``face`` may be off its target (the scenario's; 15 in older files).
+    face_tolerance_deg: float = 15.0
     #: The file the plan was read from; ``""`` for a plan made in memory (``PlanResult.to_plan``).
     source: str = field(default="", compare=False)
     #: The parsed and checked spec, made on first use (:func:`plan_formula`), once per plan.
@@ -216,6 +218,7 @@ def plan_to_json(plan: Plan) -> dict[str, Any]:
         "solve_time_s": plan.solve_time_s,
         "epsilon": plan.epsilon,
         "separation_m": plan.separation_m,
+        "face_tolerance_deg": plan.face_tolerance_deg,
         "horizon_s": plan.horizon_s,
         "sample_dt_s": plan.sample_dt_s,
         "check_dt_s": plan.check_dt_s,
@@ -468,8 +471,19 @@ def load_plan(path: str | Path) -> Plan:
         horizon_s=horizon_s,
         sample_dt_s=rd.number(data, "sample_dt_s", positive=True),
         check_dt_s=check_dt_s,
+        face_tolerance_deg=_face_tolerance(rd, data),
         source=src,
     )
+
+
+def _face_tolerance(rd: _Reader, data: dict[str, Any]) -> float:
+    """``face_tolerance_deg``: in (0, 90) degrees; 15 in a file from before it was stored."""
+    if "face_tolerance_deg" not in data:
+        return 15.0
+    tol = rd.number(data, "face_tolerance_deg", positive=True)
+    if tol >= 90.0:
+        raise rd.fail("face_tolerance_deg", f"must be below 90 degrees, got {tol:g}")
+    return tol
 
 
 def planned_signals(plan: Plan, t_s: np.ndarray) -> dict[str, np.ndarray]:

@@ -18,7 +18,8 @@ names the function resolves from the scenario or plan (:class:`RegionSource`).
                           any region: minus its margin.
 ``dist(d1, d2)``          Euclidean distance between two vehicles (m).
 ``face(d, target)``       the camera (the vehicle's heading) points at the target's centre
-                          (a pole's axis) within ``FACE_TOLERANCE_DEG``:
+                          (a pole's axis) within the scenario's ``face_tolerance_deg``
+                          (``FACE_TOLERANCE_DEG``, 15, unless given):
                           ``r (tol - |yaw - bearing|)``, ``r`` the horizontal distance to
                           it: in metres, how far the aim may slip at the target before it
                           leaves the tolerance.  Needs the heading (a vehicle signal of
@@ -77,6 +78,7 @@ __all__ = [
     "ca_box_margins",
     "casadi_functions",
     "face_margin",
+    "face_tolerance_deg",
     "positions",
     "predicate_sharpness",
     "role_of",
@@ -260,8 +262,12 @@ def positions(signal: Any) -> np.ndarray:
     return _rows(signal)[:, :3]
 
 
-def face_margin(signal: Any, target: Region) -> np.ndarray:
-    """``face``'s exact margin (m), shape (n,), from a vehicle signal of shape (n, 4)."""
+def face_margin(
+    signal: Any, target: Region, tolerance_deg: float = FACE_TOLERANCE_DEG
+) -> np.ndarray:
+    """``face``'s exact margin (m), shape (n,), from a vehicle signal of shape (n, 4): the
+    range times how far the aim is within ``tolerance_deg`` (the scenario's
+    ``face_tolerance_deg``)."""
     a = _rows(signal)
     if a.shape[1] < 4:
         raise EvaluationError(
@@ -272,7 +278,13 @@ def face_margin(signal: Any, target: Region) -> np.ndarray:
     d = c[None, :2] - a[:, :2]
     r = np.hypot(d[:, 0], d[:, 1])
     err = np.abs(np.angle(np.exp(1j * (a[:, 3] - np.arctan2(d[:, 1], d[:, 0])))))
-    return r * (math.radians(FACE_TOLERANCE_DEG) - err)
+    return r * (math.radians(tolerance_deg) - err)
+
+
+def face_tolerance_deg(problem: Any) -> float:
+    """How far a ``face`` may be off its target (degrees): the scenario's or plan's
+    ``face_tolerance_deg``, else :data:`FACE_TOLERANCE_DEG`."""
+    return float(getattr(problem, "face_tolerance_deg", FACE_TOLERANCE_DEG))
 
 
 def _region(problem: RegionSource, name: str) -> Region:
@@ -295,8 +307,10 @@ def _np_functions(problem: RegionSource) -> dict[str, Callable[..., np.ndarray]]
         b = positions(_vehicle_signal(signals, args[1]))
         return np.linalg.norm(a - b, axis=1)
 
+    face_tol = face_tolerance_deg(problem)
+
     def face(args: tuple[str, ...], signals: Mapping[str, Any]) -> np.ndarray:
-        return face_margin(_vehicle_signal(signals, args[0]), _region(problem, args[1]))
+        return face_margin(_vehicle_signal(signals, args[0]), _region(problem, args[1]), face_tol)
 
     def axis(i: int) -> Callable[..., np.ndarray]:
         def f(args: tuple[str, ...], signals: Mapping[str, Any]) -> np.ndarray:

@@ -174,6 +174,8 @@ class Problem:
     solver: SolverOptions
     clauses: tuple[Clause, ...]
     constants: Mapping[str, float] = field(default_factory=dict)
+    #: How far (degrees) a ``face`` may be off its target (the scenario's face_tolerance_deg).
+    face_tolerance_deg: float = 15.0
     #: The clauses parsed at load (exact and smooth semantics), in order; empty for a
     #: problem made otherwise (``dataclasses.replace``), which is parsed where it is used.
     formulas: tuple[Formula, ...] = field(default=(), init=False, repr=False, compare=False)

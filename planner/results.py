@@ -139,4 +139,5 @@ class PlanResult:
             horizon_s=p.timing.horizon_s,
             sample_dt_s=p.timing.sample_dt_s,
             check_dt_s=p.timing.check_dt_s,
+            face_tolerance_deg=p.face_tolerance_deg,
         )

@@ -23,6 +23,7 @@ A scenario names everything the planner needs (see ``configs/*.yaml`` for commen
     timing: {horizon_s: 6, segment_s: 1, Ts_s: 0.05}          # end: rest (default) or free
     separation_m: 0.2
     epsilon: 0.01
+    face_tolerance_deg: 15                                  # how far face(d, T) may be off T
     model: minimum_jerk                                     # or double_integrator
     constants: {t_hover: 1}                                 # usable in the spec as $t_hover
     spec:                                                   # the conjunction of the clauses
@@ -92,6 +93,7 @@ _TOP_KEYS = {
     "timing",
     "separation_m",
     "epsilon",
+    "face_tolerance_deg",
     "model",
     "solver",
     "constants",
@@ -241,6 +243,9 @@ def parse_scenario(
 
     sep = rd.number(top.get("separation_m", 0.0), "separation_m", nonnegative=True)
     eps = rd.number(top.get("epsilon", 0.0), "epsilon", nonnegative=True)
+    face_tol = rd.number(top.get("face_tolerance_deg", 15.0), "face_tolerance_deg", positive=True)
+    if face_tol >= 90.0:
+        raise rd.fail("face_tolerance_deg", f"must be below 90 degrees, got {face_tol:g}")
 
     model_s = top.get("model", "minimum_jerk")
     try:
@@ -310,6 +315,7 @@ def parse_scenario(
         solver=solver,
         clauses=tuple(clauses),
         constants=constants,
+        face_tolerance_deg=face_tol,
     )
     for finding in start_findings(problem, start_keys):
         raise rd.fail(finding.key_path, finding.message)

@@ -218,3 +218,57 @@ def test_a_face_in_an_inspection_conjunction_leaves_the_place_the_guess_routes_t
     # a heading alone is no place, nor two of them
     assert place(face, problem) is None
     assert place(And((face, face)), problem) is None
+
+
+def test_the_face_tolerance_is_a_scenario_field_kept_in_the_plan_file(tmp_path: Path) -> None:
+    """``face_tolerance_deg`` narrows (or widens) ``face`` in the exact semantics, the capture
+    windows and the plan file; a bad one is one line naming the field."""
+    from planner.optimize import plan
+    from planner.planfile import load_plan, plan_formula, plan_to_json
+    from planner.scenario import ScenarioError, load_scenario
+
+    tight = _SCENARIO.replace("separation_m: 1.5\n", "separation_m: 1.5\nface_tolerance_deg: 5\n")
+    path = tmp_path / "tight.yaml"
+    path.write_text(tight)
+    problem = load_scenario(path)
+    assert problem.face_tolerance_deg == 5.0
+    assert load_scenario(_write(tmp_path / "default.yaml", _SCENARIO)).face_tolerance_deg == 15.0
+    # the plan file keeps it, and face's exact value reads it: r (5 deg - error)
+    result = plan(problem)
+    out = tmp_path / "tight.plan.json"
+    out.write_text(json.dumps(plan_to_json(result.to_plan(str(path)))))
+    stored = load_plan(out)
+    assert stored.face_tolerance_deg == 5.0
+    pole = stored.region("pole1")
+    c = pole.center_enu_m
+    at = np.array([[c[0] + 4.0, c[1], 10.0, math.pi + math.radians(3.0)]])  # 3 deg off, 4 m
+    formula = plan_formula(stored)
+    (face,) = [n for n in _atoms(formula) if str(n) == "face(d1, pole1)"]
+    value = face.robustness_trace({"d1": at}, 1.0)[0]
+    assert value == pytest.approx(4.0 * math.radians(5.0 - 3.0), abs=1e-9)
+    # an older plan file without the field reads as 15 degrees
+    data = json.loads(out.read_text())
+    del data["face_tolerance_deg"]
+    old = tmp_path / "old.plan.json"
+    old.write_text(json.dumps(data))
+    assert load_plan(old).face_tolerance_deg == 15.0
+    for bad, says in ((0, "must be > 0"), (95, "below 90"), ("wide", "expected a number")):
+        text = _SCENARIO.replace(
+            "separation_m: 1.5\n", f"separation_m: 1.5\nface_tolerance_deg: {bad}\n"
+        )
+        with pytest.raises(ScenarioError, match=rf"face_tolerance_deg: .*{says}"):
+            load_scenario(_write(tmp_path / "bad.yaml", text))
+
+
+def _write(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+def _atoms(node):  # type: ignore[no-untyped-def]
+    from planner.stl import Predicate
+
+    if isinstance(node, Predicate):
+        yield node
+    for child in node.children:
+        yield from _atoms(child)
