@@ -325,32 +325,13 @@ def coverage_json(report: CoverageReport) -> dict[str, Any]:
     }
 
 
-def coverage_figure(
-    plan: Plan,
-    report: CoverageReport,
-    images: Mapping[str, Sequence[CapturedImage]],
-    path: str | Path,
-) -> Path:
-    """Draw the line from above with the pictures (module docstring); returns the path.
-
-    Regions are their footprints (poles grey, inspection places green, keep-outs red
-    outlines); each picture is a dot at its position with its view wedge (the camera's
-    horizontal field of view, 60 degrees where the camera gave none) out to its target's
-    range: green where it counts, grey where it does not.  Each target is labelled with its
-    count.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from matplotlib.collections import PatchCollection
-    from matplotlib.figure import Figure
-    from matplotlib.patches import Polygon, Wedge
+def _draw_regions_xy(ax: Any, plan: Plan) -> None:
+    """The regions' footprints from above (poles grey, inspection places green, keep-outs red
+    outlines where large), the workspace left out."""
+    from matplotlib.patches import Polygon
 
     from gcs.figure import _KIND_STYLE, is_large
 
-    fig = Figure(figsize=(10, 8), layout="constrained")
-    ax = fig.add_subplot(1, 1, 1)
-    ax.set_aspect("equal")
     for r in plan.all_regions:
         kind = r.kind.value
         if kind == "workspace":
@@ -367,64 +348,159 @@ def coverage_figure(
                 linewidth=0.6,
             )
         )
+
+
+@dataclass(frozen=True, slots=True)
+class _Shot:
+    """One picture as drawn: where, which way (ENU degrees from east), how far, whether it
+    counts."""
+
+    x: float
+    y: float
+    heading_deg: float
+    reach_m: float
+    hfov_deg: float
+    counts: bool
+
+
+def _shots(
+    plan: Plan, report: CoverageReport, images: Mapping[str, Sequence[CapturedImage]]
+) -> list[_Shot]:
     views = {
         (v.image.vehicle, v.image.component, v.image.index): v
         for t in report.targets
         for v in t.views
     }
-    good: list[Any] = []
-    bad: list[Any] = []
-    xs: list[float] = []
-    ys: list[float] = []
-    cs: list[str] = []
+    out = []
     for name, ims in images.items():
         info = report.cameras.get(name)
         hfov = info.hfov_deg if info is not None and math.isfinite(info.hfov_deg) else 60.0
         for im in ims:
             at = im.position_enu_m(plan.origin)
             yaw_deg, _ = im.yaw_pitch_deg()
-            heading_enu = 90.0 - yaw_deg  # compass -> ENU angle from east
             v = views.get((im.vehicle, im.component, im.index))
-            reach = v.range_m if v is not None else 3.0
-            wedge = Wedge((at[0], at[1]), reach, heading_enu - hfov / 2, heading_enu + hfov / 2)
-            (good if v is not None and v.counts else bad).append(wedge)
-            xs.append(float(at[0]))
-            ys.append(float(at[1]))
-            cs.append("#1a701a" if v is not None and v.counts else "#7f7f7f")
-    if bad:
-        ax.add_collection(
-            PatchCollection(bad, facecolor="#bbbbbb", edgecolor="none", alpha=0.25),
-            autolim=False,
+            out.append(
+                _Shot(
+                    float(at[0]),
+                    float(at[1]),
+                    90.0 - yaw_deg,  # compass -> ENU angle from east
+                    v.range_m if v is not None else 3.0,
+                    hfov,
+                    v is not None and v.counts,
+                )
+            )
+    return out
+
+
+def _draw_shots(ax: Any, shots: Sequence[_Shot]) -> None:
+    """Each picture's view wedge (green: it counts, grey: it does not) and position."""
+    from matplotlib.collections import PatchCollection
+    from matplotlib.patches import Wedge
+
+    for counts, colour, alpha in ((False, "#9a9a9a", 0.22), (True, "#2ca02c", 0.16)):
+        wedges = [
+            Wedge(
+                (s.x, s.y),
+                s.reach_m,
+                s.heading_deg - s.hfov_deg / 2,
+                s.heading_deg + s.hfov_deg / 2,
+            )
+            for s in shots
+            if s.counts is counts
+        ]
+        if wedges:
+            ax.add_collection(
+                PatchCollection(wedges, facecolor=colour, edgecolor="none", alpha=alpha),
+                autolim=False,
+            )
+    if shots:
+        ax.scatter(
+            [s.x for s in shots],
+            [s.y for s in shots],
+            s=5,
+            c=["#1a701a" if s.counts else "#6f6f6f" for s in shots],
+            zorder=3,
         )
-    if good:
-        ax.add_collection(
-            PatchCollection(good, facecolor="#2ca02c", edgecolor="none", alpha=0.18),
-            autolim=False,
-        )
-    if xs:
-        ax.scatter(xs, ys, s=6, c=cs, zorder=3, label="picture (green: counts)")
+
+
+def coverage_figure(
+    plan: Plan,
+    report: CoverageReport,
+    images: Mapping[str, Sequence[CapturedImage]],
+    path: str | Path,
+    max_panels: int = 12,
+) -> Path:
+    """Draw the pictures over the line from above (module docstring); returns the path.
+
+    Left, the whole line: the regions' footprints (poles grey, inspection places green,
+    conductor corridors and keep-outs), every picture's position and view wedge (the camera's
+    horizontal field of view, 60 degrees where the camera gave none, out to its target's
+    range; green where it counts, grey where not) and each target's count of counting over
+    planned pictures.  Right, one panel per target (the first ``max_panels``), centred on it:
+    the same, close enough to see which way each picture looked.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    shots = _shots(plan, report, images)
+    n = min(len(report.targets), max_panels)
+    fig = Figure(figsize=(15, 8), layout="constrained")
+    subs: Any = fig.subfigures(1, 2, width_ratios=[1.0, 1.25] if n else [1.0, 0.01])
+    left, right = subs[0], subs[1]
+    ax = left.add_subplot(1, 1, 1)
+    ax.set_aspect("equal")
+    _draw_regions_xy(ax, plan)
+    _draw_shots(ax, shots)
+    pts = [plan.region(t.target).center_enu_m[:2] for t in report.targets]
+    pts += [np.array([s.x, s.y]) for s in shots]
+    ws = plan.workspace
+    if pts:
+        xy = np.asarray(pts)
+        lo = np.maximum(xy.min(axis=0) - 10.0, np.asarray(ws.lo_enu_m[:2]))
+        hi = np.minimum(xy.max(axis=0) + 10.0, np.asarray(ws.hi_enu_m[:2]))
+    else:
+        lo, hi = np.asarray(ws.lo_enu_m[:2]), np.asarray(ws.hi_enu_m[:2])
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
     for t in report.targets:
         c = plan.region(t.target).center_enu_m
         label = f"{t.target}: {t.images}" + ("" if t.planned is None else f"/{t.planned}")
         ax.annotate(
             label,
             (c[0], c[1]),
-            xytext=(6, 6),
+            xytext=(6, -10),
             textcoords="offset points",
-            fontsize=8,
+            fontsize=7,
             color="#1a701a" if t.covered else "#d62728",
         )
-    ws = plan.workspace
-    ax.set_xlim(ws.lo_enu_m[0], ws.hi_enu_m[0])
-    ax.set_ylim(ws.lo_enu_m[1], ws.hi_enu_m[1])
     ax.set_xlabel("east x (m)")
     ax.set_ylabel("north y (m)")
     ax.set_title(
-        f"pictures and coverage: {report.covered}/{len(report.targets)} targets, "
-        f"{report.images} pictures"
+        f"pictures and coverage: {report.covered}/{len(report.targets)} targets covered, "
+        f"{report.images} pictures ({report.unmatched} of no target)",
+        fontsize=10,
     )
-    if xs:
-        ax.legend(loc="upper left", fontsize=8)
+    if n:
+        cols = math.ceil(math.sqrt(n * 1.25))
+        rows = math.ceil(n / cols)
+        for k, t in enumerate(report.targets[:n]):
+            sub = right.add_subplot(rows, cols, k + 1)
+            sub.set_aspect("equal")
+            _draw_regions_xy(sub, plan)
+            _draw_shots(sub, shots)
+            c = plan.region(t.target).center_enu_m
+            reach = max([v.range_m for v in t.views] + [4.0]) + 2.0
+            sub.set_xlim(c[0] - reach, c[0] + reach)
+            sub.set_ylim(c[1] - reach, c[1] + reach)
+            planned = "" if t.planned is None else f" of {t.planned}"
+            sub.set_title(
+                f"{t.target} ({', '.join(t.vehicles)}): {t.images}{planned}",
+                fontsize=8,
+                color="#1a701a" if t.covered else "#d62728",
+            )
+            sub.tick_params(labelsize=6)
     p = Path(path)
     fig.savefig(p, dpi=110)
     return p
