@@ -265,6 +265,8 @@ async def fly_mission_plan(
             plans=None,
             expected_mode=Px4Mode.AUTO_MISSION,
             mode_grace_s=1.5,
+            # PX4 holds (AUTO.LOITER) where a mission without a landing ends
+            done=follower.finished,
         )
     )
     try:

@@ -681,6 +681,7 @@ class SafetyMonitor:
         plans: Mapping[str, Trajectory] | None,
         expected_mode: Px4Mode | None,
         mode_grace_s: float,
+        done: Callable[[str], bool] | None = None,
     ) -> _Finding | None:
         """One evaluation on a snapshot of the telemetry (runs on the monitor's thread)."""
         t_cpu = time.perf_counter()
@@ -706,6 +707,7 @@ class SafetyMonitor:
                     and st.mode is not expected_mode
                     and st.heartbeat_age_s is not None
                     and now - st.heartbeat_age_s > t0_monotonic_s + mode_grace_s
+                    and not (st.mode is Px4Mode.AUTO_LOITER and done is not None and done(n))
                 }
                 if left:
                     names = tuple(sorted(left))
@@ -810,13 +812,16 @@ class SafetyMonitor:
         plans: Mapping[str, Trajectory] | None = None,
         expected_mode: Px4Mode | None = None,
         mode_grace_s: float = 0.5,
+        done: Callable[[str], bool] | None = None,
     ) -> SafetyEvent | None:
         """Monitor until ``stop`` is set; on a finding set ``stop``, command every vehicle, report.
 
         With ``expected_mode`` (OFFBOARD for a setpoint stream), a heartbeat received more than
         ``mode_grace_s`` after the start that shows another mode stops the flight: the vehicle's
         own failsafe took over, and it must not be streamed to or re-engaged without the
-        operator.
+        operator.  A vehicle for which ``done(name)`` holds (its mission finished) may be in
+        AUTO.LOITER: PX4 v1.17 holds there when a mission without a landing ends, and that
+        heartbeat can come before the ground station has seen the mission finished.
 
         Returns:
             The :class:`SafetyEvent`, or ``None`` if the flight ended without one.
@@ -839,7 +844,7 @@ class SafetyMonitor:
                 k = max(k + 1, int((self._clock() - t0_monotonic_s) / period - 0.5) + 1)
                 found = await loop.run_in_executor(
                     worker, self._tick, vehicles, t0_monotonic_s, maps, origins, plans,
-                    expected_mode, mode_grace_s,
+                    expected_mode, mode_grace_s, done,
                 )  # fmt: skip
                 if found is not None and not stop.is_set():
                     return await self._stop(fleet, stop, found)

@@ -323,6 +323,18 @@ class MissionFollower:
             duration_s=duration_s,
         )
 
+    def finished(self, name: str) -> bool:
+        """Whether ``name``'s mission is over: PX4 reported its last item reached, or MAVSDK
+        says so.  The report comes the moment PX4 completes the item (and PX4, a mission
+        without a landing ended, switches to AUTO.LOITER in the same cycle); MAVSDK's verdict
+        waits for the next MISSION_CURRENT, up to 1 s later (:meth:`_finish_s`).  Safe from any
+        thread."""
+        total = self.totals.get(name, 0)
+        if total > 0 and self._reached[name].get(total - 1) is not None:
+            return True
+        v = next((v for v in self.vehicles if v.name == name), None)
+        return v is not None and bool(v.mission_raw.is_mission_finished())
+
     def _finish_s(self, name: str, seen_s: float) -> float:
         """When ``name``'s mission finished, MAVSDK having seen it finished at ``seen_s``.
 

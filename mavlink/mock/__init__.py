@@ -9,10 +9,12 @@ as a PX4 autopilot.  See DESIGN.md section 8 for what it implements.
 By default the vehicles behave like PX4 v1.17 SITL with its SIH quad-rotor (the ``px4``
 profile: drag, PX4's cascade on a biased estimate, PX4's take-off, navigator, mission
 storage and predictive geofence); ``profile="ideal"`` gives the exact vehicle
-(:mod:`mavlink.mock.profiles`).  Modules: ``physics`` (vectorised dynamics and
-controller), ``estimator`` (what the vehicles believe), ``navigator`` (missions, RTL,
-geofence), ``mission`` (the mission protocol and storage), ``telemetry``, ``vehicle``
-(one MAVLink endpoint), ``fleet``, ``calibration`` (PX4 SITL's figures).
+(:mod:`mavlink.mock.profiles`).  Each vehicle carries a MAVLink camera (component 100) on a
+gimbal the autopilot manages (device 154) unless ``camera=False``.  Modules: ``physics``
+(vectorised dynamics and controller), ``estimator`` (what the vehicles believe),
+``navigator`` (missions, RTL, geofence), ``mission`` (the mission protocol and storage),
+``telemetry``, ``payload`` (the camera and the gimbal), ``vehicle`` (one MAVLink endpoint),
+``fleet``, ``calibration`` (PX4 SITL's figures).
 
 Public API::
 
@@ -34,7 +36,15 @@ Client mistakes on the link are not exceptions: they get PX4's MAVLink answers
 
 from __future__ import annotations
 
-from mavlink.mock.config import FaultConfig, MockVehicleConfig, NoiseConfig, Outage, WindConfig
+from mavlink.mock.config import (
+    CameraSpec,
+    FaultConfig,
+    GimbalSpec,
+    MockVehicleConfig,
+    NoiseConfig,
+    Outage,
+    WindConfig,
+)
 from mavlink.mock.errors import MockConfigError, MockError, MockStartError
 from mavlink.mock.fleet import DEFAULT_ORIGIN, MockFleet
 from mavlink.mock.mission import MissionItem
@@ -46,7 +56,9 @@ __all__ = [
     "DEFAULT_ORIGIN",
     "DEFAULT_PROFILE",
     "PROFILES",
+    "CameraSpec",
     "FaultConfig",
+    "GimbalSpec",
     "MissionItem",
     "MockConfigError",
     "MockError",

@@ -1,10 +1,13 @@
 """Commands of the mock vehicle: COMMAND_LONG/COMMAND_INT, arming and the flight modes.
 
 Mixed into :class:`mavlink.mock.vehicle.MockVehicle`.  Every ``COMMAND_LONG`` or
-``COMMAND_INT`` addressed to the vehicle (component 0 or 1) goes to its ``_cmd_*`` handler
-by ``MAV_CMD`` (:attr:`CommandsMixin._COMMANDS`) and is answered with one
-``COMMAND_ACK``; a handler may leave an action to run after the ACK (a requested
-message follows its ACK, as on PX4).  Arming with PX4's pre-arm checks, the mode
+``COMMAND_INT`` addressed to the autopilot (component 0 or 1) goes to its ``_cmd_*`` handler
+by ``MAV_CMD`` (:attr:`CommandsMixin._COMMANDS`, with the gimbal manager's and the ROI's
+from :mod:`mavlink.mock.payload`) and is answered with one ``COMMAND_ACK`` (none for a
+command PX4 leaves to a module the vehicle lacks: the gimbal manager's without a gimbal); a
+handler may leave an action to run after the ACK (a requested message follows its ACK, as
+on PX4).  The camera and the gimbal device then see it too (their own component, or a
+broadcast) and answer for themselves.  Arming with PX4's pre-arm checks, the mode
 switches a client may request and what entering each mode sets up (:meth:`set_mode`)
 live here too: they are what commands ask for, and the navigator and the failsafes
 enter modes through the same :meth:`set_mode`.  A room of its own because it is the
@@ -36,40 +39,47 @@ FAILED = mavlink2.MAV_RESULT_FAILED
 
 _FORCE_MAGIC = 21196.0
 
-#: A handler's answer: the ACK's result and what to run after the ACK (or nothing).
-_Reply: TypeAlias = tuple[int, Callable[[], None] | None]
+#: A handler's answer: the ACK's result (None: no ACK, the command is left to a module the
+#: vehicle lacks, as PX4's commander does) and what to run after the ACK (or nothing).
+_Reply: TypeAlias = tuple[int | None, Callable[[], None] | None]
 
 
 class CommandsMixin(VehicleParts):
     """Command handlers, arming and mode logic of :class:`~mavlink.mock.vehicle.MockVehicle`."""
 
     def _on_command_long(self, msg: Msg) -> None:
-        if not self._for_me(msg) or msg.target_component not in (0, 1):
+        if not self._for_me(msg):
             return
         p = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
-        self._command(msg, msg.command, p, mavlink2.MAV_FRAME_GLOBAL, is_int=False)
+        if msg.target_component in (0, 1):
+            self._command(msg, msg.command, p, mavlink2.MAV_FRAME_GLOBAL, is_int=False)
+        self._payload_command(msg, p)
 
     def _on_command_int(self, msg: Msg) -> None:
-        if not self._for_me(msg) or msg.target_component not in (0, 1):
+        if not self._for_me(msg):
             return
         p = (msg.param1, msg.param2, msg.param3, msg.param4, msg.x, msg.y, msg.z)
-        self._command(msg, msg.command, p, msg.frame, is_int=True)
+        if msg.target_component in (0, 1):
+            self._command(msg, msg.command, p, msg.frame, is_int=True)
+        self._payload_command(msg, p)
 
     def _command(
         self, msg: Msg, command: int, p: tuple[float, ...], frame: int, is_int: bool
     ) -> None:
         handler = self._COMMANDS.get(command)
         self._cmd_partner = (command, msg.get_srcSystem(), msg.get_srcComponent())
+        result: int | None
         if handler is None:
             result = UNSUPPORTED
             after = None
         else:
             result, after = handler(self, p, frame, is_int)
-        self.send(
-            mavlink2.MAVLink_command_ack_message(
-                command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
+        if result is not None:
+            self.send(
+                mavlink2.MAVLink_command_ack_message(
+                    command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()
+                )
             )
-        )
         if after is not None:
             after()
 
@@ -189,6 +199,7 @@ class CommandsMixin(VehicleParts):
         i = self.index
         phys = self.phys
         was_mission = self.mode is Px4Mode.AUTO_MISSION
+        self._payload_mode_change(self.mode, mode)
         self.mode = mode
         self._traj_active = False
         self._apply_limits()

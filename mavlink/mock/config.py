@@ -1,4 +1,4 @@
-"""Configuration values of the mock fleet: faults, wind, noise, per-vehicle set-up.
+"""Configuration values of the mock fleet: faults, wind, noise, per-vehicle set-up, payload.
 
 All values are frozen dataclasses validated on construction; a bad value raises
 :class:`mavlink.mock.errors.MockConfigError` naming the field.
@@ -146,6 +146,64 @@ class NoiseConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class CameraSpec:
+    """The optics of a vehicle's MAVLink camera, as its CAMERA_INFORMATION reports them.
+
+    ``focal_length_mm``, ``sensor_h_mm`` x ``sensor_v_mm`` (sensor width x height) and
+    ``resolution_h_px`` x ``resolution_v_px``; the default is a small inspection camera
+    (a 1/2.3" sensor behind a 4.5 mm lens, 12 MP).
+    """
+
+    vendor: str = "stl-gcs"
+    model: str = "mock camera"
+    focal_length_mm: float = 4.5
+    sensor_h_mm: float = 6.17
+    sensor_v_mm: float = 4.55
+    resolution_h_px: int = 4000
+    resolution_v_px: int = 3000
+
+    def __post_init__(self) -> None:
+        for name in ("vendor", "model"):
+            if len(getattr(self, name).encode()) > 32:
+                raise MockConfigError(f"camera {name} must fit 32 bytes (CAMERA_INFORMATION)")
+        for name in ("focal_length_mm", "sensor_h_mm", "sensor_v_mm"):
+            value = getattr(self, name)
+            if not (value > 0.0 and math.isfinite(value)):
+                raise MockConfigError(f"camera {name} must be a finite number > 0, got {value!r}")
+        for name in ("resolution_h_px", "resolution_v_px"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and 0 < value <= 0xFFFF):
+                raise MockConfigError(
+                    f"camera {name} must be an integer in 1..65535, got {value!r}"
+                )
+
+
+@dataclass(frozen=True, slots=True)
+class GimbalSpec:
+    """The gimbal device under the camera: how fast it turns and how far it tilts.
+
+    ``rate_deg_s``: the largest angular rate of each axis (pitch, yaw), deg/s.
+    ``pitch_min_deg`` / ``pitch_max_deg``: the pitch limits (down negative), deg; yaw turns
+    without limit.  Roll and pitch are stabilised to the horizon.
+    """
+
+    rate_deg_s: float = 90.0
+    pitch_min_deg: float = -90.0
+    pitch_max_deg: float = 30.0
+
+    def __post_init__(self) -> None:
+        if not (self.rate_deg_s > 0.0 and math.isfinite(self.rate_deg_s)):
+            raise MockConfigError(
+                f"gimbal rate_deg_s must be a finite number > 0, got {self.rate_deg_s!r}"
+            )
+        if not (-90.0 <= self.pitch_min_deg < self.pitch_max_deg <= 90.0):
+            raise MockConfigError(
+                "gimbal pitch limits must satisfy -90 <= pitch_min_deg < pitch_max_deg <= 90, "
+                f"got {self.pitch_min_deg!r}..{self.pitch_max_deg!r}"
+            )
+
+
+@dataclass(frozen=True, slots=True)
 class MockVehicleConfig:
     """Set-up of one mock vehicle.
 
@@ -156,6 +214,9 @@ class MockVehicleConfig:
     ``ready_after_s``: simulated EKF/GPS convergence time; arming is refused before.
     ``profile``: ``"px4"`` (PX4 v1.17 with SIH, the default) or ``"ideal"``
     (:mod:`mavlink.mock.profiles`); ``params`` apply on top of it.
+    ``camera``: the vehicle carries a MAVLink camera (component 100) on a gimbal (device
+    154, managed by the autopilot; :mod:`mavlink.mock.payload`) with ``camera_spec`` and
+    ``gimbal_spec``; False: neither, as PX4 without a camera or gimbal answers.
     """
 
     spawn_enu_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -163,6 +224,9 @@ class MockVehicleConfig:
     params: tuple[tuple[str, float], ...] = ()
     ready_after_s: float = 0.5
     profile: str = "px4"
+    camera: bool = True
+    camera_spec: CameraSpec = field(default_factory=CameraSpec)
+    gimbal_spec: GimbalSpec = field(default_factory=GimbalSpec)
 
     def __post_init__(self) -> None:
         spawn = tuple(float(v) for v in self.spawn_enu_m)

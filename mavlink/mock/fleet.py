@@ -25,6 +25,7 @@ import errno
 import functools
 import random
 import threading
+import time
 from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
@@ -83,6 +84,10 @@ class MockFleet:
     profile : ``"px4"`` (default: PX4 v1.17 with SIH, drag, estimator, PX4's
         navigator) or ``"ideal"`` (the exact vehicle); see :mod:`mavlink.mock.profiles`.
         ``params`` apply on top of it.
+    camera : every vehicle carries a MAVLink camera on a gimbal (:mod:`mavlink.mock.payload`;
+        per vehicle: ``MockVehicleConfig.camera``).
+    utc_start_s : the UTC time (s since the Unix epoch) at simulation time 0, the cameras'
+        clock for ``CAMERA_IMAGE_CAPTURED.time_utc``; default: the wall clock at creation.
     """
 
     def __init__(
@@ -104,6 +109,8 @@ class MockFleet:
         ready_after_s: float = 0.5,
         signing_key: bytes | None = None,
         profile: str = DEFAULT_PROFILE,
+        camera: bool = True,
+        utc_start_s: float | None = None,
     ) -> None:
         if not isinstance(n, int) or n < 1 or n > 254:
             raise MockConfigError(f"n must be an integer in 1..254, got {n!r}")
@@ -132,10 +139,12 @@ class MockFleet:
         self.seed = seed
         self.dt_s = 1.0 / physics_rate_hz
         self.time_s = 0.0
+        #: UTC (s since the epoch) at simulation time 0: the payloads' wall clock
+        self.utc_start_s = time.time() if utc_start_s is None else float(utc_start_s)
         profile_params(profile)
         self.profile = profile
         self.configs = self._configs(
-            n, spawns_enu_m, faults, params, vehicle_configs, ready_after_s, profile
+            n, spawns_enu_m, faults, params, vehicle_configs, ready_after_s, profile, camera
         )
         seeds = np.random.SeedSequence(seed)
         phys_seed, link_seed = seeds.spawn(2)
@@ -179,6 +188,7 @@ class MockFleet:
         vehicle_configs: Sequence[MockVehicleConfig] | None,
         ready_after_s: float,
         profile: str,
+        camera: bool,
     ) -> list[MockVehicleConfig]:
         if vehicle_configs is not None:
             if len(vehicle_configs) != n:
@@ -214,6 +224,7 @@ class MockFleet:
                 params=prm,
                 ready_after_s=ready_after_s,
                 profile=profile,
+                camera=camera,
             )
             for i in range(n)
         ]

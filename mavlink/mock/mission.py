@@ -19,10 +19,16 @@ vehicle and answers upload, download and clear transfers:
   ``MAV_MISSION_INVALID_SEQUENCE``.
 * ``MISSION_CLEAR_ALL`` and ``MISSION_COUNT(0)`` clear a plan.
 
+Camera and gimbal items (IMAGE_START/STOP_CAPTURE, DO_GIMBAL_MANAGER_PITCHYAW/_CONFIGURE,
+DO_SET_ROI_NONE) are accepted in MAV_FRAME_MISSION only and DO_SET_ROI_LOCATION in a global
+frame only, as PX4 does (``MAV_MISSION_UNSUPPORTED`` otherwise).
+
 Items are kept as received (legacy float lat/lon are converted to ``*_INT`` degE7).
 With ``px4_storage`` a download returns what PX4 v1.17 stores
 (``mavlink_mission.cpp``, ``shared/PX4-BEHAVIOUR.md``): waypoint and take-off yaw
-(param4) as float32 radians wrapped to [0, 2 pi), returned in degrees; FENCE items
+(param4) as float32 radians wrapped to [0, 2 pi), returned in degrees; MAV_FRAME_MISSION
+items with x/y through float32; DO_SET_ROI_LOCATION (a position to PX4) with param1-4
+zero; FENCE items
 with autocontinue 0, param2-4 zero, param1 the rounded vertex count or the radius
 and the frame rewritten to GLOBAL_INT (GLOBAL for a legacy download); RALLY items
 with param1-4 zero and the same frame rewrite; ``current`` taken from the
@@ -86,6 +92,20 @@ POSITION_COMMANDS = frozenset(
         mavlink2.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION,
         mavlink2.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION,
         mavlink2.MAV_CMD_NAV_RALLY_POINT,
+        mavlink2.MAV_CMD_DO_SET_ROI_LOCATION,
+    }
+)
+
+#: Camera and gimbal items PX4 takes only in MAV_FRAME_MISSION, and the ROI location only in
+#: a global frame (``MavlinkMissionManager::parse_mavlink_mission_item``: either branch
+#: answers MAV_MISSION_UNSUPPORTED for a command it does not list).
+_MISSION_FRAME_ONLY = frozenset(
+    {
+        mavlink2.MAV_CMD_IMAGE_START_CAPTURE,
+        mavlink2.MAV_CMD_IMAGE_STOP_CAPTURE,
+        mavlink2.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW,
+        mavlink2.MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE,
+        mavlink2.MAV_CMD_DO_SET_ROI_NONE,
     }
 )
 
@@ -117,6 +137,7 @@ SUPPORTED_COMMANDS: dict[int, frozenset[int]] = {
             mavlink2.MAV_CMD_DO_MOUNT_CONTROL,
             mavlink2.MAV_CMD_DO_SET_CAM_TRIGG_DIST,
             mavlink2.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW,
+            mavlink2.MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE,
             mavlink2.MAV_CMD_IMAGE_START_CAPTURE,
             mavlink2.MAV_CMD_IMAGE_STOP_CAPTURE,
             mavlink2.MAV_CMD_VIDEO_START_CAPTURE,
@@ -216,6 +237,18 @@ def px4_stored(item: MissionItem, current: int, legacy: bool) -> MissionItem:
     """
     f32 = np.float32
     mtype = item.mission_type
+    if mtype == MISSION and item.command == mavlink2.MAV_CMD_DO_SET_ROI_LOCATION:
+        # stored as a position (lat, lon, altitude): returned with param1-4 zero
+        return dataclasses.replace(
+            item, param1=0.0, param2=0.0, param3=0.0, param4=0.0, z=float(f32(item.z)),
+            current=int(item.seq == current),
+        )  # fmt: skip
+    if mtype == MISSION and item.frame == mavlink2.MAV_FRAME_MISSION:
+        # params 5-7 kept as float32 (mission_item_s::params), x/y rounded back
+        return dataclasses.replace(
+            item, x=round(float(f32(item.x))), y=round(float(f32(item.y))),
+            current=int(item.seq == current),
+        )  # fmt: skip
     if mtype == MISSION:
         p4 = item.param4
         if item.command in _YAW_COMMANDS and math.isfinite(p4):
@@ -249,6 +282,10 @@ def _deg_to_e7(value_deg: float) -> int:
 def validate_item(item: MissionItem, mission_type: int) -> int:
     """``MAV_MISSION_RESULT`` for one item of a plan of ``mission_type`` (0 = accepted)."""
     if item.command not in SUPPORTED_COMMANDS[mission_type]:
+        return mavlink2.MAV_MISSION_UNSUPPORTED
+    if item.command in _MISSION_FRAME_ONLY and item.frame != mavlink2.MAV_FRAME_MISSION:
+        return mavlink2.MAV_MISSION_UNSUPPORTED
+    if item.command == mavlink2.MAV_CMD_DO_SET_ROI_LOCATION and item.frame not in GLOBAL_FRAMES:
         return mavlink2.MAV_MISSION_UNSUPPORTED
     if item.command in POSITION_COMMANDS:
         if item.frame not in GLOBAL_FRAMES:

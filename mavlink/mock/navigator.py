@@ -6,8 +6,12 @@ state (``phys``, ``index``, ``params``, ``missions``, ``home_ned_m``, ...).
 Mission execution follows PX4 for multicopters: NAV items are flown one at a
 time (takeoff vertically, waypoints accepted within ``param2`` or NAV_ACC_RAD
 horizontally and NAV_MC_ALT_RAD vertically, then held ``param1`` s), DO items
-run at once (DO_CHANGE_SPEED, DO_JUMP with repeat counts, DO_SET_HOME, camera
-and gimbal items are accepted and skipped), a mission started on the ground
+run at once when they become current, i.e. once the NAV item before them is completed
+(DO_CHANGE_SPEED, DO_JUMP with repeat counts, DO_SET_HOME; camera, gimbal and ROI items
+are issued as PX4's navigator issues them, :mod:`mavlink.mock.payload`, the mission waiting
+MIS_COMMAND_TOUT after a DO_GIMBAL_MANAGER_PITCHYAW; other DO items are
+skipped), with a ROI a mission faces it (PX4's ``MissionBase::heading_sp_update``,
+MIS_MNT_YAW_CTL 0), a mission started on the ground
 without a takeoff item first climbs to MIS_TAKEOFF_ALT, MISSION_CURRENT is sent
 on every change (PX4: mostly on the next once-a-second report, ``_announce_current``).
 Return to launch climbs to RTL_RETURN_ALT unless within 10 m of home (RTL_MIN_DIST),
@@ -51,6 +55,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from mavlink.mock import px4
 from mavlink.mock.mission import FENCE, MISSION, RALLY, MissionItem
 from mavlink.mock.parts import VehicleParts
+from mavlink.mock.payload import PAYLOAD_MISSION_COMMANDS
 from mavlink.mock.px4 import Px4Mode
 
 _RTL_MIN_DIST_M = 10.0
@@ -166,6 +171,9 @@ class NavigatorMixin(VehicleParts):
             self._seq_reached = -1
             self._traj_active = False
             self._mission_valid_s = self._now()
+            # MissionBase::update_mission: a new mission starts without the old ROI (the
+            # gimbal keeps pointing where it was told)
+            self._roi_ned_m = None
             if self.mode is Px4Mode.AUTO_MISSION:
                 if self.missions.plans[MISSION]:
                     self._mission_start_item(0)
@@ -215,8 +223,23 @@ class NavigatorMixin(VehicleParts):
                     )
                 seq += 1
                 continue
+            if cmd in PAYLOAD_MISSION_COMMANDS:
+                self._mission_payload_item(item)
+                wait_s = self.params["MIS_COMMAND_TOUT"]
+                if cmd == mavlink2.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW and wait_s > 0.0:
+                    # PX4 waits MIS_COMMAND_TOUT here for the gimbal to turn
+                    # (MissionBlock::item_has_timeout), holding the last setpoint
+                    changed = seq != self.mission_seq
+                    self.mission_seq = seq
+                    self._mis_phase = "hold"
+                    self._mis_hold_until_s = self._now() + wait_s
+                    if changed:
+                        self._announce_current()
+                    return
+                seq += 1
+                continue
             if cmd not in _NAV_COMMANDS:
-                seq += 1  # camera, gimbal, servo ...: done at once
+                seq += 1  # servo, other camera items ...: done at once
                 continue
             break
         else:
@@ -456,6 +479,37 @@ class NavigatorMixin(VehicleParts):
         self.phys.set_position(self.index, self._traj_pos.copy(), self._traj_vel.copy(), a)
 
     def _mission_tick(self) -> None:
+        self._mission_step()
+        if self._roi_ned_m is not None and self.mode is Px4Mode.AUTO_MISSION:
+            self._roi_heading()
+
+    def _roi_heading(self) -> None:
+        """Face the ROI while flying a mission (``MissionBase::heading_sp_update``).
+
+        PX4 (MIS_MNT_YAW_CTL 0, a multicopter) turns the current setpoint's yaw toward the ROI
+        every cycle, except on take-off and landing items and while within the acceptance
+        radius (NAV_ACC_RAD) of it horizontally.
+        """
+        if self.params["MIS_MNT_YAW_CTL"] >= 0.5 or not self.armed or self.mission_finished:
+            return
+        if self._mis_phase not in ("goto", "hold", "delay", "loiter"):
+            return
+        plan = self.missions.plans[MISSION]
+        if not (0 <= self.mission_seq < len(plan)) or plan[self.mission_seq].command in (
+            mavlink2.MAV_CMD_NAV_TAKEOFF, mavlink2.MAV_CMD_NAV_VTOL_TAKEOFF,
+            mavlink2.MAV_CMD_NAV_LAND, mavlink2.MAV_CMD_NAV_VTOL_LAND,
+        ):  # fmt: skip
+            return
+        roi = self._roi_ned_m
+        assert roi is not None
+        i = self.index
+        pos = self.phys.pos_ned_m[i]
+        dn, de = float(roi[0] - pos[0]), float(roi[1] - pos[1])
+        if math.hypot(dn, de) > self.params["NAV_ACC_RAD"]:
+            self.phys.sp_yaw_rad[i] = math.atan2(de, dn)
+            self.phys.m_yaw[i] = True
+
+    def _mission_step(self) -> None:
         if not self.armed or self.mission_finished:
             return
         plan = self.missions.plans[MISSION]

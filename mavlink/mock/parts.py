@@ -5,8 +5,9 @@
 :class:`~mavlink.mock.offboard.OffboardMixin` (offboard setpoints),
 :class:`~mavlink.mock.parameters.ParametersMixin` (parameter protocol and effects),
 :class:`~mavlink.mock.origin.OriginMixin` (local frame, EKF origin),
-:class:`~mavlink.mock.navigator.NavigatorMixin` (missions, RTL, geofence) and
-:class:`~mavlink.mock.telemetry.TelemetryMixin` (message builders); each reads the vehicle's
+:class:`~mavlink.mock.navigator.NavigatorMixin` (missions, RTL, geofence),
+:class:`~mavlink.mock.telemetry.TelemetryMixin` (message builders) and
+:class:`~mavlink.mock.payload.PayloadMixin` (camera, gimbal); each reads the vehicle's
 state and calls methods of the vehicle or of the other mixins.  :class:`VehicleParts`, their
 common base, names those attributes with their types and the methods' signatures (the
 latter for the type checker only), so each mixin is checked against what the vehicle really
@@ -25,10 +26,11 @@ if TYPE_CHECKING:
     from mavlink.mock.config import MockVehicleConfig
     from mavlink.mock.mission import MissionServer
     from mavlink.mock.offboard import _Setpoint
+    from mavlink.mock.payload import CameraState, GimbalState
     from mavlink.mock.physics import FleetPhysics
     from mavlink.mock.px4 import ParamSpec, Px4Mode
     from mavlink.mock.telemetry import _Stream
-    from mavlink.mock.vehicle import FleetSide
+    from mavlink.mock.vehicle import FleetSide, Link
 
 
 class VehicleParts:
@@ -73,6 +75,16 @@ class VehicleParts:
     _builders: dict[int, Callable[[], Any]]
     _streams: dict[int, _Stream]
     _deferred: list[tuple[float, Callable[[], None]]]
+    downlink: Link | None
+    # the command being answered: (MAV_CMD, sender's sysid, sender's compid)
+    _cmd_partner: tuple[int, int, int]
+    # payload: the camera and the gimbal (None without), the navigator's ROI (local NED),
+    # whether the navigator started an interval capture, when it levels the gimbal
+    camera: CameraState | None
+    gimbal: GimbalState | None
+    _roi_ned_m: np.ndarray | None
+    _nav_capturing: bool
+    _neutral_due_s: float
 
     if TYPE_CHECKING:
 
@@ -130,3 +142,9 @@ class VehicleParts:
         def _mission_start_item(self, seq: int) -> None: ...
 
         def _announce_current(self, *, set_by_client: bool = False) -> None: ...
+
+        def _payload_command(self, msg: Any, p: tuple[float, ...]) -> None: ...
+
+        def _payload_mode_change(self, old: Px4Mode, new: Px4Mode) -> None: ...
+
+        def _mission_payload_item(self, item: Any) -> None: ...

@@ -125,9 +125,12 @@ def predict_missions(
     prm = dict(params or {})
     prm.update(QUIET_ESTIMATOR)
     spawns = [(float(starts_enu_m[n][0]), float(starts_enu_m[n][1]), 0.0) for n in names]
+    # no payload: the cameras' traffic would only cost time (the missions' camera and gimbal
+    # items are still issued, as PX4's navigator issues them without a camera)
     fleet = MockFleet(
-        n=len(names), origin=origin, spawns_enu_m=spawns, params=prm, ready_after_s=0.0
-    )
+        n=len(names), origin=origin, spawns_enu_m=spawns, params=prm, ready_after_s=0.0,
+        camera=False,
+    )  # fmt: skip
     fleet.offline_links()
     vs = fleet.vehicles
     for name, v in zip(names, vs, strict=True):

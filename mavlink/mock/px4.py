@@ -162,6 +162,8 @@ PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("MC_ROLL_P", ParamType.REAL32, 4.0, 0.0, 12.0),
     ParamSpec("MC_YAWRATE_MAX", ParamType.REAL32, 200.0, 0.0, 1800.0),
     ParamSpec("MC_YAW_P", ParamType.REAL32, 2.8, 0.0, 5.0),
+    ParamSpec("MIS_COMMAND_TOUT", ParamType.REAL32, 0.0, 0.0, 60.0),
+    ParamSpec("MIS_MNT_YAW_CTL", ParamType.INT32, 0, 0.0, 1.0),
     ParamSpec("MIS_TAKEOFF_ALT", ParamType.REAL32, 2.5),
     ParamSpec("MPC_ACC_DOWN_MAX", ParamType.REAL32, 3.0),
     ParamSpec("MPC_ACC_HOR", ParamType.REAL32, 3.0, 2.0, 15.0),

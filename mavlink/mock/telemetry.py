@@ -318,8 +318,11 @@ class TelemetryMixin(VehicleParts):
         )  # fmt: skip
 
     def _msg_autopilot_version(self) -> Msg:
+        caps = px4.CAPABILITIES
+        if self.gimbal is not None:  # PX4 with MNT_MODE_IN 4 (mavlink_main.cpp)
+            caps |= mavlink2.MAV_PROTOCOL_CAPABILITY_COMPONENT_IMPLEMENTS_GIMBAL_MANAGER
         return mavlink2.MAVLink_autopilot_version_message(
-            px4.CAPABILITIES, px4.FLIGHT_SW_VERSION, px4.FLIGHT_SW_VERSION, 0, 0,
+            caps, px4.FLIGHT_SW_VERSION, px4.FLIGHT_SW_VERSION, 0, 0,
             [0] * 8, [0] * 8, [0] * 8, 0x26AC, 0x0011, self.uid,
             list(self.uid.to_bytes(8, "little")) + [0] * 10,
         )  # fmt: skip

@@ -6,15 +6,17 @@ calls :meth:`MockVehicle.tick`, which runs the mode logic (takeoff, hold,
 land, return, mission, offboard failsafe, geofence, auto-disarm), the mission
 protocol timers and the telemetry streams due at that time.  Incoming
 datagrams are parsed with pymavlink's MAVLink 2 codec and dispatched by
-message type; every ``COMMAND_LONG``/``COMMAND_INT`` addressed to the vehicle is
-answered with a ``COMMAND_ACK``.  This module keeps the vehicle's state, its
+message type; every ``COMMAND_LONG``/``COMMAND_INT`` addressed to the autopilot is
+answered with a ``COMMAND_ACK`` (and one addressed to the camera or the gimbal device by
+that component).  This module keeps the vehicle's state, its
 construction, the message dispatch and the tick; the rest is mixed in from rooms of
 their own: the commands, arming and modes in :mod:`mavlink.mock.commands`, offboard
 setpoints in :mod:`mavlink.mock.offboard`, the parameter protocol in
 :mod:`mavlink.mock.parameters`, the local frame and EKF origin in
 :mod:`mavlink.mock.origin`, the navigator (mission execution, return to launch,
-geofence) in :mod:`mavlink.mock.navigator` and the telemetry messages in
-:mod:`mavlink.mock.telemetry`.
+geofence) in :mod:`mavlink.mock.navigator`, the telemetry messages in
+:mod:`mavlink.mock.telemetry` and the payload (the camera, component 100, on a gimbal,
+device 154, whose manager is the autopilot) in :mod:`mavlink.mock.payload`.
 
 Frames: the vehicle's local NED origin is its EKF origin, the spawn point;
 global positions are that origin's geodetic coordinates plus the local offset
@@ -27,7 +29,7 @@ import math
 import random
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import Any, Protocol, TypeAlias
+from typing import Any, ClassVar, Protocol, TypeAlias
 
 import numpy as np
 import pymap3d
@@ -43,6 +45,7 @@ from mavlink.mock.navigator import NavigatorMixin
 from mavlink.mock.offboard import OffboardMixin, _Setpoint
 from mavlink.mock.origin import OriginMixin
 from mavlink.mock.parameters import ParametersMixin, vehicle_params
+from mavlink.mock.payload import PayloadMixin
 from mavlink.mock.physics import FleetPhysics
 from mavlink.mock.px4 import Px4Mode
 from mavlink.mock.telemetry import DEFAULT_RATES_HZ, TelemetryMixin, _Stream
@@ -61,6 +64,7 @@ class FleetSide(Protocol):
     gcs_host: str
     gcs_ports: list[int]
     physics: FleetPhysics
+    utc_start_s: float
 
     def geodetic(self, i: int) -> tuple[float, float, float]: ...
 
@@ -110,9 +114,20 @@ class VehicleState:
 
 
 class MockVehicle(
-    CommandsMixin, OffboardMixin, ParametersMixin, OriginMixin, TelemetryMixin, NavigatorMixin
+    CommandsMixin,
+    OffboardMixin,
+    ParametersMixin,
+    OriginMixin,
+    TelemetryMixin,
+    NavigatorMixin,
+    PayloadMixin,
 ):
     """Vehicle ``index`` of a :class:`~mavlink.mock.fleet.MockFleet` (system id ``index + 1``)."""
+
+    _COMMANDS: ClassVar[dict[int, Callable[..., Any]]] = {
+        **CommandsMixin._COMMANDS,
+        **PayloadMixin._PAYLOAD_COMMANDS,
+    }
 
     def __init__(
         self,
@@ -239,6 +254,7 @@ class MockVehicle(
         }
         for msg_id, rate_hz in DEFAULT_RATES_HZ.items():
             self._streams[msg_id] = _Stream(msg_id, 1.0 / rate_hz, 0.0, self._builders[msg_id])
+        self._payload_init()
         self._handlers: dict[str, Callable[[Msg], None]] = {
             "COMMAND_LONG": self._on_command_long,
             "COMMAND_INT": self._on_command_int,
@@ -251,6 +267,7 @@ class MockVehicle(
             "TIMESYNC": self._on_timesync,
             "MISSION_SET_CURRENT": self._on_mission_set_current,
             "SET_GPS_GLOBAL_ORIGIN": self._on_set_gps_global_origin,
+            "GIMBAL_MANAGER_SET_ATTITUDE": self._on_gimbal_manager_set_attitude,
         }
         self._takeoff_wanted_s = math.nan
         self._apply_params()
@@ -286,10 +303,17 @@ class MockVehicle(
         return int(self.fleet.time_s * 1e6)
 
     def send(self, msg: Msg) -> None:
-        """Encode ``msg`` as MAVLink 2 from (sysid, 1) and send it to the GCS."""
+        """Encode ``msg`` as MAVLink 2 from (sysid, 1) and send it to the GCS.
+
+        The payload's heartbeats ride in the datagram of the autopilot's HEARTBEAT, after
+        it (PX4 packs what it forwards into its own UDP datagrams): a client that takes
+        the next HEARTBEAT from the link gets the autopilot's.
+        """
         mav = self._mav
         buf = msg.pack(mav)
         mav.seq = (mav.seq + 1) & 0xFF
+        if self.camera is not None and msg.get_msgId() == mavlink2.MAVLINK_MSG_ID_HEARTBEAT:
+            buf += self._payload_heartbeats()
         assert self.downlink is not None, "the fleet sets the links before anything is sent"
         self.downlink.push(buf)
 
@@ -396,6 +420,13 @@ class MockVehicle(
         self.phys.hold_here(self.index)
         self._mav.seq = 0
         self._rx = self._new_parser()
+        # the gimbal manager and the navigator start afresh; the camera and the gimbal
+        # device are devices of their own and keep their state
+        self._roi_ned_m = None
+        self._nav_capturing = False
+        self._neutral_due_s = math.inf
+        if self.gimbal is not None:
+            self.gimbal.primary = (0, 0)
 
     def statustext(self, severity: int, text: str) -> None:
         """Send a STATUSTEXT (text cut to the 50 bytes MAVLink allows)."""
@@ -555,6 +586,7 @@ class MockVehicle(
                 action()
         if self.missions.busy:
             self.missions.tick()
+        self._payload_tick(now)
         for stream in list(self._streams.values()):
             if now + 1e-9 >= stream.next_s:
                 stream.next_s += stream.interval_s

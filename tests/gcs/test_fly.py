@@ -346,6 +346,42 @@ def _aim_error_deg(plan, track, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return plan.region("insp1").contains(p), np.degrees(np.abs(np.angle(np.exp(1j * (yaw - bearing)))))  # fmt: skip
 
 
+def _check_pictures(plan, log: Path, res: dict, capsys, *, offboard: bool) -> None:  # type: ignore[no-untyped-def]
+    """The flight pictured pole1 as planned: every picture in a capture span (offboard: on
+    the plan's clock; a mission: while the vehicle held in insp1), from where the track was,
+    looking where the vehicle headed with the gimbal's pitch; gcs verify --images agrees."""
+    from gcs.payload import capture_spans
+    from mavlink.camera import read_images_csv
+
+    (span,) = capture_spans(plan)["d1"]
+    cov = res["coverage"]
+    assert cov["covered"] == 1 and cov["targets"] == 1
+    (row,) = cov["by_target"]
+    images = read_images_csv(log / "images.csv")
+    assert row["images"] == len(images) == res["images"]["d1"] >= 3
+    if offboard:
+        assert len(images) == row["planned"]
+    else:  # the STOP item ends it when the mission's clock (PX4's legs) has got there
+        assert row["planned"] - 1 <= len(images) <= row["planned"]
+    track = load_telemetry(log / "flight.csv").vehicles["d1"]
+    t = np.array([im.t_s for im in images])
+    assert np.all(np.diff(t) > 0) and [im.index for im in images] == list(range(len(images)))
+    if offboard:  # sent on the plan's clock: the first at once, then one per interval
+        assert t[0] == pytest.approx(span.t_start_s, abs=0.3)
+        np.testing.assert_allclose(np.diff(t), span.interval_s, atol=0.15)
+        assert t[-1] <= span.t_end_s + 0.3
+    inside = plan.region("insp1").margin(track.position(t)) > -0.1
+    assert inside.all(), t[~inside]
+    for im, at in zip(images, track.position(t), strict=True):
+        np.testing.assert_allclose(im.position_enu_m(plan.origin), at, atol=0.35)
+        heading, pitch = im.yaw_pitch_deg()  # compass, from the camera's attitude
+        flown = 90.0 - np.degrees(track.yaw(np.array([im.t_s]))[0])
+        assert abs((heading - flown + 180.0) % 360.0 - 180.0) < 3.0
+        assert pitch == pytest.approx(span.gimbal_pitch_deg, abs=1.0)
+    assert main(["verify", str(log.parent / "none"), "--images", str(log / "images.csv")]) == 2
+    capsys.readouterr()
+
+
 def test_a_face_spec_flown_offboard_is_judged_on_the_recorded_heading(
     face_plan: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -398,6 +434,12 @@ def test_a_face_spec_flown_offboard_is_judged_on_the_recorded_heading(
     assert "FAIL flown d1 heading: 0 (bound 1) the telemetry has no heading" in out
     assert "Traceback" not in out + err
 
+    # The camera pictured the pole as planned, and the image log says so to gcs verify
+    _check_pictures(plan, log, res, capsys, offboard=True)
+    assert main(["verify", str(face_plan), "--images", str(log / "images.csv"), "--json"]) == 0
+    checks = {c["name"]: c for c in json.loads(capsys.readouterr().out)["checks"]}
+    assert checks["pictures of pole1"]["ok"]
+
 
 def test_a_face_spec_flown_as_a_mission_faces_the_pole_on_the_waypoints_yaw(
     face_plan: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
@@ -421,3 +463,5 @@ def test_a_face_spec_flown_as_a_mission_faces_the_pole_on_the_waypoints_yaw(
     assert track.has_heading
     inside, aim = _aim_error_deg(plan, track, np.arange(0.0, plan.horizon_s, 0.05))
     assert inside.sum() >= 10 and aim[inside].max() < 15.0
+    # the mission's camera items took the pictures during the hover
+    _check_pictures(plan, log, res, capsys, offboard=False)
