@@ -144,3 +144,48 @@ def test_mission_mode_flies_on_one_clock_as_predicted(
     pred = res["mission_prediction"]["predicted_robustness"]
     assert abs(res["flown_robustness"] - pred) < 0.3, (res["flown_robustness"], pred)
     _land_and_wait()
+
+
+FACING = """\
+name: px4_facing
+origin: {{lat: {lat:.8f}, lon: {lon:.8f}, alt: {alt:.3f}}}
+workspace: {{min: [-3, -3, 0], max: [8, 6, 6]}}
+regions:
+  pole: {{kind: pole, center: [4.0, 2.5], radius: 0.3, z: [0, 6]}}
+  insp: {{kind: inspection, center: [4.0, -0.3, 3.0], half_size: [0.7, 0.7, 0.6]}}
+limits: {{v_max_m_s: 1.5, a_max_m_s2: 1.5}}
+vehicles:
+  - {{name: d1, start: [0.0, 0.0, 3.0]}}
+timing: {{horizon_s: 12, segment_s: 2, Ts_s: 0.1, check_dt_s: 0.02}}
+separation_m: 1.0
+epsilon: 0.05
+model: minimum_jerk
+spec:
+  - formula: eventually[3, 8] always[0, 3] (inside(d1, insp) and face(d1, pole))
+  - formula: always[0, 12] inside(d1, workspace)
+  - formula: always[0, 12] outside(d1, pole)
+"""
+
+
+def test_a_facing_mission_carries_its_camera_items_and_px4_flies_them(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """PX4 accepts the camera and gimbal items (MAV_FRAME_MISSION) and reads them back as sent;
+    the mission is flown to its end (AUTO.LOITER where it ends is not "leaving the mission"),
+    and the pictures reported are the ones that happened: SIH SITL has no camera."""
+    lat, lon, alt = _here()
+    (tmp_path / "facing.yaml").write_text(FACING.format(lat=lat, lon=lon, alt=alt))
+    plan = tmp_path / "facing.json"
+    assert main(["plan", str(tmp_path / "facing.yaml"), "-o", str(plan), "--json"]) == 0
+    capsys.readouterr()
+    argv = ["fly", str(plan), "--json", "--mode", "mission", "--force", "--end", "hold"]
+    main([*argv, "--log", str(tmp_path / "log"), "--connection", URL])
+    out, err = capsys.readouterr()
+    res = json.loads(out)
+    assert res["completed"] and res["safety_event"] is None, err
+    assert res["missions"]["d1"]["finished"]
+    cov = res["coverage"]
+    assert cov["targets"] == 1 and cov["by_target"][0]["planned"] >= 3
+    if not res["images"]:  # PX4 SIH: no camera, and the flight says so
+        assert "no camera heard" in err and cov["covered"] == 0
+    _land_and_wait()
