@@ -118,7 +118,9 @@ class Prism:
             raise ShapeError(
                 f"the polygon is not convex at corner {(i + 1) % len(v) + 1} "
                 f"({v[(i + 1) % len(v), 0]:g}, {v[(i + 1) % len(v), 1]:g}): split it into "
-                f"convex parts and join them in the spec (or / and)"
+                f"convex parts that overlap where they meet (an L: its two arms, each with the "
+                f"corner) and join them in the spec (inside: or; outside: and); parts that only "
+                f"touch leave no margin at the seam"
             )
         normals = np.column_stack([edges[:, 1], -edges[:, 0]]) / lengths[:, None]
         offsets = np.einsum("ij,ij->i", normals, v)
