@@ -144,9 +144,8 @@ async def run_offboard_captures(
 
     async def one(v: Vehicle, todo: Sequence[CaptureSpan]) -> None:
         comp = v.camera_component
-        if comp is None:
+        if comp is None:  # said before the flight (gcs.flight), and in its outcome
             out.no_camera.append(v.name)
-            note(f"{v.name}: no camera heard (no MAVLink camera HEARTBEAT): no pictures")
             return
         sent = out.sent.setdefault(v.name, [])
         gimbal = {"ok": True, "taken": False}

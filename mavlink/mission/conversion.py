@@ -405,6 +405,9 @@ def trajectory_to_mission(
                         float(span.gimbal_pitch_deg), 0.0, math.nan, math.nan, 0, 0, 0.0,
                     )  # fmt: skip
                     start_seq[which] = len(items)
+                    # one picture (a span shorter than the interval) PX4 sends on to the
+                    # camera as DO_DIGICAM_CONTROL, a single shot (Navigator::
+                    # publish_vehicle_command); more, as IMAGE_START_CAPTURE with the count
                     count = _count(span, pending[k][0])
                     add(
                         Cmd.IMAGE_START_CAPTURE, Frame.MISSION,

@@ -13,8 +13,8 @@ import asyncio
 import itertools
 import math
 import time
-from collections.abc import AsyncIterator, Callable
-from typing import Any, TypeVar
+from collections.abc import Callable
+from typing import Any
 
 import pymap3d
 import pytest
@@ -27,27 +27,12 @@ from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
 from mavlink.mock import MockFleet
 from mavlink.mock.testing import free_udp_ports
+from tests.mavlink.test_mock_mavsdk import first
 
 pytestmark = pytest.mark.slow  # real-time flights and discovery over UDP (make test-fast skips)
 
-T = TypeVar("T")
 NAN = math.nan
 CAMERA = 100
-
-
-async def first(gen: AsyncIterator[T], pred: Callable[[T], bool], timeout_s: float) -> T:
-    """The first value of a MAVSDK subscription satisfying ``pred`` (fails after ``timeout_s``)."""
-
-    async def scan() -> T:
-        async for value in gen:
-            if pred(value):
-                return value
-        raise AssertionError("subscription ended")
-
-    try:
-        return await asyncio.wait_for(scan(), timeout_s)
-    finally:
-        await gen.aclose()  # type: ignore[attr-defined]
 
 
 async def with_system(fleet: MockFleet, gcs_port: int, body: Callable[[System], Any]) -> None:
