@@ -265,8 +265,9 @@ async def fly_mission_plan(
             plans=None,
             expected_mode=Px4Mode.AUTO_MISSION,
             mode_grace_s=1.5,
-            # PX4 holds (AUTO.LOITER) where a mission without a landing ends
-            done=follower.finished,
+            # PX4 leaves AUTO.MISSION itself at the end: AUTO.RTL on a return item,
+            # AUTO.LOITER where a mission without a landing ends
+            done=follower.at_end,
         )
     )
     try:

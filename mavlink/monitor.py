@@ -59,6 +59,8 @@ if TYPE_CHECKING:
 #: An EKF origin that moves more than this (m) in flight stops the flight (origins are sent
 #: as degE7 / mm: a re-sent origin compares equal; this only absorbs rounding).
 _ORIGIN_MOVE_M = 0.01
+#: Modes PX4 switches to itself at the end of a mission (a hold, a return, a landing).
+_MISSION_END_MODES = frozenset({Px4Mode.AUTO_LOITER, Px4Mode.AUTO_RTL, Px4Mode.AUTO_LAND})
 
 
 class Verdict(Enum):
@@ -707,7 +709,7 @@ class SafetyMonitor:
                     and st.mode is not expected_mode
                     and st.heartbeat_age_s is not None
                     and now - st.heartbeat_age_s > t0_monotonic_s + mode_grace_s
-                    and not (st.mode is Px4Mode.AUTO_LOITER and done is not None and done(n))
+                    and not (st.mode in _MISSION_END_MODES and done is not None and done(n))
                 }
                 if left:
                     names = tuple(sorted(left))
@@ -819,9 +821,10 @@ class SafetyMonitor:
         With ``expected_mode`` (OFFBOARD for a setpoint stream), a heartbeat received more than
         ``mode_grace_s`` after the start that shows another mode stops the flight: the vehicle's
         own failsafe took over, and it must not be streamed to or re-engaged without the
-        operator.  A vehicle for which ``done(name)`` holds (its mission finished) may be in
-        AUTO.LOITER: PX4 v1.17 holds there when a mission without a landing ends, and that
-        heartbeat can come before the ground station has seen the mission finished.
+        operator.  A vehicle for which ``done(name)`` holds (on its mission's last item, or
+        past it) may be in AUTO.LOITER, AUTO.RTL or AUTO.LAND: PX4 v1.17 switches there itself
+        at a mission's end (a hold where a mission without a landing ends, a return item),
+        and that heartbeat can come before the ground station has seen the mission end.
 
         Returns:
             The :class:`SafetyEvent`, or ``None`` if the flight ended without one.

@@ -335,6 +335,16 @@ class MissionFollower:
         v = next((v for v in self.vehicles if v.name == name), None)
         return v is not None and bool(v.mission_raw.is_mission_finished())
 
+    def at_end(self, name: str) -> bool:
+        """Whether ``name`` is on its mission's last item (MISSION_CURRENT), or done with it
+        (:meth:`finished`): where PX4 itself leaves AUTO.MISSION, for AUTO.RTL on a return
+        item and AUTO.LOITER once the last waypoint is done.  Safe from any thread."""
+        total = self.totals.get(name, 0)
+        cur = self._current[name]
+        if total > 0 and cur and cur[-1][0] >= total - 1:
+            return True
+        return self.finished(name)
+
     def _finish_s(self, name: str, seen_s: float) -> float:
         """When ``name``'s mission finished, MAVSDK having seen it finished at ``seen_s``.
 

@@ -321,6 +321,10 @@ class NavigatorMixin(VehicleParts):
         self._mis_phase = "done"
         if not self.landed:
             self.phys.hold_here(self.index)
+            if self.px4_nav and self.mode is Px4Mode.AUTO_MISSION:
+                # PX4 v1.17 holds where a mission ends in the air (seen on SITL: AUTO.LOITER
+                # within the second, before MAVSDK reports the mission finished)
+                self.set_mode(Px4Mode.AUTO_LOITER)
         self._announce_current()
 
     def _announce_current(self, *, set_by_client: bool = False) -> None:

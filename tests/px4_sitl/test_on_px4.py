@@ -139,7 +139,7 @@ def test_mission_mode_flies_on_one_clock_as_predicted(
     assert out, err
     res = json.loads(out)
     m = res["missions"]["d1"]
-    assert m["finished"] and m["late_s"] < 10.0, (m, err)
+    assert m["finished"] and m["late_s"] < 10.0, (m, res["safety_event"], err[-300:])
     assert res["flown_robustness"] is not None
     pred = res["mission_prediction"]["predicted_robustness"]
     assert abs(res["flown_robustness"] - pred) < 0.3, (res["flown_robustness"], pred)
