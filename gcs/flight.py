@@ -603,11 +603,9 @@ def _coverage(
             for c in m.captures:
                 planned[c.span.target] = planned.get(c.span.target, 0) + c.images
     else:
-        from gcs.payload import span_images
-
         for todo in spans.values():
             for span in todo:
-                planned[span.target] = planned.get(span.target, 0) + span_images(span)
+                planned[span.target] = planned.get(span.target, 0) + span.pictures()
     report = compute_coverage(plan, images, planned=planned, cameras=infos)
     if log_dir is not None:
         files["coverage"] = coverage_figure(plan, report, images, log_dir / "coverage.png")

@@ -46,7 +46,6 @@ __all__ = [
     "CameraCommands",
     "capture_spans",
     "run_offboard_captures",
-    "span_images",
 ]
 
 #: Time between pictures unless told (s).
@@ -108,11 +107,6 @@ class CameraCommands:
     sent: dict[str, list[tuple[float, str]]] = field(default_factory=dict)
     refused: dict[str, list[str]] = field(default_factory=dict)
     no_camera: list[str] = field(default_factory=list)
-
-
-def span_images(span: CaptureSpan) -> int:
-    """Pictures a span takes from its start: one at once, one per interval to its end."""
-    return max(1, math.floor((span.t_end_s - span.t_start_s) / span.interval_s + 1e-9) + 1)
 
 
 async def run_offboard_captures(
@@ -195,7 +189,7 @@ async def run_offboard_captures(
                 MAV_CMD_IMAGE_START_CAPTURE,
                 0.0,
                 span.interval_s,
-                float(span_images(span)),
+                float(span.pictures()),
                 to=comp,
             )
             if gimbal["ok"]:

@@ -118,6 +118,12 @@ class CaptureSpan:
     interval_s: float = 1.0
     target: str = ""
 
+    def pictures(self, from_s: float | None = None) -> int:
+        """Pictures taken from ``from_s`` (default its start) to its end: one at once, then
+        one per interval."""
+        start = self.t_start_s if from_s is None else from_s
+        return max(1, math.floor((self.t_end_s - start) / self.interval_s + 1e-9) + 1)
+
 
 @dataclass(frozen=True, slots=True)
 class ScheduledCapture:
@@ -144,15 +150,10 @@ class ScheduledCapture:
         dropped): the START's count, or fewer where the STOP comes first."""
         if self.start_s is None:
             return 0
-        n = _count(self.span, self.start_s)
+        n = self.span.pictures(self.start_s)
         if self.stop_s is not None:
             n = min(n, math.floor((self.stop_s - self.start_s) / self.span.interval_s + 1e-9) + 1)
         return n
-
-
-def _count(span: CaptureSpan, start_s: float) -> int:
-    """The pictures of ``span`` from ``start_s`` on: one at once, one per interval to its end."""
-    return max(1, math.floor((span.t_end_s - start_s) / span.interval_s + 1e-9) + 1)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -408,7 +409,7 @@ def trajectory_to_mission(
                     # one picture (a span shorter than the interval) PX4 sends on to the
                     # camera as DO_DIGICAM_CONTROL, a single shot (Navigator::
                     # publish_vehicle_command); more, as IMAGE_START_CAPTURE with the count
-                    count = _count(span, pending[k][0])
+                    count = span.pictures(pending[k][0])
                     add(
                         Cmd.IMAGE_START_CAPTURE, Frame.MISSION,
                         0.0, float(span.interval_s), float(count), 0.0, 0, 0, 0.0,
