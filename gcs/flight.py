@@ -451,7 +451,7 @@ async def fly_plan(
                         fleet, plan, opts, clock, tuning, note, spans, camera
                     )
                 else:
-                    mission = await fly_mission_plan(fleet, plan, opts, clock, tuning)
+                    mission = await fly_mission_plan(fleet, plan, opts, clock, tuning, spans)
         except asyncio.CancelledError:
             # Ctrl-C: asyncio.run cancelled us, and every vehicle was commanded to hold on the
             # way out of the flight. Take the cancellation back to report.

@@ -27,6 +27,7 @@ from __future__ import annotations
 import asyncio
 import math
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -40,7 +41,7 @@ if TYPE_CHECKING:
     from gcs.progress import FlightClock
     from gcs.tuning import VehicleTuning
     from mavlink.fleet import Fleet
-    from mavlink.mission import MissionRun
+    from mavlink.mission import CaptureSpan, MissionRun
     from mavlink.monitor import MonitorStats, SafetyEvent
     from planner.planfile import Plan
 
@@ -109,8 +110,10 @@ async def fly_mission_plan(
     opts: FlyOptions,
     clock: FlightClock,
     tuning: dict[str, VehicleTuning],
+    spans: Mapping[str, Sequence[CaptureSpan]],
 ) -> MissionFlight:
-    """Mission mode (module docstring).
+    """Mission mode (module docstring); ``spans``: where each vehicle's camera takes pictures
+    (:func:`gcs.payload.capture_spans`), camera items in its mission.
 
     Raises:
         MissionRefused: predicted robustness below epsilon without ``force``.
@@ -120,7 +123,6 @@ async def fly_mission_plan(
     """
     from gcs.evaluation import reads_heading
     from gcs.missions import convert_plan_apart
-    from gcs.payload import capture_spans
     from mavlink.errors import PreflightError
     from mavlink.mission import (
         MissionEnd,
@@ -161,7 +163,7 @@ async def fly_mission_plan(
         end=end,
         acceptance_m=opts.acceptance_m,
         params=prediction_params(tuning, known),
-        captures=capture_spans(plan, opts.photo_interval_s),
+        captures=spans,
     )
     if conv.predicted_robustness < plan.epsilon and not opts.force:
         worst = max(conv.late_s.values())

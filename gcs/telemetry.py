@@ -31,7 +31,7 @@ from __future__ import annotations
 import csv
 import io
 import math
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -42,9 +42,10 @@ from gcs.errors import InputFileError
 from mavlink.tracks import FlownTrack
 
 if TYPE_CHECKING:
+    from mavlink.camera import CapturedImage
     from planner.planfile import Plan
 
-__all__ = ["TELEMETRY_COLUMNS", "Telemetry", "load_telemetry"]
+__all__ = ["TELEMETRY_COLUMNS", "Telemetry", "load_images", "load_telemetry"]
 
 #: Columns a telemetry CSV must have (more are allowed).
 TELEMETRY_COLUMNS = ("t", "vehicle", "x", "y", "z")
@@ -101,17 +102,7 @@ def load_telemetry(
     src = str(p)
     if p.suffix.lower() == ".tlog":
         return _load_tlog(p, plan, t0_unix_s)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise InputFileError(f"{src}: cannot read: {exc.strerror or exc}") from None
-    except UnicodeDecodeError:
-        raise InputFileError(f"{src}: not a text (CSV) file") from None
-    reader = csv.reader(io.StringIO(text))
-    try:
-        header = [h.strip() for h in next(reader)]
-    except StopIteration:
-        raise InputFileError(f"{src}: empty file (expected a header t,vehicle,x,y,z)") from None
+    header, reader = _csv(p, "t,vehicle,x,y,z")
     col = _column_map(header)
     if col is None:
         missing = [k for k, names in _TELEMETRY_ALIASES.items() if not set(names) & set(header)]
@@ -121,17 +112,9 @@ def load_telemetry(
         )
     yaw_col = next((header.index(n) for n in _YAW_ALIASES if n in header), None)
     rows: dict[str, list[tuple[float, float, float, float, float]]] = {}
-    for lineno, row in enumerate(reader, start=2):
-        if not row or all(not f.strip() for f in row):
-            continue
-        if len(row) < len(header):
-            raise InputFileError(
-                f"{src}: line {lineno}: {len(row)} fields, the header has {len(header)}"
-            )
+    for lineno, row in _rows(src, header, reader):
         vals = [_number_field(src, lineno, header, row, col[key]) for key in ("t", "x", "y", "z")]
-        name = row[col["vehicle"]].strip()
-        if not name:
-            raise InputFileError(f"{src}: line {lineno}: column vehicle: empty")
+        name = _vehicle_field(src, lineno, row, col["vehicle"])
         yaw = math.nan if yaw_col is None else _yaw_field(src, lineno, header, row, yaw_col)
         rows.setdefault(name, []).append((vals[0], vals[1], vals[2], vals[3], yaw))
     if not rows:
@@ -143,6 +126,92 @@ def load_telemetry(
         heading = a[:, 4] if np.isfinite(a[:, 4]).any() else None
         vehicles[name] = FlownTrack(name, t_s=a[:, 0], pos_enu_m=a[:, 1:4], yaw_enu_rad=heading)
     return Telemetry(source=src, vehicles=vehicles)
+
+
+def _csv(p: Path, expected: str) -> tuple[list[str], Iterator[list[str]]]:
+    """The header (stripped) and the remaining rows of a CSV file (InputFileError naming the
+    file when it cannot be read, is not text, or is empty: ``expected`` names its header)."""
+    src = str(p)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise InputFileError(f"{src}: cannot read: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        raise InputFileError(f"{src}: not a text (CSV) file") from None
+    reader = csv.reader(io.StringIO(text))
+    try:
+        header = [h.strip() for h in next(reader)]
+    except StopIteration:
+        raise InputFileError(f"{src}: empty file (expected a header {expected})") from None
+    return header, reader
+
+
+def _rows(
+    src: str, header: list[str], reader: Iterator[list[str]]
+) -> Iterator[tuple[int, list[str]]]:
+    """(line number, fields) of each non-blank row, each with the header's fields at least."""
+    for lineno, row in enumerate(reader, start=2):
+        if not row or all(not f.strip() for f in row):
+            continue
+        if len(row) < len(header):
+            raise InputFileError(
+                f"{src}: line {lineno}: {len(row)} fields, the header has {len(header)}"
+            )
+        yield lineno, row
+
+
+def _vehicle_field(src: str, lineno: int, row: list[str], col: int) -> str:
+    name = row[col].strip()
+    if not name:
+        raise InputFileError(f"{src}: line {lineno}: column vehicle: empty")
+    return name
+
+
+def load_images(path: str | Path, plan: Plan | None = None) -> dict[str, list[CapturedImage]]:
+    """Read a flight's image log (:func:`mavlink.camera.write_images_csv`): the pictures by
+    vehicle, in the file's order.
+
+    Raises:
+        InputFileError: unreadable file, a missing column, a bad value (file, line, column),
+            a vehicle that is not in ``plan``.
+    """
+    from mavlink.camera import IMAGE_COLUMNS, CapturedImage
+
+    p = Path(path)
+    src = str(p)
+    header, reader = _csv(p, ",".join(IMAGE_COLUMNS))
+    missing = [c for c in IMAGE_COLUMNS if c not in header]
+    if missing:
+        raise InputFileError(f"{src}: line 1: missing column(s) {', '.join(missing)}")
+    col = {c: header.index(c) for c in IMAGE_COLUMNS}
+    known = None if plan is None else {v.name for v in plan.vehicles}
+    out: dict[str, list[CapturedImage]] = {}
+    for lineno, row in _rows(src, header, reader):
+
+        def num(name: str, row: list[str] = row, lineno: int = lineno) -> float:
+            return _number_field(src, lineno, header, row, col[name])
+
+        vehicle = _vehicle_field(src, lineno, row, col["vehicle"])
+        if known is not None and vehicle not in known:
+            raise InputFileError(
+                f"{src}: vehicle {vehicle!r} is not in the plan ({', '.join(sorted(known))})"
+            )
+        out.setdefault(vehicle, []).append(
+            CapturedImage(
+                vehicle=vehicle,
+                t_s=num("t_s"),
+                lat_deg=num("lat_deg"),
+                lon_deg=num("lon_deg"),
+                alt_amsl_m=num("alt_amsl_m"),
+                rel_alt_m=num("rel_alt_m"),
+                q_wxyz=(num("qw"), num("qx"), num("qy"), num("qz")),
+                index=int(num("index")),
+                ok=bool(int(num("ok"))),
+                component=int(num("component")),
+                file_url=row[col["file_url"]].strip(),
+            )
+        )
+    return out
 
 
 def _yaw_field(src: str, lineno: int, header: list[str], row: list[str], col: int) -> float:

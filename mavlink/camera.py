@@ -9,19 +9,15 @@ start, as the flown tracks), :class:`CameraInfo` the optics of ``CAMERA_INFORMAT
 field of view a footprint is drawn with).  Both are read from a message's fields, whether it
 came live (:class:`mavlink.vehicle.Vehicle`, through MAVSDK's mavlink_direct JSON) or from a
 ``.tlog`` (:func:`images_from_tlog`); :func:`write_images_csv` keeps the image log of a
-flight (``images.csv``), which :func:`read_images_csv` reads back.
+flight (``images.csv``), which :func:`gcs.telemetry.load_images` reads back (as
+:func:`mavlink.tracks.write_tracks_csv`'s tracks are read there).
 
 Numpy and pymap3d only, except the ``.tlog`` reader (pymavlink, imported there).
-
-Errors::
-
-    ImageLogError(LinkError, ValueError)   a malformed image log (file, line, column)
 """
 
 from __future__ import annotations
 
 import csv
-import io
 import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, fields
@@ -30,7 +26,6 @@ from typing import Any
 
 import numpy as np
 
-from mavlink.errors import LinkError
 from planner.frames import GeodeticPoint, geodetic_to_enu
 
 __all__ = [
@@ -39,11 +34,9 @@ __all__ = [
     "MAV_TYPE_CAMERA",
     "CameraInfo",
     "CapturedImage",
-    "ImageLogError",
     "camera_info_from_fields",
     "image_from_fields",
     "images_from_tlog",
-    "read_images_csv",
     "write_images_csv",
 ]
 
@@ -53,10 +46,6 @@ MAV_COMP_ID_CAMERA = 100
 MAV_TYPE_CAMERA = 30
 #: CAMERA_INFORMATION.flags bit: the camera takes still pictures.
 CAMERA_CAP_FLAGS_CAPTURE_IMAGE = 2
-
-
-class ImageLogError(LinkError, ValueError):
-    """A malformed image log: the message names the file, line and column."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -272,64 +261,3 @@ def write_images_csv(path: str | Path, images: Iterable[CapturedImage]) -> Path:
                 ]
             )
     return p
-
-
-def read_images_csv(path: str | Path) -> list[CapturedImage]:
-    """Read an image log written by :func:`write_images_csv`.
-
-    Raises:
-        ImageLogError: unreadable file, a missing column, a bad value (file, line, column).
-    """
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ImageLogError(f"{p}: cannot read: {exc.strerror or exc}") from None
-    except UnicodeDecodeError:
-        raise ImageLogError(f"{p}: not a text (CSV) file") from None
-    reader = csv.reader(io.StringIO(text))
-    header = [h.strip() for h in next(reader, [])]
-    missing = [c for c in IMAGE_COLUMNS if c not in header]
-    if missing:
-        raise ImageLogError(f"{p}: line 1: missing column(s) {', '.join(missing)}")
-    col = {c: header.index(c) for c in IMAGE_COLUMNS}
-    out = []
-    for lineno, row in enumerate(reader, start=2):
-        if not row or all(not f.strip() for f in row):
-            continue
-        if len(row) < len(header):
-            raise ImageLogError(
-                f"{p}: line {lineno}: {len(row)} fields, the header has {len(header)}"
-            )
-
-        def num(name: str, row: list[str] = row, lineno: int = lineno) -> float:
-            field = row[col[name]].strip()
-            try:
-                v = float(field)
-            except ValueError:
-                raise ImageLogError(
-                    f"{p}: line {lineno}: column {name}: not a number: {field!r}"
-                ) from None
-            if not math.isfinite(v):
-                raise ImageLogError(f"{p}: line {lineno}: column {name}: must be finite")
-            return v
-
-        vehicle = row[col["vehicle"]].strip()
-        if not vehicle:
-            raise ImageLogError(f"{p}: line {lineno}: column vehicle: empty")
-        out.append(
-            CapturedImage(
-                vehicle=vehicle,
-                t_s=num("t_s"),
-                lat_deg=num("lat_deg"),
-                lon_deg=num("lon_deg"),
-                alt_amsl_m=num("alt_amsl_m"),
-                rel_alt_m=num("rel_alt_m"),
-                q_wxyz=(num("qw"), num("qx"), num("qy"), num("qz")),
-                index=int(num("index")),
-                ok=bool(int(num("ok"))),
-                component=int(num("component")),
-                file_url=row[col["file_url"]].strip(),
-            )
-        )
-    return out

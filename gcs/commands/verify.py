@@ -119,31 +119,20 @@ def _coverage(plan: Any, args: argparse.Namespace) -> Any:
     when neither is given.
 
     Raises:
-        gcs.errors.InputFileError: an unreadable image log (file, line, column), a ``.tlog``
-            without ``--t0``.
+        gcs.errors.InputFileError: an unreadable image log (file, line, column), or one with a
+            vehicle that is not in the plan.
     """
     from pathlib import Path
 
     from gcs.coverage import compute_coverage
-    from gcs.errors import InputFileError
-    from mavlink.camera import ImageLogError, images_from_tlog, read_images_csv
+    from gcs.telemetry import load_images
+    from mavlink.camera import images_from_tlog
 
     tlog = args.telemetry and Path(args.telemetry).suffix.lower() == ".tlog"
+    infos: dict[str, Any] = {}
+    images: dict[str, Any]
     if args.images:
-        try:
-            flat = read_images_csv(args.images)
-        except ImageLogError as exc:
-            raise InputFileError(str(exc)) from None
-        images: dict[str, list[Any]] = {}
-        known = {v.name for v in plan.vehicles}
-        for im in flat:
-            if im.vehicle not in known:
-                raise InputFileError(
-                    f"{args.images}: vehicle {im.vehicle!r} is not in the plan "
-                    f"({', '.join(sorted(known))})"
-                )
-            images.setdefault(im.vehicle, []).append(im)
-        infos: dict[str, Any] = {}
+        images = load_images(args.images, plan)
     elif tlog and args.t0 is not None:
         images, infos = images_from_tlog(
             args.telemetry, {v.sysid: v.name for v in plan.vehicles}, float(args.t0)

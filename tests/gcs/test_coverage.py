@@ -18,13 +18,9 @@ from scipy.spatial.transform import Rotation
 
 from gcs.cli import main
 from gcs.coverage import compute_coverage, coverage_figure, coverage_lines
-from mavlink.camera import (
-    CameraInfo,
-    CapturedImage,
-    ImageLogError,
-    read_images_csv,
-    write_images_csv,
-)
+from gcs.errors import InputFileError
+from gcs.telemetry import load_images
+from mavlink.camera import CameraInfo, CapturedImage, write_images_csv
 from planner.planfile import load_plan
 
 
@@ -133,7 +129,7 @@ def test_the_image_log_reads_back_as_written_and_bad_logs_name_line_and_column(
     plan = load_plan(face_plan)
     ims = [_picture(plan, _in_place(plan), 3.0 * i, index=i, t_s=5.0 + i) for i in range(3)]
     path = write_images_csv(tmp_path / "images.csv", ims)
-    back = read_images_csv(path)
+    (back,) = load_images(path).values()
     assert len(back) == 3
     for a, b in zip(ims, back, strict=True):
         assert (a.vehicle, a.index, a.ok, a.component) == (b.vehicle, b.index, b.ok, b.component)
@@ -145,11 +141,11 @@ def test_the_image_log_reads_back_as_written_and_bad_logs_name_line_and_column(
     text = path.read_text().splitlines()
     bad = tmp_path / "bad.csv"
     bad.write_text("\n".join([text[0], text[1].replace(text[1].split(",")[2], "north")]) + "\n")
-    with pytest.raises(ImageLogError, match=r"bad.csv: line 2: column lat_deg: not a number"):
-        read_images_csv(bad)
+    with pytest.raises(InputFileError, match=r"bad.csv: line 2: column lat_deg: not a number"):
+        load_images(bad)
     bad.write_text("vehicle,t_s\nd1,1\n")
-    with pytest.raises(ImageLogError, match=r"line 1: missing column\(s\) lat_deg"):
-        read_images_csv(bad)
+    with pytest.raises(InputFileError, match=r"line 1: missing column\(s\) lat_deg"):
+        load_images(bad)
 
 
 def test_gcs_verify_checks_every_target_was_pictured_from_the_image_log(

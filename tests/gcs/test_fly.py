@@ -22,7 +22,7 @@ from pymavlink import mavutil
 from gcs.cli import main
 from gcs.dryrun import free_udp_ports
 from gcs.evaluation import plan_formula
-from gcs.telemetry import load_telemetry
+from gcs.telemetry import load_images, load_telemetry
 from mavlink.tlog import tracks_from_tlog
 from planner.planfile import load_plan
 from tests.procutil import interruptible
@@ -351,13 +351,12 @@ def _check_pictures(plan, log: Path, res: dict, capsys, *, offboard: bool) -> No
     the plan's clock; a mission: while the vehicle held in insp1), from where the track was,
     looking where the vehicle headed with the gimbal's pitch; gcs verify --images agrees."""
     from gcs.payload import capture_spans
-    from mavlink.camera import read_images_csv
 
     (span,) = capture_spans(plan)["d1"]
     cov = res["coverage"]
     assert cov["covered"] == 1 and cov["targets"] == 1
     (row,) = cov["by_target"]
-    images = read_images_csv(log / "images.csv")
+    (images,) = load_images(log / "images.csv").values()
     assert row["images"] == len(images) == res["images"]["d1"] >= 3
     if offboard:
         assert len(images) == row["planned"]
