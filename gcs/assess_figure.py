@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from planner.cover import drawn_regions
+
 if TYPE_CHECKING:
     from gcs.assess_stats import AssessResult
     from mavlink.mock.batch import BatchFlights
@@ -69,7 +71,8 @@ def plot_assessment(
             f = worst.true_enu_m[0, k]
             ax.plot(f[:, 0], f[:, 1], color=line[0].get_color(), lw=1.5, ls=":",
                     label="worst run (true)" if k == 0 else None)  # fmt: skip
-    for r in plan.regions:  # seen from above: a box's rectangle, a prism's polygon, a circle
+    # seen from above: a box's rectangle, a prism's polygon (one not convex: its outline), a circle
+    for r in drawn_regions(plan.regions):
         ax.add_patch(
             matplotlib.patches.Polygon(
                 r.footprint_xy(), closed=True, fill=False, lw=0.6, color="0.5"

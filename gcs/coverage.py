@@ -331,11 +331,10 @@ def _draw_regions_xy(ax: Any, plan: Plan) -> None:
     from matplotlib.patches import Polygon
 
     from gcs.figure import _KIND_STYLE, is_large
+    from planner.cover import drawn_regions
 
-    for r in plan.all_regions:
+    for r in drawn_regions(plan.regions):
         kind = r.kind.value
-        if kind == "workspace":
-            continue
         face, alpha, edge, _ = _KIND_STYLE.get(kind, _KIND_STYLE["region"])
         big = is_large(r, plan.workspace)
         ax.add_patch(

@@ -36,6 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gcs.clause_traces import plan_grid
+from planner.cover import drawn_regions
 from planner.regions import Cylinder, Prism
 
 if TYPE_CHECKING:
@@ -44,6 +45,7 @@ if TYPE_CHECKING:
     from gcs.clause_traces import ClauseTrace
     from gcs.telemetry import Telemetry
     from mavlink.tracks import FlownTrack
+    from planner.cover import Outline
     from planner.planfile import Plan
     from planner.regions import Region
 
@@ -128,15 +130,16 @@ def _prism_edges(
 _CYLINDER_VERTICALS = 4
 
 
-def region_faces(region: Region) -> list[NDArray[np.float64]]:
+def region_faces(region: Region | Outline) -> list[NDArray[np.float64]]:
     """The faces of a region (:class:`planner.regions.Region`) as drawn: a box's six
-    ``(4, 3)``; a prism's or cylinder's floor and roof ``(m, 3)`` and ``m`` walls."""
+    ``(4, 3)``; a prism's or cylinder's floor and roof ``(m, 3)`` and ``m`` walls (a polygon
+    that is not convex: its :class:`planner.cover.Outline`'s)."""
     if region.shape is None:
         return _box_faces(region.lo_enu_m, region.hi_enu_m)
     return _prism_faces(region.footprint_xy(), region.shape.z_lo_m, region.shape.z_hi_m)
 
 
-def region_edges(region: Region) -> list[NDArray[np.float64]]:
+def region_edges(region: Region | Outline) -> list[NDArray[np.float64]]:
     """The edges of a region as drawn in outline, each ``(2, 3)``."""
     if region.shape is None:
         return _box_edges(region.lo_enu_m, region.hi_enu_m)
@@ -198,7 +201,7 @@ def _draw_regions(ax: Any, plan: Plan) -> list[Any]:
     handles: dict[str, Any] = {
         "workspace": Line2D([], [], color="k", lw=0.7, ls="--", label="workspace")
     }
-    ordered = sorted(plan.regions, key=lambda r: r.kind.value in _TARGET_KINDS)
+    ordered = sorted(drawn_regions(plan.regions), key=lambda r: r.kind.value in _TARGET_KINDS)
     for r in ordered:
         face, alpha, edge, label = _KIND_STYLE.get(r.kind.value, _KIND_STYLE["region"])
         if is_large(r, ws):

@@ -34,7 +34,7 @@ Error tree (each message names the file/field/position)::
       planner.dynamics.DynamicsError        bad model parameters (a ValueError)
       planner.trajectory.TrajectoryError    bad segment data (a ValueError)
       planner.frames.FrameError             bad geodetic/frame input (a ValueError)
-      planner.regions.ShapeError            a shape that cannot be: a polygon not convex, an
+      planner.regions.ShapeError            a shape that cannot be: a polygon whose edges cross, an
                                             empty height range (a ValueError; the scenario
                                             reader names the field)
 

@@ -171,6 +171,8 @@ def _region_json(r: Region) -> dict[str, Any]:
     elif isinstance(r.shape, Cylinder):
         s = r.shape
         out.update(center=list(s.center_xy), radius=s.radius_m, z=[s.z_lo_m, s.z_hi_m])
+    if r.part_of is not None:
+        out["part_of"] = r.part_of
     return out
 
 
@@ -341,7 +343,10 @@ class _Reader:
                 )
         except (ShapeError, TypeError, ValueError) as exc:
             raise self.fail(path, f"bad shape: {exc}") from None
-        return Region.of_shape(name, kind, shape)
+        part_of = v.get("part_of")
+        if part_of is not None and not (isinstance(part_of, str) and part_of):
+            raise self.fail(f"{path}.part_of", "expected the name of the polygon it is part of")
+        return Region.of_shape(name, kind, shape, part_of)
 
     def number(
         self, m: dict[str, Any], key: str, *, positive: bool = False, nonnegative: bool = False

@@ -5,7 +5,9 @@ A region is an axis-aligned box (``lo_enu_m``/``hi_enu_m``), or a shape in any d
 (:attr:`Region.shape`, with ``lo_enu_m``/``hi_enu_m`` its bounding box):
 
 * :class:`Prism`: a vertical prism over a convex polygon (a no-fly area, a right of way, an
-  inspection box turned about the vertical: :meth:`Prism.oriented_box`);
+  inspection box turned about the vertical: :meth:`Prism.oriented_box`); a polygon that is
+  not convex is read as convex parts that overlap (:func:`planner.cover.polygon_regions`),
+  each a region with :attr:`Region.part_of` its name;
 * :class:`Cylinder`: a vertical cylinder (a pole).
 
 Every region has the same *margin* (:meth:`Region.margin`): the smallest of its face margins,
@@ -62,8 +64,9 @@ KEEP_OUT_KINDS = frozenset(
 
 
 class ShapeError(PlannerError, ValueError):
-    """A shape that cannot be: fewer than three corners, a polygon that is not convex, an
-    empty height range, a radius <= 0 (the scenario reader names the field)."""
+    """A shape that cannot be: fewer than three corners, a polygon whose edges cross (or, for
+    a :class:`Prism`, that is not convex), an empty height range, a radius <= 0 (the scenario
+    reader names the field)."""
 
 
 #: Sides of the regular polygon a cylinder is read as where a linear form is needed
@@ -117,11 +120,12 @@ class Prism:
             i = int(np.argmin(cross))
             raise ShapeError(
                 f"the polygon is not convex at corner {(i + 1) % len(v) + 1} "
-                f"({v[(i + 1) % len(v), 0]:g}, {v[(i + 1) % len(v), 1]:g}): split it into "
-                f"convex parts that overlap where they meet (an L: its two arms, each with the "
-                f"corner) and join them in the spec (inside: or; outside: and); parts that only "
-                f"touch leave no margin at the seam"
+                f"({v[(i + 1) % len(v), 0]:g}, {v[(i + 1) % len(v), 1]:g}) (a prism is convex: "
+                f"planner.cover.polygon_regions reads one that is not as its convex parts)"
             )
+        dots = np.einsum("ij,ij->i", edges, np.roll(edges, -1, axis=0))
+        if np.sum(np.arctan2(cross, dots)) > 3.0 * np.pi:  # turns the same way, winds twice
+            raise ShapeError("the polygon's edges cross (it winds round more than once)")
         normals = np.column_stack([edges[:, 1], -edges[:, 0]]) / lengths[:, None]
         offsets = np.einsum("ij,ij->i", normals, v)
         return cls(
@@ -192,6 +196,9 @@ class Region:
         name, kind: as the scenario names it, and what it means (:class:`RegionKind`).
         lo_enu_m, hi_enu_m: the axis-aligned box; for a shaped region its bounding box.
         shape: ``None`` for a box; else the :class:`Prism` or :class:`Cylinder` it is.
+        part_of: the name of the polygon that is not convex this is a convex part of
+            (:mod:`planner.cover`: the spec's ``inside`` of it is that of one of its parts);
+            ``None`` for a region of its own.
     """
 
     name: str
@@ -199,9 +206,12 @@ class Region:
     lo_enu_m: tuple[float, float, float]
     hi_enu_m: tuple[float, float, float]
     shape: Shape | None = None
+    part_of: str | None = None
 
     @classmethod
-    def of_shape(cls, name: str, kind: RegionKind, shape: Shape) -> Region:
+    def of_shape(
+        cls, name: str, kind: RegionKind, shape: Shape, part_of: str | None = None
+    ) -> Region:
         """A region of ``shape``, with its bounding box."""
         if isinstance(shape, Prism):
             v = np.asarray(shape.vertices_xy)
@@ -211,7 +221,7 @@ class Region:
             lo_xy, hi_xy = c - shape.radius_m, c + shape.radius_m
         lo = (float(lo_xy[0]), float(lo_xy[1]), float(shape.z_lo_m))
         hi = (float(hi_xy[0]), float(hi_xy[1]), float(shape.z_hi_m))
-        return cls(name, kind, lo, hi, shape)
+        return cls(name, kind, lo, hi, shape, part_of)
 
     @classmethod
     def turned_box(

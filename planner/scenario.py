@@ -10,7 +10,7 @@ A scenario names everything the planner needs (see ``configs/*.yaml`` for commen
       goal: {kind: goal, center: [1.75, 1.75, 0.75], half_size: 0.25}
       # turned about the vertical: yaw_deg (ccw from east) or bearing_deg (cw from north)
       # row: {center: [0, 0, 5], half_size: [20, 3, 5], bearing_deg: 37}
-      # nofly: {kind: no_fly, polygon: [[x, y], ...], z: [0, 50]}   # a convex polygon
+      # nofly: {kind: no_fly, polygon: [[x, y], ...], z: [0, 50]}   # any simple polygon
       # pole: {kind: pole, center: [x, y], radius: 0.3, z: [0, 12]}
     limits: {v_max_m_s: 0.751, a_max_m_s2: 1.0}             # scalar or [x, y, z] per axis
     vehicles:                                               # a list of vehicles ...
@@ -77,7 +77,7 @@ from planner.scenario_sections import (
     _solver,
     _vehicles,
 )
-from planner.scenario_spec import _check_calls, _expand_spec, parse_clause
+from planner.scenario_spec import _check_calls, _expand_spec, _spell_parts, parse_clause
 
 __all__ = ["load_scenario", "parse_scenario"]
 
@@ -130,10 +130,10 @@ def parse_scenario(
         raise rd.fail("origin.lon", f"longitude {lon:g} is outside [-180, 180]")
     origin = GeodeticPoint(lat_deg=lat, lon_deg=lon, alt_m=alt)
 
-    workspace = _region(
+    (workspace, *more) = _region(
         rd, "workspace", rd.require(top, "workspace", ""), "workspace", RegionKind.WORKSPACE
     )
-    if workspace.shape is not None:
+    if more or workspace.shape is not None:
         raise rd.fail(
             "workspace",
             "the workspace is an axis-aligned box (min/max or center/half_size): put a "
@@ -157,7 +157,12 @@ def parse_scenario(
                 _join(p, "kind"),
                 f"unknown kind {kind_s!r} (kinds: {', '.join(k.value for k in RegionKind)})",
             ) from None
-        regions.append(_region(rd, rname, rval, p, kind))
+        for r in _region(rd, rname, rval, p, kind):
+            if r.part_of is not None and (
+                r.name in reg_map or any(q.name == r.name for q in regions)
+            ):
+                raise rd.fail(p, f"its part {r.name!r} has the name of another region")
+            regions.append(r)
 
     line_names: dict[str, list[str]] = {}
     if "line" in top:
@@ -298,6 +303,7 @@ def parse_scenario(
                 _join("groups", lname), f"{lname!r} is the line section's list of its {lname}"
             )
     clauses = _expand_spec(rd, rd.require(top, "spec", ""), {**groups, **line_names}, constants)
+    clauses = _spell_parts(rd, clauses, regions)
     _check_calls(rd, clauses, seen, region_names)
 
     problem = Problem(

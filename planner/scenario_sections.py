@@ -19,11 +19,12 @@ from typing import Any
 
 import numpy as np
 
+from planner.cover import polygon_regions
 from planner.errors import FileFieldError
 from planner.limits import PX4_LIMIT_KEYS
 from planner.predicates import PREDICATES
 from planner.problem import QP_SOLVERS, SolverMethod, SolverOptions, Vehicle
-from planner.regions import Cylinder, Prism, Region, RegionKind, ShapeError
+from planner.regions import Cylinder, Region, RegionKind, ShapeError
 
 __all__ = ["ScenarioError"]
 
@@ -176,11 +177,19 @@ def _heights(rd: _Reader, m: Mapping[str, Any], path: str) -> tuple[float, float
     return z
 
 
-def _region(rd: _Reader, name: str, value: Any, path: str, kind: RegionKind) -> Region:
+def _region(rd: _Reader, name: str, value: Any, path: str, kind: RegionKind) -> tuple[Region, ...]:
     """A region: a box ({min, max} or {center, half_size}), turned about the vertical with
     ``yaw_deg`` (counter-clockwise from east) or ``bearing_deg`` (of its x axis, clockwise
-    from north); a prism ``{polygon: [[x, y], ...], z: [bottom, top]}`` over a convex
-    polygon; a cylinder ``{center: [x, y], radius: r, z: [bottom, top]}``."""
+    from north); a prism ``{polygon: [[x, y], ...], z: [bottom, top]}`` over a simple
+    polygon (one that is not convex: its convex parts, :func:`planner.cover.polygon_regions`);
+    a cylinder ``{center: [x, y], radius: r, z: [bottom, top]}``."""
+    got = _one_region(rd, name, value, path, kind)
+    return got if isinstance(got, tuple) else (got,)
+
+
+def _one_region(
+    rd: _Reader, name: str, value: Any, path: str, kind: RegionKind
+) -> Region | tuple[Region, ...]:
     m = rd.mapping(value, path)
     if "polygon" in m:
         rd.mapping(value, path, {"polygon", "z", "kind"})
@@ -194,7 +203,7 @@ def _region(rd: _Reader, name: str, value: Any, path: str, kind: RegionKind) -> 
         ]
         z = _heights(rd, m, path)
         try:
-            return Region.of_shape(name, kind, Prism.from_polygon(corners, *z))
+            return polygon_regions(name, kind, corners, *z)
         except ShapeError as exc:
             raise rd.fail(_join(path, "polygon"), str(exc)) from None
     if "radius" in m:

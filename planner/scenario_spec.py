@@ -18,6 +18,7 @@ from typing import Any
 
 from planner.predicates import PREDICATES, build_registry
 from planner.problem import Clause, Problem
+from planner.regions import Region
 from planner.scenario_checks import horizon_sum
 from planner.scenario_sections import _NAME_RE, ScenarioError, _join, _Reader
 from planner.stl import (
@@ -147,6 +148,48 @@ def _expand_spec(
             text = " ".join(_substitute(formula, b).split())
             clauses.append(Clause(fpath, text))
     return clauses
+
+
+#: How ``inside``/``outside`` of a polygon that is not convex reads: of one of its parts, of
+#: all of them.
+_PART_JOIN = {"inside": " or ", "outside": " and "}
+
+
+def _spell_parts(rd: _Reader, clauses: Sequence[Clause], regions: Sequence[Region]) -> list[Clause]:
+    """The clauses with each ``inside``/``outside`` of a polygon that is not convex spelled
+    as that of its convex parts (:mod:`planner.cover`): ``inside(d, row)`` is
+    ``(inside(d, row_part1) or inside(d, row_part2))``, ``outside`` joins with ``and``; any
+    other function of such a polygon is an error naming it."""
+    parts: dict[str, list[str]] = {}
+    for r in regions:
+        if r.part_of is not None:
+            parts.setdefault(r.part_of, []).append(r.name)
+    if not parts:
+        return list(clauses)
+
+    def spell(mt: re.Match[str], cl: Clause) -> str:
+        fn, args_text = mt.group(1), mt.group(2)
+        args = [a.strip() for a in args_text.split(",")]
+        named = [a for a in args if a in parts]
+        if not named:
+            return mt[0]
+        if fn not in _PART_JOIN or len(args) != 2 or args[0] in parts:
+            raise rd.fail(
+                cl.key_path,
+                f"{mt[0]!r}: {named[0]} is a polygon that is not convex (read as its convex "
+                f"parts {', '.join(parts[named[0]])}); only inside and outside take it",
+            )
+        each = (f"{fn}({args[0]}, {p})" for p in parts[args[1]])
+        return "(" + _PART_JOIN[fn].join(each) + ")"
+
+    out = []
+    for cl in clauses:
+
+        def spell_here(mt: re.Match[str], cl: Clause = cl) -> str:
+            return spell(mt, cl)
+
+        out.append(Clause(cl.key_path, _CALL.sub(spell_here, cl.text)))
+    return out
 
 
 def _check_calls(

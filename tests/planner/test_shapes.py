@@ -157,6 +157,7 @@ def test_a_cylinders_linear_forms_are_inside_it_for_a_place_and_around_it_for_a_
         ([[0, 0], [4, 0], [4, 0], [0, 4]], "repeats a corner"),
         ([[0, 0], [1, 1]], "at least 3 corners"),
         ([[0, 0], [1, 1], [2, 2]], "not convex"),
+        ([[0, 1], [0.588, -0.809], [-0.951, 0.309], [0.951, 0.309], [-0.588, -0.809]], "cross"),
     ],
 )
 def test_a_polygon_that_is_not_convex_is_refused_naming_the_corner(corners, says) -> None:  # type: ignore[no-untyped-def]
@@ -231,8 +232,8 @@ def test_a_turned_box_may_be_given_by_yaw_or_by_bearing() -> None:
     ("regions", "says"),
     [
         (
-            "  goal: {polygon: [[0, 0], [4, 0], [1, 1], [0, 4]], z: [0, 5]}\n",
-            r"regions\.goal\.polygon.*not convex at corner 3",
+            "  goal: {polygon: [[0, 0], [4, 4], [4, 0], [0, 4]], z: [0, 5]}\n",
+            r"regions\.goal\.polygon.*edges cross or touch at \(2, 2\)",
         ),
         ("  goal: {center: [5, 4, 3], half_size: 1, yaw_deg: 3, bearing_deg: 4}\n", "not both"),
         ("  goal: {center: [5, 4], radius: 0, z: [0, 5]}\n", r"regions\.goal\.radius.*> 0"),
