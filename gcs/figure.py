@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 
 from gcs.clause_traces import plan_grid
 from planner.cover import drawn_regions
-from planner.regions import Cylinder, Prism
+from planner.regions import Cylinder
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -143,7 +143,7 @@ def region_edges(region: Region | Outline) -> list[NDArray[np.float64]]:
     """The edges of a region as drawn in outline, each ``(2, 3)``."""
     if region.shape is None:
         return _box_edges(region.lo_enu_m, region.hi_enu_m)
-    verticals = None if isinstance(region.shape, Prism) else _CYLINDER_VERTICALS
+    verticals = _CYLINDER_VERTICALS if isinstance(region.shape, Cylinder) else None
     return _prism_edges(region.footprint_xy(), region.shape.z_lo_m, region.shape.z_hi_m, verticals)
 
 

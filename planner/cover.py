@@ -45,6 +45,7 @@ from planner.regions import Prism, Region, RegionKind, ShapeError
 
 __all__ = [
     "Outline",
+    "OutlineShape",
     "convex_cover",
     "drawn_regions",
     "part_name",
@@ -92,10 +93,21 @@ def polygon_regions(
 
 
 @dataclass(frozen=True, slots=True)
+class OutlineShape:
+    """What the figures read of a polygon that is not convex: its corners (counter-clockwise,
+    ``(m, 2)`` as tuples) and its floor and roof.  No walls: it has no margin of its own (its
+    parts have)."""
+
+    vertices_xy: tuple[tuple[float, float], ...]
+    z_lo_m: float
+    z_hi_m: float
+
+
+@dataclass(frozen=True, slots=True)
 class Outline:
     """A polygon that is not convex as the figures draw it: one outline over its parts,
     with what a figure reads of a region (``name``, ``kind``, ``lo_enu_m``, ``hi_enu_m``,
-    ``shape`` for the floor and roof, :meth:`footprint_xy`, :attr:`center_enu_m`)."""
+    ``shape``, :meth:`footprint_xy`, :attr:`center_enu_m`)."""
 
     name: str
     parts: tuple[Region, ...]
@@ -105,8 +117,15 @@ class Outline:
         return self.parts[0].kind
 
     @property
-    def shape(self) -> Prism | Any:
-        return self.parts[0].shape
+    def shape(self) -> OutlineShape:
+        """The union of the parts' footprints, over their common heights."""
+        import shapely
+
+        union = shapely.union_all([shapely.Polygon(r.footprint_xy()) for r in self.parts])
+        corners = _drop_straight(_corners(union), _tol(np.asarray(self.parts[0].footprint_xy())))
+        return OutlineShape(
+            tuple((float(x), float(y)) for x, y in corners), self.lo_enu_m[2], self.hi_enu_m[2]
+        )
 
     @property
     def lo_enu_m(self) -> tuple[float, float, float]:
@@ -119,11 +138,8 @@ class Outline:
         return (float(hi[0]), float(hi[1]), float(hi[2]))
 
     def footprint_xy(self, sides: int = 48) -> np.ndarray:
-        """The polygon's corners, counter-clockwise ``(m, 2)``: the union of its parts'."""
-        import shapely
-
-        union = shapely.union_all([shapely.Polygon(r.footprint_xy(sides)) for r in self.parts])
-        return _drop_straight(_corners(union), _tol(np.asarray(self.parts[0].footprint_xy())))
+        """The polygon's corners, counter-clockwise ``(m, 2)``."""
+        return np.asarray(self.shape.vertices_xy, dtype=float)
 
     @property
     def center_enu_m(self) -> np.ndarray:

@@ -115,6 +115,24 @@ def test_figures_draw_a_polygon_as_its_outline_not_as_its_parts() -> None:
     )
     assert MplPath(corners).contains_point(row.center_enu_m[:2])  # the label is on the L
     assert row.hi_enu_m[2] == 15 and row.lo_enu_m[2] == 0
+    assert (row.shape.z_lo_m, row.shape.z_hi_m) == (0, 15)
+    np.testing.assert_array_equal(np.asarray(row.shape.vertices_xy), corners)
+
+
+def test_a_no_fly_polygon_is_fenced_as_its_parts_which_px4_reads_as_their_union() -> None:
+    """PX4 passes a point only if it is outside every exclusion polygon (navigator's
+    Geofence::isInsidePolygonOrCircle ANDs them), so the parts fence exactly the L."""
+    from mavlink.mission import fence_zones
+
+    ws = Region("workspace", RegionKind.WORKSPACE, (-20, -20, 0), (60, 60, 20))
+    parts = polygon_regions("nofly", RegionKind.NO_FLY, L_SHAPE, 0.0, 20.0)
+    zones = fence_zones(ws, parts)
+    exclusions = [z for z in zones if not z.inclusion]
+    assert [z.name for z in exclusions] == ["nofly_part1", "nofly_part2"]
+    grid = RNG.uniform(-5, 45, (5000, 2))
+    grid = grid[_seg_distance(grid, np.asarray(L_SHAPE, float)) > 1e-6]
+    barred = np.any([MplPath(z.vertices_xy()).contains_points(grid) for z in exclusions], axis=0)
+    np.testing.assert_array_equal(barred, MplPath(np.asarray(L_SHAPE)).contains_points(grid))
 
 
 @pytest.mark.parametrize("name", list(POLYGONS))
