@@ -44,6 +44,7 @@ import numpy as np
 from planner.regions import Prism, Region, RegionKind, ShapeError
 
 __all__ = [
+    "MAX_PARTS",
     "Outline",
     "OutlineShape",
     "convex_cover",
@@ -55,6 +56,12 @@ __all__ = [
 
 #: Relative tolerance of the geometry (times the polygon's size in metres).
 _REL_TOL = 1e-9
+#: The most convex parts a polygon is read as: each is a disjunct of ``inside`` of it (a
+#: conjunct of ``outside``) wherever the spec names it, for every vehicle and sample.
+MAX_PARTS = 32
+#: The most pieces the cuts may make before the parts are grown (the growing is about
+#: quadratic in them): past it the polygon is refused before the work.
+_MAX_CELLS = 400
 
 
 def part_name(name: str, k: int) -> str:
@@ -190,7 +197,8 @@ def convex_cover(vertices_xy: Any) -> list[np.ndarray]:
         corner; one part (the polygon itself) when it is convex.
 
     Raises:
-        ShapeError: the polygon crosses or touches itself, or has no area.
+        ShapeError: the polygon crosses or touches itself, has no area, or needs more than
+            :data:`MAX_PARTS` parts.
     """
     import shapely
 
@@ -202,7 +210,18 @@ def convex_cover(vertices_xy: Any) -> list[np.ndarray]:
     if not reflex_corners(v):
         return [v]
     cells = _cells(poly, v, tol)
+    if len(cells) > _MAX_CELLS:
+        raise ShapeError(
+            f"the polygon is too intricate to read: its {len(reflex_corners(v))} reflex corners "
+            f"cut it into {len(cells)} pieces (at most {_MAX_CELLS}); give it fewer corners"
+        )
     parts = _grow_parts(cells, tol)
+    if len(parts) > MAX_PARTS:
+        raise ShapeError(
+            f"the polygon needs {len(parts)} convex parts (at most {MAX_PARTS}, each a "
+            f"disjunct of every clause it is in): give it fewer reflex corners, or split it "
+            f"into convex regions that overlap where they meet"
+        )
     return [_drop_straight(_corners(p), tol) for p in parts]
 
 
@@ -286,17 +305,18 @@ def _is_convex(geom: Any) -> bool:
 
 def _grow_parts(cells: Sequence[Any], tol: float) -> list[Any]:
     """Convex unions of cells (and bridges) covering every cell, seam and crossing."""
+    import shapely
     from shapely.ops import unary_union
 
     n = len(cells)
     adjacent: dict[int, set[int]] = {i: set() for i in range(n)}
     seams: list[frozenset[int]] = []
-    for i in range(n):
-        for j in range(i + 1, n):
-            if cells[i].intersection(cells[j]).length > 10.0 * tol:
-                adjacent[i].add(j)
-                adjacent[j].add(i)
-                seams.append(frozenset((i, j)))
+    touching = shapely.STRtree(cells).query(cells, predicate="intersects")
+    for i, j in zip(*touching, strict=True):
+        if i < j and cells[i].intersection(cells[j]).length > 10.0 * tol:
+            adjacent[int(i)].add(int(j))
+            adjacent[int(j)].add(int(i))
+            seams.append(frozenset((int(i), int(j))))
     crossings = _crossings(cells, tol)
 
     def grow(seed: Iterable[int]) -> frozenset[int] | None:

@@ -241,6 +241,15 @@ def test_a_polygon_that_is_not_simple_is_refused(corners: object, says: str) -> 
         polygon_regions("p", RegionKind.REGION, corners, 0.0, 1.0)
 
 
+def test_a_polygon_that_would_need_too_many_parts_is_refused_saying_so() -> None:
+    rng = np.random.default_rng(3)
+    for n, says in ((20, r"needs 48 convex parts \(at most 32"), (200, "too intricate")):
+        a = np.sort(rng.uniform(0.0, 2.0 * np.pi, n))
+        r = rng.uniform(2.0, 10.0, n)
+        with pytest.raises(ShapeError, match=says):
+            convex_cover(np.column_stack([r * np.cos(a), r * np.sin(a)]))
+
+
 _SPEC_SCENARIO = """
 name: row
 origin: {{lat: 47.397742, lon: 8.545594, alt: 488.0}}
