@@ -369,8 +369,6 @@ def test_a_time_limit_stops_the_solver_with_the_best_plan_so_far_and_says_so() -
     assert short.iterations < full.iterations
     # the best plan so far is a plan: trajectories and its exact verdict
     assert len(short.trajectories) == 8 and np.isfinite(short.robustness)
-    # no limit: the solver runs to its end as before
-    again = plan(problem, time_limit_s=None)
-    assert again.iterations == full.iterations and again.robustness == pytest.approx(
-        full.robustness
-    )
+    # (``full`` above is the plan with no limit: time_limit_s defaults to None, and the
+    # solver ran to its end)
+    assert "time limit" not in full.status
