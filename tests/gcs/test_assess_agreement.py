@@ -14,7 +14,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from gcs.assess import AssessOptions, evaluate_batch, replay
@@ -37,11 +36,11 @@ DETERMINISTIC = {
 }
 
 
-def test_a_run_and_its_real_time_flight_agree_within_2_cm() -> None:
+def test_a_run_and_its_real_time_flight_agree_within_3_cm() -> None:
     plan = load_plan(PLAN)
     opts = AssessOptions(runs=1, workers=0, disturbances=DETERMINISTIC)
     diffs = []
-    for seed in (101, 202, 303):
+    for seed in (101, 303):  # two real-time flights (15 s each) of the suite's 600 s
         flights = replay(plan, opts, seed)
         sim = float(evaluate_batch(plan, flights)[1][0])
         outcome = fly_realtime(plan, opts, flights, seed=seed)
@@ -50,5 +49,5 @@ def test_a_run_and_its_real_time_flight_agree_within_2_cm() -> None:
         real = outcome.evaluation.flown_robustness
         assert real is not None
         diffs.append(abs(sim - real))
-    assert float(np.median(diffs)) < 0.02, diffs
-    assert max(diffs) < 0.05, diffs
+    # measured 0.009 and 0.016 m (and 0.002 for seed 202): each within 3 cm
+    assert max(diffs) < 0.03, diffs
