@@ -189,3 +189,55 @@ def test_a_facing_mission_carries_its_camera_items_and_px4_flies_them(
     if not res["images"]:  # PX4 SIH: no camera, and the flight says so
         assert "no camera heard" in err and cov["covered"] == 0
     _land_and_wait()
+
+
+CORRIDOR = """\
+name: px4_corridor
+origin: {{lat: {lat:.8f}, lon: {lon:.8f}, alt: {alt:.3f}}}
+workspace: {{min: [-4, -4, 0], max: [12, 12, 6]}}
+regions:
+  row: {{polygon: [[-2, -2], [10, -2], [10, 2], [2, 2], [2, 10], [-2, 10]], z: [0, 6]}}
+  nofly: {{kind: no_fly, polygon: [[5, 5], [11, 5], [11, 11], [9, 11], [9, 8], [5, 8]], z: [0, 6]}}
+  east: {{kind: goal, center: [7.0, 0.0, 3.0], half_size: [1.2, 1.2, 0.8]}}
+  north: {{kind: goal, center: [0.0, 7.0, 3.0], half_size: [1.2, 1.2, 0.8]}}
+limits: {{v_max_m_s: 2, a_max_m_s2: 1.5}}
+vehicles:
+  - {{name: d1, start: [0.0, 0.0, 3.0]}}
+timing: {{horizon_s: 24, segment_s: 2, Ts_s: 0.1, check_dt_s: 0.02}}
+separation_m: 1.0
+epsilon: 0.05
+model: minimum_jerk
+spec:
+  - formula: eventually[4, 10] always[0, 1] inside(d1, east)
+  - formula: eventually[15, 22] always[0, 1] inside(d1, north)
+  - formula: always[0, 24] (inside(d1, row) and outside(d1, nofly) and inside(d1, workspace))
+"""
+
+
+def test_an_l_shaped_right_of_way_and_no_fly_area_are_fenced_and_flown_as_px4_does_them(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Polygons that are not convex: the L-shaped no-fly area is fenced as its two convex
+    parts (PX4 reads them back as sent and ANDs them as exclusions), and the plan, which
+    crosses the L-shaped right of way's corner from one arm to the other, is flown offboard
+    inside that fence without PX4's fence firing, keeping a positive margin."""
+    lat, lon, alt = _here()
+    (tmp_path / "corridor.yaml").write_text(CORRIDOR.format(lat=lat, lon=lon, alt=alt))
+    plan = tmp_path / "corridor.json"
+    assert main(["plan", str(tmp_path / "corridor.yaml"), "-o", str(plan), "--json"]) == 0
+    capsys.readouterr()
+    rc = main(["upload", str(plan), "--fence", "--json", "--connection", URL])
+    out, err = capsys.readouterr()
+    row = json.loads(out)["vehicles"][0]
+    assert rc == 0 and row["verified"], (row, err[-300:])
+    from gcs.missions import fence_plan
+    from planner.planfile import load_plan
+
+    polygons = {int(i.param1) for i in fence_plan(load_plan(plan)).items}
+    assert polygons == {4}  # the workspace and the no-fly area's two parts, 4 corners each
+    main(["fly", str(plan), "--json", "--end", "return", "--connection", URL])
+    out, err = capsys.readouterr()
+    res = json.loads(out)
+    assert res["completed"] and res["safety_event"] is None, err[-300:]
+    assert res["flown_robustness"] > 0, res["flown_robustness"]
+    _land_and_wait()
