@@ -255,9 +255,12 @@ class NavigatorMixin(VehicleParts):
             self._traj_active = False
         pos = self.phys.pos_ned_m[i].copy()
         if cmd == mavlink2.MAV_CMD_NAV_RETURN_TO_LAUNCH:
-            self.set_mode(Px4Mode.AUTO_RTL)
-            self.mode = Px4Mode.AUTO_MISSION  # keep reporting mission while returning
-            self._mis_phase = "rtl"
+            # PX4 v1.17 (seen on SITL): the return item is reached at once, the mission is
+            # complete (MISSION_CURRENT on it, MISSION_STATE_COMPLETE) and the vehicle flies
+            # home and lands in AUTO.RTL, which it reports
+            self._item_reached(seq)
+            self._mission_finish(then=Px4Mode.AUTO_RTL)
+            return
         elif cmd in (mavlink2.MAV_CMD_NAV_DELAY, mavlink2.MAV_CMD_CONDITION_DELAY):
             self.phys.hold_here(i)
             self._mis_phase = "delay"
@@ -313,13 +316,17 @@ class NavigatorMixin(VehicleParts):
         if changed or self._mis_phase:
             self._announce_current()
 
-    def _mission_finish(self) -> None:
+    def _mission_finish(self, then: Px4Mode | None = None) -> None:
+        """The mission is complete: hold where it ends (or ``then``: AUTO.RTL at a return
+        item)."""
         self._traj_active = False
         plan = self.missions.plans[MISSION]
         self.mission_finished = True
         self.mission_seq = max(0, len(plan) - 1)
         self._mis_phase = "done"
-        if not self.landed:
+        if then is not None and self.mode is Px4Mode.AUTO_MISSION:
+            self.set_mode(then)
+        elif not self.landed:
             self.phys.hold_here(self.index)
             if self.px4_nav and self.mode is Px4Mode.AUTO_MISSION:
                 # PX4 v1.17 holds where a mission ends in the air (seen on SITL: AUTO.LOITER

@@ -249,7 +249,11 @@ class TelemetryMixin(VehicleParts):
         else:
             state = mavlink2.MISSION_STATE_PAUSED
         return mavlink2.MAVLink_mission_current_message(
-            self.mission_seq, len(plan), state, int(self.mode is Px4Mode.AUTO_MISSION)
+            # mission_mode: 1 in mission mode, 2 not (PX4 v1.17 SITL sends 2, never 0)
+            self.mission_seq,
+            len(plan),
+            state,
+            1 if self.mode is Px4Mode.AUTO_MISSION else 2,
         )
 
     def _msg_position_target(self) -> Msg | None:

@@ -539,13 +539,7 @@ class MockVehicle(
                 if now - self._sp_last_s > self.params["COM_OF_LOSS_T"]:
                     self._offboard_lost()
             elif mode is Px4Mode.AUTO_MISSION:
-                if self._mis_phase == "rtl":
-                    self._rtl_tick()
-                    if self._rtl_phase == "land" and self.landed:
-                        self._item_reached(self.mission_seq)
-                        self._mission_finish()
-                else:
-                    self._mission_tick()
+                self._mission_tick()
             elif mode is Px4Mode.AUTO_TAKEOFF:
                 reached_m = (
                     self.params["NAV_MC_ALT_RAD"]

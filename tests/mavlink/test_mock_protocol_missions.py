@@ -289,6 +289,63 @@ def test_mission_runs_in_auto_mission_with_items_reached() -> None:
         assert current.mission_state == mavlink2.MISSION_STATE_COMPLETE
 
 
+def test_a_return_item_completes_the_mission_at_once_and_returns_in_auto_rtl() -> None:
+    """As PX4 v1.17 SITL flew ``gcs upload --start --end return``: the return item reported
+    reached as soon as it is current, MISSION_CURRENT on it with MISSION_STATE_COMPLETE and
+    mission_mode 2 (not in mission mode), HEARTBEAT in AUTO.RTL until it lands at home and
+    disarms (PX4: reached 25.9 s, AUTO.RTL 26.4 s, disarmed 39.5 s).  The px4 profile (the
+    ideal one runs the same navigator code here)."""
+    params = {"MPC_TKO_SPEED": 3.0, "MPC_LAND_SPEED": 2.5, "RTL_RETURN_ALT": 2.0,
+              "MPC_XY_CRUISE": 6.0, "COM_DISARM_LAND": 0.5}  # fmt: skip
+    with mock_vehicles(params=params, profile="px4") as (fleet, (gcs,)):
+        v = fleet.vehicles[0]
+        lat0, lon0 = v.origin_lla[0], v.origin_lla[1]
+        import pymap3d
+
+        def wp(seq: int, cmd: int, n: float, e: float, alt: float) -> object:
+            lat, lon, _ = pymap3d.ned2geodetic(n, e, 0.0, lat0, lon0, v.origin_lla[2])
+            return item_int(seq, command=cmd, x=round(lat * 1e7), y=round(lon * 1e7), z=alt)
+
+        plan = [
+            wp(0, mavlink2.MAV_CMD_NAV_TAKEOFF, 0, 0, 2.0),
+            wp(1, mavlink2.MAV_CMD_NAV_WAYPOINT, 3, 0, 2.0),
+            item_int(2, command=mavlink2.MAV_CMD_NAV_RETURN_TO_LAUNCH, frame=mavlink2.MAV_FRAME_MISSION, x=0, y=0, z=0),
+        ]  # fmt: skip
+        assert upload(gcs, plan) == 0
+        time.sleep(0.5)  # PX4 refuses mission mode for ~90 ms after an upload
+        assert gcs.command(mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
+        assert gcs.command(mavlink2.MAV_CMD_MISSION_START, 0, 0).result == 0
+        events: list[tuple[float, str, object]] = []
+        t0, mode = time.monotonic(), None
+        for msg in gcs.messages(60.0):
+            t = time.monotonic() - t0
+            kind = msg.get_type()
+            if kind == "MISSION_ITEM_REACHED" and msg.seq == 2:
+                events.append((t, "reached", 2))
+            elif kind == "MISSION_CURRENT" and msg.mission_state == mavlink2.MISSION_STATE_COMPLETE:
+                events.append((t, "complete", (msg.seq, msg.mission_mode)))
+            elif kind == "HEARTBEAT" and msg.get_srcComponent() == 1:
+                now = next((m for m in Px4Mode if m.custom_mode == msg.custom_mode), None)
+                armed = bool(msg.base_mode & mavlink2.MAV_MODE_FLAG_SAFETY_ARMED)
+                if now is not mode:
+                    events.append((t, "mode", now))
+                    mode = now
+                if not armed and any(e[1] == "reached" for e in events):
+                    events.append((t, "disarmed", None))
+                    break
+        names = [e[1] for e in events]
+        assert "disarmed" in names, events
+        reached = names.index("reached")
+        rtl = next(i for i, e in enumerate(events) if e[1] == "mode" and e[2] is Px4Mode.AUTO_RTL)
+        # reached on entering the item, then AUTO.RTL within the second (not after the landing)
+        assert events[rtl][0] - events[reached][0] < 1.0, events
+        modes_after = [e[2] for e in events[rtl:] if e[1] == "mode"]
+        assert Px4Mode.AUTO_MISSION not in modes_after, events
+        assert (2, 2) in [e[2] for e in events if e[1] == "complete"], events
+        st = v.state
+        assert st.landed and math.hypot(st.pos_ned_m[0], st.pos_ned_m[1]) < 1.0
+
+
 def test_geofence_breach_triggers_hold() -> None:
     # an actual breach (the ideal profile; PX4's predictive fence: test_mock_px4.py)
     with mock_vehicles(profile="ideal") as (fleet, (gcs,)):
