@@ -81,21 +81,18 @@ def polygon_regions(
         ShapeError: fewer than 3 corners, one repeated, edges that cross or touch, an empty
             height range.
     """
-    import shapely
-
     v = np.asarray(vertices_xy, dtype=float)
     if v.ndim != 2 or v.shape[1] != 2 or len(v) < 3 or not np.all(np.isfinite(v)):
         Prism.from_polygon(v, z_lo_m, z_hi_m)  # says what is wrong
     edges = np.hypot(*(np.roll(v, -1, axis=0) - v).T)
-    if np.any(edges <= _tol(v)):
+    if np.any(edges <= _tol(v)):  # convex_cover would drop it with the straight corners
         raise ShapeError("a polygon repeats a corner")
-    _check_simple(shapely.Polygon(v))
-    v = _drop_straight(v, _tol(v))
-    if not reflex_corners(v):
-        return (Region.of_shape(name, kind, Prism.from_polygon(v, z_lo_m, z_hi_m)),)
+    parts = convex_cover(v)
+    if len(parts) == 1:
+        return (Region.of_shape(name, kind, Prism.from_polygon(parts[0], z_lo_m, z_hi_m)),)
     return tuple(
         Region.of_shape(part_name(name, k), kind, Prism.from_polygon(p, z_lo_m, z_hi_m), name)
-        for k, p in enumerate(convex_cover(v), start=1)
+        for k, p in enumerate(parts, start=1)
     )
 
 
@@ -118,21 +115,24 @@ class Outline:
 
     name: str
     parts: tuple[Region, ...]
+    #: the union of the parts' footprints, over their heights (:meth:`of_parts`)
+    shape: OutlineShape
+
+    @classmethod
+    def of_parts(cls, name: str, parts: tuple[Region, ...]) -> Outline:
+        """The outline of the polygon ``name`` over its parts."""
+        import shapely
+
+        union = shapely.union_all([shapely.Polygon(r.footprint_xy()) for r in parts])
+        corners = _drop_straight(_corners(union), _tol(np.asarray(parts[0].footprint_xy())))
+        z_lo = min(r.lo_enu_m[2] for r in parts)
+        z_hi = max(r.hi_enu_m[2] for r in parts)
+        xy = tuple((float(x), float(y)) for x, y in corners)
+        return cls(name, parts, OutlineShape(xy, float(z_lo), float(z_hi)))
 
     @property
     def kind(self) -> RegionKind:
         return self.parts[0].kind
-
-    @property
-    def shape(self) -> OutlineShape:
-        """The union of the parts' footprints, over their common heights."""
-        import shapely
-
-        union = shapely.union_all([shapely.Polygon(r.footprint_xy()) for r in self.parts])
-        corners = _drop_straight(_corners(union), _tol(np.asarray(self.parts[0].footprint_xy())))
-        return OutlineShape(
-            tuple((float(x), float(y)) for x, y in corners), self.lo_enu_m[2], self.hi_enu_m[2]
-        )
 
     @property
     def lo_enu_m(self) -> tuple[float, float, float]:
@@ -166,23 +166,25 @@ def drawn_regions(regions: Sequence[Region]) -> list[Region | Outline]:
         if r.part_of is None:
             out.append(r)
         elif not any(isinstance(o, Outline) and o.name == r.part_of for o in out):
-            out.append(Outline(r.part_of, tuple(q for q in regions if q.part_of == r.part_of)))
+            parts = tuple(q for q in regions if q.part_of == r.part_of)
+            out.append(Outline.of_parts(r.part_of, parts))
     return out
 
 
 def reflex_corners(vertices_xy: Any) -> list[int]:
     """Indices of the corners of a simple polygon (either orientation) whose inside angle is
     above a straight angle."""
-    v = _ccw(np.asarray(vertices_xy, dtype=float))[0]
+    v = _ccw(np.asarray(vertices_xy, dtype=float))
     e = np.roll(v, -1, axis=0) - v
     cross = np.roll(e, 1, axis=0)[:, 0] * e[:, 1] - np.roll(e, 1, axis=0)[:, 1] * e[:, 0]
     scale = np.linalg.norm(e, axis=1) * np.linalg.norm(np.roll(e, 1, axis=0), axis=1)
     return [int(i) for i in np.nonzero(cross < -_REL_TOL * scale)[0]]
 
 
-def _ccw(v: np.ndarray) -> tuple[np.ndarray, bool]:
+def _ccw(v: np.ndarray) -> np.ndarray:
+    """The corners counter-clockwise (reversed when given clockwise)."""
     area2 = float(np.sum(v[:, 0] * np.roll(v[:, 1], -1) - np.roll(v[:, 0], -1) * v[:, 1]))
-    return (v, False) if area2 > 0 else (v[::-1].copy(), True)
+    return v if area2 > 0 else v[::-1].copy()
 
 
 def convex_cover(vertices_xy: Any) -> list[np.ndarray]:
@@ -205,7 +207,7 @@ def convex_cover(vertices_xy: Any) -> list[np.ndarray]:
     v = np.asarray(vertices_xy, dtype=float)
     poly = shapely.Polygon(v)
     _check_simple(poly)
-    v = _ccw(_drop_straight(v, _tol(v)))[0]
+    v = _ccw(_drop_straight(v, _tol(v)))
     tol = _tol(v)
     if not reflex_corners(v):
         return [v]
@@ -290,9 +292,8 @@ def _cells(poly: Any, v: np.ndarray, tol: float) -> list[Any]:
             cuts.append(shapely.LineString([corner, corner + (ahead.min() + 100.0 * tol) * d]))
     cells = [c for c in polygonize(unary_union([poly.exterior, *cuts])) if c.area > 0]
     inside = [c for c in cells if poly.contains(c.representative_point())]
-    for c in inside:
-        if c.convex_hull.area - c.area > _REL_TOL * max(c.area, 1.0):
-            raise ShapeError("the polygon could not be cut into convex parts")
+    if not all(_is_convex(c) for c in inside):
+        raise ShapeError("the polygon could not be cut into convex parts")
     return inside
 
 
@@ -414,14 +415,14 @@ def _seam_bridge(a: Any, b: Any) -> Any:
     e0, e1 = ends[0], ends[-1]
     mid = 0.5 * (e0 + e1)
     normal = np.array([e0[1] - e1[1], e1[0] - e0[0]]) / np.hypot(*(e1 - e0))
-    corners = [e0]
-    for cell, sign in ((a, 1.0), (b, -1.0)):
+
+    def off_middle(cell: Any) -> np.ndarray:
         side = 1.0 if (np.asarray(cell.centroid.coords[0]) - mid) @ normal > 0 else -1.0
         reach = 2.0 * float(np.ptp(shapely.get_coordinates(cell), axis=0).max())
         ray = shapely.LineString([mid, mid + side * reach * normal])
-        corners.append(mid + 0.5 * side * ray.intersection(cell).length * normal)
-        corners.append(e1 if sign > 0 else e0)
-    return shapely.Polygon(corners[:4])
+        return mid + 0.5 * side * ray.intersection(cell).length * normal
+
+    return shapely.Polygon([e0, off_middle(a), e1, off_middle(b)])
 
 
 def _crossing_fan(point: np.ndarray, around: Sequence[Any], tol: float) -> Any:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import itertools
 import re
 from collections.abc import Mapping, Sequence
+from functools import partial
 from typing import Any
 
 from planner.predicates import PREDICATES, build_registry
@@ -182,14 +183,7 @@ def _spell_parts(rd: _Reader, clauses: Sequence[Clause], regions: Sequence[Regio
         each = (f"{fn}({args[0]}, {p})" for p in parts[args[1]])
         return "(" + _PART_JOIN[fn].join(each) + ")"
 
-    out = []
-    for cl in clauses:
-
-        def spell_here(mt: re.Match[str], cl: Clause = cl) -> str:
-            return spell(mt, cl)
-
-        out.append(Clause(cl.key_path, _CALL.sub(spell_here, cl.text)))
-    return out
+    return [Clause(cl.key_path, _CALL.sub(partial(spell, cl=cl), cl.text)) for cl in clauses]
 
 
 def _check_calls(
