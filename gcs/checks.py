@@ -59,7 +59,7 @@ def verify_plan(plan: Any, dt_s: float | None = None) -> list[Check]:
             (:func:`planner.planfile.plan_formula`, :func:`planner.planfile.spec_errors`).
         UserError: a bad ``dt_s`` (:func:`check_step_s`).
     """
-    from planner.checks import check_trajectories
+    from planner.checks import RATIO_TOL, check_trajectories
     from planner.planfile import plan_formula, spec_errors
 
     dt = check_step_s(plan, dt_s)
@@ -86,18 +86,25 @@ def verify_plan(plan: Any, dt_s: float | None = None) -> list[Check]:
     checks.extend(sorted(clause_checks, key=lambda c: c.value))
 
     for lim in check_trajectories(plan, trajs, plan.vehicles, dt, plan.horizon_s):
+        # the tolerances are gcs plan's own (planner.checks), so the two never disagree
         checks.append(
-            Check(f"{lim.name} velocity / v_max", lim.v_ratio, 1.0, lim.v_ratio <= 1 + 1e-6)
+            Check(f"{lim.name} velocity / v_max", lim.v_ratio, 1.0, lim.v_ratio <= 1 + RATIO_TOL)
         )
         checks.append(
-            Check(f"{lim.name} acceleration / a_max", lim.a_ratio, 1.0, lim.a_ratio <= 1 + 1e-6)
+            Check(
+                f"{lim.name} acceleration / a_max",
+                lim.a_ratio,
+                1.0,
+                lim.a_ratio <= 1 + RATIO_TOL,
+            )
         )
         checks.append(
             Check(
                 f"{lim.name} workspace margin m",
                 lim.workspace_margin_m,
                 0.0,
-                lim.workspace_margin_m >= -1e-9,
+                lim.in_workspace,
+                "" if lim.in_workspace else f"outside by {-lim.workspace_margin_m:.3g} m",
             )
         )
         if lim.feasibility is not None:
@@ -149,11 +156,14 @@ _END_SPEED_M_S = 1e-3
 
 
 def weakest_detail(chain: Sequence[Any]) -> str:
-    """What decides a failing clause, from its weakest chain (``Formula.weakest``): the leaf,
-    or, where the chain passes an ``or``, the disjunction's value and its best option (a
-    leaf under an ``or`` is one choice, not a requirement)."""
-    from planner.stl import Or
+    """What decides a failing clause, from its weakest chain (``Formula.weakest``), in the
+    clause's own sign (:func:`planner.stl.explanation`: a failing ``not (...)`` is explained
+    by itself, not by the passing value under it): the leaf, or, where the chain passes an
+    ``or``, the disjunction's value and its best option (a leaf under an ``or`` is one
+    choice, not a requirement)."""
+    from planner.stl import Or, explanation
 
+    chain = explanation(tuple(chain))  # in the clause's own sign: a `not` as itself
     for i, w in enumerate(chain):
         if isinstance(w.formula, Or) and i + 1 < len(chain):
             best = chain[i + 1]

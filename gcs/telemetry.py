@@ -34,12 +34,13 @@ import math
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from gcs.errors import InputFileError
 from mavlink.tracks import FlownTrack
+from planner.strict_read import NotTextError, read_text
 
 if TYPE_CHECKING:
     from mavlink.camera import CapturedImage
@@ -133,17 +134,31 @@ def _csv(p: Path, expected: str) -> tuple[list[str], Iterator[list[str]]]:
     file when it cannot be read, is not text, or is empty: ``expected`` names its header)."""
     src = str(p)
     try:
-        text = p.read_text(encoding="utf-8")
+        text = read_text(p)
     except OSError as exc:
         raise InputFileError(f"{src}: cannot read: {exc.strerror or exc}") from None
-    except UnicodeDecodeError:
-        raise InputFileError(f"{src}: not a text (CSV) file") from None
+    except NotTextError as exc:
+        raise InputFileError(f"{src}: {exc} (expected CSV text)") from None
     reader = csv.reader(io.StringIO(text))
     try:
         header = [h.strip() for h in next(reader)]
     except StopIteration:
         raise InputFileError(f"{src}: empty file (expected a header {expected})") from None
-    return header, reader
+    except csv.Error as exc:
+        raise InputFileError(f"{src}: line 1: not CSV ({exc})") from None
+    return header, _checked(src, reader)
+
+
+def _checked(src: str, reader: Any) -> Iterator[list[str]]:
+    """The reader's rows, a CSV syntax error (a stray carriage return, say) as one line."""
+    while True:
+        try:
+            row = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            raise InputFileError(f"{src}: line {reader.line_num}: not CSV ({exc})") from None
+        yield row
 
 
 def _rows(

@@ -17,6 +17,15 @@ from planner.heading import YAW_RATE_MAX_DEG_S, yaw_rate_needed
 from planner.limits import vehicle_bounds
 from planner.trajectory import Trajectory
 
+#: How far past a limit (as a ratio, 1 = at the limit) a plan may go and still hold: the
+#: planner's constraints hold to IPOPT's tolerance, and ``gcs plan`` and ``gcs verify``
+#: judge with these same figures.
+RATIO_TOL = 1e-6
+#: How far (m) outside the workspace a plan may go and still hold (one micrometre: the
+#: planner's box rows hold to IPOPT's constraint tolerance on the control points, the dense
+#: samples may sit a hair outside them).
+WORKSPACE_TOL_M = 1e-6
+
 
 @dataclass(frozen=True, slots=True)
 class LimitReport:
@@ -34,17 +43,26 @@ class LimitReport:
     yaw_ratio: float = 0.0
 
     @property
-    def ok(self) -> bool:
-        """Limits, workspace, the yaw rate and (if checked) thrust/body rates all hold."""
-        tol = 1e-6
+    def limits_ok(self) -> bool:
+        """Speed, acceleration, the yaw rate and (if checked) thrust/body rates hold (ratios
+        within :data:`RATIO_TOL` of 1)."""
         feas = self.feasibility is None or self.feasibility.feasible
         return (
-            self.v_ratio <= 1 + tol
-            and self.a_ratio <= 1 + tol
-            and self.workspace_margin_m >= -tol
-            and self.yaw_ratio <= 1 + tol
+            self.v_ratio <= 1 + RATIO_TOL
+            and self.a_ratio <= 1 + RATIO_TOL
+            and self.yaw_ratio <= 1 + RATIO_TOL
             and feas
         )
+
+    @property
+    def in_workspace(self) -> bool:
+        """The path stays in the workspace (margin at least ``-WORKSPACE_TOL_M``)."""
+        return self.workspace_margin_m >= -WORKSPACE_TOL_M
+
+    @property
+    def ok(self) -> bool:
+        """Limits and workspace both hold."""
+        return self.limits_ok and self.in_workspace
 
 
 def check_trajectories(

@@ -76,6 +76,7 @@ def needs(
         if not route:
             continue
         names = " -> ".join(pl.name for pl in route)
+        late: list[tuple[float, str, Formula]] = []  # (deadline, place, clause) missed
         for clause in clauses:
             places = _places_in(clause, v.name, start, [], problem, _Choices())
             if not places or places[-1].key not in at:
@@ -84,13 +85,22 @@ def needs(
             deadline = clause.horizon - hovers.get(last.name, 0.0)
             arrive = at[last.key]
             if arrive > deadline + _LATE_S:
+                late.append((deadline, last.name, clause))
                 out.append(
                     f"time: {v.name} reaches {last.name} at about {arrive:.1f} s at its limits "
                     f"(route {names}; straight legs, hovers included), and `{clause}` asks "
                     f"for it by {deadline:g} s: about {arrive - deadline:.1f} s more (a later "
                     "deadline or another order), or a faster vehicle"
                 )
-        if end > horizon + _LATE_S:
+        if end > horizon + _LATE_S and late:
+            # A longer horizon cannot help a vehicle late for a clause's own deadline.
+            deadline, place, clause = min(late, key=lambda d: d[0])
+            out.append(
+                f"horizon: {v.name}'s route ({names}) takes about {end:.1f} s at its limits, "
+                f"but a longer horizon would not help: the binding deadline is {place} by "
+                f"{deadline:g} s (`{clause}`)"
+            )
+        elif end > horizon + _LATE_S:
             out.append(
                 f"horizon: {v.name}'s route ({names}) takes about {end:.1f} s at its limits, "
                 f"the horizon is {horizon:g} s: timing.horizon_s of at least {end:.0f} s"

@@ -43,6 +43,7 @@ import numpy as np
 
 from planner.frames import GeodeticPoint, geodetic_to_enu
 from planner.regions import Cylinder, Region, RegionKind
+from planner.strict_read import DuplicateKeyError, NotTextError, load_json, read_text
 
 __all__ = ["LineModel", "line_regions"]
 
@@ -147,12 +148,17 @@ def read_line(
         xy = _along(value["along"], fail, number)
     else:
         xy = _pole_file(value["file"], origin, base_dir, fail)
+    # a file's poles are named with the file (the mistake is in it, not in the scenario)
+    in_file = f"{value['file']}: " if src == "file" else ""
     if len(xy) < 2:
-        raise fail(f"line.{src}", f"a line needs at least 2 poles, got {len(xy)}")
+        raise fail(f"line.{src}", f"{in_file}a line needs at least 2 poles, got {len(xy)}")
     gaps = np.linalg.norm(np.diff(xy, axis=0), axis=1)
     if np.any(gaps < 1.0):
         j = int(np.argmin(gaps))
-        raise fail(f"line.{src}", f"poles {j + 1} and {j + 2} are {gaps[j]:.3g} m apart (< 1 m)")
+        raise fail(
+            f"line.{src}",
+            f"{in_file}poles {j + 1} and {j + 2} are {gaps[j]:.3g} m apart (< 1 m)",
+        )
     kw: dict[str, Any] = {"poles_xy": xy}
     sections = {
         "pole": {"radius_m": "pole_radius_m", "height_m": "pole_height_m"},
@@ -239,9 +245,11 @@ def _pole_file(v: Any, origin: GeodeticPoint, base_dir: Path, fail: Any) -> np.n
         raise fail("line.file", "expected a file name (CSV or GeoJSON)")
     path = (base_dir / v) if not Path(v).is_absolute() else Path(v)
     try:
-        text = path.read_text()
+        text = read_text(path)
     except OSError as exc:
         raise fail("line.file", f"cannot read {path}: {exc.strerror or exc}") from None
+    except NotTextError as exc:
+        raise fail("line.file", f"{path}: {exc} (expected CSV or GeoJSON text)") from None
     if path.suffix.lower() in (".geojson", ".json"):
         return _geojson_poles(text, path, origin, fail)
     return _csv_poles(text, path, origin, fail)
@@ -252,8 +260,12 @@ def _to_enu(lat: np.ndarray, lon: np.ndarray, origin: GeodeticPoint) -> np.ndarr
 
 
 def _csv_poles(text: str, path: Path, origin: GeodeticPoint, fail: Any) -> np.ndarray:
-    rows = list(csv.DictReader(text.splitlines()))
-    cols = {c.strip().lower(): c for c in (rows[0].keys() if rows else [])}
+    reader = csv.DictReader(text.splitlines())
+    try:
+        rows = list(reader)
+    except csv.Error as exc:
+        raise fail("line.file", f"{path.name} line {reader.line_num}: not CSV ({exc})") from None
+    cols = {c.strip().lower(): c for c in (reader.fieldnames or []) if rows}
     pair = next(
         (p for p in (("x", "y"), ("lat", "lon"), ("latitude", "longitude")) if set(p) <= set(cols)),
         None,
@@ -264,15 +276,25 @@ def _csv_poles(text: str, path: Path, origin: GeodeticPoint, fail: Any) -> np.nd
         )
     vals = []
     for i, r in enumerate(rows, start=2):
-        try:
-            a, b = float(r[cols[pair[0]]]), float(r[cols[pair[1]]])
-        except (TypeError, ValueError):
-            raise fail(
-                "line.file", f"{path.name} line {i}: not a number in {pair[0]}/{pair[1]}"
-            ) from None
-        if not (math.isfinite(a) and math.isfinite(b)):
-            raise fail("line.file", f"{path.name} line {i}: not a finite number")
-        vals.append((a, b))
+        ab = []
+        for name in pair:
+            col = cols[name]
+            cell = r.get(col)
+            try:
+                x = float(cell)  # type: ignore[arg-type]
+            except (TypeError, ValueError):
+                got = "nothing" if cell is None or not cell.strip() else repr(cell)
+                raise fail(
+                    "line.file",
+                    f"{path.name} line {i}, column {col.strip()}: expected a number, got {got}",
+                ) from None
+            if not math.isfinite(x):
+                raise fail(
+                    "line.file",
+                    f"{path.name} line {i}, column {col.strip()}: not a finite number ({cell})",
+                )
+            ab.append(x)
+        vals.append((ab[0], ab[1]))
     arr = np.array(vals, dtype=float).reshape(-1, 2)
     if pair == ("x", "y"):
         return arr
@@ -285,9 +307,13 @@ def _geojson_poles(text: str, path: Path, origin: GeodeticPoint, fail: Any) -> n
     """Points (a FeatureCollection of Point features, in order) or one LineString's vertices;
     GeoJSON coordinates are [lon, lat] (RFC 7946)."""
     try:
-        doc = json.loads(text)
+        doc = load_json(text)
     except json.JSONDecodeError as exc:
         raise fail("line.file", f"{path.name}: not JSON (line {exc.lineno}: {exc.msg})") from None
+    except DuplicateKeyError as exc:
+        raise fail("line.file", f"{path.name}: {exc}") from None
+    except RecursionError:
+        raise fail("line.file", f"{path.name}: not JSON: nested too deeply") from None
     geoms = (
         [f.get("geometry") or {} for f in doc.get("features", [])]
         if isinstance(doc, dict) and doc.get("type") == "FeatureCollection"

@@ -90,6 +90,7 @@ from planner.scenario_spec import parse_clause
 from planner.stl import (
     Formula,
     conjunction,
+    explanation,
 )
 from planner.trajectory import Trajectory
 
@@ -433,8 +434,12 @@ def plan(
         )
         verdict = f"robustness {rob:.4g} < epsilon {problem.epsilon:g}{w_txt}"
     else:
-        bad = [lim.name for lim in limits if not lim.ok]
-        verdict = f"limits violated by {', '.join(bad)}"
+        bad = [lim.name for lim in limits if not lim.limits_ok]
+        out = [lim.name for lim in limits if not lim.in_workspace]
+        verdict = "; ".join(
+            ([f"limits violated by {', '.join(bad)}"] if bad else [])
+            + ([f"outside the workspace: {', '.join(out)}"] if out else [])
+        )
     total = time.perf_counter() - t_start
     stats = SolveStats(
         build_s=build_s,
@@ -889,8 +894,8 @@ def _evaluate(
     weakest = None
     if formulas:
         i = int(np.argmin(clause_rob))
-        chain = formulas[i].weakest(sig, dt)
-        leaf = chain[-1]
+        # the deciding sub-formula in the clause's own sign (a `not` explained as itself)
+        leaf = explanation(formulas[i].weakest(sig, dt))[-1]
         weakest = Weakest(
             formula=str(_witness_formula(leaf)),
             robustness=float(_witness_value(leaf)),

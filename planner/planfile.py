@@ -48,6 +48,7 @@ from planner.problem import MAX_HORIZON_S
 from planner.regions import Cylinder, Prism, Region, RegionKind, ShapeError
 from planner.scenario_checks import horizon_sum
 from planner.scenario_spec import FUNCTION_NAMES
+from planner.strict_read import DuplicateKeyError, NotTextError, load_json, read_text
 from planner.trajectory import Trajectory, TrajectoryError
 
 if TYPE_CHECKING:
@@ -368,13 +369,15 @@ def load_plan(path: str | Path) -> Plan:
     src = str(p)
     rd = _Reader(src)
     try:
-        text = p.read_text(encoding="utf-8")
+        text = read_text(p)
     except OSError as exc:
         raise PlanFileError(src, "", f"cannot read: {exc.strerror or exc}") from None
-    except UnicodeDecodeError as exc:
-        raise PlanFileError(src, "", f"not UTF-8 text (byte {exc.start})") from None
+    except NotTextError as exc:
+        raise PlanFileError(src, "", f"{exc} (expected a JSON plan file)") from None
     try:
-        data = json.loads(text)
+        data = load_json(text)
+    except DuplicateKeyError as exc:
+        raise PlanFileError(src, exc.mapping_path, str(exc)) from None
     except RecursionError:
         raise PlanFileError(src, "", "not JSON: nested too deeply") from None
     except json.JSONDecodeError as exc:

@@ -78,6 +78,7 @@ from planner.scenario_sections import (
     _vehicles,
 )
 from planner.scenario_spec import _check_calls, _expand_spec, _spell_parts, parse_clause
+from planner.strict_read import DuplicateKeyError, NotTextError, load_yaml, read_text
 
 __all__ = ["load_scenario", "parse_scenario"]
 
@@ -336,21 +337,31 @@ def parse_scenario(
 
 
 def load_scenario(path: str | Path, *, vehicles: int | None = None) -> Problem:
-    """Read and validate a scenario YAML file (``yaml.safe_load``); see :func:`parse_scenario`."""
+    """Read and validate a scenario YAML file (safe YAML, a key written twice refused:
+    :func:`planner.strict_read.load_yaml`); see :func:`parse_scenario`."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        text = read_text(p)
     except OSError as exc:
         raise ScenarioError(str(p), "", f"cannot read: {exc.strerror or exc}") from None
-    except UnicodeDecodeError as exc:
-        raise ScenarioError(str(p), "", f"not UTF-8 text (byte {exc.start})") from None
+    except NotTextError as exc:
+        raise ScenarioError(str(p), "", f"{exc} (expected a YAML scenario)") from None
     try:
-        data = yaml.safe_load(text)
+        data = load_yaml(text)
+    except DuplicateKeyError as exc:
+        raise ScenarioError(str(p), exc.mapping_path, str(exc)) from None
     except RecursionError:
         raise ScenarioError(str(p), "", "invalid YAML: nested too deeply") from None
+    except yaml.reader.ReaderError as exc:
+        # a character YAML does not allow (a control character): say where, on one line
+        before = text[: exc.position]
+        where = f"line {before.count(chr(10)) + 1}, column {exc.position - before.rfind(chr(10))}"
+        raise ScenarioError(
+            str(p), where, f"invalid YAML: character 0x{exc.character:x} is not allowed"
+        ) from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         problem = getattr(exc, "problem", None) or str(exc)
-        raise ScenarioError(str(p), where, f"invalid YAML: {problem}") from None
+        raise ScenarioError(str(p), where, f"invalid YAML: {' '.join(problem.split())}") from None
     return parse_scenario(data, str(p), vehicles=vehicles)

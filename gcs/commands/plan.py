@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import sys
 import threading
 import time
@@ -75,7 +76,9 @@ def summary(result: Any, output: str | None) -> dict[str, Any]:
                 "v_ratio": lim.v_ratio,
                 "a_ratio": lim.a_ratio,
                 "yaw_ratio": lim.yaw_ratio,
-                "limits_ok": lim.ok,
+                "limits_ok": lim.limits_ok,
+                "workspace_margin_m": lim.workspace_margin_m,
+                "in_workspace": lim.in_workspace,
             }
             for lim in result.limits
         ],
@@ -107,21 +110,22 @@ def _table(result: Any) -> str:
     lines = []
     lines.append(
         f"{'vehicle':<8} {'path m':>9} {'max |v| m/s':>12} {'max |a| m/s2':>13} {'limits':>7}"
+        f"  workspace"
     )
     for lim in result.limits:
-        ok = "ok" if lim.ok else "VIOL"
+        ok = "ok" if lim.limits_ok else "VIOL"
+        ws = "in" if lim.in_workspace else f"out by {-lim.workspace_margin_m:.2g} m"
         lines.append(
             f"{lim.name:<8} {lim.path_length_m:>9.2f} {lim.max_speed_m_s:>12.3f} "
-            f"{lim.max_acc_m_s2:>13.3f} {ok:>7}"
+            f"{lim.max_acc_m_s2:>13.3f} {ok:>7}  {ws}"
         )
     lines.append("")
     clauses = sorted(result.clauses, key=lambda c: c.robustness)
     shown = clauses[:_MAX_CLAUSE_ROWS]
-    width = min(70, max(len(c.text) for c in shown)) if shown else 10
+    vehicles = {lim.name for lim in result.limits}
     lines.append(f"{'robustness':>11}  clause")
     for c in shown:
-        text = c.text if len(c.text) <= width else c.text[: width - 3] + "..."
-        lines.append(f"{c.robustness:>11.4f}  {text}")
+        lines.append(f"{c.robustness:>11.4f}  {clause_cell(c.text, vehicles)}")
     if len(clauses) > len(shown):
         lines.append(f"{'':>11}  ... {len(clauses) - len(shown)} more clauses, all stronger")
     lines.append("")
@@ -148,6 +152,31 @@ def _table(result: Any) -> str:
     )
     lines.append(("OK: " if result.success else "FAILED: ") + result.status)
     return "\n".join(lines)
+
+
+#: Characters of a clause shown in the plan table before it is shortened.
+_CLAUSE_WIDTH = 70
+_CALL_ARGS = re.compile(r"\b[A-Za-z_]\w*\(([^()]*)\)")
+
+
+def clause_cell(text: str, vehicles: set[str], width: int = _CLAUSE_WIDTH) -> str:
+    """A clause for the plan table: whole when it fits in ``width``, else its start and,
+    after it, the vehicles and places it names (``[d1, d2, d3 | p4]``): long clauses that
+    differ only in those (one per pole, an ``or`` over the drones) stay distinguishable."""
+    if len(text) <= width:
+        return text
+    names: list[str] = []
+    for m in _CALL_ARGS.finditer(text):
+        for arg in m.group(1).split(","):
+            a = arg.strip()
+            if a and re.fullmatch(r"[A-Za-z_]\w*", a) and a not in names:
+                names.append(a)
+    who = [n for n in names if n in vehicles]
+    where = [n for n in names if n not in vehicles]
+    tag = " | ".join(part for part in (", ".join(who), ", ".join(where)) if part)
+    tail = f" [{tag}]" if tag else ""
+    head = max(24, width - len(tail) - 3)
+    return text[:head].rstrip() + "..." + tail
 
 
 class _Ticker:

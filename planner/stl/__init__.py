@@ -119,7 +119,7 @@ from planner.stl.errors import (
     TraceLengthError,
     UnknownSignalError,
 )
-from planner.stl.exact import Witness
+from planner.stl.exact import Witness, explanation
 from planner.stl.functions import Function, FunctionRegistry
 from planner.stl.parser import parse
 
@@ -157,6 +157,7 @@ __all__ = [
     "Witness",
     "comparison_margin",
     "conjunction",
+    "explanation",
     "fold_expr",
     "interval_steps",
     "parse",

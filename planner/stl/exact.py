@@ -327,6 +327,32 @@ def weakest(formula: Formula, signals: Mapping[str, Any], dt: float) -> tuple[Wi
         node, step = nxt
 
 
+def explanation(chain: tuple[Witness, ...]) -> tuple[Witness, ...]:
+    """The part of a :func:`weakest` chain that explains the root in its own sign.
+
+    Below a ``not`` (or the left side of an ``implies``) the chain's values flip sign: for
+    ``always not (inside(d1, bay) and inside(d2, bay))`` the deciding atom
+    ``inside(d1, bay)`` is *positive* where the clause fails. Reporting it as the reason
+    would explain a failure by a value that passes. This cuts the chain after its deepest
+    witness with the root's sign (an even number of flips above it): here
+    ``not (inside(d1, bay) and inside(d2, bay))``, which names both vehicles, with the
+    clause's own (negative) value. A chain without flips is returned whole.
+
+    Returns:
+        a non-empty prefix of ``chain`` (``chain`` itself when it is empty).
+    """
+    keep = len(chain)
+    flips = 0
+    for i, w in enumerate(chain):
+        if flips % 2 == 0:
+            keep = i + 1
+        node = w.formula
+        nxt = chain[i + 1].formula if i + 1 < len(chain) else None
+        if isinstance(node, Not) or (isinstance(node, Implies) and nxt is node.lhs):
+            flips += 1
+    return chain[:keep]
+
+
 def _deciding_child(ev: ExactEvaluator, node: Formula, t: int) -> tuple[Formula, int] | None:
     if isinstance(node, Not):
         return node.child, t

@@ -211,7 +211,7 @@ def test_a_bad_gis_file_is_one_line_naming_the_file_and_row(tmp_path: Path) -> N
     (tmp_path / "empty.geojson").write_text('{"type": "FeatureCollection", "features": []}')
     (tmp_path / "cols.csv").write_text("a,b\n1,2\n")
     for name, says in (
-        ("bad.csv", "bad.csv line 3"),
+        ("bad.csv", "bad.csv line 3, column lon: expected a number, got 'eight'"),
         ("empty.geojson", "no Point features"),
         ("cols.csv", "expected columns x,y"),
     ):

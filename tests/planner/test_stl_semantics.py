@@ -36,6 +36,7 @@ from planner.stl import (
     TraceLengthError,
     UnknownSignalError,
     Until,
+    explanation,
     interval_steps,
     parse,
 )
@@ -352,6 +353,40 @@ def test_weakest_chain_ends_at_an_atom_with_the_root_value(case):
         assert abs(link.robustness) == abs(root)
         expected = ref_rho(link.formula, x, dt, link.step, {})
         assert link.robustness == pytest.approx(expected, abs=1e-12) or link.robustness == expected
+
+
+@SETTINGS
+@given(cases(depth=3))
+def test_the_explanation_has_the_root_value_in_its_own_sign(case):
+    # The reported reason for a value is never one that passes where the formula fails:
+    # the explaining witness evaluates (by the brute-force semantics) to the root's value.
+    phi, x, dt = case
+    chain = phi.weakest(x, dt)
+    shown = explanation(chain)
+    assert shown and shown == chain[: len(shown)]
+    root = phi.robustness(x, dt)
+    last = shown[-1]
+    expected = ref_rho(last.formula, x, dt, last.step, {})
+    assert last.robustness == pytest.approx(root, abs=1e-12) or last.robustness == root
+    assert expected == pytest.approx(root, abs=1e-12) or expected == root
+    if not any(isinstance(w.formula, Not | Implies) for w in chain):
+        assert shown == chain  # nothing flips: the deciding atom itself
+
+
+def test_a_failing_negation_is_explained_by_itself_not_by_the_atom_that_passes():
+    # issue 39: `always not (inside(d1, bay) and inside(d2, bay))` failed at -0.00088 and was
+    # explained as `inside(d1, bay) = 0.00088`, a value that passes.
+    phi = parse("always[0,2] not ((a >= 0) and (b >= 0))")
+    x = {"a": np.array([-1.0, 0.5, -1.0, -1.0]), "b": np.array([1.0, 0.3, -1.0, -1.0])}
+    chain = phi.weakest(x, 1.0)
+    assert chain[-1].formula == parse("b >= 0") and chain[-1].robustness == pytest.approx(0.3)
+    last = explanation(chain)[-1]
+    assert last.formula == parse("not (a >= 0 and b >= 0)")  # both signals named
+    assert last.robustness == pytest.approx(-0.3) and last.step == 1
+    # a negated atom alone: `not (a >= 0)` at its own (negative) value
+    neg = explanation(parse("eventually[0,1] not (a >= -2)").weakest(x, 1.0))[-1]
+    assert neg.formula == parse("not (a >= -2)") and neg.robustness == pytest.approx(-1.0)
+    assert neg.step == 0  # a = -1 there: the least far above -2
 
 
 # --------------------------------------------------------------------------- smooth

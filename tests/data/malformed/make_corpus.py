@@ -274,5 +274,34 @@ plan(
 plan("h_epsilon_raised.plan.json", setv("epsilon", 5.0), "spec:", code=1)
 plan("h_through_obstacle.plan.json", shift_d1_x(1.5), "obstacle", code=1)
 
+
+def _duplicated_region() -> str:
+    """The base scenario with a second ``goal:`` pasted under ``regions:`` (issue 39: the
+    second silently replaced the first, and the mission flew to the wrong place)."""
+    data = yaml.safe_load(BASE_SCENARIO.read_text(encoding="utf-8"))
+    data["vehicles"] = data["vehicles"][:2]
+    text = yaml.safe_dump(data, sort_keys=False)
+    lines = text.splitlines(keepends=True)
+    i = next(j for j, ln in enumerate(lines) if ln.startswith("  goal:"))
+    j = i + 1
+    while j < len(lines) and lines[j].startswith("    "):
+        j += 1
+    pasted = "".join(lines[i:j]).replace("1.75", "-1.25")
+    return "".join(lines[:j]) + pasted + "".join(lines[j:])
+
+
+put("s_duplicate_region.yaml", _duplicated_region(), "plan", 2, "duplicate key 'goal' (lines")
+_plan_text = BASE_PLAN.read_text(encoding="utf-8")
+put(
+    "p_duplicate_key.plan.json",
+    _plan_text.replace('"epsilon":', '"epsilon": 0.5, "epsilon":', 1),
+    "verify",
+    2,
+    "duplicate key 'epsilon'",
+)
+# binary files where text is expected: a KMZ (zip) given as a scenario, a PNG as a plan
+put("s_kmz.yaml", b"PK\x03\x04\x14\x00\x00\x00\x08\x00" + bytes(range(256)), "plan", 2, "zip")
+put("p_png.plan.json", b"\x89PNG\r\n\x1a\n" + bytes(range(256)), "verify", 2, "PNG image")
+
 (HERE / "manifest.json").write_text(json.dumps(manifest, indent=1, sort_keys=True) + "\n")
 print(f"{len(manifest)} files")
