@@ -18,7 +18,13 @@
 * **Per-axis velocity and acceleration** (east, north, up) of every vehicle against its
   per-axis limits ``v_max`` / ``a_max`` (dashed).
 
-Colour means vehicle in every panel (:func:`render_figure` picks them).
+In the map view (``view``: :func:`gcs.map_view.choose_view` picks it for a long line) a
+top-down map (:func:`gcs.map_view.draw_map`) takes the 3-D view's place; a scene at least
+twice as wide as it is tall gets the whole top row, the robustness panels going beneath it.
+
+Colour means vehicle in every panel (:func:`render_figure` picks them). Titles never run off
+the figure: :func:`fit_titles` breaks one that would onto further lines (at its ``|``
+separators first, then between words) and the constrained layout makes room for them.
 
 A room of its own because it is all the matplotlib there is: :mod:`gcs.plot` writes the PNG
 or HTML page, and the figure is drawn on an Agg canvas, so no screen is needed.
@@ -28,7 +34,7 @@ from __future__ import annotations
 
 import io
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -41,15 +47,17 @@ from planner.regions import Cylinder
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
+    from matplotlib.text import Text
 
     from gcs.clause_traces import ClauseTrace
+    from gcs.map_view import View
     from gcs.telemetry import Telemetry
     from mavlink.tracks import FlownTrack
     from planner.cover import Outline
     from planner.planfile import Plan
     from planner.regions import Region
 
-__all__ = ["figure_png", "render_figure"]
+__all__ = ["figure_png", "fit_titles", "render_figure", "vehicle_colours", "wrap_to_width"]
 
 #: At most this many clauses get their own colour and legend entry; the rest are grey.
 MAX_COLOURED_CLAUSES = 8
@@ -154,7 +162,9 @@ def _footprint_area(xy: NDArray[np.float64]) -> float:
     )
 
 
-def _vehicle_colours(n: int) -> list[Any]:
+def vehicle_colours(n: int) -> list[Any]:
+    """One colour per vehicle (RGBA tuples), in the plan's vehicle order: the colour that
+    means that vehicle in every panel."""
     from matplotlib import colormaps
 
     cmap = colormaps["tab10"] if n <= 10 else colormaps["tab20"]
@@ -493,45 +503,145 @@ def render_figure(
     telemetry: Telemetry | None = None,
     dt_s: float | None = None,
     name: str | None = None,
+    view: View | str = "auto",
 ) -> Figure:
     """The whole picture as a matplotlib Figure (Agg canvas; no screen needed).
 
-    ``name`` titles it (default: the scenario's file stem).
+    ``name`` titles it (default: the scenario's file stem); ``view`` (``auto``, ``3d`` or
+    ``map``, :class:`gcs.map_view.View`) picks the panel of regions and paths: the 3-D view
+    or the top-down map (``auto``: :func:`gcs.map_view.choose_view`).
     """
     import mpl_toolkits.mplot3d  # noqa: F401  (registers the 3-D projection)
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    t, _ = plan_grid(plan, dt_s)
-    fig = Figure(figsize=(16, 12.5), dpi=100, layout="constrained")
-    FigureCanvasAgg(fig)
-    gs = fig.add_gridspec(3, 3, height_ratios=[2.3, 1.0, 1.0])
-    top = gs[0, :].subgridspec(1, 2, width_ratios=[1.2, 1.0])
+    from gcs.map_view import View, choose_view, draw_map, map_aspect
+
+    shown = choose_view(plan, view)
+    t, dt = plan_grid(plan, dt_s)
     rows = 3 if telemetry is not None else 2
-    ratios = [2.0, 1.0, 1.0] if telemetry is not None else [2.0, 1.0]
-    right = top[0, 1].subgridspec(rows, 1, height_ratios=ratios)
-    ax3 = fig.add_subplot(top[0, 0], projection="3d")
-    axr = fig.add_subplot(right[0, 0])
-    axl = fig.add_subplot(right[rows - 1, 0])
-    axes_v = [fig.add_subplot(gs[1, a]) for a in range(3)]
-    axes_a = [fig.add_subplot(gs[2, a], sharex=axes_v[a]) for a in range(3)]
-    colours = _vehicle_colours(len(plan.vehicles))
-    _draw_3d(ax3, plan, telemetry, colours, t)
+    aspect = map_aspect(plan, telemetry) if shown is View.MAP else 1.0
+    if aspect >= WIDE_MAP_ASPECT:
+        # a long strip: the map across the whole width (about 13.5 in of it beside its
+        # legend), the robustness panels in a row beneath it
+        map_h_in = min(max(13.5 / aspect + 1.0, 3.2), 6.5)
+        fig = Figure(figsize=(16, map_h_in + 9.6), dpi=100, layout="constrained")
+        gs = fig.add_gridspec(4, 3, height_ratios=[map_h_in, 4.2, 2.5, 2.5])
+        ax_view = fig.add_subplot(gs[0, :])
+        middle = gs[1, :].subgridspec(1, rows, width_ratios=[1.3, 1.0, 1.0][:rows])
+        axr = fig.add_subplot(middle[0, 0])
+        axl = fig.add_subplot(middle[0, rows - 1])
+        ax_track = fig.add_subplot(middle[0, 1]) if telemetry is not None else None
+        axes_v = [fig.add_subplot(gs[2, a]) for a in range(3)]
+        axes_a = [fig.add_subplot(gs[3, a], sharex=axes_v[a]) for a in range(3)]
+    else:
+        fig = Figure(figsize=(16, 12.5), dpi=100, layout="constrained")
+        gs = fig.add_gridspec(3, 3, height_ratios=[2.3, 1.0, 1.0])
+        top = gs[0, :].subgridspec(1, 2, width_ratios=[1.2, 1.0])
+        ratios = [2.0, 1.0, 1.0] if telemetry is not None else [2.0, 1.0]
+        right = top[0, 1].subgridspec(rows, 1, height_ratios=ratios)
+        projection = "3d" if shown is View.THREE_D else None
+        ax_view = fig.add_subplot(top[0, 0], projection=projection)
+        axr = fig.add_subplot(right[0, 0])
+        axl = fig.add_subplot(right[rows - 1, 0])
+        ax_track = fig.add_subplot(right[1, 0]) if telemetry is not None else None
+        axes_v = [fig.add_subplot(gs[1, a]) for a in range(3)]
+        axes_a = [fig.add_subplot(gs[2, a], sharex=axes_v[a]) for a in range(3)]
+    FigureCanvasAgg(fig)
+    colours = vehicle_colours(len(plan.vehicles))
+    if shown is View.MAP:
+        draw_map(ax_view, plan, telemetry, colours, t)
+    else:
+        _draw_3d(ax_view, plan, telemetry, colours, t)
     by_name = dict(zip((v.name for v in plan.vehicles), colours, strict=True))
     _draw_robustness(axr, axl, traces, plan.epsilon, by_name)
-    if telemetry is not None:
-        _draw_tracking(fig.add_subplot(right[1, 0]), plan, telemetry, colours, t)
+    if ax_track is not None and telemetry is not None:
+        _draw_tracking(ax_track, plan, telemetry, colours, t)
     _draw_kinematics(axes_v, axes_a, plan, colours, t, telemetry)
     rho = min((tr.robustness for tr in traces), default=math.nan)
-    _, dt = plan_grid(plan, dt_s)
     status = plan.status.split(":")[0].strip()  # the outcome in words (optimize._user_status)
-    fig.suptitle(
+    title = fig.suptitle(
         f"{name or Path(plan.scenario).stem}: {len(plan.vehicles)} vehicle(s), horizon {plan.horizon_s:g} s"
         f" | spec robustness {rho:+.4f} (exact, dt {dt:g} s; epsilon {plan.epsilon:g})"
-        f" | planner: {status[:40]}",
+        f" | planner: {status}",
         fontsize=12,
     )
+    fit_titles(fig, title)
     return fig
+
+
+#: A map at least this many times wider than tall gets the figure's whole top row.
+WIDE_MAP_ASPECT = 2.0
+#: The figure's title keeps this far (px) from the figure's edges.
+_TITLE_MARGIN_PX = 10.0
+#: What a title is broken at first: the sections of the figure's title.
+_TITLE_SEPARATOR = " | "
+
+
+def wrap_to_width(text: str, width_px: float, measure: Callable[[str], float]) -> str:
+    """``text`` broken onto lines each at most ``width_px`` wide (``measure(line)``: its width
+    in px): at ``" | "`` (the separator dropped) where a section fits on a line of its own,
+    else between words, else (one word wider than the line) between characters. Lines it
+    already has are kept; a text that fits is returned as it is."""
+    out: list[str] = []
+    for line in text.split("\n"):
+        if measure(line) <= width_px:
+            out.append(line)
+            continue
+        current = ""
+        for section in line.split(_TITLE_SEPARATOR):
+            joined = f"{current}{_TITLE_SEPARATOR}{section}" if current else section
+            if measure(joined) <= width_px:
+                current = joined
+                continue
+            if current:
+                out.append(current)
+            current = ""
+            for word in section.split(" "):
+                joined = f"{current} {word}" if current else word
+                if measure(joined) <= width_px:
+                    current = joined
+                    continue
+                if current:
+                    out.append(current)
+                current = ""
+                for ch in word:  # a word wider than the line (a long file name)
+                    if current and measure(current + ch) > width_px:
+                        out.append(current)
+                        current = ""
+                    current += ch
+        out.append(current)
+    return "\n".join(out)
+
+
+def fit_titles(fig: Figure, title: Text | None = None) -> None:
+    """Break the figure's ``title`` (what ``fig.suptitle`` returned) onto further lines
+    (:func:`wrap_to_width`) where it is wider than the figure less :data:`_TITLE_MARGIN_PX`
+    either side, and every axes' title where it is wider than its axes: nothing is cut off
+    at an edge or runs into the next panel. The layout is computed once to know the axes'
+    widths; the constrained layout makes room for the added lines when the figure is
+    drawn (``fig``: on an Agg canvas)."""
+    renderer = fig.canvas.get_renderer()  # type: ignore[attr-defined]
+
+    def fit(text: Text, width_px: float) -> None:
+        whole = text.get_text()
+        if not whole:
+            return
+
+        def measure(s: str) -> float:
+            text.set_text(s)
+            return float(text.get_window_extent(renderer).width)
+
+        text.set_text(wrap_to_width(whole, width_px, measure))
+
+    if title is not None:
+        fit(title, fig.bbox.width - 2.0 * _TITLE_MARGIN_PX)
+    engine = fig.get_layout_engine()
+    if engine is not None:  # the layout alone (no drawing): the axes' widths
+        engine.execute(fig)
+    for ax in fig.axes:
+        box = ax.get_position().transformed(fig.transFigure)
+        fit(ax.title, max(box.width, 50.0))
 
 
 def figure_png(fig: Figure) -> bytes:

@@ -10,9 +10,12 @@ from __future__ import annotations
 
 import base64
 import csv
+import html
+import io
 import math
 import re
 import struct
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +26,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from gcs import cli
 from gcs.clause_traces import clause_traces
-from gcs.figure import figure_png, render_figure
+from gcs.figure import figure_png, render_figure, wrap_to_width
 from gcs.plot import plot_plan
 from gcs.telemetry import load_telemetry
 from planner.planfile import load_plan
@@ -472,3 +475,74 @@ def test_colour_means_vehicle_in_every_panel_and_telemetry_adds_tracking_and_vel
     np.testing.assert_allclose(vf[inner], pv.trajectory.velocity(tf[inner] - 0.2), atol=0.05)
     flown_lines = [ln for ln in vel_ax.get_lines() if ln.get_alpha() == pytest.approx(0.35)]
     assert len(flown_lines) == 2
+
+
+#: A planner status whose outcome (the part before the first colon) is long, and a long
+#: plan file name: together the title is about twice the figure's width at 12 pt.
+LONG_STATUS = (
+    "stopped at the time limit (120 s); the best plan so far, and it meets the mission, "
+    "though only just: robustness 0.05 >= epsilon 0.01 (solver: Maximum_Iterations_Exceeded)"
+)
+LONG_NAME = "powerline_inspection_north_section_with_the_new_poles_2024-06-11_replanned.json"
+
+
+@pytest.mark.parametrize("view", ["3d", "map"])
+def test_long_titles_are_wrapped_inside_the_figure_not_cut_off(view: str) -> None:
+    plan = replace(reach_avoid_plan(), status=LONG_STATUS)
+    fig = render_figure(plan, clause_traces(plan), name=LONG_NAME, view=view)
+    figure_png(fig)  # drawn as it is written
+    renderer = fig.canvas.get_renderer()
+    width, height = fig.bbox.width, fig.bbox.height
+    title = fig._suptitle
+    assert title is not None
+    text = title.get_text()
+    # all of it, on more lines than one: the outcome in full (it was cut at 40 characters)
+    assert len(text.splitlines()) >= 2
+    assert LONG_STATUS.split(":")[0] in " ".join(text.split())
+    assert LONG_NAME in text
+    box = title.get_window_extent(renderer)
+    assert box.x0 >= 0.0 and box.x1 <= width and box.y0 >= 0.0 and box.y1 <= height, box
+    # every panel's title inside the figure too, within its panel's width, under the title
+    for ax in fig.axes:
+        if not ax.get_title():
+            continue
+        tb = ax.title.get_window_extent(renderer)
+        assert tb.x0 >= 0.0 and tb.x1 <= width and tb.y1 <= box.y0 + 1.0, (ax.get_title(), tb)
+        assert tb.width <= ax.get_position().width * width + 1.0, ax.get_title()
+
+
+def test_the_html_page_shows_the_whole_long_title(tmp_path: Path) -> None:
+    """The page's PNG has nothing drawn at its left and right edges where the title is (a
+    title running off the figure leaves its letters cut there), and the page's own text
+    carries the status whole and may break anywhere."""
+    plan = replace(reach_avoid_plan(), status=LONG_STATUS)
+    out = tmp_path / "long.html"
+    plot_plan(plan, out, name=LONG_NAME)
+    page = out.read_text()
+    m = re.search(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"', page)
+    assert m is not None
+    img = imread(io.BytesIO(base64.b64decode(m.group(1))), format="png")
+    band = img[:60, :, :3]  # the title's lines
+    assert (band[:, :4] == 1.0).all() and (band[:, -4:] == 1.0).all()
+    assert (band < 0.5).any()  # and the title is there
+    assert f"status {html.escape(LONG_STATUS)};" in page
+    assert "overflow-wrap: anywhere" in page
+
+
+def test_wrap_to_width_breaks_at_sections_then_words_then_letters() -> None:
+    def measure(s: str) -> float:  # a monospace font: 10 px a character
+        return 10.0 * len(s)
+
+    assert wrap_to_width("short | title", 200.0, measure) == "short | title"
+    text = "plan.json: 2 vehicles | robustness +0.1 (epsilon 0.01) | planner: the mission is met"
+    lines = wrap_to_width(text, 400.0, measure).splitlines()
+    # sections kept whole where they fit, the separator dropped at a break
+    assert lines == [
+        "plan.json: 2 vehicles",
+        "robustness +0.1 (epsilon 0.01)",
+        "planner: the mission is met",
+    ]
+    # a section too long for a line is broken between words; a word too long, anywhere
+    lines = wrap_to_width("a_very_long_file_name.json: stopped at the limit", 160.0, measure).splitlines()  # fmt: skip
+    assert all(measure(line) <= 160.0 for line in lines)
+    assert lines == ["a_very_long_file", "_name.json:", "stopped at the", "limit"]
