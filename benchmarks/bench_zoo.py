@@ -60,8 +60,9 @@ def expected_of(path: Path) -> str:
     return m.group(1) if m else "?"
 
 
-def run_one(path: Path, time_limit: float, gcs: Path) -> Row:
-    """Plan ``path`` in a fresh ``gcs plan`` process; the figures of one table row."""
+def run_one(path: Path, time_limit: float, gcs: Path, extra: tuple[str, ...] = ()) -> Row:
+    """Plan ``path`` in a fresh ``gcs plan`` process (``extra``: more of its options); the
+    figures of one table row."""
     row: Row = {"scenario": path.stem, "expected": expected_of(path)}
     m = _STLPY.match(path.stem)
     if m and m.group(1) in CERTIFIED:
@@ -72,7 +73,7 @@ def run_one(path: Path, time_limit: float, gcs: Path) -> Row:
     with tempfile.TemporaryDirectory(prefix="zoo-") as tmp:
         out = Path(tmp) / f"{path.stem}.plan.json"
         cmd = [str(gcs), "plan", str(path), "-o", str(out), "--time-limit", f"{time_limit:g}",
-               "--json"]  # fmt: skip
+               "--json", *extra]  # fmt: skip
         # The time limit covers build and solve; the guard only catches a process that hangs.
         guard = 2 * time_limit + 120 if time_limit > 0 else None
         t0 = time.perf_counter()
@@ -114,6 +115,13 @@ def run_one(path: Path, time_limit: float, gcs: Path) -> Row:
             n_variables=stats.get("n_variables"),
             n_constraints=stats.get("n_constraints"),
             starts=stats.get("starts"),
+            coarse=(stats.get("coarse") or {}).get("status"),
+            coarse_s=(lambda c: None if not c else c["build_s"] + c["solve_s"])(
+                stats.get("coarse")
+            ),
+            started_from=(summary.get("status") or "").split("; start ")[-1]
+            if "; start " in (summary.get("status") or "")
+            else "first start",
         )
     else:  # no summary: a load error (exit 2, one line on stderr) or a crash
         lines = [ln for ln in stderr.splitlines() if ln.strip() and not ln.startswith("gcs plan:")]
@@ -134,7 +142,8 @@ def _num(x: object, fmt: str, width: int) -> str:
 
 def table_header() -> str:
     head = (f"{'scenario':<38} {'expected':>10} {'solved':>6} {'robust':>9} {'wall s':>7} "
-            f"{'iter':>5} {'starts':>6} {'build s':>7} {'optimum':>8} {'ratio':>6}")  # fmt: skip
+            f"{'iter':>5} {'starts':>6} {'build s':>7} {'optimum':>8} {'ratio':>6} "
+            f"{'coarse':>12} {'coarse s':>8}")  # fmt: skip
     return head + "\n" + "-" * len(head)
 
 
@@ -144,7 +153,8 @@ def table_line(r: Row) -> str:
         f"{'yes' if r['solved'] else 'no':>6} {_num(r.get('robustness'), '.4f', 9)} "
         f"{_num(r.get('wall_s'), '.1f', 7)} {_num(r.get('iterations'), 'd', 5)} "
         f"{_num(r.get('starts'), 'd', 6)} {_num(r.get('build_s'), '.2f', 7)} {_num(r.get('certified'), '.4g', 8)} "
-        f"{_num(r.get('ratio'), '.2f', 6)}"
+        f"{_num(r.get('ratio'), '.2f', 6)} {r.get('coarse') or '-':>12} "
+        f"{_num(r.get('coarse_s'), '.2f', 8)}"
     )
 
 
@@ -227,7 +237,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="gcs plan --time-limit per scenario (default 60)")  # fmt: skip
     ap.add_argument("--dir", type=Path, default=SCENARIOS, help="scenario directory")
     ap.add_argument("--gcs", type=Path, default=GCS, help="the gcs command (default .venv/bin/gcs)")
+    ap.add_argument("--coarse-s", type=float, metavar="S",
+                    help="gcs plan --coarse-s (the combinatorial stage's budget; 0: off)")  # fmt: skip
     args = ap.parse_args(argv)
+    extra = () if args.coarse_s is None else ("--coarse-s", f"{args.coarse_s:g}")
     files = sorted(args.dir.glob("*.yaml"))
     if args.only:
         files = [f for f in files if any(s in f.name for s in args.only)]
@@ -241,13 +254,13 @@ def main(argv: list[str] | None = None) -> int:
     print(table_header(), flush=True)
     t0 = time.perf_counter()
     for f in files:  # one at a time: 2 shared cores, and a cold process each
-        rows.append(run_one(f, args.time_limit, args.gcs))
+        rows.append(run_one(f, args.time_limit, args.gcs, extra))
         print(table_line(rows[-1]), flush=True)
     s = summarise(rows, args.time_limit)
     print_summary(rows, s, args.time_limit)
     print(f"bench time {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     print(json.dumps({"bench": "zoo", "planner": version, "time_limit_s": args.time_limit,
-                      "rows": rows, "summary": s}))  # fmt: skip
+                      "coarse_s": args.coarse_s, "rows": rows, "summary": s}))  # fmt: skip
     return 0
 
 

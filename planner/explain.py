@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from planner.coarse_start import CoarseOutcome
 from planner.geometry import Place
 from planner.guess import (
     _Choices,
@@ -63,10 +64,24 @@ def needs(
     solver_status: str,
     stopped_by_time: bool,
     starts: int,
+    combinatorial: CoarseOutcome | None = None,
 ) -> list[str]:
     """Lines saying what the plan would need to meet the mission (empty if nothing is
-    found to say)."""
+    found to say).  ``combinatorial``: what the combinatorial stage found; clauses it found
+    in conflict lead, and no other advice follows them (more time or starts cannot mend a
+    conflict)."""
     out: list[str] = []
+    conflict = None if combinatorial is None else combinatorial.conflict
+    if conflict is not None:
+        names = "; ".join(f"{c.key_path} `{c.text}`" for c in conflict.clauses)
+        coarse = combinatorial.result if combinatorial is not None else None
+        step = f" (positions every {coarse.dt_s:g} s)" if coarse is not None else ""
+        return [
+            f"conflict: no plan on the coarse model{step} meets these "
+            f"{len(conflict.clauses)} clauses together"
+            + ("" if conflict.irreducible else " (perhaps not all of them are needed)")
+            + f": {names}; change one of them"
+        ]
     clauses = list(formula.operands) if isinstance(formula, And) else [formula]
     horizon = problem.timing.horizon_s
     for v in problem.vehicles:
@@ -111,6 +126,13 @@ def needs(
         out.append(
             f"solver: stopped at IPOPT's iteration limit ({problem.solver.max_iter}): "
             "more iterations (solver.max_iter)"
+        )
+    elif not out and starts < problem.solver.starts:
+        # every distinct start the guess could make was tried: more would not be different
+        out.append(
+            f"solver: converged short of the mission from each of the {starts} different "
+            f"start(s) the initial guess has (solver.starts allows {problem.solver.starts}): "
+            "more room around the weakest clause"
         )
     elif not out:
         out.append(

@@ -11,9 +11,10 @@ import dataclasses
 import functools
 import math
 import os
+import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 # IPOPT's MUMPS (and its BLAS) read this when CasADi loads the ipopt plugin, at the first
@@ -244,6 +245,8 @@ class _Structure:
     #: have none, or when they are smoothed at the leaves' own k: ``sharp``)
     box_bound: float
     _refining: list[tuple[float, Any]] | None = None
+    #: held by the search that uses the structure (its watch is one per structure)
+    lock: threading.Lock = field(default_factory=threading.Lock)
 
     def refining(self) -> list[tuple[float, Any]]:
         """The solvers for a start that meets the mission (built at first use)."""
@@ -271,7 +274,7 @@ def _structure_key(problem: Problem, sharp: bool = False) -> Any:
         problem.timing,
         problem.model,
         tuple(v.name for v in problem.vehicles),
-        dataclasses.replace(s, starts=1, polish_s=0.0, lexicographic_rounds=0),  # one NLP
+        dataclasses.replace(s, starts=1, polish_s=0.0, lexicographic_rounds=0, coarse_s=0.0),
         problem.epsilon,
         _has_norm_limits(problem),
     )

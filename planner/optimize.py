@@ -66,6 +66,7 @@ from typing import Any
 import numpy as np
 
 from planner.checks import LimitReport, check_trajectories
+from planner.coarse_start import CoarseOutcome, coarse_budget_s, coarse_start
 from planner.dynamics import DoubleIntegrator, MinimumJerkChain
 from planner.explain import needs
 from planner.guess import _initial_guess, starts
@@ -99,6 +100,7 @@ __all__ = [
     "ClauseReport",
     "LimitReport",
     "PlanResult",
+    "PlanSearch",
     "SolveStats",
     "Weakest",
     "check_trajectories",
@@ -154,138 +156,257 @@ def plan(
     Args:
         problem: a validated scenario (:func:`planner.scenario.load_scenario`).
         initial_guess: flat decision vector (``PlanResult.decision`` of an earlier solve of
-            the same structure) to warm start from; default: straight lines through the
-            boxes each vehicle must visit.
+            the same structure) to warm start from; default: the starts of
+            :meth:`PlanSearch.candidates`.
         progress: called with a short line at each stage (build, solve, check), and
             during a solve every ``progress_every_s`` with the iteration and the best exact
             robustness so far.
-        time_limit_s: stop the solver once this long has passed since the call (the build
-            counts; ``None``: no limit) and return the best plan found by then, its status
-            saying so.  The solver stops at its next iteration; the check after it runs.
+        time_limit_s: a bound on the call's wall time (``None``: no limit), the build and
+            the check included: the solver stops early enough for the check to fit (its
+            cost is measured on the first start), no new start begins after it, and the
+            best plan found by then is returned, its status saying so.
 
     Returns:
         :class:`PlanResult`; ``success=False`` (with the best trajectories) when the
         exact robustness is below ``epsilon`` or a check fails.
     """
-    say = progress or (lambda _msg: None)
-    t_start = time.perf_counter()
-    formulas = list(problem.formulas)  # parsed once, at load
-    if len(formulas) != len(problem.clauses):
-        registry = build_registry(problem)
-        formulas = [parse_clause(problem, c, registry) for c in problem.clauses]
-    formula = conjunction(formulas)
-    # The heading is derived from the positions (planner.heading): where face(d, T) must hold
-    heading = uses_heading(formulas)
-    rules = facing_rules(formula, problem) if heading else []
-    t_dense = _dense_times(problem)
-    model = make_model(problem)
-    x0s = _x0(problem, model)
-
-    key = _structure_key(problem)
-
-    def build() -> _Structure:
-        say(f"building the NLP for {len(problem.vehicles)} vehicle(s)")
-        return _build(problem, model, formula)
-
-    struct, cached = STRUCTURES.get_or_build(key, build)
-    # p: the start states, and every leaf row >= r (weight 1; _raise_the_rest settles rows)
-    p_val = np.concatenate(
-        [*[x.reshape(-1, order="F") for x in x0s], np.ones(struct.leaf_group.size)]
+    search = PlanSearch(
+        problem, progress=progress, time_limit_s=time_limit_s, progress_every_s=progress_every_s
     )
-    build_s = struct.build_s if not cached else 0.0
-    watch = struct.watch
-    deadline = math.inf if time_limit_s is None else t_start + float(time_limit_s)
-    watch.deadline = deadline
-    watch.iterations = 0
-    watch.stopped = False
+    return search.run(initial_guess)
 
-    # Numeric bounds: limits per vehicle into lbg/ubg, r bounds.
-    lbg = struct.lbg_fixed.copy()
-    ubg = struct.ubg_fixed.copy()
-    cons_cache: dict[tuple[Any, Any], tuple[np.ndarray, np.ndarray]] = {}
-    for i, v in enumerate(problem.vehicles):
-        keyl = vehicle_bounds(v)
-        if keyl not in cons_cache:
-            cons_cache[keyl] = vehicle_limit_bounds(model, v, struct.lim_half, struct.norm_rows)
-        lbg[struct.lim_slices[i]], ubg[struct.lim_slices[i]] = cons_cache[keyl]
-    lbx = struct.lbx.copy()
-    ubx = struct.ubx.copy()
 
-    Mp, Np = np.asarray(model.Mp), np.asarray(model.Np)
-    nd = model.n_dec * 3
-    used = struct.used_steps
-    bounds = {"p": p_val, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg}
+class PlanSearch:
+    """One plan's search: its stages, starts, budget and best result so far.
 
-    def lifted(z0: np.ndarray) -> np.ndarray:
+    In the shape of python-control's ``OptimalControlProblem``: the constructor builds (or
+    takes from the cache) the NLP of the problem's structure; :meth:`run` tries the starts
+    of :meth:`candidates` (the combinatorial stage's plan first, when it has one, then the
+    initial guess's), refines the best (:func:`_raise_the_rest`, :func:`_sharpen`), checks
+    it on dense samples and returns a :class:`PlanResult`.  The deadline, the iterations and
+    the best iterate seen live here, not in the cached structure: a structure is used by one
+    search at a time (its lock), so two concurrent plans of one structure take turns instead
+    of racing on its iteration watch.
+    """
+
+    def __init__(
+        self,
+        problem: Problem,
+        *,
+        progress: Callable[[str], None] | None = None,
+        time_limit_s: float | None = None,
+        progress_every_s: float = 2.0,
+    ) -> None:
+        self.problem = problem
+        self.say: Callable[[str], None] = progress or (lambda _msg: None)
+        self.t_start = time.perf_counter()
+        self.time_limit_s = time_limit_s
+        self.deadline = math.inf if time_limit_s is None else self.t_start + float(time_limit_s)
+        self.progress_every_s = progress_every_s
+        formulas = list(problem.formulas)  # parsed once, at load
+        if len(formulas) != len(problem.clauses):
+            registry = build_registry(problem)
+            formulas = [parse_clause(problem, c, registry) for c in problem.clauses]
+        self.formulas = formulas
+        self.formula = conjunction(formulas)
+        # The heading is derived from the positions (planner.heading): where face(d, T) holds
+        self.heading = uses_heading(formulas)
+        self.rules = facing_rules(self.formula, problem) if self.heading else []
+        self.t_dense = _dense_times(problem)
+        self.model = make_model(problem)
+        self.x0s = _x0(problem, self.model)
+        self.check_s = 0.0
+        #: seconds one exact evaluation of the clauses took (the check's cost is a few)
+        self.exact_eval_s = 0.0
+        self.n_starts = 0
+        self.best: _Attempt | None = None
+        self.best_start = (0, "")
+        self.combinatorial: CoarseOutcome | None = None
+        #: once a start meets the mission, more starts only until then (solver.polish_s)
+        self.polish_until = math.inf
+        self._iterate_rho = -math.inf  # the best iterate seen during a solve
+        self._iterate_w: np.ndarray | None = None
+        self._next_progress = 0.0
+
+    # ------------------------------------------------------------------ the NLP's pieces
+
+    def _build(self) -> None:
+        problem, model = self.problem, self.model
+
+        def build() -> _Structure:
+            self.say(f"building the NLP for {len(problem.vehicles)} vehicle(s)")
+            return _build(problem, model, self.formula)
+
+        self.struct, self.cached = STRUCTURES.get_or_build(_structure_key(problem), build)
+        struct = self.struct
+        # p: the start states, and every leaf row >= r (weight 1; _raise_the_rest settles)
+        self.p_val = np.concatenate(
+            [*[x.reshape(-1, order="F") for x in self.x0s], np.ones(struct.leaf_group.size)]
+        )
+        self.build_s = struct.build_s if not self.cached else 0.0
+        self.watch = struct.watch
+        # Numeric bounds: limits per vehicle into lbg/ubg, r bounds.
+        lbg = struct.lbg_fixed.copy()
+        ubg = struct.ubg_fixed.copy()
+        cons_cache: dict[tuple[Any, Any], tuple[np.ndarray, np.ndarray]] = {}
+        for i, v in enumerate(problem.vehicles):
+            keyl = vehicle_bounds(v)
+            if keyl not in cons_cache:
+                cons_cache[keyl] = vehicle_limit_bounds(model, v, struct.lim_half, struct.norm_rows)
+            lbg[struct.lim_slices[i]], ubg[struct.lim_slices[i]] = cons_cache[keyl]
+        self.lbx = struct.lbx.copy()
+        self.ubx = struct.ubx.copy()
+        self.bounds = {"p": self.p_val, "lbx": self.lbx, "ubx": self.ubx, "lbg": lbg, "ubg": ubg}
+
+    def lifted(self, z0: np.ndarray) -> np.ndarray:
         """The NLP's start point for decisions ``z0``: the sampled positions lifted, and r
         at the smallest leaf value there."""
+        model, struct = self.model, self.struct
+        Mp, Np = np.asarray(model.Mp), np.asarray(model.Np)
+        nd = model.n_dec * 3
         p0 = [
             (Mp @ z0[i * nd : (i + 1) * nd].reshape((model.n_dec, 3), order="F") + Np @ x0)[
-                used
+                struct.used_steps
             ].reshape(-1, order="F")
-            for i, x0 in enumerate(x0s)
+            for i, x0 in enumerate(self.x0s)
         ]
         w0 = np.concatenate([z0, *p0, np.zeros(struct.n_s), [0.0]])
         if struct.n_s:  # the chunks' values there (planner.nlp._chunks)
-            w0[-1 - struct.n_s : -1] = np.asarray(struct.chunk_fn(w0, p_val)).reshape(-1)
-        w0[-1] = _min_leaf(struct, w0, p_val, default=0.0)
+            w0[-1 - struct.n_s : -1] = np.asarray(struct.chunk_fn(w0, self.p_val)).reshape(-1)
+        w0[-1] = _min_leaf(struct, w0, self.p_val, default=0.0)
         return w0
 
-    def trajectories_of(w: np.ndarray) -> list[Trajectory]:
+    def trajectories_of(self, w: np.ndarray) -> list[Trajectory]:
+        """The vehicles' trajectories at the NLP's point ``w`` (with their heading)."""
+        model = self.model
+        nd = model.n_dec * 3
         trs = [
             model.trajectory(
                 w[i * nd : (i + 1) * nd].reshape((model.n_dec, 3), order="F"), x0, v.name
             )
-            for i, (v, x0) in enumerate(zip(problem.vehicles, x0s, strict=True))
+            for i, (v, x0) in enumerate(zip(self.problem.vehicles, self.x0s, strict=True))
         ]
-        return with_heading(problem, rules, trs, t_dense) if rules else trs
+        return with_heading(self.problem, self.rules, trs, self.t_dense) if self.rules else trs
 
-    def clauses_of(w: np.ndarray) -> np.ndarray:
-        """Each clause's exact robustness (dense samples)."""
-        sig = _dense_signals(problem, trajectories_of(w), heading)
-        return _clause_robustness(problem, formulas, sig)
+    def clauses_of(self, w: np.ndarray) -> np.ndarray:
+        """Each clause's exact robustness (dense samples) at ``w``."""
+        t0 = time.perf_counter()
+        sig = _dense_signals(self.problem, self.trajectories_of(w), self.heading)
+        out = _clause_robustness(self.problem, self.formulas, sig)
+        self.exact_eval_s = max(self.exact_eval_s, time.perf_counter() - t0)
+        return out
 
-    def exact_of(w: np.ndarray) -> float:
-        rob = clauses_of(w)
+    def exact_of(self, w: np.ndarray) -> float:
+        """The exact robustness (dense samples) at ``w``."""
+        rob = self.clauses_of(w)
         return float(rob.min()) if rob.size else math.inf
 
-    # During a solve: every progress_every_s, the iterate's exact robustness (the best one
-    # kept: a solve stopped by the time limit or Ctrl-C returns the better of it and its
-    # last iterate).
-    seen: dict[str, Any] = {
-        "next": time.perf_counter() + progress_every_s,
-        "rho": -math.inf,
-        "w": None,
-    }
+    def _timed_exact(self, w: np.ndarray) -> float:
+        t0 = time.perf_counter()
+        rob = self.exact_of(w)
+        self.check_s += time.perf_counter() - t0
+        return rob
 
-    def on_iteration(w: np.ndarray, _f: float) -> None:
+    def _on_iteration(self, w: np.ndarray, _f: float) -> None:
+        """During a solve: every progress_every_s, the iterate's exact robustness (the best
+        one kept: a solve stopped by the time limit or Ctrl-C returns the better of it and
+        its last iterate)."""
         now = time.perf_counter()
-        if now < seen["next"]:
+        if now < self._next_progress:
             return
-        seen["next"] = now + progress_every_s
-        rho = exact_of(w)
-        if rho > seen["rho"]:
-            seen["rho"], seen["w"] = rho, w.copy()
-        say(
-            f"solving: iteration {watch.iterations}, best exact robustness so far "
-            f"{seen['rho']:+.4f}"
+        self._next_progress = now + self.progress_every_s
+        rho = self.exact_of(w)
+        if rho > self._iterate_rho:
+            self._iterate_rho, self._iterate_w = rho, w.copy()
+        self.say(
+            f"solving: iteration {self.watch.iterations}, best exact robustness so far "
+            f"{self._iterate_rho:+.4f}"
         )
 
-    watch.on_iteration = on_iteration
-    check_s = 0.0
+    # ------------------------------------------------------------------------ the budget
 
-    def attempt(w0: np.ndarray, stop: _SigintWatch) -> _Attempt:
+    def solve_deadline(self) -> float:
+        """When the solvers must stop for the check to fit in the time limit: the check
+        evaluates the clauses a few times (measured on the first start)."""
+        if not math.isfinite(self.deadline):
+            return self.deadline
+        reserve = _CHECK_EVALUATIONS * self.exact_eval_s
+        return self.deadline - reserve
+
+    def out_of_time(self, stop: _SigintWatch) -> bool:
+        """Whether the search must end now: Ctrl-C, or the solver stopped at its deadline."""
+        return stop.hit or self.watch.stopped or time.perf_counter() >= self.solve_deadline()
+
+    # ------------------------------------------------------------------------ the stages
+
+    def candidates(self) -> Iterator[tuple[str, np.ndarray]]:
+        """The starts of the multi-start, lazily, ``solver.starts`` in all: the initial
+        guess's first start (:func:`planner.guess.starts`) and, unless that start already
+        meets the mission, the combinatorial stage's plan (:mod:`planner.milp`), the better
+        of the two in exact robustness first; then the guess's other starts."""
+        problem, model, formula = self.problem, self.model, self.formula
+        limit = problem.solver.starts
+        guesses = starts(problem, formula, limit)
+        first = next(guesses)
+        z_first = _initial_guess(problem, model, formula, self.x0s, first)
+        heads = [(first.describe(problem, formula), z_first)]
+        rho_first = self._timed_exact(self.lifted(z_first))
+        if rho_first < problem.epsilon:
+            coarse = self._combinatorial_start()
+            if coarse is not None:
+                rho_coarse = self._timed_exact(self.lifted(coarse[1]))
+                self.say(
+                    f"combinatorial stage: its plan starts at {rho_coarse:+.4f}, the initial "
+                    f"guess at {rho_first:+.4f}"
+                )
+                heads.insert(0 if rho_coarse > rho_first else 1, coarse)
+        given = 0
+        conflict = self.combinatorial is not None and self.combinatorial.conflict is not None
+        if conflict:
+            # Proven on the coarse model that no plan meets the spec: one NLP from the
+            # guess says what the smooth model makes of it, no more starts.
+            self.say("combinatorial stage: no coarse plan meets the spec (clauses in conflict)")
+            yield heads[0]
+            return
+        for head in heads:
+            if given >= limit:
+                return
+            given += 1
+            yield head
+        for st in guesses:
+            if given >= limit:
+                return
+            given += 1
+            yield (
+                st.describe(problem, formula),
+                _initial_guess(problem, model, formula, self.x0s, st),
+            )
+
+    def _combinatorial_start(self) -> tuple[str, np.ndarray] | None:
+        """The combinatorial stage (:func:`planner.milp.coarse_start`): its plan as a start,
+        or None where it does not run or finds none (the reason kept in
+        :attr:`combinatorial`)."""
+        budget = coarse_budget_s(self.problem, self.deadline - time.perf_counter())
+        if budget <= 0.0:
+            return None
+        self.say("choosing options, order and timing (combinatorial stage)")
+        outcome = coarse_start(self.problem, self.model, self.x0s, budget)
+        self.combinatorial = outcome
+        if outcome.decision is None:
+            return None
+        return outcome.describe(), outcome.decision
+
+    def attempt(self, w0: np.ndarray, stop: _SigintWatch) -> _Attempt:
         """One start: the maximisation from ``w0`` (with the eq. (1) rounds if asked for)."""
-        nonlocal check_s
-        t_check = time.perf_counter()
-        rob_start = exact_of(w0)
-        check_s += time.perf_counter() - t_check
+        problem, struct, bounds = self.problem, self.struct, self.bounds
+        lbx, ubx = self.lbx, self.ubx
+        say = self.say
+        rob_start = self._timed_exact(w0)
+        self.watch.deadline = min(self.solve_deadline(), self.polish_until)
         refine = rob_start >= problem.epsilon and problem.solver.method is SolverMethod.IPOPT
         run = _run_solvers(struct, w0, bounds, say, problem.solver.method.value, stop, refine)
         w_opt, status = run.w, run.status
-        t_check = time.perf_counter()
-        rob = exact_of(w_opt)
-        check_s += time.perf_counter() - t_check
+        rob = self._timed_exact(w_opt)
         if rob < problem.epsilon and rob_start > rob:
             # The solver fell short from a start that was better (it met the mission, or
             # fell short by less): keep the start, and say so.  A solved point that meets
@@ -304,7 +425,7 @@ def plan(
         margin = struct.margin
         best = (rob, w_opt, status)
         for _ in range(_EPS_ROUNDS):
-            if rob >= eps or not _solved(status) or stop.hit or watch.stopped:
+            if rob >= eps or not _solved(status) or self.out_of_time(stop):
                 break
             margin += eps - rob + _EPS_MARGIN_STEP_M
             _lower_r(lbx, ubx, eps + margin)
@@ -312,21 +433,17 @@ def plan(
             w_start[-1] = lbx[-1]
             run = run.then(_run_solvers(struct, w_start, bounds, say, "eq. (1) margin", stop))
             w_opt, status = run.w, run.status
-            t_check = time.perf_counter()
-            rob = exact_of(w_opt)
-            check_s += time.perf_counter() - t_check
+            rob = self._timed_exact(w_opt)
             if rob > best[0]:
                 best = (rob, w_opt, status)
         rob, w_opt, status = best
         converged = _solved(status)
-        if rob < eps and not stop.hit and not watch.stopped:
+        if rob < eps and not self.out_of_time(stop):
             # Infeasible as constrained: the plain maximisation from the same start finds
             # the best trajectories there are (a failed result carries the best found).
             lbx[-1], ubx[-1] = struct.lbx[-1], struct.ubx[-1]
             plain = _run_solvers(struct, w0, bounds, say, "plain maximisation", stop)
-            t_check = time.perf_counter()
-            rob_plain = exact_of(plain.w)
-            check_s += time.perf_counter() - t_check
+            rob_plain = self._timed_exact(plain.w)
             if rob_plain > rob:
                 rob, w_opt = rob_plain, plain.w
                 converged = _solved(plain.status)
@@ -336,160 +453,217 @@ def plan(
             run = run.then(plain)
         return _Attempt(rob, w_opt, status, converged, run)
 
-    # Multi-start: the first start's plan, unless it falls short of the mission; then the
-    # next starts (other route choices, legs shifted) in turn until one meets it, the
-    # limit on starts or time comes, or Ctrl-C; once met, more starts only for
-    # solver.polish_s seconds (default 0).  The best exact robustness wins.
-    if initial_guess is not None:
-        given = np.asarray(initial_guess, dtype=float).reshape(-1)[: struct.n_z]
-        candidates: Iterator[tuple[str, np.ndarray]] = iter([("the given guess", given)])
-    else:
-        candidates = (
-            (st.describe(problem, formula), _initial_guess(problem, model, formula, x0s, st))
-            for st in starts(problem, formula, problem.solver.starts)
-        )
-    best: _Attempt | None = None
-    best_start = (0, "")
-    met_at: float | None = None  # when a start first met the mission
-    n_starts = 0
-    spent: _Run | None = None
-    with _watch_sigint() as stop:
-        for what, z0 in candidates:
-            if n_starts and (stop.hit or watch.stopped):
+    def _multistart(self, candidates: Iterator[tuple[str, np.ndarray]], stop: _SigintWatch) -> _Run:
+        """The first start's plan, unless it falls short of the mission; then the next
+        starts in turn until one meets it, the limit on starts or time comes, or Ctrl-C;
+        once met, more starts only for solver.polish_s seconds (default 0).  The best exact
+        robustness wins.  No start is drawn (its guess can take seconds on a long line)
+        once the time is up."""
+        problem, struct = self.problem, self.struct
+        met_at: float | None = None  # when a start first met the mission
+        spent: _Run | None = None
+        while True:
+            if self.n_starts and (
+                self.out_of_time(stop) or time.perf_counter() >= self.polish_until
+            ):
                 break
-            n_starts += 1
-            if n_starts > 1:
-                say(f"start {n_starts}: {what}")
-            lbx[-1], ubx[-1] = struct.lbx[-1], struct.ubx[-1]
+            nxt = next(candidates, None)
+            if nxt is None:
+                break
+            what, z0 = nxt
+            self.n_starts += 1
+            if self.n_starts > 1:
+                self.say(f"start {self.n_starts}: {what}")
+            self.lbx[-1], self.ubx[-1] = struct.lbx[-1], struct.ubx[-1]
             if problem.solver.robustness_constraint:
-                _lower_r(lbx, ubx, problem.epsilon + struct.margin)
-            got = attempt(lifted(z0), stop)
+                _lower_r(self.lbx, self.ubx, problem.epsilon + struct.margin)
+            got = self.attempt(self.lifted(z0), stop)
             spent = got.run if spent is None else spent.then(got.run)
-            if n_starts > 1 or got.robustness < problem.epsilon:
-                say(f"start {n_starts}: exact robustness {got.robustness:+.4f}")
-            if best is None or got.robustness > best.robustness:
-                best, best_start = got, (n_starts, what)
-            if best.robustness >= problem.epsilon:
+            if self.n_starts > 1 or got.robustness < problem.epsilon:
+                self.say(f"start {self.n_starts}: exact robustness {got.robustness:+.4f}")
+            if self.best is None or got.robustness > self.best.robustness:
+                self.best, self.best_start = got, (self.n_starts, what)
+            if self.best.robustness >= problem.epsilon and met_at is None:
                 # Met: more starts for a larger margin only within the polish budget (the
                 # solver stops at its end like at the time limit; the best plan stands).
-                if met_at is None:
-                    met_at = time.perf_counter()
-                    watch.deadline = min(deadline, met_at + problem.solver.polish_s)
-                if time.perf_counter() >= watch.deadline:
-                    break
-    assert best is not None and spent is not None
-    watch.stopped = watch.stopped and time.perf_counter() >= deadline  # not by the polish
-    if abs(best.robustness) < struct.box_bound and not (stop.hit or watch.stopped):
-        # The plan's margin is within the boxes' smoothing error: that smoothing decides it.
-        budget = max(_RAISE_MIN_S, 0.5 * (time.perf_counter() - t_start))
-        sharp = _sharpen(problem, model, formula, best, bounds, p_val, exact_of, say, stop,
-                         min(deadline, time.perf_counter() + budget), watch.on_iteration)  # fmt: skip
-        if sharp is not None:
-            struct, best, bounds, sharp_build_s = sharp
-            build_s += sharp_build_s
-            spent = spent.then(best.run)
-            watch.on_iteration = None
-            watch = struct.watch
-        watch.deadline = deadline
-        watch.stopped = watch.stopped and time.perf_counter() >= deadline  # not by the budget
-    w_opt, status, converged = best.w, best.status, best.converged
-    run = spent
-    watch.on_iteration = None
-    if n_starts > 1:
-        status = f"{status}; start {best_start[0]} of {n_starts}: {best_start[1]}"
-    if (stop.hit or watch.stopped) and seen["w"] is not None and seen["rho"] > exact_of(w_opt):
-        w_opt = seen["w"]  # an earlier iterate was better than the one the solver stopped at
-    elif problem.solver.lexicographic_rounds and not problem.solver.robustness_constraint:
-        # at most half the time spent so far (at least _RAISE_MIN_S)
-        budget = max(_RAISE_MIN_S, 0.5 * (time.perf_counter() - t_start))
-        lam_g = best.run.lam_g if best.run.w is w_opt else None
-        raised = _raise_the_rest(
-            struct, w_opt, lam_g, bounds, problem, clauses_of, say, stop, deadline, budget
+                met_at = time.perf_counter()
+                self.polish_until = met_at + problem.solver.polish_s
+        assert spent is not None
+        return spent
+
+    def run(self, initial_guess: np.ndarray | None = None) -> PlanResult:
+        """Build, try the starts, refine the best, check it: the :class:`PlanResult`."""
+        self._build()
+        struct = self.struct
+        with struct.lock, _watch_sigint() as stop:
+            self.watch.deadline = self.deadline
+            self.watch.iterations = 0
+            self.watch.stopped = False
+            self.watch.on_iteration = self._on_iteration
+            self._next_progress = time.perf_counter() + self.progress_every_s
+            try:
+                return self._run(initial_guess, stop)
+            finally:
+                self.watch.on_iteration = None
+
+    def _run(self, initial_guess: np.ndarray | None, stop: _SigintWatch) -> PlanResult:
+        problem, formula, say = self.problem, self.formula, self.say
+        if initial_guess is not None:
+            given = np.asarray(initial_guess, dtype=float).reshape(-1)[: self.struct.n_z]
+            candidates: Iterator[tuple[str, np.ndarray]] = iter([("the given guess", given)])
+        else:
+            candidates = self.candidates()
+        run = self._multistart(candidates, stop)
+        best = self.best
+        assert best is not None
+        watch = self.watch
+        # the solver stopped by the time limit (not by the polish budget)
+        by_time = watch.stopped and time.perf_counter() >= self.solve_deadline()
+        watch.stopped = by_time
+        if abs(best.robustness) < self.struct.box_bound and not (stop.hit or by_time):
+            # The plan's margin is within the boxes' smoothing error: that smoothing decides.
+            budget = max(_RAISE_MIN_S, 0.5 * (time.perf_counter() - self.t_start))
+            sharp = _sharpen(problem, self.model, formula, best, self.bounds, self.p_val,
+                             self.exact_of, say, stop,
+                             min(self.solve_deadline(), time.perf_counter() + budget),
+                             self._on_iteration)  # fmt: skip
+            if sharp is not None:
+                self.struct, best, self.bounds, sharp_build_s = sharp
+                self.build_s += sharp_build_s
+                run = run.then(best.run)
+                self.watch = self.struct.watch
+                self.watch.on_iteration = None
+            watch = self.watch
+            watch.deadline = self.solve_deadline()
+            by_time = watch.stopped and time.perf_counter() >= self.solve_deadline()
+            watch.stopped = by_time
+        w_opt, status, converged = best.w, best.status, best.converged
+        if self.n_starts > 1 or self.combinatorial is not None:
+            n, what = self.best_start
+            status = f"{status}; start {n} of {self.n_starts}: {what}"
+        if (
+            (stop.hit or by_time)
+            and self._iterate_w is not None
+            and self._iterate_rho > self.exact_of(w_opt)
+        ):
+            w_opt = self._iterate_w  # an earlier iterate was better than the last one
+        elif problem.solver.lexicographic_rounds and not problem.solver.robustness_constraint:
+            # at most half the time spent so far (at least _RAISE_MIN_S)
+            budget = max(_RAISE_MIN_S, 0.5 * (time.perf_counter() - self.t_start))
+            lam_g = best.run.lam_g if best.run.w is w_opt else None
+            raised = _raise_the_rest(
+                self.struct, w_opt, lam_g, self.bounds, problem, self.clauses_of, say, stop,
+                self.solve_deadline(), budget,
+            )  # fmt: skip
+            run = run if raised.run is None else run.then(raised.run)
+            by_time = by_time or (
+                self.struct.watch.stopped and time.perf_counter() >= self.solve_deadline()
+            )
+            if raised.note:
+                w_opt, status = raised.w, f"{status}; {raised.note}"
+        return self._result(w_opt, status, converged, run, stop, by_time)
+
+    def _result(
+        self,
+        w_opt: np.ndarray,
+        status: str,
+        converged: bool,
+        run: _Run,
+        stop: _SigintWatch,
+        by_time: bool,
+    ) -> PlanResult:
+        """Check the plan at ``w_opt`` on dense samples: the :class:`PlanResult`."""
+        problem, formula, formulas = self.problem, self.formula, self.formulas
+        self.say("checking on dense samples")
+        struct = self.struct
+        # The smooth value at the point returned (r itself may sit on a bound, eq. (1)).
+        smooth = _min_leaf(struct, w_opt, self.p_val, default=float(w_opt[-1]))
+        t_check = time.perf_counter()
+        trajectories = self.trajectories_of(w_opt)
+        rob, rob_grid, weakest, clauses = _evaluate(
+            problem, formula, formulas, trajectories, self.heading
         )
-        run = run if raised.run is None else run.then(raised.run)
-        watch.deadline = deadline
-        watch.stopped = watch.stopped and time.perf_counter() >= deadline  # not by the budget
-        if raised.note:
-            w_opt, status = raised.w, f"{status}; {raised.note}"
-    say("checking on dense samples")
-    # The smooth value at the point returned (r itself may sit on a bound, eq. (1)).
-    smooth = _min_leaf(struct, w_opt, p_val, default=float(w_opt[-1]))
-    t_check = time.perf_counter()
-    trajectories = trajectories_of(w_opt)
-    result = _evaluate(problem, formula, formulas, trajectories, heading)
-    limits = check_trajectories(
-        problem, trajectories, problem.vehicles, problem.timing.check_dt_s, problem.timing.horizon_s
-    )
-    check_s += time.perf_counter() - t_check
-    rob, rob_grid, weakest, clauses = result
-    limits_ok = all(lim.ok for lim in limits)
-    success = bool(rob >= problem.epsilon and limits_ok)
-    if success:
-        verdict = f"robustness {rob:.4g} >= epsilon {problem.epsilon:g}"
-    elif rob < problem.epsilon:
-        w_txt = (
-            f" (weakest: {weakest.formula} = {weakest.robustness:.4g} at t={weakest.t_s:g} s)"
-            if weakest
-            else ""
-        )
-        verdict = f"robustness {rob:.4g} < epsilon {problem.epsilon:g}{w_txt}"
-    else:
-        bad = [lim.name for lim in limits if not lim.limits_ok]
-        out = [lim.name for lim in limits if not lim.in_workspace]
-        verdict = "; ".join(
-            ([f"limits violated by {', '.join(bad)}"] if bad else [])
-            + ([f"outside the workspace: {', '.join(out)}"] if out else [])
-        )
-    total = time.perf_counter() - t_start
-    stats = SolveStats(
-        build_s=build_s,
-        solver_s=run.solver_s,
-        function_eval_s=run.eval_s,
-        check_s=check_s,
-        n_variables=struct.n_w,
-        n_constraints=struct.n_g,
-        n_smooth_leaves=struct.n_smooth,
-        k=struct.k,
-        solver=problem.solver.method.value,
-        cached=cached,
-        starts=n_starts,
-    )
-    return PlanResult(
-        problem=problem,
-        success=success,
-        status=_user_status(
-            status,
-            converged,
-            success,
-            rob < problem.epsilon,
-            verdict,
-            interrupted=stop.hit,
-            time_limit_s=time_limit_s if watch.stopped and not stop.hit else None,
-        ),
-        robustness=rob,
-        robustness_planning_grid=rob_grid,
-        smooth_robustness=smooth,
-        weakest=weakest,
-        clauses=clauses,
-        solve_time_s=total,
-        iterations=run.iterations,
-        trajectories=tuple(trajectories),
-        limits=limits,
-        decision=w_opt,
-        stats=stats,
-        needs=tuple(
+        limits = check_trajectories(
+            problem, trajectories, problem.vehicles, problem.timing.check_dt_s,
+            problem.timing.horizon_s,
+        )  # fmt: skip
+        success = bool(rob >= problem.epsilon and all(lim.ok for lim in limits))
+        if success:
+            verdict = f"robustness {rob:.4g} >= epsilon {problem.epsilon:g}"
+        elif rob < problem.epsilon:
+            w_txt = (
+                f" (weakest: {weakest.formula} = {weakest.robustness:.4g} at t={weakest.t_s:g} s)"
+                if weakest
+                else ""
+            )
+            verdict = f"robustness {rob:.4g} < epsilon {problem.epsilon:g}{w_txt}"
+        else:
+            bad = [lim.name for lim in limits if not lim.limits_ok]
+            out = [lim.name for lim in limits if not lim.in_workspace]
+            verdict = "; ".join(
+                ([f"limits violated by {', '.join(bad)}"] if bad else [])
+                + ([f"outside the workspace: {', '.join(out)}"] if out else [])
+            )
+        stopped_by_time = by_time and not stop.hit
+        lines = (
             needs(
                 problem,
                 formula,
                 solver_status=status,
-                stopped_by_time=watch.stopped and not stop.hit,
-                starts=n_starts,
+                stopped_by_time=stopped_by_time,
+                starts=self.n_starts,
+                combinatorial=self.combinatorial,
             )
             if rob < problem.epsilon
-            else ()
-        ),
-        start_bound=_start_bound(problem, formulas, trajectories, clauses, weakest, heading),
-    )
+            else []
+        )
+        start_bound = _start_bound(problem, formulas, trajectories, clauses, weakest, self.heading)
+        self.check_s += time.perf_counter() - t_check
+        stats = SolveStats(
+            build_s=self.build_s,
+            solver_s=run.solver_s,
+            function_eval_s=run.eval_s,
+            check_s=self.check_s,
+            n_variables=struct.n_w,
+            n_constraints=struct.n_g,
+            n_smooth_leaves=struct.n_smooth,
+            k=struct.k,
+            solver=problem.solver.method.value,
+            cached=self.cached,
+            starts=self.n_starts,
+            coarse=None if self.combinatorial is None else self.combinatorial.summary(),
+        )
+        return PlanResult(
+            problem=problem,
+            success=success,
+            status=_user_status(
+                status,
+                converged,
+                success,
+                rob < problem.epsilon,
+                verdict,
+                interrupted=stop.hit,
+                time_limit_s=self.time_limit_s if stopped_by_time else None,
+            ),
+            robustness=rob,
+            robustness_planning_grid=rob_grid,
+            smooth_robustness=smooth,
+            weakest=weakest,
+            clauses=clauses,
+            solve_time_s=time.perf_counter() - self.t_start,
+            iterations=run.iterations,
+            trajectories=tuple(trajectories),
+            limits=limits,
+            decision=w_opt,
+            stats=stats,
+            needs=tuple(lines),
+            start_bound=start_bound,
+        )
+
+
+#: Evaluations of the clauses the final check costs (the result's, the start bound's, and
+#: room for the explanation): the solvers stop this many evaluations before the time limit.
+_CHECK_EVALUATIONS = 4
 
 
 #: Leaf rows within this (m) of the weakest are settled with it, each held at the weakest

@@ -146,6 +146,11 @@ class SolverOptions:
     #: fixes is the weakest, or the plan falls short of the mission, the weakest leaves are
     #: held at their margin and the others raised (planner.optimize); 0: off.
     lexicographic_rounds: int = 4
+    #: Time budget (s) of the combinatorial stage (:mod:`planner.milp`: options, allocation,
+    #: order and timing chosen as a mixed-integer program on a coarse model, its plan the
+    #: NLP's first start), at most a quarter of the time limit; 0: off (the initial
+    #: guess's starts only).
+    coarse_s: float = 5.0
 
 
 @dataclass(frozen=True, slots=True)

@@ -3,7 +3,9 @@ statistics."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -61,6 +63,9 @@ class SolveStats:
     cached: bool
     #: starts of the multi-start solved (1: the first guess met the mission, or was the only)
     starts: int = 1
+    #: the combinatorial stage's figures (:meth:`planner.coarse_start.CoarseOutcome.summary`;
+    #: None when it did not run)
+    coarse: Mapping[str, Any] | None = None
 
 
 @dataclass(frozen=True, slots=True)

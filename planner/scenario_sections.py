@@ -443,6 +443,7 @@ def _solver(rd: _Reader, value: Any) -> SolverOptions:
         "starts",
         "polish_s",
         "lexicographic_rounds",
+        "coarse_s",
     }
     m = rd.mapping(value, "solver", allowed)
     kw: dict[str, Any] = {}
@@ -504,6 +505,8 @@ def _solver(rd: _Reader, value: Any) -> SolverOptions:
         kw["starts"] = rd.integer(m["starts"], "solver.starts", minimum=1)
     if "polish_s" in m:
         kw["polish_s"] = rd.number(m["polish_s"], "solver.polish_s", nonnegative=True)
+    if "coarse_s" in m:
+        kw["coarse_s"] = rd.number(m["coarse_s"], "solver.coarse_s", nonnegative=True)
     if "lexicographic_rounds" in m:
         kw["lexicographic_rounds"] = rd.integer(
             m["lexicographic_rounds"], "solver.lexicographic_rounds", minimum=0

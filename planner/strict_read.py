@@ -22,6 +22,8 @@ from typing import Any
 
 import yaml
 
+from planner.errors import PlannerError
+
 __all__ = ["DuplicateKeyError", "NotTextError", "load_json", "load_yaml", "read_text"]
 
 #: The file signatures (leading bytes) of the binary formats a user is likely to give by
@@ -38,11 +40,11 @@ _SIGNATURES: tuple[tuple[bytes, str], ...] = (
 )
 
 
-class NotTextError(ValueError):
+class NotTextError(PlannerError, ValueError):
     """The file is not UTF-8 text; ``str(err)`` says what it looks like instead."""
 
 
-class DuplicateKeyError(ValueError):
+class DuplicateKeyError(PlannerError, ValueError):
     """A mapping has the same key twice.
 
     Attributes:

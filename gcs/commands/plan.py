@@ -41,6 +41,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "saying so (120; 0: no limit)",
     )
     p.add_argument(
+        "--coarse-s",
+        type=float,
+        metavar="S",
+        help="budget of the combinatorial stage (a MILP that chooses options, allocation, "
+        "order and timing before the NLP; overrides solver.coarse_s, 5; 0: off)",
+    )
+    p.add_argument(
         "--solver",
         choices=["ipopt", "sqpmethod"],
         help="override the scenario's NLP method (sqpmethod: with BFGS and solver.qpsol)",
@@ -97,6 +104,7 @@ def summary(result: Any, output: str | None) -> dict[str, Any]:
             "k": s.k,
             "solver": s.solver,
             "starts": s.starts,
+            "coarse": None if s.coarse is None else dict(s.coarse),
         },
         "needs": list(result.needs),
         "start_bound": None
@@ -232,6 +240,10 @@ def run(args: argparse.Namespace) -> int:
         return 0
     out = Path(args.output)
     check_writable(out)  # before the solve, which may take minutes
+    if args.coarse_s is not None:
+        if not (math.isfinite(args.coarse_s) and args.coarse_s >= 0):
+            raise UserError(f"--coarse-s: must be a number of seconds >= 0, got {args.coarse_s:g}")
+        problem = replace(problem, solver=replace(problem.solver, coarse_s=args.coarse_s))
     if args.solver:
         method = SolverMethod(args.solver)
         hessian = "limited-memory" if method is SolverMethod.SQP else problem.solver.hessian

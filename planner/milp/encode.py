@@ -177,7 +177,7 @@ def _and(kids: Sequence[Node], conj: bool) -> Node:
     return items[0] if len(items) == 1 else Node(kind, items)
 
 
-class _Face(Exception):
+class _Face(MilpError):
     """A ``face`` term: the atom is read as true."""
 
 

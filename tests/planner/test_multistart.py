@@ -28,6 +28,9 @@ ZOO = Path(__file__).resolve().parents[2] / "benchmarks" / "scenarios"
 
 
 def _zoo(name: str, **solver: Any) -> Problem:
+    """A zoo scenario with these solver options; the initial guess's starts only (these
+    tests are about them: no combinatorial stage unless asked for)."""
+    solver.setdefault("coarse_s", 0.0)
     problem = load_scenario(ZOO / f"{name}.yaml")
     return dataclasses.replace(problem, solver=dataclasses.replace(problem.solver, **solver))
 

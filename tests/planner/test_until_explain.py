@@ -61,7 +61,11 @@ def test_an_order_that_the_deadline_cannot_hold_is_explained_in_seconds() -> Non
     route = _targets(formula, "d1", problem, np.array([-6.0, -12.0, 8.0]))
     assert [pl.name for pl in route] == ["inside(d1, insp4)", "inside(d1, insp1)"]
     lines = needs(
-        problem, formula, solver_status="Solve_Succeeded", stopped_by_time=False, starts=4
+        problem,
+        formula,
+        solver_status="Solve_Succeeded",
+        stopped_by_time=False,
+        starts=problem.solver.starts,
     )
     time_lines = [ln for ln in lines if ln.startswith("time: d1 reaches inside(d1, insp1)")]
     assert len(time_lines) == 1, lines
@@ -83,7 +87,29 @@ def test_a_feasible_mission_has_no_time_shortfall() -> None:
     problem = load_scenario(ZOO / "powerline_line4_1drone.yaml")
     formula = conjunction(list(problem.formulas))
     lines = needs(
-        problem, formula, solver_status="Solve_Succeeded", stopped_by_time=False, starts=4
+        problem,
+        formula,
+        solver_status="Solve_Succeeded",
+        stopped_by_time=False,
+        starts=problem.solver.starts,
     )
     assert not any(ln.startswith(("time:", "horizon:")) for ln in lines)
     assert lines and lines[0].startswith("solver: converged short of the mission from 4 start")
+
+
+def test_more_starts_are_advised_only_when_more_would_run() -> None:
+    # issue 40: "more starts (solver.starts, now 8)" while the guess had only 3 to give.
+    problem = load_scenario(ZOO / "powerline_line4_1drone.yaml")
+    formula = conjunction(list(problem.formulas))
+    allowed = problem.solver.starts
+    exhausted = needs(
+        problem, formula, solver_status="Solve_Succeeded", stopped_by_time=False,
+        starts=allowed - 1,
+    )  # fmt: skip
+    assert exhausted[-1].startswith(f"solver: converged short of the mission from each of the "
+                                    f"{allowed - 1} different start(s)")  # fmt: skip
+    assert "more starts" not in exhausted[-1]
+    full = needs(
+        problem, formula, solver_status="Solve_Succeeded", stopped_by_time=False, starts=allowed
+    )
+    assert f"more starts (solver.starts, now {allowed})" in full[-1]
