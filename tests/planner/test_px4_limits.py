@@ -268,6 +268,9 @@ def test_the_mock_px4_tracks_a_plan_within_its_descent_limit_and_lags_one_beyond
         data["limits"] = {"v_max_m_s": [3, 3, 2.5], "a_max_m_s2": [2, 2, 1.5], **limits}
         data["regions"]["goal"]["center"] = [5, 0, 3]
         data["spec"] = [f"eventually[0, {deadline}] always[0, 2] inside(d1, goal)"]
+        # the plan the initial guess leads to: the subject is PX4's tracking of a plan within
+        # its limits (the combinatorial stage's timing flies this one harder: 0.51 m)
+        data["solver"] = {**data.get("solver", {}), "coarse_s": 0}
         res = plan(parse_scenario(data, "descent.yaml"))
         assert res.success, (label, res.status)
         v_dn = -res.trajectories[0].velocity(np.linspace(0, 19, 1901))[:, 2].min()
