@@ -5,7 +5,8 @@
 1. connects every vehicle of the plan (:class:`mavlink.fleet.Fleet`; vehicle ``i`` at the
    URL given for it, by default ``udpin://0.0.0.0:{14540+i}``, the PX4 SITL ports);
 2. records everything the vehicles send to ``flight.tlog`` (:class:`mavlink.tlog.TlogRecorder`)
-   when a log directory is given;
+   and MAVSDK's own log lines to ``mavsdk.log`` (:func:`mavlink.mavsdk_glue.mavsdk_log_file`)
+   when a log directory is given (only MAVSDK's errors the user can act on show on stderr);
 3. flies: in **offboard** mode :func:`mavlink.offboard.fly_offboard` (take-off to the plan's
    start, one shared start time, setpoints against absolute deadlines, the safety monitor of
    the spec's always-clauses), in **mission** mode the plan's PX4 mission conversion
@@ -257,6 +258,31 @@ def _make_log_dir(log_dir: Path | None) -> None:
         raise InputFileError(f"--log {log_dir}: cannot create: {exc.strerror or exc}") from None
 
 
+#: MAVSDK's own log lines of a flight, in its log directory (:func:`_library_log`).
+MAVSDK_LOG_NAME = "mavsdk.log"
+
+
+@contextlib.asynccontextmanager
+async def _library_log(log_dir: Path | None, files: dict[str, Path]) -> AsyncIterator[None]:
+    """MAVSDK's log lines to ``log_dir/mavsdk.log`` for the flight (listed in ``files``);
+    without a directory they are not shown, but for the errors the user can act on
+    (:mod:`mavlink.mavsdk_glue`)."""
+    if log_dir is None:
+        yield
+        return
+    from mavlink.mavsdk_glue import mavsdk_log_file
+
+    path = log_dir / MAVSDK_LOG_NAME
+    with contextlib.ExitStack() as scope:
+        try:
+            files["mavsdk_log"] = scope.enter_context(mavsdk_log_file(path))
+        except OSError as exc:
+            raise InputFileError(
+                f"--log {log_dir}: cannot write {path.name}: {exc.strerror or exc}"
+            ) from None
+        yield
+
+
 def _tracks_from_rows(
     rows: Mapping[str, np.ndarray],
     t0: Mapping[str, float],
@@ -403,7 +429,10 @@ async def fly_plan(
     t_start = time.monotonic()
     files: dict[str, Path] = {}
     clock = FlightClock()
-    async with Fleet(specs, connect_timeout_s=opts.connect_timeout_s) as fleet:
+    async with (
+        _library_log(opts.log_dir, files),
+        Fleet(specs, connect_timeout_s=opts.connect_timeout_s) as fleet,
+    ):
         origins = await fleet.origins()
         t_connected = time.monotonic()
         recorder = None

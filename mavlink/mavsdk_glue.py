@@ -10,17 +10,29 @@ the default thread pool; ``benchmarks/bench_stream.py`` measures both.)
 
 A room of its own because the vehicle (:mod:`mavlink.vehicle`), the fleet, the
 offboard flight, the monitor and the missions all await MAVSDK calls the same way;
-it also routes MAVSDK's own log lines (:func:`route_mavsdk_logs`) and names
-COMMAND_ACK results (:data:`MAV_RESULT_NAMES`).
+it also routes MAVSDK's own log lines (:func:`route_mavsdk_logs`, :func:`mavsdk_log_file`)
+and names COMMAND_ACK results (:data:`MAV_RESULT_NAMES`).
+
+MAVSDK's log lines (MAVSDK 4 is a library in this process: it has no server process of its
+own, and it prints nothing itself once its log is routed) go to the ``mavlink.mavsdk``
+logger. Whoever flies sees only MAVSDK's errors they can act on (a connection that cannot be
+opened, a message that cannot be sent), on stderr, prefixed ``MAVSDK:``; its warnings and
+information, and its complaints about its own callback machinery (MAVSDK 4.1 logs a full
+callback queue - "Dropping subscription callbacks ... a subscriber is not keeping up" - as an
+error), go to the flight's log file (:func:`mavsdk_log_file`: ``mavsdk.log`` in the flight
+directory of ``gcs fly --log``), and to any handler the application gives the logger.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
+import sys
 import threading
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any, TextIO
 
 from mavsdk import LogLevel, log_subscribe
 
@@ -36,30 +48,101 @@ MAV_RESULT_NAMES = {
 }
 
 
+#: The logger MAVSDK's own log lines go to (:func:`route_mavsdk_logs`).
+MAVSDK_LOG = logging.getLogger("mavlink.mavsdk")
+
+#: MAVSDK's log levels as logging's.
+_LEVELS = {
+    LogLevel.DEBUG: logging.DEBUG,
+    LogLevel.INFO: logging.INFO,
+    LogLevel.WARN: logging.WARNING,
+    LogLevel.ERROR: logging.ERROR,
+}
+
+#: How MAVSDK's lines about its own callback thread begin (queue full, callbacks dropped, a
+#: slow callback), whatever their level: nothing the user of a flight can do about them, so
+#: they go to the flight's log, not the terminal.
+_LIBRARY_INTERNAL = (
+    "Dropping subscription callbacks",
+    "User callback queue",
+    "Callback took more than",
+    "Callback called from",
+)
+
 _logs_routed = threading.Lock()
 _routed = False
 
 
+class _ActionableErrors(logging.StreamHandler):
+    """MAVSDK's errors the user can act on, on the stderr of the moment (``sys.stderr`` when
+    the line is written, as :data:`logging.lastResort` does)."""
+
+    def __init__(self) -> None:
+        logging.Handler.__init__(self, logging.ERROR)
+        self.setFormatter(logging.Formatter("MAVSDK: %(message)s"))
+        self.addFilter(lambda record: not getattr(record, "mavsdk_internal", False))
+
+    @property
+    def stream(self) -> TextIO:
+        return sys.stderr
+
+
+def forward_mavsdk_line(level: LogLevel, message: str, file: str | None, line: int) -> bool:
+    """MAVSDK's log callback: one line to :data:`MAVSDK_LOG` (the record's ``mavsdk_internal``
+    says whether it is about MAVSDK's own callback machinery); ``True`` keeps MAVSDK from
+    printing it itself."""
+    MAVSDK_LOG.log(
+        _LEVELS.get(level, logging.INFO),
+        "%s (%s:%d)",
+        message,
+        file,
+        line,
+        extra={"mavsdk_internal": message.startswith(_LIBRARY_INTERNAL)},
+    )
+    return True
+
+
 def route_mavsdk_logs() -> None:
-    """Send MAVSDK's own log lines to the ``mavlink.mavsdk`` logger (not stderr)."""
+    """Send MAVSDK's own log lines to :data:`MAVSDK_LOG` instead of MAVSDK's stdout print,
+    showing on stderr only the errors the user can act on (module docstring). Idempotent."""
     global _routed
     with _logs_routed:
         if _routed:
             return
-        mlog = logging.getLogger("mavlink.mavsdk")
-        levels = {
-            LogLevel.DEBUG: logging.DEBUG,
-            LogLevel.INFO: logging.INFO,
-            LogLevel.WARN: logging.WARNING,
-            LogLevel.ERROR: logging.ERROR,
-        }
-
-        def forward(level: LogLevel, message: str, file: str | None, line: int) -> bool:
-            mlog.log(levels.get(level, logging.INFO), "%s (%s:%d)", message, file, line)
-            return True
-
-        log_subscribe(forward)
+        # A handler of its own also keeps logging's last resort (which prints every warning
+        # of a logger without handlers to stderr) away from MAVSDK's lines.
+        MAVSDK_LOG.addHandler(_ActionableErrors())
+        log_subscribe(forward_mavsdk_line)
         _routed = True
+
+
+@contextlib.contextmanager
+def mavsdk_log_file(path: Path) -> Iterator[Path]:
+    """Write every MAVSDK log line, debug up, time-stamped, to ``path`` (created, or
+    truncated) while inside; the actionable errors still show on stderr.
+
+    MAVSDK's log is process-wide: two flights at once in one process share their lines.
+    Inside, the lines do not propagate to the root logger (the file is their place).
+
+    Raises:
+        OSError: ``path`` cannot be written.
+    """
+    route_mavsdk_logs()
+    handler = logging.FileHandler(path, mode="w", encoding="utf-8")
+    handler.setFormatter(
+        logging.Formatter("%(asctime)s.%(msecs)03d %(levelname)s %(message)s", "%Y-%m-%d %H:%M:%S")
+    )
+    level, propagate = MAVSDK_LOG.level, MAVSDK_LOG.propagate
+    MAVSDK_LOG.addHandler(handler)
+    MAVSDK_LOG.setLevel(logging.DEBUG)
+    MAVSDK_LOG.propagate = False
+    try:
+        yield path
+    finally:
+        MAVSDK_LOG.removeHandler(handler)
+        MAVSDK_LOG.setLevel(level)
+        MAVSDK_LOG.propagate = propagate
+        handler.close()
 
 
 def resolve_future(fut: asyncio.Future[Any], value: Any) -> None:

@@ -1,13 +1,18 @@
 """One PX4 vehicle as the ground station sees it: its MAVSDK plugins, live state, commands.
 
-:class:`Vehicle` subscribes to the vehicle's telemetry (MAVSDK's telemetry plugin and
-mavlink_direct messages: HEARTBEAT, GPS_GLOBAL_ORIGIN, STATUSTEXT, ESTIMATOR_STATUS,
-PARAM_VALUE, and of its MAVLink camera CAMERA_IMAGE_CAPTURED and CAMERA_INFORMATION); the
-callbacks update its state directly on MAVSDK's callback thread under a lock, and
-:meth:`Vehicle.status` takes a consistent :class:`VehicleStatus` snapshot. Its
-commands (arm, modes, take-off, go-to, COMMAND_LONG to any of its components, parameters,
-telemetry rates) are
-coroutines over :func:`mavlink.mavsdk_glue.mavsdk_call`.
+:class:`Vehicle` subscribes to the vehicle telemetry the ground station uses as it comes
+(MAVSDK's telemetry plugin: local position and velocity, in-air; mavlink_direct messages:
+HEARTBEAT, GPS_GLOBAL_ORIGIN, STATUSTEXT, ESTIMATOR_STATUS, PARAM_VALUE, and of its MAVLink
+camera CAMERA_IMAGE_CAPTURED and CAMERA_INFORMATION); the callbacks update its state directly
+on MAVSDK's callback thread under a lock, and :meth:`Vehicle.status` takes a consistent
+:class:`VehicleStatus` snapshot. The rest (heading, global position, home, battery) is read
+from MAVSDK's own latest values when needed (the heading with each local position, the rest
+when a snapshot is taken), not subscribed to: every subscribed message is a Python callback
+on MAVSDK's one callback thread, whose queue MAVSDK cuts by dropping callbacks (and saying so
+in its log) when it holds 100; twelve vehicles' subscriptions came to 800 callbacks a second,
+now 300 (and a ``.tlog`` recording adds every message, :mod:`mavlink.tlog`). Its commands
+(arm, modes, take-off, go-to, COMMAND_LONG to any of its components, parameters, telemetry
+rates) are coroutines over :func:`mavlink.mavsdk_glue.mavsdk_call`.
 
 A room of its own, apart from :mod:`mavlink.fleet` (which connects N of them through one
 MAVSDK instance): everything here concerns one vehicle's link, and the missions, the
@@ -115,9 +120,10 @@ class VehicleStatus:
         battery_voltage_v: volts.
         heartbeat_age_s: seconds since the last heartbeat.
         position_age_s: seconds since the last local position.
-        heading_deg: heading, degrees clockwise from north (GLOBAL_POSITION_INT.hdg).
-        yaw_ned_rad: the latest heading (GLOBAL_POSITION_INT.hdg), radians clockwise from
-            north in the vehicle's local NED frame.
+        heading_deg: heading, degrees clockwise from north (GLOBAL_POSITION_INT.hdg);
+            ``None`` also while the vehicle reports it unknown.
+        yaw_ned_rad: the latest known heading (GLOBAL_POSITION_INT.hdg), radians clockwise
+            from north in the vehicle's local NED frame.
     """
 
     name: str
@@ -190,6 +196,10 @@ class Vehicle:
         self._params: dict[str, float] = {}
         self._param_waiters: dict[str, list[asyncio.Future[float]]] = {}
         self._handles: list[tuple[Callable[[Any], None], Any]] = []
+        # closed: the plugins may be gone; the lock keeps close() from passing a plugin read
+        # under way on MAVSDK's callback thread
+        self._closed = False
+        self._plugin_lock = threading.Lock()
         # cameras heard (component ids), their optics, and the pictures reported
         self._cameras: set[int] = set()
         self._camera_info: dict[int, CameraInfo] = {}
@@ -199,17 +209,17 @@ class Vehicle:
     # -- telemetry ------------------------------------------------------
 
     def _subscribe(self) -> None:
+        """Subscribe to what is needed as it comes: local position and velocity (the track,
+        the monitor), in-air, and the messages commands and the monitor wait for. Heading,
+        global position, home and battery are read when needed instead (:meth:`_poll`:
+        MAVSDK keeps their latest values whether or not anyone subscribes)."""
         tel = self.telemetry
         self._handles += [
             (
                 tel.unsubscribe_position_velocity_ned,
                 tel.subscribe_position_velocity_ned(self._on_pv),
             ),
-            (tel.unsubscribe_position, tel.subscribe_position(self._on_position)),
-            (tel.unsubscribe_home, tel.subscribe_home(self._on_home)),
-            (tel.unsubscribe_battery, tel.subscribe_battery(self._on_battery)),
             (tel.unsubscribe_in_air, tel.subscribe_in_air(self._on_in_air)),
-            (tel.unsubscribe_heading, tel.subscribe_heading(self._on_heading)),
             (
                 self.direct.unsubscribe_message,
                 self.direct.subscribe_message("HEARTBEAT", self._on_heartbeat),
@@ -245,40 +255,59 @@ class Vehicle:
         p, v = pv.position, pv.velocity
         pos = (float(p.north_m), float(p.east_m), float(p.down_m))
         vel = (float(v.north_m_s), float(v.east_m_s), float(v.down_m_s))
+        heading = self._latest_heading_deg()
         with self._lock:
+            self._note_heading(heading)
             self._pos_ned, self._vel_ned, self._t_position = pos, vel, t
             if self._track is not None:
                 self._track.append((t, *pos, *vel, self._yaw_ned_rad))
 
-    def _on_position(self, p: Any, _ud: Any) -> None:
-        point = GeodeticPoint(
-            float(p.latitude_deg), float(p.longitude_deg), float(p.absolute_altitude_m)
-        )
-        with self._lock:
-            self._position, self._rel_alt = point, float(p.relative_altitude_m)
+    def _latest_heading_deg(self) -> float:
+        """MAVSDK's latest heading (degrees; NaN: none yet, or unknown), from
+        GLOBAL_POSITION_INT.hdg (PX4: the estimate's heading): read with each local position
+        rather than subscribed to (one callback a sample instead of two), and rather than
+        ATTITUDE (a 50 Hz subscription decoded in Python). Safe on MAVSDK's callback
+        thread: :meth:`close` waits for a read under way, and none starts after it."""
+        with self._plugin_lock:
+            if self._closed:
+                return math.nan
+            return float(self.telemetry.heading().heading_deg)
 
-    def _on_home(self, h: Any, _ud: Any) -> None:
-        point = GeodeticPoint(
-            float(h.latitude_deg), float(h.longitude_deg), float(h.absolute_altitude_m)
-        )
-        with self._lock:
-            self._home = point
+    def _note_heading(self, heading_deg: float) -> None:
+        """Keep a heading read (under the state lock): the track's yaw stays the last known."""
+        known = math.isfinite(heading_deg)
+        self._heading = heading_deg if known else None
+        if known:
+            self._yaw_ned_rad = math.radians(heading_deg)
 
-    def _on_battery(self, b: Any, _ud: Any) -> None:
-        remaining = float(b.remaining_percent)
+    def _poll(self) -> None:
+        """Take MAVSDK's latest heading, global position, home and battery (NaN until heard:
+        kept ``None``); after :meth:`close` the last values stay."""
+        if self._closed:
+            return
+        heading = self._latest_heading_deg()
+        tel = self.telemetry
+        p, h, b = tel.position(), tel.home(), tel.battery()
+        position = home = None
+        if math.isfinite(p.latitude_deg):
+            position = GeodeticPoint(
+                float(p.latitude_deg), float(p.longitude_deg), float(p.absolute_altitude_m)
+            )
+        if math.isfinite(h.latitude_deg):
+            home = GeodeticPoint(
+                float(h.latitude_deg), float(h.longitude_deg), float(h.absolute_altitude_m)
+            )
         # MAVSDK reports percent (0..100) from SYS_STATUS / BATTERY_STATUS.
+        remaining = float(b.remaining_percent)
+        battery = (remaining / 100.0, float(b.voltage_v)) if math.isfinite(remaining) else None
         with self._lock:
-            self._battery = (remaining / 100.0, float(b.voltage_v))
-
-    def _on_heading(self, h: Any, _ud: Any) -> None:
-        # GLOBAL_POSITION_INT.hdg (PX4: the estimate's heading, 0.01 deg), which MAVSDK's
-        # telemetry already decodes: the track's heading comes from here rather than from a
-        # second, 50 Hz ATTITUDE subscription decoded in Python for every vehicle
-        heading = float(h.heading_deg)
-        with self._lock:
-            self._heading = heading
-            if math.isfinite(heading):
-                self._yaw_ned_rad = math.radians(heading)
+            self._note_heading(heading)
+            if position is not None:
+                self._position, self._rel_alt = position, float(p.relative_altitude_m)
+            if home is not None:
+                self._home = home
+            if battery is not None:
+                self._battery = battery
 
     def _on_in_air(self, in_air: bool, _ud: Any) -> None:
         with self._lock:
@@ -432,6 +461,7 @@ class Vehicle:
     def status(self, now: float | None = None) -> VehicleStatus:
         """A consistent snapshot of the vehicle's state."""
         now = time.monotonic() if now is None else now
+        self._poll()
         with self._lock:
             hb_age = None if self._t_heartbeat is None else now - self._t_heartbeat
             pos_age = None if self._t_position is None else now - self._t_position
@@ -507,8 +537,8 @@ class Vehicle:
 
     def start_track(self) -> None:
         """Start recording every LOCAL_POSITION_NED sample (receive time, pos, vel, and the
-        latest heading heard by then), and the worst estimator accuracy reported meanwhile
-        (:attr:`track_accuracy_m`)."""
+        latest known heading MAVSDK has by then), and the worst estimator accuracy reported
+        meanwhile (:attr:`track_accuracy_m`)."""
         with self._lock:
             self._track = []
             self._track_accuracy = self._pos_accuracy
@@ -757,7 +787,10 @@ class Vehicle:
                     raise self._fail(what + tries, result)
 
     def close(self) -> None:
-        """Drop the telemetry subscriptions (the plugins die with the Mavsdk instance)."""
+        """Drop the telemetry subscriptions (the plugins die with the Mavsdk instance); the
+        state last heard stays readable."""
+        with self._plugin_lock:
+            self._closed = True
         handles, self._handles = self._handles, []
         for unsubscribe, handle in handles:
             unsubscribe(handle)

@@ -12,8 +12,10 @@ flight (exit 1, the check named) unless ``--force`` (which overrides the plan ch
 While flying, a status line shows per vehicle its mode, its distance to the plan and the
 robustness of its clauses so far; Ctrl-C commands every vehicle to hold and exits (130).
 At the end: flown vs planned robustness (exact semantics), tracking errors, setpoint stream
-statistics, and with ``--log DIR`` the telemetry (``flight.tlog``), the tracks (``flight.csv``)
-and a report (``report.md``, :mod:`gcs.report`).
+statistics, and with ``--log DIR`` the telemetry (``flight.tlog``), the tracks (``flight.csv``),
+MAVSDK's own log lines (``mavsdk.log``) and a report (``report.md``, :mod:`gcs.report`).
+MAVSDK's warnings and its notes on its own machinery are for that log, not the terminal:
+only its errors the user can act on show on stderr (:mod:`mavlink.mavsdk_glue`).
 
 Exit status: 0 flown and the flown data satisfies the spec, 1 refused / not completed / flown
 robustness negative, 2 bad input (plan file, URL, unreachable vehicle), 130 interrupted.
@@ -47,7 +49,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--dry-run", action="store_true", help="fly against mock vehicles started in-process"
     )
     p.add_argument("--mode", choices=["offboard", "mission"], default="offboard")
-    p.add_argument("--log", metavar="DIR", help="write flight.tlog and flight.csv to DIR")
+    p.add_argument(
+        "--log",
+        metavar="DIR",
+        help="write flight.tlog, flight.csv, report.md and MAVSDK's log (mavsdk.log) to DIR",
+    )
     p.add_argument(
         "--force",
         action="store_true",

@@ -93,6 +93,48 @@ def test_plan_verify_export_and_dry_run_flight_satisfy_the_spec(
         assert err_m.max() < 0.2, f"{v.name} strays {err_m.max():.3f} m from its plan"
     report = (log / "report.md").read_text(encoding="utf-8")
     assert "flown robustness" in report and "d1" in report
+    # MAVSDK's own lines are in the flight directory, not on the terminal.
+    assert res["files"]["mavsdk_log"] == str(log / "mavsdk.log")
+    assert "INFO MAVSDK version" in (log / "mavsdk.log").read_text(encoding="utf-8")
+    assert "MAVSDK" not in err and "Dropping" not in err
+
+
+#: ``gcs fly`` whose .tlog recorder falls behind for its first 200 messages (2 s): MAVSDK's
+#: callback queue fills and MAVSDK says "Dropping subscription callbacks", which the user of
+#: the flight can do nothing about.
+LAGGING_GCS = """
+import itertools, sys, time
+from gcs.cli import main
+from mavlink.tlog import TlogRecorder
+calls, record = itertools.count(), TlogRecorder._on_message
+def lagging(self, msg, ud):
+    if next(calls) < 200:
+        time.sleep(0.01)
+    record(self, msg, ud)
+TlogRecorder._on_message = lagging
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_a_mavsdk_callback_backlog_in_flight_is_logged_in_the_flight_directory_not_shown(
+    plan_file: Path, tmp_path: Path
+) -> None:
+    # a child process: the terminal as the user has it, without pytest's log handlers
+    log = tmp_path / "log"
+    fly = ["fly", str(plan_file), "--dry-run", "--profile", "ideal", "--log", str(log)]
+    proc = subprocess.run(
+        [sys.executable, "-c", LAGGING_GCS, *fly],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=120,
+    )
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "flight completed" in proc.stdout
+    said = (log / "mavsdk.log").read_text(encoding="utf-8")
+    assert "ERROR Dropping subscription callbacks" in said, said
+    shown = proc.stdout + proc.stderr
+    assert "Dropping" not in shown and "MAVSDK" not in shown
 
 
 def test_reach_avoid_starts_too_low_for_px4_to_take_off_are_refused_before_arming(
