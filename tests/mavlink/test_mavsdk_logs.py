@@ -153,6 +153,8 @@ def test_heading_position_home_and_battery_are_read_not_subscribed_and_follow_th
     yaw = rows[:, 7]
     assert np.all(np.isfinite(yaw))
     assert abs(yaw[0]) < math.radians(1.0)
-    assert yaw[-1] == pytest.approx(math.pi / 2, abs=math.radians(1.0))
+    # (the last sample may precede the status read that ended the turn by one position
+    # period: at the end of the turn, up to a degree or two short of it)
+    assert yaw[-1] == pytest.approx(math.pi / 2, abs=math.radians(3.0))
     # Closed, the vehicle keeps what it last read.
     assert v.status().heading_deg == pytest.approx(90.0, abs=1.0)
