@@ -43,21 +43,19 @@ class CoarseOutcome:
     """What the combinatorial stage did for one plan.
 
     Attributes:
-        result: the coarse program's result (None when it did not run).
+        result: the coarse program's result.
         decision: the NLP start made from its incumbent (None without one).
         conflict: the clauses that conflict on the coarse model, when it found no coarse
             plan that meets the spec (None otherwise, or when the filter ran out of time).
     """
 
-    result: CoarseResult | None
+    result: CoarseResult
     decision: np.ndarray | None
     conflict: Conflict | None = None
 
     def describe(self) -> str:
         """The start's name in the planner's status."""
         r = self.result
-        if r is None:
-            return "the combinatorial stage (did not run)"
         kind = "optimal" if r.status is CoarseStatus.OPTIMAL else "best found"
         return (
             f"the combinatorial stage's plan ({kind} on the coarse model, every "
@@ -67,8 +65,6 @@ class CoarseOutcome:
     def summary(self) -> dict[str, Any]:
         """Plain figures for the plan's statistics (``gcs plan --json``)."""
         r = self.result
-        if r is None:
-            return {"status": "not run"}
         return {
             "status": r.status.value,
             "robustness": None if not math.isfinite(r.robustness) else r.robustness,
@@ -106,8 +102,6 @@ def coarse_start(
         budget_s: seconds for the whole stage.
     """
     t0 = time.perf_counter()
-    # capped like the NLP (solver.robustness_cap_m): more margin is not wanted, and HiGHS
-    # stops as soon as an incumbent reaches the cap
     # The robustness at least epsilon as a constraint: HiGHS prunes every branch below it
     # (the door puzzle: the optimum 0.4 in 8 s, against no incumbent above -1 in 20 s
     # without), and a spec no coarse path meets is proven INFEASIBLE at once.  Capped like

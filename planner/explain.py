@@ -71,13 +71,12 @@ def needs(
     in conflict lead, and no other advice follows them (more time or starts cannot mend a
     conflict)."""
     out: list[str] = []
-    conflict = None if combinatorial is None else combinatorial.conflict
-    if conflict is not None:
+    if combinatorial is not None and combinatorial.conflict is not None:
+        conflict = combinatorial.conflict
         names = "; ".join(f"{c.key_path} `{c.text}`" for c in conflict.clauses)
-        coarse = combinatorial.result if combinatorial is not None else None
-        step = f" (positions every {coarse.dt_s:g} s)" if coarse is not None else ""
         return [
-            f"conflict: no plan on the coarse model{step} meets these "
+            f"conflict: no plan on the coarse model (positions every "
+            f"{combinatorial.result.dt_s:g} s) meets these "
             f"{len(conflict.clauses)} clauses together"
             + ("" if conflict.irreducible else " (perhaps not all of them are needed)")
             + f": {names}; change one of them"

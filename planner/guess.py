@@ -576,8 +576,17 @@ def _initial_guess(
             chosen[i] = pick
         if not changed:
             break
+    return _fitted(problem, model, x0s, chosen)
+
+
+def _fitted(
+    problem: Problem, model: Any, x0s: list[np.ndarray], paths: Sequence[np.ndarray]
+) -> np.ndarray:
+    """The flat decision vector of each vehicle's ``path`` (samples on the model's grid,
+    ``(n, 3)``) fitted within its limits and the workspace (:func:`_fit_within_limits`),
+    vehicles in ``problem.vehicles`` order."""
     cols = []
-    for path, x0, v in zip(chosen, x0s, problem.vehicles, strict=True):
+    for path, x0, v in zip(paths, x0s, problem.vehicles, strict=True):
         Zv = _fit_within_limits(model, path, x0, v, problem.workspace, problem.timing.end_at_rest)
         cols.append(Zv.reshape(-1, order="F"))
     return np.concatenate(cols)
@@ -769,10 +778,8 @@ def waypoint_guess(
     """
     t_model = np.asarray(model.times_s, dtype=float)
     tq = np.clip(t_model, float(times_s[0]), float(times_s[-1]))
-    cols = []
-    for v, x0, pts in zip(problem.vehicles, x0s, positions_enu_m, strict=True):
+    paths = []
+    for pts in positions_enu_m:
         p = np.asarray(pts, dtype=float)
-        path = np.column_stack([np.interp(tq, times_s, p[:, a]) for a in range(3)])
-        Zv = _fit_within_limits(model, path, x0, v, problem.workspace, problem.timing.end_at_rest)
-        cols.append(Zv.reshape(-1, order="F"))
-    return np.concatenate(cols)
+        paths.append(np.column_stack([np.interp(tq, times_s, p[:, a]) for a in range(3)]))
+    return _fitted(problem, model, x0s, paths)

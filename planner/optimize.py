@@ -225,10 +225,10 @@ class PlanSearch:
         self.best: _Attempt | None = None
         self.best_start = (0, "")
         self.combinatorial: CoarseOutcome | None = None
-        #: the guess's starts and the multi-start's first heads (:meth:`_first_stage`)
-        self._first: tuple[Iterator[Any], list[tuple[str, np.ndarray]]] | None = None
         #: the combinatorial stage's start (None: it made none)
         self._coarse_z: np.ndarray | None = None
+        #: the starts made from the combinatorial stage's plan (it, its choices refined)
+        self._coarse_starts: list[np.ndarray] = []
         #: once a start meets the mission, more starts only until then (solver.polish_s)
         self.polish_until = math.inf
         self._iterate_rho = -math.inf  # the best iterate seen during a solve
@@ -384,12 +384,9 @@ class PlanSearch:
             )
 
     def _first_stage(self) -> tuple[Iterator[Any], list[tuple[str, np.ndarray]]]:
-        """The initial guess's starts and the heads of the multi-start (computed once): the
-        guess's first start and, unless it already meets the mission, the combinatorial
-        stage's plan (and its refinement with the choices fixed, when that was tried), the
+        """The initial guess's starts and the heads of the multi-start: the guess's first
+        start and, unless it already meets the mission, the combinatorial stage's plan, the
         better in exact robustness first."""
-        if self._first is not None:
-            return self._first
         problem, formula = self.problem, self.formula
         guesses = starts(problem, formula, problem.solver.starts)
         first = next(guesses)
@@ -400,14 +397,14 @@ class PlanSearch:
             coarse = self._combinatorial_start()
             if coarse is not None:
                 self._coarse_z = coarse[1]
+                self._coarse_starts.append(coarse[1])
                 rho_coarse = self._timed_exact(coarse[1])
                 self.say(
                     f"combinatorial stage: its plan starts at {rho_coarse:+.4f}, the initial "
                     f"guess at {rho_first:+.4f}"
                 )
                 heads.insert(0 if rho_coarse > rho_first else 1, coarse)
-        self._first = (guesses, heads)
-        return self._first
+        return guesses, heads
 
     def _fixed_start(self) -> tuple[str, np.ndarray] | None:
         """The combinatorial stage's choices fixed (:func:`planner.fix_choices.fixed_clauses`)
@@ -446,6 +443,7 @@ class PlanSearch:
         # The spec's own NLP goes on from there: with the choices free again it keeps or
         # raises the margin (reach-avoid: 0.1945 with them fixed, 0.22 freed).
         self.say(f"choices fixed: {rho:+.4f} on the spec; now with the choices free")
+        self._coarse_starts.append(z)
         return what, z
 
     def _combinatorial_start(self) -> tuple[str, np.ndarray] | None:
@@ -564,7 +562,8 @@ class PlanSearch:
             # A coarse plan the NLP did not converge from (it kept the start, which may sit
             # on the limits) is not the end: the next starts still run (the px4 limits
             # test: +0.61 kept at the start, the solver diverged to -12.3).
-            diverged = what.startswith("the combinatorial stage") and not got.converged
+            from_coarse = any(z0 is z for z in self._coarse_starts)
+            diverged = from_coarse and not got.converged
             if self.best.robustness >= problem.epsilon and met_at is None and not diverged:
                 # Met: more starts for a larger margin only within the polish budget (the
                 # solver stops at its end like at the time limit; the best plan stands).
