@@ -4,7 +4,7 @@
 program on a coarse model of the vehicles chooses the discrete structure of the spec (which
 option of each ``or``, which vehicle takes which task, the order and time of each visit,
 which side of each keep-out).  Its incumbent, straight lines between the coarse samples fitted
-within the vehicles' limits (:func:`planner.guess.waypoint_guess`), is the start the NLP
+within the vehicles' limits (:func:`planner.coarse_fit.waypoint_guess`), is the start the NLP
 refines.  When the coarse program has no plan that meets the spec, a deletion filter names the
 clauses that conflict on the coarse model (:func:`planner.milp.find_conflict`), which
 :func:`planner.explain.needs` reports.
@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.guess import waypoint_guess
+from planner.coarse_fit import waypoint_guess
 from planner.milp import CoarseResult, CoarseStatus, Conflict, find_conflict, solve_coarse
 from planner.problem import Problem
 
@@ -73,6 +73,7 @@ class CoarseOutcome:
             "build_s": r.build_s,
             "solve_s": r.solve_s,
             "binaries": r.num_binaries,
+            "windows": "covered" if r.cover else "inner samples",
             "message": r.message,
             "conflict": None
             if self.conflict is None
@@ -102,16 +103,28 @@ def coarse_start(
         budget_s: seconds for the whole stage.
     """
     t0 = time.perf_counter()
+
     # The robustness at least epsilon as a constraint: HiGHS prunes every branch below it
     # (the door puzzle: the optimum 0.4 in 8 s, against no incumbent above -1 in 20 s
     # without), and a spec no coarse path meets is proven INFEASIBLE at once.  Capped like
     # the NLP (solver.robustness_cap_m): more margin is not wanted.
-    result = solve_coarse(
-        problem,
-        time_limit_s=budget_s,
-        robustness_cap_m=problem.solver.robustness_cap_m,
-        min_robustness=problem.epsilon,
-    )
+    def solve(cover: bool, time_limit_s: float) -> CoarseResult:
+        return solve_coarse(
+            problem,
+            time_limit_s=time_limit_s,
+            robustness_cap_m=problem.solver.robustness_cap_m,
+            min_robustness=problem.epsilon,
+            cover=cover,
+        )
+
+    # Each always over the coarse steps that cover its window first (a plan the smooth
+    # model can keep the timing of); when that is proven impossible, the weaker reading
+    # (the steps inside the window) before any conflict is named.
+    result = solve(True, budget_s)
+    if result.status is CoarseStatus.INFEASIBLE:
+        left = budget_s - (time.perf_counter() - t0)
+        if left > 0.05:
+            result = solve(False, left)
     if result.success:
         times = np.asarray(result.times_s, dtype=float)
         points = [np.asarray(result.waypoints_enu_m[v.name]) for v in problem.vehicles]

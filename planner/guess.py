@@ -758,28 +758,3 @@ def _pick_lane(
         if d > best_d:
             best, best_d = path, d
     return best
-
-
-def waypoint_guess(
-    problem: Problem,
-    model: Any,
-    x0s: list[np.ndarray],
-    times_s: np.ndarray,
-    positions_enu_m: Sequence[np.ndarray],
-) -> np.ndarray:
-    """The decision vector whose trajectories follow given waypoints (the combinatorial
-    stage's coarse plan, :mod:`planner.milp`): each vehicle's ``(N + 1, 3)`` positions at
-    ``times_s`` (``(N + 1,)`` s), joined by straight lines, sampled on the model's grid and
-    fitted within the vehicle's limits and the workspace (:func:`_fit_within_limits`).
-
-    Returns:
-        the flat decision vector, vehicles in ``problem.vehicles`` order (as
-        :func:`_initial_guess`).
-    """
-    t_model = np.asarray(model.times_s, dtype=float)
-    tq = np.clip(t_model, float(times_s[0]), float(times_s[-1]))
-    paths = []
-    for pts in positions_enu_m:
-        p = np.asarray(pts, dtype=float)
-        paths.append(np.column_stack([np.interp(tq, times_s, p[:, a]) for a in range(3)]))
-    return _fitted(problem, model, x0s, paths)

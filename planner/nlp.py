@@ -28,6 +28,7 @@ import numpy as np
 from planner.cache import BoundedCache
 from planner.leaf_templates import (
     LeafInstance,
+    canonical_leaf,
     clear_templates,
     instance,
     local_hessian,
@@ -42,6 +43,7 @@ from planner.predicates import (
     role_of,
 )
 from planner.problem import Problem, SolverMethod
+from planner.rowwise import SampleLeaf, block_hessian, block_jacobian, sample_leaf
 from planner.stl import (
     Always,
     And,
@@ -65,8 +67,11 @@ _K_TOLERANCE = 0.06
 _REG_WEIGHT = 1e-3
 #: Upper bound of the epigraph variable r (m): keeps IPOPT bounded on trivial specs.
 _R_MAX = 1e3
-#: A smooth ``eventually`` leaf whose window spans more segments than this is split into
-#: chunks of ``CHUNK_SEGMENTS`` segments (:func:`_chunks`).
+#: A smooth ``eventually`` leaf whose window spans more segments than this, divided by the
+#: vehicles it names, is split into chunks of ``CHUNK_SEGMENTS`` segments (:func:`_chunks`).
+#: The dense Hessian of a whole window grows with the square of segments x vehicles: the
+#: allocation mission's ``eventually[0, 58]`` over three vehicles (19 segments each) took
+#: 29 s of CasADi as one template, 3.3 s in chunks.
 CHUNK_ABOVE_SEGMENTS = 24
 CHUNK_SEGMENTS = 4
 
@@ -90,7 +95,8 @@ def _decompose(node: Formula, steps: np.ndarray, dt: float, out: dict[Formula, s
 
 
 def _chunks(leaf: Formula, step: int, dt: float, per_segment: int) -> list[tuple[Formula, int]]:
-    """``eventually[a, b] psi`` at ``step``, when its window is long, as chunks
+    """``eventually[a, b] psi`` at ``step``, when its window is long (times the vehicles it
+    names: :data:`CHUNK_ABOVE_SEGMENTS`), as chunks
     ``(eventually[0, c] psi, first step)`` of ``CHUNK_SEGMENTS`` segments, their boundaries
     on multiples of that length; ``[]`` for any other leaf.
 
@@ -104,7 +110,8 @@ def _chunks(leaf: Formula, step: int, dt: float, per_segment: int) -> list[tuple
     if not isinstance(leaf, Eventually):
         return []
     a, b = leaf.steps(dt)
-    if b - a + 1 <= CHUNK_ABOVE_SEGMENTS * per_segment:
+    vehicles = max(1, len(canonical_leaf(leaf)[1]))
+    if (b - a + 1) * vehicles <= CHUNK_ABOVE_SEGMENTS * per_segment:
         return []
     length = CHUNK_SEGMENTS * per_segment
     out: list[tuple[Formula, int]] = []
@@ -528,7 +535,8 @@ class NlpBuilder:
                 for leaf in self.direct_steps
             ]
             exact = self.opts.hessian == "exact"
-            sx = _derivatives(w, p, self.f, self.linear, self.nonlinear, exact, flat)
+            rowwise = [self._sample_leaf(leaf, steps) for leaf, steps in self.direct_steps.items()]
+            sx = _derivatives(w, p, self.f, self.linear, self.nonlinear, exact, flat, rowwise)
             # Values and derivatives are separate functions: nlpsol differentiates the MX
             # values once more (reverse mode, for the multipliers) and must not go through
             # derivative outputs.
@@ -537,6 +545,20 @@ class NlpBuilder:
             sx["g"] = ca.Function("nlp_g", [w, p], [ca.vertcat(*self.linear, *self.nonlinear)])
             self._sx = sx
         return self._sx
+
+    def _sample_leaf(self, leaf: Formula, steps: list[int]) -> tuple[SampleLeaf, np.ndarray] | None:
+        """A row-wise leaf at one sample (:mod:`planner.rowwise`) and the entries of ``w``
+        its positions are at each of its steps (None: constant rows)."""
+        one = sample_leaf(
+            lambda xs: _leaf_values(leaf, [0], lambda _steps: xs, self.problem, self.fns),
+            self.names,
+        )
+        if one is None:
+            return None
+        m = len(self.used)
+        rows = np.array([self.row_of[st] for st in steps])
+        cols = [self.n_z + i * 3 * m + axis * m + rows for i in one.vehicles for axis in range(3)]
+        return one, np.stack(cols, axis=1)
 
     def assemble(self, k: float) -> tuple[dict[str, Any], dict[str, Any], Any, Any]:
         """The NLP at temporal sharpness ``k``: :func:`_assemble` of the SX blocks and the
@@ -841,6 +863,7 @@ def _derivatives(
     nonlinear: list[Any],
     hessian: bool,
     flat: Sequence[bool] = (),
+    rowwise: Sequence[tuple[SampleLeaf, np.ndarray] | None] = (),
 ) -> dict[str, Any]:
     """Constraint Jacobian and Lagrangian Hessian assembled block by block.
 
@@ -855,10 +878,24 @@ def _derivatives(
     curvature term is negative, and with it IPOPT corrected the inertia (factorised again)
     in 60 of 63 iterations on reach-avoid N = 8, without it in 27 of 76 (tol 1e-4).  Linearising keep-apart constraints is
     what sequential convex programming does for collision avoidance.
+
+    ``rowwise[i]``, where given, is the i-th nonlinear block as one sample's leaf and the
+    entries of ``w`` at its steps: its Hessian is then that sample's mapped over the steps
+    (:func:`planner.rowwise.block_hessian`), not the block's differentiated whole (the
+    40-pole line: 21 s of its 53 s build).
     """
     blocks = [*linear, *nonlinear]
     g = ca.vertcat(*blocks)
-    jac = ca.vertcat(*[ca.jacobian(b, w) for b in blocks])
+    jacs = [ca.jacobian(b, w) for b in linear]
+    for ib, b in enumerate(nonlinear):
+        one = rowwise[ib] if ib < len(rowwise) else None
+        if one is None:
+            jacs.append(ca.jacobian(b, w))
+        else:  # the leaf's rows, and -a in r's column (b = rows - a r, linear in r)
+            n_w = int(w.shape[0])
+            d_r = ca.horzcat(ca.SX(int(b.shape[0]), n_w - 1), ca.jacobian(b, w[n_w - 1]))
+            jacs.append(block_jacobian(one[0], w, one[1]) + d_r)
+    jac = ca.vertcat(*jacs)
     out = {"jac_g": ca.Function("nlp_jac_g", [w, p], [g, jac], ["x", "p"], ["g", "jac_g_x"])}
     if hessian:
         lam_f = ca.SX.sym("lam_f")
@@ -868,7 +905,11 @@ def _derivatives(
         for ib, b in enumerate(nonlinear):
             m = b.shape[0]
             if ib >= len(flat) or not flat[ib]:
-                H = H + local_hessian(ca.dot(lam_g[row : row + m], b), w)
+                one = rowwise[ib] if ib < len(rowwise) else None
+                if one is not None:
+                    H = H + block_hessian(one[0], w, one[1], lam_g[row : row + m])
+                else:
+                    H = H + local_hessian(ca.dot(lam_g[row : row + m], b), w)
             row += m
         out["hess_lag"] = ca.Function(
             "nlp_hess_l",
@@ -947,6 +988,12 @@ def _nlpsol(
         {
             "print_time": False,
             "error_on_fail": False,
+            # The parameters' multipliers are never read (IPOPT gives the bounds' own):
+            # computing them needs the reverse derivative of every row ("nlp_grad"), which
+            # nlpsol otherwise builds when it is made (power line, 12 poles: 0.9 s of each
+            # solver's construction; the 40-pole line: 7.3 s).
+            "calc_lam_p": False,
+            "no_nlp_grad": True,
             "iteration_callback": watch,
             **derivs,
             "ipopt": {

@@ -56,7 +56,9 @@ def find_conflict(
     The deletion filter: prove the whole spec infeasible (robustness >= epsilon as a
     constraint), then drop each clause in turn and keep it out when the rest is still
     infeasible. Every clause left is needed for the conflict. All solves use one coarse step
-    (that of the whole spec) so that they answer the same question.
+    (that of the whole spec) so that they answer the same question, and read each ``always``
+    at the steps inside its window only (``cover=False`` of :func:`solve_coarse`, the weaker
+    requirement), so that a conflict is not an artefact of the covering windows.
 
     Returns:
         The conflict, or None when the whole spec is not proven infeasible (a coarse path
@@ -69,7 +71,8 @@ def find_conflict(
     dt = dt_c if dt_c is not None else choose_dt(problem, problem_formulas(problem))
 
     def check(keep: list[int], budget: float) -> bool | None:
-        res = solve_coarse(problem, time_limit_s=budget, dt_c=dt, clauses=keep, min_robustness=eps)
+        res = solve_coarse(problem, time_limit_s=budget, dt_c=dt, clauses=keep, min_robustness=eps,
+                           cover=False)  # fmt: skip
         return _infeasible(res, eps)
 
     solves = 1

@@ -8,7 +8,12 @@ is at least the reported one; the best bound is an upper bound of this lower-bou
 
 Encodings, after negations are pushed to the atoms (negation normal form):
 
-* ``and`` / ``always[a,b]``: ``r <= r_i`` for every operand / step of the window;
+* ``and`` / ``always[a,b]``: ``r <= r_i`` for every operand / step of the window; with
+  ``cover`` (the default), the window of an ``always`` is the coarse steps that *cover*
+  ``[a, b]`` (``floor(a/dt_c) .. ceil(b/dt_c)``, never past the horizon) instead of those
+  inside it, so that the straight legs between samples keep a convex predicate for the whole
+  of ``[a, b]``: ``always[0, 2] inside(d, box)`` at 4 s steps asks for two samples in the box
+  (a stay the smooth model can fly), not one (a pass through it at full speed);
 * ``or`` / ``eventually[a,b]``: binaries ``b_i``, ``r <= r_i + M_i (1 - b_i)``,
   ``sum b_i >= 1``;
 * ``phi until[a,b] psi``: prefix minima ``P_k <= P_{k-1}``, ``P_k <= rho(phi, t + k - 1)``,
@@ -45,7 +50,7 @@ from numpy.typing import NDArray
 from planner.errors import PlannerError
 from planner.milp.builder import MilpBuilder
 from planner.milp.model import CoarseModel
-from planner.regions import Cylinder, Region
+from planner.regions import Cylinder, Prism, Region
 from planner.stl import (
     Always,
     And,
@@ -177,6 +182,19 @@ def _and(kids: Sequence[Node], conj: bool) -> Node:
     return items[0] if len(items) == 1 else Node(kind, items)
 
 
+#: Relative tolerance of a step on an interval's end (as :func:`planner.stl.interval_steps`).
+_STEP_TOL = 1e-9
+
+
+def covering_steps(start_s: float, end_s: float, dt: float) -> tuple[int, int]:
+    """The coarse steps ``(floor(start_s/dt), ceil(end_s/dt))`` whose samples enclose the
+    interval (a step within ``1e-9`` of an end counts as on it)."""
+    lo_ratio, hi_ratio = start_s / dt, end_s / dt
+    lo = math.floor(lo_ratio + _STEP_TOL * max(1.0, abs(lo_ratio)))
+    hi = math.ceil(hi_ratio - _STEP_TOL * max(1.0, abs(hi_ratio)))
+    return lo, max(lo, hi)
+
+
 class _Face(MilpError):
     """A ``face`` term: the atom is read as true."""
 
@@ -184,9 +202,10 @@ class _Face(MilpError):
 class Normaliser:
     """Formulas -> :class:`Node` trees at the coarse step, with the atoms linearised."""
 
-    def __init__(self, model: CoarseModel) -> None:
+    def __init__(self, model: CoarseModel, cover: bool = True) -> None:
         self.model = model
         self.dt = model.dt_s
+        self.cover = cover
         self.notes: list[str] = []
 
     def region(self, name: str) -> Region:
@@ -274,11 +293,14 @@ class Normaliser:
         if isinstance(f, Implies):
             return _and([self(f.lhs, not neg), self(f.rhs, neg)], neg)
         if isinstance(f, Always | Eventually):
+            kind = "always" if isinstance(f, Always) != neg else "eventually"
             a, b = f.steps(self.dt)
+            if self.cover and kind == "always":
+                a, b = covering_steps(f.start_s, f.end_s, self.dt)
             child = self(f.child, neg)
             if child in (TRUE, FALSE):
                 return child
-            return Node("always" if isinstance(f, Always) != neg else "eventually", (child,), a, b)
+            return Node(kind, (child,), a, b)
         if isinstance(f, Until):
             if neg:
                 raise NotEncodable(f"not ({f}): a negated until is not encoded")
@@ -307,11 +329,11 @@ class Encoder:
         binaries: how many binaries the STL rows added.
     """
 
-    def __init__(self, builder: MilpBuilder, model: CoarseModel) -> None:
+    def __init__(self, builder: MilpBuilder, model: CoarseModel, cover: bool = True) -> None:
         self.b = builder
         self.model = model
         self.n = model.n_steps + 1
-        self.norm = Normaliser(model)
+        self.norm = Normaliser(model, cover)
         self.binaries = 0
         self._deltas: dict[tuple[tuple[str, str, object], bool], tuple[Ints, Lin]] = {}
 
@@ -379,6 +401,10 @@ class Encoder:
         if not len(idx):
             return
         last = int(idx[-1]) + b
+        if last >= self.n and node.kind == "always":
+            # a covering window that reaches past the horizon: its samples up to the end
+            mask[np.minimum(idx[:, None] + np.arange(a, b + 1), self.n - 1).ravel()] = True
+            return
         if last >= self.n:
             raise NotEncodable(
                 f"the spec needs step {last} of a {self.n - 1}-step coarse horizon "
@@ -406,6 +432,8 @@ class Encoder:
         if node.kind in ("always", "eventually"):
             w = node.b - node.a + 1
             at = (steps[:, None] + np.arange(node.a, node.b + 1)).ravel()
+            if node.kind == "always":  # a covering window clipped at the horizon (_mark)
+                at = np.minimum(at, self.n - 1)
             grid = self._at(enc, node.kids[0], at)
             return self._min(grid, m, w) if node.kind == "always" else self._max(grid, m, w)
         return self._until(node, steps, enc)
@@ -548,28 +576,40 @@ class Encoder:
         if lower:  # delta <= every face margin (inner polygon for a cylinder)
             faces = self._faces(vehicle, region, steps, outer=False)
             return self._min(faces, m, len(faces.lo) // m)
-        # delta >= the smallest face margin: delta >= m_i for one face i (outer polygon)
+        # delta >= the smallest face margin: delta >= m_i for one face i (outer polygon);
+        # for a polygon (a part of a non-convex outline, planner.cover) with covered
+        # windows also at the next sample, the same face i: the straight leg to it stays
+        # beyond that face's plane, so the region is kept out of between samples too (a
+        # U-shaped keep-out: 12 m legs jumped its 10 m walls into a pocket the NLP could
+        # not leave).  Boxes and cylinders are held out at the samples only: a leg that
+        # cuts one the NLP slides off its nearest face, and the leg rows made the
+        # allocation mission's program too hard for its 5 s (no incumbent, against 3.5 s).
         faces = self._faces(vehicle, region, steps, outer=True)
         f = len(faces.lo) // m
-        flo, fhi = faces.lo.reshape(m, f), faces.hi.reshape(m, f)
+        legs = [faces]
+        if self.norm.cover and isinstance(region.shape, Prism):
+            legs.append(self._faces(vehicle, region, np.minimum(steps + 1, self.n - 1), True))
+        flo = faces.lo.reshape(m, f)
+        fhi = np.max([leg.hi.reshape(m, f) for leg in legs], axis=0)
         lo, hi = flo.min(axis=1), fhi.min(axis=1)
         d = self.b.add_vars(m, lo, hi)
         keep = flo <= hi[:, None]  # a face always above another's bound is never the least
         count = keep.sum(axis=1)
         rows = np.flatnonzero(keep.reshape(-1))
-        opt = faces.take(rows)
         dr = np.repeat(d, f)[rows]
         multi = np.repeat(count > 1, f)[rows]
-        big_m = np.where(multi, np.maximum(opt.hi - np.repeat(lo, f)[rows], 0.0), 0.0)
         bins = np.zeros(len(rows), dtype=np.int64)
         nb = int(multi.sum())
         if nb:
             bins[multi] = self.b.add_binaries(nb)
             self.binaries += nb
-        # m_i - M_i (1 - b_i) - delta <= 0  <=>  -delta - A_i p + M_i b_i <= M_i - b_i
-        cols = np.hstack([dr[:, None], opt.cols, bins[:, None]])
-        vals = np.hstack([-np.ones((len(rows), 1)), opt.vals, big_m[:, None]])
-        self.b.add_rows(cols, vals, -math.inf, big_m - opt.const)
+        for leg in legs:
+            opt = leg.take(rows)
+            big_m = np.where(multi, np.maximum(opt.hi - np.repeat(lo, f)[rows], 0.0), 0.0)
+            # m_i - M_i (1 - b_i) - delta <= 0  <=>  -delta - A_i p + M_i b_i <= M_i - b_i
+            cols = np.hstack([dr[:, None], opt.cols, bins[:, None]])
+            vals = np.hstack([-np.ones((len(rows), 1)), opt.vals, big_m[:, None]])
+            self.b.add_rows(cols, vals, -math.inf, big_m - opt.const)
         if nb:
             table = np.zeros((m, f), dtype=np.int64)
             tv = np.zeros((m, f))

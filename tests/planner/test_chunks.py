@@ -60,7 +60,7 @@ def test_chunks_partition_the_window_on_chunk_boundaries(a, b, step, per_segment
     psi = parse("always[0, 2] (x(d1) >= 1)", build_registry(parse_scenario(SCENARIO)))
     leaf = Eventually(psi, float(a), float(b))
     got = _chunks(leaf, step, 1.0, per_segment)
-    if b - a + 1 <= CHUNK_ABOVE_SEGMENTS * per_segment:
+    if b - a + 1 <= CHUNK_ABOVE_SEGMENTS * per_segment:  # one vehicle (d1)
         assert got == []  # short windows stay whole
         return
     length = CHUNK_SEGMENTS * per_segment
@@ -73,6 +73,26 @@ def test_chunks_partition_the_window_on_chunk_boundaries(a, b, step, per_segment
         assert first == step + a or first % length == 0  # inner chunks start on a boundary
     assert covered == list(range(step + a, step + b + 1))  # every window once, in order
     assert _chunks(psi, step, 1.0, per_segment) == []  # only eventually is chunked
+
+
+@pytest.mark.parametrize("per_segment", [1, 2])
+def test_a_window_over_several_vehicles_is_chunked_sooner(per_segment) -> None:
+    """The whole window's Hessian grows with the square of segments x vehicles, so the
+    threshold is on their product: a 12-segment window is whole for one vehicle, chunked
+    for the ``or`` of three (the allocation pattern, "some drone inspects the pole")."""
+    scenario = {**SCENARIO, "vehicles": [*SCENARIO["vehicles"], {"name": "d3", "start": [1, 5, 1]}]}
+    registry = build_registry(parse_scenario(scenario))
+    one = parse("always[0, 2] inside(d1, goal1)", registry)
+    three = parse(
+        "always[0, 2] inside(d1, goal1) or always[0, 2] inside(d2, goal1) or "
+        "always[0, 2] inside(d3, goal1)",
+        registry,
+    )
+    window = 12 * per_segment - 1  # 12 segments of steps
+    assert 12 <= CHUNK_ABOVE_SEGMENTS < 36
+    assert _chunks(Eventually(one, 0.0, float(window)), 0, 1.0, per_segment) == []
+    chunks = _chunks(Eventually(three, 0.0, float(window)), 0, 1.0, per_segment)
+    assert len(chunks) == 3 and all(c.child == three for c, _first in chunks)
 
 
 def test_a_chunked_leaf_is_the_smooth_value_of_its_whole_window_with_casadis_derivatives() -> None:
