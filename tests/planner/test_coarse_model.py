@@ -7,6 +7,7 @@ and the missions of the issue's classes planned end to end."""
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -67,7 +68,7 @@ def test_legs_between_samples_stay_out_of_a_polygon_keep_out(tmp_path: Path):
     res = solve_coarse(problem, time_limit_s=10.0, dt_c=2.0)
     assert res.success and res.robustness >= problem.epsilon
     p = res.waypoints_enu_m["d1"]
-    for a, b in zip(p[:-1], p[1:], strict=True):
+    for a, b in itertools.pairwise(p):
         leg = LineString([a[:2], b[:2]]) if np.any(a[:2] != b[:2]) else None
         if leg is not None:
             assert leg.distance(u) >= res.robustness - 1e-6, (a, b)
@@ -106,16 +107,14 @@ def test_the_fit_follows_a_coarse_path_at_full_speed_along_an_axis():
     z = waypoint_guess(problem, model, x0s, times, [path])
     t_model = np.asarray(model.times_s)
     target = np.column_stack([np.interp(t_model, times, path[:, a]) for a in range(3)])
-    pos = (np.asarray(model.Mp) @ z.reshape(3, -1).T + np.asarray(model.Np) @ x0s[0])
+    pos = np.asarray(model.Mp) @ z.reshape(3, -1).T + np.asarray(model.Np) @ x0s[0]
     box = _fit_within_limits(model, target, x0s[0], problem.vehicles[0], problem.workspace)
     pos_box = np.asarray(model.Mp) @ box + np.asarray(model.Np) @ x0s[0]
     lag, lag_box = np.abs(pos - target).max(), np.abs(pos_box - target).max()
     assert lag < 3.0 < 10.0 < lag_box, (lag, lag_box)
 
 
-@pytest.mark.parametrize(
-    "name", ["powerline_row_implies_2drones", "patrol_u_revisits_1drone"]
-)
+@pytest.mark.parametrize("name", ["powerline_row_implies_2drones", "patrol_u_revisits_1drone"])
 def test_the_issues_implication_and_revisit_missions_plan_with_the_stage(name: str):
     """Issue 40's classes 3 and 4: without the stage both end in a local optimum (under the
     conductors at -0.50; through the U at -4.99, benchmarks/bench_zoo.py --coarse-s 0)."""
