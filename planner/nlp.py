@@ -26,6 +26,7 @@ import casadi as ca
 import numpy as np
 
 from planner.cache import BoundedCache
+from planner.errors import PlannerError
 from planner.leaf_templates import (
     LeafInstance,
     canonical_leaf,
@@ -170,6 +171,11 @@ def _ca_expr(e: Expr, rows: Mapping[str, Any], fns: Mapping[str, Callable[..., A
 
 
 # ------------------------------------------------------------------------------ build
+
+
+class BuildTimeout(PlannerError):
+    """The time limit came while the NLP was being built (:class:`NlpBuilder`'s
+    ``deadline``, checked between its pieces)."""
 
 
 class IterationWatch(ca.Callback):
@@ -349,8 +355,17 @@ class NlpBuilder:
     bounds.  :func:`_build` calls the pieces in order; the rows keep that order.
     """
 
-    def __init__(self, problem: Problem, model: Any, formula: Formula, sharp: bool = False) -> None:
+    def __init__(
+        self,
+        problem: Problem,
+        model: Any,
+        formula: Formula,
+        sharp: bool = False,
+        deadline: float = math.inf,
+    ) -> None:
         self.t0 = time.perf_counter()
+        #: when (``time.perf_counter()``) the build must give up (:meth:`check_deadline`)
+        self.deadline = deadline
         self.sharp = sharp
         self.problem, self.model = problem, model
         self.dt = problem.timing.sample_dt_s
@@ -426,6 +441,16 @@ class NlpBuilder:
         self.lim_slices: list[slice] = []
         self.lim_half = 0
         self.norm_rows = _has_norm_limits(problem)
+
+    def check_deadline(self) -> None:
+        """Raise :class:`BuildTimeout` once the deadline has passed; called between the
+        build's pieces (a template, a row-wise leaf, a stage), so the build overruns the
+        deadline by one piece at most."""
+        if time.perf_counter() > self.deadline:
+            raise BuildTimeout(
+                f"the time limit came while building the NLP "
+                f"({time.perf_counter() - self.t0:.1f} s into it)"
+            )
 
     def add_dynamics_constraints(self) -> NlpBuilder:
         """Linear rows: the lifting equalities, the limits, rest at the end (the rows stay,
@@ -549,6 +574,7 @@ class NlpBuilder:
     def _sample_leaf(self, leaf: Formula, steps: list[int]) -> tuple[SampleLeaf, np.ndarray] | None:
         """A row-wise leaf at one sample (:mod:`planner.rowwise`) and the entries of ``w``
         its positions are at each of its steps (None: constant rows)."""
+        self.check_deadline()
         one = sample_leaf(
             lambda xs: _leaf_values(leaf, [0], lambda _steps: xs, self.problem, self.fns),
             self.names,
@@ -568,6 +594,7 @@ class NlpBuilder:
         k_pred = k if self.sharp else self.k_pred
 
         def inst(leaf: Formula, st: int) -> LeafInstance:
+            self.check_deadline()
             return instance(
                 leaf, st, self.model, self.dt, k, k_pred, vehicle_index, self.problem.region
             )
@@ -616,6 +643,7 @@ class NlpBuilder:
         watch = IterationWatch(self.n_w, n_g, int(self.p.shape[0]))
         stages = []
         for k in self.k_list:
+            self.check_deadline()
             nlp, derivs, leaf_fn, chunk_fn = self.assemble(k)
             stages.append((k, nlp, derivs))
             solvers.append((k, _nlpsol(nlp, problem, derivs, watch, warm=bool(solvers))))
@@ -683,11 +711,21 @@ class NlpBuilder:
         )
 
 
-def _build(problem: Problem, model: Any, formula: Formula, sharp: bool = False) -> _Structure:
+def _build(
+    problem: Problem,
+    model: Any,
+    formula: Formula,
+    sharp: bool = False,
+    deadline: float = math.inf,
+) -> _Structure:
     """The NLP of ``problem``: its pieces in order (:class:`NlpBuilder`); with ``sharp``, the
-    smooth leaves' box predicates at the leaves' own sharpness."""
+    smooth leaves' box predicates at the leaves' own sharpness.
+
+    Raises:
+        BuildTimeout: ``time.perf_counter()`` passed ``deadline`` during the build.
+    """
     return (
-        NlpBuilder(problem, model, formula, sharp)
+        NlpBuilder(problem, model, formula, sharp, deadline)
         .add_spec_constraints()
         .add_dynamics_constraints()
         .add_robustness_cost()
@@ -880,41 +918,56 @@ def _derivatives(
     what sequential convex programming does for collision avoidance.
 
     ``rowwise[i]``, where given, is the i-th nonlinear block as one sample's leaf and the
-    entries of ``w`` at its steps: its Hessian is then that sample's mapped over the steps
-    (:func:`planner.rowwise.block_hessian`), not the block's differentiated whole (the
-    40-pole line: 21 s of its 53 s build).
+    entries of ``w`` at its steps: its Jacobian and Hessian are then that sample's mapped over
+    the steps (:mod:`planner.rowwise`), not the block's differentiated whole, and they join
+    the SX blocks' in MX functions, so that no SX graph of every step's derivatives is built
+    (the 40-pole line: 21 s of symbolic derivatives and 18 s of SX functions of its 53 s
+    build).
     """
+    n_w = int(w.shape[0])
     blocks = [*linear, *nonlinear]
     g = ca.vertcat(*blocks)
+    mapped = [rowwise[ib] if ib < len(rowwise) else None for ib in range(len(nonlinear))]
     jacs = [ca.jacobian(b, w) for b in linear]
-    for ib, b in enumerate(nonlinear):
-        one = rowwise[ib] if ib < len(rowwise) else None
+    for b, one in zip(nonlinear, mapped, strict=True):
         if one is None:
             jacs.append(ca.jacobian(b, w))
-        else:  # the leaf's rows, and -a in r's column (b = rows - a r, linear in r)
-            n_w = int(w.shape[0])
-            d_r = ca.horzcat(ca.SX(int(b.shape[0]), n_w - 1), ca.jacobian(b, w[n_w - 1]))
-            jacs.append(block_jacobian(one[0], w, one[1]) + d_r)
-    jac = ca.vertcat(*jacs)
-    out = {"jac_g": ca.Function("nlp_jac_g", [w, p], [g, jac], ["x", "p"], ["g", "jac_g_x"])}
+        else:  # only -a in r's column here (b = rows - a r, linear in r); the rows in MX
+            jacs.append(ca.horzcat(ca.SX(int(b.shape[0]), n_w - 1), ca.jacobian(b, w[n_w - 1])))
+    jac_sx = ca.Function("nlp_jac_g_sx", [w, p], [g, ca.vertcat(*jacs)])
+    wm, pm = ca.MX.sym("w", n_w), ca.MX.sym("p", int(p.shape[0]))
+    g_m, jac_m = jac_sx(wm, pm)
+    n_lin = sum(int(b.shape[0]) for b in linear)
+    if any(one is not None for one in mapped):
+        parts = [ca.MX(n_lin, n_w)]
+        for b, one in zip(nonlinear, mapped, strict=True):
+            rows = int(b.shape[0])
+            parts.append(ca.MX(rows, n_w) if one is None else block_jacobian(one[0], wm, one[1]))
+        jac_m = jac_m + ca.vertcat(*parts)
+    out = {"jac_g": ca.Function("nlp_jac_g", [wm, pm], [g_m, jac_m], ["x", "p"], ["g", "jac_g_x"])}
     if hessian:
         lam_f = ca.SX.sym("lam_f")
         lam_g = ca.SX.sym("lam_g", g.shape[0])
         H = lam_f * local_hessian(f, w)
-        row = sum(b.shape[0] for b in linear)
-        for ib, b in enumerate(nonlinear):
-            m = b.shape[0]
+        lam_fm, lam_gm = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", g.shape[0])
+        mapped_h = []
+        row = n_lin
+        for ib, (b, one) in enumerate(zip(nonlinear, mapped, strict=True)):
+            m = int(b.shape[0])
             if ib >= len(flat) or not flat[ib]:
-                one = rowwise[ib] if ib < len(rowwise) else None
                 if one is not None:
-                    H = H + block_hessian(one[0], w, one[1], lam_g[row : row + m])
+                    mapped_h.append(block_hessian(one[0], wm, one[1], lam_gm[row : row + m]))
                 else:
                     H = H + local_hessian(ca.dot(lam_g[row : row + m], b), w)
             row += m
+        h_sx = ca.Function("nlp_hess_sx", [w, p, lam_f, lam_g], [H])
+        H_m = h_sx(wm, pm, lam_fm, lam_gm)
+        for h in mapped_h:
+            H_m = H_m + h
         out["hess_lag"] = ca.Function(
             "nlp_hess_l",
-            [w, p, lam_f, lam_g],
-            [ca.triu(H)],
+            [wm, pm, lam_fm, lam_gm],
+            [ca.triu(H_m)],
             ["x", "p", "lam_f", "lam_g"],
             ["triu_hess_gamma_x_x"],
         )

@@ -77,6 +77,7 @@ from planner.limits import vehicle_bounds
 from planner.nlp import (
     K_MIN,
     STRUCTURES,
+    BuildTimeout,
     _build,
     _is_direct,
     _Structure,
@@ -242,7 +243,7 @@ class PlanSearch:
 
         def build() -> _Structure:
             self.say(f"building the NLP for {len(problem.vehicles)} vehicle(s)")
-            return _build(problem, model, self.formula)
+            return _build(problem, model, self.formula, deadline=self.solve_deadline())
 
         self.struct, self.cached = STRUCTURES.get_or_build(_structure_key(problem), build)
         struct = self.struct
@@ -574,7 +575,10 @@ class PlanSearch:
 
     def run(self, initial_guess: np.ndarray | None = None) -> PlanResult:
         """Build, try the starts, refine the best, check it: the :class:`PlanResult`."""
-        self._build()
+        try:
+            self._build()
+        except BuildTimeout as exc:
+            return self._unbuilt(initial_guess, str(exc))
         struct = self.struct
         with struct.lock, _watch_sigint() as stop:
             self.watch.deadline = self.deadline
@@ -644,6 +648,22 @@ class PlanSearch:
                 w_opt, status = raised.w, f"{status}; {raised.note}"
         return self._result(w_opt, status, converged, run, stop, by_time)
 
+    def _unbuilt(self, initial_guess: np.ndarray | None, why: str) -> PlanResult:
+        """The time limit came during the build: the initial guess (or the given one),
+        checked like any plan, as the result; no solver ran."""
+        problem = self.problem
+        self.build_s = time.perf_counter() - self.t_start
+        self.cached = False
+        if initial_guess is not None:
+            z = np.asarray(initial_guess, dtype=float).reshape(-1)
+        else:
+            first = next(starts(problem, self.formula, 1))
+            z = _initial_guess(problem, self.model, self.formula, self.x0s, first)
+        status = f"{why}; the initial guess, not refined"
+        run = _Run(z, status, 0, 0.0, 0.0)
+        with _watch_sigint() as stop:
+            return self._result(z, status, False, run, stop, True)
+
     def _result(
         self,
         w_opt: np.ndarray,
@@ -656,9 +676,13 @@ class PlanSearch:
         """Check the plan at ``w_opt`` on dense samples: the :class:`PlanResult`."""
         problem, formula, formulas = self.problem, self.formula, self.formulas
         self.say("checking on dense samples")
-        struct = self.struct
+        struct = getattr(self, "struct", None)  # None: the time limit came in the build
         # The smooth value at the point returned (r itself may sit on a bound, eq. (1)).
-        smooth = _min_leaf(struct, w_opt, self.p_val, default=float(w_opt[-1]))
+        smooth = (
+            math.nan
+            if struct is None
+            else _min_leaf(struct, w_opt, self.p_val, default=float(w_opt[-1]))
+        )
         t_check = time.perf_counter()
         trajectories = self.trajectories_of(w_opt)
         rob, rob_grid, weakest, clauses = _evaluate(
@@ -705,10 +729,10 @@ class PlanSearch:
             solver_s=run.solver_s,
             function_eval_s=run.eval_s,
             check_s=self.check_s,
-            n_variables=struct.n_w,
-            n_constraints=struct.n_g,
-            n_smooth_leaves=struct.n_smooth,
-            k=struct.k,
+            n_variables=0 if struct is None else struct.n_w,
+            n_constraints=0 if struct is None else struct.n_g,
+            n_smooth_leaves=0 if struct is None else struct.n_smooth,
+            k=math.nan if struct is None else struct.k,
             solver=problem.solver.method.value,
             cached=self.cached,
             starts=self.n_starts,

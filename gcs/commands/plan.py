@@ -63,7 +63,10 @@ def summary(result: Any, output: str | None) -> dict[str, Any]:
         "status": result.status,
         "robustness": result.robustness,
         "robustness_planning_grid": result.robustness_planning_grid,
-        "smooth_robustness": result.smooth_robustness,
+        # nan: no NLP was built (the time limit came in its build)
+        "smooth_robustness": (
+            None if math.isnan(result.smooth_robustness) else result.smooth_robustness
+        ),
         "solve_time_s": result.solve_time_s,
         "iterations": result.iterations,
         "weakest": None
@@ -101,7 +104,7 @@ def summary(result: Any, output: str | None) -> dict[str, Any]:
             "check_s": s.check_s,
             "n_variables": s.n_variables,
             "n_constraints": s.n_constraints,
-            "k": s.k,
+            "k": None if math.isnan(s.k) else s.k,
             "solver": s.solver,
             "starts": s.starts,
             "coarse": None if s.coarse is None else dict(s.coarse),
@@ -153,7 +156,12 @@ def _table(result: Any) -> str:
     s = result.stats
     lines.append(
         f"robustness {result.robustness:.4f} (planning grid {result.robustness_planning_grid:.4f}, "
-        f"smooth {result.smooth_robustness:.4f}); {result.iterations} iterations, "
+        + (
+            "no NLP built"
+            if math.isnan(result.smooth_robustness)
+            else f"smooth {result.smooth_robustness:.4f}"
+        )
+        + f"); {result.iterations} iterations, "
         f"{result.solve_time_s:.2f} s"
         + (f" (build {s.build_s:.2f}, solver {s.solver_s:.2f}, check {s.check_s:.2f})" if s else "")
         + (f", {s.starts} starts" if s and s.starts > 1 else "")

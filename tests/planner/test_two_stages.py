@@ -9,6 +9,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from planner.optimize import plan
@@ -80,3 +81,27 @@ def test_two_threads_planning_one_structure_take_turns_and_agree() -> None:
         assert got is not None and got.success, got
         assert got.robustness == pytest.approx(alone.robustness, abs=1e-6)
         assert got.iterations == alone.iterations
+
+
+def test_a_time_limit_that_comes_in_the_build_ends_it_with_the_guess_checked() -> None:
+    """``--time-limit`` bounds the build too: the builder gives up between its pieces, and
+    the initial guess, checked on dense samples like any plan, is the result."""
+    from planner.nlp import clear_cache
+    from planner.stl import conjunction
+
+    problem = load_scenario(ZOO / "powerline_line4_2drones_order.yaml")
+    clear_cache()  # a cold build (its first template alone takes longer than the limit)
+    res = plan(problem, time_limit_s=0.05)
+    assert "the time limit came while building the NLP" in res.status
+    assert "the initial guess, not refined" in res.status
+    assert res.status.startswith("stopped at the time limit (0.05 s)")
+    assert res.iterations == 0
+    assert res.stats is not None and res.stats.n_variables == 0
+    # the robustness reported is the exact one of the trajectories returned
+    signals = {tr.name: tr for tr in res.trajectories}
+    dt = problem.timing.check_dt_s
+    t = np.arange(0.0, problem.timing.horizon_s + 1e-9, dt)
+    sampled = {n: np.asarray(tr.position(t)).reshape(-1, 3) for n, tr in signals.items()}
+    assert conjunction(list(problem.formulas)).robustness(sampled, dt) == pytest.approx(
+        res.robustness, abs=1e-6
+    )
