@@ -639,6 +639,7 @@ class NlpBuilder:
         n_items = len(self.smooth_items)
         n_g = n_sx + n_items + self.n_s
         solvers: list[tuple[float, Any]] = []
+        chunked = self.n_s > 0  # MUMPS ordering (_mumps_order)
         leaf_fn = chunk_fn = None
         watch = IterationWatch(self.n_w, n_g, int(self.p.shape[0]))
         stages = []
@@ -646,11 +647,13 @@ class NlpBuilder:
             self.check_deadline()
             nlp, derivs, leaf_fn, chunk_fn = self.assemble(k)
             stages.append((k, nlp, derivs))
-            solvers.append((k, _nlpsol(nlp, problem, derivs, watch, warm=bool(solvers))))
+            solvers.append(
+                (k, _nlpsol(nlp, problem, derivs, watch, warm=bool(solvers), chunked=chunked))
+            )
 
         def refining() -> list[tuple[float, Any]]:
             return [
-                (k, _nlpsol(nlp, problem, derivs, watch, warm=i > 0, refine=True))
+                (k, _nlpsol(nlp, problem, derivs, watch, warm=i > 0, refine=True, chunked=chunked))
                 for i, (k, nlp, derivs) in enumerate(stages)
             ]
 
@@ -995,15 +998,18 @@ _MU_MAX = 0.1
 _QAMD_MAX_VEHICLES = 8
 
 
-def _mumps_order(problem: Problem) -> int:
+def _mumps_order(problem: Problem, chunked: bool = False) -> int:
     """MUMPS's fill-reducing ordering (ICNTL(7)): 6, QAMD (minimum degree that sets
-    quasi-dense rows aside), for small fleets; 7, MUMPS's own choice (METIS here), for large
-    ones.  Every leaf row shares r's column: with METIS the fill around it cost 24 s per
-    iteration on the 20-pole line (4 drones, 74,000 rows), 0.4 s with QAMD, and 88 s
-    against 0.2 s on the 12-pole line.  Where separation rows couple every pair of a large
-    fleet at every sample, nested dissection wins instead (reach-avoid N = 16: 26.5 s with
-    METIS, 81 s with QAMD); N = 8 is even (power line: 3.3 s of IPOPT against 2.0 s)."""
-    return 6 if len(problem.vehicles) <= _QAMD_MAX_VEHICLES else 7
+    quasi-dense rows aside), for small fleets and for any NLP with chunked leaves; 7,
+    MUMPS's own choice (METIS here), for large fleets without.  Every leaf row shares r's
+    column: with METIS the fill around it cost 24 s per iteration on the 20-pole line (4
+    drones, 74,000 rows), 0.4 s with QAMD, and 88 s against 0.2 s on the 12-pole line; the
+    12-drone, 6-pole line (chunked) ran 3 iterations in 140 s with METIS, 11 in 6.4 s with
+    QAMD.  Where separation rows couple every pair of a large fleet at every sample and no
+    long window is chunked, nested dissection wins instead (reach-avoid N = 16: 26.5 s with
+    METIS, 81 s with QAMD; N = 12: 5.2 s against 10.5 s); N = 8 is even (power line: 3.3 s
+    of IPOPT against 2.0 s)."""
+    return 6 if chunked or len(problem.vehicles) <= _QAMD_MAX_VEHICLES else 7
 
 
 #: IPOPT options of a warm-started stage: start from the given multipliers with a small
@@ -1026,6 +1032,7 @@ def _nlpsol(
     watch: IterationWatch,
     warm: bool = False,
     refine: bool = False,
+    chunked: bool = False,
 ) -> Any:
     """The solver; ``warm``: it starts from an earlier solve's primal-dual point (a later
     stage of the k continuation), so IPOPT keeps the multipliers and a small barrier;
@@ -1058,7 +1065,7 @@ def _nlpsol(
                 "hessian_approximation": s.hessian,
                 "limited_memory_max_history": s.lbfgs_history,
                 "mu_strategy": "adaptive",
-                "mumps_pivot_order": _mumps_order(problem),
+                "mumps_pivot_order": _mumps_order(problem, chunked),
                 **({"mu_max": _MU_MAX} if refine else {}),
                 **(_IPOPT_WARM if warm else {}),
             },
