@@ -119,6 +119,12 @@ class MilpBuilder:
         self.num_rows += m
         self._nnz += m * k
 
+    def integer_columns(self) -> IntArray:
+        """Indices of the integer columns."""
+        if not self._int:
+            return np.zeros(0, dtype=np.int64)
+        return np.flatnonzero(np.concatenate(self._int)).astype(np.int64)
+
     @property
     def num_integers(self) -> int:
         """How many integer columns."""

@@ -108,7 +108,7 @@ def _smoothest(
     """
     if time_left_s <= 0.05:
         return x
-    ints = np.flatnonzero(np.concatenate(builder._int)) if builder._int else np.zeros(0, int)
+    ints = builder.integer_columns()
     builder.set_bounds(ints, np.round(x[ints]), np.round(x[ints]))
     builder.set_bounds([rho_col], rho - _POLISH_SLACK_M, rho + 1.0)
     builder.cost.clear()
