@@ -561,7 +561,11 @@ class NlpBuilder:
             ]
             exact = self.opts.hessian == "exact"
             rowwise = [self._sample_leaf(leaf, steps) for leaf, steps in self.direct_steps.items()]
-            sx = _derivatives(w, p, self.f, self.linear, self.nonlinear, exact, flat, rowwise)
+            sx = _derivatives(
+                w, p, self.f, self.linear, self.nonlinear, exact, flat, rowwise,
+                check=self.check_deadline,
+            )  # fmt: skip
+            self.check_deadline()
             # Values and derivatives are separate functions: nlpsol differentiates the MX
             # values once more (reverse mode, for the multipliers) and must not go through
             # derivative outputs.
@@ -647,6 +651,7 @@ class NlpBuilder:
             self.check_deadline()
             nlp, derivs, leaf_fn, chunk_fn = self.assemble(k)
             stages.append((k, nlp, derivs))
+            self.check_deadline()
             solvers.append(
                 (k, _nlpsol(nlp, problem, derivs, watch, warm=bool(solvers), chunked=chunked))
             )
@@ -905,6 +910,7 @@ def _derivatives(
     hessian: bool,
     flat: Sequence[bool] = (),
     rowwise: Sequence[tuple[SampleLeaf, np.ndarray] | None] = (),
+    check: Callable[[], None] = lambda: None,
 ) -> dict[str, Any]:
     """Constraint Jacobian and Lagrangian Hessian assembled block by block.
 
@@ -926,6 +932,8 @@ def _derivatives(
     the SX blocks' in MX functions, so that no SX graph of every step's derivatives is built
     (the 40-pole line: 21 s of symbolic derivatives and 18 s of SX functions of its 53 s
     build).
+
+    ``check`` is called between the pieces (the build's deadline, :class:`NlpBuilder`).
     """
     n_w = int(w.shape[0])
     blocks = [*linear, *nonlinear]
@@ -933,11 +941,14 @@ def _derivatives(
     mapped = [rowwise[ib] if ib < len(rowwise) else None for ib in range(len(nonlinear))]
     jacs = [ca.jacobian(b, w) for b in linear]
     for b, one in zip(nonlinear, mapped, strict=True):
+        check()
         if one is None:
             jacs.append(ca.jacobian(b, w))
         else:  # only -a in r's column here (b = rows - a r, linear in r); the rows in MX
             jacs.append(ca.horzcat(ca.SX(int(b.shape[0]), n_w - 1), ca.jacobian(b, w[n_w - 1])))
+    check()
     jac_sx = ca.Function("nlp_jac_g_sx", [w, p], [g, ca.vertcat(*jacs)])
+    check()
     wm, pm = ca.MX.sym("w", n_w), ca.MX.sym("p", int(p.shape[0]))
     g_m, jac_m = jac_sx(wm, pm)
     n_lin = sum(int(b.shape[0]) for b in linear)
@@ -957,13 +968,16 @@ def _derivatives(
         row = n_lin
         for ib, (b, one) in enumerate(zip(nonlinear, mapped, strict=True)):
             m = int(b.shape[0])
+            check()
             if ib >= len(flat) or not flat[ib]:
                 if one is not None:
                     mapped_h.append(block_hessian(one[0], wm, one[1], lam_gm[row : row + m]))
                 else:
                     H = H + local_hessian(ca.dot(lam_g[row : row + m], b), w)
             row += m
+        check()
         h_sx = ca.Function("nlp_hess_sx", [w, p, lam_f, lam_g], [H])
+        check()
         H_m = h_sx(wm, pm, lam_fm, lam_gm)
         for h in mapped_h:
             H_m = H_m + h

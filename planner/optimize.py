@@ -232,6 +232,8 @@ class PlanSearch:
         self._coarse_starts: list[np.ndarray] = []
         #: once a start meets the mission, more starts only until then (solver.polish_s)
         self.polish_until = math.inf
+        #: the initial guess's starts, its first and its decisions (:meth:`_guess`)
+        self._first_guess: tuple[Iterator[Any], Any, np.ndarray] | None = None
         self._iterate_rho = -math.inf  # the best iterate seen during a solve
         self._iterate_w: np.ndarray | None = None
         self._next_progress = 0.0
@@ -384,14 +386,24 @@ class PlanSearch:
                 _initial_guess(problem, model, formula, self.x0s, st),
             )
 
+    def _guess(self) -> tuple[Iterator[Any], Any, np.ndarray]:
+        """The initial guess's starts, its first and that first start's decisions, drawn
+        once (before the build, so that a time limit that comes in the build still has a
+        plan to check: the 40-pole line's first guess takes 6 s)."""
+        if self._first_guess is None:
+            problem, formula = self.problem, self.formula
+            guesses = starts(problem, formula, problem.solver.starts)
+            first = next(guesses)
+            z_first = _initial_guess(problem, self.model, formula, self.x0s, first)
+            self._first_guess = (guesses, first, z_first)
+        return self._first_guess
+
     def _first_stage(self) -> tuple[Iterator[Any], list[tuple[str, np.ndarray]]]:
         """The initial guess's starts and the heads of the multi-start: the guess's first
         start and, unless it already meets the mission, the combinatorial stage's plan, the
         better in exact robustness first."""
         problem, formula = self.problem, self.formula
-        guesses = starts(problem, formula, problem.solver.starts)
-        first = next(guesses)
-        z_first = _initial_guess(problem, self.model, formula, self.x0s, first)
+        guesses, first, z_first = self._guess()
         heads = [(first.describe(problem, formula), z_first)]
         rho_first = self._timed_exact(z_first)
         if rho_first < problem.epsilon:
@@ -575,6 +587,10 @@ class PlanSearch:
 
     def run(self, initial_guess: np.ndarray | None = None) -> PlanResult:
         """Build, try the starts, refine the best, check it: the :class:`PlanResult`."""
+        if initial_guess is None:
+            self.say("drawing the initial guess")
+            self._guess()
+        self._build_t0 = time.perf_counter()
         try:
             self._build()
         except BuildTimeout as exc:
@@ -651,14 +667,12 @@ class PlanSearch:
     def _unbuilt(self, initial_guess: np.ndarray | None, why: str) -> PlanResult:
         """The time limit came during the build: the initial guess (or the given one),
         checked like any plan, as the result; no solver ran."""
-        problem = self.problem
-        self.build_s = time.perf_counter() - self.t_start
+        self.build_s = time.perf_counter() - self._build_t0
         self.cached = False
         if initial_guess is not None:
             z = np.asarray(initial_guess, dtype=float).reshape(-1)
         else:
-            first = next(starts(problem, self.formula, 1))
-            z = _initial_guess(problem, self.model, self.formula, self.x0s, first)
+            z = self._guess()[2]
         status = f"{why}; the initial guess, not refined"
         run = _Run(z, status, 0, 0.0, 0.0)
         with _watch_sigint() as stop:
