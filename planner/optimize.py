@@ -74,6 +74,7 @@ from planner.fix_choices import fixed_clauses
 from planner.guess import _initial_guess, starts
 from planner.heading import facing_rules, heading_signals, uses_heading, with_heading
 from planner.limits import vehicle_bounds
+from planner.milp import CoarseStatus
 from planner.nlp import (
     K_MIN,
     STRUCTURES,
@@ -234,6 +235,7 @@ class PlanSearch:
         self.polish_until = math.inf
         #: the initial guess's starts, its first and its decisions (:meth:`_guess`)
         self._first_guess: tuple[Iterator[Any], Any, np.ndarray] | None = None
+        self._build_t0 = self.t_start  # when the NLP's build began (run)
         self._iterate_rho = -math.inf  # the best iterate seen during a solve
         self._iterate_w: np.ndarray | None = None
         self._next_progress = 0.0
@@ -417,6 +419,15 @@ class PlanSearch:
                     f"guess at {rho_first:+.4f}"
                 )
                 heads.insert(0 if rho_coarse > rho_first else 1, coarse)
+            elif self.combinatorial is not None and self.combinatorial.conflict is None:
+                r = self.combinatorial.result
+                why = (
+                    f"the spec is not encodable there: {r.message}"
+                    if r.status is CoarseStatus.NOT_ENCODABLE
+                    else f"{r.status.value} after {r.build_s + r.solve_s:.1f} s, "
+                    f"{r.num_binaries} binaries"
+                )
+                self.say(f"combinatorial stage: no coarse plan ({why}); the initial guess alone")
         return guesses, heads
 
     def _fixed_start(self) -> tuple[str, np.ndarray] | None:

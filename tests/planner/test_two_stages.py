@@ -105,3 +105,18 @@ def test_a_time_limit_that_comes_in_the_build_ends_it_with_the_guess_checked() -
     assert conjunction(list(problem.formulas)).robustness(sampled, dt) == pytest.approx(
         res.robustness, abs=1e-6
     )
+
+
+def test_a_stage_without_a_coarse_plan_says_why(tmp_path: Path) -> None:
+    """When the combinatorial stage makes no plan, the progress says so and why (here a
+    product of two coordinates, which no linear encoding holds), and the guess plans alone."""
+    from tests.planner.test_milp import scenario
+
+    problem = scenario(tmp_path, ["eventually[0,5] (x(d1) * y(d1) >= 4)"])
+    said: list[str] = []
+    res = plan(problem, progress=said.append, time_limit_s=30.0)
+    lines = [s for s in said if s.startswith("combinatorial stage: no coarse plan")]
+    assert len(lines) == 1, said
+    assert "not encodable" in lines[0] and "a product of two signals" in lines[0]
+    assert res.stats is not None and res.stats.coarse is not None
+    assert res.stats.coarse["status"] == "not encodable"
