@@ -12,7 +12,9 @@ Here the leaf is written at one sample, ``v(x)`` with ``x`` the positions of the
 names (3 per vehicle, in the order of ``names``); its Jacobian ``J(x) = dv/dx`` and Hessian
 ``H(x, lam) = d2 (lam . v) / dx2`` are built once, and the block's derivatives are those
 functions mapped over the steps (one ``rows x 3m`` / ``3m x 3m`` block per step) and
-scattered into the NLP's rows and variables.  The values are the same expressions, so IPOPT
+scattered into the NLP's rows and variables, in MX: the NLP's derivative functions call the
+mapped functions instead of holding every step's expressions
+(:func:`planner.nlp._derivatives`).  The values are the same expressions, so IPOPT
 sees the same numbers (checked against CasADi's own ``jacobian`` and ``hessian`` in
 ``tests/planner/test_rowwise.py``).
 """
@@ -82,12 +84,14 @@ def _selection(cols: np.ndarray, n_w: int) -> Any:
 
 
 def block_jacobian(leaf: SampleLeaf, w: Any, cols: np.ndarray) -> Any:
-    """``d rows / dw`` of the leaf's block, ``(rows n, n_w)`` SX, in the block's row order
+    """``d rows / dw`` of the leaf's block, ``(rows n, n_w)``, of ``w``'s kind (SX or MX), in
+    the block's row order
     (the rows of one face for every step, then the next face's: the steps run fastest).
 
     Args:
         leaf: the leaf at one sample.
-        w: the NLP's variables (SX column).
+        w: the NLP's variables (an SX or MX column; the planner passes MX, so that the mapped
+            functions stay calls instead of being expanded step by step).
         cols: ``(n, 3m)`` indices into ``w`` of ``x`` at each of the block's ``n`` steps.
     """
     n, m = cols.shape
@@ -99,11 +103,11 @@ def block_jacobian(leaf: SampleLeaf, w: Any, cols: np.ndarray) -> Any:
 
 
 def block_hessian(leaf: SampleLeaf, w: Any, cols: np.ndarray, lam: Any) -> Any:
-    """``d2 (lam . rows) / dw2`` of the leaf's block, ``(n_w, n_w)`` SX.
+    """``d2 (lam . rows) / dw2`` of the leaf's block, ``(n_w, n_w)``, of ``w``'s kind.
 
     Args:
         leaf: the leaf at one sample.
-        w: the NLP's variables (SX column).
+        w: the NLP's variables (an SX or MX column, as :func:`block_jacobian`).
         cols: ``(n, 3m)`` indices into ``w`` of ``x`` at each of the block's ``n`` steps.
         lam: the block's ``rows * n`` multipliers, in the block's row order (the rows of
             one face for every step, then the next face's: the steps run fastest).
