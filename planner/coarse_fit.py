@@ -17,31 +17,14 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-import casadi as ca
 import numpy as np
 
-from planner.cache import BoundedCache
-from planner.guess import _fit_within_limits
+from planner.guess import _fit_within_limits, _guess_qp, axis_fit
 from planner.limits import NORM_DIRECTIONS, vehicle_bounds
-from planner.nlp import _limit_bounds, _two_sided_rows
 from planner.problem import Problem, Vehicle
 from planner.regions import Region
 
 __all__ = ["waypoint_guess"]
-
-_QPS: BoundedCache[Any] = BoundedCache(16)
-
-
-def _qp(n: int, m: int) -> Any:
-    def build() -> Any:
-        return ca.conic(
-            "coarse_fit",
-            "daqp",
-            {"h": ca.Sparsity.dense(n, n), "a": ca.Sparsity.dense(m, n)},
-            {"error_on_fail": False},
-        )
-
-    return _QPS.get_or_build((n, m), build)[0]
 
 
 def _fit_xy(
@@ -49,44 +32,34 @@ def _fit_xy(
 ) -> np.ndarray | None:
     """``Z`` (n_dec, 3) closest (least squares at the samples) to ``path`` (n, 3) among the
     trajectories within the NLP's limit rows (horizontal polygon included), at rest at the
-    end when asked, in the workspace's box at the samples; None when the QP fails."""
-    Mp, Np = np.asarray(model.Mp), np.asarray(model.Np)
+    end when asked, in the workspace's box at the samples; None when the QP fails.  The
+    initial guess's per-axis pieces (:func:`planner.guess.axis_fit`) on the NLP's axis
+    bounds, the three axes side by side, and the polygon's rows coupling x and y."""
     vel, acc = vehicle_bounds(vehicle)
     (vlo, vhi, vb), (alo, ahi, ab) = vel.linear(), acc.linear()
-    cons = model.limit_constraints(vhi, ahi, -vlo, -alo)
-    half = _two_sided_rows(cons)
-    lo_all, hi_all = _limit_bounds(cons, half)
-    Ge, He = model.equality_constraints()
-    n_fix = 1 + len(Ge)
-    fix_lo, fix_hi = np.zeros(n_fix), np.zeros(n_fix)
-    if not end_at_rest:
-        fix_lo[0], fix_hi[0] = -np.inf, np.inf
-    A1 = np.vstack([model.Mv[-1:], Ge, cons.G[:half], Mp])
-    n, m1 = model.n_dec, len(A1)
-    G, Hh = cons.G[:half], cons.H[:half]
-    blocks = [np.zeros((3 * m1, 3 * n))]
-    lba, uba, g = [], [], []
-    for a in range(3):
-        blocks[0][a * m1 : (a + 1) * m1, a * n : (a + 1) * n] = A1
-        xa = x0[:, a]
-        off = np.concatenate([model.Nv[-1:] @ xa, He @ xa, Hh @ xa, Np @ xa])
-        lba.append(np.concatenate([fix_lo, lo_all[:, a], np.full(len(Mp), ws.lo_enu_m[a])]) - off)
-        uba.append(np.concatenate([fix_hi, hi_all[:, a], np.full(len(Mp), ws.hi_enu_m[a])]) - off)
-        g.append(-2 * Mp.T @ (path[:, a] - Np @ xa))
+    fit = axis_fit(model, path, x0, (vlo, vhi, alo, ahi), ws, end_at_rest)
+    n = model.n_dec
+    blocks = [np.kron(np.eye(3), fit.A)]
+    lba, uba = list(fit.lba), list(fit.uba)
     if np.isfinite(vb) or np.isfinite(ab):
-        b = np.where(cons.kind[:half] == "vel", vb, ab)
+        G, Hh = fit.cons.G[: fit.half], fit.cons.H[: fit.half]
+        b = np.where(fit.cons.kind[: fit.half] == "vel", vb, ab)
         for c, s in NORM_DIRECTIONS:
-            row = np.zeros((half, 3 * n))
+            row = np.zeros((fit.half, 3 * n))
             row[:, :n], row[:, n : 2 * n] = c * G, s * G
             blocks.append(row)
             off = c * (Hh @ x0[:, 0]) + s * (Hh @ x0[:, 1])
             lba.append(-b - off)
             uba.append(b - off)
     A = np.vstack(blocks)
-    H1 = 2 * (Mp.T @ Mp) + 1e-6 * np.eye(n)
-    H = np.kron(np.eye(3), H1)
-    qp = _qp(3 * n, len(A))
-    sol = qp(h=H, g=np.concatenate(g), a=A, lba=np.concatenate(lba), uba=np.concatenate(uba))
+    qp = _guess_qp(3 * n, A)
+    sol = qp(
+        h=np.kron(np.eye(3), fit.H),
+        g=np.concatenate(fit.g),
+        a=A,
+        lba=np.concatenate(lba),
+        uba=np.concatenate(uba),
+    )
     z = np.asarray(sol["x"]).reshape(-1)
     if not qp.stats().get("success", False) or not np.all(np.isfinite(z)):
         return None

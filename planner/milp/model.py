@@ -126,6 +126,13 @@ def _axis_bounds(b: Bounds) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     return lo, hi
 
 
+def second_differences(cols: NDArray[np.int64]) -> NDArray[np.int64]:
+    """``(3 (N - 1), 3)``: for each inner sample and axis, the columns of ``p_{j+1}``, ``p_j``
+    and ``p_{j-1}`` (the stencil ``1, -2, 1`` of an acceleration), from ``(N + 1, 3)``
+    position columns."""
+    return np.stack([cols[2:], cols[1:-1], cols[:-2]], axis=-1).reshape(-1, 3)
+
+
 @dataclass(frozen=True, slots=True)
 class VehicleColumns:
     """One vehicle's columns and their bounds.
@@ -183,7 +190,7 @@ class CoarseModel:
         self._diff_rows(builder, cols[1:], cols[:-1], vlo * dt, vhi * dt, bv, dt)
         # second differences (acceleration)
         if n >= 3:
-            c2 = np.stack([cols[2:], cols[1:-1], cols[:-2]], axis=-1).reshape(-1, 3)
+            c2 = second_differences(cols)
             vals = np.tile([1.0, -2.0, 1.0], (len(c2), 1))
             builder.add_rows(c2, vals, np.tile(alo * dt**2, n - 2), np.tile(ahi * dt**2, n - 2))
             if ba.has_norm:

@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 
 from planner.milp.builder import MilpBuilder
 from planner.milp.encode import Encoder, NotEncodable
-from planner.milp.model import SAMPLE_BUDGET, CoarseModel, choose_dt
+from planner.milp.model import SAMPLE_BUDGET, CoarseModel, choose_dt, second_differences
 from planner.problem import Problem
 from planner.stl import Formula
 
@@ -116,7 +116,7 @@ def _smoothest(
         c = vc.cols
         if len(c) < 3:
             continue
-        stencil = np.stack([c[2:], c[1:-1], c[:-2]], axis=-1).reshape(-1, 3)  # (3 (N-1), 3)
+        stencil = second_differences(c)
         t = builder.add_vars(len(stencil), 0.0, math.inf)
         for sign in (1.0, -1.0):  # t >= +-(p_{j+1} - 2 p_j + p_{j-1})
             vals = np.tile([sign, -2.0 * sign, sign, -1.0], (len(stencil), 1))
