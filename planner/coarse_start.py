@@ -18,8 +18,11 @@ the smooth plan; the exact check after the NLP decides.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -29,10 +32,13 @@ from planner.coarse_fit import waypoint_guess
 from planner.milp import CoarseResult, CoarseStatus, Conflict, find_conflict, solve_coarse
 from planner.problem import Problem
 
-__all__ = ["CoarseOutcome", "coarse_budget_s", "coarse_start"]
+__all__ = ["BackgroundStage", "CoarseOutcome", "coarse_budget_s", "coarse_start"]
 
 #: The share of the time limit the combinatorial stage may use at most.
 _LIMIT_SHARE = 0.25
+#: Beside the NLP the stage's budget is CPU time of its thread; its wall time is capped at
+#: this many times the budget (the planner stops it at its own deadlines as well).
+_WALL_FACTOR = 3.0
 #: The least time (s) the conflict search gets once the spec is proven infeasible on the
 #: coarse model (its answer is worth more than a few more seconds of the NLP).
 _CONFLICT_MIN_S = 2.0
@@ -52,6 +58,9 @@ class CoarseOutcome:
     result: CoarseResult
     decision: np.ndarray | None
     conflict: Conflict | None = None
+    #: the stage was stopped before its end (a start of the initial guess met the mission
+    #: first, the time limit, Ctrl-C): its figures are of a program it did not finish
+    stopped: bool = False
 
     def describe(self) -> str:
         """The start's name in the planner's status."""
@@ -75,6 +84,7 @@ class CoarseOutcome:
             "binaries": r.num_binaries,
             "windows": "covered" if r.cover else "inner samples",
             "message": r.message,
+            "stopped": self.stopped,
             "conflict": None
             if self.conflict is None
             else [c.key_path for c in self.conflict.clauses],
@@ -102,37 +112,180 @@ def coarse_start(
         x0s: each vehicle's start state ``(n_init, 3)``.
         budget_s: seconds for the whole stage.
     """
-    t0 = time.perf_counter()
+    result, conflict = _solve_stage(problem, budget_s, None)
+    return _outcome(problem, model, x0s, result, conflict)
+
+
+def _solve_stage(
+    problem: Problem,
+    budget_s: float,
+    stop: threading.Event | None,
+    on_incumbent: Callable[[float], None] | None = None,
+    wall_s: float | None = None,
+) -> tuple[CoarseResult, Conflict | None]:
+    """The stage's programs (HiGHS and numpy only: no CasADi, so that it can run in a
+    thread beside the NLP's build): the coarse result and, when no coarse plan meets the
+    spec, the clauses in conflict.
+
+    ``budget_s`` is CPU time of the calling thread (the stage's work, the same on a busy
+    machine as on an idle one), within ``wall_s`` seconds of wall time (default
+    ``budget_s``).  ``on_incumbent``: each better coarse plan's robustness, as HiGHS
+    finds it."""
+    t0, cpu0 = time.perf_counter(), time.thread_time()
+    wall = budget_s if wall_s is None else wall_s
+
+    def left() -> float:
+        return min(wall - (time.perf_counter() - t0), budget_s - (time.thread_time() - cpu0))
 
     # The robustness at least epsilon as a constraint: HiGHS prunes every branch below it
     # (the door puzzle: the optimum 0.4 in 8 s, against no incumbent above -1 in 20 s
     # without), and a spec no coarse path meets is proven INFEASIBLE at once.  Capped like
     # the NLP (solver.robustness_cap_m): more margin is not wanted.
-    def solve(cover: bool, time_limit_s: float) -> CoarseResult:
+    def solve(cover: bool) -> CoarseResult:
         return solve_coarse(
             problem,
-            time_limit_s=time_limit_s,
+            time_limit_s=max(wall - (time.perf_counter() - t0), 0.05),
             robustness_cap_m=problem.solver.robustness_cap_m,
             min_robustness=problem.epsilon,
             cover=cover,
+            stop=stop,
+            on_incumbent=on_incumbent,
+            cpu_until=cpu0 + budget_s,
         )
 
     # Each always over the coarse steps that cover its window first (a plan the smooth
     # model can keep the timing of); when that is proven impossible, the weaker reading
     # (the steps inside the window) before any conflict is named.
-    result = solve(True, budget_s)
-    if result.status is CoarseStatus.INFEASIBLE:
-        left = budget_s - (time.perf_counter() - t0)
-        if left > 0.05:
-            result = solve(False, left)
-    if result.success:
-        times = np.asarray(result.times_s, dtype=float)
-        points = [np.asarray(result.waypoints_enu_m[v.name]) for v in problem.vehicles]
-        return CoarseOutcome(result, waypoint_guess(problem, model, x0s, times, points))
+    result = solve(True)
+    if result.status is CoarseStatus.INFEASIBLE and left() > 0.05:
+        result = solve(False)
     conflict = None
     if result.status is CoarseStatus.INFEASIBLE:
         # no coarse plan meets the spec (proven): which clauses conflict there (a deletion
         # filter of small MILPs, each proven in a fraction of a second on the zoo's)
-        left = max(budget_s - (time.perf_counter() - t0), _CONFLICT_MIN_S)
-        conflict = find_conflict(problem, time_limit_s=left, per_solve_s=max(0.5, left / 8))
-    return CoarseOutcome(result, None, conflict)
+        spare = max(left(), _CONFLICT_MIN_S)
+        conflict = find_conflict(
+            problem, time_limit_s=spare, per_solve_s=max(0.5, spare / 8), stop=stop
+        )
+    return result, conflict
+
+
+def _outcome(
+    problem: Problem,
+    model: Any,
+    x0s: list[np.ndarray],
+    result: CoarseResult,
+    conflict: Conflict | None,
+) -> CoarseOutcome:
+    """The stage's answer as the NLP's start: its waypoints fitted within the limits."""
+    if not result.success:
+        return CoarseOutcome(result, None, conflict)
+    times = np.asarray(result.times_s, dtype=float)
+    points = [np.asarray(result.waypoints_enu_m[v.name]) for v in problem.vehicles]
+    return CoarseOutcome(result, waypoint_guess(problem, model, x0s, times, points))
+
+
+class BackgroundStage:
+    """The combinatorial stage in a thread beside the NLP's build and first start.
+
+    HiGHS releases the GIL while it solves, so on two cores the stage costs the planner
+    little wall time: the NLP is built, and the initial guess's start solved, while it runs.
+    Only the programs run in the thread (:func:`_solve_stage`); the fit of the plan's
+    waypoints (a CasADi QP) is made by :meth:`outcome`, in the caller's thread.
+
+    Args:
+        problem, model, x0s: as for :func:`coarse_start`.
+        budget_s: seconds for the whole stage.
+        on_plan: called from the stage's thread when it ends with a coarse plan (the
+            planner then lets the running start yield to it; see
+            :class:`planner.optimize.PlanSearch`).
+    """
+
+    def __init__(
+        self,
+        problem: Problem,
+        model: Any,
+        x0s: list[np.ndarray],
+        budget_s: float,
+        on_plan: Callable[[], None] | None = None,
+    ) -> None:
+        self.problem, self.model, self.x0s = problem, model, x0s
+        self.budget_s = budget_s
+        self.started_at = time.perf_counter()
+        self._on_plan = on_plan
+        self._stop = threading.Event()
+        self._done = threading.Event()
+        self._answer: tuple[CoarseResult, Conflict | None] | None = None
+        self._error: BaseException | None = None
+        self._cut = False  # stopped before its programs ended
+        #: the robustness of the best coarse plan HiGHS has found so far (nan: none yet)
+        self.incumbent = math.nan
+        self._outcome: CoarseOutcome | None = None
+        self._thread = threading.Thread(
+            target=self._work, name="stl-gcs combinatorial stage", daemon=True
+        )
+        self._thread.start()
+
+    def _work(self) -> None:
+        try:
+            self._answer = _solve_stage(
+                self.problem, self.budget_s, self._stop, self._improved,
+                wall_s=_WALL_FACTOR * self.budget_s,
+            )  # fmt: skip
+            self._cut = self._stop.is_set()
+        except BaseException as exc:  # re-raised in the caller's thread by outcome()
+            self._error = exc
+        finally:
+            self._done.set()
+        if (
+            self._answer is not None
+            and self._answer[0].success
+            and not self._cut
+            and self._on_plan is not None
+        ):
+            self._on_plan()
+
+    def _improved(self, robustness: float) -> None:
+        if not robustness <= self.incumbent:  # nan at first
+            self.incumbent = robustness
+
+    @property
+    def done(self) -> bool:
+        """Whether the stage has ended (finished, stopped or failed)."""
+        return self._done.is_set()
+
+    def wait(self, timeout_s: float) -> bool:
+        """Wait up to ``timeout_s`` seconds for the stage to end; whether it has."""
+        return self._done.wait(timeout_s)
+
+    def stop(self) -> None:
+        """Ask the stage to end now (HiGHS stops at its next interrupt check)."""
+        self._stop.set()
+
+    def _ended(self) -> tuple[CoarseResult, Conflict | None]:
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        assert self._answer is not None
+        return self._answer
+
+    def outcome(self) -> CoarseOutcome:
+        """The stage's answer, once it has ended (this waits for it): its plan as a start,
+        or why it has none.  Stopped early, it is marked ``stopped``: its incumbent, if it
+        had one, is the start (a conflict search it was in names nothing)."""
+        if self._outcome is None:
+            result, conflict = self._ended()
+            got = _outcome(self.problem, self.model, self.x0s, result, conflict)
+            # stopped: its incumbent stands (like one at the time limit), no conflict is named
+            self._outcome = (
+                dataclasses.replace(got, conflict=None, stopped=True) if self._cut else got
+            )
+        return self._outcome
+
+    def figures(self) -> CoarseOutcome:
+        """What the stage did, for the plan's statistics, without making its start (the
+        planner did not need it): waits for the stage to end."""
+        if self._outcome is not None:
+            return self._outcome
+        result, conflict = self._ended()
+        return CoarseOutcome(result, None, None if self._cut else conflict, stopped=self._cut)

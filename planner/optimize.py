@@ -67,7 +67,7 @@ from typing import Any
 import numpy as np
 
 from planner.checks import LimitReport, check_trajectories
-from planner.coarse_start import CoarseOutcome, coarse_budget_s, coarse_start
+from planner.coarse_start import BackgroundStage, CoarseOutcome, coarse_budget_s
 from planner.dynamics import DoubleIntegrator, MinimumJerkChain
 from planner.explain import needs
 from planner.fix_choices import fixed_clauses
@@ -184,14 +184,14 @@ def plan(
 class PlanSearch:
     """One plan's search: its stages, starts, budget and best result so far.
 
-    In the shape of python-control's ``OptimalControlProblem``: the constructor builds (or
-    takes from the cache) the NLP of the problem's structure; :meth:`run` tries the starts
-    of :meth:`candidates` (the combinatorial stage's plan first, when it has one, then the
-    initial guess's), refines the best (:func:`_raise_the_rest`, :func:`_sharpen`), checks
-    it on dense samples and returns a :class:`PlanResult`.  The deadline, the iterations and
-    the best iterate seen live here, not in the cached structure: a structure is used by one
-    search at a time (its lock), so two concurrent plans of one structure take turns instead
-    of racing on its iteration watch.
+    In the shape of python-control's ``OptimalControlProblem``: :meth:`run` draws the
+    initial guess, starts the combinatorial stage in its thread (:meth:`_start_stage`),
+    builds (or takes from the cache) the NLP of the problem's structure, tries the starts of
+    :meth:`candidates` (the guess's first, then the stage's plan where it can help), refines
+    the best (:func:`_raise_the_rest`, :func:`_sharpen`), checks it on dense samples and
+    returns a :class:`PlanResult`.  The deadline, the iterations and the best iterate seen
+    live here, not in the cached structure; one search runs at a time in a process
+    (:data:`_PLAN_LOCK`), so two plans started in two threads take turns.
     """
 
     def __init__(
@@ -227,6 +227,19 @@ class PlanSearch:
         self.best: _Attempt | None = None
         self.best_start = (0, "")
         self.combinatorial: CoarseOutcome | None = None
+        #: the combinatorial stage, running in its thread beside the build and the initial
+        #: guess's first start (:meth:`_start_stage`; None: it does not run)
+        self._stage: BackgroundStage | None = None
+        #: when the stage ended with a plan, and when the guess's first NLP began (while it
+        #: runs): that NLP yields to the stage's plan (:meth:`_yield_at`); under _cap_lock
+        self._stage_plan_at: float | None = None
+        self._first_nlp_at: float | None = None
+        self._cap_lock = threading.Lock()
+        self._rho_first = -math.inf  # the initial guess's start, exact robustness
+        #: once a start meets the mission, the seconds more the search may take for margin
+        self._margin_s = problem.solver.polish_s
+        self._sigint: _SigintWatch | None = None
+        self._stage_stopped = False  # the search has stopped the stage
         #: the combinatorial stage's start (None: it made none)
         self._coarse_z: np.ndarray | None = None
         #: the starts made from the combinatorial stage's plan (it, its choices refined)
@@ -353,32 +366,34 @@ class PlanSearch:
 
     def candidates(self) -> Iterator[tuple[str, np.ndarray]]:
         """The starts of the multi-start, lazily, ``solver.starts`` in all: the initial
-        guess's first start (:func:`planner.guess.starts`) and, unless that start already
-        meets the mission, the combinatorial stage's plan (:mod:`planner.milp`), the better
-        of the two in exact robustness first; then the guess's other starts."""
+        guess's first start (:func:`planner.guess.starts`), solved while the combinatorial
+        stage (:mod:`planner.milp`) runs beside it; unless that start meets the mission, the
+        stage's plan and its choices refined (:meth:`_fixed_start`); then the guess's other
+        starts."""
         problem, model, formula = self.problem, self.model, self.formula
         limit = problem.solver.starts
-        guesses, heads = self._first_stage()
-        given = 0
-        conflict = self.combinatorial is not None and self.combinatorial.conflict is not None
-        if conflict:
-            # Proven on the coarse model that no plan meets the spec: one NLP from the
-            # guess says what the smooth model makes of it, no more starts.
+        guesses, first, z_first = self._guess()
+        given = 1
+        yield first.describe(problem, formula), z_first
+        met = self.best is not None and self.best.robustness >= problem.epsilon
+        coarse = self._stage_start(met)
+        if self.combinatorial is not None and self.combinatorial.conflict is not None:
+            # Proven on the coarse model that no plan meets the spec: the NLP from the
+            # guess has said what the smooth model makes of it, no more starts.
             self.say("combinatorial stage: no coarse plan meets the spec (clauses in conflict)")
-            yield heads[0]
             return
-        for head in heads:
-            if given >= limit:
-                return
+        if coarse is not None and given < limit:
             given += 1
-            yield head
-            if head[1] is self._coarse_z and given < limit:
+            yield coarse
+            if given < limit and not met:
                 # The coarse plan fell short in the NLP: its choices fixed and refined
                 # (an NLP without smoothing, :meth:`_fixed_start`), then the spec's again.
                 fixed = self._fixed_start()
                 if fixed is not None:
                     given += 1
                     yield fixed
+        if met and problem.solver.polish_s <= 0.0:
+            return  # the stage's plan was the one more start for margin
         for st in guesses:
             if given >= limit:
                 return
@@ -400,35 +415,136 @@ class PlanSearch:
             self._first_guess = (guesses, first, z_first)
         return self._first_guess
 
-    def _first_stage(self) -> tuple[Iterator[Any], list[tuple[str, np.ndarray]]]:
-        """The initial guess's starts and the heads of the multi-start: the guess's first
-        start and, unless it already meets the mission, the combinatorial stage's plan, the
-        better in exact robustness first."""
-        problem, formula = self.problem, self.formula
-        guesses, first, z_first = self._guess()
-        heads = [(first.describe(problem, formula), z_first)]
-        rho_first = self._timed_exact(z_first)
-        if rho_first < problem.epsilon:
-            coarse = self._combinatorial_start()
-            if coarse is not None:
-                self._coarse_z = coarse[1]
-                self._coarse_starts.append(coarse[1])
-                rho_coarse = self._timed_exact(coarse[1])
-                self.say(
-                    f"combinatorial stage: its plan starts at {rho_coarse:+.4f}, the initial "
-                    f"guess at {rho_first:+.4f}"
+    def _start_stage(self) -> None:
+        """Start the combinatorial stage in its thread (:class:`BackgroundStage`), unless the
+        initial guess's start already meets the mission, the stage is off
+        (``solver.coarse_s`` 0) or there is no second start for its plan
+        (``solver.starts`` 1).  It runs while the NLP is built and the guess's start solved;
+        it costs wall time only where that start falls short and the stage is still running
+        when it ends."""
+        problem = self.problem
+        self._rho_first = self._timed_exact(self._guess()[2])
+        if self._rho_first >= problem.epsilon or problem.solver.starts < 2:
+            return
+        budget = coarse_budget_s(problem, self.deadline - time.perf_counter())
+        if budget <= 0.0:
+            return
+        self.say("choosing options, order and timing (combinatorial stage, beside the NLP)")
+        self._stage = BackgroundStage(
+            problem, self.model, self.x0s, budget, on_plan=self._stage_has_plan
+        )
+
+    def _yield_at(self) -> float:
+        """When the guess's first NLP yields to the stage's plan: once the stage has one and
+        the NLP has had as long as the stage's budget (an NLP that meets the mission in that
+        time is never cut, whatever the stage does)."""
+        assert self._stage is not None and self._first_nlp_at is not None
+        return max(time.perf_counter(), self._first_nlp_at + self._stage.budget_s)
+
+    def _stage_has_plan(self) -> None:
+        """From the stage's thread: it has a plan; the guess's NLP, if it runs, yields to it
+        (:meth:`_yield_at`)."""
+        with self._cap_lock:
+            self._stage_plan_at = time.perf_counter()
+            if self._first_nlp_at is not None:
+                self.watch.deadline = min(self.watch.deadline, self._yield_at())
+
+    def _stage_start(self, met: bool) -> tuple[str, np.ndarray] | None:
+        """After the guess's first start: the stage's answer, its plan as the next start, or
+        None.  If that start fell short, the stage is waited for (within the time limit).
+        If it met the mission, the stage may end until the search's margin time is up (see
+        :meth:`_multistart`; stopped then, its best plan so far stands), and its plan is
+        refined only where it promises more margin than the one met (its coarse
+        robustness above that plan's exact one)."""
+        stage = self._stage
+        if stage is None:
+            return None
+        until = min(self.solve_deadline(), self.polish_until)
+        if not stage.done:
+            self.say("waiting for the combinatorial stage")
+            while not stage.wait(0.05):
+                hit = self._sigint is not None and self._sigint.hit
+                if hit or time.perf_counter() >= until:
+                    break
+        if met and not stage.done:
+            assert self.best is not None
+            rho_c = stage.incumbent
+            if not rho_c > self.best.robustness:
+                # its best so far promises no more margin: not waited for any longer
+                # (HiGHS may take a second to stop inside a sub-MIP)
+                so_far = (
+                    "it has no plan yet"
+                    if math.isnan(rho_c)
+                    else f"its best plan so far ({rho_c:+.4f} on the coarse model) promises "
+                    f"no more margin than the plan met ({self.best.robustness:+.4f})"
                 )
-                heads.insert(0 if rho_coarse > rho_first else 1, coarse)
-            elif self.combinatorial is not None and self.combinatorial.conflict is None:
-                r = self.combinatorial.result
+                self.say(f"combinatorial stage: stopped, {so_far}")
+                self._settle_stage(quiet=True)
+                return None
+        stage.stop()  # ended already, or its incumbent stands
+        outcome = stage.outcome()
+        self.combinatorial = outcome
+        if outcome.decision is None:
+            r = outcome.result
+            if outcome.stopped:
+                why = "stopped before it had a plan"
+            elif r.status is CoarseStatus.NOT_ENCODABLE:
+                why = f"the spec is not encodable there: {r.message}"
+            else:
                 why = (
-                    f"the spec is not encodable there: {r.message}"
-                    if r.status is CoarseStatus.NOT_ENCODABLE
-                    else f"{r.status.value} after {r.build_s + r.solve_s:.1f} s, "
+                    f"{r.status.value} after {r.build_s + r.solve_s:.1f} s, "
                     f"{r.num_binaries} binaries"
                 )
-                self.say(f"combinatorial stage: no coarse plan ({why}); the initial guess alone")
-        return guesses, heads
+            if outcome.conflict is None:
+                alone = "the plan met stands" if met else "the initial guess alone"
+                self.say(f"combinatorial stage: no coarse plan ({why}); {alone}")
+            return None
+        rho_c = outcome.result.robustness
+        if met:
+            assert self.best is not None
+            if not rho_c > self.best.robustness:
+                self.say(
+                    f"combinatorial stage: its plan ({rho_c:+.4f} on the coarse model) "
+                    f"promises no more margin than the plan met ({self.best.robustness:+.4f})"
+                )
+                return None
+            # as long again as the search had taken to meet the mission, to refine it
+            self.polish_until = time.perf_counter() + self._margin_s
+        self._coarse_z = outcome.decision
+        self._coarse_starts.append(outcome.decision)
+        rho_coarse = self._timed_exact(outcome.decision)
+        self.say(
+            f"combinatorial stage: its plan ({rho_c:+.4f} on the coarse model) starts at "
+            f"{rho_coarse:+.4f}, the initial guess at {self._rho_first:+.4f}"
+        )
+        return outcome.describe(), outcome.decision
+
+    def _settle_stage(self, quiet: bool = False) -> None:
+        """At the end of the search: a stage still running is stopped (a start met the
+        mission first, or the time is up) and what it did is kept for the statistics.
+        ``quiet``: the progress has said why already."""
+        stage = self._stage
+        if stage is None or self.combinatorial is not None:
+            return
+        if self._stage_stopped and not stage.done:
+            return  # waited for once already
+        if not stage.done:
+            if not (quiet or self._stage_stopped):
+                met = self.best is not None and self.best.robustness >= self.problem.epsilon
+                self.say(
+                    "combinatorial stage: stopped (not needed: the initial guess's start met "
+                    "the mission)"
+                    if met
+                    else "combinatorial stage: stopped"
+                )
+            stage.stop()
+            self._stage_stopped = True
+            # HiGHS ends at its next interrupt check (inside a sub-MIP, up to a second on
+            # the zoo's); a stage that has not ended by then ends in its thread after the
+            # plan is returned, and its figures are not kept
+            if not stage.wait(_STAGE_STOP_WAIT_S):
+                return
+        self.combinatorial = stage.figures()
 
     def _fixed_start(self) -> tuple[str, np.ndarray] | None:
         """The combinatorial stage's choices fixed (:func:`planner.fix_choices.fixed_clauses`)
@@ -470,20 +586,6 @@ class PlanSearch:
         self._coarse_starts.append(z)
         return what, z
 
-    def _combinatorial_start(self) -> tuple[str, np.ndarray] | None:
-        """The combinatorial stage (:func:`planner.milp.coarse_start`): its plan as a start,
-        or None where it does not run or finds none (the reason kept in
-        :attr:`combinatorial`)."""
-        budget = coarse_budget_s(self.problem, self.deadline - time.perf_counter())
-        if budget <= 0.0:
-            return None
-        self.say("choosing options, order and timing (combinatorial stage)")
-        outcome = coarse_start(self.problem, self.model, self.x0s, budget)
-        self.combinatorial = outcome
-        if outcome.decision is None:
-            return None
-        return outcome.describe(), outcome.decision
-
     def attempt(self, w0: np.ndarray, stop: _SigintWatch) -> _Attempt:
         """One start: the maximisation from ``w0`` (with the eq. (1) rounds if asked for)."""
         problem, struct, bounds = self.problem, self.struct, self.bounds
@@ -491,7 +593,14 @@ class PlanSearch:
         say = self.say
         rob_start = self._timed_exact(w0)
         self.watch.deadline = min(self.solve_deadline(), self.polish_until)
-        if self._coarse_z is not None and self.n_starts < problem.solver.starts:
+        if self._stage is not None and self.n_starts == 1:
+            # The guess's first start, the stage beside it: it yields to the stage's plan
+            # once that is ready and it has had as long as the stage's budget.
+            with self._cap_lock:
+                self._first_nlp_at = time.perf_counter()
+                if self._stage_plan_at is not None:
+                    self.watch.deadline = min(self.watch.deadline, self._yield_at())
+        elif self._coarse_z is not None and self.n_starts < problem.solver.starts:
             # With the coarse plan's starts to come, one start may not take all the time
             # left (the allocation mission: the first NLP ran to the limit at -0.70, the
             # fixed choices then met it).
@@ -501,6 +610,8 @@ class PlanSearch:
             )
         refine = rob_start >= problem.epsilon and problem.solver.method is SolverMethod.IPOPT
         run = _run_solvers(struct, w0, bounds, say, problem.solver.method.value, stop, refine)
+        with self._cap_lock:
+            self._first_nlp_at = None
         if self.watch.stopped and time.perf_counter() < min(
             self.solve_deadline(), self.polish_until
         ):
@@ -592,31 +703,51 @@ class PlanSearch:
                 # Met: more starts for a larger margin only within the polish budget (the
                 # solver stops at its end like at the time limit; the best plan stands).
                 met_at = time.perf_counter()
-                self.polish_until = met_at + problem.solver.polish_s
+                self._margin_s = problem.solver.polish_s
+                if self._stage is not None and self.n_starts == 1:
+                    # the stage beside the guess's start: as long again as the search took
+                    # to meet the mission, for the margin its plan may add (_stage_start)
+                    self._margin_s = max(self._margin_s, met_at - self.t_start)
+                self.polish_until = met_at + self._margin_s
         assert spent is not None
         return spent
 
     def run(self, initial_guess: np.ndarray | None = None) -> PlanResult:
-        """Build, try the starts, refine the best, check it: the :class:`PlanResult`."""
-        if initial_guess is None:
-            self.say("drawing the initial guess")
-            self._guess()
-        self._build_t0 = time.perf_counter()
+        """Build, try the starts, refine the best, check it: the :class:`PlanResult`.
+
+        One search runs at a time in a process (:data:`_PLAN_LOCK`): CasADi releases the
+        GIL in its calls, and its shared state (the sparsity patterns, a Function's
+        memory) is not safe from two threads at once.  Plans in parallel take processes
+        (``gcs assess`` on Ray)."""
+        with _PLAN_LOCK:
+            return self._locked_run(initial_guess)
+
+    def _locked_run(self, initial_guess: np.ndarray | None) -> PlanResult:
         try:
-            self._build()
-        except BuildTimeout as exc:
-            return self._unbuilt(initial_guess, str(exc))
-        struct = self.struct
-        with struct.lock, _watch_sigint() as stop:
-            self.watch.deadline = self.deadline
-            self.watch.iterations = 0
-            self.watch.stopped = False
-            self.watch.on_iteration = self._on_iteration
-            self._next_progress = time.perf_counter() + self.progress_every_s
+            if initial_guess is None:
+                self.say("drawing the initial guess")
+                self._guess()
+                self._start_stage()
+            self._build_t0 = time.perf_counter()
             try:
-                return self._run(initial_guess, stop)
-            finally:
-                self.watch.on_iteration = None
+                self._build()
+            except BuildTimeout as exc:
+                return self._unbuilt(initial_guess, str(exc))
+            struct = self.struct
+            with struct.lock, _watch_sigint() as stop:
+                self._sigint = stop
+                self.watch.deadline = self.deadline
+                self.watch.iterations = 0
+                self.watch.stopped = False
+                self.watch.on_iteration = self._on_iteration
+                self._next_progress = time.perf_counter() + self.progress_every_s
+                try:
+                    return self._run(initial_guess, stop)
+                finally:
+                    self.watch.on_iteration = None
+        finally:
+            if self._stage is not None:
+                self._stage.stop()  # ended already, unless an error came out of the search
 
     def _run(self, initial_guess: np.ndarray | None, stop: _SigintWatch) -> PlanResult:
         problem, formula, say = self.problem, self.formula, self.say
@@ -700,6 +831,7 @@ class PlanSearch:
     ) -> PlanResult:
         """Check the plan at ``w_opt`` on dense samples: the :class:`PlanResult`."""
         problem, formula, formulas = self.problem, self.formula, self.formulas
+        self._settle_stage()
         self.say("checking on dense samples")
         struct = getattr(self, "struct", None)  # None: the time limit came in the build
         # The smooth value at the point returned (r itself may sit on a bound, eq. (1)).
@@ -791,6 +923,11 @@ class PlanSearch:
         )
 
 
+#: Held by a search while it runs (:meth:`PlanSearch.run`; re-entrant: the fixed choices
+#: search runs inside its parent's).
+_PLAN_LOCK = threading.RLock()
+#: How long the end of a search waits for a stopped combinatorial stage to end (s).
+_STAGE_STOP_WAIT_S = 0.2
 #: The share of the time left one start may take while the coarse plan's starts remain.
 _START_SHARE = 0.5
 #: Evaluations of the clauses the final check costs (the result's, the start bound's, and

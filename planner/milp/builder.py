@@ -13,6 +13,7 @@ import os
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -137,8 +138,17 @@ class MilpBuilder:
         *,
         time_limit_s: float,
         mip_rel_gap: float = 1e-4,
+        stop: threading.Event | None = None,
+        on_incumbent: Callable[[float], None] | None = None,
+        cpu_until: float | None = None,
     ) -> HighsOutcome:
-        """Maximise ``sum cost[j] x[j]`` with HiGHS (one thread, quiet) under a time limit."""
+        """Maximise ``sum cost[j] x[j]`` with HiGHS (one thread, quiet) under a time limit;
+        ``stop``: once set (from another thread), HiGHS ends at its next interrupt check with
+        the incumbent it has (status ``kInterrupt``); ``on_incumbent``: called (in HiGHS's
+        thread) with the objective of each better incumbent HiGHS finds; ``cpu_until``: HiGHS
+        also stops (status ``kTimeLimit``) once the calling thread's CPU time
+        (``time.thread_time()``) passes this: a budget of work that does not shrink when the
+        thread shares its cores."""
         import highspy
         from scipy.sparse import csr_matrix
 
@@ -176,6 +186,32 @@ class MilpBuilder:
                 highspy.HighsVarType.kInteger if i else highspy.HighsVarType.kContinuous
                 for i in integer
             ]
+        # One HiGHS at a time in the process: two instances running in two threads share
+        # its task scheduler and corrupt the heap (a plan's combinatorial stage runs in a
+        # thread; two plans in two threads crashed in a few runs without this lock)
+        while not _HIGHS_LOCK.acquire(timeout=0.05):
+            waited = time.perf_counter() - t_setup
+            if (stop is not None and stop.is_set()) or waited >= time_limit_s:
+                why = "kInterrupt" if stop is not None and stop.is_set() else "kTimeLimit"
+                return HighsOutcome(why, False, math.nan, math.inf, np.zeros(0), waited, 0.0, 0)
+        try:
+            return self._run(highspy, lp, integer, t_setup, time_limit_s, mip_rel_gap,
+                             stop, on_incumbent, cpu_until)  # fmt: skip
+        finally:
+            _HIGHS_LOCK.release()
+
+    def _run(
+        self,
+        highspy: Any,
+        lp: Any,
+        integer: np.ndarray,
+        t_setup: float,
+        time_limit_s: float,
+        mip_rel_gap: float,
+        stop: threading.Event | None,
+        on_incumbent: Callable[[float], None] | None,
+        cpu_until: float | None,
+    ) -> HighsOutcome:
         h = _quiet_highs(highspy)
         h.setOptionValue("output_flag", False)
         h.setOptionValue("threads", 1)
@@ -190,6 +226,25 @@ class MilpBuilder:
         # 15.6 -> 8.5 s; mutual exclusion 5.2 -> 3.3 s; stepping stones 1.0 -> 1.7 s)
         h.setOptionValue("presolve", "off")
         h.passModel(lp)
+        out_of_cpu = False
+        if stop is not None or cpu_until is not None:
+
+            def interrupt(event: Any) -> None:
+                nonlocal out_of_cpu
+                if stop is not None and stop.is_set():
+                    event.interrupt()
+                elif cpu_until is not None and time.thread_time() > cpu_until:
+                    out_of_cpu = True
+                    event.interrupt()
+
+            h.cbSimplexInterrupt += interrupt
+            h.cbMipInterrupt += interrupt
+        if on_incumbent is not None:
+
+            def improved(event: Any) -> None:
+                on_incumbent(float(event.data_out.objective_function_value))
+
+            h.cbMipImprovingSolution += improved
         t0 = time.perf_counter()
         setup_s = t0 - t_setup
         h.setOptionValue("time_limit", max(float(time_limit_s) - setup_s, 1e-3))
@@ -201,6 +256,8 @@ class MilpBuilder:
         obj = float(info.objective_function_value) if has else math.nan
         bound = float(info.mip_dual_bound) if integer.any() else obj
         name = str(h.getModelStatus()).rsplit(".", 1)[-1]
+        if name == "kInterrupt" and out_of_cpu:
+            name = "kTimeLimit"  # the budget of CPU time
         return HighsOutcome(
             status=name,
             has_solution=has,
@@ -239,3 +296,5 @@ def _quiet_highs(highspy: Any) -> Any:
 
 
 _BANNER_LOCK = threading.Lock()
+#: Held while a HiGHS instance exists and runs (:meth:`MilpBuilder.solve`).
+_HIGHS_LOCK = threading.Lock()

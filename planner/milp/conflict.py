@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import threading
 import time
 from dataclasses import dataclass
 
@@ -50,6 +51,7 @@ def find_conflict(
     time_limit_s: float = 10.0,
     per_solve_s: float = 2.0,
     dt_c: float | None = None,
+    stop: threading.Event | None = None,
 ) -> Conflict | None:
     """An irreducible set of clauses with no coarse path of robustness >= ``problem.epsilon``.
 
@@ -62,7 +64,7 @@ def find_conflict(
 
     Returns:
         The conflict, or None when the whole spec is not proven infeasible (a coarse path
-        meets it, or the time ran out first).
+        meets it, or the time ran out first, or ``stop`` was set from another thread).
     """
     if not (time_limit_s > 0 and per_solve_s > 0):
         raise ValueError("time_limit_s and per_solve_s must be positive")
@@ -72,7 +74,7 @@ def find_conflict(
 
     def check(keep: list[int], budget: float) -> bool | None:
         res = solve_coarse(problem, time_limit_s=budget, dt_c=dt, clauses=keep, min_robustness=eps,
-                           cover=False)  # fmt: skip
+                           cover=False, stop=stop)  # fmt: skip
         return _infeasible(res, eps)
 
     solves = 1
@@ -82,7 +84,7 @@ def find_conflict(
     irreducible = True
     for i in list(keep):
         left = time_limit_s - (time.perf_counter() - t0)
-        if left <= 0:
+        if left <= 0 or (stop is not None and stop.is_set()):
             irreducible = False
             break
         trial = [j for j in keep if j != i]

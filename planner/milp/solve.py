@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import enum
 import math
+import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -158,6 +159,9 @@ def solve_coarse(
     mip_rel_gap: float = 1e-4,
     sample_budget: int = SAMPLE_BUDGET,
     cover: bool = True,
+    stop: threading.Event | None = None,
+    on_incumbent: Callable[[float], None] | None = None,
+    cpu_until: float | None = None,
 ) -> CoarseResult:
     """Maximise the spec's robustness on the coarse model with HiGHS, under a time limit.
 
@@ -183,6 +187,12 @@ def solve_coarse(
         cover: an ``always`` holds over the coarse steps that cover its window (the straight
             legs between samples then keep a convex predicate throughout; the default), not
             only at the steps inside it (:mod:`planner.milp.encode`).
+        stop: once set (from another thread), HiGHS stops with the incumbent it has (the
+            result then says ``HiGHS: kInterrupt`` in its message).
+        on_incumbent: called (from HiGHS's thread) with the robustness of each better
+            incumbent, as HiGHS finds it.
+        cpu_until: HiGHS also stops when the calling thread's CPU time
+            (``time.thread_time()``) passes this (a budget of work, as a time limit).
 
     Returns:
         :class:`CoarseResult`; ``waypoints_enu_m[name]`` is (N + 1, 3) ENU metres at
@@ -245,8 +255,14 @@ def solve_coarse(
         )  # fmt: skip
     builder.cost[int(rho[0])] = 1.0
     build_s = time.perf_counter() - t0
+    if stop is not None and stop.is_set():
+        return result(CoarseStatus.NO_SOLUTION, notes=notes, message="stopped before HiGHS ran")
     out = builder.solve(
-        time_limit_s=max(0.05, float(time_limit_s) - build_s), mip_rel_gap=mip_rel_gap
+        time_limit_s=max(0.05, float(time_limit_s) - build_s),
+        mip_rel_gap=mip_rel_gap,
+        stop=stop,
+        on_incumbent=on_incumbent,
+        cpu_until=cpu_until,
     )
     if out.status == "kOptimal" and out.has_solution:
         status = CoarseStatus.OPTIMAL
@@ -275,5 +291,7 @@ def solve_coarse(
         solve_s=out.solve_s + polish_s,
         notes=notes,
         nodes=out.nodes,
-        message="" if status is not CoarseStatus.NO_SOLUTION else f"HiGHS: {out.status}",
+        message=""
+        if status is not CoarseStatus.NO_SOLUTION and out.status != "kInterrupt"
+        else f"HiGHS: {out.status}",
     )

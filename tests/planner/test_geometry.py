@@ -244,11 +244,14 @@ def test_a_route_that_must_stay_on_stepping_stones_hops_between_them() -> None:
 @pytest.mark.parametrize("spelling", ["regions", "halfplanes"])
 def test_stepping_stones_plans_near_the_certified_optimum_in_both_spellings(spelling) -> None:
     data = yaml.safe_load((_ZOO / f"stlpy_stepping_stones_{spelling}.yaml").read_text())
+    # time for the stage's plan after a start that meets the mission (on a busy machine as
+    # long again as that took may not be enough for the stage to end)
+    data.setdefault("solver", {}).update(polish_s=30.0, starts=2)
     res = plan(parse_scenario(data, "ss.yaml"))
     assert res.success, res.status
     assert res.robustness >= 0.75 * 0.05272  # of stlpy's certified MILP optimum (0.8: 0.0422)
     # the route over the stones is the combinatorial stage's choice (the initial guess's
     # nearest stones left the regions spelling at 0.0004: a local optimum)
-    assert "start 1 of 1: the combinatorial stage's plan (optimal" in res.status
+    assert "of 2: the combinatorial stage's plan (optimal" in res.status
     assert res.stats is not None and res.stats.coarse is not None
     assert res.stats.coarse["robustness"] == pytest.approx(0.05272, abs=5e-5)

@@ -28,9 +28,11 @@ def _zoo(name: str, **solver: Any) -> Problem:
 def test_the_coarse_plan_starts_the_nlp_where_it_beats_the_guess() -> None:
     # The door puzzle (regions): the nearest keys first leave the guess's plan at 0.23; the
     # MILP opens the doors in the right order (its optimum 0.4 on the coarse model, stlpy's
-    # certified 0.4), and the NLP keeps most of it.
+    # certified 0.4), and the NLP keeps most of it.  The guess's start meets the mission, so
+    # the stage's plan is tried for margin within solver.polish_s (or as long again as the
+    # search took to meet it, which on a busy machine may not be enough for the stage).
     guess_only = plan(_zoo("stlpy_door_puzzle_regions", coarse_s=0.0))
-    both = plan(_zoo("stlpy_door_puzzle_regions", coarse_s=30.0))
+    both = plan(_zoo("stlpy_door_puzzle_regions", coarse_s=30.0, polish_s=30.0, starts=2))
     assert guess_only.success and both.success, (guess_only.status, both.status)
     assert guess_only.stats is not None and guess_only.stats.coarse is None
     assert both.stats is not None and both.stats.coarse is not None
@@ -120,3 +122,78 @@ def test_a_stage_without_a_coarse_plan_says_why(tmp_path: Path) -> None:
     assert "not encodable" in lines[0] and "a product of two signals" in lines[0]
     assert res.stats is not None and res.stats.coarse is not None
     assert res.stats.coarse["status"] == "not encodable"
+
+
+def test_the_stage_runs_beside_the_build_and_the_guess_start() -> None:
+    """The combinatorial stage starts before the NLP is built and runs in its own thread;
+    a guess that falls short (the allocation mission: every drone leaves every pole to the
+    others) waits for it and then plans from its plan."""
+    said: list[str] = []
+    res = plan(_zoo("powerline_alloc6_3drones"), progress=said.append, time_limit_s=60.0)
+    assert res.success, res.status
+    stage = said.index("choosing options, order and timing (combinatorial stage, beside the NLP)")
+    build = next(i for i, s in enumerate(said) if s.startswith("building the NLP"))
+    assert stage < build, said
+    assert "the combinatorial stage's" in res.status  # its plan, or its choices refined
+    assert res.stats is not None and res.stats.coarse is not None
+    assert res.stats.coarse["status"] in ("optimal", "feasible")
+
+
+def _reach_avoid(n: int) -> Problem:
+    return load_scenario(ROOT / "configs" / "reach_avoid.yaml", vehicles=n)
+
+
+def test_a_stopped_stage_ends_promptly_and_keeps_its_incumbent() -> None:
+    """Stopped from another thread, HiGHS ends at its next interrupt check with the best
+    plan it has; that plan is the start made (marked stopped), and the incumbent the stage
+    reported while it ran is no better than it."""
+    import time
+
+    from planner.coarse_start import BackgroundStage
+    from planner.optimize import PlanSearch
+
+    problem = _reach_avoid(4)  # no proof of optimality in 20 s: the bound stays at 0.3
+    search = PlanSearch(problem)
+    stage = BackgroundStage(problem, search.model, search.x0s, 20.0)
+    t0 = time.perf_counter()
+    while np.isnan(stage.incumbent) and time.perf_counter() - t0 < 15.0:
+        time.sleep(0.05)
+    assert not np.isnan(stage.incumbent), "no incumbent in 15 s"
+    seen = stage.incumbent
+    t_stop = time.perf_counter()
+    stage.stop()
+    outcome = stage.outcome()
+    assert time.perf_counter() - t_stop < 5.0  # not the 20 s budget
+    assert outcome.stopped and outcome.conflict is None
+    assert outcome.decision is not None
+    assert outcome.result.robustness >= seen - 1e-9
+    assert outcome.result.robustness >= problem.epsilon - 1e-9  # a constraint of the program
+    assert outcome.summary()["stopped"] is True
+    assert "kInterrupt" in outcome.result.message
+
+
+def test_two_coarse_programs_in_two_threads_agree_with_each_alone() -> None:
+    """HiGHS instances in two threads at once corrupted the heap; the builder runs one at a
+    time, so two stages in two threads give what each gives alone."""
+    from planner.milp import solve_coarse
+
+    problem = _zoo("stlpy_stepping_stones_regions")  # optimal in about 2 s
+
+    def solve() -> Any:
+        return solve_coarse(problem, time_limit_s=60.0, min_robustness=problem.epsilon)
+
+    alone = solve()
+    got: list[Any] = [None, None]
+
+    def run(i: int) -> None:
+        got[i] = solve()
+
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=300)
+    assert alone.status.value == "optimal"
+    for r in got:
+        assert r is not None and r.status is alone.status
+        assert r.robustness == pytest.approx(alone.robustness, abs=1e-9)
