@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: test test-fast demo lint typecheck venv clean
+.PHONY: test test-fast demo lint typecheck docs docs-check venv clean
 
 venv: $(STAMP)
 
@@ -22,18 +22,27 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
+# The docs as a site (mkdocs-material, README.md as its home page) into site/, offline;
+# docs-check builds it strictly (a broken link or page fails) into a scratch folder.
+export NO_MKDOCS_2_WARNING := 1
+docs: $(STAMP)
+	$(BIN)/mkdocs build --strict
+
+docs-check: $(STAMP)
+	d=$$(mktemp -d); $(BIN)/mkdocs build --strict --site-dir $$d; rc=$$?; rm -rf $$d; exit $$rc
+
 # Two workers: most tests wait on real-time flights (the machine
 # idles), so two at a time halve the wall time without crowding the CPU.
-test: $(STAMP) lint typecheck
+test: $(STAMP) lint typecheck docs-check
 	$(BIN)/python -m pytest -q -n 2 --dist load
 
 # The fast tier: everything but the tests marked slow (real-time flights and transfers over
 # UDP, the calibration flights); for the edit-test loop, not for CI.
-test-fast: $(STAMP) lint typecheck
+test-fast: $(STAMP) lint typecheck docs-check
 	$(BIN)/python -m pytest -q -n 2 --dist load -m "not slow"
 
 demo: $(STAMP)
 	$(BIN)/gcs demo
 
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build site *.egg-info

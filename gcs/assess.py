@@ -19,7 +19,7 @@ safety monitor of ``gcs fly`` (:meth:`mavlink.monitor.SafetyMonitor.evaluate_run
 simulator), which may stop a run; the statistics then say how often it stopped the flight,
 why, and whether the stops were needed (:class:`gcs.assess_stats.MonitorSummary`).
 
-Layering (DESIGN.md section 2): the simulator is the mock's; the orchestration, the
+Layering (docs/architecture.md, "The parts and their direction"): the simulator is the mock's; the orchestration, the
 statistics and the report are here; the statistics are in :mod:`gcs.assess_stats`.
 """
 

@@ -9,7 +9,7 @@ Each subcommand lives in ``gcs/commands/<name>.py`` and exposes::
 Only subcommands whose module exists are offered, so ``gcs --help`` never
 lists a command that does not work.
 
-Exit statuses (DESIGN.md section 9, one meaning each; :mod:`gcs.errors`): 0 ok, 1 a check
+Exit statuses (docs/architecture.md, "The gcs command", one meaning each; :mod:`gcs.errors`): 0 ok, 1 a check
 failed or the mission was not met, 2 bad user input, 3 a vehicle or its link failed (a refused
 command, a lost link), 130 interrupted.  User errors are exceptions derived from
 :class:`gcs.errors.UserError` or the packages' own input errors
@@ -40,7 +40,7 @@ from gcs.errors import (
     format_user_error,
 )
 
-#: Subcommands in the order ``gcs --help`` lists them (DESIGN.md section 9).
+#: Subcommands in the order ``gcs --help`` lists them (docs/architecture.md, "The gcs command").
 COMMAND_NAMES: tuple[str, ...] = (
     "plan",
     "verify",

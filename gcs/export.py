@@ -103,7 +103,7 @@ __all__ = [
 #: Columns of the setpoint CSV.
 CSV_COLUMNS = ("t", "vehicle", "x", "y", "z", "vx", "vy", "vz", "ax", "ay", "az", "yaw")
 
-#: Default setpoint rate: the offboard streaming default (DESIGN.md section 7).
+#: Default setpoint rate: the offboard streaming default (docs/architecture.md, "The MAVLink side").
 DEFAULT_RATE_HZ = 20.0
 
 # QGroundControl plan format constants.

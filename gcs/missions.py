@@ -3,7 +3,7 @@
 :func:`mavlink.mission.trajectory_to_mission` turns a trajectory into straight legs, each
 commanded at its average speed. PX4 does not fly those at constant speed: it accelerates
 and brakes within MPC_ACC_HOR / MPC_JERK_AUTO, slows for corners and stops before holds,
-and lags its own setpoint by the drag (PX4-BEHAVIOUR.md: with a 1 m acceptance radius the
+and lags its own setpoint by the drag (docs/px4-behaviour.md: with a 1 m acceptance radius the
 power-line missions finished 5.5-8.5 s late). :func:`convert_plan`
 
 1. chooses the acceptance radius (:func:`auto_acceptance_m`) unless the user gave one;

@@ -1,6 +1,6 @@
 """Fly a plan in PX4 offboard mode: every vehicle streams its own trajectory, all in step.
 
-:func:`fly_offboard` does, in order (DESIGN.md sections 3 and 7):
+:func:`fly_offboard` does, in order (docs/architecture.md, "Frames and units" and "From a scenario file to UDP bytes"):
 
 1. learns each vehicle's EKF origin (GPS_GLOBAL_ORIGIN) and transforms the
    vehicle's trajectory from the mission ENU frame into its own local NED

@@ -64,7 +64,7 @@ class OffboardConfig:
         takeoff_margin_m: a start must be this much more than NAV_MC_ALT_RAD above the
             vehicle for a take-off: PX4 counts a take-off within NAV_MC_ALT_RAD as reached
             at once, and below ~1 m the ground-effect creep of its altitude estimate keeps
-            the vehicle on the ground (PX4-BEHAVIOUR.md).
+            the vehicle on the ground (docs/px4-behaviour.md).
         takeoff_timeout_s: time allowed to be airborne near the start after takeoff.
         drag_per_s: the vehicles' drag per unit mass (1/s; one for all or per vehicle name),
             added to the acceleration feed-forward (:func:`plan_setpoints_ned`); 0: none.

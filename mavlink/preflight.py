@@ -23,7 +23,7 @@ from mavlink.vehicle import Vehicle, VehicleStatus
 from planner.frames import GeodeticPoint, ned_to_enu
 
 #: How far above NAV_MC_ALT_RAD a start must be for a take-off from the ground (m): PX4
-#: counts a take-off within NAV_MC_ALT_RAD as reached at once (PX4-BEHAVIOUR.md).
+#: counts a take-off within NAV_MC_ALT_RAD as reached at once (docs/px4-behaviour.md).
 TAKEOFF_MARGIN_M = 0.2
 
 
@@ -73,7 +73,7 @@ async def check_takeoff_height(v: Vehicle, start_alt_amsl_m: float, margin_m: fl
     PX4 counts a take-off (and a mission's take-off item: ``MissionBase::checkClimbRequired``)
     within NAV_MC_ALT_RAD of the vehicle as reached at once, and below about 1 m its altitude
     estimate creeps up in ground effect while the vehicle sits on the ground
-    (PX4-BEHAVIOUR.md: such starts stayed on the ground, then were auto-disarmed).
+    (docs/px4-behaviour.md: such starts stayed on the ground, then were auto-disarmed).
 
     Raises:
         PreflightError: the start is less than NAV_MC_ALT_RAD + ``margin_m`` above the

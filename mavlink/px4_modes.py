@@ -1,4 +1,4 @@
-"""PX4 flight modes as carried in MAVLink (DESIGN.md section 7).
+"""PX4 flight modes as carried in MAVLink (docs/architecture.md, "The MAVLink side").
 
 PX4 puts its mode in ``HEARTBEAT.custom_mode`` as ``(main << 16) | (sub << 24)``;
 the low 16 bits are zero. Main modes: MANUAL 1, ALTCTL 2, POSCTL 3, AUTO 4,

@@ -24,7 +24,7 @@ import numpy as np
 
 from mavlink.errors import StreamError
 
-#: Highest stream rate accepted (DESIGN.md section 7: configurable up to 100 Hz).
+#: Highest stream rate accepted (docs/architecture.md, "The MAVLink side": configurable up to 100 Hz).
 MAX_RATE_HZ = 100.0
 #: Lowest rate PX4 accepts for offboard (it needs > 2 Hz).
 MIN_RATE_HZ = 2.0

@@ -1,4 +1,4 @@
-"""Connection URLs (DESIGN.md section 7) and the multi-vehicle port convention.
+"""Connection URLs (docs/architecture.md, "The MAVLink side") and the multi-vehicle port convention.
 
 Accepted forms, checked before anything is opened::
 

@@ -18,7 +18,7 @@ that ``planner.trajectory`` users do not pay for CasADi):
 * :mod:`planner.heading`: the heading the spec's ``face`` asks for, derived from a plan (a yaw
   schedule); :mod:`planner.captures`: the windows in which a plan faces its targets (where a
   flight takes pictures).
-* :mod:`planner.planfile`: ``save_plan``, ``load_plan`` (DESIGN.md section 6).
+* :mod:`planner.planfile`: ``save_plan``, ``load_plan`` (docs/scenario-format.md, "Plan files").
 * :mod:`planner.stl`, :mod:`planner.dynamics`, :mod:`planner.trajectory`,
   :mod:`planner.frames`: the STL engine, motion models, trajectories and frames.
 

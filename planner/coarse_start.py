@@ -1,4 +1,4 @@
-"""The combinatorial stage as the NLP's first start (DESIGN.md section 5, "Two stages").
+"""The combinatorial stage as the NLP's first start (docs/solver-notes.md, "Two stages").
 
 :func:`coarse_start` runs :func:`planner.milp.solve_coarse` within a budget: the mixed-integer
 program on a coarse model of the vehicles chooses the discrete structure of the spec (which

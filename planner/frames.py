@@ -1,6 +1,6 @@
 """Frame conversions between the mission ENU frame, vehicles' local NED frames and geodetic.
 
-DESIGN.md section 3: the mission frame is local ENU (m) at the scenario's geodetic
+docs/architecture.md, "Frames and units": the mission frame is local ENU (m) at the scenario's geodetic
 origin; each vehicle flies in its own local NED frame whose origin is its EKF origin
 (for PX4 SITL: where it was spawned), which in general differs from the mission origin.
 A mission-frame point is therefore taken to geodetic with the mission origin and back

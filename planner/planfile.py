@@ -1,4 +1,4 @@
-"""Plan files (DESIGN.md section 6, contract): JSON written by ``gcs plan``, read by the rest.
+"""Plan files (docs/scenario-format.md, "Plan files", contract): JSON written by ``gcs plan``, read by the rest.
 
 Layout (the contract's keys, plus extensions that make a plan self-contained for
 ``gcs verify``: ``success``, ``epsilon``, ``separation_m``, ``horizon_s``, ``check_dt_s``,
@@ -178,7 +178,7 @@ def _region_json(r: Region) -> dict[str, Any]:
 
 
 def plan_to_json(plan: Plan) -> dict[str, Any]:
-    """The plan as the JSON object of DESIGN.md section 6 (plus extensions)."""
+    """The plan as the JSON object of docs/scenario-format.md, "Plan files" (plus extensions)."""
     vehicles = []
     for v in plan.vehicles:
         sp = v.trajectory.sample(1.0 / plan.sample_dt_s)

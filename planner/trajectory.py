@@ -21,7 +21,7 @@ time does not depend on which other times are queried.  ``YawMode.SCHEDULE`` fol
 (times and headings, linear in between along the shorter turn): the heading the spec's
 ``face`` asks for (:mod:`planner.heading`).
 
-Serialisation (the plan file's ``"segments"``, DESIGN.md section 6):
+Serialisation (the plan file's ``"segments"``, docs/scenario-format.md, "Plan files"):
 :meth:`Trajectory.to_segments` gives JSON-ready lists of Python floats, one dict per
 segment::
 

@@ -1,4 +1,4 @@
-"""The layers of DESIGN.md section 2, read from every module's imports (nested ones too):
+"""The layers of docs/architecture.md, "The parts and their direction", read from every module's imports (nested ones too):
 planner -> mavlink -> gcs, nothing running back up; mavlink uses of planner only its
 trajectories, frames and STL engine; gcs's flight code no command module."""
 

@@ -1,4 +1,4 @@
-"""``gcs plan SCENARIO.yaml``: plan trajectories and write the plan file (DESIGN.md section 6).
+"""``gcs plan SCENARIO.yaml``: plan trajectories and write the plan file (docs/scenario-format.md, "Plan files").
 
 Prints a progress line while solving, then a summary table (per vehicle: path length, max
 speed, max acceleration, limits; per top-level clause: robustness), or with ``--json`` one
@@ -44,8 +44,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--coarse-s",
         type=float,
         metavar="S",
-        help="budget of the combinatorial stage (a MILP that chooses options, allocation, "
-        "order and timing before the NLP; overrides solver.coarse_s, 5; 0: off)",
+        help="CPU seconds of the combinatorial stage (a MILP that chooses options, allocation, "
+        "order and timing, beside the NLP; overrides solver.coarse_s, 5; 0: off)",
     )
     p.add_argument(
         "--solver",

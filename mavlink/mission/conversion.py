@@ -1,7 +1,7 @@
 """Trajectories as PX4 missions: the items of a plan, and the straight-leg path they fly.
 
 PX4 has no local-frame mission items, so a vehicle's mission-frame trajectory
-becomes global ``*_INT`` items (DESIGN.md section 7):
+becomes global ``*_INT`` items (docs/architecture.md, "The MAVLink side"):
 
 * ``NAV_TAKEOFF`` to the start point (lat/lon/alt AMSL of the plan's start);
 * a ``NAV_WAYPOINT`` at the start (its hold time is the plan's initial hover);
@@ -38,7 +38,7 @@ The mission flies straight legs at constant speed: :class:`PiecewiseLinearPath`
 is that path as a function of time (knots at the segment boundaries, so it
 meets the plan exactly at every waypoint). :func:`path_deviation` measures how
 far it strays from the planned trajectory and :func:`path_robustness`
-evaluates the exact STL robustness of the paths (DESIGN.md section 4), so the
+evaluates the exact STL robustness of the paths (docs/stl.md, "Semantics"), so the
 mission can be judged before it is flown.
 
 A room of its own because it is pure computation: it speaks to no vehicle.

@@ -129,7 +129,7 @@ def _same_yaw(a: float, b: float) -> bool:
 
 
 def _stored_alike(sent: MissionItem, name: str, a: float, b: float) -> bool:
-    """Whether field ``name`` read back as ``b`` is what PX4 stores for ``a`` (PX4-BEHAVIOUR.md).
+    """Whether field ``name`` read back as ``b`` is what PX4 stores for ``a`` (docs/px4-behaviour.md).
 
     PX4 v1.17 (``mavlink_mission.cpp``) keeps of a FENCE item only command, frame, position
     and the vertex count (``(uint16_t)(param1 + 0.5)``) or radius; of a RALLY item no params;

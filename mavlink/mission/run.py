@@ -59,7 +59,7 @@ async def start_mission_confirmed(
 
     PX4 acknowledges a mode change before its commander decides on it: right after an upload
     it answers ACCEPTED and ~12 ms later TEMPORARILY_REJECTED, and stays in its mode
-    (PX4-BEHAVIOUR.md). So a start counts only when the heartbeat shows AUTO.MISSION and
+    (docs/px4-behaviour.md). So a start counts only when the heartbeat shows AUTO.MISSION and
     armed; a late rejection or a mode that does not change within ``mode_wait_s`` (PX4
     heartbeats come at 1 Hz) is retried until ``timeout_s`` (re-arming a vehicle that
     disarmed meanwhile). A heartbeat after the start that shows AUTO.MISSION but disarmed is
@@ -200,7 +200,7 @@ def _heard_since(st: VehicleStatus, t: float) -> bool:
 
 @dataclass(frozen=True, slots=True)
 class MissionRun:
-    """What a vehicle reported while flying its mission (PX4's way: PX4-BEHAVIOUR.md).
+    """What a vehicle reported while flying its mission (PX4's way: docs/px4-behaviour.md).
 
     PX4 reports in MISSION_ITEM_REACHED the last item *processed* (a DO item that follows a
     waypoint overwrites the waypoint's report) and re-sends it about once a second; progress

@@ -4,7 +4,7 @@ A :class:`MockFleet` simulates ``n`` PX4 quad-rotors in one process: real
 MAVLink 2 bytes (pymavlink, common dialect) over real UDP sockets, with PX4's
 ports and system ids (vehicle ``i``: sysid ``i + 1``, listens on ``14580 + i``,
 sends to ``14540 + i``), so MAVSDK, QGroundControl and MAVProxy treat each one
-as a PX4 autopilot.  See DESIGN.md section 8 for what it implements.
+as a PX4 autopilot.  See docs/architecture.md, "The mock vehicle" for what it implements.
 
 By default the vehicles behave like PX4 v1.17 SITL with its SIH quad-rotor (the ``px4``
 profile: drag, PX4's cascade on a biased estimate, PX4's take-off, navigator, mission

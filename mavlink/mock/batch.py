@@ -8,7 +8,7 @@ code as the real-time mock vehicle (``gcs mock``, ``gcs fly --dry-run``), set up
 PX4 parameters by the same functions (:func:`mavlink.mock.parameters.apply_controller_params`,
 :func:`~mavlink.mock.parameters.mode_limits`, :meth:`FleetEstimator.configure`).
 
-What a run flies is what ``gcs fly`` streams in offboard mode (DESIGN.md section 7): the plan
+What a run flies is what ``gcs fly`` streams in offboard mode (docs/architecture.md, "The MAVLink side"): the plan
 sampled at ``rate_hz`` into local-NED setpoints by :func:`mavlink.offboard_setpoints.plan_setpoints_ned`
 (position, velocity and acceleration with the drag fed forward, yaw), preceded by the start
 setpoint for ``settle_s`` (the pre-stream and the arrival gate).  The setpoint link is modelled
@@ -76,7 +76,7 @@ class PlannedVehicleLike(Protocol):
 
 class PlanLike(Protocol):
     """What the simulator reads of a plan (:class:`planner.planfile.Plan`; the link layer
-    does not import the plan file, DESIGN.md section 2)."""
+    does not import the plan file, docs/architecture.md, "The parts and their direction")."""
 
     @property
     def origin(self) -> GeodeticPoint: ...

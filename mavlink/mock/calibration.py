@@ -1,6 +1,6 @@
 """What PX4 v1.17 SITL (SIH quad-rotor) measured, for calibrating the mock's ``px4`` profile.
 
-The figures of ``shared/PX4-BEHAVIOUR.md``, flown by stl-gcs (``gcs fly``, offboard) on
+The figures of ``docs/px4-behaviour.md``, flown by stl-gcs (``gcs fly``, offboard) on
 PX4 SITL: per scenario, the range over vehicles and flights of the best-fit lag (the delay
 that best aligns flown and planned tracks) and of the tracking error's rms, with SIH's
 drag (SIH_KDV = 1) and without it.  ``tests/gcs/test_px4_calibration.py`` asserts the

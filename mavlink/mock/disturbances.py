@@ -5,7 +5,7 @@ each run under disturbances drawn from distributions the user may set: the wind,
 estimate's errors, where a vehicle really stands when the plan starts, the setpoint link,
 and how much of its speed and acceleration a vehicle has.  Each disturbance has a name, a unit,
 a range it must stay in, whether it is drawn once per run or per vehicle, and a default that
-stands for a calm day with a PX4 quad-rotor on SIH (``shared/PX4-BEHAVIOUR.md``).
+stands for a calm day with a PX4 quad-rotor on SIH (``docs/px4-behaviour.md``).
 
 A distribution is written as ``const(X)`` (or just ``X``), ``uniform(A, B)``,
 ``normal(MEAN, SD)`` (clipped to the disturbance's range) or ``triangular(A, MODE, B)``.

@@ -1,7 +1,7 @@
 """What the mock vehicles believe about themselves: a PX4-in-SIH-like state estimate.
 
 PX4 flies on its EKF2 estimate, not on the truth, and on PX4 v1.17 SITL with the SIH
-quad-rotor that estimate is measurably off (``shared/PX4-BEHAVIOUR.md``):
+quad-rotor that estimate is measurably off (``docs/px4-behaviour.md``):
 
 * the local origin is the first GPS fix, 0.2-0.4 m horizontally and 0.1-0.6 m below
   where the vehicle really stands, different at every boot, and the estimate

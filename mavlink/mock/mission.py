@@ -25,7 +25,7 @@ frame only, as PX4 does (``MAV_MISSION_UNSUPPORTED`` otherwise).
 
 Items are kept as received (legacy float lat/lon are converted to ``*_INT`` degE7).
 With ``px4_storage`` a download returns what PX4 v1.17 stores
-(``mavlink_mission.cpp``, ``shared/PX4-BEHAVIOUR.md``): waypoint and take-off yaw
+(``mavlink_mission.cpp``, ``docs/px4-behaviour.md``): waypoint and take-off yaw
 (param4) as float32 radians wrapped to [0, 2 pi), returned in degrees; MAV_FRAME_MISSION
 items with x/y through float32; DO_SET_ROI_LOCATION (a position to PX4) with param1-4
 zero; FENCE items

@@ -21,7 +21,7 @@ and circles are checked while flying; a breach triggers GF_ACTION.  A waypoint's
 (PX4's triplet yaw in ``FlightTaskAuto``); without one the vehicle heads for the waypoint.
 
 With ``MOCK_PX4_NAV`` (the ``px4`` profile) the navigator is PX4 v1.17's
-(``shared/PX4-BEHAVIOUR.md``, PX4's ``navigator/`` and ``FlightTaskAuto``):
+(``docs/px4-behaviour.md``, PX4's ``navigator/`` and ``FlightTaskAuto``):
 
 * waypoints are flown along a trajectory setpoint limited by the cruise speed,
   MPC_ACC_HOR and MPC_JERK_AUTO, arriving at the corner speed

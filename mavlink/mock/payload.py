@@ -107,7 +107,7 @@ _NEUTRAL_DELAY_S = 0.25  # Navigator::neutralize_gimbal_if_control_activated
 _RATE_TIMEOUT_S = 2.0  # OutputBase::check_and_handle_setpoint_timeout
 #: when PX4 re-sends an unacknowledged command (confirmation 1, 2, 3), s after the first:
 #: MavlinkCommandSender (TIMEOUT_US 0.5 s, RETRIES 3), as SITL showed it (the first re-send
-#: 1.0 s after; /work/notes/px4_camera_research.md, E1 and E3)
+#: 1.0 s after; docs/px4-behaviour.md, "Cameras and gimbals")
 _RESEND_AFTER_S = (1.0, 1.5, 2.0)
 _STORAGE_MIB = 30528.0  # a 32 GB card
 _IMAGE_MIB = 6.0  # one 12 MP JPEG

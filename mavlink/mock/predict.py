@@ -3,7 +3,7 @@
 A PX4 mission is not flown at the legs' constant speeds: the vehicle accelerates and brakes
 within MPC_ACC_HOR and MPC_JERK_AUTO, takes corners at PX4's corner speed, brakes to a stop
 before holds and where the next waypoint lies within the acceptance radius, and lags its own
-trajectory setpoint by SIH's drag (PX4-BEHAVIOUR.md).  The mock's ``px4`` profile implements
+trajectory setpoint by SIH's drag (docs/px4-behaviour.md).  The mock's ``px4`` profile implements
 those laws (:mod:`mavlink.mock.navigator`, :mod:`mavlink.mock.physics`), so the honest
 prediction of a mission is the mock flying it: offline, in simulated time, with the
 estimator's errors switched off (the prediction is the expected flight, not one draw).

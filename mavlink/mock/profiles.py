@@ -6,7 +6,7 @@ parameter at a time (``MockFleet(params=...)``, ``gcs mock --param NAME=VALUE``)
 or set by any client through the MAVLink parameter protocol.
 
 ``px4`` (the default)
-    PX4 v1.17 SITL with its SIH quad-rotor, as observed in ``shared/PX4-BEHAVIOUR.md``:
+    PX4 v1.17 SITL with its SIH quad-rotor, as observed in ``docs/px4-behaviour.md``:
     PX4's attitude loop between the acceleration asked and the one flown (the tilt
     follows at 1 / MC_ROLL_P = 0.25 s, then the rotors at SIH_T_TAU = 0.05 s);
     linear drag (SIH_KDV 1/s) that PX4's position controller does not compensate, so

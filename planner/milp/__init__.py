@@ -1,6 +1,6 @@
 """The combinatorial stage: STL over a coarse vehicle model as a mixed-integer linear program.
 
-DESIGN.md section 5, "Two stages": the discrete structure of a mission (which option of each
+docs/solver-notes.md, "Two stages": the discrete structure of a mission (which option of each
 ``or``, which vehicle takes which task, when each visit happens, which side of each keep-out)
 is decided here, on positions every ``dt_c`` seconds within the vehicles' limits
 (:mod:`planner.milp.model`), with big-M encodings of the predicates and temporal operators

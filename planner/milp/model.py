@@ -79,7 +79,7 @@ def _grid_ok(dt: float, intervals: set[tuple[float, float]]) -> bool:
 def choose_dt(problem: Problem, formulas: Sequence[Formula], budget: int = SAMPLE_BUDGET) -> float:
     """The coarse step (s): the smallest multiple ``k Ts`` of the sample step that divides
     the horizon, leaves a sample in every temporal interval of the spec (steps
-    ``ceil(a/dt) .. floor(b/dt)``, DESIGN.md section 4) and keeps
+    ``ceil(a/dt) .. floor(b/dt)``, docs/stl.md, "Semantics") and keeps
     ``N + 1 <= max(budget / vehicles, MIN_SAMPLES)``; the largest such multiple when none
     is small enough; ``Ts`` itself when no multiple qualifies."""
     ts, horizon = problem.timing.sample_dt_s, problem.timing.horizon_s

@@ -57,7 +57,7 @@ Examples::
 
 Semantics and conventions
 -------------------------
-Robustness follows DESIGN.md section 4 exactly (until: ``max over t' in [t+a, t+b] of
+Robustness follows docs/stl.md, "Semantics" exactly (until: ``max over t' in [t+a, t+b] of
 min(rho(q, t'), min over [t, t') of rho(p))``, an empty inner range counting as +inf).
 ``robustness_trace`` returns the ``n - H`` steps where the formula's whole horizon
 (``H = phi.horizon_steps(dt)`` steps) fits in the ``n`` samples: entry ``t`` is exact, no window

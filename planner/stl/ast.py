@@ -411,7 +411,7 @@ class Formula:
         """``self implies other``."""
         return Implies(self, other)
 
-    # ---- semantics (DESIGN.md section 4)
+    # ---- semantics (docs/stl.md, "Semantics")
 
     def robustness_trace(self, signals: Mapping[str, Any], dt: float) -> np.ndarray:
         """Exact robustness at every step where the horizon fits in the trace.

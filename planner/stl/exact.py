@@ -2,7 +2,7 @@ r"""Exact robustness traces, vectorised, O(n) per operator and independent of in
 
 Trace convention: a node's trace holds the steps where its whole horizon fits in the signals.
 With ``n`` samples and ``H = node.horizon_steps(dt)`` the trace has ``n - H`` entries and entry
-``t`` equals the definition of DESIGN.md section 4 at step ``t`` exactly: no window is ever
+``t`` equals the definition of docs/stl.md, "Semantics" at step ``t`` exactly: no window is ever
 truncated at the end of the trace. A parent reads a child's trace only at steps inside it.
 
 Operators:

@@ -1,4 +1,4 @@
-"""Recursive-descent parser for the STL syntax of DESIGN.md section 4.
+"""Recursive-descent parser for the STL syntax of docs/stl.md, "Semantics".
 
 Grammar (loosest first; ``implies`` and ``until`` associate to the right, ``and``/``or`` chains
 become one n-ary node, arithmetic is left associative)::

@@ -97,7 +97,7 @@ def test_until_clause_is_drawn_over_its_whole_window() -> None:
     for tp in (0, 1, 57, 180, 300):
         before = np.inf if tp == 0 else (-phi[:tp]).min()
         assert tr.rho[tp] == pytest.approx(min(hold[tp], before), abs=1e-9)
-    # Reference: brute force of the until definition (DESIGN.md section 4) at t = 0.
+    # Reference: brute force of the until definition (docs/stl.md, "Semantics") at t = 0.
     best = max(min(hold[tp], np.inf if tp == 0 else (-phi[:tp]).min()) for tp in range(301))
     assert tr.robustness == pytest.approx(best, abs=1e-9)
     assert tr.robustness == pytest.approx(np.nanmax(tr.rho), abs=1e-12)

@@ -1,6 +1,6 @@
 """The px4 mock against PX4 v1.17 SITL (SIH): the same plans flown by ``gcs fly --dry-run``.
 
-The figures PX4 produced (``mavlink.mock.calibration``, from ``shared/PX4-BEHAVIOUR.md``)
+The figures PX4 produced (``mavlink.mock.calibration``, from ``docs/px4-behaviour.md``)
 must be reproduced within 25 %: best-fit lag and tracking rms on the reach-avoid
 2-vehicle plan and on the power-line 4-vehicle plan, and the lag without drag.  PX4 flew
 them with the ground station of then: no drag feed-forward and a 1 m start gate, which

@@ -129,7 +129,7 @@ def test_compare_items_works_at_wire_precision() -> None:
 
 
 def test_compare_items_reads_back_as_px4_stores_and_still_catches_what_matters() -> None:
-    # PX4-BEHAVIOUR.md's table, with PX4's own download of each item as the reference:
+    # docs/px4-behaviour.md's table, with PX4's own download of each item as the reference:
     # mavlink.mock.mission.px4_stored is that code path (mavlink_mission.cpp) in the mock.
     from mavlink.mock.mission import MissionItem as StoredItem
     from mavlink.mock.mission import px4_stored

@@ -7,7 +7,7 @@ scipy), the gimbal manager's control rules and the device's turn rate, and a veh
 without a camera.  Offline (:meth:`MockFleet.advance`, the vehicle spoken to in MAVLink
 bytes, deterministic for the seed): the gimbal following a ROI as the vehicle moves, and
 missions with camera and gimbal items flown as PX4 v1.17's navigator flies them
-(``/work/notes/px4_camera_research.md``; PX4's ``MissionBlock::issue_command``,
+(``docs/px4-behaviour.md``, "Cameras and gimbals"; PX4's ``MissionBlock::issue_command``,
 ``Navigator::publish_vehicle_command``, the ``gimbal`` module), in both profiles.  The
 MAVSDK clients (mission_raw round trip, Camera and Gimbal plugins) are in
 test_mock_camera_mavsdk.py.

@@ -1,6 +1,6 @@
 """The mock's ``px4`` profile against PX4 v1.17 SITL (SIH): control and estimation.
 
-Row by row of PX4-BEHAVIOUR.md: the profiles as parameter tables, drag and the lag it
+Row by row of docs/px4-behaviour.md: the profiles as parameter tables, drag and the lag it
 makes, the estimator, yaw.  Take-off, missions, storage and the geofence are in
 test_mock_px4_navigator.py.
 

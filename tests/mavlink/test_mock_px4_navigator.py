@@ -1,6 +1,6 @@
 """The mock's ``px4`` profile against PX4 v1.17 SITL (SIH): take-off, missions, geofence.
 
-Row by row of PX4-BEHAVIOUR.md: what PX4's navigator and mission protocol do (take-off,
+Row by row of docs/px4-behaviour.md: what PX4's navigator and mission protocol do (take-off,
 waypoints and their trajectory, MISSION_ITEM_REACHED and MISSION_CURRENT, landing, the
 stored plans, the predictive geofence, reposition).  Control and estimation are in
 test_mock_px4.py.
@@ -176,7 +176,7 @@ def test_corner_speed_and_braking_follow_px4s_trajectory_law() -> None:
         nxt = a + 60.0 * np.array([math.cos(h), math.sin(h), 0.0])  # far: no braking cap
         return corner_speed(o, a, nxt, radius, p)
 
-    # PX4-BEHAVIOUR.md: 90 deg 0.67 / 1.22 / 1.73 m/s, 10 deg 2.3 / 4.1 / 5.9 m/s at R 0.3 / 1 / 2
+    # docs/px4-behaviour.md: 90 deg 0.67 / 1.22 / 1.73 m/s, 10 deg 2.3 / 4.1 / 5.9 m/s at R 0.3 / 1 / 2
     assert [round(turn(90, r), 2) for r in (0.3, 1.0, 2.0)] == [0.67, 1.22, 1.73]
     assert [round(turn(10, r), 1) for r in (0.3, 1.0, 2.0)] == [2.3, 4.1, 5.9]
     # stop-at-the-next-waypoint look-ahead: about 3.6 m/s on 7.5 m legs

@@ -1,4 +1,4 @@
-"""Exact and smooth STL robustness against a naive reference written from DESIGN.md section 4.
+"""Exact and smooth STL robustness against a naive reference written from docs/stl.md, "Semantics".
 
 The reference below loops over t, t' and t'' exactly as the definitions read; it shares no code
 with planner.stl (it walks the node classes only).

@@ -7,7 +7,7 @@ skipped.  The vehicle must be armable and free to fly 4 m east and 3 m up of whe
 stands; the tests plan around its own home position, so no spawn pose is needed.
 
 What is checked is PX4's side of the contracts the mock was calibrated to
-(``shared/PX4-BEHAVIOUR.md``): the read-back of a mission and a fence as PX4 stores them,
+(``docs/px4-behaviour.md``): the read-back of a mission and a fence as PX4 stores them,
 a mission start confirmed only when PX4 really flies it, an offboard flight with the drag
 fed forward that keeps the plan's margin, and mission mode on one shared clock.
 """
