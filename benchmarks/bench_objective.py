@@ -1,5 +1,5 @@
 """The objective after its first bottleneck (issue 19, item 4): what the lexicographic rounds
-(``solver.lexicographic_rounds``, :func:`planner.optimize._raise_the_rest`) buy and cost.
+(``solver.lexicographic_rounds``, :func:`planner.refine.raise_the_rest`) buy and cost.
 
 Each zoo scenario below is planned cold in this process twice: with the rounds off (the
 max-min alone) and with the default.  Printed per run: the exact robustness (the headline),

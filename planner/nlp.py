@@ -160,7 +160,7 @@ def _lse(m: int, k: float) -> _Lse:
     return _LSE.get_or_build((m, k), build)[0]
 
 
-def _is_direct(node: Formula) -> bool:
+def is_direct(node: Formula) -> bool:
     """Leaves evaluated directly (vectorised over steps) rather than through the engine."""
     return isinstance(node, Comparison | Predicate)
 
@@ -381,7 +381,7 @@ class NlpBuilder:
         # not n*3.
         self.leaves: dict[Formula, set[int]] = {}
         _decompose(formula, np.array([0]), self.dt, self.leaves)
-        self.smooth_leaves = [leaf for leaf in self.leaves if not _is_direct(leaf)]
+        self.smooth_leaves = [leaf for leaf in self.leaves if not is_direct(leaf)]
         self.box_terms = max(
             (smoothing_terms(leaf, problem) for leaf in self.smooth_leaves), default=0.0
         )
@@ -393,7 +393,7 @@ class NlpBuilder:
         stride = max(1, round(c_dt / self.dt))
         self.direct_steps: dict[Formula, list[int]] = {}
         for leaf, steps_set in self.leaves.items():
-            if _is_direct(leaf):
+            if is_direct(leaf):
                 steps = sorted(steps_set)
                 self.direct_steps[leaf] = sorted(set(steps[::stride]) | {steps[-1]})
         # The workspace bounds the lifted positions, so every constraint step of the horizon

@@ -54,21 +54,17 @@ Errors: bad scenarios are :class:`~planner.scenario_sections.ScenarioError` (rai
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import math
-import signal
 import threading
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
 
 from planner.checks import LimitReport, check_trajectories
 from planner.coarse_start import BackgroundStage, CoarseOutcome, coarse_budget_s
-from planner.dynamics import DoubleIntegrator, MinimumJerkChain
 from planner.explain import needs
 from planner.fix_choices import fixed_clauses
 from planner.guess import _initial_guess, starts
@@ -80,23 +76,42 @@ from planner.nlp import (
     STRUCTURES,
     BuildTimeout,
     _build,
-    _is_direct,
     _Structure,
     _structure_key,
     clear_cache,
     vehicle_limit_bounds,
 )
+from planner.plan_check import (
+    clause_robustness,
+    dense_signals,
+    dense_times,
+    evaluate,
+    initial_states,
+    make_model,
+    start_bound,
+)
 from planner.predicates import (
     build_registry,
 )
-from planner.problem import Clause, DynamicsModel, Problem, SolverMethod
-from planner.results import ClauseReport, PlanResult, SolveStats, StartBound, Weakest
+from planner.problem import Clause, Problem, SolverMethod
+from planner.refine import raise_the_rest, sharpen
+from planner.results import ClauseReport, PlanResult, SolveStats, Weakest
 from planner.scenario_spec import parse_clause
+from planner.solver_runs import (
+    EPS_MARGIN_STEP_M,
+    Attempt,
+    SigintWatch,
+    SolverRun,
+    lower_r,
+    min_leaf,
+    run_solvers,
+    solved,
+    user_status,
+    watch_sigint,
+)
 from planner.stl import (
     Always,
-    Formula,
     conjunction,
-    explanation,
 )
 from planner.trajectory import Trajectory
 
@@ -117,32 +132,7 @@ __all__ = [
 # ------------------------------------------------------------------------------ models
 
 
-def make_model(problem: Problem) -> MinimumJerkChain | DoubleIntegrator:
-    """The linear model of the scenario (one for all vehicles: same timing)."""
-    t = problem.timing
-    if problem.model is DynamicsModel.MINIMUM_JERK:
-        return MinimumJerkChain(t.horizon_s, t.segment_s, t.sample_dt_s, explicit_acc=True)
-    a_max = np.max([v.a_max_m_s2 for v in problem.vehicles], axis=0)
-    return DoubleIntegrator(t.horizon_s, t.segment_s, 3, a_max, sample_dt_s=t.sample_dt_s)
-
-
-def _x0(problem: Problem, model: Any) -> list[np.ndarray]:
-    """Start states (n_init, 3): position then zeros (at rest)."""
-    out = []
-    for v in problem.vehicles:
-        x0 = np.zeros((model.n_init, 3))
-        x0[0] = v.start_enu_m
-        out.append(x0)
-    return out
-
-
 # ------------------------------------------------------------------------------ checks
-
-
-def _dense_times(problem: Problem) -> np.ndarray:
-    t = problem.timing
-    n = round(t.horizon_s / t.check_dt_s) + 1
-    return np.arange(n) * t.check_dt_s
 
 
 # ------------------------------------------------------------------------------- plan
@@ -188,7 +178,7 @@ class PlanSearch:
     initial guess, starts the combinatorial stage in its thread (:meth:`_start_stage`),
     builds (or takes from the cache) the NLP of the problem's structure, tries the starts of
     :meth:`candidates` (the guess's first, then the stage's plan where it can help), refines
-    the best (:func:`_raise_the_rest`, :func:`_sharpen`), checks it on dense samples and
+    the best (:func:`raise_the_rest`, :func:`sharpen`), checks it on dense samples and
     returns a :class:`PlanResult`.  The deadline, the iterations and the best iterate seen
     live here, not in the cached structure; one search runs at a time in a process
     (:data:`_PLAN_LOCK`), so two plans started in two threads take turns.
@@ -217,14 +207,14 @@ class PlanSearch:
         # The heading is derived from the positions (planner.heading): where face(d, T) holds
         self.heading = uses_heading(formulas)
         self.rules = facing_rules(self.formula, problem) if self.heading else []
-        self.t_dense = _dense_times(problem)
+        self.t_dense = dense_times(problem)
         self.model = make_model(problem)
-        self.x0s = _x0(problem, self.model)
+        self.x0s = initial_states(problem, self.model)
         self.check_s = 0.0
         #: seconds one exact evaluation of the clauses took (the check's cost is a few)
         self.exact_eval_s = 0.0
         self.n_starts = 0
-        self.best: _Attempt | None = None
+        self.best: Attempt | None = None
         self.best_start = (0, "")
         self.combinatorial: CoarseOutcome | None = None
         #: the combinatorial stage, running in its thread beside the build and the initial
@@ -238,7 +228,7 @@ class PlanSearch:
         self._rho_first = -math.inf  # the initial guess's start, exact robustness
         #: once a start meets the mission, the seconds more the search may take for margin
         self._margin_s = problem.solver.polish_s
-        self._sigint: _SigintWatch | None = None
+        self._sigint: SigintWatch | None = None
         self._stage_stopped = False  # the search has stopped the stage
         #: the combinatorial stage's start (None: it made none)
         self._coarse_z: np.ndarray | None = None
@@ -264,7 +254,7 @@ class PlanSearch:
 
         self.struct, self.cached = STRUCTURES.get_or_build(_structure_key(problem), build)
         struct = self.struct
-        # p: the start states, and every leaf row >= r (weight 1; _raise_the_rest settles)
+        # p: the start states, and every leaf row >= r (weight 1; raise_the_rest settles)
         self.p_val = np.concatenate(
             [*[x.reshape(-1, order="F") for x in self.x0s], np.ones(struct.leaf_group.size)]
         )
@@ -298,7 +288,7 @@ class PlanSearch:
         w0 = np.concatenate([z0, *p0, np.zeros(struct.n_s), [0.0]])
         if struct.n_s:  # the chunks' values there (planner.nlp._chunks)
             w0[-1 - struct.n_s : -1] = np.asarray(struct.chunk_fn(w0, self.p_val)).reshape(-1)
-        w0[-1] = _min_leaf(struct, w0, self.p_val, default=0.0)
+        w0[-1] = min_leaf(struct, w0, self.p_val, default=0.0)
         return w0
 
     def trajectories_of(self, w: np.ndarray) -> list[Trajectory]:
@@ -316,8 +306,8 @@ class PlanSearch:
     def clauses_of(self, w: np.ndarray) -> np.ndarray:
         """Each clause's exact robustness (dense samples) at ``w``."""
         t0 = time.perf_counter()
-        sig = _dense_signals(self.problem, self.trajectories_of(w), self.heading)
-        out = _clause_robustness(self.problem, self.formulas, sig)
+        sig = dense_signals(self.problem, self.trajectories_of(w), self.heading)
+        out = clause_robustness(self.problem, self.formulas, sig)
         self.exact_eval_s = max(self.exact_eval_s, time.perf_counter() - t0)
         return out
 
@@ -358,7 +348,7 @@ class PlanSearch:
         reserve = _CHECK_EVALUATIONS * self.exact_eval_s
         return self.deadline - reserve
 
-    def out_of_time(self, stop: _SigintWatch) -> bool:
+    def out_of_time(self, stop: SigintWatch) -> bool:
         """Whether the search must end now: Ctrl-C, or the solver stopped at its deadline."""
         return stop.hit or self.watch.stopped or time.perf_counter() >= self.solve_deadline()
 
@@ -586,7 +576,7 @@ class PlanSearch:
         self._coarse_starts.append(z)
         return what, z
 
-    def attempt(self, w0: np.ndarray, stop: _SigintWatch) -> _Attempt:
+    def attempt(self, w0: np.ndarray, stop: SigintWatch) -> Attempt:
         """One start: the maximisation from ``w0`` (with the eq. (1) rounds if asked for)."""
         problem, struct, bounds = self.problem, self.struct, self.bounds
         lbx, ubx = self.lbx, self.ubx
@@ -609,7 +599,7 @@ class PlanSearch:
                 self.watch.deadline, now + _START_SHARE * (self.watch.deadline - now)
             )
         refine = rob_start >= problem.epsilon and problem.solver.method is SolverMethod.IPOPT
-        run = _run_solvers(struct, w0, bounds, say, problem.solver.method.value, stop, refine)
+        run = run_solvers(struct, w0, bounds, say, problem.solver.method.value, stop, refine)
         with self._cap_lock:
             self._first_nlp_at = None
         if self.watch.stopped and time.perf_counter() < min(
@@ -626,7 +616,7 @@ class PlanSearch:
             status = f"{status}; kept the start point ({rob_start:.4g}; the solver's {rob:.4g})"
             rob, w_opt = rob_start, w0
         if not problem.solver.robustness_constraint:
-            return _Attempt(rob, w_opt, status, _solved(status), run)
+            return Attempt(rob, w_opt, status, solved(status), run)
         # The paper's eq. (1): smooth robustness >= epsilon + margin as a constraint.  The
         # margin starts at the smooth leaves' error bound; if the exact robustness on the
         # dense samples still falls short (dips between constraint samples), the margin
@@ -636,35 +626,37 @@ class PlanSearch:
         margin = struct.margin
         best = (rob, w_opt, status)
         for _ in range(_EPS_ROUNDS):
-            if rob >= eps or not _solved(status) or self.out_of_time(stop):
+            if rob >= eps or not solved(status) or self.out_of_time(stop):
                 break
-            margin += eps - rob + _EPS_MARGIN_STEP_M
-            _lower_r(lbx, ubx, eps + margin)
+            margin += eps - rob + EPS_MARGIN_STEP_M
+            lower_r(lbx, ubx, eps + margin)
             w_start = w_opt.copy()
             w_start[-1] = lbx[-1]
-            run = run.then(_run_solvers(struct, w_start, bounds, say, "eq. (1) margin", stop))
+            run = run.then(run_solvers(struct, w_start, bounds, say, "eq. (1) margin", stop))
             w_opt, status = run.w, run.status
             rob = self._timed_exact(w_opt)
             if rob > best[0]:
                 best = (rob, w_opt, status)
         rob, w_opt, status = best
-        converged = _solved(status)
+        converged = solved(status)
         if rob < eps and not self.out_of_time(stop):
             # Infeasible as constrained: the plain maximisation from the same start finds
             # the best trajectories there are (a failed result carries the best found).
             lbx[-1], ubx[-1] = struct.lbx[-1], struct.ubx[-1]
-            plain = _run_solvers(struct, w0, bounds, say, "plain maximisation", stop)
+            plain = run_solvers(struct, w0, bounds, say, "plain maximisation", stop)
             rob_plain = self._timed_exact(plain.w)
             if rob_plain > rob:
                 rob, w_opt = rob_plain, plain.w
-                converged = _solved(plain.status)
+                converged = solved(plain.status)
                 status = (
                     f"eq. (1) constraint not met ({status}); plain maximisation: {plain.status}"
                 )
             run = run.then(plain)
-        return _Attempt(rob, w_opt, status, converged, run)
+        return Attempt(rob, w_opt, status, converged, run)
 
-    def _multistart(self, candidates: Iterator[tuple[str, np.ndarray]], stop: _SigintWatch) -> _Run:
+    def _multistart(
+        self, candidates: Iterator[tuple[str, np.ndarray]], stop: SigintWatch
+    ) -> SolverRun:
         """The first start's plan, unless it falls short of the mission; then the next
         starts in turn until one meets it, the limit on starts or time comes, or Ctrl-C;
         once met, more starts only for solver.polish_s seconds (default 0).  The best exact
@@ -672,7 +664,7 @@ class PlanSearch:
         once the time is up."""
         problem, struct = self.problem, self.struct
         met_at: float | None = None  # when a start first met the mission
-        spent: _Run | None = None
+        spent: SolverRun | None = None
         while True:
             if self.n_starts and (
                 self.out_of_time(stop) or time.perf_counter() >= self.polish_until
@@ -687,7 +679,7 @@ class PlanSearch:
                 self.say(f"start {self.n_starts}: {what}")
             self.lbx[-1], self.ubx[-1] = struct.lbx[-1], struct.ubx[-1]
             if problem.solver.robustness_constraint:
-                _lower_r(self.lbx, self.ubx, problem.epsilon + struct.margin)
+                lower_r(self.lbx, self.ubx, problem.epsilon + struct.margin)
             got = self.attempt(self.lifted(z0), stop)
             spent = got.run if spent is None else spent.then(got.run)
             if self.n_starts > 1 or got.robustness < problem.epsilon:
@@ -734,7 +726,7 @@ class PlanSearch:
             except BuildTimeout as exc:
                 return self._unbuilt(initial_guess, str(exc))
             struct = self.struct
-            with struct.lock, _watch_sigint() as stop:
+            with struct.lock, watch_sigint() as stop:
                 self._sigint = stop
                 self.watch.deadline = self.deadline
                 self.watch.iterations = 0
@@ -749,7 +741,7 @@ class PlanSearch:
             if self._stage is not None:
                 self._stage.stop()  # ended already, unless an error came out of the search
 
-    def _run(self, initial_guess: np.ndarray | None, stop: _SigintWatch) -> PlanResult:
+    def _run(self, initial_guess: np.ndarray | None, stop: SigintWatch) -> PlanResult:
         problem, formula, say = self.problem, self.formula, self.say
         if initial_guess is not None:
             given = np.asarray(initial_guess, dtype=float).reshape(-1)[: self.struct.n_z]
@@ -766,7 +758,7 @@ class PlanSearch:
         if abs(best.robustness) < self.struct.box_bound and not (stop.hit or by_time):
             # The plan's margin is within the boxes' smoothing error: that smoothing decides.
             budget = max(_RAISE_MIN_S, 0.5 * (time.perf_counter() - self.t_start))
-            sharp = _sharpen(problem, self.model, formula, best, self.bounds, self.p_val,
+            sharp = sharpen(problem, self.model, formula, best, self.bounds, self.p_val,
                              self.exact_of, say, stop,
                              min(self.solve_deadline(), time.perf_counter() + budget),
                              self._on_iteration)  # fmt: skip
@@ -794,7 +786,7 @@ class PlanSearch:
             # at most half the time spent so far (at least _RAISE_MIN_S)
             budget = max(_RAISE_MIN_S, 0.5 * (time.perf_counter() - self.t_start))
             lam_g = best.run.lam_g if best.run.w is w_opt else None
-            raised = _raise_the_rest(
+            raised = raise_the_rest(
                 self.struct, w_opt, lam_g, self.bounds, problem, self.clauses_of, say, stop,
                 self.solve_deadline(), budget,
             )  # fmt: skip
@@ -816,8 +808,8 @@ class PlanSearch:
         else:
             z = self._guess()[2]
         status = f"{why}; the initial guess, not refined"
-        run = _Run(z, status, 0, 0.0, 0.0)
-        with _watch_sigint() as stop:
+        run = SolverRun(z, status, 0, 0.0, 0.0)
+        with watch_sigint() as stop:
             return self._result(z, status, False, run, stop, True)
 
     def _result(
@@ -825,8 +817,8 @@ class PlanSearch:
         w_opt: np.ndarray,
         status: str,
         converged: bool,
-        run: _Run,
-        stop: _SigintWatch,
+        run: SolverRun,
+        stop: SigintWatch,
         by_time: bool,
     ) -> PlanResult:
         """Check the plan at ``w_opt`` on dense samples: the :class:`PlanResult`."""
@@ -838,11 +830,11 @@ class PlanSearch:
         smooth = (
             math.nan
             if struct is None
-            else _min_leaf(struct, w_opt, self.p_val, default=float(w_opt[-1]))
+            else min_leaf(struct, w_opt, self.p_val, default=float(w_opt[-1]))
         )
         t_check = time.perf_counter()
         trajectories = self.trajectories_of(w_opt)
-        rob, rob_grid, weakest, clauses = _evaluate(
+        rob, rob_grid, weakest, clauses = evaluate(
             problem, formula, formulas, trajectories, self.heading
         )
         limits = check_trajectories(
@@ -879,7 +871,7 @@ class PlanSearch:
             if rob < problem.epsilon
             else []
         )
-        start_bound = _start_bound(problem, formulas, trajectories, clauses, weakest, self.heading)
+        at_start = start_bound(problem, formulas, trajectories, clauses, weakest, self.heading)
         self.check_s += time.perf_counter() - t_check
         stats = SolveStats(
             build_s=self.build_s,
@@ -898,7 +890,7 @@ class PlanSearch:
         return PlanResult(
             problem=problem,
             success=success,
-            status=_user_status(
+            status=user_status(
                 status,
                 converged,
                 success,
@@ -919,7 +911,7 @@ class PlanSearch:
             decision=w_opt,
             stats=stats,
             needs=tuple(lines),
-            start_bound=start_bound,
+            start_bound=at_start,
         )
 
 
@@ -935,469 +927,10 @@ _START_SHARE = 0.5
 _CHECK_EVALUATIONS = 4
 
 
-#: Leaf rows within this (m) of the weakest are settled with it, each held at the weakest
-#: value less this, in :func:`_raise_the_rest`; clause robustness within twice this counts
-#: as equal when its result is compared.
-_SETTLE_M = 1e-3
-#: A leaf row at the weakest value holds r down when its multiplier is at least this share
-#: of the leaf rows' (which sum to 1 at a max-min's optimum); the others there are settled
-#: only by the start.
-_HOLDING_SHARE = 1e-2
-#: How far (m) one solve of :func:`_raise_the_rest` may raise r above its start: a trust
-#: region.  Unbounded, IPOPT left the refined point and wandered (the ground-start line:
-#: 434 iterations with the adaptive barrier, 1,000 and worse with it capped); 0.2 m per
-#: solve took 10 iterations.
-_RAISE_STEP_M = 0.2
-#: The least time (s) :func:`_raise_the_rest` may take (its budget is half the time the
+#: The least time (s) :func:`raise_the_rest` may take (its budget is half the time the
 #: plan took before it, at least this).
 _RAISE_MIN_S = 2.0
 
 
-@dataclass(frozen=True, slots=True)
-class _Raised:
-    """What :func:`_raise_the_rest` did: the point and a note for the status ("" when it
-    kept the plan it was given), and the solver runs it cost."""
-
-    w: np.ndarray
-    note: str
-    run: _Run | None
-
-
-def _raise_the_rest(
-    struct: _Structure,
-    w: np.ndarray,
-    lam_g: np.ndarray | None,
-    bounds: Mapping[str, np.ndarray],
-    problem: Problem,
-    clauses_of: Callable[[np.ndarray], np.ndarray],
-    say: Callable[[str], None],
-    stop: _SigintWatch,
-    deadline: float,
-    budget_s: float,
-) -> _Raised:
-    """Lexicographic refinement after the max-min: hold the weakest leaves, raise the rest.
-
-    The max-min stops at its bottleneck.  When a leaf's margin at t = 0 is that bottleneck
-    (fixed by the start state: a drone 1 m up with the floor at 0.5 m), or when the plan
-    falls short (one unreachable clause), nothing pushes the other leaves up.  Here the
-    leaves whose rows hold r down at the weakest value (the start's rows when the start sets
-    it, else the rows with a share of the multipliers ``lam_g``) are settled: their rows'
-    weight on r becomes 0, their floor that value less :data:`_SETTLE_M`.  Then r is
-    maximised over the other rows from the plan's point, with the refining solvers (the
-    point is feasible) and r at most :data:`_RAISE_STEP_M` above its start; a solve that
-    reaches that step is followed by another.  A solve's plan is kept only if it converged,
-    its clause robustness, sorted, is better in the leximin order (the weakest first, within
-    ``2 * _SETTLE_M``), and it does not lose the mission.  At most
-    ``solver.lexicographic_rounds`` solves, all within ``budget_s`` (and ``deadline``, the
-    user's time limit).
-    """
-    eps = problem.epsilon
-    until = time.perf_counter() + budget_s
-    p, lbg, ubx = bounds["p"].copy(), bounds["lbg"].copy(), bounds["ubx"].copy()
-    weight = p[struct.n_x0 :]  # a view: each leaf row's weight on r
-    rows = np.arange(struct.leaf_group.size) + struct.n_lin  # the leaf rows of g
-    clause_rob = clauses_of(w)
-    spent: _Run | None = None
-    notes: list[str] = []  # the settles whose solves were kept
-    pending = ""
-    settle = True
-    for _ in range(problem.solver.lexicographic_rounds):
-        if stop.hit or struct.watch.stopped:
-            break
-        values = np.asarray(struct.leaf_fn(w, p)).reshape(-1)
-        if settle:
-            free = weight > 0
-            weakest = float(values[free].min()) if free.any() else 0.0
-            if weakest >= bounds["ubx"][-1] - _SETTLE_M:
-                break  # every row is above the robustness cap: no more is asked
-            at_bottleneck = free & (values <= weakest + _SETTLE_M)
-            by_start = bool(np.any(at_bottleneck & struct.leaf_at_start))
-            if not by_start and clause_rob.min() >= eps:
-                break  # met, and the weakest is the plan's own: nothing more is asked
-            # The start's rows are the bottleneck for certain (constants); other rows there
-            # may only have had no reason to rise above it: the ones that hold r down carry
-            # its multiplier (the leaf rows' multipliers sum to 1 at a max-min's optimum).
-            if by_start:
-                held_rows = at_bottleneck & struct.leaf_at_start
-            elif lam_g is not None:
-                share = np.abs(lam_g[rows])
-                held_rows = at_bottleneck & (share >= _HOLDING_SHARE * max(share.sum(), 1e-12))
-            else:
-                held_rows = at_bottleneck
-            held_rows = held_rows if held_rows.any() else at_bottleneck
-            settled = free & np.isin(struct.leaf_group, struct.leaf_group[held_rows])
-            if settled.sum() == free.sum():
-                break
-            weight[settled] = 0.0
-            lbg[rows[settled]] = weakest - _SETTLE_M
-            names = sorted({struct.leaf_names[i] for i in struct.leaf_group[settled]})
-            held = ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
-            why = "the start sets it" if by_start else "the plan falls short"
-            pending = f"then raised the other clauses with {held} held at {weakest:.4g} ({why})"
-            say(f"raising the other clauses, {held} held at {weakest:.4g} ({why})")
-        start = w.copy()
-        start[-1] = float(values[weight > 0].min())
-        step = _RAISE_STEP_M + max(0.0, eps - start[-1])  # a failing leaf may reach epsilon
-        ubx[-1] = min(bounds["ubx"][-1], start[-1] + step)
-        struct.watch.deadline = min(deadline, until)
-        run = _run_solvers(
-            struct,
-            start,
-            {**bounds, "p": p, "lbg": lbg, "ubx": ubx},
-            say,
-            "the rest raised",
-            stop,
-            refine=True,
-        )
-        spent = run if spent is None else spent.then(run)
-        got = clauses_of(run.w)
-        if (
-            not _solved(run.status)  # an iterate off the dynamics' rows is no plan
-            or not _leximin_better(got, clause_rob, 2 * _SETTLE_M)
-            or clause_rob.min() >= eps > got.min()
-        ):
-            break
-        w, clause_rob, lam_g = run.w, got, run.lam_g
-        if pending:
-            notes.append(pending)
-            pending = ""
-        settle = bool(w[-1] < ubx[-1] - _SETTLE_M)  # below the step: its own bottleneck
-    return _Raised(w, "; ".join(notes), spent)
-
-
-def _sharpen(
-    problem: Problem,
-    model: Any,
-    formula: Formula,
-    best: _Attempt,
-    bounds: Mapping[str, np.ndarray],
-    p_val: np.ndarray,
-    exact_of: Callable[[np.ndarray], float],
-    say: Callable[[str], None],
-    stop: _SigintWatch,
-    deadline: float,
-    on_iteration: Callable[[np.ndarray, float], None] | None,
-) -> tuple[_Structure, _Attempt, dict[str, np.ndarray], float] | None:
-    """Solve again from ``best`` with the smooth leaves' box predicates at the leaves' own
-    sharpness (:func:`planner.nlp._build` with ``sharp``: a box is smoothed exactly as its
-    faces spelled as comparisons would be); the structure, the attempt, its bounds and the
-    seconds its build took if that is better in exact robustness, else ``None``.
-
-    The boxes' own sharpness (``log(6)/k`` = 10 % of the smallest half-size) keeps IPOPT's
-    landscape gentle from rough starts (smoothed at the leaves' k from the start, the PX4-
-    limits flight and the paddock clearance took IPOPT's iteration limit), but where the
-    plan's margin is within that error the smoothing, not the geometry, decides it (stlpy's
-    stepping stones, regions: 0.0003, and 0.0527, the certified optimum, sharpened).
-    The solve stops at ``deadline``; ``on_iteration`` is the plan's progress callback."""
-    built: list[float] = []
-
-    def build() -> _Structure:
-        say("building the NLP with sharper box margins")
-        t0 = time.perf_counter()
-        got = _build(problem, model, formula, sharp=True)
-        built.append(time.perf_counter() - t0)
-        return got
-
-    sharp, _ = STRUCTURES.get_or_build(_structure_key(problem, sharp=True), build)
-    lbx, ubx = sharp.lbx.copy(), sharp.ubx.copy()
-    if problem.solver.robustness_constraint:
-        _lower_r(lbx, ubx, problem.epsilon + sharp.margin)
-    sharp_bounds = {**bounds, "lbx": lbx, "ubx": ubx}
-    w0 = best.w.copy()
-    if sharp.n_s:  # the chunks' values at the same decisions, sharper
-        w0[-1 - sharp.n_s : -1] = np.asarray(sharp.chunk_fn(w0, p_val)).reshape(-1)
-    w0[-1] = _min_leaf(sharp, w0, p_val, default=float(w0[-1]))
-    sharp.watch.deadline = deadline
-    sharp.watch.iterations = 0
-    sharp.watch.stopped = False
-    sharp.watch.on_iteration = on_iteration
-    refine = best.robustness >= problem.epsilon
-    run = _run_solvers(sharp, w0, sharp_bounds, say, "sharper box margins", stop, refine)
-    sharp.watch.on_iteration = None
-    rob = exact_of(run.w)
-    if not rob > best.robustness:
-        return None
-    status = (
-        f"{best.status}; then sharpened the boxes' smoothing: {best.robustness:.4g} -> "
-        f"{rob:.4g} ({run.status})"
-    )
-    attempt = _Attempt(rob, run.w, status, _solved(run.status), run)
-    return sharp, attempt, sharp_bounds, sum(built)
-
-
-def _leximin_better(a: np.ndarray, b: np.ndarray, tol: float) -> bool:
-    """Whether ``a`` beats ``b`` in the leximin order: sorted ascending, the first entry
-    that differs by more than ``tol`` is larger in ``a``."""
-    for x, y in zip(np.sort(a), np.sort(b), strict=True):
-        if x > y + tol:
-            return True
-        if x < y - tol:
-            return False
-    return False
-
-
-#: Rounds of margin growth for the eq. (1) constraint, and the extra step (m) per round.
+#: Rounds of margin growth for the eq. (1) constraint (each EPS_MARGIN_STEP_M more).
 _EPS_ROUNDS = 3
-_EPS_MARGIN_STEP_M = 2e-3
-
-
-def _min_leaf(struct: _Structure, w: np.ndarray, p: np.ndarray, default: float) -> float:
-    """The smallest leaf value (the smooth robustness the NLP sees) at ``w``; ``default``
-    when the spec has no leaves."""
-    values = np.asarray(struct.leaf_fn(w, p)).reshape(-1)
-    return float(np.min(values)) if values.size else default
-
-
-def _lower_r(lbx: np.ndarray, ubx: np.ndarray, value: float) -> None:
-    """Raise r's lower bound to ``value`` (in place), lifting a robustness cap above it so
-    the bounds stay consistent: a cap below the required margin leaves r pinned there."""
-    lbx[-1] = value
-    ubx[-1] = max(ubx[-1], value + _EPS_MARGIN_STEP_M)
-
-
-def _user_status(
-    solver: str,
-    converged: bool,
-    success: bool,
-    short: bool,
-    verdict: str,
-    *,
-    interrupted: bool = False,
-    time_limit_s: float | None = None,
-) -> str:
-    """The outcome in the user's terms first, the solver's own status after (in brackets):
-    "the solver converged but the mission is not met: robustness -111 < epsilon 0.01 ...",
-    never "Solve_Succeeded" on a plan that fails."""
-    if interrupted:
-        head = "interrupted (Ctrl-C); the best plan so far" + (
-            ", and it meets the mission" if success else ""
-        )
-    elif time_limit_s is not None:
-        head = f"stopped at the time limit ({time_limit_s:g} s); the best plan so far" + (
-            ", and it meets the mission" if success else ""
-        )
-    elif success:
-        head = "the mission is met"
-    elif "NonIpopt_Exception_Thrown" in solver or "User_Requested_Stop" in solver:
-        head = "the solver stopped on an error inside it; the best plan found"
-    elif not converged:
-        head = "the solver did not converge; the best plan found"
-    elif short:
-        head = "the solver converged but the mission is not met"
-    else:
-        head = "the solver converged but the plan breaks the vehicles' limits"
-    return f"{head}: {verdict} (solver: {solver})"
-
-
-def _solved(status: str) -> bool:
-    """Whether the solver's status (before any note after a ``;``) is a converged one."""
-    return status.split(";", 1)[0] in (
-        "Solve_Succeeded",
-        "Solved_To_Acceptable_Level",
-        "Search_Direction_Becomes_Too_Small",
-    )
-
-
-@dataclass(frozen=True, slots=True)
-class _Attempt:
-    """What one start of the multi-start reached: the exact robustness of its plan."""
-
-    robustness: float
-    w: np.ndarray
-    status: str
-    converged: bool
-    run: _Run
-
-
-@dataclass(frozen=True, slots=True)
-class _Run:
-    """The end point of one or more solver runs and what they cost."""
-
-    w: np.ndarray
-    status: str
-    iterations: int
-    solver_s: float
-    eval_s: float
-    lam_g: np.ndarray | None = None  # the constraints' multipliers at w (the last solve's)
-
-    def then(self, later: _Run) -> _Run:
-        """``later``'s end point, with the costs of both."""
-        return _Run(
-            later.w,
-            later.status,
-            self.iterations + later.iterations,
-            self.solver_s + later.solver_s,
-            self.eval_s + later.eval_s,
-            later.lam_g,
-        )
-
-
-class _SigintWatch:
-    """Whether Ctrl-C came during the solve (:func:`_watch_sigint`)."""
-
-    hit = False
-
-
-@contextlib.contextmanager
-def _watch_sigint() -> Iterator[_SigintWatch]:
-    """Note a Ctrl-C (SIGINT) and pass it on as usual: CasADi's solver stops at its next
-    check and returns its last iterate, which the planner keeps as the best so far.  Only
-    in the main thread (signal handlers live there); elsewhere nothing is installed."""
-    watch = _SigintWatch()
-    if threading.current_thread() is not threading.main_thread():
-        yield watch
-        return
-    previous = signal.getsignal(signal.SIGINT)
-
-    def handler(signum: int, frame: Any) -> None:
-        watch.hit = True
-        if callable(previous):
-            previous(signum, frame)
-        else:
-            raise KeyboardInterrupt
-
-    signal.signal(signal.SIGINT, handler)
-    try:
-        yield watch
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
-def _run_solvers(
-    struct: _Structure,
-    w0: np.ndarray,
-    bounds: Mapping[str, np.ndarray],
-    say: Callable[[str], None],
-    what: str,
-    stop: _SigintWatch,
-    refine: bool = False,
-) -> _Run:
-    """Run the structure's solvers in turn (the k continuation), each warm started from the
-    previous one's primal-dual point, until one is interrupted (``stop``).  ``bounds`` are
-    read at call time (``lbx`` may change between calls).  ``refine``: ``w0`` meets the
-    mission (or the constraints of :func:`_raise_the_rest`), and the solvers that refine
-    such a start run (``planner.nlp._MU_MAX``)."""
-    iterations = 0
-    solver_s = eval_s = 0.0
-    status = "not solved"
-    w_opt = w0
-    lam_x = lam_g = None
-    for k, solver in struct.refining() if refine else struct.solvers:
-        if stop.hit or struct.watch.stopped:
-            break
-        say(f"solving with {what} (k={k:.3g})")
-        args: dict[str, Any] = {"x0": w_opt, **bounds}
-        if lam_x is not None:
-            args["lam_x0"] = lam_x
-            args["lam_g0"] = lam_g
-        t_s = time.perf_counter()
-        try:
-            sol = solver(**args)
-        except RuntimeError as exc:  # CasADi's own input checks; a failed solve is a result
-            solver_s += time.perf_counter() - t_s
-            status = f"solver error: {str(exc).splitlines()[-1][:200]}"
-            break
-        solver_s += time.perf_counter() - t_s
-        st = solver.stats()
-        iterations += int(st.get("iter_count", 0))
-        status = str(st.get("return_status", "unknown"))
-        eval_s += sum(
-            float(v)
-            for kk, v in st.items()
-            if kk.startswith("t_wall_nlp_") and isinstance(v, float)
-        )
-        w_new = np.asarray(sol["x"]).reshape(-1)
-        if np.all(np.isfinite(w_new)):
-            w_opt = w_new
-            lam_x = np.asarray(sol["lam_x"]).reshape(-1)
-            lam_g = np.asarray(sol["lam_g"]).reshape(-1)
-    return _Run(w_opt, status, iterations, solver_s, eval_s, lam_g)
-
-
-def _evaluate(
-    problem: Problem,
-    formula: Formula,
-    formulas: Sequence[Formula],
-    trajectories: Sequence[Trajectory],
-    heading: bool = False,
-) -> tuple[float, float, Weakest | None, tuple[ClauseReport, ...]]:
-    """Exact robustness (dense and planning grid), weakest sub-formula, per clause."""
-    sig = _dense_signals(problem, trajectories, heading)
-    dt = problem.timing.check_dt_s
-    clause_rob = _clause_robustness(problem, formulas, sig).tolist()
-    clauses = tuple(
-        ClauseReport(c.key_path, c.text, r)
-        for c, r in zip(problem.clauses, clause_rob, strict=True)
-    )
-    rob = float(min(clause_rob)) if clause_rob else math.inf
-    ts = problem.timing.sample_dt_s
-    n = problem.timing.n_samples
-    sig_grid = heading_signals(trajectories, np.arange(n) * ts, heading)
-    rob_grid = float(formula.robustness(sig_grid, ts))
-    weakest = None
-    if formulas:
-        i = int(np.argmin(clause_rob))
-        # the deciding sub-formula in the clause's own sign (a `not` explained as itself)
-        leaf = explanation(formulas[i].weakest(sig, dt))[-1]
-        weakest = Weakest(
-            formula=str(_witness_formula(leaf)),
-            robustness=float(_witness_value(leaf)),
-            t_s=float(_witness_time(leaf, dt)),
-            clause_key=problem.clauses[i].key_path,
-        )
-    return rob, rob_grid, weakest, clauses
-
-
-def _dense_signals(
-    problem: Problem, trajectories: Sequence[Trajectory], heading: bool = False
-) -> dict[str, Any]:
-    """Each vehicle's positions on the exact check's dense samples (every check_dt_s), with
-    ``heading`` also its yaw (:func:`planner.heading.heading_signals`)."""
-    return heading_signals(trajectories, _dense_times(problem), heading)
-
-
-def _clause_robustness(
-    problem: Problem, formulas: Sequence[Formula], sig: Mapping[str, Any]
-) -> np.ndarray:
-    """Each clause's exact robustness on the dense signals ``sig``."""
-    dt = problem.timing.check_dt_s
-    return np.array([f.robustness(sig, dt) for f in formulas], dtype=float)
-
-
-def _start_bound(
-    problem: Problem,
-    formulas: Sequence[Formula],
-    trajectories: Sequence[Trajectory],
-    clauses: Sequence[ClauseReport],
-    weakest: Weakest | None,
-    heading: bool = False,
-) -> StartBound | None:
-    """Whether the headline figure is a margin of the start state: the weakest sub-formula
-    is a predicate of positions at t = 0 (the vehicles' given starts); then the least
-    robustness of the clauses whose own weakest point is elsewhere."""
-    if weakest is None or weakest.t_s != 0.0:
-        return None
-    sig = _dense_signals(problem, trajectories, heading)
-    dt = problem.timing.check_dt_s
-
-    def at_start(f: Formula) -> bool:
-        leaf = f.weakest(sig, dt)[-1]
-        return _witness_time(leaf, dt) == 0.0 and _is_direct(_witness_formula(leaf))
-
-    i = min(range(len(clauses)), key=lambda j: clauses[j].robustness)
-    if not at_start(formulas[i]):
-        return None
-    others = [c.robustness for f, c in zip(formulas, clauses, strict=True) if not at_start(f)]
-    return StartBound(min(others) if others else None)
-
-
-def _witness_formula(w: Any) -> Any:
-    return w.formula
-
-
-def _witness_value(w: Any) -> float:
-    return w.robustness
-
-
-def _witness_time(w: Any, dt: float) -> float:
-    return w.t_s

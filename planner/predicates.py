@@ -48,7 +48,7 @@ so a smooth margin >= 0 implies an exact margin >= 0:
 the bound ``log(faces)/k`` (6 for boxes) is 10 % of the smallest region half-size (measured: 2 % made
 the obstacle margins so sharp that IPOPT stalled inside the obstacle on reach-avoid).
 A box is the conjunction (disjunction) of its six face half-spaces.  The planner's second,
-sharp solve (:func:`planner.optimize._sharpen`, when a plan's margin is within that 10 %)
+sharp solve (:func:`planner.refine.sharpen`, when a plan's margin is within that 10 %)
 smooths a box in a smooth leaf (a formula under ``eventually``, ``or``, ``until``) as that
 conjunction would be: at the leaf's own sharpness, with its ``log(6)/k`` counted in the
 leaf's error bound (:func:`planner.leaf_templates.smoothing_terms`).  ``inside(d, box)`` and

@@ -10,7 +10,8 @@ import pytest
 
 from planner import nlp as nlp_mod
 from planner.nlp import CHUNK_ABOVE_SEGMENTS, CHUNK_SEGMENTS, NlpBuilder, _chunks
-from planner.optimize import _x0, conjunction, make_model, plan
+from planner.optimize import conjunction, make_model, plan
+from planner.plan_check import initial_states
 from planner.predicates import build_registry
 from planner.scenario import parse_scenario
 from planner.stl import Eventually, parse
@@ -101,7 +102,7 @@ def test_a_chunked_leaf_is_the_smooth_value_of_its_whole_window_with_casadis_der
     assert [len(c) for c in b.chunks] == [10, 10, 0]  # 75 windows in 4-segment chunks
     k = 40.0
     nlp, derivs, leaf_fn, chunk_fn = b.assemble(k)
-    x0s = _x0(problem, model)
+    x0s = initial_states(problem, model)
     rng = np.random.default_rng(3)
     # every leaf row's weight on r drawn in [0, 1] (1: ">= r"; 0: settled, planner.optimize)
     p = b.parameters(x0s)

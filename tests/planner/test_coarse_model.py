@@ -18,7 +18,8 @@ from planner.coarse_fit import waypoint_guess
 from planner.guess import _fit_within_limits
 from planner.milp import CoarseStatus, solve_coarse
 from planner.milp import solve as solve_mod
-from planner.optimize import _x0, make_model, plan
+from planner.optimize import make_model, plan
+from planner.plan_check import initial_states
 from planner.scenario import load_scenario
 from tests.planner.test_milp import TOL, ZOO, exact, scenario
 
@@ -98,7 +99,7 @@ def test_the_fit_follows_a_coarse_path_at_full_speed_along_an_axis():
     problem = load_scenario(ZOO / "powerline_alloc6_3drones.yaml")
     problem = dataclasses.replace(problem, vehicles=problem.vehicles[:1], clauses=())
     model = make_model(problem)
-    x0s = _x0(problem, model)
+    x0s = initial_states(problem, model)
     start = np.asarray(problem.vehicles[0].start_enu_m, dtype=float)
     times = np.arange(0.0, 61.0, 4.0)
     # from rest, 4.8 m/s east from 4 s to 40 s, then hold

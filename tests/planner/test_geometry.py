@@ -178,12 +178,13 @@ def test_the_narrow_passage_plans_in_both_spellings() -> None:
 
 def test_a_box_in_a_smooth_leaf_is_the_same_nlp_whatever_its_spelling() -> None:
     # inside(d1, goal) is the conjunction of its six faces; under `eventually` (a smooth
-    # leaf), in the sharp NLP (planner.optimize._sharpen), both spellings get the same
+    # leaf), in the sharp NLP (planner.refine.sharpen), both spellings get the same
     # sharpness and the same smooth value, everywhere.
     import casadi as ca
 
     from planner.nlp import NlpBuilder
-    from planner.optimize import _x0, make_model
+    from planner.optimize import make_model
+    from planner.plan_check import initial_states
 
     faces = "x(d1) >= 7 and x(d1) <= 8 and y(d1) >= 8 and y(d1) <= 9 and z(d1) >= 0 and z(d1) <= 2"
     built = []
@@ -196,7 +197,7 @@ def test_a_box_in_a_smooth_leaf_is_the_same_nlp_whatever_its_spelling() -> None:
     (b1, model, pr), (b2, _, _) = built
     assert b1.k_final == pytest.approx(b2.k_final, rel=1e-12)
     rng = np.random.default_rng(7)
-    p = b1.parameters(_x0(pr, model))
+    p = b1.parameters(initial_states(pr, model))
     for _ in range(5):
         w = rng.normal(scale=3.0, size=b1.w.shape[0])
         values = []

@@ -1,4 +1,4 @@
-"""The objective after its first bottleneck (:func:`planner.optimize._raise_the_rest`): a
+"""The objective after its first bottleneck (:func:`planner.refine.raise_the_rest`): a
 margin the start state fixes does not cap the other clauses, a failing plan still meets the
 clauses it can, and the report says when the start sets the headline figure.
 
@@ -15,8 +15,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from planner.optimize import _leximin_better, plan
+from planner.optimize import plan
 from planner.problem import Problem
+from planner.refine import leximin_better
 from planner.scenario import load_scenario, parse_scenario
 
 ZOO = Path(__file__).resolve().parents[2] / "benchmarks" / "scenarios"
@@ -87,7 +88,7 @@ def test_a_failing_plan_still_meets_every_clause_it_can() -> None:
 
 
 def test_the_leximin_order_compares_the_weakest_first() -> None:
-    assert _leximin_better(np.array([0.5, 0.9]), np.array([0.5, 0.6]), 2e-3)
-    assert _leximin_better(np.array([0.9, 0.4995]), np.array([0.6, 0.5]), 2e-3)  # within tol
-    assert not _leximin_better(np.array([0.49, 2.0]), np.array([0.5, 0.6]), 2e-3)
-    assert not _leximin_better(np.array([0.5, 0.6]), np.array([0.6, 0.5]), 2e-3)  # equal
+    assert leximin_better(np.array([0.5, 0.9]), np.array([0.5, 0.6]), 2e-3)
+    assert leximin_better(np.array([0.9, 0.4995]), np.array([0.6, 0.5]), 2e-3)  # within tol
+    assert not leximin_better(np.array([0.49, 2.0]), np.array([0.5, 0.6]), 2e-3)
+    assert not leximin_better(np.array([0.5, 0.6]), np.array([0.6, 0.5]), 2e-3)  # equal

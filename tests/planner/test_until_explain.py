@@ -10,7 +10,8 @@ import numpy as np
 
 from planner.explain import needs
 from planner.guess import _initial_guess, _targets
-from planner.optimize import _x0, conjunction, make_model, plan
+from planner.optimize import conjunction, make_model, plan
+from planner.plan_check import initial_states
 from planner.scenario import load_scenario
 
 ZOO = Path(__file__).resolve().parents[2] / "benchmarks" / "scenarios"
@@ -24,7 +25,7 @@ def test_the_guess_climbs_over_an_until_keep_out_before_crossing_it() -> None:
     route = _targets(formula, "d1", problem, np.array([-6.0, -12.0, 8.0]))
     assert route[0].name == "x(d1) >= 45" and len(route[0].clear_of) == 1
     model = make_model(problem)
-    x0s = _x0(problem, model)
+    x0s = initial_states(problem, model)
     z = _initial_guess(problem, model, formula, x0s).reshape((model.n_dec, 3), order="F")
     t = np.arange(0.0, 25.0, 0.05)
     tr = model.trajectory(z, x0s[0], "d1")
