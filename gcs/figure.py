@@ -559,7 +559,7 @@ def render_figure(
         _draw_tracking(ax_track, plan, telemetry, colours, t)
     _draw_kinematics(axes_v, axes_a, plan, colours, t, telemetry)
     rho = min((tr.robustness for tr in traces), default=math.nan)
-    status = plan.status.split(":")[0].strip()  # the outcome in words (planner.solver_runs.user_status)
+    status = plan.status.split(":")[0].strip()  # the outcome in words (solver_runs.user_status)
     title = fig.suptitle(
         f"{name or Path(plan.scenario).stem}: {len(plan.vehicles)} vehicle(s), horizon {plan.horizon_s:g} s"
         f" | spec robustness {rho:+.4f} (exact, dt {dt:g} s; epsilon {plan.epsilon:g})"

@@ -17,11 +17,6 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-# IPOPT's MUMPS (and its BLAS) read this when CasADi loads the ipopt plugin, at the first
-# nlpsol: threads only fight on a small shared machine (power-line N = 4 measured 19 s
-# with one thread, > 90 s unset on 2 loaded cores).  An explicit setting is respected.
-os.environ.setdefault("OMP_NUM_THREADS", "1")
-
 import casadi as ca
 import numpy as np
 
@@ -1039,6 +1034,33 @@ _IPOPT_WARM: dict[str, Any] = {
 }
 
 
+def one_blas_thread() -> bool:
+    """IPOPT's MUMPS calls the BLAS CasADi ships (its own OpenBLAS,
+    ``libcasadi-tp-openblas``), whose threads only fight on a small shared machine (power
+    line N = 4: 19 s with one thread, over 90 s with its default on 2 loaded cores).  Unless
+    the user chose (``OMP_NUM_THREADS`` or ``OPENBLAS_NUM_THREADS`` set), that library runs
+    one thread: set with its own ``openblas_set_num_threads``, nothing else in the process
+    changed (no environment variable, no other library's threads).  Whether it was set
+    (False: chosen by the user, or no such library in this CasADi)."""
+    global _BLAS_SET
+    if _BLAS_SET is None:
+        _BLAS_SET = False
+        chosen = any(os.environ.get(v) for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"))
+        path = os.path.join(os.path.dirname(ca.__file__), "libcasadi-tp-openblas.so.0")
+        if not chosen and os.path.exists(path):
+            import ctypes
+
+            try:
+                ctypes.CDLL(path).openblas_set_num_threads(1)
+                _BLAS_SET = True
+            except (OSError, AttributeError):
+                pass
+    return _BLAS_SET
+
+
+_BLAS_SET: bool | None = None
+
+
 def _nlpsol(
     nlp: dict[str, Any],
     problem: Problem,
@@ -1053,6 +1075,7 @@ def _nlpsol(
     ``refine``: it starts from a point that meets the mission, and IPOPT's barrier is capped
     (``_MU_MAX``) so that the start is refined, not re-centred."""
     s = problem.solver
+    one_blas_thread()
     if s.method is SolverMethod.SQP:
         return _sqpsol(nlp, s, derivs, watch)
     return ca.nlpsol(
