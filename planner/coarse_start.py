@@ -32,13 +32,15 @@ from planner.coarse_fit import waypoint_guess
 from planner.milp import CoarseResult, CoarseStatus, Conflict, find_conflict, solve_coarse
 from planner.problem import Problem
 
-__all__ = ["BackgroundStage", "CoarseOutcome", "coarse_budget_s", "coarse_start"]
+__all__ = ["BackgroundStage", "CoarseOutcome", "StageBeside", "coarse_budget_s", "coarse_start"]
 
 #: The share of the time limit the combinatorial stage may use at most.
 _LIMIT_SHARE = 0.25
 #: Beside the NLP the stage's budget is CPU time of its thread; its wall time is capped at
 #: this many times the budget (the planner stops it at its own deadlines as well).
 _WALL_FACTOR = 3.0
+#: How long the end of a search waits for a stopped stage to end (s).
+_STOP_WAIT_S = 0.2
 #: The least time (s) the conflict search gets once the spec is proven infeasible on the
 #: coarse model (its answer is worth more than a few more seconds of the NLP).
 _CONFLICT_MIN_S = 2.0
@@ -289,3 +291,140 @@ class BackgroundStage:
             return self._outcome
         result, conflict = self._ended()
         return CoarseOutcome(result, None, None if self._cut else conflict, stopped=self._cut)
+
+
+class StageBeside:
+    """The combinatorial stage beside a search (:class:`planner.optimize.PlanSearch`): the
+    stage in its thread (:class:`BackgroundStage`), the guess's first NLP yielding to its
+    plan, and the stage waited for or stopped once that NLP has ended.
+
+    Args:
+        problem, model, x0s, budget_s: as for :class:`BackgroundStage`.
+        say: the search's progress.
+    """
+
+    def __init__(
+        self,
+        problem: Problem,
+        model: Any,
+        x0s: list[np.ndarray],
+        budget_s: float,
+        say: Callable[[str], None],
+    ) -> None:
+        self.say = say
+        self.budget_s = budget_s
+        #: what the stage did, once the search asked (None before, or when it was stopped
+        #: and had not ended in :data:`_STOP_WAIT_S`)
+        self.outcome: CoarseOutcome | None = None
+        self._lock = threading.Lock()  # the two instants below and the NLP's watch
+        self._plan_at: float | None = None  # when the stage ended with a plan
+        self._nlp_at: float | None = None  # when the guess's first NLP began, while it runs
+        self._watch: Any = None  # that NLP's iteration watch (its ``deadline``)
+        self._stopped = False
+        self.stage = BackgroundStage(problem, model, x0s, budget_s, on_plan=self._has_plan)
+
+    # ---------------------------------------------------------- the guess's first NLP
+
+    def _yield_at(self) -> float:
+        """When the guess's first NLP yields to the stage's plan: once the stage has one and
+        the NLP has had as long as the stage's budget (an NLP that meets the mission in that
+        time is never cut, whatever the stage does)."""
+        assert self._nlp_at is not None
+        return max(time.perf_counter(), self._nlp_at + self.budget_s)
+
+    def nlp_began(self, watch: Any) -> None:
+        """The guess's first NLP begins, stopped by ``watch.deadline``: it yields to the
+        stage's plan (:meth:`_yield_at`)."""
+        with self._lock:
+            self._nlp_at, self._watch = time.perf_counter(), watch
+            if self._plan_at is not None:
+                watch.deadline = min(watch.deadline, self._yield_at())
+
+    def nlp_ended(self) -> None:
+        with self._lock:
+            self._nlp_at = self._watch = None
+
+    def _has_plan(self) -> None:
+        """From the stage's thread: it has a plan; the guess's NLP, if it runs, yields."""
+        with self._lock:
+            self._plan_at = time.perf_counter()
+            if self._nlp_at is not None:
+                self._watch.deadline = min(self._watch.deadline, self._yield_at())
+
+    # ------------------------------------------------------------ after the first NLP
+
+    def answer(
+        self, met: float | None, until: float, interrupted: Callable[[], bool]
+    ) -> CoarseOutcome | None:
+        """The stage's plan as the next start, or None (what it did is in :attr:`outcome`).
+
+        ``met``: the robustness of the plan the guess's NLP met the mission with (None: it
+        fell short).  The stage is waited for until ``until`` (or Ctrl-C, ``interrupted``);
+        stopped then, its best plan so far stands.  After a met plan, its plan is a start
+        only if it promises more margin (its coarse robustness above ``met``); a stage still
+        running whose best so far does not is not waited for any longer."""
+        stage = self.stage
+        if not stage.done:
+            self.say("waiting for the combinatorial stage")
+            while not stage.wait(0.05):
+                if interrupted() or time.perf_counter() >= until:
+                    break
+        if met is not None and not stage.done and not stage.incumbent > met:
+            so_far = (
+                "it has no plan yet"
+                if math.isnan(stage.incumbent)
+                else f"its best plan so far ({stage.incumbent:+.4f} on the coarse model) "
+                f"promises no more margin than the plan met ({met:+.4f})"
+            )
+            self.say(f"combinatorial stage: stopped, {so_far}")
+            self.settle(quiet=True)
+            return None
+        stage.stop()  # ended already, or its incumbent stands
+        outcome = self.outcome = stage.outcome()
+        if outcome.decision is None:
+            r = outcome.result
+            if outcome.stopped:
+                why = "stopped before it had a plan"
+            elif r.status is CoarseStatus.NOT_ENCODABLE:
+                why = f"the spec is not encodable there: {r.message}"
+            else:
+                why = (
+                    f"{r.status.value} after {r.build_s + r.solve_s:.1f} s, "
+                    f"{r.num_binaries} binaries"
+                )
+            if outcome.conflict is None:
+                alone = "the plan met stands" if met is not None else "the initial guess alone"
+                self.say(f"combinatorial stage: no coarse plan ({why}); {alone}")
+            return None
+        rho_c = outcome.result.robustness
+        if met is not None and not rho_c > met:
+            self.say(
+                f"combinatorial stage: its plan ({rho_c:+.4f} on the coarse model) promises "
+                f"no more margin than the plan met ({met:+.4f})"
+            )
+            return None
+        return outcome
+
+    def settle(self, quiet: bool = False, met: bool = False) -> None:
+        """At the end of the search: a stage still running is stopped (a start met the
+        mission first, or the time is up) and what it did is kept in :attr:`outcome`.
+        ``quiet``: the progress has said why already; ``met``: a plan met the mission."""
+        stage = self.stage
+        if self.outcome is not None or (self._stopped and not stage.done):
+            return  # kept already, or waited for once already
+        if not stage.done:
+            if not (quiet or self._stopped):
+                self.say(
+                    "combinatorial stage: stopped (not needed: the initial guess's start met "
+                    "the mission)"
+                    if met
+                    else "combinatorial stage: stopped"
+                )
+            stage.stop()
+            self._stopped = True
+            # HiGHS ends at its next interrupt check (inside a sub-MIP, up to a second on
+            # the zoo's); a stage that has not ended by then ends in its thread after the
+            # plan is returned, and its figures are not kept
+            if not stage.wait(_STOP_WAIT_S):
+                return
+        self.outcome = stage.figures()

@@ -64,13 +64,12 @@ from typing import Any
 import numpy as np
 
 from planner.checks import LimitReport, check_trajectories
-from planner.coarse_start import BackgroundStage, CoarseOutcome, coarse_budget_s
+from planner.coarse_start import CoarseOutcome, StageBeside, coarse_budget_s
 from planner.explain import needs
 from planner.fix_choices import fixed_clauses
 from planner.guess import _initial_guess, starts
 from planner.heading import facing_rules, heading_signals, uses_heading, with_heading
 from planner.limits import vehicle_bounds
-from planner.milp import CoarseStatus
 from planner.nlp import (
     K_MIN,
     STRUCTURES,
@@ -219,17 +218,11 @@ class PlanSearch:
         self.combinatorial: CoarseOutcome | None = None
         #: the combinatorial stage, running in its thread beside the build and the initial
         #: guess's first start (:meth:`_start_stage`; None: it does not run)
-        self._stage: BackgroundStage | None = None
-        #: when the stage ended with a plan, and when the guess's first NLP began (while it
-        #: runs): that NLP yields to the stage's plan (:meth:`_yield_at`); under _cap_lock
-        self._stage_plan_at: float | None = None
-        self._first_nlp_at: float | None = None
-        self._cap_lock = threading.Lock()
+        self._stage: StageBeside | None = None
         self._rho_first = -math.inf  # the initial guess's start, exact robustness
         #: once a start meets the mission, the seconds more the search may take for margin
         self._margin_s = problem.solver.polish_s
         self._sigint: SigintWatch | None = None
-        self._stage_stopped = False  # the search has stopped the stage
         #: the combinatorial stage's start (None: it made none)
         self._coarse_z: np.ndarray | None = None
         #: the starts made from the combinatorial stage's plan (it, its choices refined)
@@ -406,7 +399,7 @@ class PlanSearch:
         return self._first_guess
 
     def _start_stage(self) -> None:
-        """Start the combinatorial stage in its thread (:class:`BackgroundStage`), unless the
+        """Start the combinatorial stage in its thread (:class:`StageBeside`), unless the
         initial guess's start already meets the mission, the stage is off
         (``solver.coarse_s`` 0) or there is no second start for its plan
         (``solver.starts`` 1).  It runs while the NLP is built and the guess's start solved;
@@ -420,121 +413,34 @@ class PlanSearch:
         if budget <= 0.0:
             return
         self.say("choosing options, order and timing (combinatorial stage, beside the NLP)")
-        self._stage = BackgroundStage(
-            problem, self.model, self.x0s, budget, on_plan=self._stage_has_plan
-        )
-
-    def _yield_at(self) -> float:
-        """When the guess's first NLP yields to the stage's plan: once the stage has one and
-        the NLP has had as long as the stage's budget (an NLP that meets the mission in that
-        time is never cut, whatever the stage does)."""
-        assert self._stage is not None and self._first_nlp_at is not None
-        return max(time.perf_counter(), self._first_nlp_at + self._stage.budget_s)
-
-    def _stage_has_plan(self) -> None:
-        """From the stage's thread: it has a plan; the guess's NLP, if it runs, yields to it
-        (:meth:`_yield_at`)."""
-        with self._cap_lock:
-            self._stage_plan_at = time.perf_counter()
-            if self._first_nlp_at is not None:
-                self.watch.deadline = min(self.watch.deadline, self._yield_at())
+        self._stage = StageBeside(problem, self.model, self.x0s, budget, self.say)
 
     def _stage_start(self, met: bool) -> tuple[str, np.ndarray] | None:
-        """After the guess's first start: the stage's answer, its plan as the next start, or
-        None.  If that start fell short, the stage is waited for (within the time limit).
-        If it met the mission, the stage may end until the search's margin time is up (see
-        :meth:`_multistart`; stopped then, its best plan so far stands), and its plan is
-        refined only where it promises more margin than the one met (its coarse
-        robustness above that plan's exact one)."""
-        stage = self._stage
-        if stage is None:
+        """After the guess's first start: the stage's plan as the next start, or None
+        (:meth:`StageBeside.answer`: waited for if that start fell short; after a met plan
+        only within the margin time of :meth:`_multistart`, and only if it promises more)."""
+        side = self._stage
+        if side is None:
             return None
-        until = min(self.solve_deadline(), self.polish_until)
-        if not stage.done:
-            self.say("waiting for the combinatorial stage")
-            while not stage.wait(0.05):
-                hit = self._sigint is not None and self._sigint.hit
-                if hit or time.perf_counter() >= until:
-                    break
-        if met and not stage.done:
-            assert self.best is not None
-            rho_c = stage.incumbent
-            if not rho_c > self.best.robustness:
-                # its best so far promises no more margin: not waited for any longer
-                # (HiGHS may take a second to stop inside a sub-MIP)
-                so_far = (
-                    "it has no plan yet"
-                    if math.isnan(rho_c)
-                    else f"its best plan so far ({rho_c:+.4f} on the coarse model) promises "
-                    f"no more margin than the plan met ({self.best.robustness:+.4f})"
-                )
-                self.say(f"combinatorial stage: stopped, {so_far}")
-                self._settle_stage(quiet=True)
-                return None
-        stage.stop()  # ended already, or its incumbent stands
-        outcome = stage.outcome()
-        self.combinatorial = outcome
-        if outcome.decision is None:
-            r = outcome.result
-            if outcome.stopped:
-                why = "stopped before it had a plan"
-            elif r.status is CoarseStatus.NOT_ENCODABLE:
-                why = f"the spec is not encodable there: {r.message}"
-            else:
-                why = (
-                    f"{r.status.value} after {r.build_s + r.solve_s:.1f} s, "
-                    f"{r.num_binaries} binaries"
-                )
-            if outcome.conflict is None:
-                alone = "the plan met stands" if met else "the initial guess alone"
-                self.say(f"combinatorial stage: no coarse plan ({why}); {alone}")
-            return None
-        rho_c = outcome.result.robustness
-        if met:
-            assert self.best is not None
-            if not rho_c > self.best.robustness:
-                self.say(
-                    f"combinatorial stage: its plan ({rho_c:+.4f} on the coarse model) "
-                    f"promises no more margin than the plan met ({self.best.robustness:+.4f})"
-                )
-                return None
-            # as long again as the search had taken to meet the mission, to refine it
-            self.polish_until = time.perf_counter() + self._margin_s
-        self._coarse_z = outcome.decision
-        self._coarse_starts.append(outcome.decision)
-        rho_coarse = self._timed_exact(outcome.decision)
-        self.say(
-            f"combinatorial stage: its plan ({rho_c:+.4f} on the coarse model) starts at "
-            f"{rho_coarse:+.4f}, the initial guess at {self._rho_first:+.4f}"
+        sigint = self._sigint
+        got = side.answer(
+            self.best.robustness if met and self.best is not None else None,
+            min(self.solve_deadline(), self.polish_until),
+            lambda: sigint is not None and sigint.hit,
         )
-        return outcome.describe(), outcome.decision
-
-    def _settle_stage(self, quiet: bool = False) -> None:
-        """At the end of the search: a stage still running is stopped (a start met the
-        mission first, or the time is up) and what it did is kept for the statistics.
-        ``quiet``: the progress has said why already."""
-        stage = self._stage
-        if stage is None or self.combinatorial is not None:
-            return
-        if self._stage_stopped and not stage.done:
-            return  # waited for once already
-        if not stage.done:
-            if not (quiet or self._stage_stopped):
-                met = self.best is not None and self.best.robustness >= self.problem.epsilon
-                self.say(
-                    "combinatorial stage: stopped (not needed: the initial guess's start met "
-                    "the mission)"
-                    if met
-                    else "combinatorial stage: stopped"
-                )
-            stage.stop()
-            self._stage_stopped = True
-            # HiGHS ends at its next interrupt check (inside a sub-MIP, up to a second on
-            # the zoo's); a stage that has not ended by then ends in its thread after the
-            # plan is returned, and its figures are not kept
-            if not stage.wait(_STAGE_STOP_WAIT_S):
-                return
-        self.combinatorial = stage.figures()
+        self.combinatorial = side.outcome
+        if got is None or got.decision is None:
+            return None
+        if met:  # as long again as the search had taken to meet the mission, to refine it
+            self.polish_until = time.perf_counter() + self._margin_s
+        self._coarse_z = got.decision
+        self._coarse_starts.append(got.decision)
+        rho_coarse = self._timed_exact(got.decision)
+        self.say(
+            f"combinatorial stage: its plan ({got.result.robustness:+.4f} on the coarse model) "
+            f"starts at {rho_coarse:+.4f}, the initial guess at {self._rho_first:+.4f}"
+        )
+        return got.describe(), got.decision
 
     def _fixed_start(self) -> tuple[str, np.ndarray] | None:
         """The combinatorial stage's choices fixed (:func:`planner.fix_choices.fixed_clauses`)
@@ -583,13 +489,11 @@ class PlanSearch:
         say = self.say
         rob_start = self._timed_exact(w0)
         self.watch.deadline = min(self.solve_deadline(), self.polish_until)
-        if self._stage is not None and self.n_starts == 1:
+        first = self._stage is not None and self.n_starts == 1
+        if first and self._stage is not None:
             # The guess's first start, the stage beside it: it yields to the stage's plan
             # once that is ready and it has had as long as the stage's budget.
-            with self._cap_lock:
-                self._first_nlp_at = time.perf_counter()
-                if self._stage_plan_at is not None:
-                    self.watch.deadline = min(self.watch.deadline, self._yield_at())
+            self._stage.nlp_began(self.watch)
         elif self._coarse_z is not None and self.n_starts < problem.solver.starts:
             # With the coarse plan's starts to come, one start may not take all the time
             # left (the allocation mission: the first NLP ran to the limit at -0.70, the
@@ -600,8 +504,8 @@ class PlanSearch:
             )
         refine = rob_start >= problem.epsilon and problem.solver.method is SolverMethod.IPOPT
         run = run_solvers(struct, w0, bounds, say, problem.solver.method.value, stop, refine)
-        with self._cap_lock:
-            self._first_nlp_at = None
+        if first and self._stage is not None:
+            self._stage.nlp_ended()
         if self.watch.stopped and time.perf_counter() < min(
             self.solve_deadline(), self.polish_until
         ):
@@ -739,7 +643,7 @@ class PlanSearch:
                     self.watch.on_iteration = None
         finally:
             if self._stage is not None:
-                self._stage.stop()  # ended already, unless an error came out of the search
+                self._stage.stage.stop()  # ended already, unless an error came out of it
 
     def _run(self, initial_guess: np.ndarray | None, stop: SigintWatch) -> PlanResult:
         problem, formula, say = self.problem, self.formula, self.say
@@ -823,7 +727,10 @@ class PlanSearch:
     ) -> PlanResult:
         """Check the plan at ``w_opt`` on dense samples: the :class:`PlanResult`."""
         problem, formula, formulas = self.problem, self.formula, self.formulas
-        self._settle_stage()
+        if self._stage is not None and self.combinatorial is None:
+            met = self.best is not None and self.best.robustness >= problem.epsilon
+            self._stage.settle(met=met)
+            self.combinatorial = self._stage.outcome
         self.say("checking on dense samples")
         struct = getattr(self, "struct", None)  # None: the time limit came in the build
         # The smooth value at the point returned (r itself may sit on a bound, eq. (1)).
@@ -918,8 +825,6 @@ class PlanSearch:
 #: Held by a search while it runs (:meth:`PlanSearch.run`; re-entrant: the fixed choices
 #: search runs inside its parent's).
 _PLAN_LOCK = threading.RLock()
-#: How long the end of a search waits for a stopped combinatorial stage to end (s).
-_STAGE_STOP_WAIT_S = 0.2
 #: The share of the time left one start may take while the coarse plan's starts remain.
 _START_SHARE = 0.5
 #: Evaluations of the clauses the final check costs (the result's, the start bound's, and

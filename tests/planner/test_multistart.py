@@ -119,7 +119,9 @@ def test_a_given_guess_is_the_only_start() -> None:
 
 def test_the_time_limit_ends_the_multi_start() -> None:
     short = plan(_zoo("stlpy_either_or_halfplanes"), time_limit_s=0.01)
-    assert short.stats is not None and short.stats.starts == 1
+    # one start if this process has built the structure before, none if the limit came
+    # in a cold build (then the initial guess is checked as the plan)
+    assert short.stats is not None and short.stats.starts <= 1
     assert short.status.startswith("stopped at the time limit (0.01 s)")
 
 
