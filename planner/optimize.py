@@ -1,41 +1,9 @@
 """Problem -> PlanResult: maximise STL robustness with CasADi/IPOPT (or sqpmethod).
 
-Formulation (for vehicles ``i`` with decision matrices ``Z_i`` of the chosen
-:class:`~planner.dynamics.LinearModel` and start states ``X0_i``)::
-
-    maximise    r
-    subject to  c_l(Z) >= r                  every conjunctive leaf l (see below)
-                G Z_i + H X0_i <= h_i        continuous-time |v|, |a| limits per axis
-                                             (and horizontal norms: planner.limits)
-                v_i(horizon) = 0             every vehicle ends at rest (then holds)
-                lo_ws <= p_i(t_k) <= hi_ws   workspace, at every constraint sample
-                [r >= epsilon + margin]      the paper's eq. (1) constraint, if asked for
-
-The spec is a conjunction; its robustness is the min over the clauses, and the min over
-time of an ``always``.  Instead of smoothing these mins (log-sum-exp over N^2 separation
-clauses times 121 samples would be both inaccurate and dense), they are handled *exactly*
-by the epigraph variable ``r``: the tree is walked from the root through ``and`` and
-``always`` nodes, collecting leaves with the set of sample steps at which they must hold.
-A leaf is then
-
-* a comparison of arithmetic over function values (``dist(a, b) >= 0.2``, ``x(d) <= 4``)
-  or a function atom (``outside(d, pole1)``): one constraint per step, with the smooth
-  predicate implementations of :mod:`planner.predicates` (never above the exact value);
-* ``inside(d, box)``: six *linear* constraints per step (the face margins; exact);
-* anything else (``eventually``, ``or``, ``until``, ``not``, ``implies``): the STL engine's
-  smooth robustness with sharpness ``k`` of that sub-formula at each step (one CasADi
-  expression per step, over only the samples its windows reach), built as a call of a
-  template shared by every leaf of the same shape (:mod:`planner.leaf_templates`).
-
-So the separation pairs become sparse constraints (each touches two vehicles), the
-Hessian stays sparse, no term drowns another, and smoothing error remains only where
-there is a genuine max (a disjunction).  The sampled positions are lifted into variables
-(``P_i = Mp Z_i + Np X0_i`` as linear equalities) so the row-wise leaves are local; the
-smooth leaves, which couple whole windows, are written in ``Z`` where their dense Hessian
-block is ``3 n_dec`` wide.  Row-wise leaves are sampled every
-:attr:`SolverOptions.constraint_dt_s` (default ``max(Ts, 0.1 s)``); the exact check is
-dense anyway.  A small acceleration penalty (``_REG_WEIGHT``) gives curvature in the
-directions ``r`` ignores (reach-avoid N = 1: 207 -> 75 iterations).
+:func:`plan` (and :class:`PlanSearch`, the search as an object) draws the initial guess, runs
+the combinatorial stage beside the NLP (:mod:`planner.coarse_start`), solves the NLP of
+:mod:`planner.nlp` (its formulation is described there) from its starts, refines the best
+(:mod:`planner.refine`) and checks it (:mod:`planner.plan_check`).
 
 The measurements behind each choice (smoothing, solver options, the initial guess, eq. (1),
 what was tried and not kept) are in ``docs/solver-notes.md``.
@@ -88,6 +56,7 @@ from planner.plan_check import (
     initial_states,
     make_model,
     start_bound,
+    verdict,
 )
 from planner.predicates import (
     build_registry,
@@ -748,23 +717,7 @@ class PlanSearch:
             problem, trajectories, problem.vehicles, problem.timing.check_dt_s,
             problem.timing.horizon_s,
         )  # fmt: skip
-        success = bool(rob >= problem.epsilon and all(lim.ok for lim in limits))
-        if success:
-            verdict = f"robustness {rob:.4g} >= epsilon {problem.epsilon:g}"
-        elif rob < problem.epsilon:
-            w_txt = (
-                f" (weakest: {weakest.formula} = {weakest.robustness:.4g} at t={weakest.t_s:g} s)"
-                if weakest
-                else ""
-            )
-            verdict = f"robustness {rob:.4g} < epsilon {problem.epsilon:g}{w_txt}"
-        else:
-            bad = [lim.name for lim in limits if not lim.limits_ok]
-            out = [lim.name for lim in limits if not lim.in_workspace]
-            verdict = "; ".join(
-                ([f"limits violated by {', '.join(bad)}"] if bad else [])
-                + ([f"outside the workspace: {', '.join(out)}"] if out else [])
-            )
+        success, said = verdict(problem, rob, weakest, limits)
         stopped_by_time = by_time and not stop.hit
         lines = (
             needs(
@@ -802,7 +755,7 @@ class PlanSearch:
                 converged,
                 success,
                 rob < problem.epsilon,
-                verdict,
+                said,
                 interrupted=stop.hit,
                 time_limit_s=self.time_limit_s if stopped_by_time else None,
             ),

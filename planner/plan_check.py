@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from planner.checks import LimitReport
 from planner.dynamics import DoubleIntegrator, MinimumJerkChain
 from planner.heading import heading_signals
 from planner.nlp import is_direct
@@ -28,6 +29,7 @@ __all__ = [
     "initial_states",
     "make_model",
     "start_bound",
+    "verdict",
 ]
 
 
@@ -143,3 +145,26 @@ def _witness_value(w: Any) -> float:
 
 def _witness_time(w: Any, dt: float) -> float:
     return w.t_s
+
+
+def verdict(
+    problem: Problem, rob: float, weakest: Weakest | None, limits: Sequence[LimitReport]
+) -> tuple[bool, str]:
+    """Whether a plan succeeds (exact robustness at least epsilon, and every vehicle within
+    its limits and the workspace) and why, in words, for its status."""
+    success = bool(rob >= problem.epsilon and all(lim.ok for lim in limits))
+    if success:
+        return True, f"robustness {rob:.4g} >= epsilon {problem.epsilon:g}"
+    if rob < problem.epsilon:
+        w_txt = (
+            f" (weakest: {weakest.formula} = {weakest.robustness:.4g} at t={weakest.t_s:g} s)"
+            if weakest
+            else ""
+        )
+        return False, f"robustness {rob:.4g} < epsilon {problem.epsilon:g}{w_txt}"
+    bad = [lim.name for lim in limits if not lim.limits_ok]
+    out = [lim.name for lim in limits if not lim.in_workspace]
+    return False, "; ".join(
+        ([f"limits violated by {', '.join(bad)}"] if bad else [])
+        + ([f"outside the workspace: {', '.join(out)}"] if out else [])
+    )
