@@ -17,6 +17,7 @@ $(STAMP): pyproject.toml
 lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
+	$(BIN)/lint-imports
 
 # planner, mavlink and gcs ([tool.mypy] in pyproject.toml; every def typed in planner and gcs)
 typecheck: $(STAMP)

@@ -1,6 +1,7 @@
-"""The layers of docs/architecture.md, "The parts and their direction", read from every module's imports (nested ones too):
-planner -> mavlink -> gcs, nothing running back up; mavlink uses of planner only its
-trajectories, frames and STL engine; gcs's flight code no command module."""
+"""The layers of docs/architecture.md ("The parts and their direction"), read from every
+module's imports (nested ones too): planner -> mavlink -> gcs, nothing running back up;
+mavlink uses of planner only its trajectories, frames and STL engine; gcs's flight code no
+command module.  `lint-imports` (import-linter, in `make test`) checks the layers too."""
 
 from __future__ import annotations
 
