@@ -330,12 +330,12 @@ def _draw_regions_xy(ax: Any, plan: Plan) -> None:
     outlines where large), the workspace left out."""
     from matplotlib.patches import Polygon
 
-    from gcs.figure import _KIND_STYLE, is_large
+    from gcs.figure import KIND_STYLE, is_large
     from planner.cover import drawn_regions
 
     for r in drawn_regions(plan.regions):
         kind = r.kind.value
-        face, alpha, edge, _ = _KIND_STYLE.get(kind, _KIND_STYLE["region"])
+        face, alpha, edge, _ = KIND_STYLE.get(kind, KIND_STYLE["region"])
         big = is_large(r, plan.workspace)
         ax.add_patch(
             Polygon(

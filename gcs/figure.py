@@ -65,7 +65,7 @@ MAX_COLOURED_CLAUSES = 8
 _AXES = ("east x", "north y", "up z")
 
 #: Face colour, face alpha, edge colour and legend label of each region kind.
-_KIND_STYLE: dict[str, tuple[str, float, str, str]] = {
+KIND_STYLE: dict[str, tuple[str, float, str, str]] = {
     "obstacle": ("#d62728", 0.22, "#a01010", "obstacle / no-fly"),
     "no_fly": ("#d62728", 0.22, "#a01010", "obstacle / no-fly"),
     "pole": ("#7f7f7f", 0.45, "#404040", "pole"),
@@ -213,7 +213,7 @@ def _draw_regions(ax: Any, plan: Plan) -> list[Any]:
     }
     ordered = sorted(drawn_regions(plan.regions), key=lambda r: r.kind.value in _TARGET_KINDS)
     for r in ordered:
-        face, alpha, edge, label = _KIND_STYLE.get(r.kind.value, _KIND_STYLE["region"])
+        face, alpha, edge, label = KIND_STYLE.get(r.kind.value, KIND_STYLE["region"])
         if is_large(r, ws):
             ax.add_collection3d(
                 Line3DCollection(region_edges(r), colors=edge, linewidths=1.1), autolim=False

@@ -43,7 +43,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gcs.clause_traces import plan_grid
-from gcs.figure import _KIND_STYLE, fit_titles, vehicle_colours
+from gcs.figure import KIND_STYLE, fit_titles, vehicle_colours
 from planner.cover import drawn_regions
 from planner.regions import KEEP_OUT_KINDS, RegionKind
 
@@ -263,7 +263,7 @@ def _draw_regions(ax: Any, plan: Plan, labels: _Labels) -> dict[str, Any]:
         ax.plot(line[:, 0], line[:, 1], color="#303030", lw=1.0, zorder=3, gid="line")
         handles["line"] = Line2D([], [], color="#303030", lw=1.0, label="line (spans, pole to pole)")  # fmt: skip
     for r in regions:
-        face, alpha, edge, label = _KIND_STYLE.get(r.kind.value, _KIND_STYLE["region"])
+        face, alpha, edge, label = KIND_STYLE.get(r.kind.value, KIND_STYLE["region"])
         keep_out = r.kind in KEEP_OUT_KINDS and r.kind is not RegionKind.POLE
         target = r in targets
         fill = (*_rgb(face), 0.5 if target else 0.25 if r.kind is RegionKind.POLE else alpha / 2)
@@ -318,7 +318,7 @@ def _label_regions(plan: Plan, labels: _Labels) -> None:
     regions.sort(key=lambda r: r.kind.value not in ("inspection", "goal"))
     for r in regions:
         c = r.center_enu_m
-        _, _, edge, _ = _KIND_STYLE.get(r.kind.value, _KIND_STYLE["region"])
+        _, _, edge, _ = KIND_STYLE.get(r.kind.value, KIND_STYLE["region"])
         labels.add(float(c[0]), float(c[1]), r.name, (0.0, -9.0), ha="center", color=edge)
 
 

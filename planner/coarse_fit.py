@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.guess import _fit_within_limits, _guess_qp, axis_fit
+from planner.guess import axis_fit, fit_within_limits, guess_qp
 from planner.limits import NORM_DIRECTIONS, vehicle_bounds
 from planner.problem import Problem, Vehicle
 from planner.regions import Region
@@ -52,7 +52,7 @@ def _fit_xy(
             lba.append(-b - off)
             uba.append(b - off)
     A = np.vstack(blocks)
-    qp = _guess_qp(3 * n, A)
+    qp = guess_qp(3 * n, A)
     sol = qp(
         h=np.kron(np.eye(3), fit.H),
         g=np.concatenate(fit.g),
@@ -81,7 +81,7 @@ def waypoint_guess(
 
     Returns:
         the flat decision vector, vehicles in ``problem.vehicles`` order (as
-        :func:`planner.guess._initial_guess`).
+        :func:`planner.guess.initial_guess`).
     """
     t_model = np.asarray(model.times_s, dtype=float)
     tq = np.clip(t_model, float(times_s[0]), float(times_s[-1]))
@@ -92,6 +92,6 @@ def waypoint_guess(
         path = np.column_stack([np.interp(tq, times_s, p[:, a]) for a in range(3)])
         z = _fit_xy(model, path, x0, v, problem.workspace, end)
         if z is None:
-            z = _fit_within_limits(model, path, x0, v, problem.workspace, end)
+            z = fit_within_limits(model, path, x0, v, problem.workspace, end)
         cols.append(z.reshape(-1, order="F"))
     return np.concatenate(cols)

@@ -1,7 +1,7 @@
 """What a plan that falls short of its mission would need (issue 19, "anytime, bounded,
 explained"): a few lines a user at a terminal can act on.
 
-* **Time.** Each vehicle's route (the first start's, :func:`planner.guess._targets`) is timed
+* **Time.** Each vehicle's route (the first start's, :func:`planner.guess.visit_targets`) is timed
   at the vehicle's own limits: every leg flown straight from rest to rest on the fastest
   trapezoid the per-axis limits allow, every place held for the spec's hover there.  A
   clause whose place is reached later than the clause allows is named with the time it
@@ -23,13 +23,13 @@ import numpy as np
 from planner.coarse_start import CoarseOutcome
 from planner.geometry import Place
 from planner.guess import (
-    _Choices,
-    _hover_times,
-    _leg_profile,
-    _places_in,
-    _start_of,
-    _targets,
+    Choices,
     axis_limits,
+    hover_times,
+    leg_profile,
+    places_in,
+    start_of,
+    visit_targets,
 )
 from planner.problem import Problem
 from planner.stl import And, Formula
@@ -45,12 +45,12 @@ def _arrivals(
 ) -> tuple[list[Place], dict[Any, float], float]:
     """The vehicle's route, the time it first gets to each place on it (by place key), and
     when the route ends (s), at its limits."""
-    route = _targets(formula, vehicle.name, problem, start)
+    route = visit_targets(formula, vehicle.name, problem, start)
     v_lim, a_lim = axis_limits(vehicle)
     at: dict[Any, float] = {}
     t, here = 0.0, start
     for pl in route:
-        t += _leg_profile(np.asarray(pl.point) - here, v_lim, a_lim)[0]
+        t += leg_profile(np.asarray(pl.point) - here, v_lim, a_lim)[0]
         at.setdefault(pl.key, t)
         t += hovers.get(pl.name, 0.0)
         here = np.asarray(pl.point)
@@ -84,15 +84,15 @@ def needs(
     clauses = list(formula.operands) if isinstance(formula, And) else [formula]
     horizon = problem.timing.horizon_s
     for v in problem.vehicles:
-        start = _start_of(problem, v.name)
-        hovers = _hover_times(formula, v.name, problem)
+        start = start_of(problem, v.name)
+        hovers = hover_times(formula, v.name, problem)
         route, at, end = _arrivals(problem, formula, v, start, hovers)
         if not route:
             continue
         names = " -> ".join(pl.name for pl in route)
         late: list[tuple[float, str, Formula]] = []  # (deadline, place, clause) missed
         for clause in clauses:
-            places = _places_in(clause, v.name, start, [], problem, _Choices())
+            places = places_in(clause, v.name, start, [], problem, Choices())
             if not places or places[-1].key not in at:
                 continue
             last = places[-1]

@@ -17,7 +17,7 @@ import numpy as np
 from planner.cache import BoundedCache
 from planner.geometry import Place, keep_out, place
 from planner.limits import vehicle_bounds
-from planner.nlp import _limit_bounds, _two_sided_rows
+from planner.nlp import limit_bounds, two_sided_rows
 from planner.problem import Problem
 from planner.stl import (
     Always,
@@ -37,8 +37,8 @@ def _route_length(cursor: np.ndarray, places: Sequence[Place]) -> float:
     return float(sum(np.linalg.norm(b - a) for a, b in itertools.pairwise(pts)))
 
 
-class _Choices:
-    """The choices of one vehicle's route (:func:`_targets`), in the order they are made:
+class Choices:
+    """The choices of one vehicle's route (:func:`visit_targets`), in the order they are made:
     each takes the cheapest candidate, or the second cheapest where ``flips`` names it (a
     start of the multi-start, :func:`starts`).  ``regrets`` records what each choice's
     runner-up would have cost more (``inf`` where there is none)."""
@@ -55,13 +55,13 @@ class _Choices:
         return order[1] if index in self.flips and math.isfinite(second) else order[0]
 
 
-def _places_in(
+def places_in(
     node: Formula,
     vehicle: str,
     cursor: np.ndarray,
     visited: Sequence[Place],
     problem: Problem,
-    choices: _Choices,
+    choices: Choices,
 ) -> list[Place]:
     """The places ``node`` sends ``vehicle`` to, in the order it visits them (spec order;
     of a disjunction's options the one with the shortest route from ``cursor``, as
@@ -74,27 +74,27 @@ def _places_in(
         done = pl.contains(cursor) or any(pl.key == q.key for q in visited)
         return [pl] if pl.vehicle == vehicle and not done else []
     if isinstance(node, Or):
-        options = [_places_in(c, vehicle, cursor, visited, problem, choices) for c in node.operands]
+        options = [places_in(c, vehicle, cursor, visited, problem, choices) for c in node.operands]
         return options[choices.pick([_route_length(cursor, opt) for opt in options])]
     if isinstance(node, Until):
         ko = keep_out(node.lhs, problem)
         if ko is not None and ko.vehicle == vehicle:
             # "stay out of K until psi": psi's places, reached without entering K
-            got = _places_in(node.rhs, vehicle, cursor, visited, problem, choices)
+            got = places_in(node.rhs, vehicle, cursor, visited, problem, choices)
             return [dataclasses.replace(pl, clear_of=(*pl.clear_of, ko)) for pl in got]
     out: list[Place] = []
     for child in node.children:
         here = out[-1].point if out else cursor
-        out.extend(_places_in(child, vehicle, here, [*visited, *out], problem, choices))
+        out.extend(places_in(child, vehicle, here, [*visited, *out], problem, choices))
     return out
 
 
-def _targets(
+def visit_targets(
     formula: Formula,
     vehicle: str,
     problem: Problem,
     start: np.ndarray,
-    choices: _Choices | None = None,
+    choices: Choices | None = None,
 ) -> list[Place]:
     """The places ``vehicle`` must visit, in visiting order.
 
@@ -105,7 +105,7 @@ def _targets(
     an option already visited costs nothing). Inside a clause the spec's order stands
     (nested eventually, until).  ``choices`` may turn any of these choices to its runner-up.
     """
-    choices = _Choices() if choices is None else choices
+    choices = Choices() if choices is None else choices
     clauses = list(formula.operands) if isinstance(formula, And) else [formula]
     # A clause that does not name the vehicle sends it nowhere; the loop below reads every
     # pending clause once per visit, so the others (reach-avoid N = 16: 120 separation
@@ -117,13 +117,13 @@ def _targets(
     while pending:
         deadline = clauses[pending[0]].horizon
         due = [i for i in pending if clauses[i].horizon == deadline]
-        routes = [_places_in(clauses[i], vehicle, cursor, out, problem, choices) for i in due]
+        routes = [places_in(clauses[i], vehicle, cursor, out, problem, choices) for i in due]
         # A route into a place that another pending clause's ``until`` keeps the vehicle
         # out of (until it gets somewhere) waits for that clause.
         held = [
             ko
             for i in pending
-            for pl in _places_in(clauses[i], vehicle, cursor, out, problem, _Choices())
+            for pl in places_in(clauses[i], vehicle, cursor, out, problem, Choices())
             for ko in pl.clear_of
         ]
         costs = [
@@ -334,7 +334,7 @@ _GUESS_LIMIT_FRACTION = 0.75
 _GUESS_DWELL_MARGIN_S = 0.75
 
 
-def _hover_times(formula: Formula, vehicle: str, problem: Problem) -> dict[str, float]:
+def hover_times(formula: Formula, vehicle: str, problem: Problem) -> dict[str, float]:
     """Longest ``always[a, b] place`` window (b - a, s) per place of the vehicle (by name)."""
     out: dict[str, float] = {}
 
@@ -358,7 +358,7 @@ def axis_limits(vehicle: Any) -> tuple[np.ndarray, np.ndarray]:
     return np.minimum(vhi, -vlo), np.minimum(ahi, -alo)
 
 
-def _leg_profile(dist_m: np.ndarray, v_max: np.ndarray, a_max: np.ndarray) -> tuple[float, float]:
+def leg_profile(dist_m: np.ndarray, v_max: np.ndarray, a_max: np.ndarray) -> tuple[float, float]:
     """(duration s, accelerating fraction of it) of the fastest rest-to-rest trapezoidal
     profile over per-axis distances ``dist_m`` (3,) within per-axis ``v_max``/``a_max``.
 
@@ -391,22 +391,22 @@ def _trapezoid_s(t_s: np.ndarray, duration_s: float, phi: float) -> np.ndarray:
 
 @dataclass(frozen=True, slots=True)
 class Start:
-    """One start of the multi-start (:func:`starts`): the route choices of :func:`_targets`
+    """One start of the multi-start (:func:`starts`): the route choices of :func:`visit_targets`
     turned to their runner-up (``(vehicle, choice index)``), and a sideways shift (m, left
     of each leg's direction) of every leg of the guess."""
 
     flips: frozenset[tuple[str, int]] = frozenset()
     offset_m: float = 0.0
 
-    def choices(self, vehicle: str) -> _Choices:
-        return _Choices(frozenset(i for v, i in self.flips if v == vehicle))
+    def choices(self, vehicle: str) -> Choices:
+        return Choices(frozenset(i for v, i in self.flips if v == vehicle))
 
     def describe(self, problem: Problem, formula: Formula) -> str:
         """What this start does differently, in words."""
         parts = []
         for name in sorted({v for v, _ in self.flips}):
-            x0 = _start_of(problem, name)
-            route = _targets(formula, name, problem, x0, self.choices(name))
+            x0 = start_of(problem, name)
+            route = visit_targets(formula, name, problem, x0, self.choices(name))
             parts.append(f"{name} via " + " -> ".join(pl.name for pl in route))
         if self.offset_m:
             side = "left" if self.offset_m > 0 else "right"
@@ -414,7 +414,7 @@ class Start:
         return "; ".join(parts) or "the nearest choices, straight legs"
 
 
-def _start_of(problem: Problem, vehicle: str) -> np.ndarray:
+def start_of(problem: Problem, vehicle: str) -> np.ndarray:
     return next(
         np.asarray(v.start_enu_m, dtype=float) for v in problem.vehicles if v.name == vehicle
     )
@@ -424,7 +424,7 @@ def starts(problem: Problem, formula: Formula, limit: int) -> Iterator[Start]:
     """The starts of the multi-start, best first, each with a route or a shape none before it
     had (at most ``limit``: ``solver.starts``).
 
-    The first takes the nearest choice everywhere (:func:`_targets`). The next ones turn one
+    The first takes the nearest choice everywhere (:func:`visit_targets`). The next ones turn one
     route choice of one vehicle to its runner-up, the choices that cost least extra first
     (another option of a disjunction, another order of clauses), alternating with the first
     route's legs shifted to either side (around a keep-out the other way; off a symmetric
@@ -434,9 +434,9 @@ def starts(problem: Problem, formula: Formula, limit: int) -> Iterator[Start]:
     base: dict[str, tuple[Any, ...]] = {}
     regrets: list[tuple[float, str, int]] = []
     for v in problem.vehicles:
-        ch = _Choices()
+        ch = Choices()
         base[v.name] = _route_key(
-            _targets(formula, v.name, problem, _start_of(problem, v.name), ch)
+            visit_targets(formula, v.name, problem, start_of(problem, v.name), ch)
         )
         regrets.extend((r, v.name, i) for i, r in enumerate(ch.regrets) if math.isfinite(r))
     regrets.sort()
@@ -447,7 +447,9 @@ def starts(problem: Problem, formula: Formula, limit: int) -> Iterator[Start]:
         seen = {(name, key) for name, key in base.items()}
         for _, name, i in regrets:
             key = _route_key(
-                _targets(formula, name, problem, _start_of(problem, name), _Choices(frozenset({i})))
+                visit_targets(
+                    formula, name, problem, start_of(problem, name), Choices(frozenset({i}))
+                )
             )
             if (name, key) not in seen:
                 seen.add((name, key))
@@ -484,7 +486,7 @@ def _shift_m(problem: Problem, formula: Formula) -> float:
     return max(1.0, min(halves, default=1.0))
 
 
-def _initial_guess(
+def initial_guess(
     problem: Problem,
     model: Any,
     formula: Formula,
@@ -512,7 +514,7 @@ def _initial_guess(
     horizon = problem.timing.horizon_s
     starts = {v.name: np.asarray(v.start_enu_m, dtype=float) for v in problem.vehicles}
     per_vehicle = {
-        v.name: _targets(formula, v.name, problem, starts[v.name], start.choices(v.name))
+        v.name: visit_targets(formula, v.name, problem, starts[v.name], start.choices(v.name))
         for v in problem.vehicles
     }
     # Vehicles sent to the same place (the same shape, whoever's predicate names it) share it.
@@ -543,12 +545,10 @@ def _initial_guess(
             for i, (a, b) in enumerate(itertools.pairwise(pts))
         ]
         v_lim, a_lim = (_GUESS_LIMIT_FRACTION * lim for lim in axis_limits(v))
-        prof = [
-            _leg_profile(np.abs(np.diff(leg, axis=0)).sum(axis=0), v_lim, a_lim) for leg in legs
-        ]
+        prof = [leg_profile(np.abs(np.diff(leg, axis=0)).sum(axis=0), v_lim, a_lim) for leg in legs]
         leg_s = np.array([d for d, _ in prof])
         phis = [ph for _, ph in prof]
-        hovers = _hover_times(formula, v.name, problem)
+        hovers = hover_times(formula, v.name, problem)
         dwell_s = np.array([hovers.get(pl.name, 0.0) + _GUESS_DWELL_MARGIN_S for pl in targets])
         slack = horizon - leg_s.sum() - dwell_s.sum()
         if slack > 0:
@@ -583,11 +583,11 @@ def _fitted(
     problem: Problem, model: Any, x0s: list[np.ndarray], paths: Sequence[np.ndarray]
 ) -> np.ndarray:
     """The flat decision vector of each vehicle's ``path`` (samples on the model's grid,
-    ``(n, 3)``) fitted within its limits and the workspace (:func:`_fit_within_limits`),
+    ``(n, 3)``) fitted within its limits and the workspace (:func:`fit_within_limits`),
     vehicles in ``problem.vehicles`` order."""
     cols = []
     for path, x0, v in zip(paths, x0s, problem.vehicles, strict=True):
-        Zv = _fit_within_limits(model, path, x0, v, problem.workspace, problem.timing.end_at_rest)
+        Zv = fit_within_limits(model, path, x0, v, problem.workspace, problem.timing.end_at_rest)
         cols.append(Zv.reshape(-1, order="F"))
     return np.concatenate(cols)
 
@@ -632,8 +632,8 @@ def axis_fit(
     Mp, Np = np.asarray(model.Mp), np.asarray(model.Np)
     vlo, vhi, alo, ahi = limits
     cons = model.limit_constraints(vhi, ahi, -vlo, -alo)
-    half = _two_sided_rows(cons)
-    lo_all, hi_all = _limit_bounds(cons, half)
+    half = two_sided_rows(cons)
+    lo_all, hi_all = limit_bounds(cons, half)
     Ge, He = model.equality_constraints()
     n_fix = 1 + len(Ge)  # rows held at 0: the end velocity, the model's equalities
     fix_lo, fix_hi = np.zeros(n_fix), np.zeros(n_fix)
@@ -652,7 +652,7 @@ def axis_fit(
     return AxisFit(A, H, g, lba, uba, offs, n_fix, cons, half)
 
 
-def _fit_within_limits(
+def fit_within_limits(
     model: Any, path: np.ndarray, x0: np.ndarray, vehicle: Any, ws: Any, end_at_rest: bool = True
 ) -> np.ndarray:
     """``Z`` (n_dec, 3) whose samples are closest (least squares) to ``path`` (n, 3) among
@@ -667,7 +667,7 @@ def _fit_within_limits(
     (vlo, vhi), (alo, ahi) = (b.box() for b in vehicle_bounds(vehicle))
     fit = axis_fit(model, path, x0, (vlo, vhi, alo, ahi), ws, end_at_rest)
     A, H = fit.A, fit.H
-    qp = _guess_qp(model.n_dec, A)
+    qp = guess_qp(model.n_dec, A)
     out = np.zeros((model.n_dec, 3))
     for a in range(3):
         g = fit.g[a]
@@ -688,7 +688,7 @@ def _fit_within_limits(
 _QP_SOLVERS: BoundedCache[Any] = BoundedCache(16)
 
 
-def _guess_qp(n_dec: int, A: np.ndarray) -> Any:
+def guess_qp(n_dec: int, A: np.ndarray) -> Any:
     def build() -> Any:
         return ca.conic(
             "guess_fit",

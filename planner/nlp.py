@@ -255,7 +255,7 @@ class IterationWatch(ca.Callback):
 
 
 @dataclass(slots=True)
-class _Structure:
+class Structure:
     """A built NLP, reusable for any start states and limits of the same structure."""
 
     solvers: list[tuple[float, Any]]  # (k, nlpsol) in continuation order
@@ -300,7 +300,7 @@ class _Structure:
 
 
 #: Built NLPs and solvers by problem structure (oldest forgotten first)
-STRUCTURES: BoundedCache[_Structure] = BoundedCache(8)
+STRUCTURES: BoundedCache[Structure] = BoundedCache(8)
 
 
 def clear_cache() -> None:
@@ -309,7 +309,7 @@ def clear_cache() -> None:
     clear_templates()
 
 
-def _structure_key(problem: Problem, sharp: bool = False) -> Any:
+def structure_key(problem: Problem, sharp: bool = False) -> Any:
     s = problem.solver
     return (
         sharp,
@@ -382,8 +382,8 @@ class NlpBuilder:
     bounds (the workspace, and the robustness cap as ``r``'s upper bound); :meth:`solvers`
     builds one solver per stage of the k continuation.  The paper's eq. (1) (``r >= epsilon +
     margin``) is not a separate structure: it is a lower bound on ``r`` that
-    :func:`planner.optimize.plan` sets per solve (:attr:`_Structure.lbx`), like the limits'
-    bounds.  :func:`_build` calls the pieces in order; the rows keep that order.
+    :func:`planner.optimize.plan` sets per solve (:attr:`Structure.lbx`), like the limits'
+    bounds.  :func:`build_structure` calls the pieces in order; the rows keep that order.
     """
 
     def __init__(
@@ -496,7 +496,7 @@ class NlpBuilder:
         lim_g = []
         row = self.n_lift
         cons = model.limit_constraints(np.ones(3), np.ones(3))
-        self.lim_half = half = _two_sided_rows(cons)
+        self.lim_half = half = two_sided_rows(cons)
         G = ca.sparsify(ca.DM(cons.G[:half]))
         H = ca.sparsify(ca.DM(cons.H[:half]))
         for i in range(nv):
@@ -663,7 +663,7 @@ class NlpBuilder:
     def n_w(self) -> int:
         return int(self.w.shape[0])
 
-    def solvers(self) -> _Structure:
+    def solvers(self) -> Structure:
         """One solver per stage of the k continuation (warm-started from the stage before),
         and the structure :func:`planner.optimize.plan` solves with."""
         problem, nv = self.problem, len(self.names)
@@ -718,7 +718,7 @@ class NlpBuilder:
         ubg_fixed = np.concatenate(
             [lift, np.zeros(n_lim), end, eq, np.full(n_leaf, np.inf), chunk_rows]
         )
-        return _Structure(
+        return Structure(
             solvers=solvers,
             make_refining=refining,
             watch=watch,
@@ -750,13 +750,13 @@ class NlpBuilder:
         )
 
 
-def _build(
+def build_structure(
     problem: Problem,
     model: Any,
     formula: Formula,
     sharp: bool = False,
     deadline: float = math.inf,
-) -> _Structure:
+) -> Structure:
     """The NLP of ``problem``: its pieces in order (:class:`NlpBuilder`); with ``sharp``, the
     smooth leaves' box predicates at the leaves' own sharpness.
 
@@ -898,7 +898,7 @@ def _is_separation(leaf: Formula) -> bool:
     return role_of(big) is Role.KEEP_APART and isinstance(small, Const)
 
 
-def _two_sided_rows(cons: Any) -> int:
+def two_sided_rows(cons: Any) -> int:
     """Rows of ``cons`` to keep: ``n/2`` when the limits come as ``[A; -A]`` (then each kept
     row is two-sided, ``-h_lower <= A z <= h_upper``, which halves the limit rows IPOPT
     sees), else all of them (one-sided, as given)."""
@@ -922,7 +922,7 @@ def vehicle_limit_bounds(
     vel, acc = vehicle_bounds(vehicle)
     (vlo, vhi, vb), (alo, ahi, ab) = vel.linear(), acc.linear()
     cons = model.limit_constraints(vhi, ahi, -vlo, -alo)
-    lo, hi = _limit_bounds(cons, half)
+    lo, hi = limit_bounds(cons, half)
     lo_parts, hi_parts = [lo.reshape(-1, order="F")], [hi.reshape(-1, order="F")]
     if norm_rows:
         b = np.where(cons.kind[:half] == "vel", vb, ab)
@@ -1022,8 +1022,8 @@ def _derivatives(
     return out
 
 
-def _limit_bounds(cons: Any, half: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(lo, hi)`` ``(half, 3)`` of the kept limit rows (:func:`_two_sided_rows`):
+def limit_bounds(cons: Any, half: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(lo, hi)`` ``(half, 3)`` of the kept limit rows (:func:`two_sided_rows`):
     ``-h`` below each paired row, ``-inf`` when the rows are kept one-sided."""
     h = cons.h
     lo = -h[half:] if 2 * half == len(h) else np.full_like(h, -np.inf)

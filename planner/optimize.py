@@ -35,17 +35,17 @@ from planner.checks import LimitReport, check_trajectories
 from planner.coarse_start import CoarseOutcome, StageBeside, coarse_budget_s
 from planner.explain import needs
 from planner.fix_choices import fixed_clauses
-from planner.guess import _initial_guess, starts
+from planner.guess import initial_guess, starts
 from planner.heading import facing_rules, heading_signals, uses_heading, with_heading
 from planner.limits import vehicle_bounds
 from planner.nlp import (
     K_MIN,
     STRUCTURES,
     BuildTimeout,
-    _build,
-    _Structure,
-    _structure_key,
+    Structure,
+    build_structure,
     clear_cache,
+    structure_key,
     vehicle_limit_bounds,
 )
 from planner.plan_check import (
@@ -207,14 +207,14 @@ class PlanSearch:
 
     # ------------------------------------------------------------------ the NLP's pieces
 
-    def _build(self) -> None:
+    def _prepare_nlp(self) -> None:
         problem, model = self.problem, self.model
 
-        def build() -> _Structure:
+        def build() -> Structure:
             self.say(f"building the NLP for {len(problem.vehicles)} vehicle(s)")
-            return _build(problem, model, self.formula, deadline=self.solve_deadline())
+            return build_structure(problem, model, self.formula, deadline=self.solve_deadline())
 
-        self.struct, self.cached = STRUCTURES.get_or_build(_structure_key(problem), build)
+        self.struct, self.cached = STRUCTURES.get_or_build(structure_key(problem), build)
         struct = self.struct
         # p: the start states, and every leaf row >= r (weight 1; raise_the_rest settles)
         self.p_val = np.concatenate(
@@ -352,7 +352,7 @@ class PlanSearch:
             given += 1
             yield (
                 st.describe(problem, formula),
-                _initial_guess(problem, model, formula, self.x0s, st),
+                initial_guess(problem, model, formula, self.x0s, st),
             )
 
     def _guess(self) -> tuple[Iterator[Any], Any, np.ndarray]:
@@ -363,7 +363,7 @@ class PlanSearch:
             problem, formula = self.problem, self.formula
             guesses = starts(problem, formula, problem.solver.starts)
             first = next(guesses)
-            z_first = _initial_guess(problem, self.model, formula, self.x0s, first)
+            z_first = initial_guess(problem, self.model, formula, self.x0s, first)
             self._first_guess = (guesses, first, z_first)
         return self._first_guess
 
@@ -595,7 +595,7 @@ class PlanSearch:
                 self._start_stage()
             self._build_t0 = time.perf_counter()
             try:
-                self._build()
+                self._prepare_nlp()
             except BuildTimeout as exc:
                 return self._unbuilt(initial_guess, str(exc))
             struct = self.struct

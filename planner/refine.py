@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.nlp import STRUCTURES, _build, _Structure, _structure_key
+from planner.nlp import STRUCTURES, Structure, build_structure, structure_key
 from planner.problem import Problem
 from planner.solver_runs import (
     Attempt,
@@ -57,7 +57,7 @@ class Raised:
 
 
 def raise_the_rest(
-    struct: _Structure,
+    struct: Structure,
     w: np.ndarray,
     lam_g: np.ndarray | None,
     bounds: Mapping[str, np.ndarray],
@@ -170,9 +170,9 @@ def sharpen(
     stop: SigintWatch,
     deadline: float,
     on_iteration: Callable[[np.ndarray, float], None] | None,
-) -> tuple[_Structure, Attempt, dict[str, np.ndarray], float] | None:
+) -> tuple[Structure, Attempt, dict[str, np.ndarray], float] | None:
     """Solve again from ``best`` with the smooth leaves' box predicates at the leaves' own
-    sharpness (:func:`planner.nlp._build` with ``sharp``: a box is smoothed exactly as its
+    sharpness (:func:`planner.nlp.build_structure` with ``sharp``: a box is smoothed exactly as its
     faces spelled as comparisons would be); the structure, the attempt, its bounds and the
     seconds its build took if that is better in exact robustness, else ``None``.
 
@@ -184,14 +184,14 @@ def sharpen(
     The solve stops at ``deadline``; ``on_iteration`` is the plan's progress callback."""
     built: list[float] = []
 
-    def build() -> _Structure:
+    def build() -> Structure:
         say("building the NLP with sharper box margins")
         t0 = time.perf_counter()
-        got = _build(problem, model, formula, sharp=True)
+        got = build_structure(problem, model, formula, sharp=True)
         built.append(time.perf_counter() - t0)
         return got
 
-    sharp, _ = STRUCTURES.get_or_build(_structure_key(problem, sharp=True), build)
+    sharp, _ = STRUCTURES.get_or_build(structure_key(problem, sharp=True), build)
     lbx, ubx = sharp.lbx.copy(), sharp.ubx.copy()
     if problem.solver.robustness_constraint:
         lower_r(lbx, ubx, problem.epsilon + sharp.margin)

@@ -69,15 +69,15 @@ from planner.problem import MAX_HORIZON_S, DynamicsModel, Problem, Timing
 from planner.regions import Region, RegionKind
 from planner.scenario_checks import clause_findings, start_findings
 from planner.scenario_sections import (
+    Reader,
     ScenarioError,
-    _join,
-    _limits,
-    _Reader,
-    _region,
-    _solver,
-    _vehicles,
+    join_key,
+    read_limits,
+    read_region,
+    read_solver,
+    read_vehicles,
 )
-from planner.scenario_spec import _check_calls, _expand_spec, _spell_parts, parse_clause
+from planner.scenario_spec import check_calls, expand_spec, parse_clause, spell_parts
 from planner.strict_read import DuplicateKeyError, NotTextError, load_yaml, read_text
 
 __all__ = ["load_scenario", "parse_scenario"]
@@ -115,7 +115,7 @@ def parse_scenario(
     Raises :class:`ScenarioError` naming ``source`` and the key path of the first mistake;
     the expanded spec is parsed with the STL engine, so a spec syntax error is reported here.
     """
-    rd = _Reader(source)
+    rd = Reader(source)
     top = rd.mapping(data, "", _TOP_KEYS)
     name = top.get("name", Path(source).stem)
     if not isinstance(name, str):
@@ -131,7 +131,7 @@ def parse_scenario(
         raise rd.fail("origin.lon", f"longitude {lon:g} is outside [-180, 180]")
     origin = GeodeticPoint(lat_deg=lat, lon_deg=lon, alt_m=alt)
 
-    (workspace, *more) = _region(
+    (workspace, *more) = read_region(
         rd, "workspace", rd.require(top, "workspace", ""), "workspace", RegionKind.WORKSPACE
     )
     if more or workspace.shape is not None:
@@ -145,7 +145,7 @@ def parse_scenario(
     reg_map = top.get("regions", {}) or {}
     rd.mapping(reg_map, "regions")
     for rname, rval in reg_map.items():
-        p = _join("regions", rname)
+        p = join_key("regions", rname)
         rd.name(rname, p)
         if rname == "workspace":
             raise rd.fail(p, "'workspace' is defined by the top-level workspace key")
@@ -155,10 +155,10 @@ def parse_scenario(
             kind = RegionKind(kind_s)
         except ValueError:
             raise rd.fail(
-                _join(p, "kind"),
+                join_key(p, "kind"),
                 f"unknown kind {kind_s!r} (kinds: {', '.join(k.value for k in RegionKind)})",
             ) from None
-        for r in _region(rd, rname, rval, p, kind):
+        for r in read_region(rd, rname, rval, p, kind):
             if r.part_of is not None and (
                 r.name in reg_map or any(q.name == r.name for q in regions)
             ):
@@ -176,15 +176,15 @@ def parse_scenario(
         for r in made:
             if r.name in taken:
                 raise rd.fail(
-                    _join("regions", r.name), f"{r.name!r} is also made by the line section"
+                    join_key("regions", r.name), f"{r.name!r} is also made by the line section"
                 )
         regions.extend(made)
 
     limits: dict[str, Any] = {}
     if "limits" in top:
-        limits = _limits(rd, top["limits"], "limits", {})
+        limits = read_limits(rd, top["limits"], "limits", {})
 
-    vlist, groups = _vehicles(rd, rd.require(top, "vehicles", ""), limits, vehicles)
+    vlist, groups = read_vehicles(rd, rd.require(top, "vehicles", ""), limits, vehicles)
     names = [v.name for v in vlist]
     region_names = {"workspace"} | {r.name for r in regions}
     seen: set[str] = set()
@@ -201,7 +201,7 @@ def parse_scenario(
     g_top = top.get("groups", {}) or {}
     rd.mapping(g_top, "groups")
     for gname, members in g_top.items():
-        p = _join("groups", gname)
+        p = join_key("groups", gname)
         rd.name(gname, p)
         if gname == "all":
             raise rd.fail(p, "'all' is predefined (every vehicle)")
@@ -261,7 +261,7 @@ def parse_scenario(
             "model", f"unknown model {model_s!r} (models: minimum_jerk, double_integrator)"
         ) from None
 
-    solver = _solver(rd, top.get("solver", {}) or {})
+    solver = read_solver(rd, top.get("solver", {}) or {})
 
     start_keys: dict[str, str] = {}
     for i, v in enumerate(vlist):
@@ -292,7 +292,7 @@ def parse_scenario(
     c_top = top.get("constants", {}) or {}
     rd.mapping(c_top, "constants")
     for cname, cval in c_top.items():
-        p = _join("constants", cname)
+        p = join_key("constants", cname)
         rd.name(cname, p)
         if cname in constants:
             raise rd.fail(p, f"${cname} is predefined")
@@ -301,11 +301,11 @@ def parse_scenario(
     for lname in line_names:
         if lname in groups:
             raise rd.fail(
-                _join("groups", lname), f"{lname!r} is the line section's list of its {lname}"
+                join_key("groups", lname), f"{lname!r} is the line section's list of its {lname}"
             )
-    clauses = _expand_spec(rd, rd.require(top, "spec", ""), {**groups, **line_names}, constants)
-    clauses = _spell_parts(rd, clauses, regions)
-    _check_calls(rd, clauses, seen, region_names)
+    clauses = expand_spec(rd, rd.require(top, "spec", ""), {**groups, **line_names}, constants)
+    clauses = spell_parts(rd, clauses, regions)
+    check_calls(rd, clauses, seen, region_names)
 
     problem = Problem(
         name=name,

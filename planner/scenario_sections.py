@@ -1,6 +1,6 @@
 """Reading a scenario's YAML sections: typed values with key paths, boxes, limits, vehicles, solver.
 
-:class:`ScenarioError` and ``_Reader`` turn every wrong value into one line naming the file
+:class:`ScenarioError` and ``Reader`` turn every wrong value into one line naming the file
 and the key path (``vehicles[2].start``); the section readers here build the parts of a
 :class:`planner.problem.Problem`: boxes of the workspace and the regions, per-axis limits,
 the vehicles (a list, or a generator with grid starts and groups by fraction) and the solver
@@ -33,7 +33,7 @@ class ScenarioError(FileFieldError):
     """A mistake in a scenario file: ``"<file>: <key path>: <problem>"``."""
 
 
-_NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _RESERVED = {
     "true",
     "false",
@@ -54,7 +54,7 @@ _RESERVED = {
 }
 
 
-class _Reader:
+class Reader:
     """Typed access to YAML values that raises ScenarioError with the key path."""
 
     def __init__(self, source: str) -> None:
@@ -71,13 +71,13 @@ class _Reader:
                 raise self.fail(path, f"keys must be strings, got {key!r}")
             if allowed is not None and key not in allowed:
                 raise self.fail(
-                    _join(path, key), f"unknown key (allowed: {', '.join(sorted(allowed))})"
+                    join_key(path, key), f"unknown key (allowed: {', '.join(sorted(allowed))})"
                 )
         return value
 
     def require(self, m: Mapping[str, Any], key: str, path: str) -> Any:
         if key not in m:
-            raise self.fail(_join(path, key), "missing")
+            raise self.fail(join_key(path, key), "missing")
         return m[key]
 
     def number(
@@ -124,7 +124,7 @@ class _Reader:
         return (v, v, v)
 
     def name(self, value: Any, path: str) -> str:
-        if not isinstance(value, str) or not _NAME_RE.match(value):
+        if not isinstance(value, str) or not NAME_RE.match(value):
             raise self.fail(path, f"expected an identifier (letters, digits, _), got {value!r}")
         if value in _RESERVED:
             raise self.fail(path, f"{value!r} is a reserved word of the spec language")
@@ -137,23 +137,23 @@ def _kind(value: Any) -> str:
     return f"{type(value).__name__} {value!r}" if not isinstance(value, dict) else "a mapping"
 
 
-def _join(path: str, key: str | int) -> str:
+def join_key(path: str, key: str | int) -> str:
     if isinstance(key, int):
         return f"{path}[{key}]"
     return f"{path}.{key}" if path else key
 
 
-def _box(rd: _Reader, value: Any, path: str) -> tuple[np.ndarray, np.ndarray]:
+def _box(rd: Reader, value: Any, path: str) -> tuple[np.ndarray, np.ndarray]:
     """A box given as {min, max} or {center, half_size} (half_size scalar or per axis)."""
     m = rd.mapping(value, path, {"min", "max", "center", "half_size", "kind"})
     if "min" in m or "max" in m:
         if "center" in m or "half_size" in m:
             raise rd.fail(path, "give either min/max or center/half_size, not both")
-        lo = np.array(rd.vec3(rd.require(m, "min", path), _join(path, "min")))
-        hi = np.array(rd.vec3(rd.require(m, "max", path), _join(path, "max")))
+        lo = np.array(rd.vec3(rd.require(m, "min", path), join_key(path, "min")))
+        hi = np.array(rd.vec3(rd.require(m, "max", path), join_key(path, "max")))
     elif "center" in m:
-        c = np.array(rd.vec3(m["center"], _join(path, "center")))
-        h = np.array(rd.per_axis(rd.require(m, "half_size", path), _join(path, "half_size")))
+        c = np.array(rd.vec3(m["center"], join_key(path, "center")))
+        h = np.array(rd.per_axis(rd.require(m, "half_size", path), join_key(path, "half_size")))
         lo, hi = c - h, c + h
     else:
         raise rd.fail(path, "a box needs min/max or center/half_size")
@@ -163,21 +163,23 @@ def _box(rd: _Reader, value: Any, path: str) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
-def _pair(rd: _Reader, value: Any, path: str, what: str) -> tuple[float, float]:
+def _pair(rd: Reader, value: Any, path: str, what: str) -> tuple[float, float]:
     if not isinstance(value, list | tuple) or len(value) != 2:
         raise rd.fail(path, f"expected a list of 2 numbers {what}, got {_kind(value)}")
     a, b = (rd.number(v, f"{path}[{i}]") for i, v in enumerate(value))
     return (a, b)
 
 
-def _heights(rd: _Reader, m: Mapping[str, Any], path: str) -> tuple[float, float]:
-    z = _pair(rd, rd.require(m, "z", path), _join(path, "z"), "[bottom, top]")
+def _heights(rd: Reader, m: Mapping[str, Any], path: str) -> tuple[float, float]:
+    z = _pair(rd, rd.require(m, "z", path), join_key(path, "z"), "[bottom, top]")
     if not z[0] < z[1]:
-        raise rd.fail(_join(path, "z"), f"empty height range: {z[0]:g} is not below {z[1]:g}")
+        raise rd.fail(join_key(path, "z"), f"empty height range: {z[0]:g} is not below {z[1]:g}")
     return z
 
 
-def _region(rd: _Reader, name: str, value: Any, path: str, kind: RegionKind) -> tuple[Region, ...]:
+def read_region(
+    rd: Reader, name: str, value: Any, path: str, kind: RegionKind
+) -> tuple[Region, ...]:
     """A region: a box ({min, max} or {center, half_size}), turned about the vertical with
     ``yaw_deg`` (counter-clockwise from east) or ``bearing_deg`` (of its x axis, clockwise
     from north); a prism ``{polygon: [[x, y], ...], z: [bottom, top]}`` over a simple
@@ -188,7 +190,7 @@ def _region(rd: _Reader, name: str, value: Any, path: str, kind: RegionKind) -> 
 
 
 def _one_region(
-    rd: _Reader, name: str, value: Any, path: str, kind: RegionKind
+    rd: Reader, name: str, value: Any, path: str, kind: RegionKind
 ) -> Region | tuple[Region, ...]:
     m = rd.mapping(value, path)
     if "polygon" in m:
@@ -196,20 +198,21 @@ def _one_region(
         poly = m["polygon"]
         if not isinstance(poly, list) or len(poly) < 3:
             raise rd.fail(
-                _join(path, "polygon"), f"expected at least 3 corners [x, y], got {_kind(poly)}"
+                join_key(path, "polygon"), f"expected at least 3 corners [x, y], got {_kind(poly)}"
             )
         corners = [
-            _pair(rd, c, _join(_join(path, "polygon"), i), "[x, y]") for i, c in enumerate(poly)
+            _pair(rd, c, join_key(join_key(path, "polygon"), i), "[x, y]")
+            for i, c in enumerate(poly)
         ]
         z = _heights(rd, m, path)
         try:
             return polygon_regions(name, kind, corners, *z)
         except ShapeError as exc:
-            raise rd.fail(_join(path, "polygon"), str(exc)) from None
+            raise rd.fail(join_key(path, "polygon"), str(exc)) from None
     if "radius" in m:
         rd.mapping(value, path, {"center", "radius", "z", "kind"})
-        c = _pair(rd, rd.require(m, "center", path), _join(path, "center"), "[x, y]")
-        r = rd.number(m["radius"], _join(path, "radius"), positive=True)
+        c = _pair(rd, rd.require(m, "center", path), join_key(path, "center"), "[x, y]")
+        r = rd.number(m["radius"], join_key(path, "radius"), positive=True)
         return Region.of_shape(name, kind, Cylinder(c, r, *_heights(rd, m, path)))
     turn = [k for k in ("yaw_deg", "bearing_deg") if k in m]
     if turn:
@@ -217,10 +220,10 @@ def _one_region(
             raise rd.fail(path, "give either yaw_deg or bearing_deg, not both")
         if "center" not in m:
             raise rd.fail(path, f"a turned box needs center/half_size (with {turn[0]})")
-        deg = rd.number(m[turn[0]], _join(path, turn[0]))
+        deg = rd.number(m[turn[0]], join_key(path, turn[0]))
         yaw_deg = deg if turn[0] == "yaw_deg" else 90.0 - deg
-        c3 = np.array(rd.vec3(m["center"], _join(path, "center")))
-        h = np.array(rd.per_axis(rd.require(m, "half_size", path), _join(path, "half_size")))
+        c3 = np.array(rd.vec3(m["center"], join_key(path, "center")))
+        h = np.array(rd.per_axis(rd.require(m, "half_size", path), join_key(path, "half_size")))
         rd.mapping(value, path, {"center", "half_size", "kind", turn[0]})
         return Region.turned_box(name, kind, c3, h, math.radians(yaw_deg))
     lo, hi = _box(rd, value, path)
@@ -233,7 +236,7 @@ _PX4_LIMITS = PX4_LIMIT_KEYS
 
 
 def _per_axis_caps(
-    rd: _Reader, path: str, lim: dict[str, Any], per_axis: str, xy: str, up: str, down: str
+    rd: Reader, path: str, lim: dict[str, Any], per_axis: str, xy: str, up: str, down: str
 ) -> tuple[float, float, float]:
     """The per-axis caps of a vehicle: as given, or from the PX4-like limits when only
     those are (``[xy, xy, max(up, down)]``: every bound then still holds on its own)."""
@@ -242,26 +245,26 @@ def _per_axis_caps(
     missing = [k for k in (xy, up, down) if k not in lim]
     if missing:
         raise rd.fail(
-            _join(path, "limits"),
+            join_key(path, "limits"),
             f"{per_axis} missing (give it in limits, or all of {xy}, {up}, {down}; "
             f"missing: {', '.join(missing)})",
         )
     return (lim[xy], lim[xy], max(lim[up], lim[down]))
 
 
-def _limits(rd: _Reader, value: Any, path: str, base: dict[str, Any]) -> dict[str, Any]:
+def read_limits(rd: Reader, value: Any, path: str, base: dict[str, Any]) -> dict[str, Any]:
     allowed = {"v_max_m_s", "a_max_m_s2", "thrust_m_s2", "body_rate_max_rad_s", *_PX4_LIMITS}
     m = rd.mapping(value, path, allowed)
     out = dict(base)
     if "v_max_m_s" in m:
-        out["v_max_m_s"] = rd.per_axis(m["v_max_m_s"], _join(path, "v_max_m_s"))
+        out["v_max_m_s"] = rd.per_axis(m["v_max_m_s"], join_key(path, "v_max_m_s"))
     if "a_max_m_s2" in m:
-        out["a_max_m_s2"] = rd.per_axis(m["a_max_m_s2"], _join(path, "a_max_m_s2"))
+        out["a_max_m_s2"] = rd.per_axis(m["a_max_m_s2"], join_key(path, "a_max_m_s2"))
     for key in _PX4_LIMITS:
         if key in m:
-            out[key] = rd.number(m[key], _join(path, key), positive=True)
+            out[key] = rd.number(m[key], join_key(path, key), positive=True)
     if "thrust_m_s2" in m:
-        p = _join(path, "thrust_m_s2")
+        p = join_key(path, "thrust_m_s2")
         t = m["thrust_m_s2"]
         if not isinstance(t, list) or len(t) != 2:
             raise rd.fail(p, "expected [min, max] mass-normalised thrust in m/s^2")
@@ -274,29 +277,29 @@ def _limits(rd: _Reader, value: Any, path: str, base: dict[str, Any]) -> dict[st
         out["thrust_min_m_s2"], out["thrust_max_m_s2"] = lo, hi
     if "body_rate_max_rad_s" in m:
         out["body_rate_max_rad_s"] = rd.number(
-            m["body_rate_max_rad_s"], _join(path, "body_rate_max_rad_s"), positive=True
+            m["body_rate_max_rad_s"], join_key(path, "body_rate_max_rad_s"), positive=True
         )
     return out
 
 
-def _grid_starts(rd: _Reader, value: Any, path: str, count: int) -> list[np.ndarray]:
+def _grid_starts(rd: Reader, value: Any, path: str, count: int) -> list[np.ndarray]:
     """``count`` deterministic start points: a grid in a box filled x fastest, then y, then z."""
     m = rd.mapping(value, path, {"grid", "positions"})
     if "positions" in m:
-        p = _join(path, "positions")
+        p = join_key(path, "positions")
         pos = m["positions"]
         if not isinstance(pos, list):
             raise rd.fail(p, "expected a list of [x, y, z]")
         if len(pos) < count:
             raise rd.fail(p, f"{len(pos)} positions for {count} vehicles")
         return [np.array(rd.vec3(v, f"{p}[{i}]")) for i, v in enumerate(pos[:count])]
-    g_path = _join(path, "grid")
+    g_path = join_key(path, "grid")
     g = rd.mapping(rd.require(m, "grid", path), g_path, {"min", "max", "shape"})
-    lo = np.array(rd.vec3(rd.require(g, "min", g_path), _join(g_path, "min")))
-    hi = np.array(rd.vec3(rd.require(g, "max", g_path), _join(g_path, "max")))
+    lo = np.array(rd.vec3(rd.require(g, "min", g_path), join_key(g_path, "min")))
+    hi = np.array(rd.vec3(rd.require(g, "max", g_path), join_key(g_path, "max")))
     shape_v = rd.require(g, "shape", g_path)
     if not isinstance(shape_v, list) or len(shape_v) != 3:
-        raise rd.fail(_join(g_path, "shape"), "expected [nx, ny, nz]")
+        raise rd.fail(join_key(g_path, "shape"), "expected [nx, ny, nz]")
     shape = [rd.integer(s, f"{g_path}.shape[{i}]", minimum=1) for i, s in enumerate(shape_v)]
     if math.prod(shape) < count:
         raise rd.fail(g_path, f"grid {shape} has {math.prod(shape)} points for {count} vehicles")
@@ -305,8 +308,8 @@ def _grid_starts(rd: _Reader, value: Any, path: str, count: int) -> list[np.ndar
     return [np.array(p[::-1], dtype=float) for p in pts]
 
 
-def _vehicles(
-    rd: _Reader,
+def read_vehicles(
+    rd: Reader,
     value: Any,
     limits: dict[str, Any],
     vehicles_override: int | None,
@@ -323,13 +326,17 @@ def _vehicles(
         for i, v in enumerate(value):
             p = f"vehicles[{i}]"
             m = rd.mapping(v, p, {"name", "start", "sysid", "limits", "groups"})
-            name = rd.name(rd.require(m, "name", p), _join(p, "name"))
-            sysid = rd.integer(m.get("sysid", i + 1), _join(p, "sysid"), minimum=1)
-            start = rd.vec3(rd.require(m, "start", p), _join(p, "start"))
-            lim = _limits(rd, m["limits"], _join(p, "limits"), limits) if "limits" in m else limits
+            name = rd.name(rd.require(m, "name", p), join_key(p, "name"))
+            sysid = rd.integer(m.get("sysid", i + 1), join_key(p, "sysid"), minimum=1)
+            start = rd.vec3(rd.require(m, "start", p), join_key(p, "start"))
+            lim = (
+                read_limits(rd, m["limits"], join_key(p, "limits"), limits)
+                if "limits" in m
+                else limits
+            )
             gs = m.get("groups", [])
             if not isinstance(gs, list):
-                raise rd.fail(_join(p, "groups"), "expected a list of group names")
+                raise rd.fail(join_key(p, "groups"), "expected a list of group names")
             g_names = tuple(rd.name(g, f"{p}.groups[{j}]") for j, g in enumerate(gs))
             for g in g_names:
                 groups.setdefault(g, []).append(name)
@@ -337,8 +344,8 @@ def _vehicles(
         return out, groups
     p = "vehicles"
     m = rd.mapping(value, p, {"count", "max_count", "name", "starts", "groups", "limits"})
-    max_count = rd.integer(m.get("max_count", 16), _join(p, "max_count"), minimum=1)
-    count = rd.integer(rd.require(m, "count", p), _join(p, "count"), minimum=1)
+    max_count = rd.integer(m.get("max_count", 16), join_key(p, "max_count"), minimum=1)
+    count = rd.integer(rd.require(m, "count", p), join_key(p, "count"), minimum=1)
     if vehicles_override is not None:
         # Every group needs a vehicle: the fewest a grouped scenario takes is its groups.
         g_count = len(m["groups"]) if isinstance(m.get("groups"), list) else 0
@@ -352,29 +359,29 @@ def _vehicles(
             )
         count = vehicles_override
     if count > max_count:
-        raise rd.fail(_join(p, "count"), f"{count} exceeds max_count {max_count}")
+        raise rd.fail(join_key(p, "count"), f"{count} exceeds max_count {max_count}")
     pattern = m.get("name", "d{i}")
     if not isinstance(pattern, str) or "{i}" not in pattern:
-        raise rd.fail(_join(p, "name"), "expected a pattern containing {i}, e.g. 'd{i}'")
-    starts = _grid_starts(rd, rd.require(m, "starts", p), _join(p, "starts"), count)
-    lim = _limits(rd, m["limits"], _join(p, "limits"), limits) if "limits" in m else limits
+        raise rd.fail(join_key(p, "name"), "expected a pattern containing {i}, e.g. 'd{i}'")
+    starts = _grid_starts(rd, rd.require(m, "starts", p), join_key(p, "starts"), count)
+    lim = read_limits(rd, m["limits"], join_key(p, "limits"), limits) if "limits" in m else limits
     # Groups by fraction: contiguous blocks in vehicle order, sizes rounded so that they sum
     # to the count (the first groups get the extra vehicle).
     g_spec = m.get("groups", [])
     if not isinstance(g_spec, list):
-        raise rd.fail(_join(p, "groups"), "expected a list of {name, fraction}")
+        raise rd.fail(join_key(p, "groups"), "expected a list of {name, fraction}")
     fractions: list[tuple[str, float]] = []
     for j, g in enumerate(g_spec):
         gp = f"{p}.groups[{j}]"
         gm = rd.mapping(g, gp, {"name", "fraction"})
         fractions.append(
             (
-                rd.name(rd.require(gm, "name", gp), _join(gp, "name")),
-                rd.number(rd.require(gm, "fraction", gp), _join(gp, "fraction"), positive=True),
+                rd.name(rd.require(gm, "name", gp), join_key(gp, "name")),
+                rd.number(rd.require(gm, "fraction", gp), join_key(gp, "fraction"), positive=True),
             )
         )
     if fractions and abs(sum(f for _, f in fractions) - 1.0) > 1e-9:
-        raise rd.fail(_join(p, "groups"), "fractions must sum to 1")
+        raise rd.fail(join_key(p, "groups"), "fractions must sum to 1")
     if fractions and count < len(fractions):
         raise rd.fail(p, f"{count} vehicles cannot fill {len(fractions)} groups")
     sizes = [math.floor(f * count) for _, f in fractions]
@@ -388,7 +395,7 @@ def _vehicles(
             idx += 1
     for i in range(count):
         name = pattern.replace("{i}", str(i + 1))
-        rd.name(name, _join(p, "name"))
+        rd.name(name, join_key(p, "name"))
         for g in member_of[i]:
             groups.setdefault(g, []).append(name)
         start = tuple(starts[i].tolist())
@@ -397,7 +404,7 @@ def _vehicles(
 
 
 def _make_vehicle(
-    rd: _Reader,
+    rd: Reader,
     path: str,
     name: str,
     sysid: int,
@@ -425,7 +432,7 @@ def _make_vehicle(
     )
 
 
-def _solver(rd: _Reader, value: Any) -> SolverOptions:
+def read_solver(rd: Reader, value: Any) -> SolverOptions:
     allowed = {
         "method",
         "hessian",

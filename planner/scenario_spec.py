@@ -21,7 +21,7 @@ from planner.predicates import PREDICATES, build_registry
 from planner.problem import Clause, Problem
 from planner.regions import Region
 from planner.scenario_checks import horizon_sum
-from planner.scenario_sections import _NAME_RE, ScenarioError, _join, _Reader
+from planner.scenario_sections import NAME_RE, Reader, ScenarioError, join_key
 from planner.stl import (
     BinOp,
     Comparison,
@@ -49,16 +49,14 @@ _DOLLAR = re.compile(r"\$([A-Za-z_]\w*)")
 _CALL = re.compile(r"\b([A-Za-z_]\w*)\s*\(([^()]*)\)")
 
 
-def _collection(
-    rd: _Reader, text: str, path: str, groups: Mapping[str, Sequence[str]]
-) -> list[str]:
+def _collection(rd: Reader, text: str, path: str, groups: Mapping[str, Sequence[str]]) -> list[str]:
     lm = _LIST.match(text)
     if lm:
         items = [s.strip() for s in lm.group(1).split(",") if s.strip()]
         if not items:
             raise rd.fail(path, "empty list")
         for it in items:
-            if not _NAME_RE.match(it):
+            if not NAME_RE.match(it):
                 raise rd.fail(path, f"{it!r} is not a name")
         return items
     if text in groups:
@@ -67,7 +65,7 @@ def _collection(
 
 
 def _bindings(
-    rd: _Reader, value: Any, path: str, groups: Mapping[str, Sequence[str]]
+    rd: Reader, value: Any, path: str, groups: Mapping[str, Sequence[str]]
 ) -> list[dict[str, str]]:
     """All assignments of the clause's ``each`` (a string or a list: product of bindings)."""
     items = value if isinstance(value, list) else [value]
@@ -112,8 +110,8 @@ def _fmt(x: float) -> str:
     return f"{x:.12g}"
 
 
-def _expand_spec(
-    rd: _Reader,
+def expand_spec(
+    rd: Reader,
     value: Any,
     groups: Mapping[str, Sequence[str]],
     constants: Mapping[str, float],
@@ -131,9 +129,9 @@ def _expand_spec(
             m = rd.mapping(c, p, {"formula", "each", "name"})
             formula = rd.require(m, "formula", p)
             if not isinstance(formula, str):
-                raise rd.fail(_join(p, "formula"), "expected STL text")
+                raise rd.fail(join_key(p, "formula"), "expected STL text")
             each = m.get("each")
-        fpath = p if isinstance(c, str) else _join(p, "formula")
+        fpath = p if isinstance(c, str) else join_key(p, "formula")
 
         def dollar(mt: re.Match[str], fpath: str = fpath) -> str:
             key = mt.group(1)
@@ -144,7 +142,7 @@ def _expand_spec(
             return _fmt(constants[key])
 
         formula = _DOLLAR.sub(dollar, formula)
-        binds = [{}] if each is None else _bindings(rd, each, _join(p, "each"), groups)
+        binds = [{}] if each is None else _bindings(rd, each, join_key(p, "each"), groups)
         for b in binds:
             text = " ".join(_substitute(formula, b).split())
             clauses.append(Clause(fpath, text))
@@ -156,7 +154,7 @@ def _expand_spec(
 _PART_JOIN = {"inside": " or ", "outside": " and "}
 
 
-def _spell_parts(rd: _Reader, clauses: Sequence[Clause], regions: Sequence[Region]) -> list[Clause]:
+def spell_parts(rd: Reader, clauses: Sequence[Clause], regions: Sequence[Region]) -> list[Clause]:
     """The clauses with each ``inside``/``outside`` of a polygon that is not convex spelled
     as that of its convex parts (:mod:`planner.cover`): ``inside(d, row)`` is
     ``(inside(d, row_part1) or inside(d, row_part2))``, ``outside`` joins with ``and``; any
@@ -186,8 +184,8 @@ def _spell_parts(rd: _Reader, clauses: Sequence[Clause], regions: Sequence[Regio
     return [Clause(cl.key_path, _CALL.sub(partial(spell, cl=cl), cl.text)) for cl in clauses]
 
 
-def _check_calls(
-    rd: _Reader,
+def check_calls(
+    rd: Reader,
     clauses: Sequence[Clause],
     vehicles: set[str],
     regions: set[str],

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.nlp import _Structure
+from planner.nlp import Structure
 
 __all__ = [
     "EPS_MARGIN_STEP_M",
@@ -148,7 +148,7 @@ def watch_sigint() -> Iterator[SigintWatch]:
 
 
 def run_solvers(
-    struct: _Structure,
+    struct: Structure,
     w0: np.ndarray,
     bounds: Mapping[str, np.ndarray],
     say: Callable[[str], None],
@@ -205,7 +205,7 @@ def lower_r(lbx: np.ndarray, ubx: np.ndarray, value: float) -> None:
     ubx[-1] = max(ubx[-1], value + EPS_MARGIN_STEP_M)
 
 
-def min_leaf(struct: _Structure, w: np.ndarray, p: np.ndarray, default: float) -> float:
+def min_leaf(struct: Structure, w: np.ndarray, p: np.ndarray, default: float) -> float:
     """The smallest leaf value (the smooth robustness the NLP sees) at ``w``; ``default``
     when the spec has no leaves."""
     values = np.asarray(struct.leaf_fn(w, p)).reshape(-1)

@@ -62,3 +62,25 @@ def test_the_flight_code_imports_no_command_module() -> None:
     for module in (f"gcs/{name}.py" for name in flight_code):
         ns = imports("gcs")[module]
         assert not [n for n in ns if n.startswith("gcs.commands")], module
+
+
+def test_no_module_imports_another_modules_private_names() -> None:
+    """A name with a leading underscore is its module's own: no other module of the
+    packages imports it (the tests may, to test it)."""
+    bad = []
+    for package in ("planner", "mavlink", "gcs"):
+        for path in sorted((REPO / package).rglob("*.py")):
+            own = ".".join(path.relative_to(REPO).with_suffix("").parts)
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if not (isinstance(node, ast.ImportFrom) and node.module and node.level == 0):
+                    continue
+                if node.module.split(".")[0] not in ("planner", "mavlink", "gcs"):
+                    continue
+                if node.module == own.removesuffix(".__init__"):
+                    continue
+                bad += [
+                    f"{own}: {node.module}.{a.name}"
+                    for a in node.names
+                    if a.name.startswith("_") and not a.name.startswith("__")
+                ]
+    assert bad == []

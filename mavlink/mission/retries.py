@@ -27,8 +27,8 @@ from mavlink.mission.items import MissionItem, MissionType, compare_items
 from mavlink.mission.transfer import (
     TransferReport,
     TransferStep,
-    _raise_for,
     download,
+    raise_for,
     upload,
 )
 
@@ -226,7 +226,7 @@ async def _put(v: Vehicle, items: Sequence[MissionItem], mission_type: MissionTy
         result = await mavsdk_call(v.mission_raw.clear_mission_async, timeout_s=60.0)
     except TimeoutError:
         result = "TIMEOUT"
-    _raise_for(result, "clear_mission", v)
+    raise_for(result, "clear_mission", v)
 
 
 async def upload_with_retries(

@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     from mavlink.vehicle import Vehicle
 
 
-def _raise_for(result: Any, origin: str, v: Vehicle) -> None:
+def raise_for(result: Any, origin: str, v: Vehicle) -> None:
     if result != MissionRawResult.SUCCESS:
         name = getattr(result, "name", str(result))
         kind = (
@@ -55,7 +55,7 @@ async def upload(
         result = await mavsdk_call(start, raw, timeout_s=60.0)
     except TimeoutError:
         result = "TIMEOUT"
-    _raise_for(result, origin, v)
+    raise_for(result, origin, v)
 
 
 async def download(
@@ -74,7 +74,7 @@ async def download(
         result, raw = await mavsdk_call(start, timeout_s=60.0)
     except TimeoutError:
         result, raw = "TIMEOUT", None
-    _raise_for(result, origin, v)
+    raise_for(result, origin, v)
     return tuple(MissionItem.from_mavsdk(r) for r in raw)
 
 

@@ -26,7 +26,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from mavlink.mock.mission import MISSION
 from mavlink.mock.parts import VehicleParts
 from mavlink.mock.px4 import Px4Mode
-from mavlink.mock.telemetry import DEFAULT_RATES_HZ, _Stream
+from mavlink.mock.telemetry import DEFAULT_RATES_HZ, Stream
 
 #: A pymavlink message (its fields are per message type: untyped to mypy).
 Msg: TypeAlias = Any
@@ -405,7 +405,7 @@ class CommandsMixin(VehicleParts):
             interval_s = max(interval_us * 1e-6, self.fleet.dt_s)
         else:
             return DENIED, None
-        self._streams[msg_id] = _Stream(msg_id, interval_s, self._now(), build)
+        self._streams[msg_id] = Stream(msg_id, interval_s, self._now(), build)
         return ACCEPTED, None
 
     def _cmd_get_message_interval(self, p: Sequence[float], frame: int, is_int: bool) -> _Reply:

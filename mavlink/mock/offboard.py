@@ -2,7 +2,7 @@
 
 Mixed into :class:`mavlink.mock.vehicle.MockVehicle`.  SET_POSITION_TARGET_LOCAL_NED
 (local and body frames), SET_POSITION_TARGET_GLOBAL_INT and SET_ATTITUDE_TARGET become
-one stored setpoint in the local NED frame (:class:`_Setpoint`), flown while the
+one stored setpoint in the local NED frame (:class:`Setpoint`), flown while the
 vehicle is in OFFBOARD.  As PX4, offboard may be entered only once setpoints have
 come at 2 Hz or more for at least 1 s, and when they stop for COM_OF_LOSS_T (the
 vehicle's tick watches) the failsafe COM_OBL_RC_ACT takes over.  A room of its own
@@ -32,7 +32,7 @@ _STREAM_MIN_S = 1.0  # ... for at least 1 s before offboard is allowed
 
 
 @dataclass(slots=True)
-class _Setpoint:
+class Setpoint:
     """The last offboard setpoint, already in the local NED frame."""
 
     pos: np.ndarray
@@ -161,7 +161,7 @@ class OffboardMixin(VehicleParts):
         self._keepalive()
         if not (m_pos.any() or m_vel.any() or m_acc.any()):
             return
-        self._sp = _Setpoint(
+        self._sp = Setpoint(
             pos, vel, acc, m_pos, m_vel, m_acc, float(yaw), float(yaw_rate), use_yaw, use_rate
         )
         if self.mode is Px4Mode.OFFBOARD:

@@ -25,11 +25,11 @@ import numpy as np
 if TYPE_CHECKING:
     from mavlink.mock.config import MockVehicleConfig
     from mavlink.mock.mission import MissionServer
-    from mavlink.mock.offboard import _Setpoint
+    from mavlink.mock.offboard import Setpoint
     from mavlink.mock.payload import CameraState, GimbalState
     from mavlink.mock.physics import FleetPhysics
     from mavlink.mock.px4 import ParamSpec, Px4Mode
-    from mavlink.mock.telemetry import _Stream
+    from mavlink.mock.telemetry import Stream
     from mavlink.mock.vehicle import FleetSide, Link
 
 
@@ -67,13 +67,13 @@ class VehicleParts:
     _mc_rng: random.Random
     _mission_valid_s: float
     # offboard: the last setpoint, when setpoints last came and since when they stream
-    _sp: _Setpoint | None
+    _sp: Setpoint | None
     _sp_last_s: float
     _sp_stream_start_s: float
     _frame_warned: set[int]
     # telemetry streams, and (due time, action) run by tick
     _builders: dict[int, Callable[[], Any]]
-    _streams: dict[int, _Stream]
+    _streams: dict[int, Stream]
     _deferred: list[tuple[float, Callable[[], None]]]
     downlink: Link | None
     # the command being answered: (MAV_CMD, sender's sysid, sender's compid)

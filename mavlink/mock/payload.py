@@ -85,7 +85,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.mock.parts import VehicleParts
 from mavlink.mock.px4 import Px4Mode
-from mavlink.mock.telemetry import _euler_to_quaternion, _Stream
+from mavlink.mock.telemetry import Stream, euler_to_quaternion
 from mavlink.signing import signing_timestamp
 
 #: A pymavlink message (its fields are per message type: untyped to mypy).
@@ -244,7 +244,7 @@ class PayloadMixin(VehicleParts):
         )
         status_id = mavlink2.MAVLINK_MSG_ID_GIMBAL_MANAGER_STATUS
         self._builders[status_id] = self._msg_gimbal_manager_status
-        self._streams[status_id] = _Stream(
+        self._streams[status_id] = Stream(
             status_id, 1.0 / _MANAGER_STATUS_HZ, 0.0, self._msg_gimbal_manager_status
         )
 
@@ -441,7 +441,7 @@ class PayloadMixin(VehicleParts):
         gmb = self.gimbal
         assert gmb is not None
         yaw = float(self.phys.yaw_rad[self.index]) + gmb.yaw_rad
-        return _euler_to_quaternion(0.0, gmb.pitch_rad, _wrap_pi(yaw))
+        return euler_to_quaternion(0.0, gmb.pitch_rad, _wrap_pi(yaw))
 
     def _msg_camera_information(self) -> Msg:
         spec = self.config.camera_spec
@@ -542,7 +542,7 @@ class PayloadMixin(VehicleParts):
         gmb = self.gimbal
         assert gmb is not None
         i, p = self.index, self.phys
-        q = _euler_to_quaternion(0.0, gmb.pitch_rad, gmb.yaw_rad)  # yaw in the vehicle frame
+        q = euler_to_quaternion(0.0, gmb.pitch_rad, gmb.yaw_rad)  # yaw in the vehicle frame
         return mavlink2.MAVLink_gimbal_device_attitude_status_message(
             0, 0, self._boot_ms(), self._device_flags(), list(q), 0.0,
             gmb.pitch_rate_now_rad_s, gmb.yaw_rate_now_rad_s, 0, float(p.yaw_rad[i]),

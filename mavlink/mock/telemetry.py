@@ -4,7 +4,7 @@ Mixed into :class:`mavlink.mock.vehicle.MockVehicle`.  Each ``_msg_*`` method
 builds one message for the current tick; positions and velocities carry the
 fleet's seeded telemetry noise, global positions are the vehicle's EKF origin
 plus its local offset (the fleet converts the whole fleet at once per tick).
-The streams that send them at their rates are :class:`_Stream` records, run by the
+The streams that send them at their rates are :class:`Stream` records, run by the
 vehicle's tick.
 """
 
@@ -47,7 +47,7 @@ DEFAULT_RATES_HZ: dict[int, float] = {
 
 
 @dataclass(slots=True)
-class _Stream:
+class Stream:
     """One telemetry stream of the vehicle: message ``msg_id``, built by ``build`` every
     ``interval_s`` (s), next due at ``next_s`` (simulation time, s).  Set up at boot from
     :data:`DEFAULT_RATES_HZ` and changed by MAV_CMD_SET_MESSAGE_INTERVAL."""
@@ -213,7 +213,7 @@ class TelemetryMixin(VehicleParts):
 
     def _msg_attitude_quaternion(self) -> Msg:
         i, p = self.index, self.phys
-        q = _euler_to_quaternion(p.roll_rad[i], p.pitch_rad[i], p.yaw_rad[i])
+        q = euler_to_quaternion(p.roll_rad[i], p.pitch_rad[i], p.yaw_rad[i])
         return mavlink2.MAVLink_attitude_quaternion_message(
             self._boot_ms(), *q,
             p.roll_rate_rad_s[i], p.pitch_rate_rad_s[i], p.yaw_rate_rad_s[i], [0.0] * 4,
@@ -311,7 +311,7 @@ class TelemetryMixin(VehicleParts):
         lat, lon, alt = pymap3d.ned2geodetic(pos[0], pos[1], pos[2], *self.spawn_lla)
         v = p.true_vel_ned_m_s[i]
         a = p.acc_ned_m_s2[i]
-        q = _euler_to_quaternion(p.roll_rad[i], p.pitch_rad[i], p.yaw_rad[i])
+        q = euler_to_quaternion(p.roll_rad[i], p.pitch_rad[i], p.yaw_rad[i])
         mg = 1000.0 / 9.80665
         return mavlink2.MAVLink_hil_state_quaternion_message(
             self._usec(), list(q), p.roll_rate_rad_s[i], p.pitch_rate_rad_s[i],
@@ -332,9 +332,7 @@ class TelemetryMixin(VehicleParts):
         )  # fmt: skip
 
 
-def _euler_to_quaternion(
-    roll: float, pitch: float, yaw: float
-) -> tuple[float, float, float, float]:
+def euler_to_quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
     cr, sr = math.cos(roll / 2), math.sin(roll / 2)
     cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
     cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)

@@ -42,13 +42,13 @@ from mavlink.mock.errors import MockConfigError, MockError
 from mavlink.mock.estimator import EstimatorParams
 from mavlink.mock.mission import MISSION, MissionItem, MissionServer
 from mavlink.mock.navigator import NavigatorMixin
-from mavlink.mock.offboard import OffboardMixin, _Setpoint
+from mavlink.mock.offboard import OffboardMixin, Setpoint
 from mavlink.mock.origin import OriginMixin
 from mavlink.mock.parameters import ParametersMixin, vehicle_params
 from mavlink.mock.payload import PayloadMixin
 from mavlink.mock.physics import FleetPhysics
 from mavlink.mock.px4 import Px4Mode
-from mavlink.mock.telemetry import DEFAULT_RATES_HZ, TelemetryMixin, _Stream
+from mavlink.mock.telemetry import DEFAULT_RATES_HZ, Stream, TelemetryMixin
 from mavlink.signing import signing_timestamp
 
 
@@ -178,7 +178,7 @@ class MockVehicle(
         self.home_ned_m = np.zeros(3)
         self.cruise_speed_m_s = self.params["MPC_XY_CRUISE"]
         # offboard
-        self._sp: _Setpoint | None = None
+        self._sp: Setpoint | None = None
         self._sp_last_s = -math.inf
         self._sp_stream_start_s = -math.inf
         self._frame_warned: set[int] = set()
@@ -231,7 +231,7 @@ class MockVehicle(
         self._transport_send: Callable[[bytes, tuple[str, int]], None] | None = None
         self.uplink: Link | None = None  # a FaultyChannel, set by the fleet
         self.downlink: Link | None = None
-        self._streams: dict[int, _Stream] = {}
+        self._streams: dict[int, Stream] = {}
         self._builders: dict[int, Callable[[], Msg | None]] = {
             mavlink2.MAVLINK_MSG_ID_HEARTBEAT: self._msg_heartbeat,
             mavlink2.MAVLINK_MSG_ID_SYS_STATUS: self._msg_sys_status,
@@ -253,7 +253,7 @@ class MockVehicle(
             mavlink2.MAVLINK_MSG_ID_HIL_STATE_QUATERNION: self._msg_truth,
         }
         for msg_id, rate_hz in DEFAULT_RATES_HZ.items():
-            self._streams[msg_id] = _Stream(msg_id, 1.0 / rate_hz, 0.0, self._builders[msg_id])
+            self._streams[msg_id] = Stream(msg_id, 1.0 / rate_hz, 0.0, self._builders[msg_id])
         self._payload_init()
         self._handlers: dict[str, Callable[[Msg], None]] = {
             "COMMAND_LONG": self._on_command_long,

@@ -34,8 +34,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from planner.dynamics.errors import DynamicsError
-from planner.dynamics.linear import PiecewisePolynomialModel, _ratio_steps
-from planner.dynamics.primitives import EndState, _forms
+from planner.dynamics.linear import PiecewisePolynomialModel, ratio_steps
+from planner.dynamics.primitives import EndState, closed_forms
 from planner.trajectory import YawPolicy
 
 __all__ = ["MinimumJerkChain"]
@@ -81,7 +81,7 @@ class MinimumJerkChain(PiecewisePolynomialModel):
         limit_subdivisions: int = 3,
         yaw_policy: YawPolicy | None = None,
     ) -> None:
-        n = _ratio_steps(horizon_s, segment_s, "horizon_s / segment_s")
+        n = ratio_steps(horizon_s, segment_s, "horizon_s / segment_s")
         self.n_segments = n
         self.segment_s = float(segment_s)
         self.final_acc_zero = bool(final_acc_zero)
@@ -103,7 +103,7 @@ class MinimumJerkChain(PiecewisePolynomialModel):
             end = EndState.POS_VEL_ACC if (last and self.final_acc_zero) else EndState.POS_VEL
             Pf, Vf = eye[i], eye[n + i]
             d = np.stack([Pf - P - V * T - 0.5 * A * T * T, Vf - V - A * T, -A])
-            alpha, beta, gamma = _forms(Tarr, end) @ d
+            alpha, beta, gamma = closed_forms(Tarr, end) @ d
             coef[i] = np.stack([P, V, A / 2.0, gamma / 6.0, beta / 24.0, alpha / 120.0])
             A_end = A + gamma * T + beta * T**2 / 2.0 + alpha * T**3 / 6.0
             if self.explicit_acc:  # a_i (a variable) equals the segment's end acceleration

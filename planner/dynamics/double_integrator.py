@@ -25,8 +25,8 @@ from planner.dynamics.errors import DynamicsError
 from planner.dynamics.linear import (
     LimitConstraints,
     PiecewisePolynomialModel,
-    _as_axis_limit,
-    _ratio_steps,
+    as_axis_limit,
+    ratio_steps,
 )
 from planner.trajectory import YawPolicy
 
@@ -63,7 +63,7 @@ class DoubleIntegrator(PiecewisePolynomialModel):
         self.dims = dims
         self.dt_s = float(dt_s)
         self.u_max = u
-        n = _ratio_steps(horizon_s, dt_s, "horizon_s / dt_s")
+        n = ratio_steps(horizon_s, dt_s, "horizon_s / dt_s")
         self.n_steps = n
         m = n + 2
         eye = np.eye(m)
@@ -112,7 +112,7 @@ class DoubleIntegrator(PiecewisePolynomialModel):
             acc_hi[2] = acc_lo[2] = 0.0
         # Parent validates finiteness; pass finite placeholders, then restore inf bounds.
         cons = PiecewisePolynomialModel.limit_constraints(
-            self, _as_axis_limit(np.where(np.isfinite(vm), vm, 0.0), "v_max"), np.zeros(3)
+            self, as_axis_limit(np.where(np.isfinite(vm), vm, 0.0), "v_max"), np.zeros(3)
         )
         n = len(cons.kind) // 2
         vel = (cons.kind[:n] == "vel")[:, None]

@@ -118,7 +118,7 @@ def bernstein_map(degree: int, order: int, s0: float, s1: float) -> NDArray[np.f
     return P @ R @ D
 
 
-def _as_axis_limit(value: ArrayLike, field: str) -> NDArray[np.float64]:
+def as_axis_limit(value: ArrayLike, field: str) -> NDArray[np.float64]:
     arr = np.broadcast_to(np.asarray(value, dtype=float), (3,)).copy()
     if not np.all(np.isfinite(arr)) or np.any(arr < 0.0):
         raise DynamicsError(f"{field} must be finite and >= 0 (scalar or 3 per-axis values)")
@@ -129,7 +129,7 @@ def _is_casadi(x: object) -> bool:
     return type(x).__module__.startswith("casadi")
 
 
-def _ratio_steps(total_s: float, step_s: float, what: str) -> int:
+def ratio_steps(total_s: float, step_s: float, what: str) -> int:
     if not (np.isfinite(total_s) and np.isfinite(step_s)) or total_s <= 0 or step_s <= 0:
         raise DynamicsError(f"{what}: durations must be finite and > 0")
     n = round(total_s / step_s)
@@ -188,7 +188,7 @@ class PiecewisePolynomialModel:
         self.coef_maps = coef_maps
         self.limit_subdivisions = limit_subdivisions
         self.yaw_policy = yaw_policy
-        n_steps = _ratio_steps(horizon_s, sample_dt_s, "horizon_s / sample_dt_s")
+        n_steps = ratio_steps(horizon_s, sample_dt_s, "horizon_s / sample_dt_s")
         self.n_samples = n_steps + 1
         self.times_s = np.asarray(np.arange(self.n_samples) * self.sample_dt_s, dtype=np.float64)
         seg = np.clip(
@@ -267,10 +267,10 @@ class PiecewisePolynomialModel:
             :class:`LimitConstraints` ``[A; -A]`` with ``G @ Z + H @ X0 <= h`` meaning all
             limits hold for every ``t`` in ``[0, horizon_s]`` (see module docstring).
         """
-        vm = _as_axis_limit(v_max, "v_max")
-        am = _as_axis_limit(a_max, "a_max")
-        vd = vm if v_down is None else _as_axis_limit(v_down, "v_down")
-        ad = am if a_down is None else _as_axis_limit(a_down, "a_down")
+        vm = as_axis_limit(v_max, "v_max")
+        am = as_axis_limit(a_max, "a_max")
+        vd = vm if v_down is None else as_axis_limit(v_down, "v_down")
+        ad = am if a_down is None else as_axis_limit(a_down, "a_down")
         A, kinds = self._limit_rows
         vel = (kinds == "vel")[:, None]
         upper = np.where(vel, vm[None, :], am[None, :])

@@ -79,7 +79,7 @@ class EndState(enum.Enum):
         return ("pos" in v, "vel" in v, "acc" in v)
 
 
-def _forms(T: NDArray[np.float64], e: EndState) -> NDArray[np.float64]:
+def closed_forms(T: NDArray[np.float64], e: EndState) -> NDArray[np.float64]:
     """Closed-form map ``(..., 3, 3)`` from ``[dp, dv, da]`` to ``[alpha, beta, gamma]``."""
     T2 = T * T
     T3 = T2 * T
@@ -176,7 +176,7 @@ def min_jerk_parameters(
     d = np.stack(
         [pf - p0 - v0 * Tf - 0.5 * a0 * Tf * Tf, vf - v0 - a0 * Tf, af - a0], axis=-1
     )  # residuals of [M]
-    return np.einsum("...ij,...j->...i", _forms(Tf, end), d)
+    return np.einsum("...ij,...j->...i", closed_forms(Tf, end), d)
 
 
 def parameters_to_coefficients(

@@ -15,7 +15,7 @@ import pytest
 from shapely.geometry import LineString, Polygon
 
 from planner.coarse_fit import waypoint_guess
-from planner.guess import _fit_within_limits
+from planner.guess import fit_within_limits
 from planner.milp import CoarseStatus, solve_coarse
 from planner.milp import solve as solve_mod
 from planner.optimize import make_model, plan
@@ -109,7 +109,7 @@ def test_the_fit_follows_a_coarse_path_at_full_speed_along_an_axis():
     t_model = np.asarray(model.times_s)
     target = np.column_stack([np.interp(t_model, times, path[:, a]) for a in range(3)])
     pos = np.asarray(model.Mp) @ z.reshape(3, -1).T + np.asarray(model.Np) @ x0s[0]
-    box = _fit_within_limits(model, target, x0s[0], problem.vehicles[0], problem.workspace)
+    box = fit_within_limits(model, target, x0s[0], problem.vehicles[0], problem.workspace)
     pos_box = np.asarray(model.Mp) @ box + np.asarray(model.Np) @ x0s[0]
     lag, lag_box = np.abs(pos - target).max(), np.abs(pos_box - target).max()
     assert lag < 3.0 < 10.0 < lag_box, (lag, lag_box)

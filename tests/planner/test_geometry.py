@@ -17,7 +17,7 @@ import pytest
 import yaml
 
 from planner.geometry import keep_out, place
-from planner.guess import _avoided, _targets
+from planner.guess import _avoided, visit_targets
 from planner.optimize import plan
 from planner.scenario import parse_scenario
 from planner.stl import conjunction
@@ -132,7 +132,7 @@ def test_the_guess_picks_the_nearest_option_and_visits_in_deadline_then_nearest_
         "always[0, 20] (x(d1) <= 3 or x(d1) >= 5 or y(d1) <= 4 or y(d1) >= 6)",
     )
     f = conjunction(list(pr.formulas))
-    got = _targets(f, "d1", pr, np.array([1.0, 1.0, 1.0]))
+    got = visit_targets(f, "d1", pr, np.array([1.0, 1.0, 1.0]))
     # the deadline-8 box first (it is `far`); then, from there, `far` again is the nearest
     # option of the choice (already visited: nothing to add), then the goal
     assert [_box(p)[:2] + _box(p)[3:5] for p in got] == [[8, 1, 9, 2], [7, 8, 8, 9]]
@@ -142,7 +142,7 @@ def test_the_guess_picks_the_nearest_option_and_visits_in_deadline_then_nearest_
         pytest.approx([0, 0, 1.2, 10, 10, 1.5]),
         pytest.approx([3, 4, 0.5, 5, 6, 1.5]),
     ]
-    near_first = _targets(
+    near_first = visit_targets(
         conjunction([pr.formulas[0], pr.formulas[1]]), "d1", pr, np.array([1.0, 1.0, 1.0])
     )
     assert [_box(p)[:2] for p in near_first] == [[1, 3], [7, 8]]  # near, then the goal

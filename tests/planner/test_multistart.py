@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import yaml
 
-from planner.guess import _targets, starts
+from planner.guess import starts, visit_targets
 from planner.optimize import plan
 from planner.problem import Problem
 from planner.scenario import load_scenario, parse_scenario
@@ -38,7 +38,7 @@ def _zoo(name: str, **solver: Any) -> Problem:
 def _route(problem: Problem, start: Any) -> list[str]:
     formula = conjunction(list(problem.formulas))
     x0 = np.asarray(problem.vehicles[0].start_enu_m, dtype=float)
-    return [pl.name for pl in _targets(formula, "d1", problem, x0, start.choices("d1"))]
+    return [pl.name for pl in visit_targets(formula, "d1", problem, x0, start.choices("d1"))]
 
 
 def test_the_starts_are_the_nearest_route_then_runners_up_and_shifted_legs() -> None:

@@ -21,7 +21,7 @@ from scipy.optimize import linprog
 from planner.checks import check_trajectories
 from planner.dynamics import MinimumJerkChain
 from planner.limits import NORM_DIRECTIONS, NORM_SIDES, Bounds, vehicle_bounds
-from planner.nlp import _two_sided_rows, vehicle_limit_bounds
+from planner.nlp import two_sided_rows, vehicle_limit_bounds
 from planner.planfile import PlanFileError, load_plan, save_plan
 from planner.problem import Vehicle
 from planner.scenario import parse_scenario
@@ -90,7 +90,7 @@ def _push(model: MinimumJerkChain, vehicle: Vehicle, k: int, direction: np.ndarr
     vehicle's limit rows laid out as the NLP has them (per axis, then the norm rows), from
     rest at the origin: an LP over the x, y, z columns (HiGHS)."""
     cons = model.limit_constraints(np.ones(3), np.ones(3))
-    half = _two_sided_rows(cons)
+    half = two_sided_rows(cons)
     lo, hi = vehicle_limit_bounds(model, vehicle, half, norm_rows=True)
     G = cons.G[:half]
     n = model.n_dec

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from planner.explain import needs
-from planner.guess import _initial_guess, _targets
+from planner.guess import initial_guess, visit_targets
 from planner.optimize import conjunction, make_model, plan
 from planner.plan_check import initial_states
 from planner.scenario import load_scenario
@@ -22,11 +22,11 @@ def test_the_guess_climbs_over_an_until_keep_out_before_crossing_it() -> None:
     # x > -2 below 14 m before x >= 45.
     problem = load_scenario(ZOO / "powerline_until_clearance_1drone.yaml")
     formula = conjunction(list(problem.formulas))
-    route = _targets(formula, "d1", problem, np.array([-6.0, -12.0, 8.0]))
+    route = visit_targets(formula, "d1", problem, np.array([-6.0, -12.0, 8.0]))
     assert route[0].name == "x(d1) >= 45" and len(route[0].clear_of) == 1
     model = make_model(problem)
     x0s = initial_states(problem, model)
-    z = _initial_guess(problem, model, formula, x0s).reshape((model.n_dec, 3), order="F")
+    z = initial_guess(problem, model, formula, x0s).reshape((model.n_dec, 3), order="F")
     t = np.arange(0.0, 25.0, 0.05)
     tr = model.trajectory(z, x0s[0], "d1")
     pos = np.asarray(tr.position(t)).reshape(-1, 3)
@@ -59,7 +59,7 @@ def test_an_order_that_the_deadline_cannot_hold_is_explained_in_seconds() -> Non
     # or later (at 5 m/s, no acceleration), against a deadline of 24 s.
     problem = load_scenario(ZOO / "powerline_infeasible_order_deadline.yaml")
     formula = conjunction(list(problem.formulas))
-    route = _targets(formula, "d1", problem, np.array([-6.0, -12.0, 8.0]))
+    route = visit_targets(formula, "d1", problem, np.array([-6.0, -12.0, 8.0]))
     assert [pl.name for pl in route] == ["inside(d1, insp4)", "inside(d1, insp1)"]
     lines = needs(
         problem,
