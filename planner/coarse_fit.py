@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from planner.guess import axis_fit, fit_within_limits, guess_qp
 from planner.limits import NORM_DIRECTIONS, vehicle_bounds
+from planner.path_fit import axis_fit, fit_within_limits, guess_qp
 from planner.problem import Problem, Vehicle
 from planner.regions import Region
 
@@ -33,7 +33,7 @@ def _fit_xy(
     """``Z`` (n_dec, 3) closest (least squares at the samples) to ``path`` (n, 3) among the
     trajectories within the NLP's limit rows (horizontal polygon included), at rest at the
     end when asked, in the workspace's box at the samples; None when the QP fails.  The
-    initial guess's per-axis pieces (:func:`planner.guess.axis_fit`) on the NLP's axis
+    initial guess's per-axis pieces (:func:`planner.path_fit.axis_fit`) on the NLP's axis
     bounds, the three axes side by side, and the polygon's rows coupling x and y."""
     vel, acc = vehicle_bounds(vehicle)
     (vlo, vhi, vb), (alo, ahi, ab) = vel.linear(), acc.linear()

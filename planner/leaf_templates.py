@@ -21,7 +21,7 @@ rows of ``Z_v`` those samples depend on, axis after axis), ``x0`` their start st
 prism's or cylinder's :meth:`planner.regions.Region.params`, its kind part of the key).  A
 window ``[a, b]`` at a step is the same leaf from 0 at ``step + a``, and the template is keyed
 by its block of the sample matrices, so windows of the same width and phase share one
-wherever they lie (the chunks of a long ``eventually``, :func:`planner.nlp._chunks`).  Every
+wherever they lie (the chunks of a long ``eventually``, :func:`planner.leaves.chunks_of`).  Every
 leaf of that shape is then a *call* of
 the same functions with its own arguments, so the symbolic work is done once per shape, not
 once per vehicle (power-line N = 4: 8 leaves, 2 shapes), and it is cached for the process

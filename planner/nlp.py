@@ -1,44 +1,10 @@
 """The NLP of :func:`planner.optimize.plan`: the spec's leaves as constraints on the epigraph
 variable ``r``, the dynamics and limits, and the IPOPT / sqpmethod glue.
 
-Formulation (for vehicles ``i`` with decision matrices ``Z_i`` of the chosen
-:class:`~planner.dynamics.LinearModel` and start states ``X0_i``)::
-
-    maximise    r
-    subject to  c_l(Z) >= r                  every conjunctive leaf l (see below)
-                G Z_i + H X0_i <= h_i        continuous-time |v|, |a| limits per axis
-                                             (and horizontal norms: planner.limits)
-                v_i(horizon) = 0             every vehicle ends at rest (then holds)
-                lo_ws <= p_i(t_k) <= hi_ws   workspace, at every constraint sample
-                [r >= epsilon + margin]      the paper's eq. (1) constraint, if asked for
-
-The spec is a conjunction; its robustness is the min over the clauses, and the min over
-time of an ``always``.  Instead of smoothing these mins (log-sum-exp over N^2 separation
-clauses times 121 samples would be both inaccurate and dense), they are handled *exactly*
-by the epigraph variable ``r``: the tree is walked from the root through ``and`` and
-``always`` nodes, collecting leaves with the set of sample steps at which they must hold.
-A leaf is then
-
-* a comparison of arithmetic over function values (``dist(a, b) >= 0.2``, ``x(d) <= 4``)
-  or a function atom (``outside(d, pole1)``): one constraint per step, with the smooth
-  predicate implementations of :mod:`planner.predicates` (never above the exact value);
-* ``inside(d, box)``: six *linear* constraints per step (the face margins; exact);
-* anything else (``eventually``, ``or``, ``until``, ``not``, ``implies``): the STL engine's
-  smooth robustness with sharpness ``k`` of that sub-formula at each step (one CasADi
-  expression per step, over only the samples its windows reach), built as a call of a
-  template shared by every leaf of the same shape (:mod:`planner.leaf_templates`).
-
-So the separation pairs become sparse constraints (each touches two vehicles), the
-Hessian stays sparse, no term drowns another, and smoothing error remains only where
-there is a genuine max (a disjunction).  The sampled positions are lifted into variables
-(``P_i = Mp Z_i + Np X0_i`` as linear equalities) so the row-wise leaves are local; the
-smooth leaves, which couple whole windows, are written in ``Z`` where their dense Hessian
-block is ``3 n_dec`` wide.  Row-wise leaves are sampled every
-:attr:`SolverOptions.constraint_dt_s` (default ``max(Ts, 0.1 s)``); the exact check is
-dense anyway.  A small acceleration penalty (``_REG_WEIGHT``) gives curvature in the
-directions ``r`` ignores (reach-avoid N = 1: 207 -> 75 iterations).
-
-What each choice measured: ``docs/solver-notes.md``.
+Formulation (maximise ``r`` with every conjunctive leaf of the spec at least ``r`` at its
+sample steps, the limits as linear rows on the continuous trajectory, the positions lifted
+into variables) and why it is shaped so: ``docs/solver-notes.md``, "The formulation", which
+also says what each choice measured.
 """
 
 from __future__ import annotations
@@ -46,7 +12,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import os
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -60,13 +25,13 @@ from planner.cache import BoundedCache
 from planner.errors import PlannerError
 from planner.leaf_templates import (
     LeafInstance,
-    canonical_leaf,
     clear_templates,
     instance,
-    local_hessian,
     smoothing_terms,
 )
+from planner.leaves import chunks_of, decompose, local_positions, lse
 from planner.limits import NORM_DIRECTIONS, vehicle_bounds
+from planner.nlp_solvers import IterationWatch, derivatives, make_solver
 from planner.predicates import (
     Role,
     ca_box_margins,
@@ -74,16 +39,12 @@ from planner.predicates import (
     predicate_sharpness,
     role_of,
 )
-from planner.problem import Problem, SolverMethod
-from planner.rowwise import SampleLeaf, block_hessian, block_jacobian, sample_leaf
+from planner.problem import Problem
+from planner.rowwise import SampleLeaf, sample_leaf
 from planner.stl import (
-    Always,
-    And,
-    BoolConst,
     CmpOp,
     Comparison,
     Const,
-    Eventually,
     Expr,
     Formula,
     Predicate,
@@ -99,96 +60,6 @@ _K_TOLERANCE = 0.06
 _REG_WEIGHT = 1e-3
 #: Upper bound of the epigraph variable r (m): keeps IPOPT bounded on trivial specs.
 _R_MAX = 1e3
-#: A smooth ``eventually`` leaf whose window spans more segments than this, divided by the
-#: vehicles it names, is split into chunks of ``CHUNK_SEGMENTS`` segments (:func:`_chunks`).
-#: The dense Hessian of a whole window grows with the square of segments x vehicles: the
-#: allocation mission's ``eventually[0, 58]`` over three vehicles (19 segments each) took
-#: 29 s of CasADi as one template, 3.3 s in chunks.
-CHUNK_ABOVE_SEGMENTS = 24
-CHUNK_SEGMENTS = 4
-
-
-# --------------------------------------------------------------------------- decompose
-
-
-def _decompose(node: Formula, steps: np.ndarray, dt: float, out: dict[Formula, set[int]]) -> None:
-    """Collect conjunctive leaves: walk ``and``/``always`` from the root, track steps."""
-    if isinstance(node, And):
-        for child in node.operands:
-            _decompose(child, steps, dt, out)
-    elif isinstance(node, Always):
-        lo, hi = node.steps(dt)
-        shifted = np.unique((steps[:, None] + np.arange(lo, hi + 1)[None, :]).ravel())
-        _decompose(node.child, shifted, dt, out)
-    elif isinstance(node, BoolConst) and node.value:
-        return
-    else:
-        out.setdefault(node, set()).update(int(s) for s in steps)
-
-
-def _chunks(leaf: Formula, step: int, dt: float, per_segment: int) -> list[tuple[Formula, int]]:
-    """``eventually[a, b] psi`` at ``step``, when its window is long (times the vehicles it
-    names: :data:`CHUNK_ABOVE_SEGMENTS`), as chunks
-    ``(eventually[0, c] psi, first step)`` of ``CHUNK_SEGMENTS`` segments, their boundaries
-    on multiples of that length; ``[]`` for any other leaf.
-
-    The smooth eventually is ``1/k log sum_t exp(k psi(t))`` over the window, and a log-sum-exp
-    over the chunks' log-sum-exps is the same number.  The NLP holds each chunk's value in a
-    variable ``s_c`` (an equality row that touches only the decisions of the chunk's few
-    segments) and the leaf as the log-sum-exp of its ``s_c``: the leaf's Hessian is block
-    banded instead of dense over the whole horizon, and every chunk away from the start is
-    the same template (:mod:`planner.leaf_templates`), whichever pole it names.
-    """
-    if not isinstance(leaf, Eventually):
-        return []
-    a, b = leaf.steps(dt)
-    vehicles = max(1, len(canonical_leaf(leaf)[1]))
-    if (b - a + 1) * vehicles <= CHUNK_ABOVE_SEGMENTS * per_segment:
-        return []
-    length = CHUNK_SEGMENTS * per_segment
-    out: list[tuple[Formula, int]] = []
-    lo, last = step + a, step + b
-    while lo <= last:
-        hi = min(last, (lo // length + 1) * length - 1)
-        out.append((Eventually(leaf.child, 0.0, (hi - lo) * dt), lo))
-        lo = hi + 1
-    return out
-
-
-def _local_positions(model: Any) -> bool:
-    """Whether each sampled position depends on a few decision rows only (a primitive
-    chain's segment ends; not a double integrator's accelerations, which every later position
-    sums): only then does a chunk touch few decisions, and chunking pays."""
-    mp = np.abs(np.asarray(model.Mp)) > 0.0
-    return bool(mp.any()) and int(mp.sum(axis=1).max()) * 4 <= mp.shape[1]
-
-
-@dataclass(frozen=True, slots=True)
-class _Lse:
-    """``(1/k) log sum exp(k s)`` of ``m`` values, its gradient and ``lam`` times its
-    Hessian (a chunked leaf's row, :func:`_chunks`)."""
-
-    value: Any
-    value_grad: Any
-    hess: Any
-
-
-_LSE: BoundedCache[_Lse] = BoundedCache(64)
-
-
-def _lse(m: int, k: float) -> _Lse:
-    def build() -> _Lse:
-        s = ca.SX.sym("s", m)
-        shift = ca.mmax(s)  # the value and its derivatives do not depend on the shift
-        value = shift + ca.log(ca.sum1(ca.exp(k * (s - shift)))) / k
-        lam = ca.SX.sym("lam")
-        return _Lse(
-            value=ca.Function("lse", [s], [value]),
-            value_grad=ca.Function("lse_grad", [s], [value, ca.jacobian(value, s)]),
-            hess=ca.Function("lse_hess", [s, lam], [lam * ca.hessian(value, s)[0]]),
-        )
-
-    return _LSE.get_or_build((m, k), build)[0]
 
 
 def is_direct(node: Formula) -> bool:
@@ -209,57 +80,12 @@ class BuildTimeout(PlannerError):
     ``deadline``, checked between its pieces)."""
 
 
-class IterationWatch(ca.Callback):
-    """Called by the solver after every iteration: counts them, shows the iterate to
-    ``on_iteration`` (decision vector, objective), and asks the solver to stop once
-    ``time.perf_counter()`` passes ``deadline`` (IPOPT then returns User_Requested_Stop
-    with its last iterate).  One per built structure, shared by its solvers; a plan sets
-    ``deadline`` and ``on_iteration`` before it solves."""
-
-    def __init__(self, n_x: int, n_g: int, n_p: int) -> None:
-        ca.Callback.__init__(self)
-        self._dims = {"x": n_x, "f": 1, "g": n_g, "lam_x": n_x, "lam_g": n_g, "lam_p": n_p}
-        self.deadline = math.inf
-        self.iterations = 0
-        self.stopped = False
-        self.on_iteration: Callable[[np.ndarray, float], None] | None = None
-        self.construct("stl_iteration_watch", {})
-
-    def get_n_in(self) -> int:
-        return int(ca.nlpsol_n_out())
-
-    def get_n_out(self) -> int:
-        return 1
-
-    def get_name_in(self, i: int) -> str:
-        return str(ca.nlpsol_out(i))
-
-    def get_name_out(self, i: int) -> str:
-        return "ret"
-
-    def get_sparsity_in(self, i: int) -> Any:
-        n = self._dims.get(str(ca.nlpsol_out(i)), 0)
-        return ca.Sparsity.dense(n, 1) if n else ca.Sparsity(0, 0)
-
-    def get_sparsity_out(self, i: int) -> Any:
-        return ca.Sparsity.scalar()
-
-    def eval(self, arg: Sequence[Any]) -> list[Any]:
-        self.iterations += 1
-        if self.on_iteration is not None:
-            self.on_iteration(np.asarray(arg[0]).reshape(-1), float(arg[1]))
-        if time.perf_counter() > self.deadline:
-            self.stopped = True
-            return [1]
-        return [0]
-
-
 @dataclass(slots=True)
 class Structure:
     """A built NLP, reusable for any start states and limits of the same structure."""
 
     solvers: list[tuple[float, Any]]  # (k, nlpsol) in continuation order
-    make_refining: Callable[[], list[tuple[float, Any]]]  # the same, refining (_nlpsol)
+    make_refining: Callable[[], list[tuple[float, Any]]]  # the same, refining (make_solver)
     watch: IterationWatch  # every solver's iteration callback
     leaf_fn: Any  # ca.Function (w, p) -> leaf values (for r0)
     chunk_fn: Any  # ca.Function (w, p) -> the chunks' values (S at a point's Z)
@@ -411,7 +237,7 @@ class NlpBuilder:
         # (the same positions through Mp), where their dense Hessian block is n_dec*3 wide,
         # not n*3.
         self.leaves: dict[Formula, set[int]] = {}
-        _decompose(formula, np.array([0]), self.dt, self.leaves)
+        decompose(formula, np.array([0]), self.dt, self.leaves)
         self.smooth_leaves = [leaf for leaf in self.leaves if not is_direct(leaf)]
         self.box_terms = max(
             (smoothing_terms(leaf, problem) for leaf in self.smooth_leaves), default=0.0
@@ -433,14 +259,14 @@ class NlpBuilder:
         self.used = sorted(grid.union(*self.direct_steps.values()))
         self.row_of = {st: i for i, st in enumerate(self.used)}
 
-        # The smooth leaves at their steps; a long eventually's chunks (_chunks) in S.
+        # The smooth leaves at their steps; a long eventually's chunks (chunks_of) in S.
         self.smooth_items = [
             (leaf, st) for leaf in self.smooth_leaves for st in sorted(self.leaves[leaf])
         ]
         per_segment = max(1, round(problem.timing.segment_s / self.dt))
-        chunked = _local_positions(model)
+        chunked = local_positions(model)
         self.chunks = [
-            _chunks(leaf, st, self.dt, per_segment) if chunked else []
+            chunks_of(leaf, st, self.dt, per_segment) if chunked else []
             for leaf, st in self.smooth_items
         ]
         self.n_s = sum(len(c) for c in self.chunks)
@@ -585,14 +411,14 @@ class NlpBuilder:
         """The SX blocks' functions (values and derivatives), built once for every k."""
         if self._sx is None:
             w, p = self.w, self.p
-            # Separation rows enter the Hessian flat unless asked otherwise (_derivatives).
+            # Separation rows enter the Hessian flat unless asked otherwise (derivatives).
             flat = [
                 _is_separation(leaf) and not self.opts.separation_curvature
                 for leaf in self.direct_steps
             ]
             exact = self.opts.hessian == "exact"
             rowwise = [self._sample_leaf(leaf, steps) for leaf, steps in self.direct_steps.items()]
-            sx = _derivatives(
+            sx = derivatives(
                 w, p, self.f, self.linear, self.nonlinear, exact, flat, rowwise,
                 check=self.check_deadline,
             )  # fmt: skip
@@ -623,7 +449,7 @@ class NlpBuilder:
 
     def assemble(self, k: float) -> tuple[dict[str, Any], dict[str, Any], Any, Any]:
         """The NLP at temporal sharpness ``k``: :func:`_assemble` of the SX blocks and the
-        smooth leaves' template instances (a chunked leaf's chunks, :func:`_chunks`)."""
+        smooth leaves' template instances (a chunked leaf's chunks, :func:`chunks_of`)."""
         vehicle_index = {nm: i for i, nm in enumerate(self.names)}
 
         k_pred = k if self.sharp else self.k_pred
@@ -674,7 +500,7 @@ class NlpBuilder:
         n_items = len(self.smooth_items)
         n_g = n_sx + n_items + self.n_s
         solvers: list[tuple[float, Any]] = []
-        chunked = self.n_s > 0  # MUMPS ordering (_mumps_order)
+        chunked = self.n_s > 0  # MUMPS ordering (mumps_order)
         leaf_fn = chunk_fn = None
         watch = IterationWatch(self.n_w, n_g, int(self.p.shape[0]))
         stages = []
@@ -684,12 +510,17 @@ class NlpBuilder:
             stages.append((k, nlp, derivs))
             self.check_deadline()
             solvers.append(
-                (k, _nlpsol(nlp, problem, derivs, watch, warm=bool(solvers), chunked=chunked))
+                (k, make_solver(nlp, problem, derivs, watch, warm=bool(solvers), chunked=chunked))
             )
 
         def refining() -> list[tuple[float, Any]]:
             return [
-                (k, _nlpsol(nlp, problem, derivs, watch, warm=i > 0, refine=True, chunked=chunked))
+                (
+                    k,
+                    make_solver(
+                        nlp, problem, derivs, watch, warm=i > 0, refine=True, chunked=chunked
+                    ),
+                )
                 for i, (k, nlp, derivs) in enumerate(stages)
             ]
 
@@ -790,7 +621,7 @@ def _assemble(
 
     ``g`` is the SX blocks' rows (linear, then row-wise leaves ``- r``), then one row per
     smooth leaf (``value - r``; a chunked leaf's value is the log-sum-exp of its chunks'
-    variables ``s_c``, :func:`_chunks`), then one row per chunk (``value - s_c``, held at 0).
+    variables ``s_c``, :func:`chunks_of`), then one row per chunk (``value - s_c``, held at 0).
     A leaf row subtracts ``a * r`` with its weight ``a`` from ``p`` (from ``a0`` on: the
     direct rows', then the smooth rows'; 1, or 0 for a row :mod:`planner.optimize` settled).
     ``items[i]`` is a leaf's template instance, or its chunks' instances.  Each row's
@@ -830,16 +661,16 @@ def _assemble(
         else:
             first = s0 + len(chunk_rows)
             cols = list(range(first, first + len(item)))
-            lse = _lse(len(item), k)
+            joined = lse(len(item), k)
             s_vec = wm[cols]
             rows = [template_row(inst) for inst in item]
             chunk_rows.extend(rows)
-            leaf_vals.append(lse.value(ca.vertcat(*[rw[0] for rw in rows])))
+            leaf_vals.append(joined.value(ca.vertcat(*[rw[0] for rw in rows])))
             row = (
-                lse.value(s_vec),
-                lse.value_grad(s_vec)[1],
+                joined.value(s_vec),
+                joined.value_grad(s_vec)[1],
                 cols,
-                functools.partial(lse.hess, s_vec),
+                functools.partial(joined.hess, s_vec),
             )
         leaf_rows.append(row)
     chunk_vals = [rw[0] for rw in chunk_rows]
@@ -932,268 +763,9 @@ def vehicle_limit_bounds(
     return np.concatenate(lo_parts), np.concatenate(hi_parts)
 
 
-def _derivatives(
-    w: Any,
-    p: Any,
-    f: Any,
-    linear: list[Any],
-    nonlinear: list[Any],
-    hessian: bool,
-    flat: Sequence[bool] = (),
-    rowwise: Sequence[tuple[SampleLeaf, np.ndarray] | None] = (),
-    check: Callable[[], None] = lambda: None,
-) -> dict[str, Any]:
-    """Constraint Jacobian and Lagrangian Hessian assembled block by block.
-
-    CasADi differentiates a whole SX graph with one colouring and one mode; here the
-    blocks differ (dense rows of the smooth leaves in Z, the dense column of r in every
-    leaf, sparse local rows), and one colouring for all of them costs several times the
-    sum of the per-block derivatives (measured 4.7 s vs 1.1 s on power-line N = 2).
-
-    ``flat[i]`` leaves the i-th nonlinear block's curvature out of the Hessian (its
-    gradient stays exact, so the KKT point is the same; only IPOPT's step model changes).
-    The planner does this for the separation rows: ``dist >= s`` is reverse-convex, its
-    curvature term is negative, and with it IPOPT corrected the inertia (factorised again)
-    in 60 of 63 iterations on reach-avoid N = 8, without it in 27 of 76 (tol 1e-4).  Linearising keep-apart constraints is
-    what sequential convex programming does for collision avoidance.
-
-    ``rowwise[i]``, where given, is the i-th nonlinear block as one sample's leaf and the
-    entries of ``w`` at its steps: its Jacobian and Hessian are then that sample's mapped over
-    the steps (:mod:`planner.rowwise`), not the block's differentiated whole, and they join
-    the SX blocks' in MX functions, so that no SX graph of every step's derivatives is built
-    (the 40-pole line: 21 s of symbolic derivatives and 18 s of SX functions of its 53 s
-    build).
-
-    ``check`` is called between the pieces (the build's deadline, :class:`NlpBuilder`).
-    """
-    n_w = int(w.shape[0])
-    blocks = [*linear, *nonlinear]
-    g = ca.vertcat(*blocks)
-    mapped = [rowwise[ib] if ib < len(rowwise) else None for ib in range(len(nonlinear))]
-    jacs = [ca.jacobian(b, w) for b in linear]
-    for b, one in zip(nonlinear, mapped, strict=True):
-        check()
-        if one is None:
-            jacs.append(ca.jacobian(b, w))
-        else:  # only -a in r's column here (b = rows - a r, linear in r); the rows in MX
-            jacs.append(ca.horzcat(ca.SX(int(b.shape[0]), n_w - 1), ca.jacobian(b, w[n_w - 1])))
-    check()
-    jac_sx = ca.Function("nlp_jac_g_sx", [w, p], [g, ca.vertcat(*jacs)])
-    check()
-    wm, pm = ca.MX.sym("w", n_w), ca.MX.sym("p", int(p.shape[0]))
-    g_m, jac_m = jac_sx(wm, pm)
-    n_lin = sum(int(b.shape[0]) for b in linear)
-    if any(one is not None for one in mapped):
-        parts = [ca.MX(n_lin, n_w)]
-        for b, one in zip(nonlinear, mapped, strict=True):
-            rows = int(b.shape[0])
-            parts.append(ca.MX(rows, n_w) if one is None else block_jacobian(one[0], wm, one[1]))
-        jac_m = jac_m + ca.vertcat(*parts)
-    out = {"jac_g": ca.Function("nlp_jac_g", [wm, pm], [g_m, jac_m], ["x", "p"], ["g", "jac_g_x"])}
-    if hessian:
-        lam_f = ca.SX.sym("lam_f")
-        lam_g = ca.SX.sym("lam_g", g.shape[0])
-        H = lam_f * local_hessian(f, w)
-        lam_fm, lam_gm = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", g.shape[0])
-        mapped_h = []
-        row = n_lin
-        for ib, (b, one) in enumerate(zip(nonlinear, mapped, strict=True)):
-            m = int(b.shape[0])
-            check()
-            if ib >= len(flat) or not flat[ib]:
-                if one is not None:
-                    mapped_h.append(block_hessian(one[0], wm, one[1], lam_gm[row : row + m]))
-                else:
-                    H = H + local_hessian(ca.dot(lam_g[row : row + m], b), w)
-            row += m
-        check()
-        h_sx = ca.Function("nlp_hess_sx", [w, p, lam_f, lam_g], [H])
-        check()
-        H_m = h_sx(wm, pm, lam_fm, lam_gm)
-        for h in mapped_h:
-            H_m = H_m + h
-        out["hess_lag"] = ca.Function(
-            "nlp_hess_l",
-            [wm, pm, lam_fm, lam_gm],
-            [ca.triu(H_m)],
-            ["x", "p", "lam_f", "lam_g"],
-            ["triu_hess_gamma_x_x"],
-        )
-    return out
-
-
 def limit_bounds(cons: Any, half: int) -> tuple[np.ndarray, np.ndarray]:
     """``(lo, hi)`` ``(half, 3)`` of the kept limit rows (:func:`two_sided_rows`):
     ``-h`` below each paired row, ``-inf`` when the rows are kept one-sided."""
     h = cons.h
     lo = -h[half:] if 2 * half == len(h) else np.full_like(h, -np.inf)
     return lo, h[:half]
-
-
-#: Largest barrier parameter IPOPT's adaptive rule may choose when the start already meets
-#: the mission (m, the scale of r).  Unbounded, the rule raised mu to 1-4 at the second
-#: iteration and threw such starts away (r fell to -4 m; road no-fly zone: 1,183 iterations
-#: and a failure, paddock clearance: 1,000 and -3.1 m); capped, they are refined (7 and
-#: 133 iterations).  From a start that falls short the unbounded rule explores better
-#: (stlpy's benchmarks: median 0.92 of the optimum against 0.73 capped).
-_MU_MAX = 0.1
-
-#: Fleets up to this size factorise with MUMPS's QAMD ordering, larger ones with MUMPS's
-#: own choice (:func:`_mumps_order`).
-_QAMD_MAX_VEHICLES = 8
-
-
-def _mumps_order(problem: Problem, chunked: bool = False) -> int:
-    """MUMPS's fill-reducing ordering (ICNTL(7)): 6, QAMD (minimum degree that sets
-    quasi-dense rows aside), for small fleets and for any NLP with chunked leaves; 7,
-    MUMPS's own choice (METIS here), for large fleets without.  Every leaf row shares r's
-    column: with METIS the fill around it cost 24 s per iteration on the 20-pole line (4
-    drones, 74,000 rows), 0.4 s with QAMD, and 88 s against 0.2 s on the 12-pole line; the
-    12-drone, 6-pole line (chunked) ran 3 iterations in 140 s with METIS, 11 in 6.4 s with
-    QAMD.  Where separation rows couple every pair of a large fleet at every sample and no
-    long window is chunked, nested dissection wins instead (reach-avoid N = 16: 26.5 s with
-    METIS, 81 s with QAMD; N = 12: 5.2 s against 10.5 s); N = 8 is even (power line: 3.3 s
-    of IPOPT against 2.0 s)."""
-    return 6 if chunked or len(problem.vehicles) <= _QAMD_MAX_VEHICLES else 7
-
-
-#: IPOPT options of a warm-started stage: start from the given multipliers with a small
-#: barrier and pushes, instead of re-centring (which undoes the earlier stage).
-_IPOPT_WARM: dict[str, Any] = {
-    "warm_start_init_point": "yes",
-    "mu_init": 1e-4,
-    "warm_start_bound_push": 1e-6,
-    "warm_start_bound_frac": 1e-6,
-    "warm_start_slack_bound_push": 1e-6,
-    "warm_start_slack_bound_frac": 1e-6,
-    "warm_start_mult_bound_push": 1e-6,
-}
-
-
-def one_blas_thread() -> bool:
-    """IPOPT's MUMPS calls the BLAS CasADi ships (its own OpenBLAS,
-    ``libcasadi-tp-openblas``), whose threads only fight on a small shared machine (power
-    line N = 4: 19 s with one thread, over 90 s with its default on 2 loaded cores).  Unless
-    the user chose (``OMP_NUM_THREADS`` or ``OPENBLAS_NUM_THREADS`` set), that library runs
-    one thread: set with its own ``openblas_set_num_threads``, nothing else in the process
-    changed (no environment variable, no other library's threads).  Whether it was set
-    (False: chosen by the user, or no such library in this CasADi)."""
-    global _BLAS_SET
-    if _BLAS_SET is None:
-        _BLAS_SET = False
-        chosen = any(os.environ.get(v) for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"))
-        path = os.path.join(os.path.dirname(ca.__file__), "libcasadi-tp-openblas.so.0")
-        if not chosen and os.path.exists(path):
-            import ctypes
-
-            try:
-                ctypes.CDLL(path).openblas_set_num_threads(1)
-                _BLAS_SET = True
-            except (OSError, AttributeError):
-                pass
-    return _BLAS_SET
-
-
-_BLAS_SET: bool | None = None
-
-
-def _nlpsol(
-    nlp: dict[str, Any],
-    problem: Problem,
-    derivs: dict[str, Any],
-    watch: IterationWatch,
-    warm: bool = False,
-    refine: bool = False,
-    chunked: bool = False,
-) -> Any:
-    """The solver; ``warm``: it starts from an earlier solve's primal-dual point (a later
-    stage of the k continuation), so IPOPT keeps the multipliers and a small barrier;
-    ``refine``: it starts from a point that meets the mission, and IPOPT's barrier is capped
-    (``_MU_MAX``) so that the start is refined, not re-centred."""
-    s = problem.solver
-    one_blas_thread()
-    if s.method is SolverMethod.SQP:
-        return _sqpsol(nlp, s, derivs, watch)
-    return ca.nlpsol(
-        "stl_ipopt",
-        "ipopt",
-        nlp,
-        {
-            "print_time": False,
-            "error_on_fail": False,
-            # The parameters' multipliers are never read (IPOPT gives the bounds' own):
-            # computing them needs the reverse derivative of every row ("nlp_grad"), which
-            # nlpsol otherwise builds when it is made (power line, 12 poles: 0.9 s of each
-            # solver's construction; the 40-pole line: 7.3 s).
-            "calc_lam_p": False,
-            "no_nlp_grad": True,
-            "iteration_callback": watch,
-            **derivs,
-            "ipopt": {
-                "print_level": s.print_level,
-                "sb": "yes",
-                "max_iter": s.max_iter,
-                "tol": s.tol,
-                "acceptable_tol": 1e-4,
-                "hessian_approximation": s.hessian,
-                "limited_memory_max_history": s.lbfgs_history,
-                "mu_strategy": "adaptive",
-                "mumps_pivot_order": _mumps_order(problem, chunked),
-                **({"mu_max": _MU_MAX} if refine else {}),
-                **(_IPOPT_WARM if warm else {}),
-            },
-        },
-    )
-
-
-def _sqpsol(nlp: dict[str, Any], s: Any, derivs: dict[str, Any], watch: IterationWatch) -> Any:
-    """CasADi's ``sqpmethod`` on the same NLP and derivatives, with a QP solver of the wheel.
-
-    sqpmethod takes the objective gradient and the constraint Jacobian as one function
-    (``jac_fg``) and the full symmetric Hessian; an exact Hessian, indefinite here, is
-    convexified by regularisation (CasADi's ``eigen-clip`` failed before the first
-    iteration).  Measured (benchmarks/bench_solvers.py): IPOPT is faster on every scenario.
-    """
-    x, p = nlp["x"], nlp["p"]
-    f, grad_f = derivs["grad_f"](x, p)
-    g, jac_g = derivs["jac_g"](x, p)
-    jac_fg = ca.Function(
-        "nlp_jac_fg", [x, p], [f, grad_f.T, g, jac_g], ["x", "p"], ["f", "jac_f_x", "g", "jac_g_x"]
-    )
-    opts: dict[str, Any] = {
-        "jac_fg": jac_fg,
-        "qpsol": s.qpsol,
-        "qpsol_options": {"error_on_fail": False, **_QPSOL_QUIET.get(s.qpsol, {})},
-        "max_iter": s.max_iter,
-        "print_header": False,
-        "print_iteration": s.print_level > 0,
-        "print_status": False,
-        "print_time": False,
-        "error_on_fail": False,
-        "tol_pr": s.tol,
-        "tol_du": s.tol,
-        "iteration_callback": watch,
-    }
-    if s.hessian == "exact":
-        lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", g.shape[0])
-        upper = derivs["hess_lag"](x, p, lam_f, lam_g)
-        opts["hess_lag"] = ca.Function(
-            "nlp_hess_l",
-            [x, p, lam_f, lam_g],
-            [upper + ca.triu(upper, False).T],
-            ["x", "p", "lam_f", "lam_g"],
-            ["hess_gamma_x_x"],
-        )
-        opts["convexify_strategy"] = "regularize"
-    else:
-        opts["hessian_approximation"] = "limited-memory"
-    return ca.nlpsol("stl_sqp", "sqpmethod", nlp, opts)
-
-
-#: Options that keep the QP solvers quiet (their banners and per-iteration output).
-_QPSOL_QUIET: dict[str, dict[str, Any]] = {
-    "qpoases": {"printLevel": "none"},
-    "osqp": {"osqp": {"verbose": False}},
-    "qrqp": {"print_iter": False, "print_header": False},
-    "highs": {"highs": {"output_flag": False}},
-}

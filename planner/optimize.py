@@ -2,7 +2,7 @@
 
 :func:`plan` (and :class:`PlanSearch`, the search as an object) draws the initial guess, runs
 the combinatorial stage beside the NLP (:mod:`planner.coarse_start`), solves the NLP of
-:mod:`planner.nlp` (its formulation is described there) from its starts, refines the best
+:mod:`planner.nlp` (its formulation: ``docs/solver-notes.md``) from its starts, refines the best
 (:mod:`planner.refine`) and checks it (:mod:`planner.plan_check`).
 
 The measurements behind each choice (smoothing, solver options, the initial guess, eq. (1),
@@ -248,7 +248,7 @@ class PlanSearch:
             for i, x0 in enumerate(self.x0s)
         ]
         w0 = np.concatenate([z0, *p0, np.zeros(struct.n_s), [0.0]])
-        if struct.n_s:  # the chunks' values there (planner.nlp._chunks)
+        if struct.n_s:  # the chunks' values there (planner.leaves.chunks_of)
             w0[-1 - struct.n_s : -1] = np.asarray(struct.chunk_fn(w0, self.p_val)).reshape(-1)
         w0[-1] = min_leaf(struct, w0, self.p_val, default=0.0)
         return w0

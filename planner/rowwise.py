@@ -14,7 +14,7 @@ names (3 per vehicle, in the order of ``names``); its Jacobian ``J(x) = dv/dx`` 
 functions mapped over the steps (one ``rows x 3m`` / ``3m x 3m`` block per step) and
 scattered into the NLP's rows and variables, in MX: the NLP's derivative functions call the
 mapped functions instead of holding every step's expressions
-(:func:`planner.nlp._derivatives`).  The values are the same expressions, so IPOPT
+(:func:`planner.nlp_solvers.derivatives`).  The values are the same expressions, so IPOPT
 sees the same numbers (checked against CasADi's own ``jacobian`` and ``hessian`` in
 ``tests/planner/test_rowwise.py``).
 """

@@ -1,4 +1,4 @@
-"""Long ``eventually`` windows in chunks (:func:`planner.nlp._chunks`): the chunks partition
+"""Long ``eventually`` windows in chunks (:func:`planner.leaves.chunks_of`): the chunks partition
 the window, the NLP's leaf is the smooth value of the whole window, its derivatives are
 CasADi's own, its Hessian is banded instead of dense, and the mission plans."""
 
@@ -8,8 +8,10 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from planner import nlp as nlp_mod
-from planner.nlp import CHUNK_ABOVE_SEGMENTS, CHUNK_SEGMENTS, NlpBuilder, _chunks
+from planner import leaves as leaves_mod
+from planner.leaves import CHUNK_ABOVE_SEGMENTS, CHUNK_SEGMENTS, chunks_of
+from planner.nlp import NlpBuilder
+from planner.nlp_solvers import mumps_order
 from planner.optimize import conjunction, make_model, plan
 from planner.plan_check import initial_states
 from planner.predicates import build_registry
@@ -60,7 +62,7 @@ def _builder(problem):
 def test_chunks_partition_the_window_on_chunk_boundaries(a, b, step, per_segment) -> None:
     psi = parse("always[0, 2] (x(d1) >= 1)", build_registry(parse_scenario(SCENARIO)))
     leaf = Eventually(psi, float(a), float(b))
-    got = _chunks(leaf, step, 1.0, per_segment)
+    got = chunks_of(leaf, step, 1.0, per_segment)
     if b - a + 1 <= CHUNK_ABOVE_SEGMENTS * per_segment:  # one vehicle (d1)
         assert got == []  # short windows stay whole
         return
@@ -73,7 +75,7 @@ def test_chunks_partition_the_window_on_chunk_boundaries(a, b, step, per_segment
         assert hi - lo + 1 <= length
         assert first == step + a or first % length == 0  # inner chunks start on a boundary
     assert covered == list(range(step + a, step + b + 1))  # every window once, in order
-    assert _chunks(psi, step, 1.0, per_segment) == []  # only eventually is chunked
+    assert chunks_of(psi, step, 1.0, per_segment) == []  # only eventually is chunked
 
 
 @pytest.mark.parametrize("per_segment", [1, 2])
@@ -91,8 +93,8 @@ def test_a_window_over_several_vehicles_is_chunked_sooner(per_segment) -> None:
     )
     window = 12 * per_segment - 1  # 12 segments of steps
     assert 12 <= CHUNK_ABOVE_SEGMENTS < 36
-    assert _chunks(Eventually(one, 0.0, float(window)), 0, 1.0, per_segment) == []
-    chunks = _chunks(Eventually(three, 0.0, float(window)), 0, 1.0, per_segment)
+    assert chunks_of(Eventually(one, 0.0, float(window)), 0, 1.0, per_segment) == []
+    chunks = chunks_of(Eventually(three, 0.0, float(window)), 0, 1.0, per_segment)
     assert len(chunks) == 3 and all(c.child == three for c, _first in chunks)
 
 
@@ -159,7 +161,7 @@ def test_a_chunked_leaf_is_the_smooth_value_of_its_whole_window_with_casadis_der
     hess_ref = ca.Function("h", [wm, pm, lam_f, lam_g], [ca.triu(ca.hessian(lag, wm)[0])])
     lam = rng.normal(size=nlp["g"].shape[0])
     # The smooth leaves live in Z and S (the lifted positions carry the row-wise leaves,
-    # whose separation rows enter the Hessian flat by design: nlp._derivatives).
+    # whose separation rows enter the Hessian flat by design: nlp_solvers.derivatives).
     keep = np.r_[0 : b.n_z, b.n_w - 1 - b.n_s : b.n_w]
     got = np.asarray(ca.densify(derivs["hess_lag"](w, p, 1.0, lam)))[np.ix_(keep, keep)]
     ref = np.asarray(ca.densify(hess_ref(w, p, 1.0, lam)))[np.ix_(keep, keep)]
@@ -179,7 +181,7 @@ def test_chunks_make_the_leaf_hessian_banded_not_dense(monkeypatch) -> None:
     b, model = _builder(problem)
     per_vehicle = model.n_dec * 3
     chunked = _z_block_nonzeros(b.assemble(40.0)[1]["hess_lag"], per_vehicle)
-    monkeypatch.setattr(nlp_mod, "CHUNK_ABOVE_SEGMENTS", 10**6)
+    monkeypatch.setattr(leaves_mod, "CHUNK_ABOVE_SEGMENTS", 10**6)
     whole, _ = _builder(problem)
     assert whole.n_s == 0
     dense = _z_block_nonzeros(whole.assemble(40.0)[1]["hess_lag"], per_vehicle)
@@ -213,8 +215,8 @@ def test_chunked_nlps_factorise_with_qamd_whatever_the_fleet() -> None:
 
     problem = parse_scenario(SCENARIO)
     fleet = dataclasses.replace(problem, vehicles=problem.vehicles * 6)  # 12 vehicles
-    assert nlp_mod._mumps_order(problem) == 6
-    assert nlp_mod._mumps_order(fleet) == 7
-    assert nlp_mod._mumps_order(fleet, chunked=True) == 6
+    assert mumps_order(problem) == 6
+    assert mumps_order(fleet) == 7
+    assert mumps_order(fleet, chunked=True) == 6
     b, _model = _builder(problem)
     assert b.n_s > 0  # this scenario's long window is chunked

@@ -15,10 +15,10 @@ import pytest
 from shapely.geometry import LineString, Polygon
 
 from planner.coarse_fit import waypoint_guess
-from planner.guess import fit_within_limits
 from planner.milp import CoarseStatus, solve_coarse
 from planner.milp import solve as solve_mod
 from planner.optimize import make_model, plan
+from planner.path_fit import fit_within_limits
 from planner.plan_check import initial_states
 from planner.scenario import load_scenario
 from tests.planner.test_milp import TOL, ZOO, exact, scenario

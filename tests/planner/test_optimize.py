@@ -186,7 +186,7 @@ def test_local_hessian_equals_casadi_hessian_of_the_whole_vector() -> None:
 def test_flat_blocks_keep_their_gradient_and_leave_the_hessian() -> None:
     import casadi as ca
 
-    from planner.nlp import _derivatives
+    from planner.nlp_solvers import derivatives
 
     w, p = ca.SX.sym("w", 3), ca.SX.sym("p", 0)
     sep = ca.vertcat(ca.norm_2(w[:2]) - w[2])  # a keep-apart row: dist - r >= 0
@@ -195,7 +195,7 @@ def test_flat_blocks_keep_their_gradient_and_leave_the_hessian() -> None:
     lam = np.array([-2.0, 0.5])
     hess = {}
     for flat in ([False, False], [True, False]):
-        d = _derivatives(w, p, -w[2], [], [sep, cur], True, flat)
+        d = derivatives(w, p, -w[2], [], [sep, cur], True, flat)
         jac = np.asarray(d["jac_g"](x, [])[1])
         np.testing.assert_allclose(jac[0], [0.6, -0.8, -1.0], atol=1e-12)  # exact either way
         hess[tuple(flat)] = np.asarray(d["hess_lag"](x, [], 1.0, lam)).reshape(3, 3)

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from planner.leaf_templates import local_hessian
-from planner.nlp import NlpBuilder, _derivatives, _is_separation
+from planner.nlp import NlpBuilder, _is_separation
+from planner.nlp_solvers import derivatives
 from planner.optimize import make_model
 from planner.rowwise import block_hessian, block_jacobian, sample_leaf
 from planner.scenario import parse_scenario
@@ -93,7 +94,7 @@ def test_the_constraint_jacobian_and_lagrangian_hessian_are_unchanged(builder) -
     rowwise = [builder._sample_leaf(leaf, st) for leaf, st in builder.direct_steps.items()]
     assert any(r is not None for r in rowwise)
     args = (w, p, builder.f, builder.linear, builder.nonlinear, True, flat)
-    ref, mine = _derivatives(*args), _derivatives(*args, rowwise)
+    ref, mine = derivatives(*args), derivatives(*args, rowwise)
     for name in ("jac_g", "hess_lag"):
         assert mine[name].sparsity_out(mine[name].n_out() - 1).nnz() > 0
         for seed in range(3):
