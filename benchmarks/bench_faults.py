@@ -49,7 +49,7 @@ from mavlink.fleet import Fleet
 from mavlink.mission import RetryPolicy
 from mavlink.mock import FaultConfig
 from mavlink.mock.testing import free_udp_ports
-from mavlink.vehicle import VehicleSpec
+from mavlink.vehicle_status import VehicleSpec
 from planner.planfile import load_plan
 from tests.reliability.harness import (
     CONDITIONS,

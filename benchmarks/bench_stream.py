@@ -59,7 +59,8 @@ from gcs.progress import FlightClock, FlightProgress
 from mavlink.fleet import Fleet
 from mavlink.mission import MissionEnd, trajectory_to_mission, upload_and_verify
 from mavlink.mock.fleet import MockFleet
-from mavlink.monitor import SafetyMonitor, always_clauses
+from mavlink.monitor import SafetyMonitor
+from mavlink.monitor_findings import always_clauses
 from mavlink.offboard_setpoints import offboard_sender
 from mavlink.stream import (
     VEHICLES_PER_GROUP,
@@ -68,7 +69,7 @@ from mavlink.stream import (
     StreamTarget,
     auto_send_groups,
 )
-from mavlink.vehicle import VehicleSpec
+from mavlink.vehicle_status import VehicleSpec
 from planner.frames import GeodeticPoint
 from planner.planfile import Plan, load_plan
 from planner.trajectory import Trajectory

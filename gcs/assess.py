@@ -281,7 +281,8 @@ class MonitorSettings:
 
     def build(self, plan: Plan) -> tuple[SafetyMonitor, np.ndarray]:
         """The monitor, and for each of its clauses the index of its top-level clause."""
-        from mavlink.monitor import SafetyMonitor, always_clause_indices, always_clauses
+        from mavlink.monitor import SafetyMonitor
+        from mavlink.monitor_findings import always_clause_indices, always_clauses
 
         phi = plan_formula(plan)
         clauses = always_clauses(phi, [v.name for v in plan.vehicles], reads_heading)

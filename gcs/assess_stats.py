@@ -373,7 +373,7 @@ def summarise(
 def _monitor_summary(
     phi: Any, outcomes: Sequence[BatchOutcome], true: np.ndarray, c_true: np.ndarray
 ) -> MonitorSummary | None:
-    from mavlink.monitor import RunFindings, Verdict, always_clause_indices
+    from mavlink.monitor_findings import RunFindings, Verdict, always_clause_indices
 
     mon = [o.monitored for o in outcomes]
     if not mon or any(m is None for m in mon):

@@ -71,7 +71,8 @@ if TYPE_CHECKING:
     from mavlink.mission import CaptureSpan
     from mavlink.offboard_setpoints import EndAction
     from mavlink.tracks import FlownTrack
-    from mavlink.vehicle import Vehicle, VehicleSpec
+    from mavlink.vehicle import Vehicle
+    from mavlink.vehicle_status import VehicleSpec
     from planner.frames import GeodeticPoint
     from planner.planfile import Plan
 
@@ -185,7 +186,7 @@ def vehicle_specs(
         mavlink.errors.UrlError: a malformed URL (names it and the vehicle).
     """
     from mavlink.urls import default_url, parse_url
-    from mavlink.vehicle import VehicleSpec
+    from mavlink.vehicle_status import VehicleSpec
 
     n = len(plan.vehicles)
     if urls and len(urls) != n:
@@ -222,7 +223,7 @@ async def signed_links(
         return
     from mavlink.signing import SigningProxy, load_key
     from mavlink.urls import Scheme, parse_url
-    from mavlink.vehicle import VehicleSpec
+    from mavlink.vehicle_status import VehicleSpec
 
     key = load_key(key_file)
     proxies: list[SigningProxy] = []
@@ -338,7 +339,8 @@ async def _fly_offboard(
 ) -> Any:
     from gcs.mission_flight import arrive_gate_m
     from gcs.payload import run_offboard_captures
-    from mavlink.monitor import SafetyMonitor, always_clauses
+    from mavlink.monitor import SafetyMonitor
+    from mavlink.monitor_findings import always_clauses
     from mavlink.offboard import fly_offboard
     from mavlink.offboard_setpoints import EndAction, OffboardConfig
 

@@ -42,7 +42,7 @@ if TYPE_CHECKING:
     from gcs.tuning import VehicleTuning
     from mavlink.fleet import Fleet
     from mavlink.mission import CaptureSpan, MissionRun
-    from mavlink.monitor import MonitorStats, SafetyEvent
+    from mavlink.monitor_findings import MonitorStats, SafetyEvent
     from planner.planfile import Plan
 
 #: Seconds after the plan's horizon a mission may still take before it is given up.
@@ -130,7 +130,8 @@ async def fly_mission_plan(
         start_mission_confirmed,
         upload_with_retries,
     )
-    from mavlink.monitor import SafetyAction, SafetyMonitor, always_clauses, safe_stop
+    from mavlink.monitor import SafetyMonitor, safe_stop
+    from mavlink.monitor_findings import SafetyAction, always_clauses
     from mavlink.preflight import (
         TAKEOFF_MARGIN_M,
         check_start,

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from gcs.tuning import VehicleTuning
     from mavlink.camera import CapturedImage
     from mavlink.mission import MissionRun
-    from mavlink.monitor import MonitorStats, SafetyEvent
+    from mavlink.monitor_findings import MonitorStats, SafetyEvent
     from mavlink.stream import StreamStats
     from mavlink.tlog import TlogStats
     from mavlink.tracks import FlownTrack

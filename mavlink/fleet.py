@@ -42,7 +42,8 @@ from mavlink.errors import (
 )
 from mavlink.mavsdk_glue import route_mavsdk_logs
 from mavlink.urls import Scheme, default_sysid, default_url, parse_url
-from mavlink.vehicle import Vehicle, VehicleSpec, VehicleStatus
+from mavlink.vehicle import Vehicle
+from mavlink.vehicle_status import VehicleSpec, VehicleStatus
 from planner.frames import GeodeticPoint
 
 #: MAV_AUTOPILOT of PX4 in its HEARTBEAT.
@@ -393,7 +394,8 @@ class Fleet:
         otherwise (:func:`mavlink.monitor.safe_stop`); every vehicle is attempted, and the
         guard records which did not accept it.
         """
-        from mavlink.monitor import SafetyAction, safe_stop
+        from mavlink.monitor import safe_stop
+        from mavlink.monitor_findings import SafetyAction
 
         action = SafetyAction(on_exit)
         guard = FlightGuard(action=action.value)

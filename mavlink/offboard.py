@@ -50,7 +50,8 @@ from mavsdk.plugins.offboard import OffboardResult
 from mavlink.errors import CommandError, LinkError, LinkLostError, PreflightError
 from mavlink.fleet import Fleet
 from mavlink.mavsdk_glue import mavsdk_call
-from mavlink.monitor import MonitorStats, SafetyAction, SafetyEvent, SafetyMonitor, safe_stop
+from mavlink.monitor import SafetyMonitor, safe_stop
+from mavlink.monitor_findings import MonitorStats, SafetyAction, SafetyEvent
 from mavlink.offboard_setpoints import (
     EndAction,
     OffboardConfig,
@@ -68,7 +69,8 @@ from mavlink.stream import (
 )
 from mavlink.tlog import TlogRecorder, TlogStats
 from mavlink.tracks import FlownTrack, track_from_rows, write_tracks_csv
-from mavlink.vehicle import Vehicle, VehicleStatus
+from mavlink.vehicle import Vehicle
+from mavlink.vehicle_status import VehicleStatus
 from planner.frames import GeodeticPoint, enu_to_geodetic
 from planner.trajectory import Trajectory
 

@@ -28,7 +28,6 @@ import math
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -56,6 +55,7 @@ from mavlink.px4_modes import (
     decode_custom_mode,
     set_mode_params,
 )
+from mavlink.vehicle_status import VehicleSpec, VehicleStatus
 from planner.frames import GeodeticPoint
 
 log = logging.getLogger(__name__)
@@ -80,72 +80,6 @@ _UNANSWERED = frozenset({"TIMEOUT", "BUSY", "NO_SYSTEM", "CONNECTION_ERROR", "UN
 # --------------------------------------------------------------------------
 # Values
 # --------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class VehicleSpec:
-    """How to reach one vehicle.
-
-    Attributes:
-        name: the plan's vehicle name (``"d1"``).
-        url: connection URL (validated by :func:`mavlink.urls.parse_url`).
-        sysid: the MAVLink system id the vehicle uses (1..255).
-    """
-
-    name: str
-    url: str
-    sysid: int
-
-
-@dataclass(frozen=True, slots=True)
-class VehicleStatus:
-    """A snapshot of one vehicle's state as the GCS last heard it.
-
-    Fields are ``None`` until the corresponding message has arrived.
-
-    Attributes:
-        name, sysid, url: the vehicle.
-        connected: a heartbeat arrived within the link timeout.
-        armed: from HEARTBEAT.base_mode.
-        in_air: from EXTENDED_SYS_STATE.landed_state (MAVSDK's in-air flag).
-        mode: decoded PX4 mode, ``None`` if unknown (``custom_mode`` keeps the raw value).
-        custom_mode: raw HEARTBEAT.custom_mode.
-        pos_ned_m: local position (north, east, down), metres, LOCAL_POSITION_NED.
-        vel_ned_m_s: local velocity, m/s.
-        position: GLOBAL_POSITION_INT (altitude AMSL).
-        relative_alt_m: altitude above home, metres.
-        home: HOME_POSITION (altitude AMSL).
-        origin: GPS_GLOBAL_ORIGIN (the EKF origin of the local frame).
-        battery_remaining: 0..1.
-        battery_voltage_v: volts.
-        heartbeat_age_s: seconds since the last heartbeat.
-        position_age_s: seconds since the last local position.
-        heading_deg: heading, degrees clockwise from north (GLOBAL_POSITION_INT.hdg);
-            ``None`` also while the vehicle reports it unknown.
-        yaw_ned_rad: the latest known heading (GLOBAL_POSITION_INT.hdg), radians clockwise
-            from north in the vehicle's local NED frame.
-    """
-
-    name: str
-    sysid: int
-    url: str
-    connected: bool
-    armed: bool | None
-    in_air: bool | None
-    mode: Px4Mode | None
-    custom_mode: int | None
-    pos_ned_m: tuple[float, float, float] | None
-    vel_ned_m_s: tuple[float, float, float] | None
-    position: GeodeticPoint | None
-    relative_alt_m: float | None
-    home: GeodeticPoint | None
-    origin: GeodeticPoint | None
-    battery_remaining: float | None
-    battery_voltage_v: float | None
-    heartbeat_age_s: float | None
-    position_age_s: float | None
-    heading_deg: float | None = None
-    yaw_ned_rad: float | None = None
 
 
 # --------------------------------------------------------------------------

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 from gcs.commands import add_link_arguments
 
 if TYPE_CHECKING:
-    from mavlink.vehicle import VehicleSpec, VehicleStatus
+    from mavlink.vehicle_status import VehicleSpec, VehicleStatus
 
 HELP = "show each vehicle: system id, autopilot, mode, armed, position, battery"
 
@@ -94,7 +94,7 @@ def specs_for(
     """
     from gcs.errors import UserError
     from mavlink.urls import default_url, parse_url
-    from mavlink.vehicle import VehicleSpec
+    from mavlink.vehicle_status import VehicleSpec
 
     if urls:
         n = len(urls)

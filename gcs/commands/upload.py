@@ -57,7 +57,8 @@ if TYPE_CHECKING:
     from gcs.missions import FencePlan, MissionConversion
     from mavlink.fleet import Fleet
     from mavlink.mission import MissionItem, MissionPlan, MissionStart, TransferProgress
-    from mavlink.vehicle import Vehicle, VehicleSpec
+    from mavlink.vehicle import Vehicle
+    from mavlink.vehicle_status import VehicleSpec
     from planner.planfile import Plan
 
 #: GF_ACTION values (PX4 v1.17 geofence breach action).

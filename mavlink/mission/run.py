@@ -21,7 +21,8 @@ from typing import TYPE_CHECKING, Any
 from mavlink.errors import MissionError, MissionResult
 
 if TYPE_CHECKING:
-    from mavlink.vehicle import Vehicle, VehicleStatus
+    from mavlink.vehicle import Vehicle
+    from mavlink.vehicle_status import VehicleStatus
 
 #: MAV_CMD_DO_SET_MODE and MAV_CMD_MISSION_START: the commands a mission start is made of.
 _START_COMMANDS = frozenset({176, 300})

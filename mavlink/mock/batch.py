@@ -58,7 +58,8 @@ from mavlink.mock.px4 import Px4Mode
 from mavlink.tracks import wrap_pi
 
 if TYPE_CHECKING:
-    from mavlink.monitor import RunFindings, SafetyMonitor
+    from mavlink.monitor import SafetyMonitor
+    from mavlink.monitor_findings import RunFindings
     from planner.frames import GeodeticPoint, NedToEnuMap
     from planner.trajectory import Trajectory
 
@@ -558,7 +559,7 @@ class _MonitorState:
         settle_ticks: int,
         latency_s: np.ndarray,
     ) -> None:
-        from mavlink.monitor import RunFindings, SafetyAction, Verdict
+        from mavlink.monitor_findings import RunFindings, SafetyAction, Verdict
 
         self.monitor = monitor
         self.setup = setup

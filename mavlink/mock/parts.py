@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from mavlink.mock.config import MockVehicleConfig
     from mavlink.mock.mission import MissionServer
     from mavlink.mock.offboard import Setpoint
-    from mavlink.mock.payload import CameraState, GimbalState
+    from mavlink.mock.payload_state import CameraState, GimbalState
     from mavlink.mock.physics import FleetPhysics
     from mavlink.mock.px4 import ParamSpec, Px4Mode
     from mavlink.mock.telemetry import Stream

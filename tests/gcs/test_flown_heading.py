@@ -13,7 +13,7 @@ from gcs.clause_traces import clause_traces
 from gcs.evaluation import evaluate_flight, heading_readers, reads_heading
 from gcs.progress import FlightProgress
 from gcs.telemetry import Telemetry
-from mavlink.monitor import always_clause_indices, always_clauses
+from mavlink.monitor_findings import always_clause_indices, always_clauses
 from mavlink.tracks import FlownTrack
 from planner.planfile import Plan, load_plan
 from planner.predicates import build_registry

@@ -14,7 +14,7 @@ import yaml
 from mavlink.fleet import Fleet
 from mavlink.mock.fleet import MockFleet
 from mavlink.tracks import FlownTrack
-from mavlink.vehicle import VehicleSpec
+from mavlink.vehicle_status import VehicleSpec
 from planner.planfile import Plan, load_plan
 from planner.predicates import build_registry
 from planner.problem import Problem

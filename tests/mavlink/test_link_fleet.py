@@ -13,7 +13,7 @@ from mavlink.errors import ConnectTimeoutError, LinkError, UrlError
 from mavlink.fleet import Fleet, default_specs
 from mavlink.mock.fleet import MockFleet
 from mavlink.px4_modes import Px4Mode
-from mavlink.vehicle import VehicleSpec
+from mavlink.vehicle_status import VehicleSpec
 from planner.frames import GeodeticPoint
 from tests.mavlink.linkutil import free_udp_ports, mock_and_fleet
 

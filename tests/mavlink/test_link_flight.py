@@ -19,7 +19,8 @@ from gcs.telemetry import load_telemetry
 from mavlink.errors import PreflightError
 from mavlink.mock.config import FaultConfig, Outage
 from mavlink.mock.px4 import Px4Mode as MockMode
-from mavlink.monitor import SafetyMonitor, Verdict, always_clauses
+from mavlink.monitor import SafetyMonitor
+from mavlink.monitor_findings import Verdict, always_clauses
 from mavlink.offboard import FlightResult, fly_offboard
 from mavlink.offboard_setpoints import OffboardConfig
 from mavlink.tlog import tracks_from_tlog

@@ -9,7 +9,8 @@ import pytest
 
 from mavlink.errors import PreflightError
 from mavlink.mock.px4 import Px4Mode as MockMode
-from mavlink.monitor import SafetyAction, SafetyMonitor, Verdict, always_clauses
+from mavlink.monitor import SafetyMonitor
+from mavlink.monitor_findings import SafetyAction, Verdict, always_clauses
 from mavlink.offboard import fly_offboard
 from mavlink.offboard_setpoints import OffboardConfig
 from planner.predicates import build_registry

@@ -15,7 +15,7 @@ from pymavlink.dialects.v20 import common as mav
 from mavlink.fleet import Fleet
 from mavlink.offboard_setpoints import offboard_sender, plan_setpoints_ned
 from mavlink.stream import SetpointStreamer, StreamTarget
-from mavlink.vehicle import VehicleSpec
+from mavlink.vehicle_status import VehicleSpec
 from planner.frames import GeodeticPoint
 from planner.trajectory import Trajectory, YawMode, YawPolicy
 from tests.mavlink.linkutil import free_udp_ports

@@ -24,7 +24,8 @@ from mavlink.mavsdk_glue import (
     route_mavsdk_logs,
 )
 from mavlink.px4_modes import Px4Mode
-from mavlink.vehicle import Vehicle, VehicleStatus
+from mavlink.vehicle import Vehicle
+from mavlink.vehicle_status import VehicleStatus
 from planner.frames import GeodeticPoint, geodetic_to_enu
 from tests.mavlink.linkutil import mock_and_fleet
 

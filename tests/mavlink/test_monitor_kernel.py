@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mavlink.monitor import SafetyMonitor, Verdict, always_clauses
+from mavlink.monitor import SafetyMonitor
+from mavlink.monitor_findings import Verdict, always_clauses
 from mavlink.px4_modes import Px4Mode
 from planner.frames import GeodeticPoint, NedToEnuMap, enu_to_ned
 from planner.predicates import build_registry

@@ -24,7 +24,7 @@ from mavlink.fleet import Fleet
 from mavlink.fuzz import FrameFuzzer, decoded_target
 from mavlink.mock import MockFleet, MockVehicle
 from mavlink.mock.testing import GcsEndpoint, free_udp_ports
-from mavlink.vehicle import VehicleSpec
+from mavlink.vehicle_status import VehicleSpec
 from planner.frames import GeodeticPoint
 
 

@@ -29,7 +29,7 @@ from mavlink.mission import (
 )
 from mavlink.mock import FaultConfig, MockFleet
 from mavlink.mock.testing import free_udp_ports
-from mavlink.vehicle import VehicleSpec
+from mavlink.vehicle_status import VehicleSpec
 from planner.planfile import Plan, load_plan
 
 PLAN_PATH = Path(__file__).resolve().parents[1] / "mavlink" / "data" / "reach_avoid_2.plan.json"

@@ -18,7 +18,7 @@ from mavlink.fleet import Fleet
 from mavlink.mission import MissionItem
 from mavlink.mock import FaultConfig, MockError, MockFleet, Outage
 from mavlink.mock.testing import free_udp_ports
-from mavlink.vehicle import VehicleSpec
+from mavlink.vehicle_status import VehicleSpec
 from planner.planfile import load_plan
 from tests.reliability.harness import (
     CONDITIONS,

@@ -28,7 +28,7 @@ from mavlink.signing import (
     signing_timestamp,
     verifier,
 )
-from mavlink.vehicle import VehicleSpec
+from mavlink.vehicle_status import VehicleSpec
 
 pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)
 

@@ -15,7 +15,8 @@ import pytest
 from mavlink.fleet import Fleet
 from mavlink.mock import MockFleet
 from mavlink.mock.px4 import Px4Mode as MockMode
-from mavlink.monitor import SafetyMonitor, Verdict, always_clauses
+from mavlink.monitor import SafetyMonitor
+from mavlink.monitor_findings import Verdict, always_clauses
 from mavlink.offboard import FlightResult, fly_offboard
 from mavlink.offboard_setpoints import OffboardConfig
 from tests.mavlink.linkutil import mock_and_fleet, spec_formula, stored_plan
@@ -133,7 +134,7 @@ def test_the_wall_clock_stepping_during_a_flight_changes_nothing(
 def test_two_autopilots_answering_as_one_system_id_are_refused_naming_both_addresses() -> None:
     from mavlink.errors import DuplicateSystemError
     from mavlink.mock.testing import free_udp_ports
-    from mavlink.vehicle import VehicleSpec
+    from mavlink.vehicle_status import VehicleSpec
 
     gcs, first, second = free_udp_ports(3)
 
