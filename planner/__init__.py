@@ -5,10 +5,10 @@ that ``planner.trajectory`` users do not pay for CasADi):
 
 * :mod:`planner.scenario`: ``load_scenario(path, vehicles=N) -> Problem`` (YAML, for-each
   expansion of the spec over vehicles, groups and pairs), reading its sections with
-  :mod:`planner.scenario_sections`, the spec with :mod:`planner.scenario_spec`, checking
-  mistakes with :mod:`planner.scenario_checks`; the result types are in
+  :mod:`planner.scenario.sections`, the spec with :mod:`planner.scenario.spec`, checking
+  mistakes with :mod:`planner.scenario.checks`; the result types are in
   :mod:`planner.problem`, the regions (boxes, prisms, cylinders) in :mod:`planner.regions`,
-  a power line's regions from its poles (the ``line:`` section) in :mod:`planner.line`.
+  a power line's regions from its poles (the ``line:`` section) in :mod:`planner.scenario.line`.
 * :mod:`planner.predicates`: the spec's functions ``inside``, ``outside``, ``dist``, ``alt``,
   ``x``, ``y``, ``z`` (numpy exact, CasADi smooth), ``build_registry(problem)``.
 * :mod:`planner.optimize`: ``plan(problem) -> PlanResult`` (CasADi/IPOPT), built from
@@ -27,7 +27,7 @@ Error tree (each message names the file/field/position)::
     planner.errors.PlannerError             the root: bad input to the planner
       planner.errors.FileFieldError         a mistake in an input file (file, key path,
                                             problem; a ValueError)
-        planner.scenario_sections.ScenarioError   ... in a scenario file
+        planner.scenario.sections.ScenarioError   ... in a scenario file
         planner.planfile.PlanFileError            ... in a plan file (missing, not JSON, ...)
       planner.stl.STLError                  STL engine errors (SpecError: syntax,
                                             line/column; EvaluationError: unknown signal, ...)

@@ -16,7 +16,7 @@ gives those limits.  ``success`` means exact robustness >= epsilon with all of t
 checks passing; anything else is a ``success=False`` result with the best trajectories
 found, never an exception.
 
-Errors: bad scenarios are :class:`~planner.scenario_sections.ScenarioError` (raised by
+Errors: bad scenarios are :class:`~planner.scenario.sections.ScenarioError` (raised by
 :mod:`planner.scenario`); this module raises nothing else for bad input.
 """
 
@@ -64,7 +64,7 @@ from planner.predicates import (
 from planner.problem import Clause, Problem, SolverMethod
 from planner.refine import raise_the_rest, sharpen
 from planner.results import ClauseReport, PlanResult, SolveStats, Weakest
-from planner.scenario_spec import parse_clause
+from planner.scenario.spec import parse_clause
 from planner.solver_runs import (
     EPS_MARGIN_STEP_M,
     Attempt,

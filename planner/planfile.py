@@ -46,8 +46,8 @@ from planner.frames import GeodeticPoint
 from planner.limits import PX4_LIMIT_KEYS
 from planner.problem import MAX_HORIZON_S
 from planner.regions import Cylinder, Prism, Region, RegionKind, ShapeError
-from planner.scenario_checks import horizon_sum
-from planner.scenario_spec import FUNCTION_NAMES
+from planner.scenario.checks import horizon_sum
+from planner.scenario.spec import FUNCTION_NAMES
 from planner.strict_read import DuplicateKeyError, NotTextError, load_json, read_text
 from planner.trajectory import Trajectory, TrajectoryError
 
@@ -509,7 +509,7 @@ def plan_formula(plan: Plan) -> Formula:
     Besides parsing it, checks the spec against the plan, so that evaluating it on the plan's
     trajectories cannot fail on a name or a length: every function argument names a vehicle or
     a region of the plan (by the argument's kind in
-    :data:`planner.scenario_spec.FUNCTION_NAMES`), a bare name in a comparison is not a vehicle
+    :data:`planner.scenario.spec.FUNCTION_NAMES`), a bare name in a comparison is not a vehicle
     (vehicles are positions), and the spec looks no further ahead than ``horizon_s``.
 
     Raises:

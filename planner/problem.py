@@ -3,8 +3,8 @@
 What :func:`planner.scenario.load_scenario` returns and :mod:`planner.optimize` consumes.  A
 room of its own because these are frozen types with no reading or checking in them: the
 planner, the plan files and the tests use a Problem without the YAML reader, and the
-reader's modules (:mod:`planner.scenario`, :mod:`planner.scenario_sections`,
-:mod:`planner.scenario_spec`) all build on them.
+reader's modules (:mod:`planner.scenario`, :mod:`planner.scenario.sections`,
+:mod:`planner.scenario.spec`) all build on them.
 """
 
 from __future__ import annotations

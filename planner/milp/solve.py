@@ -133,7 +133,7 @@ def problem_formulas(problem: Problem) -> tuple[Formula, ...]:
     if len(problem.formulas) == len(problem.clauses):
         return problem.formulas
     from planner.predicates import build_registry
-    from planner.scenario_spec import parse_clause
+    from planner.scenario.spec import parse_clause
 
     registry = build_registry(problem)
     return tuple(parse_clause(problem, c, registry) for c in problem.clauses)

@@ -2,7 +2,7 @@
 geometry and times, the HTML page's pan-and-zoom map, and the script that pans and zooms it.
 
 The long line is built, not planned: a 2 km line along a bearing of 20 degrees from the
-regions a scenario's ``line:`` section makes (:func:`planner.line.line_regions`), and two
+regions a scenario's ``line:`` section makes (:func:`planner.scenario.line.line_regions`), and two
 vehicles on rest-to-rest quintic segments that hold still at inspection places, so where
 and when each hovers is known in closed form (the reference speed below is the quintic's
 derivative written out, not the trajectory's polynomial).
@@ -38,10 +38,10 @@ from gcs.map_view import (
     tick_step_s,
 )
 from gcs.plot import PAN_ZOOM_JS
-from planner.line import LineModel, line_regions
 from planner.planfile import Plan, PlannedVehicle
 from planner.regions import Region, RegionKind
 from planner.scenario import load_scenario
+from planner.scenario.line import LineModel, line_regions
 from tests.gcs.test_export_support import ORIGIN, quintic_trajectory, reach_avoid_plan, write_plan
 
 ROOT = Path(__file__).resolve().parents[2]

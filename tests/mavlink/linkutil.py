@@ -19,7 +19,7 @@ from planner.planfile import Plan, load_plan
 from planner.predicates import build_registry
 from planner.problem import Problem
 from planner.scenario import parse_scenario
-from planner.scenario_spec import parse_clause
+from planner.scenario.spec import parse_clause
 from planner.stl.ast import Formula, conjunction
 
 DATA = Path(__file__).parent / "data"

@@ -18,7 +18,7 @@ from mavlink.px4_modes import Px4Mode
 from planner.frames import GeodeticPoint, NedToEnuMap, enu_to_ned
 from planner.predicates import build_registry
 from planner.scenario import load_scenario
-from planner.scenario_spec import parse_clause
+from planner.scenario.spec import parse_clause
 from planner.stl.ast import conjunction
 from planner.trajectory import Trajectory
 

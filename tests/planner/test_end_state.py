@@ -14,7 +14,7 @@ import pytest
 from gcs.checks import verify_plan
 from planner.optimize import plan
 from planner.scenario import parse_scenario
-from planner.scenario_sections import ScenarioError
+from planner.scenario.sections import ScenarioError
 
 _DASH: dict[str, Any] = {
     "name": "dash",

@@ -21,7 +21,7 @@ from planner.guess import starts, visit_targets
 from planner.optimize import plan
 from planner.problem import Problem
 from planner.scenario import load_scenario, parse_scenario
-from planner.scenario_sections import ScenarioError
+from planner.scenario.sections import ScenarioError
 from planner.stl import conjunction
 
 ZOO = Path(__file__).resolve().parents[2] / "benchmarks" / "scenarios"

@@ -210,7 +210,7 @@ def test_flat_blocks_keep_their_gradient_and_leave_the_hessian() -> None:
 def test_separation_without_curvature_reaches_the_exact_hessian_optimum() -> None:
     from planner.nlp import _is_separation
     from planner.predicates import build_registry
-    from planner.scenario_spec import parse_clause
+    from planner.scenario.spec import parse_clause
 
     problem = load_scenario(CONFIGS / "reach_avoid.yaml", vehicles=2)
     registry = build_registry(problem)

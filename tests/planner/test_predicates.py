@@ -19,7 +19,7 @@ from planner.predicates import (
     role_of,
 )
 from planner.scenario import load_scenario
-from planner.scenario_spec import FUNCTION_NAMES
+from planner.scenario.spec import FUNCTION_NAMES
 from planner.stl import parse
 
 REPO = Path(__file__).resolve().parents[2]

@@ -25,7 +25,7 @@ from planner.nlp import two_sided_rows, vehicle_limit_bounds
 from planner.planfile import PlanFileError, load_plan, save_plan
 from planner.problem import Vehicle
 from planner.scenario import parse_scenario
-from planner.scenario_sections import ScenarioError
+from planner.scenario.sections import ScenarioError
 
 # ------------------------------------------------------------------------------ geometry
 

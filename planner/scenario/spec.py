@@ -6,7 +6,7 @@ the expansion is plain STL text, one :class:`planner.problem.Clause` per binding
 call must name one of :data:`FUNCTION_NAMES` with vehicles and regions where its arguments
 want them, and :func:`parse_clause` parses a clause with the STL engine, a mistake naming
 the clause's key.  A room of its own: the spec language of a scenario file, apart from the
-YAML sections (:mod:`planner.scenario_sections`) it binds to.
+YAML sections (:mod:`planner.scenario.sections`) it binds to.
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ from typing import Any
 from planner.predicates import PREDICATES, build_registry
 from planner.problem import Clause, Problem
 from planner.regions import Region
-from planner.scenario_checks import horizon_sum
-from planner.scenario_sections import NAME_RE, Reader, ScenarioError, join_key
+from planner.scenario.checks import horizon_sum
+from planner.scenario.sections import NAME_RE, Reader, ScenarioError, join_key
 from planner.stl import (
     BinOp,
     Comparison,

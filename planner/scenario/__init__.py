@@ -47,11 +47,11 @@ This module reads the file and puts the sections together (:func:`parse_scenario
 
 * :mod:`planner.problem`: what a scenario becomes (:class:`~planner.problem.Problem`,
   ``Vehicle``, ``Timing``, ``SolverOptions``, ``Clause``);
-* :mod:`planner.scenario_sections`: :class:`~planner.scenario_sections.ScenarioError` and
+* :mod:`planner.scenario.sections`: :class:`~planner.scenario.sections.ScenarioError` and
   the typed reading of single sections (boxes, limits, vehicles, solver);
-* :mod:`planner.scenario_spec`: the spec's expansion (``each``, ``$constants``), its calls
-  and :func:`~planner.scenario_spec.parse_clause`;
-* :mod:`planner.scenario_checks`: the load-time mistakes no plan can mend.
+* :mod:`planner.scenario.spec`: the spec's expansion (``each``, ``$constants``), its calls
+  and :func:`~planner.scenario.spec.parse_clause`;
+* :mod:`planner.scenario.checks`: the load-time mistakes no plan can mend.
 """
 
 from __future__ import annotations
@@ -67,8 +67,8 @@ from planner.frames import GeodeticPoint
 from planner.predicates import build_registry
 from planner.problem import MAX_HORIZON_S, DynamicsModel, Problem, Timing
 from planner.regions import Region, RegionKind
-from planner.scenario_checks import clause_findings, start_findings
-from planner.scenario_sections import (
+from planner.scenario.checks import clause_findings, start_findings
+from planner.scenario.sections import (
     Reader,
     ScenarioError,
     join_key,
@@ -77,7 +77,7 @@ from planner.scenario_sections import (
     read_solver,
     read_vehicles,
 )
-from planner.scenario_spec import check_calls, expand_spec, parse_clause, spell_parts
+from planner.scenario.spec import check_calls, expand_spec, parse_clause, spell_parts
 from planner.strict_read import DuplicateKeyError, NotTextError, load_yaml, read_text
 
 __all__ = ["load_scenario", "parse_scenario"]
@@ -167,7 +167,7 @@ def parse_scenario(
 
     line_names: dict[str, list[str]] = {}
     if "line" in top:
-        from planner.line import line_regions, read_line
+        from planner.scenario.line import line_regions, read_line
 
         base = Path(source).parent if source and not source.startswith("<") else Path.cwd()
         model_ = read_line(rd.mapping(top["line"], "line"), origin, base, rd.fail, rd.number)

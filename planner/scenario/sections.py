@@ -6,7 +6,7 @@ and the key path (``vehicles[2].start``); the section readers here build the par
 the vehicles (a list, or a generator with grid starts and groups by fraction) and the solver
 options.  A room of its own: everything that checks one YAML value against its type and
 range, apart from how :func:`planner.scenario.parse_scenario` puts the sections together
-and how :mod:`planner.scenario_spec` expands the spec.
+and how :mod:`planner.scenario.spec` expands the spec.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ _RESERVED = {
     "U",
     "pairs",
     "in",
-    # The spec's function names (planner.scenario_spec.FUNCTION_NAMES has the same keys).
+    # The spec's function names (planner.scenario.spec.FUNCTION_NAMES has the same keys).
     *PREDICATES,
 }
 
