@@ -1,5 +1,5 @@
 """The objective after its first bottleneck (issue 19, item 4): what the lexicographic rounds
-(``solver.lexicographic_rounds``, :func:`planner.refine.raise_the_rest`) buy and cost.
+(``solver.lexicographic_rounds``, :func:`planner.solve.refine.raise_the_rest`) buy and cost.
 
 Each zoo scenario below is planned cold in this process twice: with the rounds off (the
 max-min alone) and with the default.  Printed per run: the exact robustness (the headline),
@@ -29,10 +29,10 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from planner.nlp import clear_cache  # noqa: E402
 from planner.optimize import plan  # noqa: E402
 from planner.problem import SolverOptions  # noqa: E402
 from planner.scenario import load_scenario  # noqa: E402
+from planner.solve.nlp import clear_cache  # noqa: E402
 
 SCENARIOS = (
     "powerline_ground_start_uncapped_2drones",

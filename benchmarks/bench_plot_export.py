@@ -24,7 +24,7 @@ from gcs.figure import figure_png, render_figure
 from gcs.plot import html_report
 from planner.frames import GeodeticPoint
 from planner.planfile import Plan, PlannedVehicle, save_plan
-from planner.regions import Region, RegionKind
+from planner.spec.regions import Region, RegionKind
 from planner.trajectory import Trajectory
 
 ORIGIN = GeodeticPoint(47.397742, 8.545594, 488.0)

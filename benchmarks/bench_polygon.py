@@ -1,5 +1,5 @@
 """Polygons that are not convex (issue 21's L-shaped right of way): the convex cover of
-``planner/cover.py`` and what it buys in planning.
+``planner/spec/cover.py`` and what it buys in planning.
 
 1. The cover of each polygon: corners, reflex corners, parts, and the time to build it
    (median of ``--repeat``), and how much of a point's depth in the polygon the margin
@@ -34,8 +34,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench_zoo import GCS, SCENARIOS, planner_version, run_one
 
-from planner.cover import convex_cover, polygon_regions, reflex_corners
-from planner.regions import RegionKind
+from planner.spec.cover import convex_cover, polygon_regions, reflex_corners
+from planner.spec.regions import RegionKind
 
 L_SHAPE = [(-10, -16), (104, -16), (104, 130), (80, 130), (80, 8), (-10, 8)]
 U_SHAPE = [(0, 0), (30, 0), (30, 30), (20, 30), (20, 10), (10, 10), (10, 30), (0, 30)]

@@ -10,7 +10,7 @@ for two sweeps:
   needs about 290 s of the 300, so a plan that meets it is not expected in the time limit:
   the build is the figure, issue 40's "40 poles x 4 drones x 300 s builds in under 15 s").
 
-Each mission is planned cold in this process (:func:`planner.nlp.clear_cache` first), with a
+Each mission is planned cold in this process (:func:`planner.solve.nlp.clear_cache` first), with a
 time limit.  Printed per run: the NLP's size, the build and solver times, the total, the
 iterations, the exact robustness and whether the mission was met; then, per sweep, the
 growth exponent of the total time and of the build (the slope of log time against log size,
@@ -36,9 +36,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from planner.nlp import clear_cache  # noqa: E402
 from planner.optimize import plan  # noqa: E402
 from planner.scenario import parse_scenario  # noqa: E402
+from planner.solve.nlp import clear_cache  # noqa: E402
 
 SPAN_M = 30.0
 

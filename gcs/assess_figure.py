@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from planner.cover import drawn_regions
+from planner.spec.cover import drawn_regions
 
 if TYPE_CHECKING:
     from gcs.assess_stats import AssessResult

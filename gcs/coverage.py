@@ -1,6 +1,6 @@
 """What the pictures of a flight cover: per inspection target, covered or not, and from where.
 
-The targets are those of the spec's facing rules (:func:`planner.heading.facing_rules`:
+The targets are those of the spec's facing rules (:func:`planner.spec.heading.facing_rules`:
 ``face(d, T)`` with the place ``d`` must be in, and the window if any).  A picture
 (:class:`mavlink.camera.CapturedImage`, from the camera's CAMERA_IMAGE_CAPTURED) *counts*
 for a rule's target when
@@ -10,7 +10,7 @@ for a rule's target when
   inspection box: the stand-off the spec asks for);
 * its optical axis (the camera's attitude ``q``: the vehicle's heading and the gimbal's
   angles) is within ``view_tolerance_deg`` of the line to the aim point (the target's axis
-  at the camera's height, clamped to the target's heights: :func:`planner.captures.aim_point`),
+  at the camera's height, clamped to the target's heights: :func:`planner.spec.captures.aim_point`),
   by default ``face``'s own tolerance.
 
 A target is *covered* when at least one picture counts for it.  Each target's row gives the
@@ -140,7 +140,7 @@ class CoverageReport:
 
 def _view(image: CapturedImage, target: Any, where: Any, origin: Any) -> tuple[float, float, float]:
     """(range, view angle, place margin) of ``image`` seen from ``target``."""
-    from planner.captures import aim_point
+    from planner.spec.captures import aim_point
 
     pos = image.position_enu_m(origin)
     aim = aim_point(target, pos)[0]
@@ -178,9 +178,9 @@ def compute_coverage(
         place_tolerance_m: how far outside the place a picture still counts.
         window_slack_s: how far outside a rule's window a picture still counts.
     """
-    from planner.heading import facing_rules
     from planner.planfile import plan_formula
-    from planner.predicates import face_tolerance_deg
+    from planner.spec.heading import facing_rules
+    from planner.spec.predicates import face_tolerance_deg
 
     tol = face_tolerance_deg(plan) if view_tolerance_deg is None else float(view_tolerance_deg)
     rules = facing_rules(plan_formula(plan), plan)
@@ -331,7 +331,7 @@ def _draw_regions_xy(ax: Any, plan: Plan) -> None:
     from matplotlib.patches import Polygon
 
     from gcs.figure import KIND_STYLE, is_large
-    from planner.cover import drawn_regions
+    from planner.spec.cover import drawn_regions
 
     for r in drawn_regions(plan.regions):
         kind = r.kind.value

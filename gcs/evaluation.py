@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from mavlink.tracks import NO_HEADING
-from planner.heading import heading_readers
+from planner.spec.heading import heading_readers
 
 if TYPE_CHECKING:
     from mavlink.tracks import FlownTrack

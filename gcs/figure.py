@@ -42,8 +42,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gcs.clause_traces import plan_grid
-from planner.cover import drawn_regions
-from planner.regions import Cylinder
+from planner.spec.cover import drawn_regions
+from planner.spec.regions import Cylinder
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -53,9 +53,9 @@ if TYPE_CHECKING:
     from gcs.map_view import View
     from gcs.telemetry import Telemetry
     from mavlink.tracks import FlownTrack
-    from planner.cover import Outline
     from planner.planfile import Plan
-    from planner.regions import Region
+    from planner.spec.cover import Outline
+    from planner.spec.regions import Region
 
 __all__ = ["figure_png", "fit_titles", "render_figure", "vehicle_colours", "wrap_to_width"]
 
@@ -139,9 +139,9 @@ _CYLINDER_VERTICALS = 4
 
 
 def region_faces(region: Region | Outline) -> list[NDArray[np.float64]]:
-    """The faces of a region (:class:`planner.regions.Region`) as drawn: a box's six
+    """The faces of a region (:class:`planner.spec.regions.Region`) as drawn: a box's six
     ``(4, 3)``; a prism's or cylinder's floor and roof ``(m, 3)`` and ``m`` walls (a polygon
-    that is not convex: its :class:`planner.cover.Outline`'s)."""
+    that is not convex: its :class:`planner.spec.cover.Outline`'s)."""
     if region.shape is None:
         return _box_faces(region.lo_enu_m, region.hi_enu_m)
     return _prism_faces(region.footprint_xy(), region.shape.z_lo_m, region.shape.z_hi_m)

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from planner.regions import KEEP_OUT_KINDS, Cylinder, Prism, Region
+from planner.spec.regions import KEEP_OUT_KINDS, Cylinder, Prism, Region
 
 if TYPE_CHECKING:
     from planner.planfile import Plan

@@ -44,8 +44,8 @@ from numpy.typing import NDArray
 
 from gcs.clause_traces import plan_grid
 from gcs.figure import KIND_STYLE, fit_titles, vehicle_colours
-from planner.cover import drawn_regions
-from planner.regions import KEEP_OUT_KINDS, RegionKind
+from planner.spec.cover import drawn_regions
+from planner.spec.regions import KEEP_OUT_KINDS, RegionKind
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

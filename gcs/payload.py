@@ -1,7 +1,7 @@
 """The camera's part of a flight: when each vehicle takes pictures, and telling it to.
 
 A plan whose spec asks a vehicle to face an inspection target (``face(d, T)``) has *capture
-windows* (:func:`planner.captures.capture_windows`: the stretches in which the vehicle is
+windows* (:func:`planner.spec.captures.capture_windows`: the stretches in which the vehicle is
 in the inspection place and faces its target).  :func:`capture_spans` makes them the
 stretches the camera takes pictures in (:class:`mavlink.mission.CaptureSpan`), each trimmed
 by a little at both ends (:data:`TRIM_S`, at most a quarter of the window) so that a
@@ -69,8 +69,8 @@ def capture_spans(
     ``interval_s`` is 0, the camera left alone)."""
     if not interval_s > 0:
         return {v.name: () for v in plan.vehicles}
-    from planner.captures import capture_windows
     from planner.planfile import plan_formula
+    from planner.spec.captures import capture_windows
 
     out: dict[str, list[CaptureSpan]] = {v.name: [] for v in plan.vehicles}
     windows = capture_windows(

@@ -13,8 +13,8 @@ from typing import Any
 import numpy as np
 
 from planner.dynamics.feasibility import FeasibilityReport, InputLimits, check_input_feasibility
-from planner.heading import YAW_RATE_MAX_DEG_S, yaw_rate_needed
-from planner.limits import vehicle_bounds
+from planner.dynamics.limits import vehicle_bounds
+from planner.spec.heading import YAW_RATE_MAX_DEG_S, yaw_rate_needed
 from planner.trajectory import Trajectory
 
 #: How far past a limit (as a ratio, 1 = at the limit) a plan may go and still hold: the
@@ -73,7 +73,7 @@ def check_trajectories(
     horizon_s: float,
 ) -> tuple[LimitReport, ...]:
     """Dense checks per vehicle: speed/acc vs limits (per axis, up/down, horizontal norm:
-    :func:`planner.limits.vehicle_bounds`), workspace, Mueller test.
+    :func:`planner.dynamics.limits.vehicle_bounds`), workspace, Mueller test.
 
     ``problem_like`` has a ``workspace`` region; ``vehicles`` have the scenario's limit
     fields (``v_max_m_s``, ``a_max_m_s2``, the optional PX4-like ones, thrust/body rates).

@@ -1,9 +1,9 @@
 """Problem -> PlanResult: maximise STL robustness with CasADi/IPOPT (or sqpmethod).
 
 :func:`plan` (and :class:`PlanSearch`, the search as an object) draws the initial guess, runs
-the combinatorial stage beside the NLP (:mod:`planner.coarse_start`), solves the NLP of
-:mod:`planner.nlp` (its formulation: ``docs/solver-notes.md``) from its starts, refines the best
-(:mod:`planner.refine`) and checks it (:mod:`planner.plan_check`).
+the combinatorial stage beside the NLP (:mod:`planner.solve.coarse_start`), solves the NLP of
+:mod:`planner.solve.nlp` (its formulation: ``docs/solver-notes.md``) from its starts, refines the best
+(:mod:`planner.solve.refine`) and checks it (:mod:`planner.solve.plan_check`).
 
 The measurements behind each choice (smoothing, solver options, the initial guess, eq. (1),
 what was tried and not kept) are in ``docs/solver-notes.md``.
@@ -32,13 +32,15 @@ from typing import Any
 import numpy as np
 
 from planner.checks import LimitReport, check_trajectories
-from planner.coarse_start import CoarseOutcome, StageBeside, coarse_budget_s
-from planner.explain import needs
-from planner.fix_choices import fixed_clauses
-from planner.guess import initial_guess, starts
-from planner.heading import facing_rules, heading_signals, uses_heading, with_heading
-from planner.limits import vehicle_bounds
-from planner.nlp import (
+from planner.dynamics.limits import vehicle_bounds
+from planner.problem import Clause, Problem, SolverMethod
+from planner.results import ClauseReport, PlanResult, SolveStats, Weakest
+from planner.scenario.spec import parse_clause
+from planner.solve.coarse_start import CoarseOutcome, StageBeside, coarse_budget_s
+from planner.solve.explain import needs
+from planner.solve.fix_choices import fixed_clauses
+from planner.solve.guess import initial_guess, starts
+from planner.solve.nlp import (
     K_MIN,
     STRUCTURES,
     BuildTimeout,
@@ -48,7 +50,7 @@ from planner.nlp import (
     structure_key,
     vehicle_limit_bounds,
 )
-from planner.plan_check import (
+from planner.solve.plan_check import (
     clause_robustness,
     dense_signals,
     dense_times,
@@ -58,14 +60,8 @@ from planner.plan_check import (
     start_bound,
     verdict,
 )
-from planner.predicates import (
-    build_registry,
-)
-from planner.problem import Clause, Problem, SolverMethod
-from planner.refine import raise_the_rest, sharpen
-from planner.results import ClauseReport, PlanResult, SolveStats, Weakest
-from planner.scenario.spec import parse_clause
-from planner.solver_runs import (
+from planner.solve.refine import raise_the_rest, sharpen
+from planner.solve.solver_runs import (
     EPS_MARGIN_STEP_M,
     Attempt,
     SigintWatch,
@@ -76,6 +72,10 @@ from planner.solver_runs import (
     solved,
     user_status,
     watch_sigint,
+)
+from planner.spec.heading import facing_rules, heading_signals, uses_heading, with_heading
+from planner.spec.predicates import (
+    build_registry,
 )
 from planner.stl import (
     Always,
@@ -172,7 +172,7 @@ class PlanSearch:
             formulas = [parse_clause(problem, c, registry) for c in problem.clauses]
         self.formulas = formulas
         self.formula = conjunction(formulas)
-        # The heading is derived from the positions (planner.heading): where face(d, T) holds
+        # The heading is derived from the positions (planner.spec.heading): where face(d, T) holds
         self.heading = uses_heading(formulas)
         self.rules = facing_rules(self.formula, problem) if self.heading else []
         self.t_dense = dense_times(problem)
@@ -248,7 +248,7 @@ class PlanSearch:
             for i, x0 in enumerate(self.x0s)
         ]
         w0 = np.concatenate([z0, *p0, np.zeros(struct.n_s), [0.0]])
-        if struct.n_s:  # the chunks' values there (planner.leaves.chunks_of)
+        if struct.n_s:  # the chunks' values there (planner.solve.leaves.chunks_of)
             w0[-1 - struct.n_s : -1] = np.asarray(struct.chunk_fn(w0, self.p_val)).reshape(-1)
         w0[-1] = min_leaf(struct, w0, self.p_val, default=0.0)
         return w0
@@ -318,7 +318,7 @@ class PlanSearch:
 
     def candidates(self) -> Iterator[tuple[str, np.ndarray]]:
         """The starts of the multi-start, lazily, ``solver.starts`` in all: the initial
-        guess's first start (:func:`planner.guess.starts`), solved while the combinatorial
+        guess's first start (:func:`planner.solve.guess.starts`), solved while the combinatorial
         stage (:mod:`planner.milp`) runs beside it; unless that start meets the mission, the
         stage's plan and its choices refined (:meth:`_fixed_start`); then the guess's other
         starts."""
@@ -412,7 +412,7 @@ class PlanSearch:
         return got.describe(), got.decision
 
     def _fixed_start(self) -> tuple[str, np.ndarray] | None:
-        """The combinatorial stage's choices fixed (:func:`planner.fix_choices.fixed_clauses`)
+        """The combinatorial stage's choices fixed (:func:`planner.solve.fix_choices.fixed_clauses`)
         and the NLP of that conjunction (every clause exact, nothing smoothed) solved from its
         plan within half the time left: a start for the spec's own NLP (None when the spec
         has no choice to fix)."""

@@ -41,13 +41,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from planner.dynamics.limits import PX4_LIMIT_KEYS
 from planner.errors import FileFieldError
 from planner.frames import GeodeticPoint
-from planner.limits import PX4_LIMIT_KEYS
 from planner.problem import MAX_HORIZON_S
-from planner.regions import Cylinder, Prism, Region, RegionKind, ShapeError
 from planner.scenario.checks import horizon_sum
 from planner.scenario.spec import FUNCTION_NAMES
+from planner.spec.regions import Cylinder, Prism, Region, RegionKind, ShapeError
 from planner.strict_read import DuplicateKeyError, NotTextError, load_json, read_text
 from planner.trajectory import Trajectory, TrajectoryError
 
@@ -92,7 +92,7 @@ class PlannedVehicle:
     thrust_min_m_s2: float | None = None
     thrust_max_m_s2: float | None = None
     body_rate_max_rad_s: float | None = None
-    #: PX4-like limits (:mod:`planner.limits`): horizontal norm, vertical up/down (None: none
+    #: PX4-like limits (:mod:`planner.dynamics.limits`): horizontal norm, vertical up/down (None: none
     #: beyond the per-axis ``v_max_m_s`` / ``a_max_m_s2``).
     v_xy_max_m_s: float | None = None
     v_up_max_m_s: float | None = None
@@ -496,8 +496,8 @@ def _face_tolerance(rd: _Reader, data: dict[str, Any]) -> float:
 
 def planned_signals(plan: Plan, t_s: np.ndarray) -> dict[str, np.ndarray]:
     """Each vehicle's planned signal at ``t_s``: positions (n, 3), with the heading as a
-    fourth column when the spec reads it (``face``: :mod:`planner.heading`)."""
-    from planner.heading import heading_signals, uses_heading
+    fourth column when the spec reads it (``face``: :mod:`planner.spec.heading`)."""
+    from planner.spec.heading import heading_signals, uses_heading
 
     trajectories = [v.trajectory for v in plan.vehicles]
     return heading_signals(trajectories, t_s, uses_heading([plan_formula(plan)]))
@@ -523,7 +523,7 @@ def plan_formula(plan: Plan) -> Formula:
 
 
 def _checked_formula(plan: Plan) -> Formula:
-    from planner.predicates import build_registry
+    from planner.spec.predicates import build_registry
     from planner.stl import BinOp, Call, Comparison, Neg, Predicate, Signal, SpecError, parse
 
     def fail(problem: str, key: str = "spec") -> PlanFileError:

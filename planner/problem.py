@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, fields
 from typing import Any
 
 from planner.frames import GeodeticPoint
-from planner.regions import Region
+from planner.spec.regions import Region
 from planner.stl import Formula
 
 __all__ = [
@@ -52,7 +52,7 @@ class SolverMethod(enum.Enum):
 @dataclass(frozen=True, slots=True)
 class Vehicle:
     """One vehicle: start state at rest and its limits (per ENU axis, and optionally PX4-like:
-    horizontal norm and vertical up/down; :func:`planner.limits.vehicle_bounds` combines them)."""
+    horizontal norm and vertical up/down; :func:`planner.dynamics.limits.vehicle_bounds` combines them)."""
 
     name: str
     sysid: int
@@ -65,7 +65,7 @@ class Vehicle:
     #: Body-rate bound (rad/s) for Mueller's feasibility check, or None.
     body_rate_max_rad_s: float | None = None
     groups: tuple[str, ...] = ()
-    #: PX4-like limits (:mod:`planner.limits`): horizontal norm, vertical up/down (None: none
+    #: PX4-like limits (:mod:`planner.dynamics.limits`): horizontal norm, vertical up/down (None: none
     #: beyond the per-axis ``v_max_m_s`` / ``a_max_m_s2``).
     v_xy_max_m_s: float | None = None
     v_up_max_m_s: float | None = None

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from planner.checks import LimitReport
-from planner.limits import PX4_LIMIT_KEYS
+from planner.dynamics.limits import PX4_LIMIT_KEYS
 from planner.planfile import Plan, PlannedVehicle
 from planner.problem import Problem
 from planner.trajectory import Trajectory
@@ -63,7 +63,7 @@ class SolveStats:
     cached: bool
     #: starts of the multi-start solved (1: the first guess met the mission, or was the only)
     starts: int = 1
-    #: the combinatorial stage's figures (:meth:`planner.coarse_start.CoarseOutcome.summary`;
+    #: the combinatorial stage's figures (:meth:`planner.solve.coarse_start.CoarseOutcome.summary`;
     #: None when it did not run)
     coarse: Mapping[str, Any] | None = None
 
@@ -87,7 +87,7 @@ class PlanResult:
         decision: flat optimal decision vector (warm start for a re-solve).
         stats: sizes and time breakdown.
         needs: when the mission is not met, what the plan would need, one line each
-            (:func:`planner.explain.needs`).
+            (:func:`planner.solve.explain.needs`).
         start_bound: when the start state sets the headline robustness, the figure the
             plan sets for the other clauses (None otherwise).
     """

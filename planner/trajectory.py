@@ -19,7 +19,7 @@ the heading it had the last time it was that fast (``yaw_rad`` before it ever wa
 evaluated exactly from the roots of ``|v_xy(t)|^2 - min_speed^2``, so the value at any
 time does not depend on which other times are queried.  ``YawMode.SCHEDULE`` follows knots
 (times and headings, linear in between along the shorter turn): the heading the spec's
-``face`` asks for (:mod:`planner.heading`).
+``face`` asks for (:mod:`planner.spec.heading`).
 
 Serialisation (the plan file's ``"segments"``, docs/scenario-format.md, "Plan files"):
 :meth:`Trajectory.to_segments` gives JSON-ready lists of Python floats, one dict per
@@ -75,7 +75,7 @@ class YawPolicy:
         min_speed_m_s: horizontal speed below which ``VELOCITY`` keeps its last heading.
         knots_t_s, knots_yaw_rad: ``SCHEDULE``: the heading at these times (increasing),
             linear in between along the shorter turn, held before the first and after the
-            last (:mod:`planner.heading` makes them from the spec's ``face``).
+            last (:mod:`planner.spec.heading` makes them from the spec's ``face``).
     """
 
     mode: YawMode = YawMode.CONSTANT

@@ -11,7 +11,7 @@ A room of its own because the fence is a plan of its own (mission type FENCE), b
 the scenario's regions rather than from a trajectory; like the mission's items it is pure
 computation. Regions are read by duck typing (``name``, ``kind.value``, ``lo_enu_m``,
 ``hi_enu_m`` and ``shape``: ``None``, an object with ``vertices_xy`` or one with
-``center_xy`` and ``radius_m``, as :class:`planner.regions.Region` has them), since the
+``center_xy`` and ``radius_m``, as :class:`planner.spec.regions.Region` has them), since the
 package uses nothing of ``planner`` but its frames, trajectories and STL semantics.
 """
 
@@ -141,7 +141,7 @@ def fence_zones(
     polygons either (PX4 bounds altitude with the GF_MAX_VER_DIST parameter instead).
 
     Args:
-        workspace: a :class:`planner.regions.Region` (``name``, ``lo_enu_m``, ``hi_enu_m``;
+        workspace: a :class:`planner.spec.regions.Region` (``name``, ``lo_enu_m``, ``hi_enu_m``;
             always an axis-aligned box).
         regions: the scenario's other regions; those whose ``kind.value`` is in
             ``exclude_kinds`` and that span the workspace's height become exclusions: a box

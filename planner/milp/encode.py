@@ -50,7 +50,7 @@ from numpy.typing import NDArray
 from planner.errors import PlannerError
 from planner.milp.builder import MilpBuilder
 from planner.milp.model import CoarseModel
-from planner.regions import Cylinder, Prism, Region
+from planner.spec.regions import Cylinder, Prism, Region
 from planner.stl import (
     Always,
     And,
@@ -577,7 +577,7 @@ class Encoder:
             faces = self._faces(vehicle, region, steps, outer=False)
             return self._min(faces, m, len(faces.lo) // m)
         # delta >= the smallest face margin: delta >= m_i for one face i (outer polygon);
-        # for a polygon (a part of a non-convex outline, planner.cover) with covered
+        # for a polygon (a part of a non-convex outline, planner.spec.cover) with covered
         # windows also at the next sample, the same face i: the straight leg to it stays
         # beyond that face's plane, so the region is kept out of between samples too (a
         # U-shaped keep-out: 12 m legs jumped its 10 m walls into a pocket the NLP could

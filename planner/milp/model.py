@@ -6,7 +6,7 @@ Per vehicle ``v`` the program has positions ``p_j`` (3 columns, ENU metres) at t
 * ``p_0`` fixed at the vehicle's start; every ``p_j`` in the workspace (its bounding box as
   column bounds, a prism's walls as rows);
 * per axis ``lo_v dt_c <= p_{j+1} - p_j <= hi_v dt_c`` (the velocity limits of
-  :func:`planner.limits.vehicle_bounds`; a horizontal-norm limit ``v_xy`` as ``|v_x|, |v_y|
+  :func:`planner.dynamics.limits.vehicle_bounds`; a horizontal-norm limit ``v_xy`` as ``|v_x|, |v_y|
   <= v_xy`` and ``|v_x| + |v_y| <= sqrt(2) v_xy``);
 * per axis ``lo_a dt_c^2 <= p_{j+1} - 2 p_j + p_{j-1} <= hi_a dt_c^2`` (the acceleration
   limits, the norm likewise);
@@ -34,10 +34,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.limits import Bounds, vehicle_bounds
+from planner.dynamics.limits import Bounds, vehicle_bounds
 from planner.milp.builder import MilpBuilder
 from planner.problem import Problem, Vehicle
-from planner.regions import Prism
+from planner.spec.regions import Prism
 from planner.stl import Always, Eventually, Formula, SamplingError, Until, interval_steps
 
 __all__ = ["MIN_SAMPLES", "SAMPLE_BUDGET", "CoarseModel", "choose_dt", "temporal_intervals"]

@@ -132,8 +132,8 @@ def problem_formulas(problem: Problem) -> tuple[Formula, ...]:
     """The parsed clauses of a problem (parsed again when it was made without them)."""
     if len(problem.formulas) == len(problem.clauses):
         return problem.formulas
-    from planner.predicates import build_registry
     from planner.scenario.spec import parse_clause
+    from planner.spec.predicates import build_registry
 
     registry = build_registry(problem)
     return tuple(parse_clause(problem, c, registry) for c in problem.clauses)

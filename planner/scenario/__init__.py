@@ -64,9 +64,7 @@ import numpy as np
 import yaml
 
 from planner.frames import GeodeticPoint
-from planner.predicates import build_registry
 from planner.problem import MAX_HORIZON_S, DynamicsModel, Problem, Timing
-from planner.regions import Region, RegionKind
 from planner.scenario.checks import clause_findings, start_findings
 from planner.scenario.sections import (
     Reader,
@@ -78,6 +76,8 @@ from planner.scenario.sections import (
     read_vehicles,
 )
 from planner.scenario.spec import check_calls, expand_spec, parse_clause, spell_parts
+from planner.spec.predicates import build_registry
+from planner.spec.regions import Region, RegionKind
 from planner.strict_read import DuplicateKeyError, NotTextError, load_yaml, read_text
 
 __all__ = ["load_scenario", "parse_scenario"]

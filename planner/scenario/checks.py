@@ -34,15 +34,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from planner.limits import vehicle_bounds
-from planner.predicates import Role, role_of
-from planner.regions import KEEP_OUT_KINDS, Cylinder, Prism
+from planner.dynamics.limits import vehicle_bounds
+from planner.spec.predicates import Role, role_of
+from planner.spec.regions import KEEP_OUT_KINDS, Cylinder, Prism
 from planner.stl import Always, And, Eventually, Formula, Predicate, Until
 from planner.stl.ast import format_number
 
 if TYPE_CHECKING:
     from planner.problem import Problem, Vehicle
-    from planner.regions import Region
+    from planner.spec.regions import Region
 
 _AXES = ("east", "north", "up")
 

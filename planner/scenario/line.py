@@ -13,7 +13,7 @@
 
 For pole ``i`` (1-based, in line order) it makes:
 
-* ``pole{i}``: a :class:`~planner.regions.Cylinder` (``radius_m``, ground to ``height_m``);
+* ``pole{i}``: a :class:`~planner.spec.regions.Cylinder` (``radius_m``, ground to ``height_m``);
 * ``span{i}`` (between poles ``i`` and ``i + 1``): the conductors' keep-out, a box along the
   span, ``half_width_m + clearance_m`` either side of it, reaching ``clearance_m`` past
   each pole, over ``z`` widened by ``clearance_m``;
@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from planner.frames import GeodeticPoint, geodetic_to_enu
-from planner.regions import Cylinder, Region, RegionKind
+from planner.spec.regions import Cylinder, Region, RegionKind
 from planner.strict_read import DuplicateKeyError, NotTextError, load_json, read_text
 
 __all__ = ["LineModel", "line_regions"]

@@ -19,12 +19,12 @@ from typing import Any
 
 import numpy as np
 
-from planner.cover import polygon_regions
+from planner.dynamics.limits import PX4_LIMIT_KEYS
 from planner.errors import FileFieldError
-from planner.limits import PX4_LIMIT_KEYS
-from planner.predicates import PREDICATES
 from planner.problem import QP_SOLVERS, SolverMethod, SolverOptions, Vehicle
-from planner.regions import Cylinder, Region, RegionKind, ShapeError
+from planner.spec.cover import polygon_regions
+from planner.spec.predicates import PREDICATES
+from planner.spec.regions import Cylinder, Region, RegionKind, ShapeError
 
 __all__ = ["ScenarioError"]
 
@@ -183,7 +183,7 @@ def read_region(
     """A region: a box ({min, max} or {center, half_size}), turned about the vertical with
     ``yaw_deg`` (counter-clockwise from east) or ``bearing_deg`` (of its x axis, clockwise
     from north); a prism ``{polygon: [[x, y], ...], z: [bottom, top]}`` over a simple
-    polygon (one that is not convex: its convex parts, :func:`planner.cover.polygon_regions`);
+    polygon (one that is not convex: its convex parts, :func:`planner.spec.cover.polygon_regions`);
     a cylinder ``{center: [x, y], radius: r, z: [bottom, top]}``."""
     got = _one_region(rd, name, value, path, kind)
     return got if isinstance(got, tuple) else (got,)
@@ -230,7 +230,7 @@ def _one_region(
     return Region(name, kind, tuple(lo.tolist()), tuple(hi.tolist()))
 
 
-#: PX4-like limits (:mod:`planner.limits`): horizontal norm and vertical up/down, for the
+#: PX4-like limits (:mod:`planner.dynamics.limits`): horizontal norm and vertical up/down, for the
 #: velocity and the acceleration; with the per-axis ``v_max_m_s``/``a_max_m_s2`` each holds.
 _PX4_LIMITS = PX4_LIMIT_KEYS
 

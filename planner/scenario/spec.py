@@ -17,11 +17,11 @@ from collections.abc import Mapping, Sequence
 from functools import partial
 from typing import Any
 
-from planner.predicates import PREDICATES, build_registry
 from planner.problem import Clause, Problem
-from planner.regions import Region
 from planner.scenario.checks import horizon_sum
 from planner.scenario.sections import NAME_RE, Reader, ScenarioError, join_key
+from planner.spec.predicates import PREDICATES, build_registry
+from planner.spec.regions import Region
 from planner.stl import (
     BinOp,
     Comparison,
@@ -37,7 +37,7 @@ from planner.stl import (
 __all__ = ["FUNCTION_NAMES", "parse_clause"]
 
 #: Function predicates a scenario's spec may call, with the kinds of their arguments
-#: (``v`` a vehicle, ``r`` a region): :data:`planner.predicates.PREDICATES`.
+#: (``v`` a vehicle, ``r`` a region): :data:`planner.spec.predicates.PREDICATES`.
 FUNCTION_NAMES: dict[str, tuple[str, ...]] = {p.name: p.args for p in PREDICATES.values()}
 
 
@@ -156,7 +156,7 @@ _PART_JOIN = {"inside": " or ", "outside": " and "}
 
 def spell_parts(rd: Reader, clauses: Sequence[Clause], regions: Sequence[Region]) -> list[Clause]:
     """The clauses with each ``inside``/``outside`` of a polygon that is not convex spelled
-    as that of its convex parts (:mod:`planner.cover`): ``inside(d, row)`` is
+    as that of its convex parts (:mod:`planner.spec.cover`): ``inside(d, row)`` is
     ``(inside(d, row_part1) or inside(d, row_part2))``, ``outside`` joins with ``and``; any
     other function of such a polygon is an error naming it."""
     parts: dict[str, list[str]] = {}

@@ -245,7 +245,7 @@ def test_the_assessment_picture_draws_each_region_as_seen_from_above(
     import matplotlib.patches
 
     from gcs.assess_figure import plot_assessment
-    from planner.regions import Cylinder, Prism, Region, RegionKind
+    from planner.spec.regions import Cylinder, Prism, Region, RegionKind
 
     turned = Prism.oriented_box((2.0, -2.0, 1.5), (0.8, 0.2, 1.5), math.radians(40.0))
     shaped = dataclasses.replace(

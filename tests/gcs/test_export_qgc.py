@@ -176,7 +176,7 @@ def test_a_turned_box_and_a_cylinder_export_as_qgc_polygon_and_circle_that_impor
     """Full-height keep-outs of other shapes: a no-fly box turned 30 degrees is the polygon of
     its corners, a pole (vertical cylinder) a QGC circle; MAVSDK's importer gives back the
     very items ``gcs upload --fence`` sends."""
-    from planner.regions import Cylinder, Prism, Region, RegionKind
+    from planner.spec.regions import Cylinder, Prism, Region, RegionKind
 
     base = reach_avoid_plan()
     turned = Prism.oriented_box((-1.2, 1.2, 1.0), (0.5, 0.2, 1.0), math.radians(30.0))

@@ -15,7 +15,7 @@ import numpy as np
 
 from planner.frames import GeodeticPoint
 from planner.planfile import Plan, PlannedVehicle, save_plan
-from planner.regions import Region, RegionKind
+from planner.spec.regions import Region, RegionKind
 from planner.trajectory import Trajectory, YawMode, YawPolicy
 
 ORIGIN = GeodeticPoint(lat_deg=47.397742, lon_deg=8.545594, alt_m=488.0)

@@ -16,8 +16,8 @@ from gcs.telemetry import Telemetry
 from mavlink.monitor_findings import always_clause_indices, always_clauses
 from mavlink.tracks import FlownTrack
 from planner.planfile import Plan, load_plan
-from planner.predicates import build_registry
 from planner.scenario import load_scenario
+from planner.spec.predicates import build_registry
 from planner.stl import parse
 from tests.gcs.face_plan import FACE_CLAUSE
 

@@ -457,7 +457,7 @@ def test_a_face_spec_flown_offboard_is_judged_on_the_recorded_heading(
     off = np.degrees(np.abs(np.angle(np.exp(1j * (track.yaw(t) - plan_yaw)))))
     assert off.max() < 15.0 and off.max() > 0.1
     # face's value on the flown samples, from the recorded heading, is the clause's
-    from planner.predicates import face_margin
+    from planner.spec.predicates import face_margin
 
     margin = face_margin(track.signal(t, heading=True), plan.region("pole1"))
     assert margin[inside].min() > 0.0

@@ -16,7 +16,7 @@ import pytest
 from gcs.cli import main
 from gcs.landing import CLEARANCE_M, keep_outs, landing_point, landing_points
 from planner.planfile import load_plan
-from planner.regions import Region, RegionKind
+from planner.spec.regions import Region, RegionKind
 
 DATA = Path(__file__).resolve().parents[1] / "mavlink" / "data"
 PLAN = DATA / "reach_avoid_2.plan.json"
@@ -135,7 +135,7 @@ def _turned_excess(p_xy: np.ndarray, centre: tuple[float, float], half: tuple[fl
 
 
 def _turned(name: str, centre: tuple[float, float], half: tuple[float, float], yaw: float, top_m: float, kind: RegionKind = RegionKind.NO_FLY) -> Region:  # fmt: skip
-    from planner.regions import Prism
+    from planner.spec.regions import Prism
 
     prism = Prism.oriented_box((*centre, top_m / 2), (*half, top_m / 2), yaw)
     return Region.of_shape(name, kind, prism)
@@ -143,7 +143,7 @@ def _turned(name: str, centre: tuple[float, float], half: tuple[float, float], y
 
 def test_column_and_transit_use_a_turned_box_and_a_cylinder_not_their_bounding_boxes() -> None:
     from gcs.landing import column_blocker, transit_clear
-    from planner.regions import Cylinder, Prism
+    from planner.spec.regions import Cylinder, Prism
 
     centre, half, yaw = (0.0, 0.0), (2.0, 0.3), math.pi / 4
     wall = _turned("wall", centre, half, yaw, 3.0)

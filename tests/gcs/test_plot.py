@@ -160,7 +160,7 @@ def test_prisms_and_cylinders_are_drawn_as_their_shapes_not_their_bounding_boxes
 
     from mpl_toolkits.mplot3d import art3d
 
-    from planner.regions import Cylinder, Prism, Region, RegionKind
+    from planner.spec.regions import Cylinder, Prism, Region, RegionKind
 
     yaw = math.radians(25.0)
     turned = Prism.oriented_box((0.5, 0.6, 1.2), (0.3, 0.12, 0.15), yaw)

@@ -39,9 +39,9 @@ from gcs.map_view import (
 )
 from gcs.plot import PAN_ZOOM_JS
 from planner.planfile import Plan, PlannedVehicle
-from planner.regions import Region, RegionKind
 from planner.scenario import load_scenario
 from planner.scenario.line import LineModel, line_regions
+from planner.spec.regions import Region, RegionKind
 from tests.gcs.test_export_support import ORIGIN, quintic_trajectory, reach_avoid_plan, write_plan
 
 ROOT = Path(__file__).resolve().parents[2]

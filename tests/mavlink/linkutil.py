@@ -16,10 +16,10 @@ from mavlink.mock.fleet import MockFleet
 from mavlink.tracks import FlownTrack
 from mavlink.vehicle_status import VehicleSpec
 from planner.planfile import Plan, load_plan
-from planner.predicates import build_registry
 from planner.problem import Problem
 from planner.scenario import parse_scenario
 from planner.scenario.spec import parse_clause
+from planner.spec.predicates import build_registry
 from planner.stl.ast import Formula, conjunction
 
 DATA = Path(__file__).parent / "data"

@@ -270,7 +270,7 @@ def test_geofence_polygons_are_the_box_footprints() -> None:
 
 
 def test_fence_excludes_only_stay_out_boxes_that_span_the_workspace_height() -> None:
-    from planner.regions import Region, RegionKind
+    from planner.spec.regions import Region, RegionKind
 
     ws = Region("workspace", RegionKind.WORKSPACE, (-5.0, -5.0, 0.5), (5.0, 5.0, 20.0))
     regions = [
@@ -291,7 +291,7 @@ def test_fence_excludes_only_stay_out_boxes_that_span_the_workspace_height() -> 
 
 def _shaped_scenario():  # type: ignore[no-untyped-def]
     """A workspace with full-height keep-outs of every shape, and a low one (not fenced)."""
-    from planner.regions import Cylinder, Prism, Region, RegionKind
+    from planner.spec.regions import Cylinder, Prism, Region, RegionKind
 
     ws = Region("workspace", RegionKind.WORKSPACE, (-10.0, -10.0, 0.0), (10.0, 10.0, 5.0))
     kinds = RegionKind

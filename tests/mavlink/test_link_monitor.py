@@ -13,7 +13,7 @@ from mavlink.monitor import SafetyMonitor
 from mavlink.monitor_findings import SafetyAction, Verdict, always_clauses
 from mavlink.offboard import fly_offboard
 from mavlink.offboard_setpoints import OffboardConfig
-from planner.predicates import build_registry
+from planner.spec.predicates import build_registry
 from planner.stl import parse
 from planner.trajectory import Trajectory
 from tests.mavlink.linkutil import mock_and_fleet, scenario, spec_formula, stored_plan

@@ -16,9 +16,9 @@ from mavlink.monitor import SafetyMonitor
 from mavlink.monitor_findings import Verdict, always_clauses
 from mavlink.px4_modes import Px4Mode
 from planner.frames import GeodeticPoint, NedToEnuMap, enu_to_ned
-from planner.predicates import build_registry
 from planner.scenario import load_scenario
 from planner.scenario.spec import parse_clause
+from planner.spec.predicates import build_registry
 from planner.stl.ast import conjunction
 from planner.trajectory import Trajectory
 

@@ -1,5 +1,5 @@
 """The planner's solver runs CasADi's bundled OpenBLAS on one thread unless the user chose
-(planner.nlp.one_blas_thread), without touching the environment at import."""
+(planner.solve.nlp.one_blas_thread), without touching the environment at import."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[2]
 PROBE = """
 import ctypes, json, os
 import casadi
-import planner.nlp as nlp
+import planner.solve.nlp as nlp
 from planner.optimize import plan
 from planner.scenario import load_scenario
 env_after_import = os.environ.get("OMP_NUM_THREADS")

@@ -1,4 +1,4 @@
-"""Long ``eventually`` windows in chunks (:func:`planner.leaves.chunks_of`): the chunks partition
+"""Long ``eventually`` windows in chunks (:func:`planner.solve.leaves.chunks_of`): the chunks partition
 the window, the NLP's leaf is the smooth value of the whole window, its derivatives are
 CasADi's own, its Hessian is banded instead of dense, and the mission plans."""
 
@@ -8,14 +8,14 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from planner import leaves as leaves_mod
-from planner.leaves import CHUNK_ABOVE_SEGMENTS, CHUNK_SEGMENTS, chunks_of
-from planner.nlp import NlpBuilder
-from planner.nlp_solvers import mumps_order
 from planner.optimize import conjunction, make_model, plan
-from planner.plan_check import initial_states
-from planner.predicates import build_registry
 from planner.scenario import parse_scenario
+from planner.solve import leaves as leaves_mod
+from planner.solve.leaves import CHUNK_ABOVE_SEGMENTS, CHUNK_SEGMENTS, chunks_of
+from planner.solve.nlp import NlpBuilder
+from planner.solve.nlp_solvers import mumps_order
+from planner.solve.plan_check import initial_states
+from planner.spec.predicates import build_registry
 from planner.stl import Eventually, parse
 
 # Two drones, 40 one-second segments of minimum-jerk primitives: "some time in the first

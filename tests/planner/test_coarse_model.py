@@ -1,6 +1,6 @@
 """The coarse plan as a path the smooth model can follow: an ``always`` held over the steps
 that cover its window, legs kept out of polygon keep-outs, the smoothest of equally robust
-paths, and a fit within the NLP's own limit polygon (planner.milp, planner.coarse_fit).
+paths, and a fit within the NLP's own limit polygon (planner.milp, planner.solve.coarse_fit).
 Checked against the exact semantics on the coarse samples, shapely's geometry of the legs,
 and the missions of the issue's classes planned end to end."""
 
@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 from shapely.geometry import LineString, Polygon
 
-from planner.coarse_fit import waypoint_guess
 from planner.milp import CoarseStatus, solve_coarse
 from planner.milp import solve as solve_mod
 from planner.optimize import make_model, plan
-from planner.path_fit import fit_within_limits
-from planner.plan_check import initial_states
 from planner.scenario import load_scenario
+from planner.solve.coarse_fit import waypoint_guess
+from planner.solve.path_fit import fit_within_limits
+from planner.solve.plan_check import initial_states
 from tests.planner.test_milp import TOL, ZOO, exact, scenario
 
 

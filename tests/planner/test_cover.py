@@ -14,15 +14,15 @@ import pytest
 import yaml
 from matplotlib.path import Path as MplPath
 
-from planner.cover import (
+from planner.scenario import ScenarioError, parse_scenario
+from planner.spec.cover import (
     _crossing_fan,
     _seam_bridge,
     convex_cover,
     polygon_regions,
     reflex_corners,
 )
-from planner.regions import Prism, Region, RegionKind, ShapeError
-from planner.scenario import ScenarioError, parse_scenario
+from planner.spec.regions import Prism, Region, RegionKind, ShapeError
 
 RNG = np.random.default_rng(21)
 
@@ -101,7 +101,7 @@ def test_a_convex_polygon_is_one_region_of_its_own_name_without_its_straight_cor
 
 
 def test_figures_draw_a_polygon_as_its_outline_not_as_its_parts() -> None:
-    from planner.cover import Outline, drawn_regions
+    from planner.spec.cover import Outline, drawn_regions
 
     parts = polygon_regions("row", RegionKind.NO_FLY, _turned(L_SHAPE, 37.0, (5, 5)), 0, 15)
     pole = Region("pole", RegionKind.POLE, (1, 1, 0), (2, 2, 9))

@@ -1,4 +1,4 @@
-"""The spec's geometry whatever its spelling (planner.geometry) and the initial guess built on
+"""The spec's geometry whatever its spelling (planner.spec.geometry) and the initial guess built on
 it (targets chosen among options and ordered, keep-outs routed around).
 
 References: the named boxes themselves (a half-plane spelling must mean the same box), a
@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 import yaml
 
-from planner.geometry import keep_out, place
-from planner.guess import _avoided, visit_targets
 from planner.optimize import plan
 from planner.scenario import parse_scenario
+from planner.solve.guess import _avoided, visit_targets
+from planner.spec.geometry import keep_out, place
 from planner.stl import conjunction
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
@@ -178,13 +178,13 @@ def test_the_narrow_passage_plans_in_both_spellings() -> None:
 
 def test_a_box_in_a_smooth_leaf_is_the_same_nlp_whatever_its_spelling() -> None:
     # inside(d1, goal) is the conjunction of its six faces; under `eventually` (a smooth
-    # leaf), in the sharp NLP (planner.refine.sharpen), both spellings get the same
+    # leaf), in the sharp NLP (planner.solve.refine.sharpen), both spellings get the same
     # sharpness and the same smooth value, everywhere.
     import casadi as ca
 
-    from planner.nlp import NlpBuilder
     from planner.optimize import make_model
-    from planner.plan_check import initial_states
+    from planner.solve.nlp import NlpBuilder
+    from planner.solve.plan_check import initial_states
 
     faces = "x(d1) >= 7 and x(d1) <= 8 and y(d1) >= 8 and y(d1) <= 9 and z(d1) >= 0 and z(d1) <= 2"
     built = []
@@ -215,7 +215,7 @@ def test_a_route_that_must_stay_on_stepping_stones_hops_between_them() -> None:
     # stlpy's SteppingStones: `always (inside(s0) or ... or inside(s14))`, reach s14.  The
     # guess routes inside the stones, crossing only gaps one sample's flight spans (before:
     # a straight line over the gaps, and the regions spelling failed at -0.46).
-    from planner.guess import _grid_path, _stay_within, axis_limits
+    from planner.solve.guess import _grid_path, _stay_within, axis_limits
 
     pr = parse_scenario(
         yaml.safe_load((_ZOO / "stlpy_stepping_stones_regions.yaml").read_text()), "ss.yaml"

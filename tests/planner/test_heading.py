@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from planner.heading import YAW_RATE_MAX_DEG_S, yaw_rate_needed
-from planner.predicates import FACE_TOLERANCE_DEG, face_margin
-from planner.regions import Cylinder, Region, RegionKind
+from planner.spec.heading import YAW_RATE_MAX_DEG_S, yaw_rate_needed
+from planner.spec.predicates import FACE_TOLERANCE_DEG, face_margin
+from planner.spec.regions import Cylinder, Region, RegionKind
 from planner.stl import EvaluationError
 from planner.trajectory import Trajectory, YawMode, YawPolicy
 
@@ -138,7 +138,7 @@ def test_a_plan_faces_each_pole_while_it_inspects_it_and_verify_agrees(tmp_path:
     for c in result.clauses[:2]:
         assert c.robustness >= result.robustness - 1e-9
     # the capture windows are the two inspection hovers, facing their poles
-    from planner.captures import capture_windows
+    from planner.spec.captures import capture_windows
     from planner.stl import And
 
     formula = And(tuple(problem.formulas))
@@ -195,8 +195,8 @@ def test_a_face_in_an_inspection_conjunction_leaves_the_place_the_guess_routes_t
     """``inside(d, insp) and face(d, pole)`` is the place ``insp`` to the initial guess (the
     heading asks nothing of the position); before the fix the conjunction was no place at
     all, and the 10-pole camera line planned from its start point to -0.12 in 120 s."""
-    from planner.geometry import place
     from planner.scenario import load_scenario
+    from planner.spec.geometry import place
     from planner.stl import And
 
     path = tmp_path / "facing.yaml"

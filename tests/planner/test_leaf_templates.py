@@ -8,10 +8,10 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from planner.leaf_templates import canonical_leaf, clear_templates, instance, template
 from planner.optimize import make_model
-from planner.predicates import build_registry, predicate_sharpness
 from planner.scenario import load_scenario
+from planner.solve.leaf_templates import canonical_leaf, clear_templates, instance, template
+from planner.spec.predicates import build_registry, predicate_sharpness
 from planner.stl import parse
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"

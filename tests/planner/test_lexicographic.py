@@ -1,4 +1,4 @@
-"""The objective after its first bottleneck (:func:`planner.refine.raise_the_rest`): a
+"""The objective after its first bottleneck (:func:`planner.solve.refine.raise_the_rest`): a
 margin the start state fixes does not cap the other clauses, a failing plan still meets the
 clauses it can, and the report says when the start sets the headline figure.
 
@@ -17,8 +17,8 @@ import pytest
 
 from planner.optimize import plan
 from planner.problem import Problem
-from planner.refine import leximin_better
 from planner.scenario import load_scenario, parse_scenario
+from planner.solve.refine import leximin_better
 
 ZOO = Path(__file__).resolve().parents[2] / "benchmarks" / "scenarios"
 

@@ -12,8 +12,8 @@ import pymap3d
 import pytest
 import yaml
 
-from planner.regions import Cylinder, Prism
 from planner.scenario import ScenarioError, load_scenario, parse_scenario
+from planner.spec.regions import Cylinder, Prism
 
 ORIGIN = {"lat": 47.397742, "lon": 8.545594, "alt": 488.0}
 

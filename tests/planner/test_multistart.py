@@ -1,4 +1,4 @@
-"""The multi-start (planner.guess.starts, planner.optimize.plan): when the first guess's plan
+"""The multi-start (planner.solve.guess.starts, planner.optimize.plan): when the first guess's plan
 falls short, other route choices and shifted legs are solved in turn and the best exact
 robustness wins.
 
@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 import yaml
 
-from planner.guess import starts, visit_targets
 from planner.optimize import plan
 from planner.problem import Problem
 from planner.scenario import load_scenario, parse_scenario
 from planner.scenario.sections import ScenarioError
+from planner.solve.guess import starts, visit_targets
 from planner.stl import conjunction
 
 ZOO = Path(__file__).resolve().parents[2] / "benchmarks" / "scenarios"
@@ -61,13 +61,13 @@ def test_the_starts_are_the_nearest_route_then_runners_up_and_shifted_legs() -> 
 
 def test_a_runner_up_option_meets_what_the_nearest_choices_do_not(monkeypatch) -> None:
     # Stepping stones (half-planes), with the guess blind to "stay on the stones"
-    # (planner.guess._stay_within, which now routes over them at the first start): the
+    # (planner.solve.guess._stay_within, which now routes over them at the first start): the
     # nearest stones first leave the plan short of the mission; turning one choice to its
     # runner-up stone meets it.
     # (no lexicographic rounds: they would raise the other clauses of the failed plan)
-    import planner.guess
+    import planner.solve.guess
 
-    monkeypatch.setattr(planner.guess, "_stay_within", lambda *_: [])
+    monkeypatch.setattr(planner.solve.guess, "_stay_within", lambda *_: [])
     one = plan(_zoo("stlpy_stepping_stones_halfplanes", starts=1, lexicographic_rounds=0))
     assert not one.success and one.stats is not None and one.stats.starts == 1
     many = plan(_zoo("stlpy_stepping_stones_halfplanes"))

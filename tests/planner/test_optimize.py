@@ -3,7 +3,7 @@
 The independent checks below do not use the planner's code: positions, velocities and
 accelerations come from the trajectories (piecewise polynomials) on a dense grid, and the
 mission properties (goal reached, obstacle avoided, workspace, separation, limits) are
-written out here directly with numpy, not through the STL engine or planner.predicates.
+written out here directly with numpy, not through the STL engine or planner.spec.predicates.
 """
 
 from __future__ import annotations
@@ -171,7 +171,7 @@ def test_warm_start_from_a_previous_solution_converges_no_worse() -> None:
 def test_local_hessian_equals_casadi_hessian_of_the_whole_vector() -> None:
     import casadi as ca
 
-    from planner.leaf_templates import local_hessian
+    from planner.solve.leaf_templates import local_hessian
 
     w = ca.SX.sym("w", 7)
     expr = w[1] ** 2 * w[3] + w[0] + ca.exp(w[4] * w[6]) + ca.log(1 + w[1] ** 2)
@@ -186,7 +186,7 @@ def test_local_hessian_equals_casadi_hessian_of_the_whole_vector() -> None:
 def test_flat_blocks_keep_their_gradient_and_leave_the_hessian() -> None:
     import casadi as ca
 
-    from planner.nlp_solvers import derivatives
+    from planner.solve.nlp_solvers import derivatives
 
     w, p = ca.SX.sym("w", 3), ca.SX.sym("p", 0)
     sep = ca.vertcat(ca.norm_2(w[:2]) - w[2])  # a keep-apart row: dist - r >= 0
@@ -208,9 +208,9 @@ def test_flat_blocks_keep_their_gradient_and_leave_the_hessian() -> None:
 
 
 def test_separation_without_curvature_reaches_the_exact_hessian_optimum() -> None:
-    from planner.nlp import _is_separation
-    from planner.predicates import build_registry
     from planner.scenario.spec import parse_clause
+    from planner.solve.nlp import _is_separation
+    from planner.spec.predicates import build_registry
 
     problem = load_scenario(CONFIGS / "reach_avoid.yaml", vehicles=2)
     registry = build_registry(problem)
@@ -228,7 +228,7 @@ def test_separation_without_curvature_reaches_the_exact_hessian_optimum() -> Non
 def test_shared_target_slots_are_lattice_points_with_equal_depth_and_spacing_margins() -> None:
     from types import SimpleNamespace
 
-    from planner.guess import _box_slots
+    from planner.solve.guess import _box_slots
 
     cube = SimpleNamespace(lo_enu_m=(1.5, 1.5, 0.5), hi_enu_m=(2.0, 2.0, 1.0))
 

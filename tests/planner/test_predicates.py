@@ -10,7 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from planner.predicates import (
+from planner.scenario import load_scenario
+from planner.scenario.spec import FUNCTION_NAMES
+from planner.spec.predicates import (
     PREDICATES,
     Role,
     _np_functions,
@@ -18,8 +20,6 @@ from planner.predicates import (
     casadi_functions,
     role_of,
 )
-from planner.scenario import load_scenario
-from planner.scenario.spec import FUNCTION_NAMES
 from planner.stl import parse
 
 REPO = Path(__file__).resolve().parents[2]
@@ -58,7 +58,7 @@ def test_the_planner_reads_each_predicates_role_from_the_table(text: str, role: 
 def test_the_predicates_do_not_load_the_scenario_reader_or_casadi() -> None:
     code = (
         "import sys\n"
-        "import planner.predicates\n"
+        "import planner.spec.predicates\n"
         "print('planner.scenario' in sys.modules, 'casadi' in sys.modules)\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

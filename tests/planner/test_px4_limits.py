@@ -20,12 +20,12 @@ from scipy.optimize import linprog
 
 from planner.checks import check_trajectories
 from planner.dynamics import MinimumJerkChain
-from planner.limits import NORM_DIRECTIONS, NORM_SIDES, Bounds, vehicle_bounds
-from planner.nlp import two_sided_rows, vehicle_limit_bounds
+from planner.dynamics.limits import NORM_DIRECTIONS, NORM_SIDES, Bounds, vehicle_bounds
 from planner.planfile import PlanFileError, load_plan, save_plan
 from planner.problem import Vehicle
 from planner.scenario import parse_scenario
 from planner.scenario.sections import ScenarioError
+from planner.solve.nlp import two_sided_rows, vehicle_limit_bounds
 
 # ------------------------------------------------------------------------------ geometry
 

@@ -1,5 +1,5 @@
 """The row-wise leaves' Jacobian and Hessian differentiated at one sample and mapped over the
-steps (:mod:`planner.rowwise`) equal CasADi's derivatives of the whole block, on every kind of
+steps (:mod:`planner.solve.rowwise`) equal CasADi's derivatives of the whole block, on every kind of
 row-wise leaf the planner writes: box faces, obstacle boxes, polygons, cylinders, comparisons
 of coordinates and separations between vehicles."""
 
@@ -9,12 +9,12 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from planner.leaf_templates import local_hessian
-from planner.nlp import NlpBuilder, _is_separation
-from planner.nlp_solvers import derivatives
 from planner.optimize import make_model
-from planner.rowwise import block_hessian, block_jacobian, sample_leaf
 from planner.scenario import parse_scenario
+from planner.solve.leaf_templates import local_hessian
+from planner.solve.nlp import NlpBuilder, _is_separation
+from planner.solve.nlp_solvers import derivatives
+from planner.solve.rowwise import block_hessian, block_jacobian, sample_leaf
 from planner.stl import conjunction
 
 SCENARIO = {

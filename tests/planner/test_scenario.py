@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 import yaml
 
-from planner.predicates import build_registry
 from planner.problem import DynamicsModel
 from planner.scenario import load_scenario, parse_scenario
 from planner.scenario.checks import reach_m
 from planner.scenario.sections import ScenarioError
+from planner.spec.predicates import build_registry
 from planner.stl import parse
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"

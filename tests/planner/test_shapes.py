@@ -14,9 +14,9 @@ import pytest
 import yaml
 from matplotlib.path import Path as MplPath
 
-from planner.predicates import build_registry, predicate_sharpness
-from planner.regions import Cylinder, Prism, Region, RegionKind, ShapeError
 from planner.scenario import ScenarioError, parse_scenario
+from planner.spec.predicates import build_registry, predicate_sharpness
+from planner.spec.regions import Cylinder, Prism, Region, RegionKind, ShapeError
 from planner.stl import parse
 
 RNG = np.random.default_rng(37)

@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from planner.predicates import build_registry
 from planner.scenario import load_scenario
 from planner.scenario.spec import parse_clause
+from planner.spec.predicates import build_registry
 from planner.stl import parse
 from planner.stl.batch import ClauseBatch, rename_signals, signal_order
 

@@ -89,7 +89,7 @@ def test_two_threads_planning_one_structure_take_turns_and_agree() -> None:
 def test_a_time_limit_that_comes_in_the_build_ends_it_with_the_guess_checked() -> None:
     """``--time-limit`` bounds the build too: the builder gives up between its pieces, and
     the initial guess, checked on dense samples like any plan, is the result."""
-    from planner.nlp import clear_cache
+    from planner.solve.nlp import clear_cache
     from planner.stl import conjunction
 
     problem = load_scenario(ZOO / "powerline_line4_2drones_order.yaml")
@@ -150,8 +150,8 @@ def test_a_stopped_stage_ends_promptly_and_keeps_its_incumbent() -> None:
     reported while it ran is no better than it."""
     import time
 
-    from planner.coarse_start import BackgroundStage
     from planner.optimize import PlanSearch
+    from planner.solve.coarse_start import BackgroundStage
 
     problem = _reach_avoid(4)  # no proof of optimality in 20 s: the bound stays at 0.3
     search = PlanSearch(problem)

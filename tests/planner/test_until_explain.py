@@ -1,5 +1,5 @@
 """``until`` keep-outs in the initial guess, a start that meets the mission kept or refined,
-and what a failed plan would need (:mod:`planner.explain`), on zoo scenarios whose figures
+and what a failed plan would need (:mod:`planner.solve.explain`), on zoo scenarios whose figures
 are worked out by hand in their headers."""
 
 from __future__ import annotations
@@ -8,11 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
-from planner.explain import needs
-from planner.guess import initial_guess, visit_targets
 from planner.optimize import conjunction, make_model, plan
-from planner.plan_check import initial_states
 from planner.scenario import load_scenario
+from planner.solve.explain import needs
+from planner.solve.guess import initial_guess, visit_targets
+from planner.solve.plan_check import initial_states
 
 ZOO = Path(__file__).resolve().parents[2] / "benchmarks" / "scenarios"
 

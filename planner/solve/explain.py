@@ -1,7 +1,7 @@
 """What a plan that falls short of its mission would need (issue 19, "anytime, bounded,
 explained"): a few lines a user at a terminal can act on.
 
-* **Time.** Each vehicle's route (the first start's, :func:`planner.guess.visit_targets`) is timed
+* **Time.** Each vehicle's route (the first start's, :func:`planner.solve.guess.visit_targets`) is timed
   at the vehicle's own limits: every leg flown straight from rest to rest on the fastest
   trapezoid the per-axis limits allow, every place held for the spec's hover there.  A
   clause whose place is reached later than the clause allows is named with the time it
@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from planner.coarse_start import CoarseOutcome
-from planner.geometry import Place
-from planner.guess import (
+from planner.problem import Problem
+from planner.solve.coarse_start import CoarseOutcome
+from planner.solve.guess import (
     Choices,
     axis_limits,
     hover_times,
@@ -31,7 +31,7 @@ from planner.guess import (
     start_of,
     visit_targets,
 )
-from planner.problem import Problem
+from planner.spec.geometry import Place
 from planner.stl import And, Formula
 
 __all__ = ["needs"]

@@ -22,25 +22,25 @@ import casadi as ca
 import numpy as np
 
 from planner.cache import BoundedCache
+from planner.dynamics.limits import NORM_DIRECTIONS, vehicle_bounds
 from planner.errors import PlannerError
-from planner.leaf_templates import (
+from planner.problem import Problem
+from planner.solve.leaf_templates import (
     LeafInstance,
     clear_templates,
     instance,
     smoothing_terms,
 )
-from planner.leaves import chunks_of, decompose, local_positions, lse
-from planner.limits import NORM_DIRECTIONS, vehicle_bounds
-from planner.nlp_solvers import IterationWatch, derivatives, make_solver
-from planner.predicates import (
+from planner.solve.leaves import chunks_of, decompose, local_positions, lse
+from planner.solve.nlp_solvers import IterationWatch, derivatives, make_solver
+from planner.solve.rowwise import SampleLeaf, sample_leaf
+from planner.spec.predicates import (
     Role,
     ca_box_margins,
     casadi_functions,
     predicate_sharpness,
     role_of,
 )
-from planner.problem import Problem
-from planner.rowwise import SampleLeaf, sample_leaf
 from planner.stl import (
     CmpOp,
     Comparison,
@@ -175,7 +175,7 @@ def _fit_k(
 def _smooth_bound(leaf: Formula, k: float, dt: float, sharp: bool, problem: Problem) -> float:
     """Bound on a smooth leaf's error at sharpness ``k``: its temporal operators', and with
     ``sharp`` its predicates' (smoothed at the same ``k``,
-    :func:`planner.leaf_templates.smoothing_terms`)."""
+    :func:`planner.solve.leaf_templates.smoothing_terms`)."""
     own = smoothing_terms(leaf, problem) / k if sharp else 0.0
     return leaf.smooth_error_bound(k, dt) + own
 
@@ -433,7 +433,7 @@ class NlpBuilder:
         return self._sx
 
     def _sample_leaf(self, leaf: Formula, steps: list[int]) -> tuple[SampleLeaf, np.ndarray] | None:
-        """A row-wise leaf at one sample (:mod:`planner.rowwise`) and the entries of ``w``
+        """A row-wise leaf at one sample (:mod:`planner.solve.rowwise`) and the entries of ``w``
         its positions are at each of its steps (None: constant rows)."""
         self.check_deadline()
         one = sample_leaf(
@@ -495,7 +495,7 @@ class NlpBuilder:
         problem, nv = self.problem, len(self.names)
         # The linear and row-wise blocks (SX, differentiated block by block) do not depend on
         # the temporal sharpness k; the smooth leaves are calls of shared templates, assembled
-        # with them into MX functions per k (see :mod:`planner.leaf_templates`).
+        # with them into MX functions per k (see :mod:`planner.solve.leaf_templates`).
         n_lin, n_sx = self.n_lin, self.n_sx
         n_items = len(self.smooth_items)
         n_g = n_sx + n_items + self.n_s
@@ -748,8 +748,8 @@ def vehicle_limit_bounds(
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(lo, hi)`` of one vehicle's limit rows as :class:`NlpBuilder` lays them out: the
     kept model rows per axis (column after column), then, with ``norm_rows``, the
-    :data:`planner.limits.NORM_DIRECTIONS` rows (``inf`` for a vehicle without a norm
-    bound). Together they are :meth:`planner.limits.Bounds.linear` on every control point."""
+    :data:`planner.dynamics.limits.NORM_DIRECTIONS` rows (``inf`` for a vehicle without a norm
+    bound). Together they are :meth:`planner.dynamics.limits.Bounds.linear` on every control point."""
     vel, acc = vehicle_bounds(vehicle)
     (vlo, vhi, vb), (alo, ahi, ab) = vel.linear(), acc.linear()
     cons = model.limit_constraints(vhi, ahi, -vlo, -alo)

@@ -1,7 +1,7 @@
 """When a plan takes pictures: the windows in which a vehicle faces an inspection target.
 
 A *capture window* is a stretch of a plan in which a facing rule of the spec applies
-(:func:`planner.heading.facing_rules`: the vehicle is in the place of a conjunction holding
+(:func:`planner.spec.heading.facing_rules`: the vehicle is in the place of a conjunction holding
 ``face(d, T)``, or under a top-level ``always`` of ``face``) and the vehicle does face its
 target (``face``'s exact margin >= 0) for at least ``min_s``.  Those are the hovers that
 satisfy the spec's inspection clauses; the flight takes its pictures there
@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from planner.heading import facing_rules
-from planner.predicates import face_margin, face_tolerance_deg
+from planner.spec.heading import facing_rules
+from planner.spec.predicates import face_margin, face_tolerance_deg
 from planner.stl import Formula
 from planner.trajectory import Trajectory
 

@@ -13,7 +13,7 @@ import casadi as ca
 import numpy as np
 
 from planner.cache import BoundedCache
-from planner.leaf_templates import canonical_leaf
+from planner.solve.leaf_templates import canonical_leaf
 from planner.stl import Always, And, BoolConst, Eventually, Formula
 
 __all__ = [
@@ -63,7 +63,7 @@ def chunks_of(leaf: Formula, step: int, dt: float, per_segment: int) -> list[tup
     variable ``s_c`` (an equality row that touches only the decisions of the chunk's few
     segments) and the leaf as the log-sum-exp of its ``s_c``: the leaf's Hessian is block
     banded instead of dense over the whole horizon, and every chunk away from the start is
-    the same template (:mod:`planner.leaf_templates`), whichever pole it names.
+    the same template (:mod:`planner.solve.leaf_templates`), whichever pole it names.
     """
     if not isinstance(leaf, Eventually):
         return []

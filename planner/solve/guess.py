@@ -13,10 +13,10 @@ from typing import Any
 
 import numpy as np
 
-from planner.geometry import Place, keep_out, place
-from planner.limits import vehicle_bounds
-from planner.path_fit import fit_within_limits
+from planner.dynamics.limits import vehicle_bounds
 from planner.problem import Problem
+from planner.solve.path_fit import fit_within_limits
+from planner.spec.geometry import Place, keep_out, place
 from planner.stl import (
     Always,
     And,
@@ -96,7 +96,7 @@ def visit_targets(
 ) -> list[Place]:
     """The places ``vehicle`` must visit, in visiting order.
 
-    Whatever the spelling (:mod:`planner.geometry`). The clauses of the spec's conjunction
+    Whatever the spelling (:mod:`planner.spec.geometry`). The clauses of the spec's conjunction
     are visited by deadline (their horizon, earliest first); among clauses with the same
     deadline, and among a disjunction's options, the nearest route from where the vehicle
     is goes first (a greedy tour: "visit one target of each group" picks and orders them;
@@ -147,7 +147,7 @@ _HELD_M = 1e6
 
 def _avoided(formula: Formula, vehicle: str, problem: Problem) -> list[Place]:
     """The places the vehicle must always keep out of (``always`` keep-outs of the spec's
-    conjunction, whatever their spelling: :func:`planner.geometry.keep_out`)."""
+    conjunction, whatever their spelling: :func:`planner.spec.geometry.keep_out`)."""
     out: list[Place] = []
 
     def walk(node: Formula, always: bool) -> None:

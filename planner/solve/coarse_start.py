@@ -4,10 +4,10 @@
 program on a coarse model of the vehicles chooses the discrete structure of the spec (which
 option of each ``or``, which vehicle takes which task, the order and time of each visit,
 which side of each keep-out).  Its incumbent, straight lines between the coarse samples fitted
-within the vehicles' limits (:func:`planner.coarse_fit.waypoint_guess`), is the start the NLP
+within the vehicles' limits (:func:`planner.solve.coarse_fit.waypoint_guess`), is the start the NLP
 refines.  When the coarse program has no plan that meets the spec, a deletion filter names the
 clauses that conflict on the coarse model (:func:`planner.milp.find_conflict`), which
-:func:`planner.explain.needs` reports.
+:func:`planner.solve.explain.needs` reports.
 
 What the coarse model is: positions every ``dt_c`` seconds with the vehicles' limits as
 bounds on first and second differences, the predicates as linear margins (a cylinder as a
@@ -28,9 +28,9 @@ from typing import Any
 
 import numpy as np
 
-from planner.coarse_fit import waypoint_guess
 from planner.milp import CoarseResult, CoarseStatus, Conflict, find_conflict, solve_coarse
 from planner.problem import Problem
+from planner.solve.coarse_fit import waypoint_guess
 
 __all__ = ["BackgroundStage", "CoarseOutcome", "StageBeside", "coarse_budget_s", "coarse_start"]
 

@@ -18,10 +18,10 @@ one :class:`LeafTemplate` per shape, sample step and sharpness holds two CasADi 
 with ``z`` the leaf's vehicles' decisions that its window's samples use (per vehicle the
 rows of ``Z_v`` those samples depend on, axis after axis), ``x0`` their start states
 (``vec(X0_v)``) and ``b`` the regions' numbers (a box's ``lo_enu_m`` then ``hi_enu_m``; a
-prism's or cylinder's :meth:`planner.regions.Region.params`, its kind part of the key).  A
+prism's or cylinder's :meth:`planner.spec.regions.Region.params`, its kind part of the key).  A
 window ``[a, b]`` at a step is the same leaf from 0 at ``step + a``, and the template is keyed
 by its block of the sample matrices, so windows of the same width and phase share one
-wherever they lie (the chunks of a long ``eventually``, :func:`planner.leaves.chunks_of`).  Every
+wherever they lie (the chunks of a long ``eventually``, :func:`planner.solve.leaves.chunks_of`).  Every
 leaf of that shape is then a *call* of
 the same functions with its own arguments, so the symbolic work is done once per shape, not
 once per vehicle (power-line N = 4: 8 leaves, 2 shapes), and it is cached for the process
@@ -30,7 +30,7 @@ reuses it; a change of the smallest box's size changes the fitted sharpness and 
 templates.
 
 The box bounds entering as inputs rather than constants changes nothing in the values: the
-predicates (:func:`planner.predicates.casadi_functions`) are the same code, fed symbols.
+predicates (:func:`planner.spec.predicates.casadi_functions`) are the same code, fed symbols.
 """
 
 from __future__ import annotations
@@ -46,8 +46,8 @@ import casadi as ca
 import numpy as np
 
 from planner.cache import BoundedCache
-from planner.predicates import PREDICATES, build_registry
-from planner.regions import Region
+from planner.spec.predicates import PREDICATES, build_registry
+from planner.spec.regions import Region
 from planner.stl import Always, Call, Eventually, Expr, Formula
 
 __all__ = [
@@ -103,7 +103,7 @@ def _rebuild(node: Any, on_call: Callable[[Call], Call]) -> Any:
 
 def smoothing_terms(formula: Formula, regions: Any = None) -> float:
     """``log`` of the most margins a predicate called in ``formula`` smooths over (0 when
-    none does; :attr:`planner.predicates.PredicateKind.terms`, or with ``regions`` (a
+    none does; :attr:`planner.spec.predicates.PredicateKind.terms`, or with ``regions`` (a
     region source) the faces of the region it names): at sharpness ``k`` its smooth value is
     within ``that / k`` of the exact one, to add to the temporal bound
     (:meth:`Formula.smooth_error_bound`).  A call inside arithmetic
@@ -162,7 +162,7 @@ def canonical_leaf(leaf: Formula) -> tuple[str, tuple[str, ...], tuple[str, ...]
 
 @dataclass(frozen=True, slots=True)
 class _SymbolicRegions:
-    """A region source (:class:`planner.predicates.RegionSource`) whose boxes are symbols."""
+    """A region source (:class:`planner.spec.predicates.RegionSource`) whose boxes are symbols."""
 
     all_regions: tuple[Any, ...]
 

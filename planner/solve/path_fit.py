@@ -1,8 +1,8 @@
 """A trajectory of the planner's linear model fitted to a timed path, within the vehicle's
 velocity and acceleration limits and the workspace: per axis, a small QP
 (:func:`fit_within_limits`, DAQP through CasADi) over the pieces :func:`axis_fit` builds.
-The initial guess (:mod:`planner.guess`) and the combinatorial stage's start
-(:mod:`planner.coarse_fit`) both fit their paths with it.
+The initial guess (:mod:`planner.solve.guess`) and the combinatorial stage's start
+(:mod:`planner.solve.coarse_fit`) both fit their paths with it.
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ import casadi as ca
 import numpy as np
 
 from planner.cache import BoundedCache
-from planner.limits import vehicle_bounds
-from planner.nlp import limit_bounds, two_sided_rows
+from planner.dynamics.limits import vehicle_bounds
+from planner.solve.nlp import limit_bounds, two_sided_rows
 
 __all__ = ["AxisFit", "axis_fit", "fit_within_limits", "guess_qp"]
 

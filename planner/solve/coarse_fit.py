@@ -1,14 +1,14 @@
 """The combinatorial stage's plan as a start of the NLP: its waypoints fitted within the
 vehicles' limits as the NLP states them (:func:`waypoint_guess`).
 
-The initial guess (:func:`planner.guess._fitted`) fits each axis on its own, within a
+The initial guess (:func:`planner.solve.guess._fitted`) fits each axis on its own, within a
 per-axis box inside the horizontal speed and acceleration polygon (:meth:`Bounds.box`): 3.5
 m/s along x for a 5 m/s vehicle.  The coarse plan moves at up to the limits in any
 direction, so that box made its fit fall behind it: on the allocation mission one drone
 trailed its coarse plan by 23 m after 36 s of flight along the line, and the start was at
 -15.5 m where the coarse plan had +0.3.  Here the horizontal axes are fitted together,
-within the per-axis bounds and the :data:`planner.limits.NORM_DIRECTIONS` rows, the
-polygon the NLP itself keeps (:func:`planner.nlp.vehicle_limit_bounds`); the vertical axis
+within the per-axis bounds and the :data:`planner.dynamics.limits.NORM_DIRECTIONS` rows, the
+polygon the NLP itself keeps (:func:`planner.solve.nlp.vehicle_limit_bounds`); the vertical axis
 alone.
 """
 
@@ -19,10 +19,10 @@ from typing import Any
 
 import numpy as np
 
-from planner.limits import NORM_DIRECTIONS, vehicle_bounds
-from planner.path_fit import axis_fit, fit_within_limits, guess_qp
+from planner.dynamics.limits import NORM_DIRECTIONS, vehicle_bounds
 from planner.problem import Problem, Vehicle
-from planner.regions import Region
+from planner.solve.path_fit import axis_fit, fit_within_limits, guess_qp
+from planner.spec.regions import Region
 
 __all__ = ["waypoint_guess"]
 
@@ -33,7 +33,7 @@ def _fit_xy(
     """``Z`` (n_dec, 3) closest (least squares at the samples) to ``path`` (n, 3) among the
     trajectories within the NLP's limit rows (horizontal polygon included), at rest at the
     end when asked, in the workspace's box at the samples; None when the QP fails.  The
-    initial guess's per-axis pieces (:func:`planner.path_fit.axis_fit`) on the NLP's axis
+    initial guess's per-axis pieces (:func:`planner.solve.path_fit.axis_fit`) on the NLP's axis
     bounds, the three axes side by side, and the polygon's rows coupling x and y."""
     vel, acc = vehicle_bounds(vehicle)
     (vlo, vhi, vb), (alo, ahi, ab) = vel.linear(), acc.linear()
@@ -81,7 +81,7 @@ def waypoint_guess(
 
     Returns:
         the flat decision vector, vehicles in ``problem.vehicles`` order (as
-        :func:`planner.guess.initial_guess`).
+        :func:`planner.solve.guess.initial_guess`).
     """
     t_model = np.asarray(model.times_s, dtype=float)
     tq = np.clip(t_model, float(times_s[0]), float(times_s[-1]))

@@ -3,7 +3,7 @@
 A spec's ``or``, ``eventually``, ``until`` and ``implies`` are choices: which option, which
 time, which side.  The NLP's smooth robustness keeps every option alive (log-sum-exp), which
 is what lets it choose, and also what makes it slow and easy to pull away from a good plan.
-Once the combinatorial stage has chosen (:mod:`planner.coarse_start`), :func:`fixed_clauses`
+Once the combinatorial stage has chosen (:mod:`planner.solve.coarse_start`), :func:`fixed_clauses`
 reads its choices off a trajectory with the exact semantics and writes the spec as a
 conjunction of ``always[a, b] atom`` clauses: the option an ``or`` takes there, the step where
 an ``eventually`` peaks, the witness of an ``until``, the side of an ``implies`` that decides

@@ -15,9 +15,9 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from planner.leaf_templates import local_hessian
 from planner.problem import Problem, SolverMethod
-from planner.rowwise import SampleLeaf, block_hessian, block_jacobian
+from planner.solve.leaf_templates import local_hessian
+from planner.solve.rowwise import SampleLeaf, block_hessian, block_jacobian
 
 __all__ = [
     "MU_MAX",
@@ -101,7 +101,7 @@ def derivatives(
 
     ``rowwise[i]``, where given, is the i-th nonlinear block as one sample's leaf and the
     entries of ``w`` at its steps: its Jacobian and Hessian are then that sample's mapped over
-    the steps (:mod:`planner.rowwise`), not the block's differentiated whole, and they join
+    the steps (:mod:`planner.solve.rowwise`), not the block's differentiated whole, and they join
     the SX blocks' in MX functions, so that no SX graph of every step's derivatives is built
     (the 40-pole line: 21 s of symbolic derivatives and 18 s of SX functions of its 53 s
     build).

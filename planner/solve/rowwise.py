@@ -1,6 +1,6 @@
 """Derivatives of the row-wise leaves, differentiated once per leaf at one sample.
 
-A row-wise leaf of the NLP (:func:`planner.nlp.is_direct`: a predicate or a comparison,
+A row-wise leaf of the NLP (:func:`planner.solve.nlp.is_direct`: a predicate or a comparison,
 ``outside(d, pole7)``, ``dist(d1, d2) >= 1.5``) is the same function of the vehicles'
 positions at every constraint step: its rows at step ``j`` depend on the lifted positions of
 that step only.  Differentiating the whole block (every step at once) twice, as CasADi's
@@ -14,7 +14,7 @@ names (3 per vehicle, in the order of ``names``); its Jacobian ``J(x) = dv/dx`` 
 functions mapped over the steps (one ``rows x 3m`` / ``3m x 3m`` block per step) and
 scattered into the NLP's rows and variables, in MX: the NLP's derivative functions call the
 mapped functions instead of holding every step's expressions
-(:func:`planner.nlp_solvers.derivatives`).  The values are the same expressions, so IPOPT
+(:func:`planner.solve.nlp_solvers.derivatives`).  The values are the same expressions, so IPOPT
 sees the same numbers (checked against CasADi's own ``jacobian`` and ``hessian`` in
 ``tests/planner/test_rowwise.py``).
 """

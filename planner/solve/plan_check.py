@@ -14,10 +14,10 @@ import numpy as np
 
 from planner.checks import LimitReport
 from planner.dynamics import DoubleIntegrator, MinimumJerkChain
-from planner.heading import heading_signals
-from planner.nlp import is_direct
 from planner.problem import DynamicsModel, Problem
 from planner.results import ClauseReport, StartBound, Weakest
+from planner.solve.nlp import is_direct
+from planner.spec.heading import heading_signals
 from planner.stl import Formula, explanation
 from planner.trajectory import Trajectory
 
@@ -96,7 +96,7 @@ def dense_signals(
     problem: Problem, trajectories: Sequence[Trajectory], heading: bool = False
 ) -> dict[str, Any]:
     """Each vehicle's positions on the exact check's dense samples (every check_dt_s), with
-    ``heading`` also its yaw (:func:`planner.heading.heading_signals`)."""
+    ``heading`` also its yaw (:func:`planner.spec.heading.heading_signals`)."""
     return heading_signals(trajectories, dense_times(problem), heading)
 
 

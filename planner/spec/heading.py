@@ -1,6 +1,6 @@
 """The heading the spec asks for: where ``face(d, target)`` must hold, the vehicle faces it.
 
-The NLP plans positions only (``face`` is a constant in it: :mod:`planner.predicates`); the
+The NLP plans positions only (``face`` is a constant in it: :mod:`planner.spec.predicates`); the
 heading is derived from the planned positions here, and the exact check then evaluates
 ``face`` on it, so a plan never claims a view it does not have.
 
@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from planner.geometry import Place, place
-from planner.predicates import Role, role_of
+from planner.spec.geometry import Place, place
+from planner.spec.predicates import Role, role_of
 from planner.stl import Always, And, Call, Expr, Formula, Predicate
 from planner.trajectory import Trajectory, YawMode, YawPolicy
 

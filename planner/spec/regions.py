@@ -6,7 +6,7 @@ A region is an axis-aligned box (``lo_enu_m``/``hi_enu_m``), or a shape in any d
 
 * :class:`Prism`: a vertical prism over a convex polygon (a no-fly area, a right of way, an
   inspection box turned about the vertical: :meth:`Prism.oriented_box`); a polygon that is
-  not convex is read as convex parts that overlap (:func:`planner.cover.polygon_regions`),
+  not convex is read as convex parts that overlap (:func:`planner.spec.cover.polygon_regions`),
   each a region with :attr:`Region.part_of` its name;
 * :class:`Cylinder`: a vertical cylinder (a pole).
 
@@ -17,7 +17,7 @@ to the boundary; outside, minus the largest face violation (at most the Euclidea
 equal to it beside a face). A box's margin is what it was (the L-infinity one).
 
 Shared by the scenario reader (:mod:`planner.scenario`), the predicates
-(:mod:`planner.predicates`) and the plan files, with no dependency on any of them.
+(:mod:`planner.spec.predicates`) and the plan files, with no dependency on any of them.
 """
 
 from __future__ import annotations
@@ -80,7 +80,7 @@ class Prism:
 
     Attributes:
         vertices_xy: the polygon's corners, counter-clockwise, ``(m, 2)`` as tuples (empty for
-            the symbolic prisms of :mod:`planner.leaf_templates`).
+            the symbolic prisms of :mod:`planner.solve.leaf_templates`).
         normals_xy: the outward unit normal of each wall (wall ``i`` runs from corner ``i``
             to ``i + 1``), ``(m, 2)``.
         offsets_m: ``n_i . p <= offset_i`` inside each wall, ``(m,)``.
@@ -121,7 +121,7 @@ class Prism:
             raise ShapeError(
                 f"the polygon is not convex at corner {(i + 1) % len(v) + 1} "
                 f"({v[(i + 1) % len(v), 0]:g}, {v[(i + 1) % len(v), 1]:g}) (a prism is convex: "
-                f"planner.cover.polygon_regions reads one that is not as its convex parts)"
+                f"planner.spec.cover.polygon_regions reads one that is not as its convex parts)"
             )
         dots = np.einsum("ij,ij->i", edges, np.roll(edges, -1, axis=0))
         if np.sum(np.arctan2(cross, dots)) > 3.0 * np.pi:  # turns the same way, winds twice
@@ -197,7 +197,7 @@ class Region:
         lo_enu_m, hi_enu_m: the axis-aligned box; for a shaped region its bounding box.
         shape: ``None`` for a box; else the :class:`Prism` or :class:`Cylinder` it is.
         part_of: the name of the polygon that is not convex this is a convex part of
-            (:mod:`planner.cover`: the spec's ``inside`` of it is that of one of its parts);
+            (:mod:`planner.spec.cover`: the spec's ``inside`` of it is that of one of its parts);
             ``None`` for a region of its own.
     """
 
@@ -327,7 +327,7 @@ class Region:
         (x0, y0, _), (x1, y1, _) = self.lo_enu_m, self.hi_enu_m
         return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=float)
 
-    # -- the parameters of the planner's templates (planner.leaf_templates) -------------
+    # -- the parameters of the planner's templates (planner.solve.leaf_templates) -------------
 
     @property
     def signature(self) -> tuple[Any, ...]:

@@ -10,7 +10,7 @@ names the function resolves from the scenario or plan (:class:`RegionSource`).
 ``inside(d, box)``        Chebyshev (L-infinity) margin to the box boundary:
                           ``min_i min(p_i - lo_i, hi_i - p_i)``; > 0 strictly inside,
                           = distance to the nearest face; < 0 outside.  Any region:
-                          the smallest face margin (:meth:`planner.regions.Region.margin`:
+                          the smallest face margin (:meth:`planner.spec.regions.Region.margin`:
                           a prism's walls, floor and roof; a cylinder's mantle
                           ``r - |p_xy - c|``, floor and roof).
 ``outside(d, box)``       ``max_i max(lo_i - p_i, p_i - hi_i)``; > 0 outside (the
@@ -41,17 +41,17 @@ so a smooth margin >= 0 implies an exact margin >= 0:
 * ``dist``: ``sqrt(|p1 - p2|^2 + delta^2) - delta`` with ``delta = 1e-4`` m; lies in
   ``[exact - delta, exact]`` and is smooth where the exact distance is not (at 0).
 * ``face``: ``FACE_NLP_M`` (a constant far above any margin): the heading is not a decision
-  of the NLP; :mod:`planner.heading` derives it from the plan (facing the target wherever
+  of the NLP; :mod:`planner.spec.heading` derives it from the plan (facing the target wherever
   the spec asks), and the exact check decides.
 
 ``k`` here is the *predicate* sharpness (1/m), fitted by :func:`predicate_sharpness` so that
 the bound ``log(faces)/k`` (6 for boxes) is 10 % of the smallest region half-size (measured: 2 % made
 the obstacle margins so sharp that IPOPT stalled inside the obstacle on reach-avoid).
 A box is the conjunction (disjunction) of its six face half-spaces.  The planner's second,
-sharp solve (:func:`planner.refine.sharpen`, when a plan's margin is within that 10 %)
+sharp solve (:func:`planner.solve.refine.sharpen`, when a plan's margin is within that 10 %)
 smooths a box in a smooth leaf (a formula under ``eventually``, ``or``, ``until``) as that
 conjunction would be: at the leaf's own sharpness, with its ``log(6)/k`` counted in the
-leaf's error bound (:func:`planner.leaf_templates.smoothing_terms`).  ``inside(d, box)`` and
+leaf's error bound (:func:`planner.solve.leaf_templates.smoothing_terms`).  ``inside(d, box)`` and
 the same box spelled as six comparisons then give the same NLP.
 """
 
@@ -65,7 +65,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from planner.regions import Cylinder, Prism, Region
+from planner.spec.regions import Cylinder, Prism, Region
 from planner.stl import Call, EvaluationError, Expr, Formula, FunctionRegistry, Predicate
 
 __all__ = [
@@ -108,7 +108,7 @@ class Role(enum.Enum):
     #: ``x(d)``, ``y(d)``, ``z(d)``, ``alt(d)``: one coordinate of a vehicle.
     COORDINATE = "coordinate"
     #: ``face(d, target)``: the vehicle's heading; derived after the NLP
-    #: (:mod:`planner.heading`), a constant in it.
+    #: (:mod:`planner.spec.heading`), a constant in it.
     HEADING = "heading"
 
 
@@ -175,13 +175,13 @@ def predicate_sharpness(problem: RegionSource) -> float:
 
 def box_margins(pos_enu_m: np.ndarray, region: Region) -> np.ndarray:
     """Signed face margins of points to a region, shape (n, faces); a box's ``p - lo`` then
-    ``hi - p`` (:meth:`planner.regions.Region.face_margins`)."""
+    ``hi - p`` (:meth:`planner.spec.regions.Region.face_margins`)."""
     return region.face_margins(pos_enu_m)
 
 
 def box_margin(pos_enu_m: np.ndarray, region: Region) -> np.ndarray:
     """The region's margin at each point, shape (n,): the smallest face margin
-    (:meth:`planner.regions.Region.margin`)."""
+    (:meth:`planner.spec.regions.Region.margin`)."""
     return region.margin(pos_enu_m)
 
 
@@ -197,7 +197,7 @@ def ca_box_margins(pos: Any, region: Region) -> Any:
     ``DIST_DELTA_M`` below.
 
     The numbers may be CasADi symbols (the planner's leaf templates,
-    :mod:`planner.leaf_templates`, take regions as inputs: :meth:`Region.symbolic`)."""
+    :mod:`planner.solve.leaf_templates`, take regions as inputs: :meth:`Region.symbolic`)."""
     import casadi as ca
 
     n = pos.shape[0]

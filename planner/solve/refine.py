@@ -12,9 +12,9 @@ from typing import Any
 
 import numpy as np
 
-from planner.nlp import STRUCTURES, Structure, build_structure, structure_key
 from planner.problem import Problem
-from planner.solver_runs import (
+from planner.solve.nlp import STRUCTURES, Structure, build_structure, structure_key
+from planner.solve.solver_runs import (
     Attempt,
     SigintWatch,
     SolverRun,
@@ -172,7 +172,7 @@ def sharpen(
     on_iteration: Callable[[np.ndarray, float], None] | None,
 ) -> tuple[Structure, Attempt, dict[str, np.ndarray], float] | None:
     """Solve again from ``best`` with the smooth leaves' box predicates at the leaves' own
-    sharpness (:func:`planner.nlp.build_structure` with ``sharp``: a box is smoothed exactly as its
+    sharpness (:func:`planner.solve.nlp.build_structure` with ``sharp``: a box is smoothed exactly as its
     faces spelled as comparisons would be); the structure, the attempt, its bounds and the
     seconds its build took if that is better in exact robustness, else ``None``.
 

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.nlp import Structure
+from planner.solve.nlp import Structure
 
 __all__ = [
     "EPS_MARGIN_STEP_M",
@@ -160,7 +160,7 @@ def run_solvers(
     previous one's primal-dual point, until one is interrupted (``stop``).  ``bounds`` are
     read at call time (``lbx`` may change between calls).  ``refine``: ``w0`` meets the
     mission (or the constraints of :func:`raise_the_rest`), and the solvers that refine
-    such a start run (``planner.nlp_solvers.MU_MAX``)."""
+    such a start run (``planner.solve.nlp_solvers.MU_MAX``)."""
     iterations = 0
     solver_s = eval_s = 0.0
     status = "not solved"

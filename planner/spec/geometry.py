@@ -3,7 +3,7 @@
 A *place* of vehicle ``d`` is a convex polytope ``{p : A p <= b}`` in its position, read from
 any formula that means one:
 
-* ``inside(d, R)`` (the region's faces: :meth:`planner.regions.Region.half_spaces`),
+* ``inside(d, R)`` (the region's faces: :meth:`planner.spec.regions.Region.half_spaces`),
   ``not outside(d, R)``;
 * a comparison affine in ``d``'s coordinates: ``x(d) >= 3``, ``-y(d) <= 2``,
   ``x(d) + y(d) <= 5``, ``z(d) - 1 > 0`` (found by evaluating the comparison's exact margin,
@@ -14,7 +14,7 @@ any formula that means one:
 A *keep-out* is a formula whose negation is a place: ``outside(d, R)``, a disjunction of
 half-planes of one vehicle (stlpy's ``outside_rectangle_formula``), ``not inside(d, R)``.
 
-The initial guess (:mod:`planner.guess`) routes each vehicle through its places (a target
+The initial guess (:mod:`planner.solve.guess`) routes each vehicle through its places (a target
 point deep inside: the centre of an axis-aligned box, the Chebyshev centre of any other
 polytope) and around its keep-outs. The NLP writes every leaf as it is; only the guess needs
 the geometry.
@@ -28,8 +28,8 @@ from typing import Any
 import numpy as np
 
 from planner.cache import BoundedCache
-from planner.predicates import Role, role_of
-from planner.regions import chebyshev_ball
+from planner.spec.predicates import Role, role_of
+from planner.spec.regions import chebyshev_ball
 from planner.stl import And, Comparison, Formula, Not, Or, Predicate
 
 __all__ = ["Place", "keep_out", "place"]

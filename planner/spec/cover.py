@@ -1,6 +1,6 @@
 """A polygon that is not convex as convex parts that overlap: what ``inside`` of it means.
 
-The planner's regions are convex (:class:`planner.regions.Prism`): their margin is the
+The planner's regions are convex (:class:`planner.spec.regions.Prism`): their margin is the
 smallest of their wall margins, linear in the position, and the initial guess routes through
 them as polytopes.  A right of way with a bend, an L-shaped no-fly area, is not.  Such a
 polygon ``P`` is read as convex parts ``C_1 .. C_k`` whose union is ``P``, and ``inside(d, P)``
@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.regions import Prism, Region, RegionKind, ShapeError
+from planner.spec.regions import Prism, Region, RegionKind, ShapeError
 
 __all__ = [
     "MAX_PARTS",
