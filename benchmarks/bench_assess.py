@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from gcs.assess import AssessOptions, assess, replay
-from gcs.assess_replay import fly_realtime
+from gcs.assess.rerun import fly_realtime
 from planner.optimize import plan as make_plan
 from planner.scenario import load_scenario
 

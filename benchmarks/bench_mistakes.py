@@ -115,7 +115,7 @@ def main() -> None:
                     "line": line,
                 }
             )
-    from gcs.landing import landing_points
+    from gcs.flight.landing import landing_points
     from planner import scenario
     from planner.planfile import load_plan
 

@@ -299,7 +299,7 @@ def _calibration(seeds: int) -> dict:  # type: ignore[type-arg]
                 [r["flown_robustness"] for r in pl_now if r.get("flown_robustness")],
             ),
         ]
-        from gcs.missions import convert_plan
+        from gcs.flight.missions import convert_plan
         from mavlink.mission import MissionEnd
         from planner.planfile import load_plan
 

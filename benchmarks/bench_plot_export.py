@@ -18,10 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from gcs.clause_traces import clause_traces
 from gcs.export import ExportFormat, write_export
-from gcs.figure import figure_png, render_figure
 from gcs.plot import html_report
+from gcs.plot.figure import figure_png, render_figure
+from gcs.plot.traces import clause_traces
 from planner.frames import GeodeticPoint
 from planner.planfile import Plan, PlannedVehicle, save_plan
 from planner.spec.regions import Region, RegionKind

@@ -116,7 +116,7 @@ def missions(plan: Path, seeds: list[int], *params: str) -> list[dict]:  # type:
 def uploads(runs: int) -> list[dict]:  # type: ignore[type-arg]
     """gcs upload --fence --start (a subprocess) against px4 mocks on the ground below the
     stored plan's starts (in a thread of this process, a new boot each run)."""
-    from gcs.dryrun import mock_vehicles
+    from gcs.flight.dryrun import mock_vehicles
     from planner.planfile import load_plan
 
     plan = load_plan(LINK_PLAN)

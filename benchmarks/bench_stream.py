@@ -24,7 +24,7 @@
    send LOCAL_POSITION_NED at 30 Hz (hovering on a grid), and the stream runs beside the
    safety monitor (:class:`mavlink.monitor.SafetyMonitor`, 20 Hz, 0.5 s prediction, the
    reach-avoid invariants of every vehicle and every pair: 2,080 clauses at N = 64) and the
-   progress view (:class:`gcs.progress.FlightProgress`, a terminal's 4 updates a second over
+   progress view (:class:`gcs.flight.progress.FlightProgress`, a terminal's 4 updates a second over
    every clause of the whole horizon), as ``gcs fly`` runs them. The same limits apply
    (p99 lateness <= 5 ms, no missed setpoint).
 5. The monitor's decision latency at the largest flight size: mid-flight the sink moves
@@ -54,8 +54,8 @@ from mavsdk.asyncio import System as AsyncSystem
 from mavsdk.asyncio.plugins.offboard import OffboardAsync
 from mavsdk.plugins.offboard import AccelerationNed, PositionNedYaw, VelocityNedYaw
 
-from gcs.evaluation import plan_formula
-from gcs.progress import FlightClock, FlightProgress
+from gcs.flight.evaluation import plan_formula
+from gcs.flight.progress import FlightClock, FlightProgress
 from mavlink.fleet import Fleet
 from mavlink.mission import MissionEnd, trajectory_to_mission, upload_and_verify
 from mavlink.mock.fleet import MockFleet

@@ -189,7 +189,7 @@ def verify_telemetry(plan: Any, telemetry: Any, dt_s: float | None = None) -> li
         telemetry: a :class:`gcs.telemetry.Telemetry` (flown ENU paths by vehicle name).
         dt_s: check step (default: the plan's ``check_dt_s``).
     """
-    from gcs.evaluation import heading_readers
+    from gcs.flight.evaluation import heading_readers
     from mavlink.tracks import NO_HEADING
     from planner.planfile import plan_formula
 

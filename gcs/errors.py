@@ -6,7 +6,7 @@ Exception tree::
       UserError                   bad input from the user: one line, exit 2
         InputFileError            a file that is missing, unreadable or malformed
       gcs.flight.FlightRefused    a check before the flight failed (exit 1)
-      gcs.mission_flight.MissionRefused   the predicted mission misses the spec (exit 1)
+      gcs.flight.mission.MissionRefused   the predicted mission misses the spec (exit 1)
 
 Exit statuses (one meaning each; README "Exit statuses"): :data:`EXIT_OK` 0,
 :data:`EXIT_CHECK_FAILED` 1 (a check failed or the mission was not met),

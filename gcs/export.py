@@ -3,13 +3,13 @@
 QGroundControl plan (one file per vehicle)
 ------------------------------------------
 The mission items are those ``gcs upload`` sends to a vehicle with PX4's default parameters:
-:func:`gcs.missions.convert_plan` converts the vehicles' trajectories (takeoff, waypoints with
+:func:`gcs.flight.missions.convert_plan` converts the vehicles' trajectories (takeoff, waypoints with
 hold times, a speed change per leg, land/return/hold; the acceptance radius chosen and the legs
 timed against PX4's predicted flight, as ``gcs upload`` does with the vehicles' own
 parameters), and this module only writes each item in QGC's JSON form, so QGC (and
 MAVSDK's importer, ``mission_raw.import_qgroundcontrol_mission``) read back the same
 ``MISSION_ITEM_INT`` fields. The geofence polygons and circles are the link's fence items
-of ``gcs upload --fence`` (:func:`gcs.missions.fence_plan`: the workspace moved out by
+of ``gcs upload --fence`` (:func:`gcs.flight.missions.fence_plan`: the workspace moved out by
 PX4's braking distance, full-height stay-out regions exact). Layout (QGC plan format,
 ``fileType`` "Plan" version 1)::
 
@@ -41,7 +41,7 @@ Choices and why:
   ``z = 0``, the origin's AMSL altitude), where the vehicle is armed.
 * ``hoverSpeed`` / ``cruiseSpeed`` (QGC's defaults for time estimates) are the mean commanded
   leg speed; the legs themselves carry their own ``DO_CHANGE_SPEED``.
-* The fence is what ``gcs upload --fence`` sends (:func:`gcs.missions.fence_plan`): the
+* The fence is what ``gcs upload --fence`` sends (:func:`gcs.flight.missions.fence_plan`): the
   workspace's footprint moved out by PX4's braking distance as inclusion, the full-height
   obstacles', poles' and no-fly zones' footprints as exclusions: a box a 4-vertex polygon, a
   prism the polygon of its corners, a cylinder a circle (QGC's ``circles``). The link sends
@@ -151,11 +151,11 @@ class QgcOptions:
 
     Attributes:
         acceptance_radius_m: NAV_WAYPOINT acceptance radius (param2), > 0; ``None``: chosen
-            (:func:`gcs.missions.auto_acceptance_m`).
+            (:func:`gcs.flight.missions.auto_acceptance_m`).
         end: what the mission ends with (land, return, hold).
         fence: write the geofence polygons.
         photo_interval_s: time between pictures where the plan faces an inspection target
-            (camera and gimbal items: :mod:`gcs.payload`); 0: none.
+            (camera and gimbal items: :mod:`gcs.flight.payload`); 0: none.
     """
 
     acceptance_radius_m: float | None = None
@@ -247,8 +247,8 @@ def _fence_qgc(items: Sequence[MissionItem]) -> tuple[list[dict[str, Any]], list
 
 def qgc_missions(plan: Plan, options: QgcOptions | None = None) -> dict[str, MissionPlan]:
     """Every vehicle's mission as ``gcs upload`` converts it for PX4's default parameters."""
-    from gcs.missions import convert_plan
-    from gcs.payload import capture_spans
+    from gcs.flight.missions import convert_plan
+    from gcs.flight.payload import capture_spans
     from mavlink.mission import MissionEnd
 
     opts = options if options is not None else QgcOptions()
@@ -269,7 +269,7 @@ def qgc_plan(
 ) -> dict:
     """The QGroundControl plan (a JSON-ready dict) of one vehicle of ``plan`` (``missions``:
     :func:`qgc_missions`, computed here when not given)."""
-    from gcs.missions import fence_plan
+    from gcs.flight.missions import fence_plan
     from planner.frames import enu_to_geodetic
 
     opts = options if options is not None else QgcOptions()

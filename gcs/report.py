@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 from gcs.errors import InputFileError
 
 if TYPE_CHECKING:
-    from gcs.outcome import FlightOutcome
+    from gcs.flight.outcome import FlightOutcome
     from planner.planfile import Plan
 
 __all__ = ["report_markdown", "write_report"]

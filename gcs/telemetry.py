@@ -4,8 +4,8 @@
 among them).
 
 A room of its own because reading a file is not drawing: ``gcs plot --telemetry`` and
-``gcs verify --telemetry`` both read flown data here, and :mod:`gcs.clause_traces` and
-:mod:`gcs.figure` only consume what it returns.
+``gcs verify --telemetry`` both read flown data here, and :mod:`gcs.plot.traces` and
+:mod:`gcs.plot.figure` only consume what it returns.
 
 Telemetry (``--telemetry``): a CSV file with a header line and at least the columns
 ``t,vehicle,x,y,z``: time in seconds from the plan's start, the vehicle name of the plan,

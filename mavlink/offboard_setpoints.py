@@ -75,7 +75,7 @@ class OffboardConfig:
         end_action: hold, land or return to launch afterwards.
         land_at: with ``end_action`` LAND, per vehicle name a point ``(lat_deg, lon_deg,
             alt_amsl_m)`` to fly to first (at the altitude given) and land at, where landing
-            straight down would not be safe (:mod:`gcs.landing`); others land where they are.
+            straight down would not be safe (:mod:`gcs.flight.landing`); others land where they are.
         land_goto_timeout_s: time allowed to reach that point (plus 1 s per metre away);
             a vehicle that does not arrive is left holding, and the end action is reported
             failed for it.

@@ -7,7 +7,7 @@ once the vehicle has settled on its start. Each raises :class:`PreflightError` n
 vehicle.
 
 A room of its own because both :func:`mavlink.offboard.fly_offboard` and the mission
-flight (``gcs.mission_flight``) run these checks, before anything is armed or streamed.
+flight (``gcs.flight.mission``) run these checks, before anything is armed or streamed.
 """
 
 from __future__ import annotations

@@ -98,7 +98,7 @@ def parse_param_overrides(items: list[str], flag: str) -> dict[str, float]:
 
 def add_photo_argument(p: argparse.ArgumentParser) -> None:
     """``--photo-interval``: the camera's pictures where the plan faces an inspection target
-    (:mod:`gcs.payload`), declared once for ``gcs fly``, ``gcs upload`` and ``gcs export``."""
+    (:mod:`gcs.flight.payload`), declared once for ``gcs fly``, ``gcs upload`` and ``gcs export``."""
     p.add_argument(
         "--photo-interval",
         type=float,

@@ -32,7 +32,7 @@ from gcs.commands import parse_param_overrides
 
 if TYPE_CHECKING:
     from gcs.assess import CampaignProgress
-    from gcs.assess_stats import AssessResult
+    from gcs.assess.stats import AssessResult
     from planner.planfile import Plan
 
 HELP = "fly a plan many times under drawn disturbances: P(spec holds), clauses, worst runs"
@@ -138,7 +138,7 @@ class _Progress:
         self._next = 0.1
 
     def __call__(self, p: CampaignProgress) -> None:
-        from gcs.assess_stats import clopper_pearson
+        from gcs.assess.stats import clopper_pearson
 
         lo, hi = clopper_pearson(p.holds, p.done)
         line = (
@@ -251,7 +251,7 @@ def _write_reports(out_dir: Path, plan: Plan, opts: Any, result: AssessResult) -
     import numpy as np
 
     from gcs.assess import replay
-    from gcs.assess_figure import plot_assessment
+    from gcs.assess.figure import plot_assessment
 
     out_dir.mkdir(parents=True, exist_ok=True)
     report = out_dir / "report.json"
@@ -269,7 +269,7 @@ def _write_reports(out_dir: Path, plan: Plan, opts: Any, result: AssessResult) -
 def run(args: argparse.Namespace) -> int:
     """Assess; see the module docstring for the exit statuses."""
     from gcs.assess import assess, replay
-    from gcs.assess_replay import fly_realtime, write_replay_csv
+    from gcs.assess.rerun import fly_realtime, write_replay_csv
     from gcs.errors import EXIT_INTERRUPTED, UserError
     from planner.planfile import load_plan
 

@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, TextIO
 from gcs.commands import add_mock_vehicle_arguments, parse_param_overrides
 
 if TYPE_CHECKING:
-    from gcs.outcome import FlightOutcome
+    from gcs.flight.outcome import FlightOutcome
     from planner.planfile import Plan
 
 HELP = "plan the power-line inspection, fly it on 4 mock PX4 vehicles and write a report"
@@ -123,13 +123,13 @@ def run_demo(
         progress: where the flight's status line goes (``None``: silent).
         scenario: the scenario file (default ``configs/powerline_inspection.yaml``).
         force: fly a plan that fails verification (mock vehicles only, for inspection).
-        profile, seed, mock_params: the mock vehicles (:func:`gcs.dryrun.mock_vehicles`).
+        profile, seed, mock_params: the mock vehicles (:func:`gcs.flight.dryrun.mock_vehicles`).
     """
-    from gcs.dryrun import mock_vehicles
     from gcs.errors import InputFileError
     from gcs.flight import FlightRefused, FlyOptions, fly_plan, preflight_interlock, vehicle_specs
+    from gcs.flight.dryrun import mock_vehicles
+    from gcs.flight.progress import FlightProgress
     from gcs.plot import plot_plan
-    from gcs.progress import FlightProgress
     from gcs.report import write_report
     from gcs.telemetry import Telemetry
     from planner.optimize import plan as solve

@@ -105,7 +105,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Fly; see the module docstring for the exit statuses."""
-    from gcs.dryrun import mock_vehicles
     from gcs.errors import EXIT_INTERRUPTED, UserError
     from gcs.flight import (
         FlightRefused,
@@ -115,9 +114,10 @@ def run(args: argparse.Namespace) -> int:
         signed_links,
         vehicle_specs,
     )
-    from gcs.mission_flight import MissionRefused
-    from gcs.outcome import FlightMode, FlightOutcome, format_outcome, outcome_json
-    from gcs.progress import FlightProgress
+    from gcs.flight.dryrun import mock_vehicles
+    from gcs.flight.mission import MissionRefused
+    from gcs.flight.outcome import FlightMode, FlightOutcome, format_outcome, outcome_json
+    from gcs.flight.progress import FlightProgress
     from mavlink.errors import PreflightError
     from mavlink.offboard_setpoints import EndAction
     from planner.planfile import load_plan
@@ -142,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
     out = sys.stderr if args.json else sys.stdout
     if args.end == "land":
         # where landing straight down would meet a keep-out, somewhere clear (or refused)
-        from gcs.landing import landing_lines
+        from gcs.flight.landing import landing_lines
 
         for line in landing_lines(plan):
             print(line, file=out)

@@ -264,7 +264,7 @@ def run(args: argparse.Namespace) -> int:
             progress_every_s=1.0 if sys.stderr.isatty() else 10.0,
         )
     save_plan(out, result, scenario_path=str(args.scenario))
-    from gcs.tuning import px4_notes
+    from gcs.flight.tuning import px4_notes
     from planner.planfile import load_plan
 
     notes = px4_notes(load_plan(out)) if result.success else []

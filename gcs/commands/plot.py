@@ -7,7 +7,7 @@ planned when telemetry is given (see :mod:`gcs.plot`). ``.html`` output embeds t
 adds a table of clause robustness, and in the map view the map to pan and zoom.
 
 ``--view auto`` (the default) draws the map when the workspace is at least 200 m across
-its diagonal (:data:`gcs.map_view.MAP_FROM_M`), the 3-D view otherwise.
+its diagonal (:data:`gcs.plot.map_view.MAP_FROM_M`), the 3-D view otherwise.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from gcs.map_view import MAP_FROM_M, View
+from gcs.plot.map_view import MAP_FROM_M, View
 
 HELP = (
     "draw a plan: regions and paths (3-D or map), clause robustness over time, speed/acceleration"

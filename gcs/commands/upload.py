@@ -54,7 +54,7 @@ from gcs.commands import add_link_arguments, add_photo_argument, photo_interval
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-    from gcs.missions import FencePlan, MissionConversion
+    from gcs.flight.missions import FencePlan, MissionConversion
     from mavlink.fleet import Fleet
     from mavlink.mission import MissionItem, MissionPlan, MissionStart, TransferProgress
     from mavlink.vehicle import Vehicle
@@ -275,20 +275,20 @@ async def upload_plan(
     Each vehicle's transfers are retried on a bad link within ``budget_s`` for all of them
     (mission and fence); ``progress`` gets every step (:class:`TransferProgress`). Where the
     plan faces an inspection target the missions take pictures every ``photo_interval_s``
-    (:mod:`gcs.payload`; 0: none).
+    (:mod:`gcs.flight.payload`; 0: none).
 
     Raises:
         mavlink.errors.ConnectTimeoutError: a vehicle never answered.
         mavlink.errors.PreflightError: with ``start``, a vehicle too far from its start.
-        gcs.mission_flight.MissionRefused: with ``start``, the predicted mission robustness
+        gcs.flight.mission.MissionRefused: with ``start``, the predicted mission robustness
             is below epsilon (and not ``force``); nothing was uploaded.
     """
     from dataclasses import replace
 
-    from gcs.mission_flight import MissionRefused, prediction_params, read_nav_params
-    from gcs.missions import convert_plan_apart, fence_plan
-    from gcs.payload import capture_spans
-    from gcs.tuning import read_tuning
+    from gcs.flight.mission import MissionRefused, prediction_params, read_nav_params
+    from gcs.flight.missions import convert_plan_apart, fence_plan
+    from gcs.flight.payload import capture_spans
+    from gcs.flight.tuning import read_tuning
     from mavlink.fleet import Fleet
     from mavlink.mission import MissionEnd
 
@@ -364,7 +364,7 @@ def run(args: argparse.Namespace) -> int:
     1 when a check refused it, 3 when a vehicle failed it."""
     from gcs.errors import EXIT_CHECK_FAILED, EXIT_OK, EXIT_VEHICLE_FAILED, UserError
     from gcs.flight import FlightRefused, preflight_interlock, signed_links, vehicle_specs
-    from gcs.mission_flight import MissionRefused
+    from gcs.flight.mission import MissionRefused
     from mavlink.errors import PreflightError
     from planner.planfile import load_plan
 
@@ -389,8 +389,8 @@ def run(args: argparse.Namespace) -> int:
     if args.fence_action is not None and not args.fence:
         raise UserError("--fence-action: applies with --fence only")
     if args.end == "land":
-        # the missions land clear of the keep-outs (gcs.landing), or the upload is refused
-        from gcs.landing import landing_lines
+        # the missions land clear of the keep-outs (gcs.flight.landing), or the upload is refused
+        from gcs.flight.landing import landing_lines
 
         for line in landing_lines(plan):
             print(line, file=sys.stderr)

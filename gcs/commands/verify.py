@@ -17,7 +17,7 @@ hole could hide a violation), and every top-level clause must hold on the flown 
 (exact robustness >= 0 on the check grid).
 
 Where the spec asks a vehicle to face an inspection target (``face(d, T)``), the flight's
-pictures are checked too (:mod:`gcs.coverage`): every target pictured at least once from
+pictures are checked too (:mod:`gcs.plot.coverage`): every target pictured at least once from
 within its inspection place with the view within face's tolerance, one check per target.
 The pictures come from the ``.tlog`` (CAMERA_IMAGE_CAPTURED) or from the flight's image log
 (``--images images.csv``, which ``gcs fly --log`` writes).
@@ -63,7 +63,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Verify; 0 if every check holds, 1 otherwise."""
-    from gcs.coverage import coverage_checks, coverage_json, coverage_lines
+    from gcs.plot.coverage import coverage_checks, coverage_json, coverage_lines
     from gcs.telemetry import load_telemetry
     from planner.planfile import load_plan
 
@@ -124,7 +124,7 @@ def _coverage(plan: Any, args: argparse.Namespace) -> Any:
     """
     from pathlib import Path
 
-    from gcs.coverage import compute_coverage
+    from gcs.plot.coverage import compute_coverage
     from gcs.telemetry import load_images
     from mavlink.camera import images_from_tlog
 

@@ -231,7 +231,7 @@ def trajectory_to_mission(
         end: land, return to launch, or hold at the last waypoint.
         name: vehicle name (default the trajectory's).
         leg_speed_m_s: the DO_CHANGE_SPEED of each leg instead of its length / duration
-            (:func:`gcs.missions.convert_plan` times them so PX4 keeps the plan's clock);
+            (:func:`gcs.flight.missions.convert_plan` times them so PX4 keeps the plan's clock);
             the path and the planned arrival times stay the plan's.
         pass_lag_s: the vehicle's lag behind its setpoint (s). A waypoint flown through
             (no hold, a turn under 30 degrees) gets the radius ``lag * speed + R / 2`` if
@@ -241,7 +241,7 @@ def trajectory_to_mission(
         land_at_enu_m: with ``end`` LAND, land here (east, north; the mission frame)
             instead of below the last point: a NAV_WAYPOINT there at the last point's
             altitude, then the NAV_LAND (a multicopter's NAV_LAND descends on its way to
-            its position); :mod:`gcs.landing` picks the point clear of keep-outs.
+            its position); :mod:`gcs.flight.landing` picks the point clear of keep-outs.
         captures: where the camera takes pictures (:class:`CaptureSpan`; module docstring).
 
     Raises:

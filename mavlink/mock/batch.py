@@ -204,7 +204,7 @@ def prepare(
     """The shared part of a plan's runs (see :class:`SimSetup`).
 
     Each vehicle spawns on the ground below its planned start (as in a dry run,
-    :func:`gcs.dryrun.ground_spawns`); ``drag_per_s`` ``None`` feeds forward the vehicle's
+    :func:`gcs.flight.dryrun.ground_spawns`); ``drag_per_s`` ``None`` feeds forward the vehicle's
     own drag (SIH_KDV / SIH_MASS), as ``gcs fly`` does after reading it from the vehicle.
 
     Raises:

@@ -57,7 +57,7 @@ class RegionKind(enum.Enum):
 
 #: Kinds of region no vehicle may ever be inside of, whatever the spec says: where it
 #: may not start (:mod:`planner.scenario.checks`) and not descend or fly through when it
-#: lands (:mod:`gcs.landing`).
+#: lands (:mod:`gcs.flight.landing`).
 KEEP_OUT_KINDS = frozenset(
     {RegionKind.OBSTACLE, RegionKind.NO_FLY, RegionKind.POLE, RegionKind.CONDUCTOR}
 )

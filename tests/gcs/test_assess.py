@@ -15,9 +15,9 @@ from scipy.stats import binom
 
 from gcs import cli
 from gcs.assess import AssessOptions, assess, evaluate_batch, replay
-from gcs.assess_stats import clopper_pearson
+from gcs.assess.stats import clopper_pearson
 from gcs.errors import UserError
-from gcs.evaluation import plan_formula
+from gcs.flight.evaluation import plan_formula
 from mavlink.mock.batch import prepare, run_seed, simulate
 from mavlink.mock.disturbances import parse_disturbances
 from planner.planfile import Plan, load_plan
@@ -244,7 +244,7 @@ def test_the_assessment_picture_draws_each_region_as_seen_from_above(
 
     import matplotlib.patches
 
-    from gcs.assess_figure import plot_assessment
+    from gcs.assess.figure import plot_assessment
     from planner.spec.regions import Cylinder, Prism, Region, RegionKind
 
     turned = Prism.oriented_box((2.0, -2.0, 1.5), (0.8, 0.2, 1.5), math.radians(40.0))

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from gcs.assess import AssessOptions, evaluate_batch, replay
-from gcs.assess_replay import fly_realtime
+from gcs.assess.rerun import fly_realtime
 from planner.planfile import load_plan
 
 pytestmark = pytest.mark.slow

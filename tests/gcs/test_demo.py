@@ -16,7 +16,7 @@ import pytest
 
 from gcs.cli import main
 from gcs.commands.demo import SCENARIO, find_config
-from gcs.evaluation import plan_formula
+from gcs.flight.evaluation import plan_formula
 from gcs.telemetry import load_telemetry
 from planner.planfile import load_plan
 

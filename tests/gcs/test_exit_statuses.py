@@ -13,7 +13,6 @@ from pathlib import Path
 import pytest
 
 from gcs.cli import main
-from gcs.dryrun import mock_vehicles
 from gcs.errors import (
     EXIT_BAD_INPUT,
     EXIT_CHECK_FAILED,
@@ -21,6 +20,7 @@ from gcs.errors import (
     GcsError,
     exit_status_of,
 )
+from gcs.flight.dryrun import mock_vehicles
 from mavlink.errors import LinkError
 from mavlink.mock.errors import MockError
 from mavlink.mock.px4 import Px4Mode

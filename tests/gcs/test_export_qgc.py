@@ -1,7 +1,7 @@
 """QGroundControl export: golden structure, and a round trip through MAVSDK's QGC importer.
 
 The reference for the mission items is the link's own conversion
-(:func:`gcs.missions.convert_plan`, what ``gcs upload`` sends for PX4 defaults); the reader is the
+(:func:`gcs.flight.missions.convert_plan`, what ``gcs upload`` sends for PX4 defaults); the reader is the
 real MAVSDK 4.1 C++ importer (``mission_raw.import_qgroundcontrol_mission_from_string``),
 reached in-process: a ``raw://`` connection is fed one PX4 HEARTBEAT (encoded by pymavlink),
 which makes MAVSDK discover a System that the mission_raw plugin can be created on. No
@@ -23,7 +23,7 @@ import pytest
 
 from gcs import cli
 from gcs.export import QgcOptions, qgc_plan
-from gcs.missions import convert_plan, fence_plan
+from gcs.flight.missions import convert_plan, fence_plan
 from mavlink.mission import (
     Cmd,
     MissionEnd,
@@ -337,7 +337,7 @@ def test_planned_scenario_plots_verifies_and_exports_round_trip(
     importer: Importer, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """gcs plan -> gcs verify --json -> gcs plot (HTML) -> gcs export qgc -> MAVSDK import."""
-    from gcs.clause_traces import clause_traces
+    from gcs.plot.traces import clause_traces
 
     scenario = tmp_path / "e2e.yaml"
     scenario.write_text(E2E_SCENARIO)
@@ -420,7 +420,7 @@ def test_camera_and_gimbal_items_export_to_qgc_and_import_back_as_sent(
     """A plan that faces an inspection target carries the camera's items (gimbal pitch, start
     and stop capture) in its QGC plan; MAVSDK's importer gives them back as gcs upload sends
     them, and --photo-interval 0 leaves them out."""
-    from gcs.payload import capture_spans
+    from gcs.flight.payload import capture_spans
     from tests.gcs.face_plan import write_face_plan
 
     plan_path = write_face_plan(tmp_path)

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gcs.clause_traces import clause_traces
-from gcs.evaluation import evaluate_flight, heading_readers, reads_heading
-from gcs.progress import FlightProgress
+from gcs.flight.evaluation import evaluate_flight, heading_readers, reads_heading
+from gcs.flight.progress import FlightProgress
+from gcs.plot.traces import clause_traces
 from gcs.telemetry import Telemetry
 from mavlink.monitor_findings import always_clause_indices, always_clauses
 from mavlink.tracks import FlownTrack

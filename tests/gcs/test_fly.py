@@ -20,8 +20,8 @@ import pytest
 from pymavlink import mavutil
 
 from gcs.cli import main
-from gcs.dryrun import free_udp_ports
-from gcs.evaluation import plan_formula
+from gcs.flight.dryrun import free_udp_ports
+from gcs.flight.evaluation import plan_formula
 from gcs.telemetry import load_images, load_telemetry
 from mavlink.tlog import tracks_from_tlog
 from planner.planfile import load_plan
@@ -323,7 +323,7 @@ def test_mission_mode_flies_the_uploaded_missions_over_the_whole_horizon(
 
 
 def test_evaluation_finds_the_delay_of_a_late_track_and_judges_it_exactly() -> None:
-    from gcs.evaluation import evaluate_flight
+    from gcs.flight.evaluation import evaluate_flight
     from mavlink.tracks import FlownTrack
 
     plan = load_plan(
@@ -398,7 +398,7 @@ def _check_pictures(plan, log: Path, res: dict, capsys, *, offboard: bool) -> No
     """The flight pictured pole1 as planned: every picture in a capture span (offboard: on
     the plan's clock; a mission: while the vehicle held in insp1), from where the track was,
     looking where the vehicle headed with the gimbal's pitch; gcs verify --images agrees."""
-    from gcs.payload import capture_spans
+    from gcs.flight.payload import capture_spans
 
     (span,) = capture_spans(plan)["d1"]
     cov = res["coverage"]

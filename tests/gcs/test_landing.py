@@ -1,4 +1,4 @@
-"""``--end land`` clear of the keep-outs: where each vehicle lands (:mod:`gcs.landing`),
+"""``--end land`` clear of the keep-outs: where each vehicle lands (:mod:`gcs.flight.landing`),
 checked by dense sampling; the missions' NAV_LAND; a dry-run flight landing there; and the
 refusal when no clear point exists."""
 
@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from gcs.cli import main
-from gcs.landing import CLEARANCE_M, keep_outs, landing_point, landing_points
+from gcs.flight.landing import CLEARANCE_M, keep_outs, landing_point, landing_points
 from planner.planfile import load_plan
 from planner.spec.regions import Region, RegionKind
 
@@ -83,8 +83,8 @@ def test_missions_land_at_the_clear_point_and_no_clear_point_refuses_land(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     from gcs.errors import UserError
-    from gcs.landing import landing_targets
-    from gcs.missions import convert_plan
+    from gcs.flight.landing import landing_targets
+    from gcs.flight.missions import convert_plan
     from mavlink.mission import Cmd, MissionEnd
     from planner.frames import enu_to_geodetic
 
@@ -142,7 +142,7 @@ def _turned(name: str, centre: tuple[float, float], half: tuple[float, float], y
 
 
 def test_column_and_transit_use_a_turned_box_and_a_cylinder_not_their_bounding_boxes() -> None:
-    from gcs.landing import column_blocker, transit_clear
+    from gcs.flight.landing import column_blocker, transit_clear
     from planner.spec.regions import Cylinder, Prism
 
     centre, half, yaw = (0.0, 0.0), (2.0, 0.3), math.pi / 4

@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
-from gcs.coverage import compute_coverage, coverage_lines
-from gcs.dryrun import ground_spawns
-from gcs.missions import convert_plan
-from gcs.payload import capture_spans
+from gcs.flight.dryrun import ground_spawns
+from gcs.flight.missions import convert_plan
+from gcs.flight.payload import capture_spans
+from gcs.plot.coverage import compute_coverage, coverage_lines
 from mavlink.camera import image_from_fields
 from mavlink.mission import Cmd, MissionEnd
 from mavlink.mock import MockFleet, Px4Mode

@@ -1,4 +1,4 @@
-"""The mission timing model (mavlink.mock.predict) and the conversion that uses it (gcs.missions).
+"""The mission timing model (mavlink.mock.predict) and the conversion that uses it (gcs.flight.missions).
 
 References: PX4's kinematic limits (a rest-to-rest leg cannot beat its acceleration- and
 jerk-limited profile, a hold is held), and the conversion's own promises (re-timing never
@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gcs.missions import MIN_ACCEPTANCE_M, auto_acceptance_m, convert_plan
+from gcs.flight.missions import MIN_ACCEPTANCE_M, auto_acceptance_m, convert_plan
 from mavlink.mission import Cmd, MissionEnd, trajectory_to_mission
 from mavlink.mock.predict import predict_missions
 from planner.frames import GeodeticPoint

@@ -25,9 +25,9 @@ from matplotlib.image import imread
 from pymavlink.dialects.v20 import common as mavlink2
 
 from gcs import cli
-from gcs.clause_traces import clause_traces
-from gcs.figure import figure_png, render_figure, wrap_to_width
 from gcs.plot import plot_plan
+from gcs.plot.figure import figure_png, render_figure, wrap_to_width
+from gcs.plot.traces import clause_traces
 from gcs.telemetry import load_telemetry
 from planner.planfile import load_plan
 from tests.gcs.test_export_support import (
@@ -126,7 +126,7 @@ def test_plot_png_is_written_with_all_panels(tmp_path: Path) -> None:
     ax3 = next(ax for ax in fig.axes if ax.name == "3d")
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    from gcs.figure import is_large
+    from gcs.plot.figure import is_large
 
     boxes = [c for c in ax3.collections if isinstance(c, Poly3DCollection)]
     large = [r for r in plan.regions if is_large(r, plan.workspace)]
@@ -427,7 +427,7 @@ def test_colour_means_vehicle_in_every_panel_and_telemetry_adds_tracking_and_vel
 ) -> None:
     from matplotlib.colors import to_rgba
 
-    from gcs.figure import flown_velocity, tracking_error
+    from gcs.plot.figure import flown_velocity, tracking_error
 
     plan = reach_avoid_plan()
     # d2 flew 0.1 m north of its plan and 0.2 s late (so its velocity is the plan's, delayed)

@@ -25,9 +25,9 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 from gcs import cli
-from gcs.clause_traces import clause_traces, plan_grid
-from gcs.figure import render_figure
-from gcs.map_view import (
+from gcs.plot import PAN_ZOOM_JS
+from gcs.plot.figure import render_figure
+from gcs.plot.map_view import (
     HOVER_MIN_S,
     HOVER_SPEED_M_S,
     MAP_FROM_M,
@@ -37,7 +37,7 @@ from gcs.map_view import (
     line_poles,
     tick_step_s,
 )
-from gcs.plot import PAN_ZOOM_JS
+from gcs.plot.traces import clause_traces, plan_grid
 from planner.planfile import Plan, PlannedVehicle
 from planner.scenario import load_scenario
 from planner.scenario.line import LineModel, line_regions

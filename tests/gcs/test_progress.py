@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from gcs.evaluation import plan_formula
-from gcs.progress import FlightProgress
+from gcs.flight.evaluation import plan_formula
+from gcs.flight.progress import FlightProgress
 from planner.planfile import load_plan
 
 REPO = Path(__file__).resolve().parents[2]
@@ -68,7 +68,7 @@ def test_checking_and_flying_a_plan_never_loads_casadi_or_the_optimiser() -> Non
     code = (
         "import sys\n"
         "from gcs.cli import main\n"
-        "import gcs.flight, gcs.missions, gcs.mission_flight, mavlink.offboard\n"
+        "import gcs.flight, gcs.flight.missions, gcs.flight.mission, mavlink.offboard\n"
         f"rc = main(['verify', {str(PLANS / 'reach_avoid_2.plan.json')!r}])\n"
         "print(rc, 'casadi' in sys.modules, 'planner.optimize' in sys.modules)\n"
     )

@@ -131,7 +131,7 @@ def test_power_line_missions_finish_as_late_as_on_px4_and_a_small_circle_costs_m
     # radius 1 m; PX4 finished each 5.5-8.5 s late. The prediction is the px4 mock flying
     # them (PX4's corner law, its trajectory waiting for a vehicle that trails it, and its
     # offtrack/target-behind re-targeting), with a quiet estimator.
-    from gcs.missions import convert_plan
+    from gcs.flight.missions import convert_plan
     from mavlink.mission import MissionEnd
     from planner.planfile import load_plan
 

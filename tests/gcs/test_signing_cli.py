@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from gcs.cli import main
-from gcs.dryrun import free_udp_ports, ground_spawns
+from gcs.flight.dryrun import free_udp_ports, ground_spawns
 from mavlink.mock import MockFleet
 from planner.planfile import load_plan
 

@@ -17,8 +17,8 @@ import pymap3d
 import pytest
 
 from gcs.cli import main
-from gcs.dryrun import free_udp_ports, ground_spawns
-from gcs.missions import fence_plan
+from gcs.flight.dryrun import free_udp_ports, ground_spawns
+from gcs.flight.missions import fence_plan
 from mavlink.mission import trajectory_to_mission
 from mavlink.mock import MockFleet, Px4Mode
 from planner.frames import enu_to_geodetic

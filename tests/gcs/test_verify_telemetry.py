@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from gcs.cli import main
-from gcs.evaluation import plan_formula
+from gcs.flight.evaluation import plan_formula
 from planner.planfile import load_plan
 
 PLAN = Path(__file__).resolve().parents[1] / "mavlink" / "data" / "reach_avoid_2.plan.json"

@@ -282,7 +282,7 @@ def test_many_runs_at_once_decide_as_each_flight_would_alone() -> None:
     :meth:`SafetyMonitor.evaluate` run by run, and the off-plan alarm against the distance
     to the plan computed here."""
     plan = Path(__file__).resolve().parent / "data" / "reach_avoid_2.plan.json"
-    from gcs.evaluation import plan_formula
+    from gcs.flight.evaluation import plan_formula
     from planner.planfile import load_plan
 
     p = load_plan(plan)

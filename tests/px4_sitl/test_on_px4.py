@@ -230,7 +230,7 @@ def test_an_l_shaped_right_of_way_and_no_fly_area_are_fenced_and_flown_as_px4_do
     out, err = capsys.readouterr()
     row = json.loads(out)["vehicles"][0]
     assert rc == 0 and row["verified"], (row, err[-300:])
-    from gcs.missions import fence_plan
+    from gcs.flight.missions import fence_plan
     from planner.planfile import load_plan
 
     polygons = {int(i.param1) for i in fence_plan(load_plan(plan)).items}

@@ -4,8 +4,8 @@ and with what delay (the first thing to look at when flown robustness falls shor
 
 A room of its own because it is pure computation on recorded tracks (numpy and the exact STL
 semantics; no link, no printing): :func:`gcs.flight.fly_plan` calls :func:`evaluate_flight`
-once the flight is over, the live view (:mod:`gcs.progress`) and mission mode evaluate the
-same :func:`plan_formula`, and the outcome (:mod:`gcs.outcome`) reports what was found.
+once the flight is over, the live view (:mod:`gcs.flight.progress`) and mission mode evaluate the
+same :func:`plan_formula`, and the outcome (:mod:`gcs.flight.outcome`) reports what was found.
 """
 
 from __future__ import annotations

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, TextIO
 
 import numpy as np
 
-from gcs.evaluation import heading_readers, plan_formula
+from gcs.flight.evaluation import heading_readers, plan_formula
 from mavlink.tracks import wrap_pi
 
 if TYPE_CHECKING:

@@ -22,7 +22,7 @@ How the spans reach the vehicle depends on how it flies:
   flight's coverage report then shows what was not pictured.
 
 A room of its own: it reads the plan (planner) and speaks to vehicles (mavlink), and
-:mod:`gcs.flight`, :mod:`gcs.missions` and the commands use it.
+:mod:`gcs.flight`, :mod:`gcs.flight.missions` and the commands use it.
 """
 
 from __future__ import annotations

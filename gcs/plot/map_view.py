@@ -42,8 +42,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from gcs.clause_traces import plan_grid
-from gcs.figure import KIND_STYLE, fit_titles, vehicle_colours
+from gcs.plot.figure import KIND_STYLE, fit_titles, vehicle_colours
+from gcs.plot.traces import plan_grid
 from planner.spec.cover import drawn_regions
 from planner.spec.regions import KEEP_OUT_KINDS, RegionKind
 

@@ -1,5 +1,5 @@
 """The robustness over time of every top-level clause of a plan's spec, planned and flown:
-what the robustness panel of the plan's picture (:mod:`gcs.figure`) and its HTML table
+what the robustness panel of the plan's picture (:mod:`gcs.plot.figure`) and its HTML table
 (:mod:`gcs.plot`) show.
 
 Exact semantics (:mod:`planner.stl`) on the dense grid ``t = 0, dt, ..., horizon`` (``dt`` the
@@ -37,7 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from gcs.errors import InputFileError
-from gcs.evaluation import heading_readers
+from gcs.flight.evaluation import heading_readers
 from mavlink.tracks import NO_HEADING
 
 if TYPE_CHECKING:

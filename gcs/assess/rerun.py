@@ -23,7 +23,7 @@ import numpy as np
 
 if TYPE_CHECKING:
     from gcs.assess import AssessOptions
-    from gcs.outcome import FlightOutcome
+    from gcs.flight.outcome import FlightOutcome
     from mavlink.mock.batch import BatchFlights
     from planner.planfile import Plan
 
@@ -77,8 +77,8 @@ def realtime_configs(plan: Plan, opts: AssessOptions, flights: BatchFlights) -> 
     Raises:
         UserError: a drawn value the real-time mock cannot take (a parameter out of range).
     """
-    from gcs.dryrun import ground_spawns
     from gcs.errors import UserError
+    from gcs.flight.dryrun import ground_spawns
     from mavlink.mock.batch import estimator_overrides
     from mavlink.mock.config import FaultConfig, MockVehicleConfig, WindConfig
     from mavlink.mock.errors import MockConfigError
@@ -135,9 +135,9 @@ def fly_realtime(
 ) -> FlightOutcome:
     """Fly the first run's disturbances of ``flights`` on real-time mock vehicles
     (``gcs fly --dry-run``'s path: take-off, arrival gate, offboard at ``opts.rate_hz``)."""
-    from gcs.dryrun import mock_vehicles
     from gcs.flight import FlyOptions, fly_plan, signed_links, vehicle_specs
-    from gcs.progress import FlightProgress
+    from gcs.flight.dryrun import mock_vehicles
+    from gcs.flight.progress import FlightProgress
 
     configs, wind = realtime_configs(plan, opts, flights)
     options = FlyOptions(rate_hz=opts.rate_hz, drag_per_s=opts.drag_per_s)

@@ -330,7 +330,7 @@ def _draw_regions_xy(ax: Any, plan: Plan) -> None:
     outlines where large), the workspace left out."""
     from matplotlib.patches import Polygon
 
-    from gcs.figure import KIND_STYLE, is_large
+    from gcs.plot.figure import KIND_STYLE, is_large
     from planner.spec.cover import drawn_regions
 
     for r in drawn_regions(plan.regions):

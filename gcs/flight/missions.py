@@ -93,9 +93,9 @@ def auto_acceptance_m(plan: Plan, nav_acc_rad_m: float = PX4_DEFAULTS["NAV_ACC_R
 
 def expected_lag_s(params: Mapping[str, float]) -> float:
     """The lag of a vehicle with PX4 parameters ``params`` behind its setpoint (s):
-    :func:`gcs.tuning.drag_lag_s` of SIH_KDV (the drag the prediction flies with) and the
+    :func:`gcs.flight.tuning.drag_lag_s` of SIH_KDV (the drag the prediction flies with) and the
     position/velocity gains, PX4's defaults where absent."""
-    from gcs.tuning import PX4_GAINS, drag_lag_s
+    from gcs.flight.tuning import PX4_GAINS, drag_lag_s
 
     return drag_lag_s(
         params.get("SIH_KDV", 1.0),
@@ -124,10 +124,10 @@ def convert_plan(
             MPC_ACC_HOR, SIH_KDV ...), used by the prediction.
         iterations: predictions at most (1: no re-timing, just the prediction).
         retime: re-time the legs (False: the legs' average speeds, predicted once).
-        captures: where each vehicle's camera takes pictures (:func:`gcs.payload.capture_spans`;
+        captures: where each vehicle's camera takes pictures (:func:`gcs.flight.payload.capture_spans`;
             ``None``: nowhere): camera and gimbal items in its mission.
     """
-    from gcs.evaluation import plan_formula
+    from gcs.flight.evaluation import plan_formula
     from mavlink.mission import MissionEnd, path_robustness, trajectory_to_mission
     from mavlink.mock.predict import predict_missions
 
@@ -142,7 +142,7 @@ def convert_plan(
     dt = plan.check_dt_s
     t = np.arange(round(plan.horizon_s / dt) + 1) * dt
     starts = {pv.name: tuple(float(x) for x in pv.start_enu_m) for pv in plan.vehicles}
-    from gcs.landing import landing_targets
+    from gcs.flight.landing import landing_targets
 
     land_at = landing_targets(plan) if end is MissionEnd.LAND else {}
 
@@ -314,7 +314,7 @@ async def convert_plan_apart(plan: Plan, **kwargs: Any) -> MissionConversion:
     proc = await asyncio.create_subprocess_exec(
         sys.executable,
         "-m",
-        "gcs.missions",
+        "gcs.flight.missions",
         stdin=asyncio.subprocess.PIPE,
         stdout=asyncio.subprocess.PIPE,
         stderr=asyncio.subprocess.PIPE,
@@ -328,7 +328,7 @@ async def convert_plan_apart(plan: Plan, **kwargs: Any) -> MissionConversion:
 
 
 def _child() -> None:
-    """``python -m gcs.missions``: the child of :func:`convert_plan_apart`."""
+    """``python -m gcs.flight.missions``: the child of :func:`convert_plan_apart`."""
     import pickle
     import sys
 
@@ -337,7 +337,7 @@ def _child() -> None:
 
 
 if __name__ == "__main__":
-    # Through the imported module, so that what is pickled names gcs.missions, not __main__.
-    from gcs.missions import _child as child
+    # Through the imported module, so that what is pickled names gcs.flight.missions, not __main__.
+    from gcs.flight.missions import _child as child
 
     child()

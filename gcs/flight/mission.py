@@ -1,6 +1,6 @@
 """``gcs fly --mode mission``: PX4 missions flown together, on one clock, under the monitor.
 
-The plan becomes PX4 missions timed by PX4's own laws (:func:`gcs.missions.convert_plan`:
+The plan becomes PX4 missions timed by PX4's own laws (:func:`gcs.flight.missions.convert_plan`:
 acceptance radius from the vehicle, legs re-timed against the predicted flight), which are
 uploaded and read back (retried as a whole on a bad link until read back as sent, within
 :class:`mavlink.mission.RetryPolicy`'s default budget). Then, in order:
@@ -37,9 +37,9 @@ from gcs.errors import GcsError
 
 if TYPE_CHECKING:
     from gcs.flight import FlyOptions
-    from gcs.missions import MissionConversion
-    from gcs.progress import FlightClock
-    from gcs.tuning import VehicleTuning
+    from gcs.flight.missions import MissionConversion
+    from gcs.flight.progress import FlightClock
+    from gcs.flight.tuning import VehicleTuning
     from mavlink.fleet import Fleet
     from mavlink.mission import CaptureSpan, MissionRun
     from mavlink.monitor_findings import MonitorStats, SafetyEvent
@@ -113,7 +113,7 @@ async def fly_mission_plan(
     spans: Mapping[str, Sequence[CaptureSpan]],
 ) -> MissionFlight:
     """Mission mode (module docstring); ``spans``: where each vehicle's camera takes pictures
-    (:func:`gcs.payload.capture_spans`), camera items in its mission.
+    (:func:`gcs.flight.payload.capture_spans`), camera items in its mission.
 
     Raises:
         MissionRefused: predicted robustness below epsilon without ``force``.
@@ -121,8 +121,8 @@ async def fly_mission_plan(
             off, not settling at its start, or refusing its mission start.
         mavlink.errors.LinkError: a transfer or link failure before the flight.
     """
-    from gcs.evaluation import reads_heading
-    from gcs.missions import convert_plan_apart
+    from gcs.flight.evaluation import reads_heading
+    from gcs.flight.missions import convert_plan_apart
     from mavlink.errors import PreflightError
     from mavlink.mission import (
         MissionEnd,
@@ -314,6 +314,6 @@ def arrive_gate_m(plan: Plan) -> float:
 
 
 def _formula(plan: Plan) -> Any:
-    from gcs.evaluation import plan_formula
+    from gcs.flight.evaluation import plan_formula
 
     return plan_formula(plan)

@@ -12,7 +12,7 @@
    the spec's always-clauses), in **mission** mode the plan's PX4 mission conversion
    (:func:`mavlink.mission.trajectory_to_mission`: uploaded, read back and compared, then
    flown with :func:`mavlink.mission.fly_missions`);
-4. shows progress while flying (:class:`gcs.progress.FlightProgress`): per vehicle its mode,
+4. shows progress while flying (:class:`gcs.flight.progress.FlightProgress`): per vehicle its mode,
    its distance to where the plan is at that instant, and the robustness of the clauses it
    takes part in *so far* (exact semantics of the flown prefix completed by the plan for the
    rest of the horizon, i.e. what the spec's value will be if the rest goes as planned);
@@ -20,17 +20,17 @@
    and :meth:`mavlink.fleet.Fleet.flight` commands every vehicle
    to hold where it is (:func:`mavlink.monitor.safe_stop`), and reports the modes it then has;
 6. writes the flown tracks (``flight.csv``, mission frame) and evaluates the flown data
-   against the spec with the exact semantics (:func:`gcs.evaluation.evaluate_flight`), next
+   against the spec with the exact semantics (:func:`gcs.flight.evaluation.evaluate_flight`), next
    to the planned value, with per-vehicle tracking errors and the delay that best aligns
    flown and planned positions (the first thing to look at when flown robustness falls short).
 
-It returns a :class:`gcs.outcome.FlightOutcome` (told by :func:`gcs.outcome.format_outcome`).
+It returns a :class:`gcs.flight.outcome.FlightOutcome` (told by :func:`gcs.flight.outcome.format_outcome`).
 
 The pre-flight interlock (:func:`preflight_interlock`) re-runs ``gcs verify``'s checks
 (:func:`gcs.commands.verify.verify_plan`) and refuses a plan that fails one.
 
-Dry runs (:func:`gcs.dryrun.mock_vehicles`) fly mock PX4 vehicles spawned on the ground below
-the planned starts, exactly as against SITL (:mod:`gcs.dryrun`).
+Dry runs (:func:`gcs.flight.dryrun.mock_vehicles`) fly mock PX4 vehicles spawned on the ground below
+the planned starts, exactly as against SITL (:mod:`gcs.flight.dryrun`).
 
 Errors::
 
@@ -54,18 +54,18 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from gcs.dryrun import free_udp_ports
 from gcs.errors import GcsError, InputFileError, UserError
-from gcs.evaluation import evaluate_flight, plan_formula, reads_heading
-from gcs.outcome import FlightMode, FlightOutcome
-from gcs.progress import FlightClock, FlightProgress
+from gcs.flight.dryrun import free_udp_ports
+from gcs.flight.evaluation import evaluate_flight, plan_formula, reads_heading
+from gcs.flight.outcome import FlightMode, FlightOutcome
+from gcs.flight.progress import FlightClock, FlightProgress
 
 if TYPE_CHECKING:
     from gcs.checks import Check
-    from gcs.coverage import CoverageReport
-    from gcs.mission_flight import MissionFlight
-    from gcs.payload import CameraCommands
-    from gcs.tuning import VehicleTuning
+    from gcs.flight.mission import MissionFlight
+    from gcs.flight.payload import CameraCommands
+    from gcs.flight.tuning import VehicleTuning
+    from gcs.plot.coverage import CoverageReport
     from mavlink.camera import CameraInfo, CapturedImage
     from mavlink.fleet import Fleet
     from mavlink.mission import CaptureSpan
@@ -116,17 +116,17 @@ class FlyOptions:
         monitor: run the online safety monitor of the always-clauses.
         drag_per_s: the vehicles' drag per unit mass for the feed-forward (1/s); ``None``:
             the simulator's own (SIH_KDV / SIH_MASS) where the vehicle has it, else 0
-            (:mod:`gcs.tuning`).
+            (:mod:`gcs.flight.tuning`).
         arrive_m: the arrival gate at the starts (m); ``None``: from the plan's margin
-            (:func:`gcs.mission_flight.arrive_gate_m`).
+            (:func:`gcs.flight.mission.arrive_gate_m`).
         acceptance_m: mission mode's waypoint acceptance radius; ``None``: chosen
-            (:func:`gcs.missions.auto_acceptance_m`).
+            (:func:`gcs.flight.missions.auto_acceptance_m`).
         force: fly missions whose predicted robustness is below epsilon.
         max_off_plan_m: offboard: hold every vehicle when one is farther than this from
             its plan (the monitor's tracking alarm; ``None``: never). Past the plan's margin
             (its robustness) a vehicle is warned about once, in flight and in the report.
         photo_interval_s: time between pictures where the plan faces an inspection target
-            (:mod:`gcs.payload`); 0: the camera is left alone.
+            (:mod:`gcs.flight.payload`); 0: the camera is left alone.
     """
 
     mode: FlightMode = FlightMode.OFFBOARD
@@ -337,8 +337,8 @@ async def _fly_offboard(
     spans: Mapping[str, Sequence[CaptureSpan]],
     camera: CameraCommands,
 ) -> Any:
-    from gcs.mission_flight import arrive_gate_m
-    from gcs.payload import run_offboard_captures
+    from gcs.flight.mission import arrive_gate_m
+    from gcs.flight.payload import run_offboard_captures
     from mavlink.monitor import SafetyMonitor
     from mavlink.monitor_findings import always_clauses
     from mavlink.offboard import fly_offboard
@@ -373,7 +373,7 @@ async def _fly_offboard(
         drag_per_s={n: t.drag_per_s for n, t in tuning.items()},
     )
     if cfg.end_action is EndAction.LAND:
-        from gcs.landing import landing_targets
+        from gcs.flight.landing import landing_targets
         from planner.frames import enu_to_geodetic
 
         land_at = {}
@@ -419,9 +419,9 @@ async def fly_plan(
         mavlink.errors.PreflightError: a vehicle too far from its start / cannot reach it.
         mavlink.errors.LinkError: other link failures before the flight.
     """
-    from gcs.mission_flight import fly_mission_plan
-    from gcs.payload import CameraCommands, capture_spans
-    from gcs.tuning import expected_error_m, margin_warnings, read_tuning
+    from gcs.flight.mission import fly_mission_plan
+    from gcs.flight.payload import CameraCommands, capture_spans
+    from gcs.flight.tuning import expected_error_m, margin_warnings, read_tuning
     from mavlink.fleet import Fleet
     from mavlink.tlog import TlogRecorder
     from mavlink.tracks import write_tracks_csv
@@ -618,7 +618,7 @@ def _coverage(
 ) -> CoverageReport | None:
     """The flight's coverage report (``None`` when the plan pictures nothing), with the image
     log and the coverage figure written to ``log_dir``."""
-    from gcs.coverage import compute_coverage, coverage_figure
+    from gcs.plot.coverage import compute_coverage, coverage_figure
     from mavlink.camera import write_images_csv
 
     if log_dir is not None and any(images.values()):

@@ -17,10 +17,10 @@ Batches come back as they finish (``on_batch``); an interrupt keeps the finished
 With ``monitor``, each batch is flown a second time on the same seeds under the flight-time
 safety monitor of ``gcs fly`` (:meth:`mavlink.monitor.SafetyMonitor.evaluate_runs` inside the
 simulator), which may stop a run; the statistics then say how often it stopped the flight,
-why, and whether the stops were needed (:class:`gcs.assess_stats.MonitorSummary`).
+why, and whether the stops were needed (:class:`gcs.assess.stats.MonitorSummary`).
 
 Layering (docs/architecture.md, "The parts and their direction"): the simulator is the mock's; the orchestration, the
-statistics and the report are here; the statistics are in :mod:`gcs.assess_stats`.
+statistics and the report are here; the statistics are in :mod:`gcs.assess.stats`.
 """
 
 from __future__ import annotations
@@ -37,9 +37,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from gcs.assess_stats import AssessResult, summarise
+from gcs.assess.stats import AssessResult, summarise
 from gcs.errors import UserError
-from gcs.evaluation import heading_readers, plan_formula, reads_heading
+from gcs.flight.evaluation import heading_readers, plan_formula, reads_heading
 
 if TYPE_CHECKING:
     from mavlink.mock.batch import BatchFlights, SimSetup

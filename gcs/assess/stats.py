@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from gcs.evaluation import plan_formula
+from gcs.flight.evaluation import plan_formula
 
 if TYPE_CHECKING:
     from gcs.assess import AssessOptions, BatchOutcome

@@ -17,11 +17,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from gcs.coverage import CoverageReport
-    from gcs.evaluation import FlownEvaluation
-    from gcs.mission_flight import MissionFlight
-    from gcs.payload import CameraCommands
-    from gcs.tuning import VehicleTuning
+    from gcs.flight.evaluation import FlownEvaluation
+    from gcs.flight.mission import MissionFlight
+    from gcs.flight.payload import CameraCommands
+    from gcs.flight.tuning import VehicleTuning
+    from gcs.plot.coverage import CoverageReport
     from mavlink.camera import CapturedImage
     from mavlink.mission import MissionRun
     from mavlink.monitor_findings import MonitorStats, SafetyEvent
@@ -189,7 +189,7 @@ def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
         for refused in outcome.camera.refused.values():
             lines += [f"  camera command refused: {r}" for r in refused]
     if outcome.coverage is not None:
-        from gcs.coverage import coverage_lines
+        from gcs.plot.coverage import coverage_lines
 
         lines += coverage_lines(outcome.coverage)
     if outcome.tlog is not None:
@@ -205,7 +205,7 @@ def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
 
 def _tuning_lines(outcome: FlightOutcome) -> list[str]:
     """Drag fed forward per vehicle, the lag it still showed, and the drag to set."""
-    from gcs.tuning import LAG_NOISE_S, drag_from_lag
+    from gcs.flight.tuning import LAG_NOISE_S, drag_from_lag
 
     ev = outcome.evaluation
     lags = {t.vehicle: t.lag_s for t in ev.tracking} if ev is not None else {}
@@ -325,6 +325,6 @@ def outcome_json(plan: Plan, outcome: FlightOutcome) -> dict[str, Any]:
 
 
 def _coverage_json(report: CoverageReport) -> dict[str, Any]:
-    from gcs.coverage import coverage_json
+    from gcs.plot.coverage import coverage_json
 
     return coverage_json(report)

@@ -7,14 +7,14 @@ rooms:
 
 * :mod:`gcs.telemetry` reads the flown telemetry (``--telemetry``: a CSV with the columns
   ``t,vehicle,x,y,z``, the link's track CSV, or a ``.tlog`` with its start time ``--t0``);
-* :mod:`gcs.clause_traces` computes the robustness over time of every top-level clause of
+* :mod:`gcs.plot.traces` computes the robustness over time of every top-level clause of
   the spec, exact semantics on the dense grid ``t = 0, dt, ..., horizon``, planned and flown;
-* :mod:`gcs.figure` draws them: the 3-D view of regions and paths (flown paths over the
+* :mod:`gcs.plot.figure` draws them: the 3-D view of regions and paths (flown paths over the
   planned ones), the clause robustness over time, the tracking error when telemetry is
   given, and every vehicle's per-axis velocity and acceleration against its limits;
-* :mod:`gcs.map_view` draws the map that takes the 3-D view's place for a long line
+* :mod:`gcs.plot.map_view` draws the map that takes the 3-D view's place for a long line
   (``view``: ``auto`` picks it when the workspace is 200 m or more across its diagonal,
-  :func:`gcs.map_view.choose_view`; ``3d`` and ``map`` force one).
+  :func:`gcs.plot.map_view.choose_view`; ``3d`` and ``map`` force one).
 
 Outputs: a PNG, or a self-contained HTML page (the PNG embedded as base64 and a table of the
 clause robustness, planned and flown; in the map view also the map as inline SVG, to zoom
@@ -39,12 +39,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from gcs.clause_traces import ClauseTrace, clause_traces
 from gcs.errors import InputFileError
-from gcs.evaluation import heading_readers, plan_formula
-from gcs.figure import figure_png, render_figure
-from gcs.map_view import View, choose_view, render_map
-from gcs.map_view import map_svg as svg_of_map
+from gcs.flight.evaluation import heading_readers, plan_formula
+from gcs.plot.figure import figure_png, render_figure
+from gcs.plot.map_view import View, choose_view, render_map
+from gcs.plot.map_view import map_svg as svg_of_map
+from gcs.plot.traces import ClauseTrace, clause_traces
 
 if TYPE_CHECKING:
     from gcs.telemetry import Telemetry
@@ -117,7 +117,7 @@ PAN_ZOOM_JS = """
 
 
 def _map_section(svg: str, plan: Plan) -> str:
-    """The page's map: ``svg`` (:func:`gcs.map_view.map_svg`) with its buttons and script."""
+    """The page's map: ``svg`` (:func:`gcs.plot.map_view.map_svg`) with its buttons and script."""
     return f"""<h2>Map</h2>
 <p>North up, in metres east and north of the scenario's origin: the regions, and each
 vehicle's path over the {plan.horizon_s:g} s horizon with its time ticks and hovers.
@@ -141,7 +141,7 @@ def html_report(
     map_svg: str | None = None,
 ) -> str:
     """A self-contained HTML page: the PNG (base64) and a table of clause robustness, and
-    with ``map_svg`` (an inline ``<svg>``, :func:`gcs.map_view.map_svg`) the map to pan and
+    with ``map_svg`` (an inline ``<svg>``, :func:`gcs.plot.map_view.map_svg`) the map to pan and
     zoom. Nothing on it is loaded from elsewhere.
 
     ``name`` titles it (default: the scenario's file stem).
@@ -237,7 +237,7 @@ def plot_plan(
     view: View | str = View.AUTO,
 ) -> PlotResult:
     """Draw ``plan`` to ``output`` (``.png`` or ``.html``), titled ``name`` (e.g. the plan file),
-    with the panel of regions and paths ``view`` (``auto``: :func:`gcs.map_view.choose_view`);
+    with the panel of regions and paths ``view`` (``auto``: :func:`gcs.plot.map_view.choose_view`);
     an HTML page of a map view also carries the map to pan and zoom.
 
     Raises:

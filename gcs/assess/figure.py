@@ -2,7 +2,7 @@
 worst run's paths over the plan.
 
 A room of its own because it is the one part of ``gcs assess`` that draws (matplotlib, Agg);
-the numbers come from :class:`gcs.assess_stats.AssessResult` and, for the worst run, its
+the numbers come from :class:`gcs.assess.stats.AssessResult` and, for the worst run, its
 tracks flown again (:func:`gcs.assess.replay`).
 """
 
@@ -16,7 +16,7 @@ import numpy as np
 from planner.spec.cover import drawn_regions
 
 if TYPE_CHECKING:
-    from gcs.assess_stats import AssessResult
+    from gcs.assess.stats import AssessResult
     from mavlink.mock.batch import BatchFlights
     from planner.planfile import Plan
 

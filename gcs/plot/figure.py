@@ -13,13 +13,13 @@
   with a dot, so the picture shows *when* the margin is small. Any other clause is drawn as
   its own trace (defined while its horizon fits in the plan). A zero line separates
   satisfaction from violation; with many clauses the weakest ones get colours and the rest
-  one grey style (the curves: :mod:`gcs.clause_traces`).
+  one grey style (the curves: :mod:`gcs.plot.traces`).
 * **Tracking error** ``|flown - planned|`` per vehicle, when telemetry is given.
 * **Per-axis velocity and acceleration** (east, north, up) of every vehicle against its
   per-axis limits ``v_max`` / ``a_max`` (dashed).
 
-In the map view (``view``: :func:`gcs.map_view.choose_view` picks it for a long line) a
-top-down map (:func:`gcs.map_view.draw_map`) takes the 3-D view's place; a scene at least
+In the map view (``view``: :func:`gcs.plot.map_view.choose_view` picks it for a long line) a
+top-down map (:func:`gcs.plot.map_view.draw_map`) takes the 3-D view's place; a scene at least
 twice as wide as it is tall gets the whole top row, the robustness panels going beneath it.
 
 Colour means vehicle in every panel (:func:`render_figure` picks them). Titles never run off
@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from gcs.clause_traces import plan_grid
+from gcs.plot.traces import plan_grid
 from planner.spec.cover import drawn_regions
 from planner.spec.regions import Cylinder
 
@@ -49,8 +49,8 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
     from matplotlib.text import Text
 
-    from gcs.clause_traces import ClauseTrace
-    from gcs.map_view import View
+    from gcs.plot.map_view import View
+    from gcs.plot.traces import ClauseTrace
     from gcs.telemetry import Telemetry
     from mavlink.tracks import FlownTrack
     from planner.planfile import Plan
@@ -508,14 +508,14 @@ def render_figure(
     """The whole picture as a matplotlib Figure (Agg canvas; no screen needed).
 
     ``name`` titles it (default: the scenario's file stem); ``view`` (``auto``, ``3d`` or
-    ``map``, :class:`gcs.map_view.View`) picks the panel of regions and paths: the 3-D view
-    or the top-down map (``auto``: :func:`gcs.map_view.choose_view`).
+    ``map``, :class:`gcs.plot.map_view.View`) picks the panel of regions and paths: the 3-D view
+    or the top-down map (``auto``: :func:`gcs.plot.map_view.choose_view`).
     """
     import mpl_toolkits.mplot3d  # noqa: F401  (registers the 3-D projection)
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from gcs.map_view import View, choose_view, draw_map, map_aspect
+    from gcs.plot.map_view import View, choose_view, draw_map, map_aspect
 
     shown = choose_view(plan, view)
     t, dt = plan_grid(plan, dt_s)
