@@ -1,5 +1,5 @@
 """The planner's solver runs CasADi's bundled OpenBLAS on one thread unless the user chose
-(planner.solve.nlp.one_blas_thread), without touching the environment at import."""
+(planner.solve.nlp_solvers.one_blas_thread), without touching the environment at import."""
 
 from __future__ import annotations
 
@@ -15,14 +15,14 @@ ROOT = Path(__file__).resolve().parents[2]
 PROBE = """
 import ctypes, json, os
 import casadi
-import planner.solve.nlp as nlp
+import planner.solve.nlp_solvers as nlp_solvers
 from planner.optimize import plan
 from planner.scenario import load_scenario
 env_after_import = os.environ.get("OMP_NUM_THREADS")
 plan(load_scenario("configs/reach_avoid.yaml", vehicles=1))
 lib = ctypes.CDLL(os.path.join(os.path.dirname(casadi.__file__), "libcasadi-tp-openblas.so.0"))
 print(json.dumps({"env": env_after_import, "threads": lib.openblas_get_num_threads(),
-                  "set": nlp.one_blas_thread()}))
+                  "set": nlp_solvers.one_blas_thread()}))
 """
 
 
@@ -34,8 +34,9 @@ def _probe(**env: str) -> dict[str, object]:
     }
     out = subprocess.run(
         [sys.executable, "-c", PROBE], cwd=ROOT, env={**clean, **env},
-        capture_output=True, text=True, timeout=240, check=True,
+        capture_output=True, text=True, timeout=240,
     )  # fmt: skip
+    assert out.returncode == 0, out.stderr[-2000:]
     return dict(json.loads(out.stdout.strip().splitlines()[-1]))
 
 
