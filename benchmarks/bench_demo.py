@@ -29,7 +29,7 @@ def main() -> int:
 
     t = time.perf_counter()
     import gcs.plot  # noqa: F401  (matplotlib)
-    import mavlink.fleet  # noqa: F401  (mavsdk)
+    import mavlink.link.fleet  # noqa: F401  (mavsdk)
     import planner.optimize as optimize  # (casadi)
     from gcs.commands.demo import run_demo
 

@@ -24,7 +24,7 @@ Rows:
    connected to it and another: success when the GCS shows it (only it)
    disconnected, a fleet Hold fails for it alone in bounded time, it comes
    back disarmed and answers, and its mission survived.
-4. A vehicle that never answers: :class:`mavlink.fleet.Fleet` connect (success:
+4. A vehicle that never answers: :class:`mavlink.link.fleet.Fleet` connect (success:
    ``ConnectTimeoutError`` naming it).
 5. Connecting two vehicles whose links lose 30 % both ways from the start (discovery,
    first heartbeats, telemetry rates at 20 Hz), ``--retry-runs`` seeds; success: connected.
@@ -45,11 +45,11 @@ import json
 import time
 
 from mavlink.errors import ConnectTimeoutError
-from mavlink.fleet import Fleet
+from mavlink.link.fleet import Fleet
+from mavlink.link.vehicle_status import VehicleSpec
 from mavlink.mission import RetryPolicy
 from mavlink.mock import FaultConfig
 from mavlink.mock.testing import free_udp_ports
-from mavlink.vehicle_status import VehicleSpec
 from planner.planfile import load_plan
 from tests.reliability.harness import (
     CONDITIONS,

@@ -8,7 +8,7 @@ target system):
 * mock vehicle, in process: every datagram through ``MockVehicle.datagram_received``;
   errors raised and state changes from frames not addressed to it;
 * mock vehicle over UDP from a stranger's socket, then its GCS is served;
-* MAVSDK :class:`mavlink.fleet.Fleet` connected to a mock: the datagrams at its
+* MAVSDK :class:`mavlink.link.fleet.Fleet` connected to a mock: the datagrams at its
   port; its vehicle's state and a command round trip afterwards;
 * the ``.tlog`` reader :func:`mavlink.tlog.tracks_from_tlog` on a file of the
   frames with valid records mixed in.

@@ -2,11 +2,11 @@
 
 1. Streaming: the largest fleet one process streams at 50 Hz with p99 lateness
    <= 5 ms and no missed setpoint. Fleets of growing size connect through
-   :class:`mavlink.fleet.Fleet` (one MAVSDK instance, one UDP connection per
+   :class:`mavlink.link.fleet.Fleet` (one MAVSDK instance, one UDP connection per
    vehicle) to a sink process (``benchmarks/stream_sink.py``) that answers
    like N PX4 endpoints and counts every SET_POSITION_TARGET_LOCAL_NED it
    receives. Each vehicle streams a ramp of distinct setpoints for
-   ``--seconds`` through :class:`mavlink.stream.SetpointStreamer` and MAVSDK's
+   ``--seconds`` through :class:`mavlink.offboard.stream.SetpointStreamer` and MAVSDK's
    Offboard plugin (the path ``fly_offboard`` uses). A setpoint is missed if
    it was skipped, its send failed, or the sink did not receive it. CPU is
    the GCS process's CPU time (all threads, MAVSDK's included) over the
@@ -56,20 +56,20 @@ from mavsdk.plugins.offboard import AccelerationNed, PositionNedYaw, VelocityNed
 
 from gcs.flight.evaluation import plan_formula
 from gcs.flight.progress import FlightClock, FlightProgress
-from mavlink.fleet import Fleet
+from mavlink.link.fleet import Fleet
+from mavlink.link.vehicle_status import VehicleSpec
 from mavlink.mission import MissionEnd, trajectory_to_mission, upload_and_verify
 from mavlink.mock.fleet import MockFleet
 from mavlink.monitor import SafetyMonitor
 from mavlink.monitor_findings import always_clauses
-from mavlink.offboard_setpoints import offboard_sender
-from mavlink.stream import (
+from mavlink.offboard.setpoints import offboard_sender
+from mavlink.offboard.stream import (
     VEHICLES_PER_GROUP,
     NedSetpoints,
     SetpointStreamer,
     StreamTarget,
     auto_send_groups,
 )
-from mavlink.vehicle_status import VehicleSpec
 from planner.frames import GeodeticPoint
 from planner.planfile import Plan, load_plan
 from planner.trajectory import Trajectory

@@ -43,7 +43,7 @@ from mavlink.tracks import FlownTrack
 from planner.strict_read import NotTextError, read_text
 
 if TYPE_CHECKING:
-    from mavlink.camera import CapturedImage
+    from mavlink.link.camera import CapturedImage
     from planner.planfile import Plan
 
 __all__ = ["TELEMETRY_COLUMNS", "Telemetry", "load_images", "load_telemetry"]
@@ -183,14 +183,14 @@ def _vehicle_field(src: str, lineno: int, row: list[str], col: int) -> str:
 
 
 def load_images(path: str | Path, plan: Plan | None = None) -> dict[str, list[CapturedImage]]:
-    """Read a flight's image log (:func:`mavlink.camera.write_images_csv`): the pictures by
+    """Read a flight's image log (:func:`mavlink.link.camera.write_images_csv`): the pictures by
     vehicle, in the file's order.
 
     Raises:
         InputFileError: unreadable file, a missing column, a bad value (file, line, column),
             a vehicle that is not in ``plan``.
     """
-    from mavlink.camera import IMAGE_COLUMNS, CapturedImage
+    from mavlink.link.camera import IMAGE_COLUMNS, CapturedImage
 
     p = Path(path)
     src = str(p)

@@ -3,21 +3,21 @@
 GCS side (this package's modules; MAVSDK for connections, telemetry,
 actions, missions and offboard, pymavlink for logs)::
 
-    mavlink.urls        connection URLs and the PX4 SITL port convention
+    mavlink.link.urls        connection URLs and the PX4 SITL port convention
     mavlink.px4_modes   PX4 custom_mode encode/decode, DO_SET_MODE params
-    mavlink.mavsdk_glue MAVSDK's callback API as awaitables, its log routed to logging
-    mavlink.vehicle     Vehicle: one vehicle's link (telemetry, commands, status)
-    mavlink.fleet       Fleet: N vehicles through one MAVSDK instance, live status
+    mavlink.link.mavsdk_glue MAVSDK's callback API as awaitables, its log routed to logging
+    mavlink.link.vehicle     Vehicle: one vehicle's link (telemetry, commands, status)
+    mavlink.link.fleet       Fleet: N vehicles through one MAVSDK instance, live status
     mavlink.preflight   checks before a plan starts (distance to start, take-off height,
                         settled)
-    mavlink.stream      deadline-scheduled setpoint streaming and its statistics
-    mavlink.offboard_setpoints  a plan sampled into PX4 setpoints (OffboardConfig)
+    mavlink.offboard.stream      deadline-scheduled setpoint streaming and its statistics
+    mavlink.offboard.setpoints  a plan sampled into PX4 setpoints (OffboardConfig)
     mavlink.offboard    fly_offboard: a plan flown in offboard mode, all in step
     mavlink.mission     package: items and their comparison, trajectory -> PX4 mission,
                         geofence items, transfer, whole-transfer retries within a time
                         budget, starting and following a mission
     mavlink.monitor     online safety monitor of the spec's always-clauses
-    mavlink.scan        who answers on the udpin ports (duplicate system ids)
+    mavlink.link.scan        who answers on the udpin ports (duplicate system ids)
     mavlink.tlog        telemetry recording to .tlog, tracks rebuilt from it
     mavlink.tracks      FlownTrack (positions, heading) and its CSV
     mavlink.mock        the mock PX4 vehicle endpoint (vehicle side)

@@ -57,8 +57,8 @@ from planner.frames import GeodeticPoint, NedToEnuMap
 from planner.stl.batch import ClauseBatch
 
 if TYPE_CHECKING:
-    from mavlink.fleet import Fleet
-    from mavlink.vehicle import Vehicle
+    from mavlink.link.fleet import Fleet
+    from mavlink.link.vehicle import Vehicle
     from planner.trajectory import Trajectory
 
 
@@ -74,7 +74,7 @@ async def safe_stop(v: Vehicle, action: SafetyAction) -> None:
 
     A vehicle not in offboard gets MAVSDK's plain Hold.
     """
-    from mavlink.mavsdk_glue import mavsdk_call
+    from mavlink.link.mavsdk_glue import mavsdk_call
 
     if v.offboard.is_active():
         result = await mavsdk_call(v.offboard.stop_async)

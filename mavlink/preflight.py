@@ -19,8 +19,8 @@ import time
 import numpy as np
 
 from mavlink.errors import LinkLostError, PreflightError
-from mavlink.vehicle import Vehicle
-from mavlink.vehicle_status import VehicleStatus
+from mavlink.link.vehicle import Vehicle
+from mavlink.link.vehicle_status import VehicleStatus
 from planner.frames import GeodeticPoint, ned_to_enu
 
 #: How far above NAV_MC_ALT_RAD a start must be for a take-off from the ground (m): PX4

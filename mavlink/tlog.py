@@ -39,7 +39,7 @@ from mavlink.tracks import FlownTrack, track_from_rows
 from planner.frames import GeodeticPoint
 
 if TYPE_CHECKING:
-    from mavlink.fleet import Fleet
+    from mavlink.link.fleet import Fleet
 
 
 @dataclass(frozen=True, slots=True)

@@ -149,7 +149,7 @@ def track_from_rows(
     vehicle_origin: GeodeticPoint,
 ) -> FlownTrack:
     """A flown track in the mission frame from recorded rows
-    ``(t_s, n, e, d, vn, ve, vd[, yaw_ned])`` (:meth:`mavlink.vehicle.Vehicle.stop_track`) of
+    ``(t_s, n, e, d, vn, ve, vd[, yaw_ned])`` (:meth:`mavlink.link.vehicle.Vehicle.stop_track`) of
     a vehicle whose local NED origin is ``vehicle_origin``: times from ``t0_s``, positions and
     velocities into mission ENU, the NED yaw (rad, clockwise from north; NaN where unknown)
     into the mission frame's ENU yaw by the same rotation (:func:`planner.frames.yaw_ned_to_enu`).

@@ -15,7 +15,7 @@ At the end: flown vs planned robustness (exact semantics), tracking errors, setp
 statistics, and with ``--log DIR`` the telemetry (``flight.tlog``), the tracks (``flight.csv``),
 MAVSDK's own log lines (``mavsdk.log``) and a report (``report.md``, :mod:`gcs.report`).
 MAVSDK's warnings and its notes on its own machinery are for that log, not the terminal:
-only its errors the user can act on show on stderr (:mod:`mavlink.mavsdk_glue`).
+only its errors the user can act on show on stderr (:mod:`mavlink.link.mavsdk_glue`).
 
 Exit status: 0 flown and the flown data satisfies the spec, 1 refused / not completed / flown
 robustness negative, 2 bad input (plan file, URL, unreachable vehicle), 130 interrupted.
@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
     from gcs.flight.outcome import FlightMode, FlightOutcome, format_outcome, outcome_json
     from gcs.flight.progress import FlightProgress
     from mavlink.errors import PreflightError
-    from mavlink.offboard_setpoints import EndAction
+    from mavlink.offboard.setpoints import EndAction
     from planner.planfile import load_plan
 
     if not (2.0 < args.rate <= 100.0):

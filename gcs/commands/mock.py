@@ -24,6 +24,7 @@ from typing import Any
 
 from gcs.commands import add_mock_vehicle_arguments, parse_param_overrides
 from gcs.errors import UserError
+from mavlink.link.signing import load_key
 from mavlink.mock import (
     DEFAULT_ORIGIN,
     FaultConfig,
@@ -33,7 +34,6 @@ from mavlink.mock import (
     Outage,
     WindConfig,
 )
-from mavlink.signing import load_key
 from planner.frames import FrameError, GeodeticPoint
 
 HELP = "run mock PX4 vehicles (MAVLink over UDP, PX4 SITL ports) until Ctrl-C"

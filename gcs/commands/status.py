@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 from gcs.commands import add_link_arguments
 
 if TYPE_CHECKING:
-    from mavlink.vehicle_status import VehicleSpec, VehicleStatus
+    from mavlink.link.vehicle_status import VehicleSpec, VehicleStatus
 
 HELP = "show each vehicle: system id, autopilot, mode, armed, position, battery"
 
@@ -93,8 +93,8 @@ def specs_for(
         UserError: counts that do not match, or a system id outside 1..255.
     """
     from gcs.errors import UserError
-    from mavlink.urls import default_url, parse_url
-    from mavlink.vehicle_status import VehicleSpec
+    from mavlink.link.urls import default_url, parse_url
+    from mavlink.link.vehicle_status import VehicleSpec
 
     if urls:
         n = len(urls)
@@ -122,7 +122,7 @@ async def read_status(specs: tuple[VehicleSpec, ...], timeout_s: float) -> list[
     Raises:
         mavlink.errors.ConnectTimeoutError: a vehicle never answered (names its URL).
     """
-    from mavlink.fleet import Fleet
+    from mavlink.link.fleet import Fleet
 
     heartbeat: dict[str, tuple[Any, Any]] = {}
     lock = threading.Lock()

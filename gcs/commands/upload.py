@@ -55,10 +55,10 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
     from gcs.flight.missions import FencePlan, MissionConversion
-    from mavlink.fleet import Fleet
+    from mavlink.link.fleet import Fleet
+    from mavlink.link.vehicle import Vehicle
+    from mavlink.link.vehicle_status import VehicleSpec
     from mavlink.mission import MissionItem, MissionPlan, MissionStart, TransferProgress
-    from mavlink.vehicle import Vehicle
-    from mavlink.vehicle_status import VehicleSpec
     from planner.planfile import Plan
 
 #: GF_ACTION values (PX4 v1.17 geofence breach action).
@@ -289,7 +289,7 @@ async def upload_plan(
     from gcs.flight.missions import convert_plan_apart, fence_plan
     from gcs.flight.payload import capture_spans
     from gcs.flight.tuning import read_tuning
-    from mavlink.fleet import Fleet
+    from mavlink.link.fleet import Fleet
     from mavlink.mission import MissionEnd
 
     names = [pv.name for pv in plan.vehicles]

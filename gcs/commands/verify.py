@@ -126,7 +126,7 @@ def _coverage(plan: Any, args: argparse.Namespace) -> Any:
 
     from gcs.plot.coverage import compute_coverage
     from gcs.telemetry import load_images
-    from mavlink.camera import images_from_tlog
+    from mavlink.link.camera import images_from_tlog
 
     tlog = args.telemetry and Path(args.telemetry).suffix.lower() == ".tlog"
     infos: dict[str, Any] = {}

@@ -2,10 +2,10 @@
 
 :func:`fly_plan` does, in order:
 
-1. connects every vehicle of the plan (:class:`mavlink.fleet.Fleet`; vehicle ``i`` at the
+1. connects every vehicle of the plan (:class:`mavlink.link.fleet.Fleet`; vehicle ``i`` at the
    URL given for it, by default ``udpin://0.0.0.0:{14540+i}``, the PX4 SITL ports);
 2. records everything the vehicles send to ``flight.tlog`` (:class:`mavlink.tlog.TlogRecorder`)
-   and MAVSDK's own log lines to ``mavsdk.log`` (:func:`mavlink.mavsdk_glue.mavsdk_log_file`)
+   and MAVSDK's own log lines to ``mavsdk.log`` (:func:`mavlink.link.mavsdk_glue.mavsdk_log_file`)
    when a log directory is given (only MAVSDK's errors the user can act on show on stderr);
 3. flies: in **offboard** mode :func:`mavlink.offboard.fly_offboard` (take-off to the plan's
    start, one shared start time, setpoints against absolute deadlines, the safety monitor of
@@ -17,7 +17,7 @@
    takes part in *so far* (exact semantics of the flown prefix completed by the plan for the
    rest of the horizon, i.e. what the spec's value will be if the rest goes as planned);
 5. on Ctrl-C (task cancellation) the flight's tasks end with it (structured in the link layer)
-   and :meth:`mavlink.fleet.Fleet.flight` commands every vehicle
+   and :meth:`mavlink.link.fleet.Fleet.flight` commands every vehicle
    to hold where it is (:func:`mavlink.monitor.safe_stop`), and reports the modes it then has;
 6. writes the flown tracks (``flight.csv``, mission frame) and evaluates the flown data
    against the spec with the exact semantics (:func:`gcs.flight.evaluation.evaluate_flight`), next
@@ -66,13 +66,13 @@ if TYPE_CHECKING:
     from gcs.flight.payload import CameraCommands
     from gcs.flight.tuning import VehicleTuning
     from gcs.plot.coverage import CoverageReport
-    from mavlink.camera import CameraInfo, CapturedImage
-    from mavlink.fleet import Fleet
+    from mavlink.link.camera import CameraInfo, CapturedImage
+    from mavlink.link.fleet import Fleet
+    from mavlink.link.vehicle import Vehicle
+    from mavlink.link.vehicle_status import VehicleSpec
     from mavlink.mission import CaptureSpan
-    from mavlink.offboard_setpoints import EndAction
+    from mavlink.offboard.setpoints import EndAction
     from mavlink.tracks import FlownTrack
-    from mavlink.vehicle import Vehicle
-    from mavlink.vehicle_status import VehicleSpec
     from planner.frames import GeodeticPoint
     from planner.planfile import Plan
 
@@ -185,8 +185,8 @@ def vehicle_specs(
         UserError: a number of URLs other than the number of vehicles.
         mavlink.errors.UrlError: a malformed URL (names it and the vehicle).
     """
-    from mavlink.urls import default_url, parse_url
-    from mavlink.vehicle_status import VehicleSpec
+    from mavlink.link.urls import default_url, parse_url
+    from mavlink.link.vehicle_status import VehicleSpec
 
     n = len(plan.vehicles)
     if urls and len(urls) != n:
@@ -210,20 +210,20 @@ async def signed_links(
     """Route every vehicle through a MAVLink 2 signing proxy when ``key_file`` is given.
 
     MAVSDK has no signing API: for each ``udpin://HOST:PORT`` connection a
-    :class:`mavlink.signing.SigningProxy` takes the vehicle's traffic on ``HOST:PORT``
+    :class:`mavlink.link.signing.SigningProxy` takes the vehicle's traffic on ``HOST:PORT``
     (verifying its signatures), signs what the GCS sends, and MAVSDK is pointed at the proxy on
     a free loopback port. Yields the specs to connect with (the same specs without a key).
 
     Raises:
         UserError: a connection other than ``udpin://`` (the vehicle must send to the GCS).
-        mavlink.signing.SigningError: a bad key file.
+        mavlink.link.signing.SigningError: a bad key file.
     """
     if key_file is None:
         yield tuple(specs)
         return
-    from mavlink.signing import SigningProxy, load_key
-    from mavlink.urls import Scheme, parse_url
-    from mavlink.vehicle_status import VehicleSpec
+    from mavlink.link.signing import SigningProxy, load_key
+    from mavlink.link.urls import Scheme, parse_url
+    from mavlink.link.vehicle_status import VehicleSpec
 
     key = load_key(key_file)
     proxies: list[SigningProxy] = []
@@ -267,11 +267,11 @@ MAVSDK_LOG_NAME = "mavsdk.log"
 async def _library_log(log_dir: Path | None, files: dict[str, Path]) -> AsyncIterator[None]:
     """MAVSDK's log lines to ``log_dir/mavsdk.log`` for the flight (listed in ``files``);
     without a directory they are not shown, but for the errors the user can act on
-    (:mod:`mavlink.mavsdk_glue`)."""
+    (:mod:`mavlink.link.mavsdk_glue`)."""
     if log_dir is None:
         yield
         return
-    from mavlink.mavsdk_glue import mavsdk_log_file
+    from mavlink.link.mavsdk_glue import mavsdk_log_file
 
     path = log_dir / MAVSDK_LOG_NAME
     with contextlib.ExitStack() as scope:
@@ -342,7 +342,7 @@ async def _fly_offboard(
     from mavlink.monitor import SafetyMonitor
     from mavlink.monitor_findings import always_clauses
     from mavlink.offboard import fly_offboard
-    from mavlink.offboard_setpoints import EndAction, OffboardConfig
+    from mavlink.offboard.setpoints import EndAction, OffboardConfig
 
     names = [v.name for v in plan.vehicles]
     start: asyncio.Future[float] = asyncio.get_running_loop().create_future()
@@ -422,7 +422,7 @@ async def fly_plan(
     from gcs.flight.mission import fly_mission_plan
     from gcs.flight.payload import CameraCommands, capture_spans
     from gcs.flight.tuning import expected_error_m, margin_warnings, read_tuning
-    from mavlink.fleet import Fleet
+    from mavlink.link.fleet import Fleet
     from mavlink.tlog import TlogRecorder
     from mavlink.tracks import write_tracks_csv
 
@@ -619,7 +619,7 @@ def _coverage(
     """The flight's coverage report (``None`` when the plan pictures nothing), with the image
     log and the coverage figure written to ``log_dir``."""
     from gcs.plot.coverage import compute_coverage, coverage_figure
-    from mavlink.camera import write_images_csv
+    from mavlink.link.camera import write_images_csv
 
     if log_dir is not None and any(images.values()):
         files["images"] = write_images_csv(

@@ -40,7 +40,7 @@ if TYPE_CHECKING:
     from gcs.flight.missions import MissionConversion
     from gcs.flight.progress import FlightClock
     from gcs.flight.tuning import VehicleTuning
-    from mavlink.fleet import Fleet
+    from mavlink.link.fleet import Fleet
     from mavlink.mission import CaptureSpan, MissionRun
     from mavlink.monitor_findings import MonitorStats, SafetyEvent
     from planner.planfile import Plan

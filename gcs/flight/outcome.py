@@ -22,10 +22,10 @@ if TYPE_CHECKING:
     from gcs.flight.payload import CameraCommands
     from gcs.flight.tuning import VehicleTuning
     from gcs.plot.coverage import CoverageReport
-    from mavlink.camera import CapturedImage
+    from mavlink.link.camera import CapturedImage
     from mavlink.mission import MissionRun
     from mavlink.monitor_findings import MonitorStats, SafetyEvent
-    from mavlink.stream import StreamStats
+    from mavlink.offboard.stream import StreamStats
     from mavlink.tlog import TlogStats
     from mavlink.tracks import FlownTrack
     from planner.planfile import Plan
@@ -103,7 +103,7 @@ class FlightOutcome:
 
 def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
     """The end-of-flight summary for the operator (several lines)."""
-    from mavlink.stream import STATS_HEADER
+    from mavlink.offboard.stream import STATS_HEADER
 
     lines = []
     if outcome.interrupted:

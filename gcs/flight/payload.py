@@ -36,8 +36,8 @@ from typing import TYPE_CHECKING
 from mavlink.mission.conversion import CaptureSpan
 
 if TYPE_CHECKING:
-    from mavlink.fleet import Fleet
-    from mavlink.vehicle import Vehicle
+    from mavlink.link.fleet import Fleet
+    from mavlink.link.vehicle import Vehicle
     from planner.planfile import Plan
 
 __all__ = [
@@ -131,7 +131,7 @@ async def run_offboard_captures(
     import time
 
     from mavlink.errors import CommandError
-    from mavlink.fleet import GCS_SYSID
+    from mavlink.link.fleet import GCS_SYSID
 
     t0 = await started
     vehicles = {v.name: v for v in fleet}

@@ -28,7 +28,7 @@ from gcs.flight.evaluation import heading_readers, plan_formula
 from mavlink.tracks import wrap_pi
 
 if TYPE_CHECKING:
-    from mavlink.fleet import Fleet
+    from mavlink.link.fleet import Fleet
     from planner.frames import GeodeticPoint, NedToEnuMap
     from planner.planfile import Plan
 

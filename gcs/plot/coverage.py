@@ -2,7 +2,7 @@
 
 The targets are those of the spec's facing rules (:func:`planner.spec.heading.facing_rules`:
 ``face(d, T)`` with the place ``d`` must be in, and the window if any).  A picture
-(:class:`mavlink.camera.CapturedImage`, from the camera's CAMERA_IMAGE_CAPTURED) *counts*
+(:class:`mavlink.link.camera.CapturedImage`, from the camera's CAMERA_IMAGE_CAPTURED) *counts*
 for a rule's target when
 
 * the rule's vehicle took it, within the rule's window (if any);
@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from mavlink.camera import CameraInfo, CapturedImage
+from mavlink.link.camera import CameraInfo, CapturedImage
 
 if TYPE_CHECKING:
     from planner.planfile import Plan

@@ -33,7 +33,7 @@ from mavlink.mission.transfer import (
 )
 
 if TYPE_CHECKING:
-    from mavlink.vehicle import Vehicle
+    from mavlink.link.vehicle import Vehicle
 
 log = logging.getLogger(__name__)
 
@@ -220,7 +220,7 @@ async def _put(v: Vehicle, items: Sequence[MissionItem], mission_type: MissionTy
     if items:
         await upload(v, items, mission_type)
         return
-    from mavlink.mavsdk_glue import mavsdk_call
+    from mavlink.link.mavsdk_glue import mavsdk_call
 
     try:
         result = await mavsdk_call(v.mission_raw.clear_mission_async, timeout_s=60.0)

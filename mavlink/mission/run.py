@@ -21,8 +21,8 @@ from typing import TYPE_CHECKING, Any
 from mavlink.errors import MissionError, MissionResult
 
 if TYPE_CHECKING:
-    from mavlink.vehicle import Vehicle
-    from mavlink.vehicle_status import VehicleStatus
+    from mavlink.link.vehicle import Vehicle
+    from mavlink.link.vehicle_status import VehicleStatus
 
 #: MAV_CMD_DO_SET_MODE and MAV_CMD_MISSION_START: the commands a mission start is made of.
 _START_COMMANDS = frozenset({176, 300})
@@ -73,7 +73,7 @@ async def start_mission_confirmed(
     Never raises for a refusal: the result says what happened, with PX4's STATUSTEXTs.
     """
     from mavlink.errors import CommandError
-    from mavlink.mavsdk_glue import mavsdk_call
+    from mavlink.link.mavsdk_glue import mavsdk_call
     from mavlink.px4_modes import Px4Mode
 
     t_begin = time.monotonic()
@@ -142,7 +142,7 @@ async def start_mission_confirmed(
                     f"disarmed it in {mode}){texts()}",
                 )
             if rejected:
-                from mavlink.mavsdk_glue import MAV_RESULT_NAMES
+                from mavlink.link.mavsdk_glue import MAV_RESULT_NAMES
 
                 why = (
                     f"start ACCEPTED, then {MAV_RESULT_NAMES.get(rejected[-1], rejected[-1])} "

@@ -24,7 +24,7 @@ from mavlink.errors import MissionError, MissionResult
 from mavlink.mission.items import MissionItem, MissionType, compare_items
 
 if TYPE_CHECKING:
-    from mavlink.vehicle import Vehicle
+    from mavlink.link.vehicle import Vehicle
 
 
 def raise_for(result: Any, origin: str, v: Vehicle) -> None:
@@ -42,7 +42,7 @@ async def upload(
     v: Vehicle, items: Sequence[MissionItem], mission_type: MissionType = MissionType.MISSION
 ) -> None:
     """Upload a MISSION or FENCE plan with MAVSDK mission_raw (replacing the vehicle's)."""
-    from mavlink.mavsdk_glue import mavsdk_call
+    from mavlink.link.mavsdk_glue import mavsdk_call
 
     raw = [i.to_mavsdk() for i in items]
     if mission_type is MissionType.MISSION:
@@ -62,7 +62,7 @@ async def download(
     v: Vehicle, mission_type: MissionType = MissionType.MISSION
 ) -> tuple[MissionItem, ...]:
     """Download the vehicle's MISSION, FENCE or RALLY plan."""
-    from mavlink.mavsdk_glue import mavsdk_call
+    from mavlink.link.mavsdk_glue import mavsdk_call
 
     if mission_type is MissionType.MISSION:
         origin, start = "download_mission", v.mission_raw.download_mission_async

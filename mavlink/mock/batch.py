@@ -9,7 +9,7 @@ PX4 parameters by the same functions (:func:`mavlink.mock.parameters.apply_contr
 :func:`~mavlink.mock.parameters.mode_limits`, :meth:`FleetEstimator.configure`).
 
 What a run flies is what ``gcs fly`` streams in offboard mode (docs/architecture.md, "The MAVLink side"): the plan
-sampled at ``rate_hz`` into local-NED setpoints by :func:`mavlink.offboard_setpoints.plan_setpoints_ned`
+sampled at ``rate_hz`` into local-NED setpoints by :func:`mavlink.offboard.setpoints.plan_setpoints_ned`
 (position, velocity and acceleration with the drag fed forward, yaw), preceded by the start
 setpoint for ``settle_s`` (the pre-stream and the arrival gate).  The setpoint link is modelled
 per setpoint: it arrives ``latency + U(0, jitter)`` after it was sent, or never (``loss``); the
@@ -163,7 +163,7 @@ class SimSetup:
         drag_per_s: the drag fed forward (1/s).
         plans: per vehicle, its planned trajectory (what the safety monitor predicts from).
         telemetry_hz: how often the reported position is sampled (``gcs fly`` asks each
-            vehicle for 20 Hz, :class:`mavlink.fleet.Fleet`).
+            vehicle for 20 Hz, :class:`mavlink.link.fleet.Fleet`).
     """
 
     names: tuple[str, ...]
@@ -211,7 +211,7 @@ def prepare(
         MockConfigError: bad parameters, a check step that is not a whole number of physics
             steps, or an offboard-loss action the simulator does not fly (Return).
     """
-    from mavlink.offboard_setpoints import plan_setpoints_ned
+    from mavlink.offboard.setpoints import plan_setpoints_ned
     from planner.frames import GeodeticPoint as Geo
     from planner.frames import NedToEnuMap, enu_to_geodetic
 

@@ -35,6 +35,7 @@ import numpy as np
 import pymap3d
 from pymavlink.dialects.v20 import common as mavlink2
 
+from mavlink.link.signing import signing_timestamp
 from mavlink.mock import px4
 from mavlink.mock.commands import CommandsMixin
 from mavlink.mock.config import FaultConfig, MockVehicleConfig, Outage
@@ -49,7 +50,6 @@ from mavlink.mock.payload import PayloadMixin
 from mavlink.mock.physics import FleetPhysics
 from mavlink.mock.px4 import Px4Mode
 from mavlink.mock.telemetry import DEFAULT_RATES_HZ, Stream, TelemetryMixin
-from mavlink.signing import signing_timestamp
 
 
 class FleetSide(Protocol):

@@ -1,5 +1,5 @@
 """The coverage report against pictures made by hand: where from, which way the camera looked
-(gcs.plot.coverage, mavlink.camera), the image log's CSV, and ``gcs verify --images``.
+(gcs.plot.coverage, mavlink.link.camera), the image log's CSV, and ``gcs verify --images``.
 
 The pictures are built independently of the module: positions through pymap3d, the camera's
 attitude through scipy's rotations (yaw about down, then pitch, as a gimbal's q in NED).
@@ -20,7 +20,7 @@ from gcs.cli import main
 from gcs.errors import InputFileError
 from gcs.plot.coverage import compute_coverage, coverage_figure, coverage_lines
 from gcs.telemetry import load_images
-from mavlink.camera import CameraInfo, CapturedImage, write_images_csv
+from mavlink.link.camera import CameraInfo, CapturedImage, write_images_csv
 from planner.planfile import load_plan
 
 

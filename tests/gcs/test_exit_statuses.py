@@ -54,7 +54,7 @@ def _bare(module: str, name: str) -> BaseException:
         ("mavlink.errors", "ConnectTimeoutError", EXIT_BAD_INPUT),
         ("mavlink.errors", "DuplicateSystemError", EXIT_BAD_INPUT),
         ("mavlink.errors", "StreamError", EXIT_BAD_INPUT),
-        ("mavlink.signing", "SigningError", EXIT_BAD_INPUT),
+        ("mavlink.link.signing", "SigningError", EXIT_BAD_INPUT),
         ("planner.scenario.sections", "ScenarioError", EXIT_BAD_INPUT),
         ("planner.planfile", "PlanFileError", EXIT_BAD_INPUT),
         ("planner.stl", "SpecError", EXIT_BAD_INPUT),

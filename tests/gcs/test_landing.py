@@ -213,7 +213,7 @@ def test_an_end_beside_a_turned_keep_out_lands_straight_down_and_one_over_it_jus
 @pytest.mark.slow
 def test_an_offboard_flight_ending_over_a_keep_out_lands_clear_of_it() -> None:
     from mavlink.offboard import fly_offboard
-    from mavlink.offboard_setpoints import EndAction, OffboardConfig
+    from mavlink.offboard.setpoints import EndAction, OffboardConfig
     from planner.frames import enu_to_geodetic
     from tests.mavlink.linkutil import mock_and_fleet
 

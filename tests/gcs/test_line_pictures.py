@@ -22,7 +22,7 @@ from gcs.flight.dryrun import ground_spawns
 from gcs.flight.missions import convert_plan
 from gcs.flight.payload import capture_spans
 from gcs.plot.coverage import compute_coverage, coverage_lines
-from mavlink.camera import image_from_fields
+from mavlink.link.camera import image_from_fields
 from mavlink.mission import Cmd, MissionEnd
 from mavlink.mock import MockFleet, Px4Mode
 from planner.planfile import load_plan, plan_to_json

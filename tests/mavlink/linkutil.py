@@ -11,10 +11,10 @@ from typing import Any
 import numpy as np
 import yaml
 
-from mavlink.fleet import Fleet
+from mavlink.link.fleet import Fleet
+from mavlink.link.vehicle_status import VehicleSpec
 from mavlink.mock.fleet import MockFleet
 from mavlink.tracks import FlownTrack
-from mavlink.vehicle_status import VehicleSpec
 from planner.planfile import Plan, load_plan
 from planner.problem import Problem
 from planner.scenario import parse_scenario

@@ -6,6 +6,14 @@ import pytest
 from pymavlink.dialects.v20 import common as mav
 
 from mavlink.errors import LinkError, MissionError, MissionResult, UrlError
+from mavlink.link.urls import (
+    ConnectionUrl,
+    Scheme,
+    default_sysid,
+    default_url,
+    default_vehicle_port,
+    parse_url,
+)
 from mavlink.px4_modes import (
     AutoSubMode,
     MainMode,
@@ -15,14 +23,6 @@ from mavlink.px4_modes import (
     encode_custom_mode,
     parse_mode,
     set_mode_params,
-)
-from mavlink.urls import (
-    ConnectionUrl,
-    Scheme,
-    default_sysid,
-    default_url,
-    default_vehicle_port,
-    parse_url,
 )
 
 

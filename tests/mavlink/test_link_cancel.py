@@ -15,7 +15,7 @@ from mavlink.mock import FaultConfig, MockFleet
 from mavlink.mock.px4 import Px4Mode as MockMode
 from mavlink.monitor import SafetyMonitor
 from mavlink.offboard import fly_offboard
-from mavlink.offboard_setpoints import OffboardConfig
+from mavlink.offboard.setpoints import OffboardConfig
 from tests.mavlink.linkutil import mock_and_fleet, stored_plan
 
 pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)

@@ -10,10 +10,10 @@ import pytest
 from mavsdk.plugins.telemetry import FlightMode
 
 from mavlink.errors import ConnectTimeoutError, LinkError, UrlError
-from mavlink.fleet import Fleet, default_specs
+from mavlink.link.fleet import Fleet, default_specs
+from mavlink.link.vehicle_status import VehicleSpec
 from mavlink.mock.fleet import MockFleet
 from mavlink.px4_modes import Px4Mode
-from mavlink.vehicle_status import VehicleSpec
 from planner.frames import GeodeticPoint
 from tests.mavlink.linkutil import free_udp_ports, mock_and_fleet
 

@@ -22,7 +22,7 @@ from mavlink.mock.px4 import Px4Mode as MockMode
 from mavlink.monitor import SafetyMonitor
 from mavlink.monitor_findings import Verdict, always_clauses
 from mavlink.offboard import FlightResult, fly_offboard
-from mavlink.offboard_setpoints import OffboardConfig
+from mavlink.offboard.setpoints import OffboardConfig
 from mavlink.tlog import tracks_from_tlog
 from planner.frames import GeodeticPoint, ned_to_enu
 from tests.mavlink.linkutil import (

@@ -12,7 +12,7 @@ from mavlink.mock.px4 import Px4Mode as MockMode
 from mavlink.monitor import SafetyMonitor
 from mavlink.monitor_findings import SafetyAction, Verdict, always_clauses
 from mavlink.offboard import fly_offboard
-from mavlink.offboard_setpoints import OffboardConfig
+from mavlink.offboard.setpoints import OffboardConfig
 from planner.spec.predicates import build_registry
 from planner.stl import parse
 from planner.trajectory import Trajectory

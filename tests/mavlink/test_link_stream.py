@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mavlink.errors import StreamError
-from mavlink.stream import NedSetpoints, Setpoint, SetpointStreamer, StreamTarget
+from mavlink.offboard.stream import NedSetpoints, Setpoint, SetpointStreamer, StreamTarget
 
 
 class SimClock:

@@ -12,10 +12,10 @@ import pymap3d
 import pytest
 from pymavlink.dialects.v20 import common as mav
 
-from mavlink.fleet import Fleet
-from mavlink.offboard_setpoints import offboard_sender, plan_setpoints_ned
-from mavlink.stream import SetpointStreamer, StreamTarget
-from mavlink.vehicle_status import VehicleSpec
+from mavlink.link.fleet import Fleet
+from mavlink.link.vehicle_status import VehicleSpec
+from mavlink.offboard.setpoints import offboard_sender, plan_setpoints_ned
+from mavlink.offboard.stream import SetpointStreamer, StreamTarget
 from planner.frames import GeodeticPoint
 from planner.trajectory import Trajectory, YawMode, YawPolicy
 from tests.mavlink.linkutil import free_udp_ports

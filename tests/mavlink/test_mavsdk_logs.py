@@ -17,15 +17,15 @@ import numpy as np
 import pytest
 from mavsdk import LogLevel
 
-from mavlink.mavsdk_glue import (
+from mavlink.link.mavsdk_glue import (
     MAVSDK_LOG,
     forward_mavsdk_line,
     mavsdk_log_file,
     route_mavsdk_logs,
 )
+from mavlink.link.vehicle import Vehicle
+from mavlink.link.vehicle_status import VehicleStatus
 from mavlink.px4_modes import Px4Mode
-from mavlink.vehicle import Vehicle
-from mavlink.vehicle_status import VehicleStatus
 from planner.frames import GeodeticPoint, geodetic_to_enu
 from tests.mavlink.linkutil import mock_and_fleet
 

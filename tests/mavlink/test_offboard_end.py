@@ -16,7 +16,7 @@ from mavsdk.plugins.offboard import OffboardResult
 
 from mavlink.errors import CommandError
 from mavlink.offboard import _end
-from mavlink.offboard_setpoints import EndAction
+from mavlink.offboard.setpoints import EndAction
 
 
 class _Offboard:

@@ -47,8 +47,8 @@ spec:
 
 def _here() -> tuple[float, float, float]:
     """Where the vehicle stands now (its estimate; a landing ends up to ~1 m from home)."""
-    from mavlink.fleet import Fleet
-    from mavlink.vehicle_status import VehicleSpec
+    from mavlink.link.fleet import Fleet
+    from mavlink.link.vehicle_status import VehicleSpec
 
     async def read() -> tuple[float, float, float]:
         async with Fleet([VehicleSpec("d1", URL, 1)], connect_timeout_s=15.0) as fleet:
@@ -73,8 +73,8 @@ def plan_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _land_and_wait() -> None:
     """Wait until the vehicle is back home and disarmed (every flight here ends in RTL)."""
-    from mavlink.fleet import Fleet
-    from mavlink.vehicle_status import VehicleSpec
+    from mavlink.link.fleet import Fleet
+    from mavlink.link.vehicle_status import VehicleSpec
 
     async def land() -> None:
         async with Fleet([VehicleSpec("d1", URL, 1)], connect_timeout_s=15.0) as fleet:

@@ -20,11 +20,11 @@ from typing import Any
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.errors import LinkError
-from mavlink.fleet import Fleet
 from mavlink.fuzz import FrameFuzzer, decoded_target
+from mavlink.link.fleet import Fleet
+from mavlink.link.vehicle_status import VehicleSpec
 from mavlink.mock import MockFleet, MockVehicle
 from mavlink.mock.testing import GcsEndpoint, free_udp_ports
-from mavlink.vehicle_status import VehicleSpec
 from planner.frames import GeodeticPoint
 
 

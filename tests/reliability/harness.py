@@ -1,7 +1,7 @@
 """Fault-matrix runs shared by the reliability tests and ``benchmarks/bench_faults.py``.
 
 One run = a fresh :class:`~mavlink.mock.MockFleet` vehicle and a MAVSDK
-:class:`~mavlink.fleet.Fleet` connected to it over loopback UDP (clean link),
+:class:`~mavlink.link.fleet.Fleet` connected to it over loopback UDP (clean link),
 then the faults are switched on and the GCS link's own code
 (:func:`mavlink.mission.upload_and_verify`, one attempt, or with a
 :class:`~mavlink.mission.RetryPolicy` :func:`mavlink.mission.upload_with_retries`)
@@ -18,7 +18,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from mavlink.errors import MissionError
-from mavlink.fleet import Fleet
+from mavlink.link.fleet import Fleet
+from mavlink.link.vehicle_status import VehicleSpec
 from mavlink.mission import (
     MissionItem,
     RetryPolicy,
@@ -29,7 +30,6 @@ from mavlink.mission import (
 )
 from mavlink.mock import FaultConfig, MockFleet
 from mavlink.mock.testing import free_udp_ports
-from mavlink.vehicle_status import VehicleSpec
 from planner.planfile import Plan, load_plan
 
 PLAN_PATH = Path(__file__).resolve().parents[1] / "mavlink" / "data" / "reach_avoid_2.plan.json"
@@ -157,7 +157,7 @@ async def mission_run(
 
 @dataclass(frozen=True, slots=True)
 class ConnectRunResult:
-    """Outcome of connecting a :class:`~mavlink.fleet.Fleet` to ``n`` mock vehicles whose links
+    """Outcome of connecting a :class:`~mavlink.link.fleet.Fleet` to ``n`` mock vehicles whose links
     have faults from the start: discovery, first heartbeats, telemetry rates set.
 
     ``ok``: connected; ``error``: the error line otherwise; ``elapsed_s``: wall time of
@@ -275,7 +275,7 @@ async def flight_run(
     from mavlink.mock import Outage
     from mavlink.mock.px4 import Px4Mode
     from mavlink.offboard import fly_offboard
-    from mavlink.offboard_setpoints import OffboardConfig
+    from mavlink.offboard.setpoints import OffboardConfig
     from planner.frames import GeodeticPoint, ned_to_enu
     from tests.mavlink.linkutil import mock_and_fleet, scenario, spec_formula
 

@@ -14,11 +14,11 @@ import asyncio
 import pytest
 
 from mavlink.errors import CommandError
-from mavlink.fleet import Fleet
+from mavlink.link.fleet import Fleet
+from mavlink.link.vehicle_status import VehicleSpec
 from mavlink.mission import MissionItem
 from mavlink.mock import FaultConfig, MockError, MockFleet, Outage
 from mavlink.mock.testing import free_udp_ports
-from mavlink.vehicle_status import VehicleSpec
 from planner.planfile import load_plan
 from tests.reliability.harness import (
     CONDITIONS,

@@ -18,8 +18,8 @@ import yaml
 
 from gcs.errors import InputFileError
 from gcs.telemetry import load_images, load_telemetry
-from mavlink.camera import IMAGE_COLUMNS
 from mavlink.errors import LinkError
+from mavlink.link.camera import IMAGE_COLUMNS
 from planner.errors import FileFieldError
 from planner.planfile import load_plan
 from planner.scenario import load_scenario

@@ -2,7 +2,7 @@
 
 References are independent of the code under test: pymavlink's own signing
 (``MAVLink.signing``) signs and checks frames, and MAVSDK (which has no signing
-API in 4.1) is the real client behind :class:`mavlink.signing.SigningProxy`.
+API in 4.1) is the real client behind :class:`mavlink.link.signing.SigningProxy`.
 """
 
 from __future__ import annotations
@@ -17,10 +17,8 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from gcs.cli import main
 from mavlink.errors import CommandError
-from mavlink.fleet import Fleet
-from mavlink.mock import MockFleet
-from mavlink.mock.testing import GcsEndpoint, free_udp_ports
-from mavlink.signing import (
+from mavlink.link.fleet import Fleet
+from mavlink.link.signing import (
     SigningError,
     SigningProxy,
     load_key,
@@ -28,7 +26,9 @@ from mavlink.signing import (
     signing_timestamp,
     verifier,
 )
-from mavlink.vehicle_status import VehicleSpec
+from mavlink.link.vehicle_status import VehicleSpec
+from mavlink.mock import MockFleet
+from mavlink.mock.testing import GcsEndpoint, free_udp_ports
 
 pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)
 
@@ -213,7 +213,7 @@ def test_gcs_mock_signing_key_option(tmp_path: Path, capsys) -> None:  # type: i
 
 
 def test_signing_proxy_process_lets_a_mavsdk_fleet_command_a_signed_vehicle(tmp_path: Path) -> None:
-    """The documented route: ``python -m mavlink.signing`` between MAVSDK and the vehicles."""
+    """The documented route: ``python -m mavlink.link.signing`` between MAVSDK and the vehicles."""
     import signal
     import subprocess
     import sys
@@ -224,7 +224,7 @@ def test_signing_proxy_process_lets_a_mavsdk_fleet_command_a_signed_vehicle(tmp_
     key_file.write_text(KEY.hex())
     gcs, veh, inner = free_udp_ports(3)
     proc = subprocess.Popen(
-        [sys.executable, "-m", "mavlink.signing", "--key", str(key_file), "-n", "1",
+        [sys.executable, "-m", "mavlink.link.signing", "--key", str(key_file), "-n", "1",
          "--listen-base", str(gcs), "--inner-base", str(inner), "--vehicle-base", str(veh)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=interruptible,
     )  # fmt: skip
@@ -250,7 +250,7 @@ def test_signing_proxy_process_lets_a_mavsdk_fleet_command_a_signed_vehicle(tmp_
     bad = tmp_path / "bad.key"
     bad.write_text("x")
     done = subprocess.run(
-        [sys.executable, "-m", "mavlink.signing", "--key", str(bad)],
+        [sys.executable, "-m", "mavlink.link.signing", "--key", str(bad)],
         capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert done.returncode == 2 and done.stderr.count("\n") == 1 and str(bad) in done.stderr

@@ -12,13 +12,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from mavlink.fleet import Fleet
+from mavlink.link.fleet import Fleet
 from mavlink.mock import MockFleet
 from mavlink.mock.px4 import Px4Mode as MockMode
 from mavlink.monitor import SafetyMonitor
 from mavlink.monitor_findings import Verdict, always_clauses
 from mavlink.offboard import FlightResult, fly_offboard
-from mavlink.offboard_setpoints import OffboardConfig
+from mavlink.offboard.setpoints import OffboardConfig
 from tests.mavlink.linkutil import mock_and_fleet, spec_formula, stored_plan
 from tests.mavlink.linkutil import scenario as link_scenario
 
@@ -133,8 +133,8 @@ def test_the_wall_clock_stepping_during_a_flight_changes_nothing(
 
 def test_two_autopilots_answering_as_one_system_id_are_refused_naming_both_addresses() -> None:
     from mavlink.errors import DuplicateSystemError
+    from mavlink.link.vehicle_status import VehicleSpec
     from mavlink.mock.testing import free_udp_ports
-    from mavlink.vehicle_status import VehicleSpec
 
     gcs, first, second = free_udp_ports(3)
 
@@ -161,7 +161,7 @@ def test_two_autopilots_answering_as_one_system_id_are_refused_naming_both_addre
 
 
 def test_one_autopilot_heard_over_two_links_is_one_vehicle() -> None:
-    from mavlink.scan import Heard, Sender, duplicates
+    from mavlink.link.scan import Heard, Sender, duplicates
 
     one_clock = Heard({1: {("10.0.0.2", 14580): Sender(("10.0.0.2", 14580), "udpin://:14540", 100.0),
                            ("10.0.0.3", 14580): Sender(("10.0.0.3", 14580), "udpin://:14540", 100.2)}})  # fmt: skip

@@ -1,5 +1,5 @@
 """What a vehicle is and what it last reported: :class:`VehicleSpec` (how to reach it) and
-:class:`VehicleStatus` (a snapshot of its telemetry), kept by :class:`mavlink.vehicle.Vehicle`."""
+:class:`VehicleStatus` (a snapshot of its telemetry), kept by :class:`mavlink.link.vehicle.Vehicle`."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ class VehicleSpec:
 
     Attributes:
         name: the plan's vehicle name (``"d1"``).
-        url: connection URL (validated by :func:`mavlink.urls.parse_url`).
+        url: connection URL (validated by :func:`mavlink.link.urls.parse_url`).
         sysid: the MAVLink system id the vehicle uses (1..255).
     """
 

@@ -12,9 +12,9 @@ on MAVSDK's one callback thread, whose queue MAVSDK cuts by dropping callbacks (
 in its log) when it holds 100; twelve vehicles' subscriptions came to 800 callbacks a second,
 now 300 (and a ``.tlog`` recording adds every message, :mod:`mavlink.tlog`). Its commands
 (arm, modes, take-off, go-to, COMMAND_LONG to any of its components, parameters, telemetry
-rates) are coroutines over :func:`mavlink.mavsdk_glue.mavsdk_call`.
+rates) are coroutines over :func:`mavlink.link.mavsdk_glue.mavsdk_call`.
 
-A room of its own, apart from :mod:`mavlink.fleet` (which connects N of them through one
+A room of its own, apart from :mod:`mavlink.link.fleet` (which connects N of them through one
 MAVSDK instance): everything here concerns one vehicle's link, and the missions, the
 monitor and the offboard flight work on single vehicles.
 """
@@ -37,7 +37,8 @@ from mavsdk.plugins.mission_raw import MissionRaw
 from mavsdk.plugins.offboard import Offboard
 from mavsdk.plugins.telemetry import Telemetry, TelemetryResult
 
-from mavlink.camera import (
+from mavlink.errors import CommandError, LinkError, LinkLostError
+from mavlink.link.camera import (
     MAV_COMP_ID_CAMERA,
     MAV_TYPE_CAMERA,
     CameraInfo,
@@ -46,8 +47,8 @@ from mavlink.camera import (
     image_from_fields,
     unique_images,
 )
-from mavlink.errors import CommandError, LinkError, LinkLostError
-from mavlink.mavsdk_glue import MAV_RESULT_NAMES, mavsdk_call, resolve_future
+from mavlink.link.mavsdk_glue import MAV_RESULT_NAMES, mavsdk_call, resolve_future
+from mavlink.link.vehicle_status import VehicleSpec, VehicleStatus
 from mavlink.px4_modes import (
     MAV_CMD_DO_SET_MODE,
     Px4Mode,
@@ -55,7 +56,6 @@ from mavlink.px4_modes import (
     decode_custom_mode,
     set_mode_params,
 )
-from mavlink.vehicle_status import VehicleSpec, VehicleStatus
 from planner.frames import GeodeticPoint
 
 log = logging.getLogger(__name__)

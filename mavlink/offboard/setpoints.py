@@ -27,8 +27,8 @@ from mavsdk.plugins.offboard import (
 )
 
 from mavlink.errors import LinkError
+from mavlink.offboard.stream import MAX_RATE_HZ, NedSetpoints, Setpoint
 from mavlink.preflight import TAKEOFF_MARGIN_M
-from mavlink.stream import MAX_RATE_HZ, NedSetpoints, Setpoint
 from planner.frames import GeodeticPoint, enu_to_ned, enu_vector_to_ned, yaw_enu_to_ned
 from planner.trajectory import Trajectory
 
@@ -81,7 +81,7 @@ class OffboardConfig:
             failed for it.
         late_threshold_s: lateness that counts as late (default a quarter period).
         send_groups: spread the vehicles over this many send instants per
-            period (:class:`~mavlink.stream.SetpointStreamer`); each vehicle's
+            period (:class:`~mavlink.offboard.stream.SetpointStreamer`); each vehicle's
             setpoints are sampled at its own send times. ``None``: one group
             per 16 vehicles (measured in ``benchmarks/bench_stream.py``:
             bursts of more vehicles raise the p99 lateness); 1: all at the tick.
@@ -163,7 +163,7 @@ def plan_setpoints_ned(
 
     Args:
         t_offset_s: sample at ``k / rate_hz + t_offset_s`` (the vehicle's send
-            offset within the period, :func:`mavlink.stream.send_offsets`).
+            offset within the period, :func:`mavlink.offboard.stream.send_offsets`).
         drag_per_s: the vehicle's linear drag per unit mass ``c`` (1/s). PX4's position
             controller does not model drag, so without help the vehicle settles
             ``c / (MPC_XY_P * MPC_XY_VEL_P_ACC)`` seconds behind a moving setpoint
@@ -190,7 +190,7 @@ def plan_setpoints_ned(
 
 
 def offboard_sender(offboard: Offboard) -> Callable[[Setpoint], None]:
-    """A :class:`~mavlink.stream.StreamTarget` sender over MAVSDK's blocking-free setpoint
+    """A :class:`~mavlink.offboard.stream.StreamTarget` sender over MAVSDK's blocking-free setpoint
     call."""
     set_pva = offboard.set_position_velocity_acceleration_ned
 

@@ -2,14 +2,14 @@
 
 :class:`Fleet` connects N vehicles by URL (vehicle ``i`` defaults to
 ``udpin://0.0.0.0:{14540+i}`` with system id ``i+1``), waits for each one's
-heartbeat with a timeout and keeps a live :class:`~mavlink.vehicle.VehicleStatus` per
+heartbeat with a timeout and keeps a live :class:`~mavlink.link.vehicle.VehicleStatus` per
 vehicle: connected, armed, PX4 mode (decoded from ``HEARTBEAT.custom_mode`` with
 :mod:`mavlink.px4_modes`), local NED and global position, home, EKF/GPS
 global origin, battery.
 
 One vehicle's link (its MAVSDK plugins, telemetry and commands) is a
-:class:`~mavlink.vehicle.Vehicle`; MAVSDK's callback calls are bridged to asyncio by
-:mod:`mavlink.mavsdk_glue`. This module keeps what makes and commands a fleet: the specs,
+:class:`~mavlink.link.vehicle.Vehicle`; MAVSDK's callback calls are bridged to asyncio by
+:mod:`mavlink.link.mavsdk_glue`. This module keeps what makes and commands a fleet: the specs,
 the connection (discovery, duplicate system ids, telemetry rates), :meth:`Fleet.flight`
 and the all-at-once commands.
 
@@ -40,10 +40,10 @@ from mavlink.errors import (
     LinkError,
     LinkLostError,
 )
-from mavlink.mavsdk_glue import route_mavsdk_logs
-from mavlink.urls import Scheme, default_sysid, default_url, parse_url
-from mavlink.vehicle import Vehicle
-from mavlink.vehicle_status import VehicleSpec, VehicleStatus
+from mavlink.link.mavsdk_glue import route_mavsdk_logs
+from mavlink.link.urls import Scheme, default_sysid, default_url, parse_url
+from mavlink.link.vehicle import Vehicle
+from mavlink.link.vehicle_status import VehicleSpec, VehicleStatus
 from planner.frames import GeodeticPoint
 
 #: MAV_AUTOPILOT of PX4 in its HEARTBEAT.
@@ -206,8 +206,8 @@ class Fleet:
 
     async def _refuse_duplicates(self) -> None:
         """DuplicateSystemError if two autopilots answer as one of the fleet's system ids on
-        the udpin ports (:mod:`mavlink.scan`), before MAVSDK merges them."""
-        from mavlink.scan import duplicates, scan_udpin
+        the udpin ports (:mod:`mavlink.link.scan`), before MAVSDK merges them."""
+        from mavlink.link.scan import duplicates, scan_udpin
 
         urls = [parse_url(s.url, vehicle=s.name) for s in self.specs]
         sysids = [s.sysid for s in self.specs]

@@ -21,7 +21,7 @@ import time
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
-from mavlink.urls import ConnectionUrl, Scheme
+from mavlink.link.urls import ConnectionUrl, Scheme
 
 #: Messages whose payload starts with ``time_boot_ms`` (uint32): ATTITUDE, LOCAL_POSITION_NED,
 #: GLOBAL_POSITION_INT; SYSTEM_TIME has it after its uint64 ``time_unix_usec``.

@@ -7,7 +7,7 @@ earth frame (``q``: the vehicle's heading and the gimbal's angles).  :class:`Cap
 one such report with the time it was received (plan time: seconds from the flight's shared
 start, as the flown tracks), :class:`CameraInfo` the optics of ``CAMERA_INFORMATION`` (the
 field of view a footprint is drawn with).  Both are read from a message's fields, whether it
-came live (:class:`mavlink.vehicle.Vehicle`, through MAVSDK's mavlink_direct JSON) or from a
+came live (:class:`mavlink.link.vehicle.Vehicle`, through MAVSDK's mavlink_direct JSON) or from a
 ``.tlog`` (:func:`images_from_tlog`); :func:`write_images_csv` keeps the image log of a
 flight (``images.csv``), which :func:`gcs.telemetry.load_images` reads back (as
 :func:`mavlink.tracks.write_tracks_csv`'s tracks are read there).

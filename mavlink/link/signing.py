@@ -20,12 +20,12 @@ the GCS signs through a local proxy between MAVSDK and the vehicle::
 
 From a shell (one proxy per vehicle, PX4 SITL ports; Ctrl-C stops)::
 
-    python -m mavlink.signing --key fleet.key -n 2      # vehicle i: 14540+i <-> 14640+i
+    python -m mavlink.link.signing --key fleet.key -n 2      # vehicle i: 14540+i <-> 14640+i
     gcs fly plan.json --connection udpin://127.0.0.1:14640 --connection udpin://127.0.0.1:14641
 
 Use :func:`load_key` for a key file: 64 hexadecimal characters (32 bytes; the
 MAVLink key length) or exactly 32 raw bytes.  Point the vehicle's GCS port at
-the proxy's ``listen_port`` and the :class:`~mavlink.fleet.Fleet` at
+the proxy's ``listen_port`` and the :class:`~mavlink.link.fleet.Fleet` at
 ``udpin://127.0.0.1:{proxy.inner_port}``.
 
 Errors (under :class:`mavlink.errors.LinkError`, so the CLI prints one line)::
@@ -322,7 +322,7 @@ async def run_proxies(
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m mavlink.signing --key FILE [-n N]``: signing proxies for a signed fleet.
+    """``python -m mavlink.link.signing --key FILE [-n N]``: signing proxies for a signed fleet.
 
     Then fly with ``gcs fly PLAN --connection udpin://127.0.0.1:<inner_base + i> ...``.
     Exit 0 on Ctrl-C/SIGTERM, 2 on a bad key or a busy port (one line).
@@ -331,7 +331,7 @@ def main(argv: list[str] | None = None) -> int:
     import signal
     import sys
 
-    ap = argparse.ArgumentParser(prog="python -m mavlink.signing", description=main.__doc__)
+    ap = argparse.ArgumentParser(prog="python -m mavlink.link.signing", description=main.__doc__)
     ap.add_argument("--key", required=True, metavar="FILE", help="signing key file")
     ap.add_argument("-n", "--vehicles", type=int, default=1)
     ap.add_argument("--listen-base", type=int, default=14540, help="vehicles send here (+i)")

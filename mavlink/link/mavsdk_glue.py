@@ -8,7 +8,7 @@ vehicle's state directly on MAVSDK's callback thread under a lock. (The
 ``mavsdk.asyncio`` wrappers instead run every call, setpoints included, in
 the default thread pool; ``benchmarks/bench_stream.py`` measures both.)
 
-A room of its own because the vehicle (:mod:`mavlink.vehicle`), the fleet, the
+A room of its own because the vehicle (:mod:`mavlink.link.vehicle`), the fleet, the
 offboard flight, the monitor and the missions all await MAVSDK calls the same way;
 it also routes MAVSDK's own log lines (:func:`route_mavsdk_logs`, :func:`mavsdk_log_file`)
 and names COMMAND_ACK results (:data:`MAV_RESULT_NAMES`).

@@ -4,7 +4,7 @@
 
 1. learns each vehicle's EKF origin (GPS_GLOBAL_ORIGIN) and transforms the
    vehicle's trajectory from the mission ENU frame into its own local NED
-   frame (:func:`~mavlink.offboard_setpoints.plan_setpoints_ned`);
+   frame (:func:`~mavlink.offboard.setpoints.plan_setpoints_ned`);
 2. refuses the flight, before anything is armed, if a vehicle is farther
    than ``start_tolerance_m`` from its planned start (horizontally while it
    is on the ground, in 3-D if it is in the air) (:class:`PreflightError`);
@@ -15,7 +15,7 @@
    vehicles to offboard and waits until every one reports OFFBOARD;
 5. picks one shared start time and streams position + velocity +
    acceleration + yaw setpoints at ``rate_hz`` against absolute deadlines
-   (:mod:`mavlink.stream`), while a :class:`~mavlink.monitor.SafetyMonitor`
+   (:mod:`mavlink.offboard.stream`), while a :class:`~mavlink.monitor.SafetyMonitor`
    watches the links and the spec's always-clauses;
 6. holds the final setpoint for ``hold_after_s`` and then holds, lands or
    returns as asked, and returns a :class:`FlightResult` with per-vehicle
@@ -26,8 +26,8 @@ Setpoints go through MAVSDK's Offboard plugin
 frame LOCAL_NED, yaw rate ignored), called directly on the event loop; it
 does not block (it packs and queues one UDP datagram).
 
-The flight's settings (:class:`~mavlink.offboard_setpoints.OffboardConfig`) and the
-sampling of a plan into setpoints are in :mod:`mavlink.offboard_setpoints`; the start
+The flight's settings (:class:`~mavlink.offboard.setpoints.OffboardConfig`) and the
+sampling of a plan into setpoints are in :mod:`mavlink.offboard.setpoints`; the start
 checks it shares with the mission flight (distance to the start, take-off height, the
 arrival gate) are in :mod:`mavlink.preflight`. This module runs the flight.
 """
@@ -48,29 +48,29 @@ import pymap3d as pm
 from mavsdk.plugins.offboard import OffboardResult
 
 from mavlink.errors import CommandError, LinkError, LinkLostError, PreflightError
-from mavlink.fleet import Fleet
-from mavlink.mavsdk_glue import mavsdk_call
+from mavlink.link.fleet import Fleet
+from mavlink.link.mavsdk_glue import mavsdk_call
+from mavlink.link.vehicle import Vehicle
+from mavlink.link.vehicle_status import VehicleStatus
 from mavlink.monitor import SafetyMonitor, safe_stop
 from mavlink.monitor_findings import MonitorStats, SafetyAction, SafetyEvent
-from mavlink.offboard_setpoints import (
+from mavlink.offboard.setpoints import (
     EndAction,
     OffboardConfig,
     offboard_sender,
     plan_setpoints_ned,
 )
-from mavlink.preflight import check_start, check_takeoff_height, wait_settled
-from mavlink.px4_modes import Px4Mode
-from mavlink.stream import (
+from mavlink.offboard.stream import (
     SetpointStreamer,
     StreamStats,
     StreamTarget,
     auto_send_groups,
     send_offsets,
 )
+from mavlink.preflight import check_start, check_takeoff_height, wait_settled
+from mavlink.px4_modes import Px4Mode
 from mavlink.tlog import TlogRecorder, TlogStats
 from mavlink.tracks import FlownTrack, track_from_rows, write_tracks_csv
-from mavlink.vehicle import Vehicle
-from mavlink.vehicle_status import VehicleStatus
 from planner.frames import GeodeticPoint, enu_to_geodetic
 from planner.trajectory import Trajectory
 
