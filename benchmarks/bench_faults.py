@@ -42,7 +42,9 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import sys
 import time
+from pathlib import Path
 
 from mavlink.errors import ConnectTimeoutError
 from mavlink.link.fleet import Fleet
@@ -51,6 +53,10 @@ from mavlink.mission import RetryPolicy
 from mavlink.mock import FaultConfig
 from mavlink.mock.testing import free_udp_ports
 from planner.planfile import load_plan
+
+# the tests' helpers come from the repository, which need not be on the path
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
 from tests.reliability.harness import (
     CONDITIONS,
     PLAN_PATH,

@@ -23,8 +23,12 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import sys
 import tempfile
 from pathlib import Path
+
+# the tests' helpers come from the repository, which need not be on the path
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from tests.reliability.fuzzrun import fuzz_fleet, fuzz_mock_in_process, fuzz_mock_udp, fuzz_tlog
 
