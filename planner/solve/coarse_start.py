@@ -112,7 +112,8 @@ def coarse_start(
         problem: the scenario.
         model: the planner's linear model (:func:`planner.optimize.make_model`).
         x0s: each vehicle's start state ``(n_init, 3)``.
-        budget_s: seconds for the whole stage.
+        budget_s: seconds for the whole stage (CPU time of the calling thread, and wall
+            time).
     """
     result, conflict = _solve_stage(problem, budget_s, None)
     return _outcome(problem, model, x0s, result, conflict)
@@ -197,7 +198,8 @@ class BackgroundStage:
 
     Args:
         problem, model, x0s: as for :func:`coarse_start`.
-        budget_s: seconds for the whole stage.
+        budget_s: CPU seconds of the stage's thread for the whole stage (its wall time at
+            most ``_WALL_FACTOR`` times that).
         on_plan: called from the stage's thread when it ends with a coarse plan (the
             planner then lets the running start yield to it; see
             :class:`planner.optimize.PlanSearch`).
@@ -213,7 +215,6 @@ class BackgroundStage:
     ) -> None:
         self.problem, self.model, self.x0s = problem, model, x0s
         self.budget_s = budget_s
-        self.started_at = time.perf_counter()
         self._on_plan = on_plan
         self._stop = threading.Event()
         self._done = threading.Event()
