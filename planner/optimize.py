@@ -327,7 +327,7 @@ class PlanSearch:
         guesses, first, z_first = self._guess()
         given = 1
         yield first.describe(problem, formula), z_first
-        met = self.best is not None and self.best.robustness >= problem.epsilon
+        met = self._met()
         coarse = self._stage_start(met)
         if self.combinatorial is not None and self.combinatorial.conflict is not None:
             # Proven on the coarse model that no plan meets the spec: the NLP from the
@@ -366,6 +366,10 @@ class PlanSearch:
             z_first = initial_guess(problem, self.model, formula, self.x0s, first)
             self._first_guess = (guesses, first, z_first)
         return self._first_guess
+
+    def _met(self) -> bool:
+        """Whether the best start so far meets the mission."""
+        return self.best is not None and self.best.robustness >= self.problem.epsilon
 
     def _start_stage(self) -> None:
         """Start the combinatorial stage in its thread (:class:`StageBeside`), unless the
@@ -458,11 +462,11 @@ class PlanSearch:
         say = self.say
         rob_start = self._timed_exact(w0)
         self.watch.deadline = min(self.solve_deadline(), self.polish_until)
-        first = self._stage is not None and self.n_starts == 1
-        if first and self._stage is not None:
-            # The guess's first start, the stage beside it: it yields to the stage's plan
-            # once that is ready and it has had as long as the stage's budget.
-            self._stage.nlp_began(self.watch)
+        # The guess's first start, the stage beside it: it yields to the stage's plan once
+        # that is ready and it has had as long as the stage's budget.
+        side = self._stage if self.n_starts == 1 else None
+        if side is not None:
+            side.nlp_began(self.watch)
         elif self._coarse_z is not None and self.n_starts < problem.solver.starts:
             # With the coarse plan's starts to come, one start may not take all the time
             # left (the allocation mission: the first NLP ran to the limit at -0.70, the
@@ -473,8 +477,8 @@ class PlanSearch:
             )
         refine = rob_start >= problem.epsilon and problem.solver.method is SolverMethod.IPOPT
         run = run_solvers(struct, w0, bounds, say, problem.solver.method.value, stop, refine)
-        if first and self._stage is not None:
-            self._stage.nlp_ended()
+        if side is not None:
+            side.nlp_ended()
         if self.watch.stopped and time.perf_counter() < min(
             self.solve_deadline(), self.polish_until
         ):
@@ -697,8 +701,7 @@ class PlanSearch:
         """Check the plan at ``w_opt`` on dense samples: the :class:`PlanResult`."""
         problem, formula, formulas = self.problem, self.formula, self.formulas
         if self._stage is not None and self.combinatorial is None:
-            met = self.best is not None and self.best.robustness >= problem.epsilon
-            self._stage.settle(met=met)
+            self._stage.settle(met=self._met())
             self.combinatorial = self._stage.outcome
         self.say("checking on dense samples")
         struct = getattr(self, "struct", None)  # None: the time limit came in the build
