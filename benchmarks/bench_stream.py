@@ -55,7 +55,7 @@ from mavsdk.asyncio.plugins.offboard import OffboardAsync
 from mavsdk.plugins.offboard import AccelerationNed, PositionNedYaw, VelocityNedYaw
 
 from gcs.flight.evaluation import plan_formula
-from gcs.flight.progress import FlightClock, FlightProgress
+from gcs.flight.progress import FlightProgress, PlanStarts
 from mavlink.link.fleet import Fleet
 from mavlink.link.vehicle_status import VehicleSpec
 from mavlink.mission import MissionEnd, trajectory_to_mission, upload_and_verify
@@ -333,7 +333,7 @@ async def monitored_flight(
             monitor = SafetyMonitor(always_clauses(plan_formula(plan), names), horizon_s=0.5)
             progress = FlightProgress(plan, io.StringIO(), tty=True)
             build_s = time.perf_counter() - t_build
-            clock = FlightClock()
+            clock = PlanStarts()
             origins = dict.fromkeys(names, ORIGIN)
             trajs = {v.name: v.trajectory for v in plan.vehicles}
             ticks = round(seconds * rate_hz)

@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from mavsdk.plugins.offboard import OffboardResult
 
+from mavlink.clock import WALL, Clock
 from mavlink.errors import CommandError, LinkError
 from mavlink.monitor_findings import (
     MonitorStats,
@@ -182,17 +183,18 @@ class SafetyMonitor:
             lost: PX4 leaves offboard by itself after COM_OF_LOSS_T (default 1 s) without
             setpoints, and an outage that silences telemetry that long has most likely
             starved it of setpoints too, so streaming to it must stop before the link returns.
-        on_start: called with the flight's start (``time.monotonic()`` seconds) when
+        on_start: called with the flight's start (seconds on the fleet's clock) when
             :meth:`run` begins.
         warn_off_plan_m: warn (``on_warning``, once per vehicle) when a vehicle is farther
             than this from its plan (``None``: never).
         max_off_plan_m: stop the flight when a vehicle is farther than this from its plan
             (``None``: never).
         on_warning: called with one line for the operator (on the monitor's thread).
-        clock: the monotonic clock (seconds) the ticks and ages are read on; tests inject a
-            simulated one together with ``wait``.
+        clock: the monotonic clock (seconds) the ticks and ages are read on (default: the
+            fleet's, :attr:`mavlink.link.fleet.Fleet.clock`); tests inject a simulated one
+            together with ``wait``.
         wait: ``await wait(stop, delay_s)`` waits until ``stop`` is set or ``delay_s`` has
-            passed and returns whether ``stop`` is set (default: on the event loop's clock).
+            passed and returns whether ``stop`` is set (default: on the fleet's clock).
     """
 
     def __init__(
@@ -209,7 +211,7 @@ class SafetyMonitor:
         warn_off_plan_m: float | None = None,
         max_off_plan_m: float | None = None,
         on_warning: Callable[[str], None] | None = None,
-        clock: Callable[[], float] = time.monotonic,
+        clock: Callable[[], float] | None = None,
         wait: Callable[[asyncio.Event, float], Awaitable[bool]] | None = None,
     ) -> None:
         if not (math.isfinite(horizon_s) and horizon_s >= 0):
@@ -232,8 +234,9 @@ class SafetyMonitor:
         self.warn_off_plan_m = warn_off_plan_m
         self.max_off_plan_m = max_off_plan_m
         self.on_warning = on_warning
-        self._clock = clock
-        self._wait = _wait_for_stop if wait is None else wait
+        self._given = (clock, wait)
+        self._clock: Callable[[], float] = clock or time.monotonic
+        self._wait = wait or _waiter(WALL)
         self._batch = ClauseBatch([c.formula for c in self.clauses])
         # the signals the clauses read, and per clause the rows of its vehicles (padded with
         # the extra last row, always "present")
@@ -604,6 +607,9 @@ class SafetyMonitor:
         Returns:
             The :class:`SafetyEvent`, or ``None`` if the flight ended without one.
         """
+        clock, wait = self._given
+        self._clock = clock or fleet.clock.monotonic
+        self._wait = wait or _waiter(fleet.clock)
         if self.on_start is not None:
             self.on_start(t0_monotonic_s)
         self.stats = MonitorStats()
@@ -649,10 +655,20 @@ class SafetyMonitor:
         )
 
 
-async def _wait_for_stop(stop: asyncio.Event, delay_s: float) -> bool:
-    """Wait until ``stop`` is set or ``delay_s`` has passed; whether it is set."""
-    try:
-        await asyncio.wait_for(stop.wait(), delay_s)
-    except TimeoutError:
+def _waiter(clock: Clock) -> Callable[[asyncio.Event, float], Awaitable[bool]]:
+    """``wait(stop, delay_s)`` on ``clock``: until ``stop`` is set or ``delay_s`` has passed;
+    whether it is set."""
+
+    async def wait(stop: asyncio.Event, delay_s: float) -> bool:
+        if stop.is_set():
+            return True
+        timer = asyncio.ensure_future(clock.sleep(delay_s))
+        stopped = asyncio.ensure_future(stop.wait())
+        try:
+            await asyncio.wait((timer, stopped), return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for task in (timer, stopped):
+                task.cancel()
         return stop.is_set()
-    return True
+
+    return wait

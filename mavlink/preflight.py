@@ -12,9 +12,7 @@ flight (``gcs.flight.mission``) run these checks, before anything is armed or st
 
 from __future__ import annotations
 
-import asyncio
 import math
-import time
 
 import numpy as np
 
@@ -129,7 +127,7 @@ async def wait_settled(
         PreflightError: not settled within ``timeout_s`` (names the distance, speed, heading).
         LinkLostError: the link was lost meanwhile.
     """
-    t_end = time.monotonic() + timeout_s
+    t_end = v.clock.monotonic() + timeout_s
     window: list[tuple[float, np.ndarray, np.ndarray]] = []
     dist = speed = math.inf
     yaw_err = 0.0
@@ -137,7 +135,7 @@ async def wait_settled(
         st = v.status()
         if st.heartbeat_age_s is not None and not st.connected:
             raise LinkLostError("link lost while waiting at the start", vehicle=v.name, url=v.url)
-        now = time.monotonic()
+        now = v.clock.monotonic()
         if st.pos_ned_m is not None and st.vel_ned_m_s is not None:
             window.append((now, np.asarray(st.pos_ned_m, float), np.asarray(st.vel_ned_m_s, float)))
             while window and window[0][0] < now - dwell_s:
@@ -164,4 +162,4 @@ async def wait_settled(
                 vehicle=v.name,
                 url=v.url,
             )
-        await asyncio.sleep(poll_s)
+        await v.clock.sleep(poll_s)

@@ -23,7 +23,6 @@ import json
 import math
 import struct
 import threading
-import time
 from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -102,7 +101,8 @@ class TlogRecorder:
         return codec
 
     def _on_message(self, msg: Any, _ud: Any) -> None:
-        t_us = int(time.time() * 1e6)
+        clock = self.fleet.clock  # UTC on the flight's clock (a dry run's is simulated)
+        t_us = int((clock.monotonic() + clock.unix_offset()) * 1e6)
         fields = json.loads(msg.fields_json)
         msg_id = fields.pop("message_id", None)
         fields.pop("message_name", None)

@@ -149,6 +149,6 @@ def fly_realtime(
 
         async def flight() -> FlightOutcome:
             async with signed_links(specs, None) as links:
-                return await fly_plan(plan, links, options, progress=progress)
+                return await fly_plan(plan, links, options, progress=progress, clock=dry.clock)
 
         return asyncio.run(flight())

@@ -70,6 +70,19 @@ def add_mock_vehicle_arguments(p: argparse.ArgumentParser, *, param_flag: str) -
     )
 
 
+def add_speed_argument(p: argparse.ArgumentParser) -> None:
+    """``--speed`` of the dry runs (``gcs fly --dry-run``, ``gcs demo``)."""
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=None,
+        metavar="K",
+        help="dry run: the mock vehicles run K times faster than real time and the flight on "
+        "their clock (default $STL_GCS_SIM_SPEED or 1; at most 20), as PX4 SITL's "
+        "PX4_SIM_SPEED_FACTOR",
+    )
+
+
 def parse_param_overrides(items: list[str], flag: str) -> dict[str, float]:
     """``NAME=VALUE`` strings -> a dict; a malformed one raises :class:`gcs.errors.UserError`
     naming the flag, and so does a name the mock vehicle does not have."""

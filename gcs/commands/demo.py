@@ -33,7 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
 
-from gcs.commands import add_mock_vehicle_arguments, parse_param_overrides
+from gcs.commands import add_mock_vehicle_arguments, add_speed_argument, parse_param_overrides
 
 if TYPE_CHECKING:
     from gcs.flight.outcome import FlightOutcome
@@ -56,6 +56,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="fly the plan on the mock vehicles even if it fails verification",
     )
     add_mock_vehicle_arguments(p, param_flag="--mock-param")
+    add_speed_argument(p)
     p.add_argument(
         "--scenario",
         metavar="YAML",
@@ -113,6 +114,7 @@ def run_demo(
     profile: str = "px4",
     seed: int = 0,
     mock_params: dict[str, float] | None = None,
+    speed: float | None = None,
 ) -> DemoResult:
     """Plan, fly on mock vehicles, evaluate and report (module docstring).
 
@@ -123,7 +125,8 @@ def run_demo(
         progress: where the flight's status line goes (``None``: silent).
         scenario: the scenario file (default ``configs/powerline_inspection.yaml``).
         force: fly a plan that fails verification (mock vehicles only, for inspection).
-        profile, seed, mock_params: the mock vehicles (:func:`gcs.flight.dryrun.mock_vehicles`).
+        profile, seed, mock_params, speed: the mock vehicles
+            (:func:`gcs.flight.dryrun.mock_vehicles`).
     """
     from gcs.errors import InputFileError
     from gcs.flight import FlightRefused, FlyOptions, fly_plan, preflight_interlock, vehicle_specs
@@ -179,11 +182,10 @@ def run_demo(
     t = time.perf_counter()
     view = FlightProgress(plan, progress) if progress is not None else None
     options = FlyOptions(rate_hz=rate_hz, log_dir=out)
-    with mock_vehicles(plan, seed=seed, profile=profile, params=mock_params) as dry:
+    with mock_vehicles(plan, seed=seed, profile=profile, params=mock_params, speed=speed) as dry:
         t_mock = time.perf_counter() - t
-        outcome = asyncio.run(
-            fly_plan(plan, vehicle_specs(plan, list(dry.urls)), options, progress=view)
-        )
+        specs = vehicle_specs(plan, list(dry.urls))
+        outcome = asyncio.run(fly_plan(plan, specs, options, progress=view, clock=dry.clock))
     timings["vehicles"] = t_mock + outcome.connect_s
     timings["flight"] = outcome.flight_s
 
@@ -257,6 +259,7 @@ def run(args: argparse.Namespace) -> int:
         profile=args.profile,
         seed=args.seed,
         mock_params=parse_param_overrides(args.mock_param, "--mock-param"),
+        speed=args.speed,
     )
     print(summary(demo))
     out = demo.outcome

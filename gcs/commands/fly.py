@@ -34,6 +34,7 @@ from gcs.commands import (
     add_link_arguments,
     add_mock_vehicle_arguments,
     add_photo_argument,
+    add_speed_argument,
     parse_param_overrides,
     photo_interval,
 )
@@ -101,6 +102,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_link_arguments(p, plan_order=True, timeout_s=10.0, timeout_help="connection timeout (10 s)")
     p.add_argument("--json", action="store_true", help="print the outcome as JSON")
     add_mock_vehicle_arguments(p, param_flag="--mock-param")
+    add_speed_argument(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -118,6 +120,7 @@ def run(args: argparse.Namespace) -> int:
     from gcs.flight.mission import MissionRefused
     from gcs.flight.outcome import FlightMode, FlightOutcome, format_outcome, outcome_json
     from gcs.flight.progress import FlightProgress
+    from mavlink.clock import WALL, Clock
     from mavlink.errors import PreflightError
     from mavlink.offboard.setpoints import EndAction
     from planner.planfile import load_plan
@@ -138,6 +141,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--drag: must be a number in [0, 10] 1/s, got {args.drag:g}")
     if args.dry_run and args.connection:
         raise UserError("--dry-run and --connection exclude each other")
+    if args.speed is not None and not args.dry_run:
+        raise UserError("--speed: only for --dry-run (real vehicles fly in real time)")
     plan = load_plan(args.plan)
     out = sys.stderr if args.json else sys.stdout
     if args.end == "land":
@@ -167,12 +172,12 @@ def run(args: argparse.Namespace) -> int:
     )
     progress = FlightProgress(plan, out)
 
-    def fly(urls: list[str] | None) -> FlightOutcome:
+    def fly(urls: list[str] | None, clock: Clock = WALL) -> FlightOutcome:
         specs = vehicle_specs(plan, urls, args.base_port)
 
         async def signed_flight() -> FlightOutcome:
             async with signed_links(specs, args.signing_key) as links:
-                return await fly_plan(plan, links, options, progress=progress)
+                return await fly_plan(plan, links, options, progress=progress, clock=clock)
 
         return asyncio.run(signed_flight())
 
@@ -183,6 +188,7 @@ def run(args: argparse.Namespace) -> int:
                 seed=args.seed,
                 profile=args.profile,
                 params=parse_param_overrides(args.mock_param, "--mock-param"),
+                speed=args.speed,
             ) as dry:
                 print(
                     f"dry run: {len(dry.urls)} mock vehicle(s) ({args.profile} profile) on the "
@@ -191,7 +197,7 @@ def run(args: argparse.Namespace) -> int:
                     file=out,
                     flush=True,
                 )
-                outcome = fly(list(dry.urls))
+                outcome = fly(list(dry.urls), dry.clock)
         else:
             outcome = fly(args.connection)
     except (PreflightError, MissionRefused) as exc:

@@ -58,7 +58,8 @@ from gcs.errors import GcsError, InputFileError, UserError
 from gcs.flight.dryrun import free_udp_ports
 from gcs.flight.evaluation import evaluate_flight, plan_formula, reads_heading
 from gcs.flight.outcome import FlightMode, FlightOutcome
-from gcs.flight.progress import FlightClock, FlightProgress
+from gcs.flight.progress import FlightProgress, PlanStarts
+from mavlink.clock import WALL, Clock
 
 if TYPE_CHECKING:
     from gcs.checks import Check
@@ -331,7 +332,7 @@ async def _fly_offboard(
     fleet: Fleet,
     plan: Plan,
     opts: FlyOptions,
-    clock: FlightClock,
+    starts: PlanStarts,
     tuning: Mapping[str, VehicleTuning],
     note: Callable[[str], None],
     spans: Mapping[str, Sequence[CaptureSpan]],
@@ -349,7 +350,7 @@ async def _fly_offboard(
 
     def started(t0_monotonic_s: float) -> None:
         """The shared start time, for the progress view and the camera's clock."""
-        clock.t0_monotonic_s.update(dict.fromkeys(names, t0_monotonic_s))
+        starts.t0_monotonic_s.update(dict.fromkeys(names, t0_monotonic_s))
         if not start.done():
             start.set_result(t0_monotonic_s)
 
@@ -402,6 +403,7 @@ async def fly_plan(
     options: FlyOptions | None = None,
     *,
     progress: FlightProgress | None = None,
+    clock: Clock = WALL,
 ) -> FlightOutcome:
     """Connect, fly, record and evaluate (module docstring); Ctrl-C holds every vehicle.
 
@@ -410,6 +412,8 @@ async def fly_plan(
         specs: how to reach each vehicle (:func:`vehicle_specs`), plan order.
         options: :class:`FlyOptions`.
         progress: live view to run during the flight (``None``: silent).
+        clock: the vehicles' clock (:mod:`mavlink.clock`): the wall clock, or a dry run's
+            simulated time (:attr:`gcs.flight.dryrun.DryRun.clock`).
 
     Returns:
         :class:`FlightOutcome`; a safety stop or an interruption is an outcome, not an error.
@@ -430,13 +434,14 @@ async def fly_plan(
     _make_log_dir(opts.log_dir)
     t_start = time.monotonic()
     files: dict[str, Path] = {}
-    clock = FlightClock()
+    starts = PlanStarts()
     async with (
         _library_log(opts.log_dir, files),
-        Fleet(specs, connect_timeout_s=opts.connect_timeout_s) as fleet,
+        Fleet(specs, connect_timeout_s=opts.connect_timeout_s, clock=clock) as fleet,
     ):
         origins = await fleet.origins()
-        t_connected = time.monotonic()
+        connect_s = time.monotonic() - t_start
+        t_connected = clock.monotonic()
         recorder = None
         if opts.log_dir is not None:
             files["tlog"] = opts.log_dir / "flight.tlog"
@@ -444,7 +449,7 @@ async def fly_plan(
             recorder.start()
         stop_view = asyncio.Event()
         view = (
-            asyncio.create_task(progress.run(fleet, clock, origins, stop_view))
+            asyncio.create_task(progress.run(fleet, starts, origins, stop_view))
             if progress is not None
             else None
         )
@@ -479,10 +484,10 @@ async def fly_plan(
                 if opts.mode is FlightMode.OFFBOARD:
                     assert camera is not None
                     result = await _fly_offboard(
-                        fleet, plan, opts, clock, tuning, note, spans, camera
+                        fleet, plan, opts, starts, tuning, note, spans, camera
                     )
                 else:
-                    mission = await fly_mission_plan(fleet, plan, opts, clock, tuning, spans)
+                    mission = await fly_mission_plan(fleet, plan, opts, starts, tuning, spans)
         except asyncio.CancelledError:
             # Ctrl-C: asyncio.run cancelled us, and every vehicle was commanded to hold on the
             # way out of the flight. Take the cancellation back to report.
@@ -495,9 +500,9 @@ async def fly_plan(
             accuracy = {v.name: v.track_accuracy_m for v in fleet}
             rows = {v.name: v.stop_track() for v in fleet}
             images = {
-                v.name: tuple(v.images(clock.t0_monotonic_s[v.name]))
+                v.name: tuple(v.images(starts.t0_monotonic_s[v.name]))
                 for v in fleet
-                if v.name in clock.t0_monotonic_s
+                if v.name in starts.t0_monotonic_s
             }
             stop_view.set()
             if view is not None:
@@ -518,9 +523,8 @@ async def fly_plan(
             s.name: (s.mode.label if s.mode is not None else str(s.custom_mode))
             for s in fleet.statuses()
         }
-    flight_s = time.monotonic() - t_connected
-    connect_s = t_connected - t_start
-    t0 = dict(clock.t0_monotonic_s)
+    flight_s = clock.monotonic() - t_connected
+    t0 = dict(starts.t0_monotonic_s)
     if result is not None:
         # fly_offboard recorded the tracks itself (from just before the shared start).
         tracks = dict(result.tracks)
@@ -537,8 +541,7 @@ async def fly_plan(
             # every predicate moves by at most its vehicles' position error (a distance
             # between two vehicles by both): flown - 2 * worst 3-D accuracy
             lower = evaluation.flown_robustness - 2.0 * max(errs)
-    offset = time.time() - time.monotonic()
-    t0_unix = min(t0.values()) + offset if t0 else None
+    t0_unix = min(t0.values()) + clock.unix_offset() if t0 else None
     missions = dict(mission.runs) if mission is not None else {}
     if result is not None:
         end_failures = dict(result.end_failures)
@@ -591,9 +594,10 @@ async def _cameras(
     if not names:
         return {}
     vehicles = [fleet[n] for n in names]
-    deadline = time.monotonic() + wait_s
-    while time.monotonic() < deadline and any(v.camera_component is None for v in vehicles):
-        await asyncio.sleep(0.1)
+    clock = fleet.clock
+    deadline = clock.monotonic() + wait_s
+    while clock.monotonic() < deadline and any(v.camera_component is None for v in vehicles):
+        await clock.sleep(0.1)
     infos = {}
     for v, info in zip(
         vehicles,

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import asyncio
 import math
-import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -38,7 +37,7 @@ from gcs.errors import GcsError
 if TYPE_CHECKING:
     from gcs.flight import FlyOptions
     from gcs.flight.missions import MissionConversion
-    from gcs.flight.progress import FlightClock
+    from gcs.flight.progress import PlanStarts
     from gcs.flight.tuning import VehicleTuning
     from mavlink.link.fleet import Fleet
     from mavlink.mission import CaptureSpan, MissionRun
@@ -108,7 +107,7 @@ async def fly_mission_plan(
     fleet: Fleet,
     plan: Plan,
     opts: FlyOptions,
-    clock: FlightClock,
+    starts: PlanStarts,
     tuning: dict[str, VehicleTuning],
     spans: Mapping[str, Sequence[CaptureSpan]],
 ) -> MissionFlight:
@@ -174,8 +173,8 @@ async def fly_mission_plan(
             f"{plan.robustness:+.3f}; up to {worst:.1f} s late: PX4's MPC_ACC_HOR / "
             "MPC_JERK_AUTO corners and stops); fly offboard (gcs fly), or --force"
         )
-    starts = {pv.name: np.asarray(pv.start_enu_m, dtype=float) for pv in plan.vehicles}
-    start_ned = {n: enu_to_ned(starts[n], plan.origin, origins[n]) for n in names}
+    start_enu = {pv.name: np.asarray(pv.start_enu_m, dtype=float) for pv in plan.vehicles}
+    start_ned = {n: enu_to_ned(start_enu[n], plan.origin, origins[n]) for n in names}
     yaw0 = {n: float(conv.missions[n].items[1].param4) for n in names}
     # Refuse before anything is armed.
     on_ground = []
@@ -191,7 +190,7 @@ async def fly_mission_plan(
             vehicle_origin=origins[v.name],
         )
         if not airborne:
-            alt = float(np.ravel(enu_to_geodetic(starts[v.name], plan.origin)[2])[0])
+            alt = float(np.ravel(enu_to_geodetic(start_enu[v.name], plan.origin)[2])[0])
             await check_takeoff_height(v, alt, TAKEOFF_MARGIN_M)
             on_ground.append(v)
     # retried as a whole on a bad link, within the default budget, until read back as sent
@@ -199,7 +198,7 @@ async def fly_mission_plan(
 
     async def to_start(v: Any) -> None:
         lat, lon, alt = (
-            float(np.ravel(x)[0]) for x in enu_to_geodetic(starts[v.name], plan.origin)
+            float(np.ravel(x)[0]) for x in enu_to_geodetic(start_enu[v.name], plan.origin)
         )
         if v in on_ground:
             await v.arm()
@@ -240,8 +239,8 @@ async def fly_mission_plan(
     await asyncio.gather(*(v.set_current_item(1) for v in vehicles))
     follower = MissionFollower(vehicles)
     follower.attach()
-    await asyncio.sleep(0.2)
-    t_release = time.monotonic()
+    await fleet.clock.sleep(0.2)
+    t_release = fleet.clock.monotonic()
     follower.t_start = t_release
     started = await asyncio.gather(*(start_mission_confirmed(v, climb_m=None) for v in vehicles))
     refused = [s for s in started if not s.started]
@@ -253,7 +252,7 @@ async def fly_mission_plan(
     t_ok = {s.vehicle: s.t_accepted_monotonic_s for s in started}
     t0 = float(np.median(list(t_ok.values())))
     follower.t_start = t0
-    clock.t0_monotonic_s.update(dict.fromkeys(names, t0))
+    starts.t0_monotonic_s.update(dict.fromkeys(names, t0))
     stop = asyncio.Event()
     clauses = always_clauses(_formula(plan), names, reads_heading) if opts.monitor else ()
     monitor = SafetyMonitor(clauses, horizon_s=0.5 if opts.monitor else 0.0)
@@ -275,17 +274,17 @@ async def fly_mission_plan(
     )
     try:
         done = await follower.until_finished(
-            timeout_s=plan.horizon_s + MISSION_SLACK_S - (time.monotonic() - t0), stop=stop
+            timeout_s=plan.horizon_s + MISSION_SLACK_S - (fleet.clock.monotonic() - t0), stop=stop
         )
         # Keep recording until the horizon is covered (a mission may end before it).
         t_end = t0 + plan.horizon_s + 0.5
-        while time.monotonic() < t_end and not stop.is_set():
-            await asyncio.sleep(0.1)
+        while fleet.clock.monotonic() < t_end and not stop.is_set():
+            await fleet.clock.sleep(0.1)
     finally:
         stop.set()
         event = await mon_task
         follower.detach()
-    now = time.monotonic() - t0
+    now = fleet.clock.monotonic() - t0
     runs = {n: follower.run(n, finished=n in done, duration_s=done.get(n, now)) for n in names}
     pred = conv.prediction
     dep = {}

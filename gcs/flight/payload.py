@@ -118,7 +118,7 @@ async def run_offboard_captures(
 ) -> None:
     """Send each vehicle's camera and gimbal commands on the plan's clock (module docstring).
 
-    Waits for ``started`` (the shared start, ``time.monotonic()``), then at each span's start
+    Waits for ``started`` (the shared start, on the fleet's clock), then at each span's start
     sends, at once and side by side, DO_GIMBAL_MANAGER_PITCHYAW to the autopilot (the first
     time after DO_GIMBAL_MANAGER_CONFIGURE putting the ground station in control of the
     gimbal: PX4 denies a PITCHYAW from anyone else) and IMAGE_START_CAPTURE with the span's
@@ -128,12 +128,11 @@ async def run_offboard_captures(
     Runs until the last span ends or it is cancelled (the flight ended); never raises for a
     refusal.  What it sent and what was refused goes into ``out`` as it happens.
     """
-    import time
-
     from mavlink.errors import CommandError
     from mavlink.link.fleet import GCS_SYSID
 
     t0 = await started
+    clock = fleet.clock
     vehicles = {v.name: v for v in fleet}
 
     async def one(v: Vehicle, todo: Sequence[CaptureSpan]) -> None:
@@ -182,7 +181,7 @@ async def run_offboard_captures(
             )
 
         for span in todo:
-            await asyncio.sleep(max(0.0, t0 + span.t_start_s - time.monotonic()))
+            await clock.sleep(t0 + span.t_start_s - clock.monotonic())
             start = send(
                 span.t_start_s,
                 f"start capture ({span.target})",
@@ -196,7 +195,7 @@ async def run_offboard_captures(
                 await asyncio.gather(aim(span), start)
             else:
                 await start
-            await asyncio.sleep(max(0.0, t0 + span.t_end_s - time.monotonic()))
+            await clock.sleep(t0 + span.t_end_s - clock.monotonic())
             await send(span.t_end_s, "stop capture", MAV_CMD_IMAGE_STOP_CAPTURE, 0.0, to=comp)
 
     await asyncio.gather(

@@ -5,7 +5,7 @@ will be if the rest goes as planned).
 
 A room of its own because it is the one part of a flight that runs beside it, on a worker
 thread, and writes to the terminal: :func:`gcs.flight.fly_plan` only starts
-:meth:`FlightProgress.run` and stops it, and :class:`FlightClock` is how the flight tells the
+:meth:`FlightProgress.run` and stops it, and :class:`PlanStarts` is how the flight tells the
 view (and mission mode) when each vehicle's plan started.
 """
 
@@ -32,12 +32,13 @@ if TYPE_CHECKING:
     from planner.frames import GeodeticPoint, NedToEnuMap
     from planner.planfile import Plan
 
-__all__ = ["FlightClock", "FlightProgress"]
+__all__ = ["FlightProgress", "PlanStarts"]
 
 
 @dataclass(slots=True)
-class FlightClock:
-    """The plan's start instant (``time.monotonic()``) per vehicle, once the flight has one."""
+class PlanStarts:
+    """The plan's start instant (on the fleet's clock, :mod:`mavlink.clock`) per vehicle, once
+    the flight has one."""
 
     t0_monotonic_s: dict[str, float] = field(default_factory=dict)
 
@@ -170,7 +171,7 @@ class FlightProgress:
     def line(
         self,
         fleet: Fleet,
-        clock: FlightClock,
+        starts: PlanStarts,
         origins: Mapping[str, GeodeticPoint],
         *,
         with_robustness: bool = True,
@@ -181,13 +182,13 @@ class FlightProgress:
         """
         from planner.frames import NedToEnuMap, yaw_ned_to_enu
 
-        now = time.monotonic()
+        now = fleet.clock.monotonic()
         parts = []
         t_plan: float | None = None
         for v in self.plan.vehicles:
             st = fleet[v.name].status(now)
             mode = st.mode.label if st.mode is not None else str(st.custom_mode)
-            t = clock.plan_time(v.name, now)
+            t = starts.plan_time(v.name, now)
             where = ""
             if st.pos_ned_m is not None and v.name in origins:
                 origin = origins[v.name]
@@ -252,20 +253,21 @@ class FlightProgress:
     async def run(
         self,
         fleet: Fleet,
-        clock: FlightClock,
+        starts: PlanStarts,
         origins: Mapping[str, GeodeticPoint],
         stop: asyncio.Event,
     ) -> None:
         """Sample positions every 0.1 s and show a line every 0.25 s (tty) or interval.
 
         Sampling and evaluation run on a worker thread (the event loop only waits for it),
-        one at a time; only the writing is done here.
+        one at a time; only the writing is done here. The view refreshes on the wall clock
+        (it is for a person), the plan's time is the fleet's.
         """
         show_every = 0.25 if self.tty else self.plain_interval_s
         next_show = time.monotonic()
         while not stop.is_set():
             due = time.monotonic() >= next_show
-            text = await asyncio.to_thread(self.line, fleet, clock, origins, with_robustness=due)
+            text = await asyncio.to_thread(self.line, fleet, starts, origins, with_robustness=due)
             if due:
                 self.show(text)
                 next_show += show_every

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import time
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -34,6 +33,7 @@ from typing import Any
 from mavsdk import ComponentType, Configuration, Mavsdk
 from mavsdk.exceptions import MavsdkError
 
+from mavlink.clock import WALL, Clock
 from mavlink.errors import (
     ConnectTimeoutError,
     DuplicateSystemError,
@@ -108,6 +108,8 @@ class Fleet:
         link_timeout_s: a vehicle whose last heartbeat is older is not connected.
         telemetry_rate_hz: ask each vehicle for local/global position at this
             rate (``None``: leave the vehicle's rates alone).
+        clock: the clock the vehicles' telemetry and the flight run on (:mod:`mavlink.clock`:
+            the wall clock, or a mock fleet's simulated time).
 
     Raises (from :meth:`connect`):
         UrlError: a URL is malformed (before anything is opened).
@@ -128,6 +130,7 @@ class Fleet:
         link_timeout_s: float = 2.0,
         telemetry_rate_hz: float | None = 20.0,
         scan_s: float = 1.0,
+        clock: Clock = WALL,
     ) -> None:
         if not specs:
             raise LinkError("no vehicles to connect")
@@ -155,6 +158,7 @@ class Fleet:
         self.link_timeout_s = link_timeout_s
         self.telemetry_rate_hz = telemetry_rate_hz
         self.scan_s = scan_s
+        self.clock = clock
         self._mavsdk: Mavsdk | None = None
         self._vehicles: dict[str, Vehicle] = {}
 
@@ -191,7 +195,7 @@ class Fleet:
             systems = await self._wait_for_systems()
             for spec in self.specs:
                 self._vehicles[spec.name] = Vehicle(
-                    spec, systems[spec.sysid], link_timeout_s=self.link_timeout_s
+                    spec, systems[spec.sysid], link_timeout_s=self.link_timeout_s, clock=self.clock
                 )
             # Discovery by sysid sees any message; wait for a decoded heartbeat too.
             await asyncio.gather(*(self._first_heartbeat(v) for v in self._vehicles.values()))
@@ -345,7 +349,7 @@ class Fleet:
 
     def statuses(self) -> list[VehicleStatus]:
         """One :class:`VehicleStatus` per vehicle, taken at the same instant."""
-        now = time.monotonic()
+        now = self.clock.monotonic()
         return [v.status(now) for v in self.vehicles]
 
     async def origins(self) -> dict[str, GeodeticPoint]:

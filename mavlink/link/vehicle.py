@@ -37,6 +37,7 @@ from mavsdk.plugins.mission_raw import MissionRaw
 from mavsdk.plugins.offboard import Offboard
 from mavsdk.plugins.telemetry import Telemetry, TelemetryResult
 
+from mavlink.clock import WALL, Clock
 from mavlink.errors import CommandError, LinkError, LinkLostError
 from mavlink.link.camera import (
     MAV_COMP_ID_CAMERA,
@@ -96,8 +97,12 @@ class Vehicle:
     and the MAVSDK result.
     """
 
-    def __init__(self, spec: VehicleSpec, system: Any, *, link_timeout_s: float) -> None:
+    def __init__(
+        self, spec: VehicleSpec, system: Any, *, link_timeout_s: float, clock: Clock = WALL
+    ) -> None:
         self.spec = spec
+        #: the clock of its telemetry's instants and of waits on it (:mod:`mavlink.clock`)
+        self.clock = clock
         self.name = spec.name
         self.url = spec.url
         self.link_timeout_s = link_timeout_s
@@ -185,7 +190,7 @@ class Vehicle:
         ]
 
     def _on_pv(self, pv: Any, _ud: Any) -> None:
-        t = time.monotonic()
+        t = self.clock.monotonic()
         p, v = pv.position, pv.velocity
         pos = (float(p.north_m), float(p.east_m), float(p.down_m))
         vel = (float(v.north_m_s), float(v.east_m_s), float(v.down_m_s))
@@ -263,7 +268,7 @@ class Vehicle:
         armed = bool(int(fields["base_mode"]) & 128)
         with self._lock:
             self._custom_mode, self._mode, self._armed = custom, mode, armed
-            self._t_heartbeat = time.monotonic()
+            self._t_heartbeat = self.clock.monotonic()
 
     def _on_origin(self, msg: MavlinkMessage, _ud: Any) -> None:
         f = json.loads(msg.fields_json)
@@ -279,13 +284,13 @@ class Vehicle:
         if isinstance(text, list):  # a char array may come as its codes
             text = "".join(chr(c) for c in text if c)
         with self._lock:
-            self._texts.append((time.monotonic(), int(f.get("severity", 6)), str(text)))
+            self._texts.append((self.clock.monotonic(), int(f.get("severity", 6)), str(text)))
             del self._texts[:-_KEPT_TEXTS]
 
     def _on_image(self, msg: MavlinkMessage, _ud: Any) -> None:
         if msg.system_id != self.spec.sysid:
             return
-        t = time.monotonic()
+        t = self.clock.monotonic()
         fields = json.loads(msg.fields_json)
         with self._lock:
             self._images.append((t, int(msg.component_id), fields))
@@ -394,7 +399,7 @@ class Vehicle:
 
     def status(self, now: float | None = None) -> VehicleStatus:
         """A consistent snapshot of the vehicle's state."""
-        now = time.monotonic() if now is None else now
+        now = self.clock.monotonic() if now is None else now
         self._poll()
         with self._lock:
             hb_age = None if self._t_heartbeat is None else now - self._t_heartbeat
@@ -450,12 +455,12 @@ class Vehicle:
         except CommandError as exc:
             log.info("vehicle %s: %s", self.name, exc)
             return None
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
+        deadline = self.clock.monotonic() + timeout_s
+        while self.clock.monotonic() < deadline:
             info = self.camera_info
             if info is not None:
                 return info
-            await asyncio.sleep(0.05)
+            await self.clock.sleep(0.05)
         return None
 
     def images(self, t0_monotonic_s: float) -> list[CapturedImage]:
@@ -498,7 +503,7 @@ class Vehicle:
 
     def _fail(self, what: str, result: Any, since_s: float | None = None) -> CommandError:
         """The refusal of ``what``, with the reasons the vehicle gave in STATUSTEXT (warning
-        or worse) since ``since_s`` (``time.monotonic()``), e.g. PX4's "Arming denied: ..."."""
+        or worse) since ``since_s`` (on :attr:`clock`), e.g. PX4's "Arming denied: ..."."""
         name = getattr(result, "name", str(result))
         said = [] if since_s is None else self.statustexts(since_s)
         reasons = list(dict.fromkeys(text for sev, text in said if sev <= _WARNING))
@@ -508,13 +513,13 @@ class Vehicle:
         )
 
     async def _action(self, what: str, start: Callable[..., None], *args: Any) -> None:
-        t0 = time.monotonic()
+        t0 = self.clock.monotonic()
         try:
             result = await mavsdk_call(start, *args)
         except TimeoutError:
             raise self._fail(what, "TIMEOUT", t0) from None
         if result != ActionResult.SUCCESS:
-            await asyncio.sleep(_REASON_GRACE_S)  # a reason sent just after the refusal
+            await self.clock.sleep(_REASON_GRACE_S)  # a reason sent just after the refusal
             raise self._fail(what, result, t0)
 
     async def arm(self) -> None:
@@ -669,7 +674,7 @@ class Vehicle:
             LinkLostError: the link timed out meanwhile.
             LinkError: ``what`` did not happen within ``timeout_s``.
         """
-        deadline = time.monotonic() + timeout_s
+        deadline = self.clock.monotonic() + timeout_s
         while True:
             st = self.status()
             if predicate(st):
@@ -680,7 +685,7 @@ class Vehicle:
                     vehicle=self.name,
                     url=self.url,
                 )
-            if time.monotonic() >= deadline:
+            if self.clock.monotonic() >= deadline:
                 raise LinkError(
                     f"timed out after {timeout_s:.1f} s waiting for {what} "
                     f"(mode {st.mode.label if st.mode else st.custom_mode}, "
@@ -688,7 +693,7 @@ class Vehicle:
                     vehicle=self.name,
                     url=self.url,
                 )
-            await asyncio.sleep(poll_s)
+            await self.clock.sleep(poll_s)
 
     async def set_telemetry_rate(self, rate_hz: float, *, retry_for_s: float = 0.0) -> None:
         """Ask for LOCAL_POSITION_NED and GLOBAL_POSITION_INT at ``rate_hz``.

@@ -13,11 +13,11 @@ import asyncio
 import dataclasses
 import json
 import math
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from mavlink.clock import WALL, Clock
 from mavlink.errors import MissionError, MissionResult
 
 if TYPE_CHECKING:
@@ -76,7 +76,7 @@ async def start_mission_confirmed(
     from mavlink.link.mavsdk_glue import mavsdk_call
     from mavlink.px4_modes import Px4Mode
 
-    t_begin = time.monotonic()
+    t_begin = v.clock.monotonic()
     deadline = t_begin + timeout_s
     late: list[tuple[float, int]] = []
 
@@ -85,7 +85,7 @@ async def start_mission_confirmed(
             return
         f = json.loads(msg.fields_json)
         if int(f.get("command", -1)) in _START_COMMANDS and int(f.get("result", 0)) != 0:
-            late.append((time.monotonic(), int(f["result"])))
+            late.append((v.clock.monotonic(), int(f["result"])))
 
     def texts() -> str:
         said = [t for sev, t in v.statustexts(t_begin) if sev <= 4]
@@ -97,9 +97,9 @@ async def start_mission_confirmed(
     attempts, why = 0, "no start command was accepted"
     t_ok = math.nan
     try:
-        while time.monotonic() < deadline:
+        while v.clock.monotonic() < deadline:
             if attempts:
-                await asyncio.sleep(retry_after_s)
+                await v.clock.sleep(retry_after_s)
             attempts += 1
             st = v.status()
             if not st.armed:
@@ -108,7 +108,7 @@ async def start_mission_confirmed(
                 except CommandError as exc:
                     why = f"arm: {exc.result}"
                     continue
-            t_cmd = time.monotonic()
+            t_cmd = v.clock.monotonic()
             try:
                 result = await mavsdk_call(v.mission_raw.start_mission_async)
             except TimeoutError:
@@ -118,19 +118,19 @@ async def start_mission_confirmed(
                 why = f"start refused: {name}"
                 continue
             # Accepted: wait for the heartbeat's mode, or PX4's late rejection.
-            t_wait = time.monotonic() + mode_wait_s
-            while time.monotonic() < t_wait and not any(t >= t_cmd for t, _ in late):
+            t_wait = v.clock.monotonic() + mode_wait_s
+            while v.clock.monotonic() < t_wait and not any(t >= t_cmd for t, _ in late):
                 st = v.status()
-                if st.mode is Px4Mode.AUTO_MISSION and (st.armed or _heard_since(st, t_cmd)):
+                if st.mode is Px4Mode.AUTO_MISSION and (st.armed or _heard_since(v, st, t_cmd)):
                     break
-                await asyncio.sleep(0.02)
+                await v.clock.sleep(0.02)
             rejected = [r for t, r in late if t >= t_cmd]
             st = v.status()
             if st.mode is Px4Mode.AUTO_MISSION and st.armed and not rejected:
                 t_ok = t_cmd
                 break
             mode = st.mode.label if st.mode is not None else str(st.custom_mode)
-            if st.mode is Px4Mode.AUTO_MISSION and not rejected and _heard_since(st, t_cmd):
+            if st.mode is Px4Mode.AUTO_MISSION and not rejected and _heard_since(v, st, t_cmd):
                 # PX4 took the start and disarmed the vehicle on the ground (the take-off it
                 # skipped, then COM_DISARM_PRFLT) before its 1 Hz heartbeat showed it armed:
                 # re-arming and starting again would be a second start nobody asked for.
@@ -166,8 +166,8 @@ async def start_mission_confirmed(
     def gave_up(s: VehicleStatus) -> bool:
         return not s.armed or s.mode is not Px4Mode.AUTO_MISSION
 
-    t_climb = time.monotonic() + climb_timeout_s
-    while time.monotonic() < t_climb:
+    t_climb = v.clock.monotonic() + climb_timeout_s
+    while v.clock.monotonic() < t_climb:
         s = v.status()
         if climbing(s):
             up = -s.pos_ned_m[2] - alt0 if s.pos_ned_m is not None else math.nan
@@ -183,7 +183,7 @@ async def start_mission_confirmed(
                 f"AUTO.MISSION accepted but the vehicle never left the ground (now {mode}, "
                 f"armed {s.armed}){texts()}",
             )
-        await asyncio.sleep(0.05)
+        await v.clock.sleep(0.05)
     return MissionStart(
         v.name,
         False,
@@ -193,10 +193,10 @@ async def start_mission_confirmed(
     )
 
 
-def _heard_since(st: VehicleStatus, t: float) -> bool:
-    """The heartbeat behind ``st`` arrived after monotonic time ``t``."""
+def _heard_since(v: Vehicle, st: VehicleStatus, t: float) -> bool:
+    """The heartbeat behind ``st`` (of ``v``) arrived after time ``t`` on its clock."""
     age = st.heartbeat_age_s
-    return age is not None and time.monotonic() - age > t
+    return age is not None and v.clock.monotonic() - age > t
 
 
 @dataclass(frozen=True, slots=True)
@@ -252,12 +252,13 @@ class MissionFollower:
     """Records MISSION_CURRENT and MISSION_ITEM_REACHED of some vehicles (see MissionRun).
 
     Subscribe with :meth:`attach` before the start, read with :meth:`runs`, :meth:`detach`
-    at the end. Times are seconds from :attr:`t_start` (``time.monotonic()``; settable).
+    at the end. Times are seconds from :attr:`t_start` (on the vehicles' clock, settable).
     """
 
     def __init__(self, vehicles: Sequence[Vehicle]) -> None:
         self.vehicles = list(vehicles)
-        self.t_start = time.monotonic()
+        self.clock: Clock = self.vehicles[0].clock if self.vehicles else WALL
+        self.t_start = self.clock.monotonic()
         self._reached: dict[str, dict[int, float]] = {v.name: {} for v in vehicles}
         self._current: dict[str, list[tuple[int, float]]] = {v.name: [] for v in vehicles}
         self.totals: dict[str, int] = {}
@@ -272,7 +273,7 @@ class MissionFollower:
             ) -> None:
                 seq = _seq_of(msg, sysid)
                 if seq is not None:
-                    self._reached[name].setdefault(seq, time.monotonic() - self.t_start)
+                    self._reached[name].setdefault(seq, self.clock.monotonic() - self.t_start)
 
             def on_current(
                 msg: Any, _ud: Any, name: str = v.name, sysid: int = v.spec.sysid
@@ -281,7 +282,7 @@ class MissionFollower:
                 seq = _seq_of(msg, sysid)
                 cur = self._current[name]
                 if seq is not None and (not cur or cur[-1][0] != seq):
-                    cur.append((seq, time.monotonic() - self.t_start))
+                    cur.append((seq, self.clock.monotonic() - self.t_start))
 
             def on_progress(progress: Any, _ud: Any, name: str = v.name) -> None:
                 self.totals[name] = int(progress.total)
@@ -363,21 +364,21 @@ class MissionFollower:
         """Wait until every vehicle reports its mission finished (MAVSDK), ``timeout_s`` from
         now or ``stop``; the finish time of each that did (s from :attr:`t_start`)."""
         done: dict[str, float] = {}
-        t_end = time.monotonic() + timeout_s
-        while len(done) < len(self.vehicles) and time.monotonic() < t_end:
+        t_end = self.clock.monotonic() + timeout_s
+        while len(done) < len(self.vehicles) and self.clock.monotonic() < t_end:
             if stop is not None and stop.is_set():
                 break
-            await asyncio.sleep(poll_s)
+            await self.clock.sleep(poll_s)
             for v in self.vehicles:
                 if v.name not in done and v.mission_raw.is_mission_finished():
-                    done[v.name] = self._finish_s(v.name, time.monotonic() - self.t_start)
+                    done[v.name] = self._finish_s(v.name, self.clock.monotonic() - self.t_start)
         # MAVSDK can report the mission finished before its progress callback has delivered
         # the final current == total (seen under load): keep listening a moment for it.
-        t_grace = time.monotonic()
-        while time.monotonic() - t_grace < _FINISH_GRACE_S and any(
+        t_grace = self.clock.monotonic()
+        while self.clock.monotonic() - t_grace < _FINISH_GRACE_S and any(
             self._progress.get(n, 0) < self.totals.get(n, 0) for n in done
         ):
-            await asyncio.sleep(poll_s)
+            await self.clock.sleep(poll_s)
         return done
 
 
@@ -398,7 +399,7 @@ async def fly_missions(
     follower.attach()
     try:
         await asyncio.gather(*(v.arm() for v in vehicles))
-        follower.t_start = time.monotonic()
+        follower.t_start = follower.clock.monotonic()
         starts = await asyncio.gather(*(start_mission_confirmed(v, climb_m=None) for v in vehicles))
         for v, st in zip(vehicles, starts, strict=True):
             if not st.started:
@@ -412,7 +413,7 @@ async def fly_missions(
         done = await follower.until_finished(timeout_s=timeout_s, poll_s=poll_s)
     finally:
         follower.detach()
-    now = time.monotonic() - follower.t_start
+    now = follower.clock.monotonic() - follower.t_start
     out = {}
     for v, st in zip(vehicles, starts, strict=True):
         run = follower.run(v.name, finished=v.name in done, duration_s=done.get(v.name, now))

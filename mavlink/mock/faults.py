@@ -9,7 +9,6 @@ datagrams as its :class:`~mavlink.mock.config.FaultConfig` says, with a seeded
 
 from __future__ import annotations
 
-import asyncio
 import random
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -32,8 +31,10 @@ class FaultyChannel:
     """One direction of a vehicle link with faults.
 
     ``deliver(data)`` is called (possibly later, possibly twice) for each
-    datagram pushed that survives.  ``clock_s()`` gives the simulation time
-    used for outages.
+    datagram pushed that survives; ``later(delay_s, deliver, data)`` calls it ``delay_s``
+    seconds of simulated time from now (:meth:`MockFleet.call_later
+    <mavlink.mock.fleet.MockFleet.call_later>`), so latencies hold at any speed and load.
+    ``clock_s()`` gives the simulation time used for outages.
     """
 
     def __init__(
@@ -41,14 +42,14 @@ class FaultyChannel:
         faults: FaultConfig,
         loss: float,
         rng: random.Random,
-        loop: asyncio.AbstractEventLoop,
+        later: Callable[[float, Callable[[bytes], None], bytes], None],
         deliver: Callable[[bytes], None],
         clock_s: Callable[[], float],
     ) -> None:
         self.faults = faults
         self.loss = loss
         self.rng = rng
-        self.loop = loop
+        self.later = later
         self.deliver = deliver
         self.clock_s = clock_s
         self.stats = ChannelStats()
@@ -79,6 +80,6 @@ class FaultyChannel:
                 st.reordered += 1
             if delay_s > 0.0:
                 st.delayed += 1
-                self.loop.call_later(delay_s, self.deliver, data)
+                self.later(delay_s, self.deliver, data)
             else:
                 self.deliver(data)

@@ -23,15 +23,18 @@ import contextlib
 import dataclasses
 import errno
 import functools
+import heapq
+import itertools
 import random
 import threading
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any
 
 import numpy as np
 import pymap3d
 
+from mavlink.mock.clock import SimClock
 from mavlink.mock.config import FaultConfig, MockVehicleConfig, NoiseConfig, WindConfig
 from mavlink.mock.errors import MockConfigError, MockStartError
 from mavlink.mock.faults import FaultyChannel
@@ -88,6 +91,9 @@ class MockFleet:
         per vehicle: ``MockVehicleConfig.camera``).
     utc_start_s : the UTC time (s since the Unix epoch) at simulation time 0, the cameras'
         clock for ``CAMERA_IMAGE_CAPTURED.time_utc``; default: the wall clock at creation.
+    speed : simulated seconds per wall-clock second (1: real time; PX4 SITL's
+        ``PX4_SIM_SPEED_FACTOR``). A ground station that waits on :attr:`clock` keeps the
+        flight's timing at any speed; one on the wall clock does not.
     """
 
     def __init__(
@@ -111,9 +117,12 @@ class MockFleet:
         profile: str = DEFAULT_PROFILE,
         camera: bool = True,
         utc_start_s: float | None = None,
+        speed: float = 1.0,
     ) -> None:
         if not isinstance(n, int) or n < 1 or n > 254:
             raise MockConfigError(f"n must be an integer in 1..254, got {n!r}")
+        if not (isinstance(speed, int | float) and 0.0 < speed <= 100.0):
+            raise MockConfigError(f"speed must be in (0, 100] (times real time), got {speed!r}")
         if not (physics_rate_hz > 0):
             raise MockConfigError(f"physics_rate_hz must be > 0, got {physics_rate_hz!r}")
         self.n = n
@@ -139,6 +148,11 @@ class MockFleet:
         self.seed = seed
         self.dt_s = 1.0 / physics_rate_hz
         self.time_s = 0.0
+        #: simulated seconds per wall-clock second the fleet aims at (PX4 SITL's
+        #: PX4_SIM_SPEED_FACTOR); a busy machine may hold it below (:attr:`real_time_factor`)
+        self.speed = float(speed)
+        #: the simulated time as the ground station's clock (:mod:`mavlink.mock.clock`)
+        self.clock = SimClock(self)
         #: UTC (s since the epoch) at simulation time 0: the payloads' wall clock
         self.utc_start_s = time.time() if utc_start_s is None else float(utc_start_s)
         profile_params(profile)
@@ -161,6 +175,8 @@ class MockFleet:
         self._geo_tick = -1
         self._geo: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._ticks = 0
+        self._timers: list[tuple[float, int, Callable[..., None], tuple[Any, ...]]] = []
+        self._timer_seq = itertools.count()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._task: asyncio.Task[None] | None = None
         self._transports: list[asyncio.DatagramTransport] = []
@@ -278,17 +294,16 @@ class MockFleet:
 
     def configure_links(self, vehicle: MockVehicle, faults: FaultConfig) -> None:
         """(Re)build the fault channels of ``vehicle``; usable before or while running."""
-        loop = self._loop
-        if loop is None:
+        if self._loop is None:
             vehicle.config = _replace_faults(vehicle.config, faults)
             return
         seed = self._link_seed + 1000 * vehicle.index
         vehicle.uplink = FaultyChannel(
-            faults, faults.loss_to_vehicle, random.Random(seed), loop,
+            faults, faults.loss_to_vehicle, random.Random(seed), self.call_later,
             vehicle._deliver_up, lambda: self.time_s,
         )  # fmt: skip
         vehicle.downlink = FaultyChannel(
-            faults, faults.loss_to_gcs, random.Random(seed + 1), loop,
+            faults, faults.loss_to_gcs, random.Random(seed + 1), self.call_later,
             vehicle._deliver_down, lambda: self.time_s,
         )  # fmt: skip
         vehicle.config = _replace_faults(vehicle.config, faults)
@@ -329,6 +344,7 @@ class MockFleet:
             self._close_transports()
             raise
         self._t0_wall = loop.time()
+        self.clock.started()
         self._task = loop.create_task(self._run(), name="mock-fleet-physics")
 
     async def stop(self) -> None:
@@ -338,6 +354,7 @@ class MockFleet:
             task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await task
+        self.clock.stopped()
         self._close_transports()
 
     def _close_transports(self) -> None:
@@ -356,7 +373,7 @@ class MockFleet:
 
     async def _run(self) -> None:
         loop = asyncio.get_running_loop()
-        dt = self.dt_s
+        dt = self.dt_s / self.speed  # wall seconds per tick
         t0 = self._t0_wall
         sleep = asyncio.sleep
         while True:
@@ -365,13 +382,24 @@ class MockFleet:
             await sleep(delay if delay > 0.0 else 0.0)
 
     def _tick(self) -> None:
-        """One physics step, then every vehicle's mode logic, protocol timers and telemetry."""
+        """One physics step, the datagrams due, then every vehicle's mode logic, protocol
+        timers and telemetry, then the ground station's alarms due."""
         self.physics.step()
         self._ticks += 1
         now = self._ticks * self.dt_s
         self.time_s = now
+        timers = self._timers
+        while timers and timers[0][0] <= now + 1e-9:
+            _, _, fn, args = heapq.heappop(timers)
+            fn(*args)
         for v in self.vehicles:
             v.tick(now)
+        self.clock.wake_due(now)
+
+    def call_later(self, delay_s: float, fn: Callable[..., None], *args: Any) -> None:
+        """Call ``fn(*args)`` ``delay_s`` simulated seconds from now, on the first tick at or
+        after it (in the fleet's thread; e.g. a delayed datagram's delivery)."""
+        heapq.heappush(self._timers, (self.time_s + delay_s, next(self._timer_seq), fn, args))
 
     def advance(self, seconds: float) -> None:
         """Simulate ``seconds`` as fast as the CPU goes, without sockets or an event loop.

@@ -37,7 +37,6 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import math
-import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -84,7 +83,7 @@ class FlightResult:
 
     Attributes:
         completed: every setpoint was streamed and no safety stop happened.
-        t0_monotonic_s: ``time.monotonic()`` of the shared start.
+        t0_monotonic_s: the shared start on the fleet's clock (:mod:`mavlink.clock`).
         t0_unix_s: the same instant as Unix time (to align a ``.tlog``).
         stats: stream statistics per vehicle (the main stream only).
         tracks: flown tracks per vehicle, in the mission frame.
@@ -176,7 +175,7 @@ async def _start_offboard(v: Vehicle, retries: int = 3, retry_after_s: float = 0
         result = await mavsdk_call(v.offboard.start_async)
         if result != OffboardResult.COMMAND_DENIED:
             break
-        await asyncio.sleep(retry_after_s)
+        await v.clock.sleep(retry_after_s)  # the vehicle's time: PX4 counts on its own
     if result != OffboardResult.SUCCESS:
         raise CommandError(
             f"offboard start failed: {result.name}", result=result.name, vehicle=v.name, url=v.url
@@ -293,6 +292,7 @@ async def _fly(
     monitor: SafetyMonitor | None,
 ) -> FlightResult:
     vehicles = [fleet[name] for name in trajectories]
+    clock = fleet.clock
     origins = await fleet.origins()
     groups = auto_send_groups(len(vehicles)) if cfg.send_groups is None else cfg.send_groups
     groups = min(groups, len(vehicles))
@@ -383,12 +383,14 @@ async def _fly(
             for v in vehicles
         ],
         cfg.rate_hz,
+        clock=clock.monotonic,
+        sleep=clock.sleep,
     )
     hover_stop = asyncio.Event()
-    hover_task = asyncio.create_task(hover.run(time.monotonic(), stop=hover_stop))
+    hover_task = asyncio.create_task(hover.run(clock.monotonic(), stop=hover_stop))
     try:
         try:
-            await asyncio.sleep(cfg.prestream_s)
+            await clock.sleep(cfg.prestream_s)
             failures = await fleet.for_each(_start_offboard, vehicles)
             if failures:
                 name, exc = next(iter(failures.items()))
@@ -430,7 +432,7 @@ async def _fly(
             raise
 
         # One shared start; the hover stream runs until just before it.
-        t0 = time.monotonic() + cfg.start_delay_s
+        t0 = clock.monotonic() + cfg.start_delay_s
         main = SetpointStreamer(
             [
                 StreamTarget(v.name, offboard_sender(v.offboard), setpoints[v.name])
@@ -439,10 +441,12 @@ async def _fly(
             cfg.rate_hz,
             late_threshold_s=cfg.late_threshold_s,
             groups=groups,
+            clock=clock.monotonic,
+            sleep=clock.sleep,
         )
         for v in vehicles:
             v.start_track()
-        await asyncio.sleep(max(0.0, t0 - time.monotonic() - 0.5 / cfg.rate_hz))
+        await clock.sleep(t0 - clock.monotonic() - 0.5 / cfg.rate_hz)
     finally:
         # whatever ends the pre-stream (its end, a failure, a cancellation) ends its task
         failed_stream = await _end_task(hover_task, hover_stop)
@@ -481,7 +485,7 @@ async def _fly(
     return FlightResult(
         completed=completed,
         t0_monotonic_s=t0,
-        t0_unix_s=t0 + (time.time() - time.monotonic()),
+        t0_unix_s=t0 + clock.unix_offset(),
         stats=stats,
         tracks=tracks,
         safety_event=event,

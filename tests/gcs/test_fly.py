@@ -231,6 +231,36 @@ def test_bad_mock_parameter_is_bad_input_in_one_line(
     assert err == f"gcs fly: error: {message}\n"
 
 
+@pytest.mark.parametrize(
+    ("argv", "env", "message"),
+    [
+        (["--speed", "3"], None, "--speed: only for --dry-run (real vehicles fly in real time)"),
+        (
+            ["--dry-run", "--speed", "50"],
+            None,
+            "--speed: must be in (0, 20] times real time, got 50",
+        ),
+        (["--dry-run", "--speed", "0"], None, "--speed: must be in (0, 20] times real time, got 0"),
+        (["--dry-run"], "fast", "$STL_GCS_SIM_SPEED: 'fast' is not a number (times real time)"),
+        (["--dry-run"], "-2", "$STL_GCS_SIM_SPEED: must be in (0, 20] times real time, got -2"),
+    ],
+)
+def test_a_bad_dry_run_speed_is_bad_input_in_one_line(
+    plan_file: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    argv: list[str],
+    env: str | None,
+    message: str,
+) -> None:
+    if env is not None:
+        monkeypatch.setenv("STL_GCS_SIM_SPEED", env)
+    capsys.readouterr()
+    assert main(["fly", str(plan_file), *argv]) == 2
+    _, err = capsys.readouterr()
+    assert err == f"gcs fly: error: {message}\n"
+
+
 def test_ctrl_c_commands_every_vehicle_to_hold_and_exits_cleanly(plan_file: Path) -> None:
     proc = subprocess.Popen(
         # the ideal vehicle: what is tested is the GCS's interrupt, on a flight under way

@@ -11,6 +11,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from gcs.flight.dryrun import sim_speed
+from mavlink.clock import WALL
 from mavlink.link.fleet import Fleet
 from mavlink.link.vehicle_status import VehicleSpec
 from mavlink.mock.fleet import MockFleet
@@ -76,9 +78,13 @@ async def mock_and_fleet(
     spawns_enu_m: Sequence[Sequence[float]],
     *,
     link_timeout_s: float = 2.0,
+    real_time: bool = False,
     **mock_kwargs: Any,
 ) -> AsyncIterator[tuple[MockFleet, Fleet]]:
-    """A running :class:`MockFleet` and a connected :class:`Fleet` (same event loop)."""
+    """A running :class:`MockFleet` and a connected :class:`Fleet` (same event loop), the
+    fleet on the mock's simulated clock at the suite's speed (``$STL_GCS_SIM_SPEED``); with
+    ``real_time`` the mock at speed 1 and the fleet on the wall clock, as against PX4 (the
+    tests of the link's own timing: faults, outages, MAVSDK's timeouts)."""
     n = len(names)
     ports = free_udp_ports(2 * n)
     gcs, veh = ports[:n], ports[n:]
@@ -88,10 +94,16 @@ async def mock_and_fleet(
         spawns_enu_m=spawns_enu_m,
         gcs_ports=gcs,
         vehicle_ports=veh,
+        speed=1.0 if real_time else sim_speed(),
         **mock_kwargs,
     ) as mock:
         specs = [
             VehicleSpec(name, f"udpin://127.0.0.1:{gcs[i]}", i + 1) for i, name in enumerate(names)
         ]
-        async with Fleet(specs, link_timeout_s=link_timeout_s, connect_timeout_s=10.0) as fleet:
+        async with Fleet(
+            specs,
+            link_timeout_s=link_timeout_s,
+            connect_timeout_s=10.0,
+            clock=WALL if real_time else mock.clock,
+        ) as fleet:
             yield mock, fleet

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import asyncio
 import re
-import time
 
 import numpy as np
 import pytest
@@ -46,7 +45,7 @@ def planned_robustness(n: int) -> tuple[float, object, object, object]:
 
 
 async def sample_truth(mock, stop: asyncio.Event, out: list) -> None:
-    """Record the mock's true positions (mission ENU) every 20 ms until ``stop``."""
+    """Record the mock's true positions (mission ENU) every 20 ms of its time until ``stop``."""
     origins = [GeodeticPoint(*v.origin_lla) for v in mock.vehicles]
     while not stop.is_set():
         states = [v.state for v in mock.vehicles]
@@ -54,8 +53,8 @@ async def sample_truth(mock, stop: asyncio.Event, out: list) -> None:
             ned_to_enu(np.asarray(s.pos_ned_m), mock.origin, o)
             for s, o in zip(states, origins, strict=True)
         ]
-        out.append((time.monotonic(), pos, [s.mode for s in states]))
-        await asyncio.sleep(0.02)
+        out.append((mock.time_s, pos, [s.mode for s in states]))
+        await mock.clock.sleep(0.02)
 
 
 def truth_signals(truth: list, names: list[str], t0: float, dt: float, horizon: float) -> dict:
@@ -110,7 +109,7 @@ def test_fleet_flies_planned_reach_avoid_and_the_flown_telemetry_satisfies_the_s
             )
             stop.set()
             await sampler
-            await asyncio.sleep(1.1)  # one heartbeat period for the end mode to show
+            await fleet.clock.sleep(1.1)  # one heartbeat period for the end mode to show
             modes = [s.mode for s in fleet.statuses()]
             return result, truth, modes
 
@@ -194,10 +193,10 @@ def test_lost_link_mid_flight_is_reported_and_the_hold_reaches_the_other_vehicle
     async def cut_link_of_d2(mock, fleet) -> float:
         # 1 s into the plan (both flying it in offboard), cut d2's link both ways for good.
         await started.wait()
-        await asyncio.sleep(1.0)
+        await mock.clock.sleep(1.0)
         now = mock.time_s
         mock.configure_links(mock.vehicles[1], FaultConfig(outages=(Outage(now, now + 600.0),)))
-        return time.monotonic()
+        return now
 
     async def run():
         async with mock_and_fleet(names, plan.origin, spawns, link_timeout_s=1.5) as (mock, fleet):
@@ -208,7 +207,7 @@ def test_lost_link_mid_flight_is_reported_and_the_hold_reaches_the_other_vehicle
             cfg = OffboardConfig(rate_hz=20.0, dwell_s=0.0, arrive_m=1.0, yaw_tolerance_deg=180.0)
             result = await fly_offboard(fleet, trajs, plan.origin, cfg, monitor=monitor)
             t_cut = await cutter
-            await asyncio.sleep(0.3)
+            await fleet.clock.sleep(0.3)
             return result, t_cut, [v.state for v in mock.vehicles]
 
     result, t_cut, states = asyncio.run(run())

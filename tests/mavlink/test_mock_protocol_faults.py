@@ -6,6 +6,7 @@ reproducibility of their draws and of the telemetry noise for a seed.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 
 from mavlink.mock import FaultConfig, MockFleet, Outage
 from mavlink.mock.testing import GcsEndpoint, free_udp_ports
@@ -34,28 +35,23 @@ def test_duplication_and_reordering_are_visible_in_sequence_numbers() -> None:
 
 
 def test_fault_draws_are_reproducible_for_a_seed() -> None:
-    import asyncio
     import random
 
     from mavlink.mock.faults import FaultyChannel
 
     def pattern(seed: int) -> list[int]:
-        loop = asyncio.new_event_loop()
-        try:
-            out: list[int] = []
-            ch = FaultyChannel(
-                FaultConfig(loss_to_gcs=0.3),
-                0.3,
-                random.Random(seed),
-                loop,
-                lambda d: out.append(d[0]),
-                lambda: 0.0,
-            )
-            for k in range(200):
-                ch.push(bytes([k]))
-            return out
-        finally:
-            loop.close()
+        out: list[int] = []
+        ch = FaultyChannel(
+            FaultConfig(loss_to_gcs=0.3),
+            0.3,
+            random.Random(seed),
+            lambda _delay, fn, data: fn(data),
+            lambda d: out.append(d[0]),
+            lambda: 0.0,
+        )
+        for k in range(200):
+            ch.push(bytes([k]))
+        return out
 
     a, b, c = pattern(1), pattern(1), pattern(2)
     assert a == b and a != c
@@ -67,25 +63,21 @@ def test_latency_jitter_and_reordering_delays_with_a_patched_clock() -> None:
 
     from mavlink.mock.faults import FaultyChannel
 
-    class RecordingLoop:
-        """Stands in for the event loop: records call_later delays instead of waiting."""
+    delays: list[float] = []
 
-        def __init__(self) -> None:
-            self.delays: list[float] = []
+    def later(delay_s: float, fn: Callable[[bytes], None], data: bytes) -> None:
+        """Stands in for the fleet's simulated timers: records the delays instead of waiting."""
+        delays.append(delay_s)
+        fn(data)
 
-        def call_later(self, delay: float, fn, *args):  # type: ignore[no-untyped-def]
-            self.delays.append(delay)
-            fn(*args)
-
-    loop = RecordingLoop()
     got: list[bytes] = []
     faults = FaultConfig(latency_s=0.2, jitter_s=0.05, reorder=0.25, reorder_delay_s=0.5)
-    ch = FaultyChannel(faults, 0.0, random.Random(5), loop, got.append, lambda: 0.0)  # type: ignore[arg-type]
+    ch = FaultyChannel(faults, 0.0, random.Random(5), later, got.append, lambda: 0.0)
     for k in range(400):
         ch.push(bytes([k % 256]))
-    assert len(got) == 400 and len(loop.delays) == 400
-    plain = [d for d in loop.delays if d < 0.5]
-    held = [d for d in loop.delays if d >= 0.5]
+    assert len(got) == 400 and len(delays) == 400
+    plain = [d for d in delays if d < 0.5]
+    held = [d for d in delays if d >= 0.5]
     assert all(0.2 <= d <= 0.25 for d in plain)
     assert all(0.7 <= d <= 0.75 for d in held)
     assert 60 < len(held) < 140  # about a quarter

@@ -317,8 +317,15 @@ async def flight_run(
                     outage_end.append(time.monotonic() + outage_s)
             await asyncio.sleep(0.02)
 
+    # in real time, as against PX4: the faults are the link's, and MAVSDK's timeouts are real
     async with mock_and_fleet(
-        names, plan.origin, spawns, link_timeout_s=link_timeout_s, seed=seed, profile=profile
+        names,
+        plan.origin,
+        spawns,
+        link_timeout_s=link_timeout_s,
+        seed=seed,
+        profile=profile,
+        real_time=True,
     ) as (mock, fleet):
         mock.vehicles[0].set_faults(faults)
         stop = asyncio.Event()
