@@ -201,19 +201,23 @@ class Vehicle:
             if self._track is not None:
                 self._track.append((t, *pos, *vel, self._yaw_ned_rad))
 
-    def _latest_heading_deg(self) -> float:
-        """MAVSDK's latest heading (degrees; NaN: none yet, or unknown), from
-        GLOBAL_POSITION_INT.hdg (PX4: the estimate's heading): read with each local position
-        rather than subscribed to (one callback a sample instead of two), and rather than
-        ATTITUDE (a 50 Hz subscription decoded in Python). Safe on MAVSDK's callback
-        thread: :meth:`close` waits for a read under way, and none starts after it."""
+    def _latest_heading_deg(self) -> float | None:
+        """MAVSDK's latest heading (degrees; NaN: none yet, or unknown; ``None`` after
+        :meth:`close`: nothing read, the last heading stays), from GLOBAL_POSITION_INT.hdg
+        (PX4: the estimate's heading): read with each local position rather than subscribed
+        to (one callback a sample instead of two), and rather than ATTITUDE (a 50 Hz
+        subscription decoded in Python). Safe on MAVSDK's callback thread: :meth:`close`
+        waits for a read under way, and none starts after it."""
         with self._plugin_lock:
             if self._closed:
-                return math.nan
+                return None
             return float(self.telemetry.heading().heading_deg)
 
-    def _note_heading(self, heading_deg: float) -> None:
-        """Keep a heading read (under the state lock): the track's yaw stays the last known."""
+    def _note_heading(self, heading_deg: float | None) -> None:
+        """Keep a heading read (under the state lock): the track's yaw stays the last known;
+        ``None`` (nothing read: the link is closed) changes nothing."""
+        if heading_deg is None:
+            return
         known = math.isfinite(heading_deg)
         self._heading = heading_deg if known else None
         if known:

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from gcs.cli import main
-from gcs.flight.dryrun import free_udp_ports, ground_spawns
+from gcs.flight.dryrun import free_udp_ports, ground_spawns, sim_speed
 from mavlink.mock import MockFleet
 from planner.planfile import load_plan
 
@@ -23,6 +23,7 @@ def signed_mock() -> Iterator[tuple[MockFleet, list[str]]]:
     plan = load_plan(PLAN)
     ports = free_udp_ports(4)
     fleet = MockFleet(
+        speed=sim_speed(),
         n=2,
         origin=plan.origin,
         spawns_enu_m=ground_spawns(plan),

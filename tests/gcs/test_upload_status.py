@@ -17,7 +17,7 @@ import pymap3d
 import pytest
 
 from gcs.cli import main
-from gcs.flight.dryrun import free_udp_ports, ground_spawns
+from gcs.flight.dryrun import free_udp_ports, ground_spawns, sim_speed
 from gcs.flight.missions import fence_plan
 from mavlink.mission import trajectory_to_mission
 from mavlink.mock import MockFleet, Px4Mode
@@ -38,6 +38,7 @@ def _running_mock(
     plan = load_plan(PLAN)
     ports = free_udp_ports(4)
     fleet = MockFleet(
+        speed=sim_speed(),
         n=2,
         origin=plan.origin,
         spawns_enu_m=ground_spawns(plan),
@@ -281,7 +282,7 @@ def test_status_finds_vehicles_on_other_ports_by_base_port(
 ) -> None:
     base = _free_run_of_ports(2)
     with MockFleet(
-        n=2, gcs_ports=[base, base + 1], vehicle_ports=free_udp_ports(2)
+        speed=sim_speed(), n=2, gcs_ports=[base, base + 1], vehicle_ports=free_udp_ports(2)
     ).running_in_thread():
         assert main(["status", "--base-port", str(base), "--vehicles", "2", "--json"]) == 0
     rows = json.loads(capsys.readouterr().out)["vehicles"]

@@ -12,6 +12,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+from gcs.flight.dryrun import sim_speed
 from mavlink.mock import MockFleet
 from mavlink.mock.testing import GcsEndpoint, free_udp_ports
 
@@ -20,10 +21,13 @@ ORIGIN = (47.397742, 8.545594, 488.0)
 
 @contextmanager
 def mock_vehicles(n: int = 1, **kwargs: object) -> Iterator[tuple[MockFleet, list[GcsEndpoint]]]:
-    """``n`` vehicles on free ports, each with its own pymavlink GCS endpoint."""
+    """``n`` vehicles on free ports, each with its own pymavlink GCS endpoint; the vehicles at
+    the suite's speed (``$STL_GCS_SIM_SPEED``: the endpoints wait on the wall clock, which
+    only makes their waits longer in the vehicles' time)."""
     vports = free_udp_ports(n)
     gcs = [GcsEndpoint(vports[i], target_system=i + 1) for i in range(n)]
     kwargs.setdefault("ready_after_s", 0.0)
+    kwargs.setdefault("speed", sim_speed())
     fleet = MockFleet(
         n=n,
         origin=ORIGIN,

@@ -25,6 +25,7 @@ from mavsdk.asyncio.plugins.gimbal import ControlMode, GimbalAsync, GimbalMode, 
 from mavsdk.asyncio.plugins.mission_raw import MissionItem, MissionRawAsync
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
+from gcs.flight.dryrun import sim_speed
 from mavlink.mock import MockFleet
 from mavlink.mock.testing import free_udp_ports
 from tests.mavlink.test_mock_mavsdk import first
@@ -68,7 +69,7 @@ class Captures:
 
 def test_mavsdk_camera_plugin_finds_the_camera_and_takes_pictures() -> None:
     gcs_port, vehicle_port = free_udp_ports(2)
-    fleet = MockFleet(n=1, gcs_ports=[gcs_port], vehicle_ports=[vehicle_port], seed=2, ready_after_s=0.0)  # fmt: skip
+    fleet = MockFleet(speed=sim_speed(), n=1, gcs_ports=[gcs_port], vehicle_ports=[vehicle_port], seed=2, ready_after_s=0.0)  # fmt: skip
 
     async def body(system: System) -> None:
         camera = CameraAsync(system)
@@ -106,7 +107,7 @@ def test_mavsdk_camera_plugin_finds_the_camera_and_takes_pictures() -> None:
 
 def test_mavsdk_gimbal_plugin_finds_the_gimbal_takes_control_and_points_it() -> None:
     gcs_port, vehicle_port = free_udp_ports(2)
-    fleet = MockFleet(n=1, gcs_ports=[gcs_port], vehicle_ports=[vehicle_port], seed=3, ready_after_s=0.0)  # fmt: skip
+    fleet = MockFleet(speed=sim_speed(), n=1, gcs_ports=[gcs_port], vehicle_ports=[vehicle_port], seed=3, ready_after_s=0.0)  # fmt: skip
 
     async def body(system: System) -> None:
         gimbal = GimbalAsync(system)
@@ -177,6 +178,7 @@ def same(a: MissionItem, b: MissionItem) -> bool:
 def test_mavsdk_mission_raw_reads_camera_items_back_and_the_flight_pictures_the_hold() -> None:
     gcs_port, vehicle_port = free_udp_ports(2)
     fleet = MockFleet(
+        speed=sim_speed(),
         n=1, gcs_ports=[gcs_port], vehicle_ports=[vehicle_port], seed=4, ready_after_s=0.0,
         params={"MPC_LAND_SPEED": 1.5, "COM_DISARM_LAND": 0.5},
     )  # fmt: skip

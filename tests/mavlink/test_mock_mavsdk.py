@@ -14,6 +14,7 @@ from mavsdk.asyncio.plugins.mission_raw import MissionItem, MissionRawAsync
 from mavsdk.asyncio.plugins.offboard import OffboardAsync, PositionNedYaw
 from mavsdk.asyncio.plugins.telemetry import LandedState, TelemetryAsync
 
+from gcs.flight.dryrun import sim_speed
 from mavlink.mock import MockFleet, Px4Mode
 from mavlink.mock.testing import free_udp_ports
 
@@ -142,7 +143,12 @@ def test_mavsdk_uploads_mission_arms_takes_off_flies_offboard_and_lands() -> Non
 
     async def main() -> None:
         fleet = MockFleet(
-            n=1, gcs_ports=[gcs_port], vehicle_ports=[vehicle_port], seed=3, params=FAST_LANDING
+            speed=sim_speed(),
+            n=1,
+            gcs_ports=[gcs_port],
+            vehicle_ports=[vehicle_port],
+            seed=3,
+            params=FAST_LANDING,
         )
         async with fleet:
             config = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
@@ -162,6 +168,7 @@ def test_mavsdk_flies_four_vehicles_on_their_own_ports() -> None:
 
     async def main() -> None:
         fleet = MockFleet(
+            speed=sim_speed(),
             n=n,
             gcs_ports=gcs_ports,
             vehicle_ports=vehicle_ports,
