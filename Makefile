@@ -32,15 +32,16 @@ docs: $(STAMP)
 docs-check: $(STAMP)
 	d=$$(mktemp -d); $(BIN)/mkdocs build --strict --site-dir $$d; rc=$$?; rm -rf $$d; exit $$rc
 
-# Two workers; flights against the mock run on its simulated clock at 4x real time
+# Three workers on two cores (some tests wait on the wall clock: transfers, timeouts);
+# flights against the mock run on its simulated clock at 4x real time
 # (tests/conftest.py sets STL_GCS_SIM_SPEED; docs/development.md).
 test: $(STAMP) lint typecheck docs-check
-	$(BIN)/python -m pytest -q -n 2 --dist load
+	$(BIN)/python -m pytest -q -n 3 --dist load
 
 # The fast tier: everything but the tests marked slow (flights and transfers over UDP, the
 # calibration flights); for the edit-test loop, not for CI.
 test-fast: $(STAMP) lint typecheck docs-check
-	$(BIN)/python -m pytest -q -n 2 --dist load -m "not slow"
+	$(BIN)/python -m pytest -q -n 3 --dist load -m "not slow"
 
 demo: $(STAMP)
 	$(BIN)/gcs demo

@@ -8,6 +8,8 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[1]
 MAVLINK_MAY_USE = ("planner.trajectory", "planner.frames", "planner.stl")
 
@@ -56,6 +58,7 @@ def test_the_flight_code_imports_no_command_module() -> None:
         assert not [n for n in found[module] if n.startswith("gcs.commands")], module
 
 
+@pytest.mark.slow
 def test_no_module_imports_another_modules_private_names() -> None:
     """A name with a leading underscore is its module's own: no other module of the
     packages imports it (the tests may, to test it)."""

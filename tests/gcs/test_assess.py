@@ -63,6 +63,7 @@ def test_clopper_pearson_is_the_exact_binomial_interval(k: int, n: int) -> None:
         assert hi == 1.0
 
 
+@pytest.mark.slow
 def test_a_campaign_is_the_same_whatever_its_split_and_replays_run_by_run(plan) -> None:  # type: ignore[no-untyped-def]
     dist = {"wind_m_s": "uniform(0, 10)"}
     a = assess(plan, AssessOptions(runs=30, seed=5, disturbances=dist, workers=0, batch_size=30))
@@ -89,6 +90,7 @@ def test_strong_wind_breaks_a_plan_that_holds_in_calm_air(plan) -> None:  # type
     assert storm.p <= calm.p
 
 
+@pytest.mark.slow
 def test_the_command_reports_and_writes_its_files(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -122,6 +124,7 @@ def test_replay_writes_the_runs_tracks_for_gcs_verify(
 CALM = {"gust_m_s": "0", "estimator": "0", "ekf_origin": "0", "wind_m_s": "0"}
 
 
+@pytest.mark.slow
 def test_the_monitor_stops_runs_and_every_vehicle_then_holds_where_it_was(plan) -> None:  # type: ignore[no-untyped-def]
     """``--monitor``: each run flown twice on the same draws.  The unmonitored flights are the
     campaign without the monitor; a stop is decided on the run's reported state and every
@@ -164,6 +167,7 @@ def test_the_monitor_stops_runs_and_every_vehicle_then_holds_where_it_was(plan) 
         assert moved.max() > 2.0
 
 
+@pytest.mark.slow
 def test_the_monitor_in_the_command_report_and_replay(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -20,7 +20,7 @@ from gcs.flight.evaluation import plan_formula
 from gcs.telemetry import load_telemetry
 from planner.planfile import load_plan
 
-pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)
+pytestmark = pytest.mark.slow  # flights or transfers over UDP (make test-fast skips)
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -91,6 +91,7 @@ def _export(tmp_path: Path, *extra: str, plan: Any = None) -> dict[str, str]:
         (("--end", "hold"), MissionEnd.HOLD, False),
     ],
 )
+@pytest.mark.slow
 def test_mavsdk_importer_gives_back_exactly_the_uploaded_items(
     importer: Importer,
     tmp_path: Path,
@@ -333,6 +334,7 @@ spec:
 """
 
 
+@pytest.mark.slow
 def test_planned_scenario_plots_verifies_and_exports_round_trip(
     importer: Importer, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -387,6 +389,7 @@ def test_homes_are_the_ground_below_each_start_as_px4_home_variables(tmp_path: P
         assert (e, n, u) == pytest.approx((v.start_enu_m[0], v.start_enu_m[1], 0.0), abs=0.01)
 
 
+@pytest.mark.slow
 def test_missions_and_setpoints_of_a_failing_plan_are_refused_unless_forced(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -414,6 +417,7 @@ def test_missions_and_setpoints_of_a_failing_plan_are_refused_unless_forced(
     assert main(["export", str(bad), "--format", "homes", "-o", str(tmp_path / "h.txt")]) == 0
 
 
+@pytest.mark.slow
 def test_camera_and_gimbal_items_export_to_qgc_and_import_back_as_sent(
     importer: Importer, tmp_path: Path
 ) -> None:

@@ -37,6 +37,7 @@ def _flown(plan: Plan, heading: bool) -> dict[str, FlownTrack]:
     return {v.name: FlownTrack(v.name, t, pos, np.zeros_like(pos), pos.copy(), yaw)}
 
 
+@pytest.mark.slow
 def test_the_clauses_reading_a_heading_are_found_and_left_out_of_the_live_monitor(
     face_plan: Path,
 ) -> None:

@@ -27,7 +27,7 @@ from mavlink.tlog import tracks_from_tlog
 from planner.planfile import load_plan
 from tests.procutil import interruptible
 
-pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)
+pytestmark = pytest.mark.slow  # flights or transfers over UDP (make test-fast skips)
 
 REPO = Path(__file__).resolve().parents[2]
 SCENARIO = REPO / "configs" / "reach_avoid.yaml"

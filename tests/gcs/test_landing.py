@@ -79,6 +79,7 @@ def test_a_clear_end_lands_straight_down_and_a_blocked_one_at_the_nearest_clear_
     assert landing_point(edited, "d2").blocked_by is None
 
 
+@pytest.mark.slow
 def test_missions_land_at_the_clear_point_and_no_clear_point_refuses_land(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

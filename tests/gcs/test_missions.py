@@ -24,6 +24,7 @@ ORIGIN = GeodeticPoint(47.397742, 8.545594, 488.0)
 LINK_PLAN = Path(__file__).resolve().parents[1] / "mavlink" / "data" / "reach_avoid_2.plan.json"
 
 
+@pytest.mark.slow
 def test_a_leg_takes_at_least_its_acceleration_limited_time_and_a_hold_is_held() -> None:
     # 10 m in 5 s (2 m/s average) then a 3 s hover at the end, then 10 m back.
     traj = min_jerk([(0, 0, 3), (10, 0, 3), (10, 0, 3), (10, 0, 3), (0, 0, 3)], 5.0)
@@ -60,6 +61,7 @@ def test_a_leg_takes_at_least_its_acceleration_limited_time_and_a_hold_is_held()
     assert pred.finished_s["d1"] is not None and pred.finished_s["d1"] > left[wps[1]] + 5.0
 
 
+@pytest.mark.slow
 def test_conversion_of_the_stored_plan_is_retimed_no_worse_and_reproducible() -> None:
     plan = load_plan(LINK_PLAN)
     plain = convert_plan(plan, end=MissionEnd.HOLD, iterations=1)

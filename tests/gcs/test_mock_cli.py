@@ -114,6 +114,7 @@ def test_port_in_use_is_a_user_error(capsys) -> None:  # type: ignore[no-untyped
     assert f"127.0.0.1:{vbase}" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_vehicles_run_on_px4_style_ports_with_spawns(capsys) -> None:  # type: ignore[no-untyped-def]
     gbase, gcs = bound_block(2)
     vbase = free_block(2)

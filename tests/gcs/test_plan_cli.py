@@ -84,6 +84,7 @@ def test_vehicle_count_out_of_range_exits_2(capsys: pytest.CaptureFixture[str]) 
         ("a-file/p.json", "Not a directory"),
     ],
 )
+@pytest.mark.slow
 def test_unwritable_output_is_refused_before_solving(
     tmp_path: Path, output: str, reason: str
 ) -> None:
@@ -154,6 +155,7 @@ def test_a_bad_time_limit_is_one_line_exit_2(
     assert not (tmp_path / "p.json").exists()
 
 
+@pytest.mark.slow
 def test_plan_says_when_the_start_sets_the_figure(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

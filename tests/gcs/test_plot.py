@@ -107,6 +107,7 @@ def test_until_clause_is_drawn_over_its_whole_window() -> None:
     assert np.isnan(late.rho[:100]).all() and not np.isnan(late.rho[100:]).any()
 
 
+@pytest.mark.slow
 def test_plot_png_is_written_with_all_panels(tmp_path: Path) -> None:
     plan_path = write_plan(tmp_path / "ra.json")
     assert cli.main(["plot", str(plan_path)]) == 0  # default: beside the plan, .png
@@ -150,6 +151,7 @@ def test_plot_png_is_written_with_all_panels(tmp_path: Path) -> None:
     assert levels == {3.5, -3.5}
 
 
+@pytest.mark.slow
 def test_prisms_and_cylinders_are_drawn_as_their_shapes_not_their_bounding_boxes(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -227,6 +229,7 @@ def test_prisms_and_cylinders_are_drawn_as_their_shapes_not_their_bounding_boxes
     assert labels["strip"] == pytest.approx((0.0, -0.25, 2.0))
 
 
+@pytest.mark.slow
 def test_html_embeds_the_png_and_tabulates_clause_robustness(tmp_path: Path) -> None:
     plan_path = write_plan(tmp_path / "ra.json")
     out = tmp_path / "report.html"
@@ -260,6 +263,7 @@ def _write_telemetry(path: Path, tracks: dict[str, np.ndarray], t: np.ndarray) -
     return path
 
 
+@pytest.mark.slow
 def test_flown_curves_follow_the_telemetry(tmp_path: Path) -> None:
     plan = reach_avoid_plan()
     shift = np.array([0.0, 0.1, 0.0])
@@ -378,6 +382,7 @@ def _write_tlog(path: Path, t0_unix_s: float, vehicle_origin: tuple[float, float
                 f.write(struct.pack(">Q", round((t0_unix_s + t[k]) * 1e6)) + msg.pack(mav))
 
 
+@pytest.mark.slow
 def test_tlog_telemetry_is_read_in_the_mission_frame_from_the_vehicles_own_origins(
     tmp_path: Path,
 ) -> None:
@@ -487,6 +492,7 @@ LONG_NAME = "powerline_inspection_north_section_with_the_new_poles_2024-06-11_re
 
 
 @pytest.mark.parametrize("view", ["3d", "map"])
+@pytest.mark.slow
 def test_long_titles_are_wrapped_inside_the_figure_not_cut_off(view: str) -> None:
     plan = replace(reach_avoid_plan(), status=LONG_STATUS)
     fig = render_figure(plan, clause_traces(plan), name=LONG_NAME, view=view)

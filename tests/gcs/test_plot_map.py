@@ -147,6 +147,7 @@ def test_auto_draws_a_map_for_a_long_line_and_3d_for_the_shipped_short_line() ->
     assert choose_view(base, View.MAP) is View.MAP
 
 
+@pytest.mark.slow
 def test_map_is_north_up_in_metres_at_one_scale_with_the_line_regions_and_flown_paths() -> None:
     from matplotlib.colors import to_rgba
 
@@ -232,6 +233,7 @@ def _reference_hovers(wps: list[list[float]], durs: list[float], dt: float) -> l
     return runs
 
 
+@pytest.mark.slow
 def test_time_ticks_and_hovers_are_where_and_when_the_plan_puts_them() -> None:
     plan = long_line_plan()
     t, dt = plan_grid(plan)
@@ -280,6 +282,7 @@ def test_tick_steps_are_readable_for_any_horizon() -> None:
         assert horizon / step <= 12
 
 
+@pytest.mark.slow
 def test_html_of_a_long_line_carries_an_svg_map_to_pan_and_zoom_and_loads_nothing(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from gcs.flight.evaluation import plan_formula
 from gcs.flight.progress import FlightProgress
@@ -59,6 +60,7 @@ def test_the_incremental_view_gives_the_definition_at_every_update() -> None:
     assert checked > 10
 
 
+@pytest.mark.slow
 def test_checking_and_flying_a_plan_never_loads_casadi_or_the_optimiser() -> None:
     # exact semantics and dense checks are numpy only: gcs verify (and the modules gcs fly
     # runs) start without CasADi and planner.optimize

@@ -12,7 +12,7 @@ from gcs.flight.dryrun import free_udp_ports, ground_spawns, sim_speed
 from mavlink.mock import MockFleet
 from planner.planfile import load_plan
 
-pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)
+pytestmark = pytest.mark.slow  # flights or transfers over UDP (make test-fast skips)
 
 PLAN = Path(__file__).resolve().parents[1] / "mavlink" / "data" / "reach_avoid_2.plan.json"
 KEY = bytes(range(32))

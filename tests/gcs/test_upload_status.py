@@ -24,7 +24,7 @@ from mavlink.mock import MockFleet, Px4Mode
 from planner.frames import enu_to_geodetic
 from planner.planfile import load_plan
 
-pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)
+pytestmark = pytest.mark.slow  # flights or transfers over UDP (make test-fast skips)
 
 DATA = Path(__file__).resolve().parents[1] / "mavlink" / "data"
 PLAN = DATA / "reach_avoid_2.plan.json"

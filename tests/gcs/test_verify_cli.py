@@ -34,6 +34,7 @@ def _edited(src: Path, dst: Path, edit: object) -> Path:
     return dst
 
 
+@pytest.mark.slow
 def test_verify_accepts_the_planner_output(
     good_plan: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -152,6 +153,7 @@ def test_spec_that_does_not_fit_the_plan_names_the_plan_file(
     assert err.splitlines() == [f"gcs verify: error: {bad}: {message}"], err
 
 
+@pytest.mark.slow
 def test_unknown_region_in_a_real_process_is_one_line_without_traceback(
     good_plan: Path, tmp_path: Path
 ) -> None:

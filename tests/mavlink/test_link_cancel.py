@@ -18,7 +18,7 @@ from mavlink.offboard import fly_offboard
 from mavlink.offboard.setpoints import OffboardConfig
 from tests.mavlink.linkutil import mock_and_fleet, stored_plan
 
-pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)
+pytestmark = pytest.mark.slow  # flights or transfers over UDP (make test-fast skips)
 
 HANG_S = 60.0
 

@@ -53,6 +53,7 @@ def test_bad_specs_are_refused_before_opening_anything() -> None:
         )
 
 
+@pytest.mark.slow
 def test_missing_vehicle_is_one_error_naming_it_its_url_and_what_was_seen() -> None:
     ports = free_udp_ports(3)
 
@@ -101,6 +102,7 @@ def test_a_port_in_use_is_a_link_error_naming_the_vehicle_and_the_way_out() -> N
         busy.close()
 
 
+@pytest.mark.slow
 def test_another_system_id_on_the_port_is_named_at_once_not_waited_for() -> None:
     gcs, vport = free_udp_ports(2)
 
@@ -159,6 +161,7 @@ def test_an_autopilot_that_is_not_px4_is_refused() -> None:
     )
 
 
+@pytest.mark.slow
 def test_status_matches_the_vehicle_and_mavsdks_own_mode_decoding() -> None:
     spawns = [(0.0, 0.0, 0.0), (3.0, -2.0, 0.0)]
 
@@ -233,6 +236,7 @@ def test_status_matches_the_vehicle_and_mavsdks_own_mode_decoding() -> None:
     ]
 
 
+@pytest.mark.slow
 def test_set_mode_sends_px4_custom_modes_and_reports_refusals() -> None:
     from mavlink.errors import CommandError
 

@@ -32,7 +32,7 @@ from tests.mavlink.linkutil import (
     stored_plan,
 )
 
-pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)
+pytestmark = pytest.mark.slow  # flights or transfers over UDP (make test-fast skips)
 
 
 def planned_robustness(n: int) -> tuple[float, object, object, object]:

@@ -35,7 +35,7 @@ from planner.frames import GeodeticPoint
 from planner.trajectory import Trajectory
 from tests.mavlink.linkutil import mock_and_fleet, scenario, spec_formula, stored_plan
 
-pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)
+pytestmark = pytest.mark.slow  # flights or transfers over UDP (make test-fast skips)
 
 ORIGIN = GeodeticPoint(47.397742, 8.545594, 488.0)
 

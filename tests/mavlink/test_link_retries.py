@@ -30,7 +30,7 @@ from planner.frames import GeodeticPoint
 from tests.mavlink.linkutil import mock_and_fleet, stored_plan
 from tests.mavlink.test_link_mission import min_jerk
 
-pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)
+pytestmark = pytest.mark.slow  # flights or transfers over UDP (make test-fast skips)
 
 HANG_S = 90.0
 LOSS_30_BOTH = FaultConfig(loss_to_vehicle=0.30, loss_to_gcs=0.30)

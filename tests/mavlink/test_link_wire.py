@@ -122,6 +122,7 @@ def _lla(g: GeodeticPoint) -> tuple[float, float, float]:
     return g.lat_deg, g.lon_deg, g.alt_m
 
 
+@pytest.mark.slow
 def test_stream_arrives_as_local_ned_position_velocity_acceleration_targets() -> None:
     gcs_port, port = free_udp_ports(2)
     sp = plan_setpoints_ned(curve(), 20.0, MISSION_ORIGIN, VEHICLE_ORIGIN)

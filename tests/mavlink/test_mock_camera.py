@@ -199,6 +199,7 @@ def camera_mission(
 
 
 # ================================================================ the camera over UDP
+@pytest.mark.slow
 def test_camera_and_gimbal_device_heartbeat_from_their_own_components() -> None:
     with udp_vehicle() as (fleet, gcs):
         gcs.drain()
@@ -260,6 +261,7 @@ def test_camera_answers_requests_for_its_information_settings_and_status() -> No
         assert ack is not None and ack.result == mavlink2.MAV_RESULT_UNSUPPORTED
 
 
+@pytest.mark.slow
 def test_interval_capture_takes_its_total_at_the_interval_with_position_and_attitude() -> None:
     with udp_vehicle() as (_fleet, gcs):
         # every tick's position and attitude, to compare each picture with
@@ -289,6 +291,7 @@ def test_interval_capture_takes_its_total_at_the_interval_with_position_and_atti
         assert s.time_utc > 1.6e15 and s.file_url.endswith(".JPG")
 
 
+@pytest.mark.slow
 def test_capture_until_stopped_and_the_checks_of_its_parameters() -> None:
     start, stop = mavlink2.MAV_CMD_IMAGE_START_CAPTURE, mavlink2.MAV_CMD_IMAGE_STOP_CAPTURE
     with udp_vehicle() as (_fleet, gcs):
@@ -338,6 +341,7 @@ def test_a_broadcast_gets_one_ack_from_the_autopilot_and_the_cameras_for_what_is
 
 
 # ================================================================ the gimbal over UDP
+@pytest.mark.slow
 def test_gimbal_manager_takes_pitchyaw_from_its_primary_control_and_turns_at_its_rate() -> None:
     pitchyaw = mavlink2.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW
     configure = mavlink2.MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE
@@ -477,6 +481,7 @@ def test_gimbal_follows_a_roi_as_the_vehicle_moves_and_goes_neutral_after() -> N
 # ================================================================ missions (offline)
 @pytest.mark.parametrize("profile", ["px4", "ideal"])
 @pytest.mark.parametrize("hold1_s", [2.0, 0.0])
+@pytest.mark.slow
 def test_mission_takes_its_pictures_during_the_second_waypoints_hold(profile: str, hold1_s: float) -> None:  # fmt: skip
     f = offline(profile)
     v = f.vehicles[0]
@@ -508,6 +513,7 @@ def test_mission_takes_its_pictures_during_the_second_waypoints_hold(profile: st
     assert yawcmds[:4] == [(1000, 0, k) for k in range(4)]  # broadcast: nobody acknowledges
 
 
+@pytest.mark.slow
 def test_mission_pitchyaw_without_configure_is_denied_as_on_px4() -> None:
     f = offline()
     v = f.vehicles[0]
@@ -518,6 +524,7 @@ def test_mission_pitchyaw_without_configure_is_denied_as_on_px4() -> None:
     assert [ypr_deg(s.q)[1] for s in shots] == pytest.approx([0.0] * 3, abs=1e-6)
 
 
+@pytest.mark.slow
 def test_mis_command_tout_lets_the_gimbal_turn_before_the_first_picture() -> None:
     f = offline(MIS_COMMAND_TOUT=1.0)
     v = f.vehicles[0]
@@ -531,6 +538,7 @@ def test_mis_command_tout_lets_the_gimbal_turn_before_the_first_picture() -> Non
     assert [ypr_deg(s.q)[1] for s in shots] == pytest.approx([-45.0] * 3, abs=1e-3)
 
 
+@pytest.mark.slow
 def test_roi_in_a_mission_turns_the_vehicle_and_the_camera_toward_it() -> None:
     f = offline()
     v = f.vehicles[0]
@@ -650,6 +658,7 @@ def test_uploads_take_camera_items_in_the_frames_px4_takes_them_and_read_them_ba
 
 
 # ================================================================ no camera (UDP)
+@pytest.mark.slow
 def test_vehicle_without_camera_is_silent_for_camera_and_gimbal_as_px4_without_them() -> None:
     with udp_vehicle(camera=False) as (_fleet, gcs):
         comps = {m.get_srcComponent() for m in collect(gcs, 1.3)}

@@ -30,7 +30,7 @@ from mavlink.mock import MockFleet
 from mavlink.mock.testing import free_udp_ports
 from tests.mavlink.test_mock_mavsdk import first
 
-pytestmark = pytest.mark.slow  # real-time flights and discovery over UDP (make test-fast skips)
+pytestmark = pytest.mark.slow  # flights and discovery over UDP (make test-fast skips)
 
 NAN = math.nan
 CAMERA = 100

@@ -18,7 +18,7 @@ from gcs.flight.dryrun import sim_speed
 from mavlink.mock import MockFleet, Px4Mode
 from mavlink.mock.testing import free_udp_ports
 
-pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)
+pytestmark = pytest.mark.slow  # flights or transfers over UDP (make test-fast skips)
 
 T = TypeVar("T")
 FAST_LANDING = {"MPC_LAND_SPEED": 1.5, "COM_DISARM_LAND": 0.5}

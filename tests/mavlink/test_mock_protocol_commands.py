@@ -151,6 +151,7 @@ def test_parameters_list_read_and_set_with_px4_bytewise_ints() -> None:
 # ---------------------------------------------------------------- telemetry
 
 
+@pytest.mark.slow
 def test_set_message_interval_changes_and_disables_streams() -> None:
     with mock_vehicles() as (_fleet, (gcs,)):
         lpn = mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED
@@ -201,6 +202,7 @@ def test_global_position_is_spawn_origin_plus_local_offset() -> None:
 # ---------------------------------------------------------------- offboard
 
 
+@pytest.mark.slow
 def test_offboard_is_refused_without_a_setpoint_stream() -> None:
     with mock_vehicles() as (fleet, (gcs,)):
         ack = gcs.set_mode(6)
@@ -230,6 +232,7 @@ def _offboard_flight_then_silence(gcs: GcsEndpoint) -> None:
     stream_setpoints(gcs, (0, 0, -2), 1.5)
 
 
+@pytest.mark.slow
 def test_offboard_stream_loss_triggers_hold_failsafe() -> None:
     with mock_vehicles(params={"COM_OF_LOSS_T": 0.3}, profile="ideal") as (fleet, (gcs,)):
         _offboard_flight_then_silence(gcs)
@@ -249,6 +252,7 @@ def test_offboard_stream_loss_triggers_hold_failsafe() -> None:
         assert st.pos_ned_m[2] == pytest.approx(-2.0, abs=0.5)
 
 
+@pytest.mark.slow
 def test_offboard_loss_action_land_from_parameter() -> None:
     with mock_vehicles(
         params={"COM_OF_LOSS_T": 0.3, "MPC_LAND_SPEED": 2.0, "COM_DISARM_LAND": 0.5}
@@ -270,6 +274,7 @@ def test_offboard_loss_action_land_from_parameter() -> None:
         assert v.state.landed
 
 
+@pytest.mark.slow
 def test_offboard_tracks_position_velocity_and_acceleration_setpoints() -> None:
     with mock_vehicles(profile="ideal") as (fleet, (gcs,)):
         v = fleet.vehicles[0]
@@ -297,6 +302,7 @@ def test_offboard_tracks_position_velocity_and_acceleration_setpoints() -> None:
         assert target.vx == pytest.approx(1.0)
 
 
+@pytest.mark.slow
 def test_attitude_and_thrust_setpoints_fly_in_offboard() -> None:
     with mock_vehicles() as (fleet, (gcs,)):
         v = fleet.vehicles[0]
@@ -332,6 +338,7 @@ def test_attitude_and_thrust_setpoints_fly_in_offboard() -> None:
 # ---------------------------------------------------------------- reposition and return
 
 
+@pytest.mark.slow
 def test_reposition_then_return_to_launch_lands_at_home() -> None:
     params = {
         "MPC_TKO_SPEED": 3.0,

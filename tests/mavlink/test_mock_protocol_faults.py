@@ -8,6 +8,8 @@ from __future__ import annotations
 import itertools
 from collections.abc import Callable
 
+import pytest
+
 from mavlink.mock import FaultConfig, MockFleet, Outage
 from mavlink.mock.testing import GcsEndpoint, free_udp_ports
 from tests.mavlink.mock_protocol_helpers import mock_vehicles
@@ -15,6 +17,7 @@ from tests.mavlink.mock_protocol_helpers import mock_vehicles
 # ---------------------------------------------------------------- faults
 
 
+@pytest.mark.slow
 def test_outage_silences_the_link_for_its_window() -> None:
     faults = FaultConfig(outages=(Outage(0.5, 1.5),))
     with mock_vehicles(faults=faults) as (_fleet, (gcs,)):
@@ -23,6 +26,7 @@ def test_outage_silences_the_link_for_its_window() -> None:
         assert not any(500 <= t < 1500 for t in stamps)
 
 
+@pytest.mark.slow
 def test_duplication_and_reordering_are_visible_in_sequence_numbers() -> None:
     faults = FaultConfig(duplicate=0.3, reorder=0.3, reorder_delay_s=0.02)
     with mock_vehicles(faults=faults) as (fleet, (gcs,)):
@@ -84,6 +88,7 @@ def test_latency_jitter_and_reordering_delays_with_a_patched_clock() -> None:
     assert ch.stats.reordered == len(held) and ch.stats.delayed == 400
 
 
+@pytest.mark.slow
 def test_telemetry_noise_is_reproducible_for_a_seed() -> None:
     def samples(seed: int) -> dict[int, tuple[float, float, float]]:
         vports = free_udp_ports(1)

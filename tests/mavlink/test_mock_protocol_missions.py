@@ -235,6 +235,7 @@ def test_mission_fence_and_rally_plans_are_separate_and_clearable() -> None:
         assert [len(download(gcs, t)) for t in (MISSION, FENCE, RALLY)] == [0, 0, 0]
 
 
+@pytest.mark.slow
 def test_mission_upload_completes_under_30_percent_loss_each_way() -> None:
     faults = FaultConfig(loss_to_vehicle=0.3, loss_to_gcs=0.3)
     items = [item_int(s, z=5.0 + 0.25 * s) for s in range(15)]
@@ -249,6 +250,7 @@ def test_mission_upload_completes_under_30_percent_loss_each_way() -> None:
         assert stats["uplink"].dropped > 0 and stats["downlink"].dropped > 0
 
 
+@pytest.mark.slow
 def test_mission_runs_in_auto_mission_with_items_reached() -> None:
     params = {"MPC_TKO_SPEED": 3.0, "MPC_LAND_SPEED": 2.5, "MPC_XY_CRUISE": 6.0}
     # the ideal navigator reports every NAV item once (PX4's reports: test_mock_px4.py)
@@ -289,6 +291,7 @@ def test_mission_runs_in_auto_mission_with_items_reached() -> None:
         assert current.mission_state == mavlink2.MISSION_STATE_COMPLETE
 
 
+@pytest.mark.slow
 def test_a_return_item_completes_the_mission_at_once_and_returns_in_auto_rtl() -> None:
     """As PX4 v1.17 SITL flew ``gcs upload --start --end return``: the return item reported
     reached as soon as it is current, MISSION_CURRENT on it with MISSION_STATE_COMPLETE and
@@ -346,6 +349,7 @@ def test_a_return_item_completes_the_mission_at_once_and_returns_in_auto_rtl() -
         assert st.landed and math.hypot(st.pos_ned_m[0], st.pos_ned_m[1]) < 1.0
 
 
+@pytest.mark.slow
 def test_geofence_breach_triggers_hold() -> None:
     # an actual breach (the ideal profile; PX4's predictive fence: test_mock_px4.py)
     with mock_vehicles(profile="ideal") as (fleet, (gcs,)):

@@ -82,6 +82,7 @@ def test_steady_lag_emerges_as_drag_over_the_cascade_gains(
 
 
 @pytest.mark.parametrize("kdv", [0.5, 1.0, 1.5])
+@pytest.mark.slow
 def test_drag_fed_forward_as_acceleration_takes_the_steady_lag_out(kdv: float) -> None:
     # The ground station's remedy (mavlink.offboard.setpoints.plan_setpoints_ned, drag_per_s): the
     # acceleration feed-forward carries the drag force, a_ff = c * v, so PX4's cascade
@@ -105,6 +106,7 @@ def test_drag_fed_forward_as_acceleration_takes_the_steady_lag_out(kdv: float) -
             assert abs(steady) < lag_max, steady
 
 
+@pytest.mark.slow
 def test_velocity_integrator_and_no_drag_remove_the_lag() -> None:
     def lag_after(seconds: float, **params: float) -> float:
         f = fleet(**QUIET, **NO_CREEP, **params)
@@ -140,6 +142,7 @@ def test_ekf_origin_is_a_noisy_first_fix_below_and_beside_the_spawn_every_boot()
     assert ideal.origin_lla == ideal.spawn_lla
 
 
+@pytest.mark.slow
 def test_controller_flies_the_estimate_and_the_truth_is_off_by_its_error() -> None:
     f = fleet(seed=3, **NO_CREEP)
     v = f.vehicles[0]

@@ -233,6 +233,7 @@ def test_the_trajectory_waits_for_a_vehicle_that_trails_it() -> None:
     assert free > 0.1 and held == pytest.approx(0.0, abs=1e-9)
 
 
+@pytest.mark.slow
 def test_missions_slow_at_every_waypoint_and_a_small_circle_missed_in_wind_costs_seconds() -> None:  # fmt: skip
     legs = [(0.0, 0.0), (15.0, 0.0), (15.0, 15.0), (30.0, 15.0), (30.0, 30.0)]
     straight_s = 4 * 15.0 / 3.4  # the legs flown at the cruise speed
@@ -288,6 +289,7 @@ def test_mission_item_reached_is_the_last_item_processed_and_resent_up_to_ten_ti
 
 
 @pytest.mark.parametrize("profile", ["px4", "ideal"])
+@pytest.mark.slow
 def test_a_waypoint_is_reported_reached_when_its_hold_is_over_and_a_loiter_unlim_never(
     profile: str,
 ) -> None:
@@ -382,6 +384,7 @@ def test_do_change_speed_sets_the_cruise_speed_of_what_follows() -> None:
 
 
 @pytest.mark.parametrize("profile", ["px4", "ideal"])
+@pytest.mark.slow
 def test_a_mission_land_flies_to_its_point_then_descends_at_px4s_graded_land_speed(
     profile: str,
 ) -> None:
@@ -538,6 +541,7 @@ def test_download_returns_what_px4_stores_yaw_fence_and_rally() -> None:
 # ------------------------------------------------------------------ geofence
 
 
+@pytest.mark.slow
 def test_geofence_is_predictive_and_fires_before_a_goal_near_the_wall() -> None:
     def approach(**params: float) -> tuple[Px4Mode, list[str], float]:
         # the fence logic alone: a quiet estimator (its noise near a wall is another matter)
@@ -595,6 +599,7 @@ def test_takeoff_ignores_its_yaw_and_reposition_takes_its_yaw_in_radians() -> No
 
 
 @pytest.mark.parametrize("profile", ["px4", "ideal"])
+@pytest.mark.slow
 def test_a_waypoints_yaw_is_flown_from_when_it_is_current_turning_at_mpc_yawrauto_max(
     profile: str,
 ) -> None:

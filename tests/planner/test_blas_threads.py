@@ -46,11 +46,13 @@ pytestmark = pytest.mark.skipif(
 )
 
 
+@pytest.mark.slow
 def test_the_solver_blas_runs_one_thread_and_the_environment_is_left_alone() -> None:
     got = _probe()
     assert got == {"env": None, "threads": 1, "set": True}
 
 
+@pytest.mark.slow
 def test_a_thread_count_the_user_chose_is_kept() -> None:
     got = _probe(OPENBLAS_NUM_THREADS="2")
     assert got["set"] is False and got["threads"] == 2

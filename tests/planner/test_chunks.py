@@ -98,6 +98,7 @@ def test_a_window_over_several_vehicles_is_chunked_sooner(per_segment) -> None:
     assert len(chunks) == 3 and all(c.child == three for c, _first in chunks)
 
 
+@pytest.mark.slow
 def test_a_chunked_leaf_is_the_smooth_value_of_its_whole_window_with_casadis_derivatives() -> None:
     problem = parse_scenario(SCENARIO)
     b, model = _builder(problem)
@@ -176,6 +177,7 @@ def _z_block_nonzeros(hess_fn, n_vehicle_z: int) -> int:
     return int(np.count_nonzero(first))
 
 
+@pytest.mark.slow
 def test_chunks_make_the_leaf_hessian_banded_not_dense(monkeypatch) -> None:
     problem = parse_scenario(SCENARIO)
     b, model = _builder(problem)

@@ -76,6 +76,7 @@ def test_legs_between_samples_stay_out_of_a_polygon_keep_out(tmp_path: Path):
     assert exact(problem, dict(res.waypoints_enu_m), res.dt_s) >= res.robustness - TOL
 
 
+@pytest.mark.slow
 def test_the_smoothest_of_equally_robust_paths_is_returned(monkeypatch):
     problem = load_scenario(ZOO / "stlpy_stepping_stones_halfplanes.yaml")
     smooth = solve_coarse(problem, time_limit_s=10.0)
@@ -116,6 +117,7 @@ def test_the_fit_follows_a_coarse_path_at_full_speed_along_an_axis():
 
 
 @pytest.mark.parametrize("name", ["powerline_row_implies_2drones", "patrol_u_revisits_1drone"])
+@pytest.mark.slow
 def test_the_issues_implication_and_revisit_missions_plan_with_the_stage(name: str):
     """Issue 40's classes 3 and 4: without the stage both end in a local optimum (under the
     conductors at -0.50; through the U at -4.99, benchmarks/bench_zoo.py --coarse-s 0)."""

@@ -163,6 +163,7 @@ def _half_planes(text: str) -> str:
     return text.replace("inside(d, workspace) and ", "")
 
 
+@pytest.mark.slow
 def test_the_narrow_passage_plans_in_both_spellings() -> None:
     # Before the guess read the geometry, the half-plane spelling ended at -0.96 (the
     # guess flew straight into the walls); the regions spelling plans to 0.17-0.2.
@@ -243,6 +244,7 @@ def test_a_route_that_must_stay_on_stepping_stones_hops_between_them() -> None:
 
 
 @pytest.mark.parametrize("spelling", ["regions", "halfplanes"])
+@pytest.mark.slow
 def test_stepping_stones_plans_near_the_certified_optimum_in_both_spellings(spelling) -> None:
     data = yaml.safe_load((_ZOO / f"stlpy_stepping_stones_{spelling}.yaml").read_text())
     # time for the stage's plan after a start that meets the mission (on a busy machine as

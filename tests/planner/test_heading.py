@@ -220,6 +220,7 @@ def test_a_face_in_an_inspection_conjunction_leaves_the_place_the_guess_routes_t
     assert place(And((face, face)), problem) is None
 
 
+@pytest.mark.slow
 def test_the_face_tolerance_is_a_scenario_field_kept_in_the_plan_file(tmp_path: Path) -> None:
     """``face_tolerance_deg`` narrows (or widens) ``face`` in the exact semantics, the capture
     windows and the plan file; a bad one is one line naming the field."""

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import casadi as ca
 import numpy as np
+import pytest
 
 from planner.optimize import make_model
 from planner.scenario import load_scenario
@@ -22,6 +23,7 @@ def _powerline():
     return problem, build_registry(problem), make_model(problem)
 
 
+@pytest.mark.slow
 def test_leaves_naming_other_vehicles_and_boxes_share_one_shape() -> None:
     problem, reg, _ = _powerline()
     a = parse("eventually[0, 29] always[0, 1] inside(d1, insp1)", reg)
@@ -50,6 +52,7 @@ def test_leaves_naming_other_vehicles_and_boxes_share_one_shape() -> None:
     assert template(a, 0, model, dt, k, 2 * kp)[0] is not first
 
 
+@pytest.mark.slow
 def test_template_value_gradient_and_hessian_equal_the_leaf_written_out() -> None:
     problem, reg, model = _powerline()
     dt, k, kp = problem.timing.sample_dt_s, 80.0, predicate_sharpness(problem)

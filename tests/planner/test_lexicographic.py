@@ -72,6 +72,7 @@ def test_a_margin_the_start_sets_does_not_cap_the_other_clauses() -> None:
     assert raised.clauses[1].robustness == pytest.approx(0.5, abs=1e-9)
 
 
+@pytest.mark.slow
 def test_a_failing_plan_still_meets_every_clause_it_can() -> None:
     alone = plan(_with(UNREACHABLE, lexicographic_rounds=0))
     raised = plan(_with(UNREACHABLE))

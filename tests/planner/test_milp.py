@@ -102,6 +102,7 @@ def soundness_problem(tmp_path_factory: pytest.TempPathFactory) -> Problem:
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
 )
 @given(spec_texts())
+@pytest.mark.slow
 def test_incumbent_is_at_least_as_robust_as_reported(soundness_problem: Problem, text: str):
     problem = dataclasses.replace(soundness_problem, clauses=(Clause("spec[0]", text),))
     res = solve_coarse(problem, time_limit_s=1.0)
@@ -126,6 +127,7 @@ def test_incumbent_is_at_least_as_robust_as_reported(soundness_problem: Problem,
         "powerline_until_clearance_1drone",
     ],
 )
+@pytest.mark.slow
 def test_zoo_incumbents_are_sound(name: str):
     problem = load_scenario(ZOO / f"{name}.yaml")
     res = solve_coarse(problem, time_limit_s=6.0)
@@ -168,6 +170,7 @@ def test_robustness_cap_stops_the_maximisation(tmp_path: Path):
 
 
 @pytest.mark.parametrize("spelling", ["regions", "halfplanes"])
+@pytest.mark.slow
 def test_stepping_stones_reach_stlpys_certified_optimum(spelling: str):
     problem = load_scenario(ZOO / f"stlpy_stepping_stones_{spelling}.yaml")
     res = solve_coarse(problem, time_limit_s=10.0)
@@ -224,6 +227,7 @@ POLES = (
 DRONES = "  - {name: d1, start: [-4, 3, 3]}\n  - {name: d2, start: [12, 3, 3]}\n"
 
 
+@pytest.mark.slow
 def test_every_pole_is_inspected_by_a_drone_that_goes_there(tmp_path: Path):
     # each drone can reach the two poles on its side in 14 s, not those 18 m away as well
     spec = [

@@ -87,6 +87,7 @@ def test_either_or_is_met_in_both_spellings(spelling: str) -> None:
     assert 0.0 <= got.robustness <= 0.5 + 1e-6  # the certified optimum bounds it
 
 
+@pytest.mark.slow
 def test_reach_avoid_leaves_the_obstacle_corner_on_a_shifted_start() -> None:
     # The straight route grazes both corners of the obstacle; the first plan converges onto
     # one (robustness -0.0000).  Legs shifted to one side pass it with the goal's margin.
@@ -98,6 +99,7 @@ def test_reach_avoid_leaves_the_obstacle_corner_on_a_shifted_start() -> None:
     assert "legs 1 m to the" in many.status
 
 
+@pytest.mark.slow
 def test_the_polish_budget_keeps_the_best_of_more_starts() -> None:
     first = plan(_zoo("stlpy_door_puzzle_regions"))
     assert first.success and first.stats is not None and first.stats.starts == 1
@@ -110,6 +112,7 @@ def test_the_polish_budget_keeps_the_best_of_more_starts() -> None:
     assert not polished.status.startswith("stopped at the time limit")
 
 
+@pytest.mark.slow
 def test_a_given_guess_is_the_only_start() -> None:
     problem = _zoo("stlpy_either_or_regions")
     first = plan(_zoo("stlpy_either_or_regions", starts=1))

@@ -69,6 +69,7 @@ def _replace_solver(problem: Problem, **kw: object) -> Problem:
 
 
 @pytest.mark.parametrize("n", [1, 2, 4])
+@pytest.mark.slow
 def test_reach_avoid_plans_with_positive_robustness(n: int) -> None:
     problem = load_scenario(CONFIGS / "reach_avoid.yaml", vehicles=n)
     result = plan(problem)
@@ -92,6 +93,7 @@ def test_reach_avoid_plans_with_positive_robustness(n: int) -> None:
 
 
 @pytest.mark.parametrize("n", [2, 4])
+@pytest.mark.slow
 def test_powerline_inspection_plans_with_positive_robustness(n: int) -> None:
     # N = 4 is the flagship case of gcs demo (two groups of two); N = 2 one drone per group.
     problem = load_scenario(CONFIGS / "powerline_inspection.yaml", vehicles=n)
@@ -128,6 +130,7 @@ def test_powerline_inspection_plans_with_positive_robustness(n: int) -> None:
         assert lim.feasibility is not None and lim.feasibility.feasible
 
 
+@pytest.mark.slow
 def test_double_integrator_scenario_plans() -> None:
     problem = load_scenario(CONFIGS / "narrow_passage_di.yaml")
     result = plan(problem)
@@ -135,6 +138,7 @@ def test_double_integrator_scenario_plans() -> None:
     _check_limits_and_separation(result)
 
 
+@pytest.mark.slow
 def test_unsatisfiable_scenario_is_a_failed_result_not_an_exception() -> None:
     import yaml
 
@@ -207,6 +211,7 @@ def test_flat_blocks_keep_their_gradient_and_leave_the_hessian() -> None:
     np.testing.assert_allclose(hess[(True, False)][:2, :2], np.triu(h_cur), atol=1e-12)
 
 
+@pytest.mark.slow
 def test_separation_without_curvature_reaches_the_exact_hessian_optimum() -> None:
     from planner.scenario.spec import parse_clause
     from planner.solve.nlp import _is_separation
@@ -265,6 +270,7 @@ def test_shared_target_slots_are_lattice_points_with_equal_depth_and_spacing_mar
     np.testing.assert_allclose(one["x"], [1.75, 1.75, 0.75])
 
 
+@pytest.mark.slow
 def test_workspace_holds_even_when_the_spec_does_not_mention_it() -> None:
     # Specs that never name the workspace and have no row-wise leaf: the planner still keeps
     # the vehicle inside it (its bounds are constraints of their own).  When the bounds were
@@ -291,6 +297,7 @@ def test_workspace_holds_even_when_the_spec_does_not_mention_it() -> None:
         (1, 0.005),
     ],
 )
+@pytest.mark.slow
 def test_robustness_constraint_makes_the_exact_robustness_reach_epsilon(
     vehicles: int, cap_m: float
 ) -> None:
@@ -306,6 +313,7 @@ def test_robustness_constraint_makes_the_exact_robustness_reach_epsilon(
     _check_limits_and_separation(result)
 
 
+@pytest.mark.slow
 def test_robustness_constraint_that_cannot_hold_returns_the_best_plain_plan() -> None:
     import yaml
 
@@ -327,6 +335,7 @@ def test_robustness_constraint_that_cannot_hold_returns_the_best_plain_plan() ->
     assert constrained.robustness == pytest.approx(plain.robustness, abs=5e-3)
 
 
+@pytest.mark.slow
 def test_sqpmethod_plans_the_same_scenario_as_ipopt() -> None:
     from planner.problem import SolverMethod
 

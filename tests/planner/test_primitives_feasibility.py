@@ -38,6 +38,7 @@ def _brute_force(
     return t, f, w
 
 
+@pytest.mark.slow
 def test_recursive_test_agrees_with_brute_force() -> None:
     rng = np.random.default_rng(11)
     n = 400

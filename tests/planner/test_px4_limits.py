@@ -202,6 +202,7 @@ def px4_plan():
     return plan(parse_scenario(copy.deepcopy(_SCENARIO), "px4_limits.yaml"))
 
 
+@pytest.mark.slow
 def test_a_plan_that_must_fly_at_the_limits_keeps_within_the_norm_and_the_descent_rate(
     px4_plan,
 ) -> None:
@@ -245,6 +246,7 @@ def test_plan_files_keep_px4_like_limits_and_verify_checks_them(px4_plan, tmp_pa
         load_plan(path)
 
 
+@pytest.mark.slow
 def test_the_mock_px4_tracks_a_plan_within_its_descent_limit_and_lags_one_beyond_it(
     px4_plan,
 ) -> None:

@@ -62,6 +62,7 @@ def _random(fn: ca.Function, seed: int) -> list[np.ndarray]:
     return [rng.normal(scale=4.0, size=fn.size_in(i)) for i in range(fn.n_in())]
 
 
+@pytest.mark.slow
 def test_each_blocks_derivatives_equal_casadis_of_the_whole_block(builder) -> None:
     w = builder.w
     lam_all = ca.SX.sym("lam", int(builder.direct.shape[0]))
@@ -86,6 +87,7 @@ def test_each_blocks_derivatives_equal_casadis_of_the_whole_block(builder) -> No
     assert {"Predicate", "Comparison", "Comparison separation"} <= kinds
 
 
+@pytest.mark.slow
 def test_the_constraint_jacobian_and_lagrangian_hessian_are_unchanged(builder) -> None:
     """The assembled ``jac_g`` and ``hess_lag`` with per-sample blocks equal the ones
     differentiated block by block, separations' flat rows included."""

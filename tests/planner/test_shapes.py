@@ -70,6 +70,7 @@ def _shapes() -> list[Region]:
 
 
 @pytest.mark.parametrize("region", _shapes(), ids=lambda r: r.name)
+@pytest.mark.slow
 def test_a_shapes_margin_is_its_distance_to_the_boundary_inside_and_a_lower_bound_outside(
     region: Region,
 ) -> None:

@@ -80,6 +80,7 @@ def formulas_with_functions(draw):
 
 @settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(formulas_with_functions())
+@pytest.mark.slow
 def test_str_parses_back_to_an_equal_formula(phi):
     text = str(phi)
     again = parse(text, REGISTRY)

@@ -219,6 +219,7 @@ SETTINGS = settings(
 
 @SETTINGS
 @given(cases())
+@pytest.mark.slow
 def test_exact_trace_equals_naive_definition(case):
     phi, x, dt = case
     expected = ref_trace(phi, x, dt)
@@ -343,6 +344,7 @@ def test_weakest_follows_the_deciding_operands():
 
 @SETTINGS
 @given(cases(depth=3))
+@pytest.mark.slow
 def test_weakest_chain_ends_at_an_atom_with_the_root_value(case):
     phi, x, dt = case
     chain = phi.weakest(x, dt)
@@ -357,6 +359,7 @@ def test_weakest_chain_ends_at_an_atom_with_the_root_value(case):
 
 @SETTINGS
 @given(cases(depth=3))
+@pytest.mark.slow
 def test_the_explanation_has_the_root_value_in_its_own_sign(case):
     # The reported reason for a value is never one that passes where the formula fails:
     # the explaining witness evaluates (by the brute-force semantics) to the root's value.
@@ -394,6 +397,7 @@ def test_a_failing_negation_is_explained_by_itself_not_by_the_atom_that_passes()
 
 @SETTINGS
 @given(cases(depth=3), st.sampled_from([0.5, 2.0, 10.0, 100.0]))
+@pytest.mark.slow
 def test_smooth_is_within_documented_bound_of_exact(case, k):
     phi, x, dt = case
     exact = phi.robustness(x, dt)
@@ -423,6 +427,7 @@ def _symbolic(x: dict[str, np.ndarray], kind=ca.SX):
 
 @SETTINGS
 @given(cases(depth=3), st.sampled_from([1.0, 10.0, 100.0]))
+@pytest.mark.slow
 def test_numpy_and_casadi_smooth_agree(case, k):
     phi, x, dt = case
     syms, flat, values = _symbolic(x)
@@ -503,6 +508,7 @@ def test_block_window_lse_equals_direct_lse_in_both_back_ends(rows, width):
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(cases(depth=3), st.sampled_from([2.0, 20.0]))
+@pytest.mark.slow
 def test_smooth_trace_matches_per_step_smooth_values_in_both_back_ends(case, k):
     phi, x, dt = case
     horizon = ref_horizon(phi, dt)

@@ -25,6 +25,7 @@ def _zoo(name: str, **solver: Any) -> Problem:
     return dataclasses.replace(problem, solver=dataclasses.replace(problem.solver, **solver))
 
 
+@pytest.mark.slow
 def test_the_coarse_plan_starts_the_nlp_where_it_beats_the_guess() -> None:
     # The door puzzle (regions): the nearest keys first leave the guess's plan at 0.23; the
     # MILP opens the doors in the right order (its optimum 0.4 on the coarse model, stlpy's
@@ -50,6 +51,7 @@ def test_a_guess_that_meets_the_mission_at_its_start_skips_the_milp() -> None:
     assert "combinatorial" not in got.status
 
 
+@pytest.mark.slow
 def test_clauses_in_conflict_are_named_and_nothing_else_is_advised() -> None:
     # Two drones in one 1 m cube at once (diagonal 1.73 m) and 2 m apart; the workspace and
     # a far box for d1 are easy decoys that must not be named.
@@ -125,6 +127,7 @@ def test_a_stage_without_a_coarse_plan_says_why(tmp_path: Path) -> None:
     assert res.stats.coarse["status"] == "not encodable"
 
 
+@pytest.mark.slow
 def test_the_stage_runs_beside_the_build_and_the_guess_start() -> None:
     """The combinatorial stage starts before the NLP is built and runs in its own thread;
     a guess that falls short (the allocation mission: every drone leaves every pole to the
@@ -144,6 +147,7 @@ def _reach_avoid(n: int) -> Problem:
     return load_scenario(ROOT / "configs" / "reach_avoid.yaml", vehicles=n)
 
 
+@pytest.mark.slow
 def test_a_stopped_stage_ends_promptly_and_keeps_its_incumbent() -> None:
     """Stopped from another thread, HiGHS ends at its next interrupt check with the best
     plan it has; that plan is the start made (marked stopped), and the incumbent the stage
@@ -173,6 +177,7 @@ def test_a_stopped_stage_ends_promptly_and_keeps_its_incumbent() -> None:
     assert "kInterrupt" in outcome.result.message
 
 
+@pytest.mark.slow
 def test_two_coarse_programs_in_two_threads_agree_with_each_alone() -> None:
     """HiGHS instances in two threads at once corrupted the heap; the builder runs one at a
     time, so two stages in two threads give what each gives alone."""

@@ -7,6 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from planner.optimize import conjunction, make_model, plan
 from planner.scenario import load_scenario
@@ -36,6 +37,7 @@ def test_the_guess_climbs_over_an_until_keep_out_before_crossing_it() -> None:
     assert lhs.min() > 0.3  # clear of the paddock's airspace all the way
 
 
+@pytest.mark.slow
 def test_the_until_clearance_is_met_and_a_start_that_met_it_is_not_lost() -> None:
     result = plan(load_scenario(ZOO / "powerline_until_clearance_1drone.yaml"))
     assert result.success, result.status
@@ -45,6 +47,7 @@ def test_the_until_clearance_is_met_and_a_start_that_met_it_is_not_lost() -> Non
         assert "the solver's -" in result.status
 
 
+@pytest.mark.slow
 def test_a_start_that_meets_the_mission_is_refined_not_recentred() -> None:
     # IPOPT's adaptive barrier threw this start away (1,183 iterations, a failure at the
     # time limit); with the barrier capped it is refined in a few iterations.

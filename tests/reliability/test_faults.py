@@ -29,7 +29,7 @@ from tests.reliability.harness import (
     reboot_run,
 )
 
-pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)
+pytestmark = pytest.mark.slow  # flights or transfers over UDP (make test-fast skips)
 
 HANG_S = 120.0  # far above any bounded failure (MAVSDK: 5 retries x 1.5 s per item)
 

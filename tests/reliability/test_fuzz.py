@@ -46,6 +46,7 @@ def test_generator_covers_every_kind_and_is_reproducible() -> None:
             assert all(m.get_type() == "BAD_DATA" for m in parser.parse_buffer(data) or [])
 
 
+@pytest.mark.slow
 def test_mock_vehicle_survives_hostile_frames_and_ignores_those_for_others() -> None:
     rep = asyncio.run(fuzz_mock_in_process(N_FRAMES, seed=11))
     assert rep.frames == N_FRAMES
@@ -54,11 +55,13 @@ def test_mock_vehicle_survives_hostile_frames_and_ignores_those_for_others() -> 
     assert 0 < rep.addressed < rep.frames  # some random frames do address it (no state rule)
 
 
+@pytest.mark.slow
 def test_mock_vehicle_over_udp_stays_alive_and_serves_its_gcs() -> None:
     rep = fuzz_mock_udp(N_FRAMES, seed=12)
     assert rep.alive, rep.notes
 
 
+@pytest.mark.slow
 def test_truncated_junk_does_not_swallow_the_next_command_or_steal_telemetry() -> None:
     # Regression: the parser kept a truncated frame's bytes and ate the next datagram,
     # and any datagram (even junk) redirected the vehicle's telemetry to its sender.
@@ -85,6 +88,7 @@ def test_truncated_junk_does_not_swallow_the_next_command_or_steal_telemetry() -
             assert gcs.recv("HEARTBEAT", 3.0) is not None
 
 
+@pytest.mark.slow
 def test_mavsdk_fleet_survives_hostile_frames_and_keeps_its_vehicle_state() -> None:
     rep, before, after = asyncio.run(asyncio.wait_for(fuzz_fleet(N_FRAMES, seed=13), 60.0))
     assert rep.alive

@@ -71,6 +71,7 @@ def test_hand_edited_plans_are_refused_and_nothing_reaches_listening_vehicles(
     assert not any(s.armed for s in states)
 
 
+@pytest.mark.slow
 def test_gcs_fly_refuses_a_vehicle_far_from_its_planned_start_before_arming(
     capsys: pytest.CaptureFixture[str],
 ) -> None:

@@ -72,6 +72,7 @@ def test_malformed_file_gives_one_clear_line_or_names_the_violation(
         assert out.strip().splitlines()[-1].startswith("FAILED: ")
 
 
+@pytest.mark.slow
 def test_python_tags_are_refused_in_a_real_process_and_nothing_runs() -> None:
     PWNED.unlink(missing_ok=True)
     for name in ("s_python_object_tag.yaml", "s_python_tag_in_field.yaml"):

@@ -30,7 +30,7 @@ from mavlink.link.vehicle_status import VehicleSpec
 from mavlink.mock import MockFleet
 from mavlink.mock.testing import GcsEndpoint, free_udp_ports
 
-pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)
+pytestmark = pytest.mark.slow  # flights or transfers over UDP (make test-fast skips)
 
 KEY = bytes(range(32))
 WRONG = bytes(range(1, 33))

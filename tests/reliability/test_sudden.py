@@ -22,7 +22,7 @@ from mavlink.offboard.setpoints import OffboardConfig
 from tests.mavlink.linkutil import mock_and_fleet, spec_formula, stored_plan
 from tests.mavlink.linkutil import scenario as link_scenario
 
-pytestmark = pytest.mark.slow  # real-time flights or transfers over UDP (make test-fast skips)
+pytestmark = pytest.mark.slow  # flights or transfers over UDP (make test-fast skips)
 
 HANG_S = 90.0
 
