@@ -65,11 +65,11 @@ from mavlink.monitor_findings import always_clauses
 from mavlink.offboard.setpoints import offboard_sender
 from mavlink.offboard.stream import (
     VEHICLES_PER_GROUP,
-    NedSetpoints,
     SetpointStreamer,
     StreamTarget,
     auto_send_groups,
 )
+from mavlink.plan_setpoints import NedSetpoints
 from planner.frames import GeodeticPoint
 from planner.planfile import Plan, load_plan
 from planner.trajectory import Trajectory

@@ -3,7 +3,7 @@
 PX4's position controller does not model aerodynamic drag, so a vehicle settles
 ``c / (MPC_XY_P * MPC_XY_VEL_P_ACC)`` seconds behind a moving setpoint (0.585 s for SIH's
 quad, ``c`` = 1/s: docs/px4-behaviour.md). Adding ``c * v`` to the acceleration feed-forward
-removes that lag (:func:`mavlink.offboard.setpoints.plan_setpoints_ned`). ``c`` comes from, in order:
+removes that lag (:func:`mavlink.plan_setpoints.plan_setpoints_ned`). ``c`` comes from, in order:
 the user (``--drag``), the simulator's own parameters (SIH_KDV / SIH_MASS, when the vehicle
 has them), or nothing (0). After a flight, :func:`drag_from_lag` turns the lag each vehicle
 really showed into the drag that would have removed it, which is what to pass as ``--drag``.

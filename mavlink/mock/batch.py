@@ -9,7 +9,7 @@ PX4 parameters by the same functions (:func:`mavlink.mock.parameters.apply_contr
 :func:`~mavlink.mock.parameters.mode_limits`, :meth:`FleetEstimator.configure`).
 
 What a run flies is what ``gcs fly`` streams in offboard mode (docs/architecture.md, "The MAVLink side"): the plan
-sampled at ``rate_hz`` into local-NED setpoints by :func:`mavlink.offboard.setpoints.plan_setpoints_ned`
+sampled at ``rate_hz`` into local-NED setpoints by :func:`mavlink.plan_setpoints.plan_setpoints_ned`
 (position, velocity and acceleration with the drag fed forward, yaw), preceded by the start
 setpoint for ``settle_s`` (the pre-stream and the arrival gate).  The setpoint link is modelled
 per setpoint: it arrives ``latency + U(0, jitter)`` after it was sent, or never (``loss``); the
@@ -55,6 +55,7 @@ from mavlink.mock.parameters import (
 from mavlink.mock.physics import FleetPhysics
 from mavlink.mock.profiles import DEFAULT_PROFILE
 from mavlink.mock.px4 import Px4Mode
+from mavlink.plan_setpoints import plan_setpoints_ned
 from mavlink.tracks import wrap_pi
 
 if TYPE_CHECKING:
@@ -211,7 +212,6 @@ def prepare(
         MockConfigError: bad parameters, a check step that is not a whole number of physics
             steps, or an offboard-loss action the simulator does not fly (Return).
     """
-    from mavlink.offboard.setpoints import plan_setpoints_ned
     from planner.frames import GeodeticPoint as Geo
     from planner.frames import NedToEnuMap, enu_to_geodetic
 

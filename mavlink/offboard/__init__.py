@@ -4,7 +4,7 @@
 
 1. learns each vehicle's EKF origin (GPS_GLOBAL_ORIGIN) and transforms the
    vehicle's trajectory from the mission ENU frame into its own local NED
-   frame (:func:`~mavlink.offboard.setpoints.plan_setpoints_ned`);
+   frame (:func:`~mavlink.plan_setpoints.plan_setpoints_ned`);
 2. refuses the flight, before anything is armed, if a vehicle is farther
    than ``start_tolerance_m`` from its planned start (horizontally while it
    is on the ground, in 3-D if it is in the air) (:class:`PreflightError`);
@@ -57,7 +57,6 @@ from mavlink.offboard.setpoints import (
     EndAction,
     OffboardConfig,
     offboard_sender,
-    plan_setpoints_ned,
 )
 from mavlink.offboard.stream import (
     SetpointStreamer,
@@ -66,6 +65,7 @@ from mavlink.offboard.stream import (
     auto_send_groups,
     send_offsets,
 )
+from mavlink.plan_setpoints import plan_setpoints_ned
 from mavlink.preflight import check_start, check_takeoff_height, wait_settled
 from mavlink.px4_modes import Px4Mode
 from mavlink.tlog import TlogRecorder, TlogStats

@@ -1,10 +1,10 @@
-"""What an offboard flight streams: its settings, and the plan sampled into setpoints.
+"""How an offboard flight streams: its settings, and the sender of one setpoint.
 
 :class:`OffboardConfig` holds the settings of :func:`mavlink.offboard.fly_offboard`
 (setpoint rate, pre-stream, start tolerance and arrival gate, take-off, drag feed-forward,
-end action); :func:`plan_setpoints_ned` samples a mission-frame trajectory into one
-vehicle's local NED setpoints; :func:`offboard_sender` puts one setpoint on the wire through
-MAVSDK's Offboard plugin.
+end action); :func:`offboard_sender` puts one setpoint on the wire through MAVSDK's Offboard
+plugin. The plan is sampled into setpoints by :func:`mavlink.plan_setpoints.plan_setpoints_ned`,
+which the batch simulator shares.
 
 A room of its own, apart from the running of the flight (:mod:`mavlink.offboard`): these
 are values and functions of a plan that never wait on a vehicle (the sender only queues a
@@ -18,7 +18,6 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from enum import Enum
 
-import numpy as np
 from mavsdk.plugins.offboard import (
     AccelerationNed,
     Offboard,
@@ -27,10 +26,8 @@ from mavsdk.plugins.offboard import (
 )
 
 from mavlink.errors import LinkError
-from mavlink.offboard.stream import MAX_RATE_HZ, NedSetpoints, Setpoint
+from mavlink.offboard.stream import MAX_RATE_HZ, Setpoint
 from mavlink.preflight import TAKEOFF_MARGIN_M
-from planner.frames import GeodeticPoint, enu_to_ned, enu_vector_to_ned, yaw_enu_to_ned
-from planner.trajectory import Trajectory
 
 
 class EndAction(Enum):
@@ -67,7 +64,7 @@ class OffboardConfig:
             the vehicle on the ground (docs/px4-behaviour.md).
         takeoff_timeout_s: time allowed to be airborne near the start after takeoff.
         drag_per_s: the vehicles' drag per unit mass (1/s; one for all or per vehicle name),
-            added to the acceleration feed-forward (:func:`plan_setpoints_ned`); 0: none.
+            added to the acceleration feed-forward (:func:`mavlink.plan_setpoints.plan_setpoints_ned`); 0: none.
         settle_speed_m_s: a vehicle counts as hovering below this speed.
         mode_timeout_s: time allowed for all vehicles to report OFFBOARD.
         start_delay_s: the shared start time is this long after the switch.
@@ -144,49 +141,6 @@ class OffboardConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise LinkError(f"{name} must be a finite number >= 0, got {value!r}")
-
-
-def plan_setpoints_ned(
-    trajectory: Trajectory,
-    rate_hz: float,
-    mission_origin: GeodeticPoint,
-    vehicle_origin: GeodeticPoint,
-    *,
-    t_offset_s: float = 0.0,
-    drag_per_s: float = 0.0,
-) -> NedSetpoints:
-    """Sample ``trajectory`` at ``rate_hz`` and express it in the vehicle's local NED frame.
-
-    Positions go mission ENU -> geodetic -> vehicle NED; velocity and
-    acceleration are rotated between the two tangent planes; yaw becomes a
-    NED heading (planner.frames).
-
-    Args:
-        t_offset_s: sample at ``k / rate_hz + t_offset_s`` (the vehicle's send
-            offset within the period, :func:`mavlink.offboard.stream.send_offsets`).
-        drag_per_s: the vehicle's linear drag per unit mass ``c`` (1/s). PX4's position
-            controller does not model drag, so without help the vehicle settles
-            ``c / (MPC_XY_P * MPC_XY_VEL_P_ACC)`` seconds behind a moving setpoint
-            (0.585 s on SIH's quad); the acceleration feed-forward then carries the force
-            the drag takes: ``a_ff = a_plan + c * v_plan``.
-
-    Returns:
-        :class:`NedSetpoints` for ``k = 0 .. ceil(T * rate)`` (the trajectory
-        holds its end state past its duration).
-    """
-    n = math.ceil(trajectory.duration_s * rate_hz - 1e-9) + 1  # as Trajectory.sample
-    t = np.arange(n) / rate_hz + t_offset_s
-    vel = trajectory.velocity(t)
-    acc = trajectory.acceleration(t) + drag_per_s * vel
-    return NedSetpoints(
-        t_s=t,
-        pos_ned_m=enu_to_ned(trajectory.position(t), mission_origin, vehicle_origin),
-        vel_ned_m_s=enu_vector_to_ned(vel, mission_origin, vehicle_origin),
-        acc_ned_m_s2=enu_vector_to_ned(acc, mission_origin, vehicle_origin),
-        yaw_ned_rad=np.asarray(
-            yaw_enu_to_ned(trajectory.yaw_rad(t), mission_origin, vehicle_origin), dtype=float
-        ),
-    )
 
 
 def offboard_sender(offboard: Offboard) -> Callable[[Setpoint], None]:

@@ -1,7 +1,7 @@
 """Timed setpoint streaming against absolute deadlines.
 
 :class:`SetpointStreamer` sends setpoint ``k`` of every vehicle at the
-deadline ``t0 + k / rate_hz`` (``time.monotonic`` clock), so errors never
+deadline ``t0 + k / rate_hz`` (on the flight's clock, :mod:`mavlink.clock`), so errors never
 accumulate: a late tick does not shift the following ones. If the loop falls
 more than one period behind, the stale setpoints are skipped (counted in
 ``skipped``) and the current one is sent, as a vehicle gains nothing from an
@@ -23,58 +23,12 @@ from typing import NamedTuple
 import numpy as np
 
 from mavlink.errors import StreamError
+from mavlink.plan_setpoints import NedSetpoints
 
 #: Highest stream rate accepted (docs/architecture.md, "The MAVLink side": configurable up to 100 Hz).
 MAX_RATE_HZ = 100.0
 #: Lowest rate PX4 accepts for offboard (it needs > 2 Hz).
 MIN_RATE_HZ = 2.0
-
-
-@dataclass(frozen=True, slots=True, eq=False)
-class NedSetpoints:
-    """One vehicle's setpoints in its own local NED frame.
-
-    Attributes:
-        t_s: ``(n,)`` seconds from the shared start, step ``1 / rate_hz``.
-        pos_ned_m: ``(n, 3)`` north, east, down.
-        vel_ned_m_s: ``(n, 3)`` velocity feed-forward.
-        acc_ned_m_s2: ``(n, 3)`` acceleration feed-forward.
-        yaw_ned_rad: ``(n,)`` heading, 0 = north, clockwise.
-    """
-
-    t_s: np.ndarray
-    pos_ned_m: np.ndarray
-    vel_ned_m_s: np.ndarray
-    acc_ned_m_s2: np.ndarray
-    yaw_ned_rad: np.ndarray
-
-    def __post_init__(self) -> None:
-        n = self.t_s.shape[0]
-        for name in ("pos_ned_m", "vel_ned_m_s", "acc_ned_m_s2"):
-            if getattr(self, name).shape != (n, 3):
-                raise StreamError(
-                    f"setpoints: {name} has shape {getattr(self, name).shape}, expected ({n}, 3)"
-                )
-        if self.yaw_ned_rad.shape != (n,):
-            raise StreamError(
-                f"setpoints: yaw_ned_rad has shape {self.yaw_ned_rad.shape}, expected ({n},)"
-            )
-        if n == 0:
-            raise StreamError("setpoints: empty")
-
-    def __len__(self) -> int:
-        return int(self.t_s.shape[0])
-
-    def constant(self, index: int, n: int) -> NedSetpoints:
-        """``n`` copies of setpoint ``index`` with zero velocity and acceleration (a hover)."""
-        z = np.zeros((n, 3))
-        return NedSetpoints(
-            t_s=np.arange(n, dtype=float),
-            pos_ned_m=np.repeat(self.pos_ned_m[index : index + 1], n, axis=0),
-            vel_ned_m_s=z,
-            acc_ned_m_s2=z.copy(),
-            yaw_ned_rad=np.full(n, self.yaw_ned_rad[index]),
-        )
 
 
 @dataclass(frozen=True, slots=True)

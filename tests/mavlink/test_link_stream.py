@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from mavlink.errors import StreamError
-from mavlink.offboard.stream import NedSetpoints, Setpoint, SetpointStreamer, StreamTarget
+from mavlink.offboard.stream import Setpoint, SetpointStreamer, StreamTarget
+from mavlink.plan_setpoints import NedSetpoints
 
 
 class SimClock:

@@ -14,8 +14,9 @@ from pymavlink.dialects.v20 import common as mav
 
 from mavlink.link.fleet import Fleet
 from mavlink.link.vehicle_status import VehicleSpec
-from mavlink.offboard.setpoints import offboard_sender, plan_setpoints_ned
+from mavlink.offboard.setpoints import offboard_sender
 from mavlink.offboard.stream import SetpointStreamer, StreamTarget
+from mavlink.plan_setpoints import plan_setpoints_ned
 from planner.frames import GeodeticPoint
 from planner.trajectory import Trajectory, YawMode, YawPolicy
 from tests.mavlink.linkutil import free_udp_ports

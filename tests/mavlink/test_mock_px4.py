@@ -84,7 +84,7 @@ def test_steady_lag_emerges_as_drag_over_the_cascade_gains(
 @pytest.mark.parametrize("kdv", [0.5, 1.0, 1.5])
 @pytest.mark.slow
 def test_drag_fed_forward_as_acceleration_takes_the_steady_lag_out(kdv: float) -> None:
-    # The ground station's remedy (mavlink.offboard.setpoints.plan_setpoints_ned, drag_per_s): the
+    # The ground station's remedy (mavlink.plan_setpoints.plan_setpoints_ned, drag_per_s): the
     # acceleration feed-forward carries the drag force, a_ff = c * v, so PX4's cascade
     # needs no position error to hold the speed. Integrator off, as above.
     speed = 3.0
