@@ -66,7 +66,7 @@ def _counts(text: str) -> dict[str, int]:
     return out
 
 
-def run_pytest(workers: int, tier: str) -> dict[str, object]:
+def run_pytest(workers: int, tier: str, keep: Path | None) -> dict[str, object]:
     argv = [str(BIN / "python"), "-m", "pytest", "-q", "-n", str(workers), "--dist", "load"]
     argv += ["-p", "no:cacheprovider"]
     if tier == "fast":
@@ -75,8 +75,13 @@ def run_pytest(workers: int, tier: str) -> dict[str, object]:
     proc = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, check=False)
     wall = time.perf_counter() - t
     row: dict[str, object] = {"wall_s": round(wall, 1), **_counts(proc.stdout)}
-    failed = [ln for ln in proc.stdout.splitlines() if ln.startswith(("FAILED", "ERROR"))]
+    failed = [ln for ln in proc.stdout.splitlines() if ln.startswith(("FAILED ", "ERROR tests"))]
     row["failures"] = failed
+    if keep is not None and failed:  # the whole output of a run that failed, to read
+        keep.mkdir(parents=True, exist_ok=True)
+        path = keep / f"pytest-{time.strftime('%Y%m%d-%H%M%S')}.log"
+        path.write_text(proc.stdout + proc.stderr, encoding="utf-8")
+        row["log"] = str(path)
     return row
 
 
@@ -110,13 +115,15 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=3)
     ap.add_argument("--tier", choices=["all", "fast"], default="all")
     ap.add_argument("--no-checks", action="store_true", help="time pytest only")
+    ap.add_argument("--keep", type=Path, default=None, metavar="DIR",
+                    help="write the whole output of a run that failed here")  # fmt: skip
     args = ap.parse_args()
     checks = {} if args.no_checks else run_checks()
     rows = []
     for load in args.loads.split(","):
         for k in range(args.runs):
             with busy(args.busy) if load == "busy" else contextlib.nullcontext():
-                row = run_pytest(args.workers, args.tier)
+                row = run_pytest(args.workers, args.tier, args.keep)
             row.update(load=load, run=k + 1)
             rows.append(row)
             print(
