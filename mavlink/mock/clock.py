@@ -27,9 +27,19 @@ __all__ = ["SimClock"]
 _SLACK_S = 1e-9
 
 
+_Alarm = tuple[float, int, asyncio.AbstractEventLoop, asyncio.Future[None]]
+
+
 def _wake(fut: asyncio.Future[None]) -> None:
-    if not fut.done():
+    if not fut.done():  # a cancelled sleep's alarm stays until due, and wakes nobody
         fut.set_result(None)
+
+
+def _wake_all(alarms: list[_Alarm]) -> None:
+    """Wake the sleepers of ``alarms``, each in its own event loop (from any thread)."""
+    for _, _, loop, fut in alarms:
+        with contextlib.suppress(RuntimeError):  # the sleeper's loop has closed
+            loop.call_soon_threadsafe(_wake, fut)
 
 
 class SimClock:
@@ -41,7 +51,7 @@ class SimClock:
     def __init__(self, fleet: MockFleet) -> None:
         self._fleet = fleet
         self._lock = threading.Lock()
-        self._alarms: list[tuple[float, int, asyncio.AbstractEventLoop, asyncio.Future[None]]] = []
+        self._alarms: list[_Alarm] = []
         self._seq = itertools.count()
         self._ticking = False
 
@@ -84,18 +94,14 @@ class SimClock:
             due = []
             while alarms and alarms[0][0] <= now_s:
                 due.append(heapq.heappop(alarms))
-        for _, _, loop, fut in due:
-            with contextlib.suppress(RuntimeError):  # the sleeper's loop has closed
-                loop.call_soon_threadsafe(_wake, fut)
+        _wake_all(due)
 
     def stopped(self) -> None:
         """The fleet has stopped: wake every sleeper; later sleeps are on the wall clock."""
         with self._lock:
             self._ticking = False
             due, self._alarms[:] = list(self._alarms), []
-        for _, _, loop, fut in due:
-            with contextlib.suppress(RuntimeError):
-                loop.call_soon_threadsafe(_wake, fut)
+        _wake_all(due)
 
     def __repr__(self) -> str:
         return f"SimClock(t={self._fleet.time_s:.3f} s, speed={self._fleet.speed:g})"
