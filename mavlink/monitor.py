@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from mavsdk.plugins.offboard import OffboardResult
 
-from mavlink.clock import WALL, Clock
+from mavlink.clock import Clock
 from mavlink.errors import CommandError, LinkError
 from mavlink.monitor_findings import (
     MonitorStats,
@@ -234,9 +234,8 @@ class SafetyMonitor:
         self.warn_off_plan_m = warn_off_plan_m
         self.max_off_plan_m = max_off_plan_m
         self.on_warning = on_warning
-        self._given = (clock, wait)
-        self._clock: Callable[[], float] = clock or time.monotonic
-        self._wait = wait or _waiter(WALL)
+        self._clock = clock  # None: the fleet's, from run()
+        self._wait = wait
         self._batch = ClauseBatch([c.formula for c in self.clauses])
         # the signals the clauses read, and per clause the rows of its vehicles (padded with
         # the extra last row, always "present")
@@ -461,11 +460,13 @@ class SafetyMonitor:
         plans: Mapping[str, Trajectory] | None,
         expected_mode: Px4Mode | None,
         mode_grace_s: float,
-        done: Callable[[str], bool] | None = None,
+        done: Callable[[str], bool] | None,
+        clock: Callable[[], float],
     ) -> _Finding | None:
-        """One evaluation on a snapshot of the telemetry (runs on the monitor's thread)."""
+        """One evaluation on a snapshot of the telemetry, at ``clock()`` (runs on the
+        monitor's thread)."""
         t_cpu = time.perf_counter()
-        now = self._clock()
+        now = clock()
         t_s = now - t0_monotonic_s
         statuses = {v.name: v.status(now) for v in vehicles}
         try:
@@ -607,9 +608,8 @@ class SafetyMonitor:
         Returns:
             The :class:`SafetyEvent`, or ``None`` if the flight ended without one.
         """
-        clock, wait = self._given
-        self._clock = clock or fleet.clock.monotonic
-        self._wait = wait or _waiter(fleet.clock)
+        clock = self._clock or fleet.clock.monotonic
+        wait = self._wait or _waiter(fleet.clock)
         if self.on_start is not None:
             self.on_start(t0_monotonic_s)
         self.stats = MonitorStats()
@@ -622,24 +622,25 @@ class SafetyMonitor:
             while not stop.is_set():
                 # Half a period after the setpoint ticks, so an evaluation never delays a send.
                 deadline = t0_monotonic_s + (k + 0.5) * period
-                delay = deadline - self._clock()
-                if delay > 0 and await self._wait(stop, delay):
+                delay = deadline - clock()
+                if delay > 0 and await wait(stop, delay):
                     break
-                k = max(k + 1, int((self._clock() - t0_monotonic_s) / period - 0.5) + 1)
+                k = max(k + 1, int((clock() - t0_monotonic_s) / period - 0.5) + 1)
                 found = await loop.run_in_executor(
                     worker, self._tick, vehicles, t0_monotonic_s, maps, origins, plans,
-                    expected_mode, mode_grace_s, done,
+                    expected_mode, mode_grace_s, done, clock,
                 )  # fmt: skip
                 if found is not None and not stop.is_set():
-                    return await self._stop(fleet, stop, found)
+                    return await self._stop(fleet, stop, found, clock())
         finally:
             worker.shutdown(wait=False, cancel_futures=True)
         return None
 
-    async def _stop(self, fleet: Fleet, stop: asyncio.Event, found: _Finding) -> SafetyEvent:
+    async def _stop(
+        self, fleet: Fleet, stop: asyncio.Event, found: _Finding, t_command: float
+    ) -> SafetyEvent:
         stop.set()
         others = [v for v in fleet if v.name not in found.exclude]
-        t_command = self._clock()
         failures = await fleet.for_each(lambda v: safe_stop(v, self.action), others)
         return SafetyEvent(
             verdict=found.verdict,

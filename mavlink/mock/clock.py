@@ -21,10 +21,11 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from mavlink.mock.fleet import MockFleet
 
-__all__ = ["SimClock"]
+__all__ = ["TICK_SLACK_S", "SimClock"]
 
-#: Rounding allowed when an alarm's instant is compared with a tick's (s).
-_SLACK_S = 1e-9
+#: Rounding allowed when an instant is compared with a tick's (s): an instant that is a tick's,
+#: summed another way, is due on that tick (the fleet's timers and the clock's alarms alike).
+TICK_SLACK_S = 1e-9
 
 
 _Alarm = tuple[float, int, asyncio.AbstractEventLoop, asyncio.Future[None]]
@@ -87,7 +88,7 @@ class SimClock:
     def wake_due(self, now_s: float) -> None:
         """Wake every sleeper whose instant ``now_s`` has reached (the fleet, after a tick)."""
         alarms = self._alarms
-        now_s += _SLACK_S  # an instant that is a tick's, summed another way, is due on it
+        now_s += TICK_SLACK_S
         if not alarms or alarms[0][0] > now_s:
             return
         with self._lock:

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 import pymap3d
 
-from mavlink.mock.clock import SimClock
+from mavlink.mock.clock import TICK_SLACK_S, SimClock
 from mavlink.mock.config import FaultConfig, MockVehicleConfig, NoiseConfig, WindConfig
 from mavlink.mock.errors import MockConfigError, MockStartError
 from mavlink.mock.faults import FaultyChannel
@@ -389,7 +389,7 @@ class MockFleet:
         now = self._ticks * self.dt_s
         self.time_s = now
         timers = self._timers
-        while timers and timers[0][0] <= now + 1e-9:
+        while timers and timers[0][0] <= now + TICK_SLACK_S:
             _, _, fn, args = heapq.heappop(timers)
             fn(*args)
         for v in self.vehicles:
