@@ -3,23 +3,37 @@
 :func:`mavlink.mission.trajectory_to_mission` turns a trajectory into straight legs, each
 commanded at its average speed. PX4 does not fly those at constant speed: it accelerates
 and brakes within MPC_ACC_HOR / MPC_JERK_AUTO, slows for corners and stops before holds,
-and lags its own setpoint by the drag (docs/px4-behaviour.md: with a 1 m acceptance radius the
-power-line missions finished 5.5-8.5 s late). :func:`convert_plan`
+lags its own setpoint by the drag (docs/px4-sitl.md), and (what made the power line's missions
+5-16 m late on PX4 SITL) it looks one waypoint ahead only: the speed at a waypoint is at most
+the speed from which it could stop at the next one (PX4's ``TrajectoryConstraints.hpp``), so a
+waypoint every 2 s segment, 7.5 m apart, holds a 3.75 m/s plan to about 3.6 m/s at every one.
 
-1. chooses the acceptance radius (:func:`auto_acceptance_m`) unless the user gave one;
-2. predicts the flight with the mock's PX4 vehicle (:mod:`mavlink.mock.predict`: PX4's
-   navigator laws and the drag, no estimator noise);
-3. re-times the legs: each leg's commanded speed is scaled by how much longer PX4 took for
-   it than the plan allows, and the prediction repeated (``iterations``), keeping the
-   conversion whose predicted spec robustness is best;
-4. reports the predicted flight: per vehicle the finish time against the plan's, and the
-   spec's exact robustness on the predicted tracks (the honest "mission robustness"),
-   next to the straight-leg figure, which assumes constant leg speeds.
+:func:`convert_plan` searches for missions PX4 is predicted to fly on the plan's clock:
+
+1. candidates: the waypoints simplified (:func:`mavlink.mission.keep_waypoints`: those a
+   leg flown straight at constant speed may skip while it stays within a quarter, then a
+   half, of the plan's margin at every instant; every hover and every waypoint where pictures
+   are taken stays), then every waypoint; each with PX4's NAV_ACC_RAD, the radius chosen from
+   the plan's speeds (:func:`auto_acceptance_m`) and 1.5 NAV_ACC_RAD (not where pictures are
+   taken: a larger radius cuts corners);
+2. each candidate is predicted with the mock's PX4 vehicle (:mod:`mavlink.mock.predict`: PX4's
+   navigator laws and the drag, no estimator noise) and the spec's exact robustness computed
+   on the predicted tracks;
+3. and re-timed (:func:`_retimed`), up to :data:`ITERATIONS` predictions: each leg's speed is
+   scaled by how long PX4 took for it against the time that puts the vehicle on the clock
+   (legs into a hover aim :data:`ARRIVE_EARLY_S` early); each hold, the synchronisation point,
+   is lengthened where PX4 is predicted to leave it early and shortened where late, so a
+   vehicle that arrives early waits;
+4. the search stops at the first candidate predicted :data:`GOOD_ENOUGH_M` above epsilon, or
+   when :data:`BUDGET_S` is spent, and keeps the best: its predicted robustness (the honest
+   "mission robustness"), each vehicle's finish against the plan's, and the straight-leg
+   figure, which assumes constant leg speeds.
 """
 
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -32,7 +46,7 @@ if TYPE_CHECKING:
     from planner.planfile import Plan
 
 #: PX4 v1.17 defaults the conversion assumes where the vehicle's own are not known.
-PX4_DEFAULTS = {"NAV_ACC_RAD": 2.0}
+PX4_DEFAULTS = {"NAV_ACC_RAD": 2.0, "MPC_XY_VEL_MAX": 12.0}
 #: Cross-track error PX4 (SIH) showed per m/s of cruise: 0.3-0.5 m at 3.4 m/s (R = 0.3 m
 #: was missed, 1.0 m never); twice this is the smallest radius the conversion picks.
 XTRACK_S = 0.15
@@ -42,6 +56,19 @@ MIN_ACCEPTANCE_M = 0.6
 MAX_SPEEDUP = 2.0
 #: Seconds flown after the plan's horizon in a prediction (late missions are seen finishing).
 PREDICT_EXTRA_S = 20.0
+#: Predictions per candidate conversion at most.
+ITERATIONS = 6
+#: A hold is moved by this fraction of its predicted departure's error per prediction
+#: (the legs before it are re-timed in the same step) and kept above this fraction of the
+#: plan's hover there.
+HOLD_GAIN = 0.5
+MIN_HOLD = 0.5
+#: The legs into a hover aim to arrive this early (s): the hold waits for the plan's clock.
+ARRIVE_EARLY_S = 1.0
+#: Seconds of predictions a conversion may spend.
+BUDGET_S = 30.0
+#: The search stops at the first candidate predicted this far above epsilon (m).
+GOOD_ENOUGH_M = 0.1
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -59,6 +86,8 @@ class MissionConversion:
             when the prediction did not see it finish).
         iterations: predictions run.
         retimed: the leg speeds were changed from the legs' average speeds.
+        simplify_m: the tolerance of the waypoints dropped (0: a waypoint at every
+            segment's end; :func:`mavlink.mission.keep_waypoints`).
     """
 
     missions: dict[str, MissionPlan]
@@ -70,6 +99,7 @@ class MissionConversion:
     late_s: dict[str, float]
     iterations: int
     retimed: bool
+    simplify_m: float = 0.0
 
 
 def auto_acceptance_m(plan: Plan, nav_acc_rad_m: float = PX4_DEFAULTS["NAV_ACC_RAD"]) -> float:
@@ -110,43 +140,51 @@ def convert_plan(
     end: MissionEnd,
     acceptance_m: float | None = None,
     params: Mapping[str, float] | None = None,
-    iterations: int = 4,
+    iterations: int = ITERATIONS,
     retime: bool = True,
     captures: Mapping[str, Sequence[CaptureSpan]] | None = None,
+    budget_s: float = BUDGET_S,
 ) -> MissionConversion:
     """Missions for every vehicle of ``plan``, timed so PX4 keeps the plan's clock.
 
     Args:
         end: what each mission ends with.
         acceptance_m: waypoint acceptance radius; ``None`` chooses it
-            (:func:`auto_acceptance_m` with the vehicles' NAV_ACC_RAD).
+            (:func:`auto_acceptance_m` with the vehicles' NAV_ACC_RAD), and tries the larger
+            radii of :func:`radius_candidates` too.
         params: the vehicles' PX4 parameters where known (NAV_ACC_RAD, MPC_XY_CRUISE,
             MPC_ACC_HOR, SIH_KDV ...), used by the prediction.
-        iterations: predictions at most (1: no re-timing, just the prediction).
-        retime: re-time the legs (False: the legs' average speeds, predicted once).
+        iterations: predictions per candidate at most (1: as ``retime=False``).
+        retime: re-time the legs and holds and try the candidates (False: the legs' average
+            speeds, every waypoint, the chosen radius, predicted once).
         captures: where each vehicle's camera takes pictures (:func:`gcs.flight.payload.capture_spans`;
             ``None``: nowhere): camera and gimbal items in its mission.
+        budget_s: no new prediction starts after this many seconds (the best so far is
+            kept; at least one is always made).
     """
     from gcs.flight.evaluation import plan_formula
+    from gcs.flight.landing import landing_targets
     from mavlink.mission import MissionEnd, path_robustness, trajectory_to_mission
     from mavlink.mock.predict import predict_missions
 
     prm = dict(params or {})
     auto = acceptance_m is None
-    radius = (
-        auto_acceptance_m(plan, prm.get("NAV_ACC_RAD", PX4_DEFAULTS["NAV_ACC_RAD"]))
-        if acceptance_m is None
-        else float(acceptance_m)
-    )
+    nav_rad = prm.get("NAV_ACC_RAD", PX4_DEFAULTS["NAV_ACC_RAD"])
+    radius0 = auto_acceptance_m(plan, nav_rad) if acceptance_m is None else float(acceptance_m)
     lag_s = expected_lag_s(prm)
+    v_max = prm.get("MPC_XY_VEL_MAX", PX4_DEFAULTS["MPC_XY_VEL_MAX"])
     dt = plan.check_dt_s
     t = np.arange(round(plan.horizon_s / dt) + 1) * dt
     starts = {pv.name: tuple(float(x) for x in pv.start_enu_m) for pv in plan.vehicles}
-    from gcs.flight.landing import landing_targets
-
     land_at = landing_targets(plan) if end is MissionEnd.LAND else {}
+    phi = plan_formula(plan)
 
-    def build(speeds: Mapping[str, np.ndarray] | None) -> dict[str, MissionPlan]:
+    def build(
+        radius: float,
+        simplify: float,
+        speeds: Mapping[str, np.ndarray] | None = None,
+        holds: Mapping[str, np.ndarray] | None = None,
+    ) -> dict[str, MissionPlan]:
         return {
             pv.name: trajectory_to_mission(
                 pv.trajectory,
@@ -158,18 +196,13 @@ def convert_plan(
                 pass_lag_s=lag_s,
                 land_at_enu_m=land_at.get(pv.name),
                 captures=(captures or {}).get(pv.name, ()),
+                simplify_m=simplify,
+                hold_time_s=None if holds is None else holds[pv.name],
             )
             for pv in plan.vehicles
         }
 
-    missions = build(None)
-    base = {n: m.leg_speed_m_s.copy() for n, m in missions.items()}
-    phi = plan_formula(plan)
-    straight = path_robustness(phi, {n: m.path for n, m in missions.items()}, dt, plan.horizon_s)
-    best: tuple[float, dict[str, MissionPlan], PredictedMissions] | None = None
-    speeds = {n: s.copy() for n, s in base.items()}
-    runs = 0
-    for k in range(max(1, iterations if retime else 1)):
+    def predict(missions: Mapping[str, MissionPlan]) -> tuple[float, PredictedMissions]:
         pred = predict_missions(
             {n: m.items for n, m in missions.items()},
             starts,
@@ -180,53 +213,173 @@ def convert_plan(
             params=prm,
             sample_dt_s=dt if dt >= 0.02 else 0.02,
         )
-        runs += 1
-        rho = float(phi.robustness({n: pred.signal(n, t) for n in missions}, dt))
-        if best is None or rho > best[0]:
-            best = (rho, missions, pred)
-        if k + 1 >= iterations or not retime:
+        return float(phi.robustness({n: pred.signal(n, t) for n in missions}, dt)), pred
+
+    plain = build(radius0, 0.0)
+    straight = path_robustness(phi, {n: m.path for n, m in plain.items()}, dt, plan.horizon_s)
+    best: _Candidate | None = None
+    runs = 0
+    shots = any(captures.values()) if captures else False
+    candidates = (
+        [(radius0, 0.0)]
+        if not retime or iterations <= 1
+        else [
+            (r, s)
+            for s in simplify_candidates(plan)
+            # a larger radius cuts corners: not where pictures are taken
+            for r in (radius_candidates(radius0, nav_rad) if auto and not shots else (radius0,))
+        ]
+    )
+    deadline = time.monotonic() + budget_s
+    for radius, simplify in candidates:
+        if best is not None and time.monotonic() > deadline:
             break
-        changed = False
-        for name, m in missions.items():
-            # the plan's waypoints (a landing point's waypoint, if any, comes after them)
-            wp_seqs = [int(q) for q in m.waypoint_seq]
-            left = pred.left_s[name]
-            new = speeds[name].copy()
-            for j in range(1, len(wp_seqs)):
-                t_dep = left.get(wp_seqs[j - 1])
-                t_left = left.get(wp_seqs[j])
-                if t_dep is None or t_left is None:
-                    continue
-                flown = (t_left - float(m.hold_s[j])) - t_dep
-                planned = float(m.arrival_t_s[j]) - float(m.arrival_t_s[j - 1] + m.hold_s[j - 1])
-                if planned <= 0 or flown <= 0:
-                    continue
-                ratio = min(1.6, max(0.7, flown / planned))
-                new[j - 1] = min(new[j - 1] * ratio, MAX_SPEEDUP * base[name][j - 1])
-            if not np.allclose(new, speeds[name], rtol=0.01):
-                changed = True
-            speeds[name] = new
-        if not changed:
+        missions = plain if (radius, simplify) == (radius0, 0.0) else build(radius, simplify)
+        if _scheduled(missions) < _scheduled(plain):
+            continue  # a capture span without a waypoint left in it: no pictures there
+        base = {n: m.leg_speed_m_s.copy() for n, m in missions.items()}
+        speeds = {n: s.copy() for n, s in base.items()}
+        holds = {n: m.hold_s.copy() for n, m in missions.items()}
+        mine = -math.inf  # this candidate's best
+        stale = 0
+        for k in range(max(1, iterations if retime else 1)):
+            rho, pred = predict(missions)
+            runs += 1
+            if best is None or rho > best.robustness:
+                best = _Candidate(rho, missions, pred, radius, simplify)
+            stale = 0 if rho > mine + 0.01 else stale + 1
+            mine = max(mine, rho)
+            if k + 1 >= iterations or not retime or stale >= 2 or time.monotonic() > deadline:
+                break
+            changed = False
+            for name, m in missions.items():
+                new_speed, new_hold = _retimed(
+                    m, pred, speeds[name], holds[name], base[name], v_max
+                )
+                if not (
+                    np.allclose(new_speed, speeds[name], rtol=0.01)
+                    and np.allclose(new_hold, holds[name], atol=0.05)
+                ):
+                    changed = True
+                speeds[name], holds[name] = new_speed, new_hold
+            if not changed:
+                break
+            missions = build(radius, simplify, speeds, holds)
+        if best is not None and best.robustness >= plan.epsilon + GOOD_ENOUGH_M:
             break
-        missions = build(speeds)
     assert best is not None
-    rho, chosen, pred = best
     late = {}
-    for name, m in chosen.items():
-        fin = pred.finished_s[name]
+    for name, m in best.missions.items():
+        fin = best.prediction.finished_s[name]
         late[name] = math.inf if fin is None else fin - float(m.arrival_t_s[-1] + m.hold_s[-1])
-    retimed = any(not np.allclose(chosen[n].leg_speed_m_s, base[n]) for n in chosen)
+    retimed = any(
+        not np.allclose(best.missions[n].leg_speed_m_s, plain[n].leg_speed_m_s)
+        if best.missions[n].leg_speed_m_s.shape == plain[n].leg_speed_m_s.shape
+        else True
+        for n in best.missions
+    )
     return MissionConversion(
-        missions=chosen,
-        acceptance_m=radius,
+        missions=best.missions,
+        acceptance_m=best.radius,
         acceptance_auto=auto,
-        prediction=pred,
-        predicted_robustness=rho,
+        prediction=best.prediction,
+        predicted_robustness=best.robustness,
         straight_leg_robustness=float(straight),
         late_s=late,
         iterations=runs,
         retimed=retimed,
+        simplify_m=best.simplify,
     )
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class _Candidate:
+    robustness: float
+    missions: dict[str, MissionPlan]
+    prediction: PredictedMissions
+    radius: float
+    simplify: float
+
+
+def _scheduled(missions: Mapping[str, MissionPlan]) -> int:
+    """How many capture spans the missions take pictures in."""
+    return sum(1 for m in missions.values() for c in m.captures if c.start_s is not None)
+
+
+def radius_candidates(radius_m: float, nav_acc_rad_m: float) -> tuple[float, ...]:
+    """The acceptance radii a conversion tries, in order: NAV_ACC_RAD (PX4's own), the
+    chosen one (:func:`auto_acceptance_m`) where smaller, and 1.5 times NAV_ACC_RAD. PX4's
+    corner speed grows with the square root of the radius
+    (``sqrt(MPC_XY_TRAJ_P * MPC_ACC_HOR * R * tan(alpha / 2))``), and it cuts the corner by
+    about the radius: the prediction judges the trade."""
+    out = [float(max(radius_m, nav_acc_rad_m))]
+    if radius_m < out[0] - 0.05:
+        out.append(float(radius_m))
+    out.append(1.5 * out[0])
+    return tuple(out)
+
+
+def simplify_candidates(plan: Plan) -> tuple[float, ...]:
+    """The tolerances (m) of :func:`mavlink.mission.keep_waypoints` a conversion tries, in
+    order: a quarter and a half of the plan's margin (its robustness; at least 0.1 m), then
+    every waypoint."""
+    margin = max(0.1, float(plan.robustness))
+    return (0.25 * margin, 0.5 * margin, 0.0)
+
+
+def _retimed(
+    m: MissionPlan,
+    pred: PredictedMissions,
+    speeds: np.ndarray,
+    holds: np.ndarray,
+    base: np.ndarray,
+    v_max: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The next leg speeds and holds of one mission from its predicted flight.
+
+    A hold is lengthened by how early PX4 is predicted to leave it and shortened by how late
+    (:data:`HOLD_GAIN` of it a step, not below :data:`MIN_HOLD` of the plan's hover): the
+    holds are where the schedule absorbs what the legs do not keep. A leg's speed is scaled by
+    its predicted duration against the duration that puts the vehicle back on the clock: the
+    plan's, less half the lateness it starts with that no hold before it absorbs, and less
+    :data:`ARRIVE_EARLY_S` into a hover (the hold waits for the clock; lateness there cannot
+    be made up). At most by 0.7-1.6 a step, :data:`MAX_SPEEDUP` times the leg's average speed
+    and MPC_XY_VEL_MAX in all.
+    """
+    left = pred.left_s[m.name]
+    seqs = [int(q) for q in m.waypoint_seq]
+    dep_plan = m.arrival_t_s + m.hold_s
+    new_hold = holds.copy()
+    carry = 0.0  # lateness carried into the next leg
+    new_speed = speeds.copy()
+    for j, seq in enumerate(seqs):
+        t_left = left.get(seq)
+        if j > 0:
+            t_dep = left.get(seqs[j - 1])
+            planned = float(m.arrival_t_s[j] - dep_plan[j - 1])
+            if t_dep is not None and t_left is not None and planned > 0:
+                flown = (t_left - float(holds[j])) - t_dep
+                # the first leg after a hold gains the lead the chain keeps to its hover
+                lead = ARRIVE_EARLY_S if j == 1 or m.hold_s[j - 1] > 0 else 0.0
+                want = max(0.5 * planned, planned - lead - 0.5 * carry)
+                if flown > 0:
+                    ratio = min(1.6, max(0.7, flown / want))
+                    new_speed[j - 1] = min(speeds[j - 1] * ratio, MAX_SPEEDUP * base[j - 1], v_max)
+        if t_left is None:
+            carry = 0.0
+            continue
+        late = t_left - float(dep_plan[j])
+        if j > 0 and m.hold_s[j] <= 0:
+            late += ARRIVE_EARLY_S  # against the lead
+        if 0 < j < len(seqs) - 1 and m.hold_s[j] > 0:
+            # a hold in which pictures are taken is never shortened
+            a, d = float(m.arrival_t_s[j]), float(dep_plan[j])
+            shots = any(c.span.t_start_s <= d and c.span.t_end_s >= a for c in m.captures)
+            floor = float(m.hold_s[j]) * (1.0 if shots else MIN_HOLD)
+            new_hold[j] = max(floor, float(holds[j]) - HOLD_GAIN * late)
+            late = max(0.0, late - (float(holds[j]) - floor))  # what the hold cannot absorb
+        carry = late
+    return new_speed, new_hold
 
 
 @dataclass(frozen=True, slots=True, eq=False)

@@ -160,9 +160,15 @@ def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
         c = m.conversion
         how = "chosen" if c.acceptance_auto else "given"
         lines.append(
-            f"missions: acceptance radius {c.acceptance_m:.2f} m ({how}), legs "
-            f"{'re-timed' if c.retimed else 'at their average speeds'}; robustness predicted "
-            f"{c.predicted_robustness:+.4f} (straight legs {c.straight_leg_robustness:+.4f})"
+            f"missions: acceptance radius {c.acceptance_m:.2f} m ({how}), "
+            + (
+                f"waypoints within {c.simplify_m:.2f} m of the plan, "
+                if c.simplify_m > 0
+                else "a waypoint per segment, "
+            )
+            + f"legs {'and holds re-timed' if c.retimed else 'at their average speeds'}; "
+            f"robustness predicted {c.predicted_robustness:+.4f} (straight legs "
+            f"{c.straight_leg_robustness:+.4f}; {c.iterations} predictions)"
         )
     for name, run in outcome.missions.items():
         extra = ""
@@ -300,6 +306,8 @@ def outcome_json(plan: Plan, outcome: FlightOutcome) -> dict[str, Any]:
             "acceptance_m": outcome.mission.conversion.acceptance_m,
             "acceptance_auto": outcome.mission.conversion.acceptance_auto,
             "retimed": outcome.mission.conversion.retimed,
+            "simplify_m": outcome.mission.conversion.simplify_m,
+            "predictions": outcome.mission.conversion.iterations,
             "predicted_robustness": num(outcome.mission.conversion.predicted_robustness),
             "straight_leg_robustness": num(outcome.mission.conversion.straight_leg_robustness),
             "predicted_late_s": {k: num(v) for k, v in outcome.mission.conversion.late_s.items()},

@@ -40,7 +40,7 @@ from mavlink.errors import (
     LinkError,
     LinkLostError,
 )
-from mavlink.link.mavsdk_glue import route_mavsdk_logs
+from mavlink.link.mavsdk_glue import mavsdk_instance_opened, route_mavsdk_logs
 from mavlink.link.urls import Scheme, default_sysid, default_url, parse_url
 from mavlink.link.vehicle import Vehicle
 from mavlink.link.vehicle_status import VehicleSpec, VehicleStatus
@@ -183,6 +183,7 @@ class Fleet:
             await self._refuse_duplicates()
         config = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
         self._mavsdk = Mavsdk(config)
+        mavsdk_instance_opened(True)
         try:
             for spec in self.specs:
                 url = str(parse_url(spec.url, vehicle=spec.name))
@@ -325,6 +326,7 @@ class Fleet:
         if self._mavsdk is not None:
             self._mavsdk.destroy()
             self._mavsdk = None
+            mavsdk_instance_opened(False)
 
     # -- access ---------------------------------------------------------
 

@@ -73,14 +73,32 @@ _logs_routed = threading.Lock()
 _routed = False
 
 
+#: MAVSDK instances open in this process (:func:`mavsdk_instance_opened`).
+_open_instances = 0
+_open_lock = threading.Lock()
+
+
+def mavsdk_instance_opened(opened: bool) -> None:
+    """Count a MAVSDK instance opened (``True``) or destroyed (``False``): MAVSDK's errors
+    reach stderr only while one is open. Its log callback names no instance, and an instance
+    being torn down (or one a finished command left to the garbage collector) may still
+    report, seconds later, a heartbeat it could not send: nothing the user can act on, and
+    on another command's stderr."""
+    global _open_instances
+    with _open_lock:
+        _open_instances = max(0, _open_instances + (1 if opened else -1))
+
+
 class _ActionableErrors(logging.StreamHandler):
     """MAVSDK's errors the user can act on, on the stderr of the moment (``sys.stderr`` when
-    the line is written, as :data:`logging.lastResort` does)."""
+    the line is written, as :data:`logging.lastResort` does), while a MAVSDK instance is open."""
 
     def __init__(self) -> None:
         logging.Handler.__init__(self, logging.ERROR)
         self.setFormatter(logging.Formatter("MAVSDK: %(message)s"))
-        self.addFilter(lambda record: not getattr(record, "mavsdk_internal", False))
+        self.addFilter(
+            lambda record: _open_instances > 0 and not getattr(record, "mavsdk_internal", False)
+        )
 
     @property
     def stream(self) -> TextIO:

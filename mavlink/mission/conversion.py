@@ -46,6 +46,7 @@ A room of its own because it is pure computation: it speaks to no vehicle.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -208,6 +209,56 @@ def _capture_times(
     return start, stop
 
 
+def keep_waypoints(
+    trajectory: Trajectory,
+    arrival: Sequence[float],
+    hold: Sequence[float],
+    tolerance_m: float,
+    *,
+    fixed: set[int] | frozenset[int] = frozenset(),
+    samples_per_s: float = 20.0,
+) -> list[int]:
+    """The waypoints to keep (indices, in order) so that the straight legs between them,
+    each flown at constant speed from one waypoint's departure to the next one's arrival,
+    stay within ``tolerance_m`` of the planned position at every instant.
+
+    Douglas-Peucker on time-stamped points with the synchronous Euclidean distance
+    (Meratnia and de By, "Spatiotemporal compression techniques for moving point objects",
+    EDBT 2004): the distance at the same instant, not to the nearest point of the chord, so
+    a simplified mission keeps the plan's clock as well as its path. The first and last
+    waypoints, every waypoint with a hold and those in ``fixed`` are always kept; between two
+    kept ones the plan is sampled ``samples_per_s`` times a second, and where it strays too
+    far the interval is split at the waypoint with the largest distance.
+    """
+    n = len(arrival)
+    keep = {0, n - 1, *fixed, *(j for j in range(n) if hold[j] > 0)}
+    anchors = sorted(keep)
+
+    def split(a: int, b: int) -> None:
+        if b - a < 2:
+            return
+        t_a, t_b = arrival[a] + hold[a], arrival[b]
+        if t_b - t_a <= 1e-9:
+            return
+        p_a, p_b = trajectory.position(np.array([t_a, t_b]))
+        t = np.linspace(t_a, t_b, max(3, math.ceil((t_b - t_a) * samples_per_s) + 1))
+        chord = p_a + ((t - t_a) / (t_b - t_a))[:, None] * (p_b - p_a)
+        if float(np.max(np.linalg.norm(trajectory.position(t) - chord, axis=1))) <= tolerance_m:
+            return
+        inner = list(range(a + 1, b))
+        t_in = np.array([float(arrival[j]) for j in inner])
+        chord_in = p_a + ((t_in - t_a) / (t_b - t_a))[:, None] * (p_b - p_a)
+        err = np.linalg.norm(trajectory.position(t_in) - chord_in, axis=1)
+        m = inner[int(np.argmax(err))]
+        keep.add(m)
+        split(a, m)
+        split(m, b)
+
+    for a, b in itertools.pairwise(anchors):
+        split(a, b)
+    return sorted(keep)
+
+
 def trajectory_to_mission(
     trajectory: Trajectory,
     origin: GeodeticPoint,
@@ -220,6 +271,8 @@ def trajectory_to_mission(
     pass_lag_s: float = 0.0,
     land_at_enu_m: Sequence[float] | np.ndarray | None = None,
     captures: Sequence[CaptureSpan] = (),
+    simplify_m: float = 0.0,
+    hold_time_s: Sequence[float] | np.ndarray | None = None,
 ) -> MissionPlan:
     """Convert one mission-frame trajectory into PX4 mission items (module docstring).
 
@@ -243,10 +296,20 @@ def trajectory_to_mission(
             altitude, then the NAV_LAND (a multicopter's NAV_LAND descends on its way to
             its position); :mod:`gcs.flight.landing` picks the point clear of keep-outs.
         captures: where the camera takes pictures (:class:`CaptureSpan`; module docstring).
+        simplify_m: drop waypoints flown through while the straight legs, flown at constant
+            speed between the waypoints kept, stay within this distance of the plan at
+            every instant (:func:`keep_waypoints`); 0 keeps every segment's end. PX4 slows
+            at every waypoint to a speed from which it could stop at the next one, so
+            waypoints closer than the braking distance of the plan's speed make it late.
+        hold_time_s: the hold (param1) commanded at each waypoint instead of the plan's
+            hover there (:func:`gcs.flight.missions.convert_plan` lengthens a hold where
+            PX4 is predicted to arrive early and shortens it where late, so the departures
+            keep the plan's clock); the planned arrival times, hovers and path stay the plan's.
 
     Raises:
-        MissionError: ``INVALID_ITEM`` for a non-positive acceptance radius or a speed
-            list of the wrong length or with a non-positive speed.
+        MissionError: ``INVALID_ITEM`` for a non-positive acceptance radius, a speed list of
+            the wrong length or with a non-positive speed, or a hold list of the wrong length
+            or with a negative hold.
     """
     vname = name if name is not None else trajectory.name
     if not (math.isfinite(acceptance_radius_m) and acceptance_radius_m > 0):
@@ -266,22 +329,47 @@ def trajectory_to_mission(
     speed = np.linalg.norm(trajectory.velocity(dense_t), axis=1).reshape(t0.size, u.size)
     moving = speed.max(axis=1) >= hover_speed_m_s
     lengths = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    moving &= lengths >= acceptance_radius_m
 
     waypoints = [pts[0]]
     arrival = [0.0]
     hold = [0.0]
-    leg_speed: list[float] = []
-    leg_index: list[int] = []
     for s in range(t0.size):
-        if moving[s]:
+        if moving[s] and lengths[s] >= acceptance_radius_m:
             waypoints.append(pts[s + 1])
             arrival.append(float(bounds[s + 1]))
             hold.append(0.0)
-            leg_speed.append(float(lengths[s] / dur[s]))
-            leg_index.append(s)
+        elif (
+            moving[s]
+            and lengths[s] >= 0.5 * acceptance_radius_m
+            and len(waypoints) > 1
+            and hold[-1] == 0.0
+            and (s + 1 == t0.size or lengths[s + 1] < 0.5 * acceptance_radius_m)
+            and not any(c.t_start_s <= bounds[s + 1] and c.t_end_s >= bounds[s] for c in captures)
+        ):
+            # a move shorter than the radius (but not a hover's drift) at the end of a leg,
+            # before a hover: the leg goes on to where it ends (the end of the approach; not
+            # where pictures are taken, whose waypoints stay where the plan has them)
+            waypoints[-1] = pts[s + 1]
+            arrival[-1] = float(bounds[s + 1])
         else:
             hold[-1] += float(dur[s])
+    if simplify_m > 0 and len(waypoints) > 2:
+        # the waypoints within a capture span stay: the pictures are taken where planned
+        fixed = {
+            j
+            for span in captures
+            for j in range(len(arrival))
+            if arrival[j] <= span.t_end_s and arrival[j] + hold[j] >= span.t_start_s
+        }
+        kept = keep_waypoints(trajectory, arrival, hold, simplify_m, fixed=fixed)
+        waypoints = [waypoints[j] for j in kept]
+        arrival = [arrival[j] for j in kept]
+        hold = [hold[j] for j in kept]
+    leg_speed = [
+        float(np.linalg.norm(waypoints[j] - waypoints[j - 1]))
+        / (arrival[j] - arrival[j - 1] - hold[j - 1])
+        for j in range(1, len(waypoints))
+    ]
     if leg_speed_m_s is not None:
         given = [float(x) for x in leg_speed_m_s]
         if len(given) != len(leg_speed) or not all(math.isfinite(x) and x > 0 for x in given):
@@ -294,6 +382,17 @@ def trajectory_to_mission(
         commanded = given
     else:
         commanded = leg_speed
+    if hold_time_s is not None:
+        holds = [float(x) for x in hold_time_s]
+        if len(holds) != len(hold) or not all(math.isfinite(x) and x >= 0 for x in holds):
+            raise MissionError(
+                MissionResult.INVALID_ITEM,
+                "trajectory_to_mission",
+                f"hold_time_s: {len(hold)} holds >= 0 wanted, got {holds!r}",
+                vehicle=vname,
+            )
+    else:
+        holds = list(hold)
     wp = np.asarray(waypoints)
     radius = np.full(wp.shape[0], float(acceptance_radius_m))
     if pass_lag_s > 0:
@@ -380,18 +479,23 @@ def trajectory_to_mission(
         )
         r_j, yaw_j, x_j, y_j, z_j = here
         t_prev = arrival[j]
-        t_dep = arrival[j] + hold[j]
+        t_dep = arrival[j] + holds[j]
         pending = sorted(acts.get(j, ()))
+        # a commanded hold longer than the plan's hover waits first (an early arrival), a
+        # shorter one has lost its start (a late one): the actions keep their time to the
+        # departure
+        shift = holds[j] - hold[j]
+        at = [max(arrival[j], act[0] + shift) for act in pending]
         k = 0
         while True:
-            t_next = pending[k][0] if k < len(pending) else t_dep
+            t_next = at[k] if k < len(pending) else t_dep
             if k == len(pending) and pending and t_dep - t_prev <= 1e-6:
                 break  # the last actions ran at the departure: no rest of the hold
             add(Cmd.NAV_WAYPOINT, g, max(0.0, t_next - t_prev), r_j, 0.0, yaw_j, x_j, y_j, z_j)
             if k == len(pending):
                 break
             t_prev = t_next
-            while k < len(pending) and pending[k][0] <= t_next + 1e-9:
+            while k < len(pending) and at[k] <= t_next + 1e-9:
                 _, _, which, starts = pending[k]
                 span = captures[which]
                 if starts:

@@ -13,11 +13,27 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gcs.flight.missions import MIN_ACCEPTANCE_M, auto_acceptance_m, convert_plan
-from mavlink.mission import Cmd, MissionEnd, trajectory_to_mission
+from gcs.flight.evaluation import plan_formula
+from gcs.flight.missions import (
+    MIN_ACCEPTANCE_M,
+    auto_acceptance_m,
+    convert_plan,
+    radius_candidates,
+)
+from mavlink.errors import MissionError
+from mavlink.mission import (
+    CaptureSpan,
+    Cmd,
+    MissionEnd,
+    MissionPlan,
+    keep_waypoints,
+    path_deviation,
+    trajectory_to_mission,
+)
 from mavlink.mock.predict import predict_missions
 from planner.frames import GeodeticPoint
 from planner.planfile import load_plan
+from planner.trajectory import Trajectory
 from tests.mavlink.test_link_mission import min_jerk
 
 ORIGIN = GeodeticPoint(47.397742, 8.545594, 488.0)
@@ -78,6 +94,149 @@ def test_conversion_of_the_stored_plan_is_retimed_no_worse_and_reproducible() ->
         float(trajectory_to_mission(pv.trajectory, plan.origin).leg_speed_m_s.max())
         for pv in plan.vehicles
     )
-    assert timed.acceptance_m == pytest.approx(max(MIN_ACCEPTANCE_M, 0.3 * fastest))
+    chosen = max(MIN_ACCEPTANCE_M, 0.3 * fastest)
+    assert plain.acceptance_m == pytest.approx(chosen)
+    # the search tries PX4's NAV_ACC_RAD (2 m) and 1.5 times it too
+    assert any(timed.acceptance_m == pytest.approx(r) for r in radius_candidates(chosen, 2.0))
     assert auto_acceptance_m(plan, nav_acc_rad_m=0.4) == pytest.approx(0.4)  # NAV_ACC_RAD caps
     assert all(math.isfinite(x) for x in timed.late_s.values())
+
+
+def _constant_speed(points: list[tuple[float, float, float]], seg_s: float) -> Trajectory:
+    """Straight segments flown at constant velocity, one per pair of points (no stops)."""
+    w = np.asarray(points, dtype=float)
+    n = len(w) - 1
+    c = np.zeros((n, 3, 6))
+    for s in range(n):
+        c[s, :, 0] = w[s]
+        c[s, :, 1] = (w[s + 1] - w[s]) / seg_s
+    return Trajectory(np.arange(n) * seg_s, np.full(n, seg_s), c, name="d1")
+
+
+def test_simplified_waypoints_keep_the_plan_within_the_tolerance_at_every_instant() -> None:
+    plan = load_plan(LINK_PLAN)
+    for pv in plan.vehicles:
+        every = trajectory_to_mission(pv.trajectory, plan.origin, acceptance_radius_m=0.3)
+        counts = []
+        for tol in (0.05, 0.2, 0.5):
+            mp = trajectory_to_mission(
+                pv.trajectory, plan.origin, acceptance_radius_m=0.3, simplify_m=tol
+            )
+            # every leg, flown straight at constant speed from one waypoint's departure to
+            # the next one's arrival, against the plan at the same instants, ten times finer
+            # than keep_waypoints samples (a hover's own drift is the plain mission's too)
+            # (a leg that is one of the plan's segments is the plain mission's, as it was)
+            dep = mp.arrival_t_s + mp.hold_s
+            kept = [int(np.argmin(np.abs(every.arrival_t_s - a))) for a in mp.arrival_t_s]
+            for j in range(1, len(mp.arrival_t_s)):
+                if kept[j] == kept[j - 1] + 1:
+                    continue
+                t = np.linspace(dep[j - 1], mp.arrival_t_s[j], 400)
+                u = ((t - t[0]) / (t[-1] - t[0]))[:, None]
+                chord = (1 - u) * mp.waypoints_enu_m[j - 1] + u * mp.waypoints_enu_m[j]
+                err = np.linalg.norm(pv.trajectory.position(t) - chord, axis=1)
+                assert err.max() <= tol * 1.02 + 1e-3, (pv.name, tol, j, err.max())
+            assert path_deviation(pv.trajectory, mp.path).max_m <= max(
+                tol * 1.02 + 1e-3, path_deviation(pv.trajectory, every.path).max_m
+            )
+            # the waypoints kept are the plan's, with their times, and every hover stays
+            assert np.allclose(every.waypoints_enu_m[kept], mp.waypoints_enu_m)
+            assert np.allclose(every.hold_s[kept], mp.hold_s)
+            assert set(np.flatnonzero(every.hold_s > 0)) <= set(kept)
+            counts.append(len(kept))
+        assert counts == sorted(counts, reverse=True) and counts[-1] < len(every.arrival_t_s)
+
+
+def test_a_straight_run_at_constant_speed_is_one_leg_and_a_corner_stays() -> None:
+    line = _constant_speed([(0, 0, 5), (5, 0, 5), (10, 0, 5), (15, 0, 5), (20, 0, 5)], 2.0)
+    assert keep_waypoints(line, [0.0, 2.0, 4.0, 6.0, 8.0], [0.0] * 5, 0.01) == [0, 4]
+    mp = trajectory_to_mission(line, ORIGIN, acceptance_radius_m=1.0, simplify_m=0.01)
+    assert mp.leg_speed_m_s.tolist() == pytest.approx([2.5])
+    bent = _constant_speed([(0, 0, 5), (5, 0, 5), (10, 0, 5), (10, 5, 5), (10, 10, 5)], 2.0)
+    # the corner is 2.5 m off the chord at its instant: kept; the points beside it are not
+    assert keep_waypoints(bent, [0.0, 2.0, 4.0, 6.0, 8.0], [0.0] * 5, 0.5) == [0, 2, 4]
+    # a hover is always kept, whatever the tolerance
+    assert keep_waypoints(line, [0.0, 2.0, 4.0, 6.0, 8.0], [0, 0, 1.0, 0, 0], 100.0) == [0, 2, 4]
+
+
+def test_a_short_final_approach_ends_the_leg_where_the_plan_hovers() -> None:
+    # 10 m, then 0.8 m (under the 1 m radius) slowly, then a hover: the hover is at 10.8 m
+    traj = min_jerk([(0, 0, 5), (10, 0, 5), (10.8, 0, 5), (10.8, 0, 5)], 2.0)
+    mp = trajectory_to_mission(traj, ORIGIN, acceptance_radius_m=1.0, end=MissionEnd.HOLD)
+    assert mp.waypoints_enu_m[-1] == pytest.approx([10.8, 0.0, 5.0])
+    assert mp.arrival_t_s.tolist() == [0.0, 4.0] and mp.hold_s.tolist() == [0.0, 2.0]
+    assert mp.leg_speed_m_s.tolist() == pytest.approx([10.8 / 4.0])
+    # a drift under half the radius is part of the hover, as before
+    drift = min_jerk([(0, 0, 5), (10, 0, 5), (10.3, 0, 5), (10.3, 0, 5)], 2.0)
+    mp = trajectory_to_mission(drift, ORIGIN, acceptance_radius_m=1.0, end=MissionEnd.HOLD)
+    assert mp.waypoints_enu_m[-1] == pytest.approx([10.0, 0.0, 5.0])
+    assert mp.hold_s.tolist() == [0.0, 4.0]
+
+
+def test_a_commanded_hold_replaces_the_hover_and_pictures_keep_their_time_to_departure() -> None:
+    traj = min_jerk([(0, 0, 5), (10, 0, 5), (10, 0, 5), (10, 0, 5), (20, 0, 5)], 2.0)
+    span = CaptureSpan(t_start_s=4.0, t_end_s=8.0, gimbal_pitch_deg=0.0, interval_s=1.0)
+    plain = trajectory_to_mission(traj, ORIGIN, end=MissionEnd.HOLD, captures=[span])
+    assert plain.hold_s.tolist() == [0.0, 4.0, 0.0]
+
+    def hold_items(mp: MissionPlan) -> list[float]:
+        # the NAV_WAYPOINTs at the hover (the waypoint 10 m east), their holds
+        at = mp.items[int(mp.waypoint_seq[1])]
+        return [
+            it.param1
+            for it in mp.items
+            if it.command == Cmd.NAV_WAYPOINT and (it.x, it.y) == (at.x, at.y)
+        ]
+
+    # the hover split where the pictures start: 2 s before, 2 s after
+    assert hold_items(plain) == pytest.approx([2.0, 2.0])
+    longer = trajectory_to_mission(
+        traj, ORIGIN, end=MissionEnd.HOLD, captures=[span], hold_time_s=[0.0, 5.5, 0.0]
+    )
+    # an early arrival waits first, then the pictures, as long as planned before departure
+    assert hold_items(longer) == pytest.approx([3.5, 2.0])
+    shorter = trajectory_to_mission(
+        traj, ORIGIN, end=MissionEnd.HOLD, captures=[span], hold_time_s=[0.0, 2.5, 0.0]
+    )
+    assert hold_items(shorter) == pytest.approx([0.5, 2.0])
+    # the plan's own times and path stay
+    assert longer.hold_s.tolist() == shorter.hold_s.tolist() == [0.0, 4.0, 0.0]
+    for bad in ([0.0, 1.0], [0.0, -1.0, 0.0], [0.0, math.nan, 0.0]):
+        with pytest.raises(MissionError, match="hold_time_s"):
+            trajectory_to_mission(traj, ORIGIN, hold_time_s=bad)
+
+
+@pytest.fixture(scope="module")
+def powerline(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from gcs.cli import main
+
+    path = tmp_path_factory.mktemp("plans") / "powerline.json"
+    scenario = Path(__file__).resolve().parents[2] / "configs" / "powerline_inspection.yaml"
+    assert main(["plan", str(scenario), "-o", str(path), "--json"]) == 0
+    return path
+
+
+@pytest.mark.slow
+def test_the_power_line_converts_to_missions_px4_is_predicted_to_fly_on_its_clock(
+    powerline: Path,
+) -> None:
+    plan = load_plan(powerline)
+    prm = {"SIH_KDV": 1.0, "SIH_MASS": 1.0}  # the px4 mock's own drag
+    plain = convert_plan(plan, end=MissionEnd.HOLD, iterations=1, params=prm)
+    conv = convert_plan(plan, end=MissionEnd.HOLD, params=prm)
+    # one waypoint per segment at average speeds: PX4 brakes at every waypoint for the next
+    # (it can stop at the next one), seconds late and far below zero
+    assert plain.predicted_robustness < -5.0 and min(plain.late_s.values()) > 2.0
+    assert conv.predicted_robustness >= plan.epsilon + 0.1, conv.predicted_robustness
+    # never late; early by up to a couple of seconds (the legs into a hover aim early, and
+    # the last hover has no departure to keep)
+    assert all(-2.5 <= x <= 0.5 for x in conv.late_s.values()), conv.late_s
+    assert conv.simplify_m > 0 and conv.retimed
+    for name, m in conv.missions.items():
+        assert len(m.waypoints_enu_m) < len(plain.missions[name].waypoints_enu_m)
+        assert np.all(m.leg_speed_m_s <= 12.0)  # MPC_XY_VEL_MAX
+    # the prediction is the px4 mock's own flight: judged again from its tracks
+    phi = plan_formula(plan)
+    t = np.arange(round(plan.horizon_s / plan.check_dt_s) + 1) * plan.check_dt_s
+    sig = {n: conv.prediction.signal(n, t) for n in conv.missions}
+    assert float(phi.robustness(sig, plan.check_dt_s)) == pytest.approx(conv.predicted_robustness)

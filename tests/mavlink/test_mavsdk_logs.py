@@ -20,6 +20,7 @@ from mavsdk import LogLevel
 from mavlink.link.mavsdk_glue import (
     MAVSDK_LOG,
     forward_mavsdk_line,
+    mavsdk_instance_opened,
     mavsdk_log_file,
     route_mavsdk_logs,
 )
@@ -43,19 +44,26 @@ def test_only_actionable_mavsdk_errors_reach_stderr_and_the_flight_log_keeps_eve
     level, propagate = MAVSDK_LOG.level, MAVSDK_LOG.propagate
     with mavsdk_log_file(path) as written:
         assert written == path
-        # as MAVSDK 4.1 says them: its full callback queue is an error, nothing to act on
-        forward_mavsdk_line(LogLevel.ERROR, DROPPING, "mavsdk_impl.cpp", 1862)
-        forward_mavsdk_line(LogLevel.WARN, "Heartbeats from system 3 timed out", "s.cpp", 1)
-        forward_mavsdk_line(LogLevel.INFO, "New system on: 127.0.0.1:1", "udp.cpp", 2)
-        forward_mavsdk_line(LogLevel.DEBUG, "Component Autopilot added.", "s.cpp", 3)
-        forward_mavsdk_line(LogLevel.ERROR, "Sending message failed", "mavsdk_impl.cpp", 4)
+        mavsdk_instance_opened(True)  # as Fleet.connect does
+        try:
+            # as MAVSDK 4.1 says them: its full callback queue is an error, nothing to act on
+            forward_mavsdk_line(LogLevel.ERROR, DROPPING, "mavsdk_impl.cpp", 1862)
+            forward_mavsdk_line(LogLevel.WARN, "Heartbeats from system 3 timed out", "s.cpp", 1)
+            forward_mavsdk_line(LogLevel.INFO, "New system on: 127.0.0.1:1", "udp.cpp", 2)
+            forward_mavsdk_line(LogLevel.DEBUG, "Component Autopilot added.", "s.cpp", 3)
+            forward_mavsdk_line(LogLevel.ERROR, "Sending message failed", "mavsdk_impl.cpp", 4)
+        finally:
+            mavsdk_instance_opened(False)
+        # an instance already destroyed (a command's fleet closed) reports a heartbeat it could
+        # not send: into the log, not onto whatever command's stderr comes next
+        forward_mavsdk_line(LogLevel.ERROR, "Sending message failed", "mavsdk_impl.cpp", 6)
     forward_mavsdk_line(LogLevel.WARN, "Vehicle type changed", "s.cpp", 5)  # after the flight
 
     err = capsys.readouterr().err
     assert err == "MAVSDK: Sending message failed (mavsdk_impl.cpp:4)\n"
     lines = path.read_text(encoding="utf-8").splitlines()
     levels = [line.split()[2] for line in lines if not line.startswith("See:")]
-    assert levels == ["ERROR", "WARNING", "INFO", "DEBUG", "ERROR"]
+    assert levels == ["ERROR", "WARNING", "INFO", "DEBUG", "ERROR", "ERROR"]
     text = "\n".join(lines)
     for said in (DROPPING, "timed out", "New system", "Autopilot added", "Sending message"):
         assert said in text
