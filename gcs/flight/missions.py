@@ -66,7 +66,9 @@ MIN_HOLD = 0.5
 #: The legs into a hover aim to arrive this early (s): the hold waits for the plan's clock.
 ARRIVE_EARLY_S = 1.0
 #: Seconds of predictions a conversion may spend.
-BUDGET_S = 30.0
+BUDGET_S = 20.0
+#: A candidate whose first prediction is this far below the best so far is not re-timed (m).
+HOPELESS_M = 1.0
 #: The search stops at the first candidate predicted this far above epsilon (m).
 GOOD_ENOUGH_M = 0.1
 
@@ -251,6 +253,8 @@ def convert_plan(
             mine = max(mine, rho)
             if k + 1 >= iterations or not retime or stale >= 2 or time.monotonic() > deadline:
                 break
+            if k == 0 and rho < best.robustness - HOPELESS_M:
+                break  # re-timing has not made up that much on any plan tried
             changed = False
             for name, m in missions.items():
                 new_speed, new_hold = _retimed(
