@@ -22,9 +22,10 @@ waypoint every 2 s segment, 7.5 m apart, holds a 3.75 m/s plan to about 3.6 m/s 
 3. and re-timed (:func:`_retimed`), up to :data:`ITERATIONS` predictions: each leg's speed is
    scaled by how long PX4 took for it against the time that puts the vehicle on the clock
    (legs into a hover aim :data:`ARRIVE_EARLY_S` early); each hold, the synchronisation point,
-   is lengthened where PX4 is predicted to leave it early and shortened where late, so a
-   vehicle that arrives early waits;
-4. the search stops at the first candidate predicted :data:`GOOD_ENOUGH_M` above epsilon, or
+   is lengthened where PX4 is predicted to leave it early (never shorter than the plan's
+   hover), so a vehicle that arrives early waits;
+4. the search stops at the first candidate predicted :data:`GOOD_ENOUGH_M` above epsilon (what
+   the prediction may miss PX4 by: docs/px4-sitl.md), or
    when :data:`BUDGET_S` is spent, and keeps the best: its predicted robustness (the honest
    "mission robustness"), each vehicle's finish against the plan's, and the straight-leg
    figure, which assumes constant leg speeds.
@@ -58,11 +59,9 @@ MAX_SPEEDUP = 2.0
 PREDICT_EXTRA_S = 20.0
 #: Predictions per candidate conversion at most.
 ITERATIONS = 6
-#: A hold is moved by this fraction of its predicted departure's error per prediction
-#: (the legs before it are re-timed in the same step) and kept above this fraction of the
-#: plan's hover there.
+#: A hold is moved by this fraction of its predicted departure's error per prediction (the
+#: legs before it are re-timed in the same step).
 HOLD_GAIN = 0.5
-MIN_HOLD = 0.5
 #: The legs into a hover aim to arrive this early (s): the hold waits for the plan's clock.
 ARRIVE_EARLY_S = 1.0
 #: Seconds of predictions a conversion may spend.
@@ -70,7 +69,7 @@ BUDGET_S = 20.0
 #: A candidate whose first prediction is this far below the best so far is not re-timed (m).
 HOPELESS_M = 1.0
 #: The search stops at the first candidate predicted this far above epsilon (m).
-GOOD_ENOUGH_M = 0.1
+GOOD_ENOUGH_M = 0.3
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -341,14 +340,14 @@ def _retimed(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The next leg speeds and holds of one mission from its predicted flight.
 
-    A hold is lengthened by how early PX4 is predicted to leave it and shortened by how late
-    (:data:`HOLD_GAIN` of it a step, not below :data:`MIN_HOLD` of the plan's hover): the
-    holds are where the schedule absorbs what the legs do not keep. A leg's speed is scaled by
-    its predicted duration against the duration that puts the vehicle back on the clock: the
-    plan's, less half the lateness it starts with that no hold before it absorbs, and less
-    :data:`ARRIVE_EARLY_S` into a hover (the hold waits for the clock; lateness there cannot
-    be made up). At most by 0.7-1.6 a step, :data:`MAX_SPEEDUP` times the leg's average speed
-    and MPC_XY_VEL_MAX in all.
+    A hold is lengthened by how early PX4 is predicted to leave it (:data:`HOLD_GAIN` of it a
+    step), and shortened again no further than the plan's hover: the holds are where a vehicle
+    that arrives early waits for the plan's clock. A leg's speed is scaled by its predicted
+    duration against the duration that puts the vehicle back on the clock: the plan's, less
+    half the lateness it starts with that no hold before it absorbs, and less
+    :data:`ARRIVE_EARLY_S` on the first leg after a hold (the lead the legs keep into the next
+    hover: lateness there cannot be made up). At most by 0.7-1.6 a step, :data:`MAX_SPEEDUP`
+    times the leg's average speed and MPC_XY_VEL_MAX in all.
     """
     left = pred.left_s[m.name]
     seqs = [int(q) for q in m.waypoint_seq]
@@ -376,10 +375,9 @@ def _retimed(
         if j > 0 and m.hold_s[j] <= 0:
             late += ARRIVE_EARLY_S  # against the lead
         if 0 < j < len(seqs) - 1 and m.hold_s[j] > 0:
-            # a hold in which pictures are taken is never shortened
-            a, d = float(m.arrival_t_s[j]), float(dep_plan[j])
-            shots = any(c.span.t_start_s <= d and c.span.t_end_s >= a for c in m.captures)
-            floor = float(m.hold_s[j]) * (1.0 if shots else MIN_HOLD)
+            # never shorter than the plan's hover: a hover is what an inspection clause needs
+            # (shortened holds lost d2's 1 s in its first inspection box on the power line)
+            floor = float(m.hold_s[j])
             new_hold[j] = max(floor, float(holds[j]) - HOLD_GAIN * late)
             late = max(0.0, late - (float(holds[j]) - floor))  # what the hold cannot absorb
         carry = late
