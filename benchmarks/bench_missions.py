@@ -41,14 +41,16 @@ MOCK_PARAMS = {"SIH_KDV": 1.0, "SIH_MASS": 1.0}
 
 
 def run_json(argv: list[str]) -> tuple[int, dict]:  # type: ignore[type-arg]
+    """Exit status and the JSON printed; with no JSON, the last line of standard error."""
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         rc = gcs(argv)
     text = out.getvalue()
     try:
-        return rc, json.loads(text) if text.strip() else {}
+        return rc, json.loads(text)
     except json.JSONDecodeError:
-        return rc, {"stdout": text[-300:], "stderr": err.getvalue()[-300:]}
+        lines = [x for x in err.getvalue().splitlines() if x.strip()]
+        return rc, {"stderr": lines[-1][:160] if lines else ""}
 
 
 def convert(plan_path: Path) -> dict:  # type: ignore[type-arg]
@@ -111,6 +113,7 @@ def main() -> None:
                         },
                         "pictures": {t["target"]: t["images"] for t in cov.get("by_target", [])},
                         "covered": None if not cov else cov["covered"] == cov["targets"],
+                        "why": res.get("safety_event") or res.get("stderr") or "",
                     }
                 )
                 print(f"  {name} seed {seed}: exit {rc}", file=sys.stderr)
@@ -149,6 +152,8 @@ def main() -> None:
                 f"{num(f['flown']):>7} {lates(f['late_s']):>16} {f['wall_s']:>6}  {pics}"
                 + ("" if f["covered"] is None else f" (all covered: {f['covered']})")
             )
+            if f["exit"] != 0 and f["why"]:
+                print(f"{'':<15} {'':>4}      {f['why'][:110]}")
     print(json.dumps({"bench": "missions", "speed": args.speed, "rows": rows}))
 
 

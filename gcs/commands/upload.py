@@ -286,7 +286,7 @@ async def upload_plan(
     from dataclasses import replace
 
     from gcs.flight.mission import MissionRefused, prediction_params, read_nav_params
-    from gcs.flight.missions import convert_plan_apart, fence_plan
+    from gcs.flight.missions import convert_plan_apart, fence_plan, timing_summary
     from gcs.flight.payload import capture_spans
     from gcs.flight.tuning import read_tuning
     from mavlink.link.fleet import Fleet
@@ -311,9 +311,9 @@ async def upload_plan(
             raise MissionRefused(
                 f"refused to start: PX4 is predicted to fly these missions with robustness "
                 f"{conv.predicted_robustness:+.4f} < epsilon {plan.epsilon:g} (the plan's own "
-                f"{plan.robustness:+.4f}; straight legs {conv.straight_leg_robustness:+.4f}; up "
-                f"to {max(conv.late_s.values()):.1f} s late); fly the plan in offboard mode "
-                "(gcs fly), or --force; nothing was uploaded"
+                f"{plan.robustness:+.4f}; straight legs {conv.straight_leg_robustness:+.4f}; "
+                f"weakest: {conv.weakest}; {timing_summary(conv.late_s)}); fly the plan in "
+                "offboard mode (gcs fly), or --force; nothing was uploaded"
             )
         rows = list(
             await asyncio.gather(

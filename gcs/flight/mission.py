@@ -121,7 +121,7 @@ async def fly_mission_plan(
         mavlink.errors.LinkError: a transfer or link failure before the flight.
     """
     from gcs.flight.evaluation import reads_heading
-    from gcs.flight.missions import convert_plan_apart
+    from gcs.flight.missions import convert_plan_apart, timing_summary
     from mavlink.errors import PreflightError
     from mavlink.mission import (
         MissionEnd,
@@ -166,12 +166,11 @@ async def fly_mission_plan(
         captures=spans,
     )
     if conv.predicted_robustness < plan.epsilon and not opts.force:
-        worst = max(conv.late_s.values())
         raise MissionRefused(
             f"refused: PX4 is predicted to fly these missions with robustness "
             f"{conv.predicted_robustness:+.3f} < epsilon {plan.epsilon:g} (plan "
-            f"{plan.robustness:+.3f}; up to {worst:.1f} s late: PX4's MPC_ACC_HOR / "
-            "MPC_JERK_AUTO corners and stops); fly offboard (gcs fly), or --force"
+            f"{plan.robustness:+.3f}; weakest: {conv.weakest}; "
+            f"{timing_summary(conv.late_s)}); fly offboard (gcs fly), or --force"
         )
     start_enu = {pv.name: np.asarray(pv.start_enu_m, dtype=float) for pv in plan.vehicles}
     start_ned = {n: enu_to_ned(start_enu[n], plan.origin, origins[n]) for n in names}

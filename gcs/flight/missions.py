@@ -89,6 +89,7 @@ class MissionConversion:
         retimed: the leg speeds were changed from the legs' average speeds.
         simplify_m: the tolerance of the waypoints dropped (0: a waypoint at every
             segment's end; :func:`mavlink.mission.keep_waypoints`).
+        weakest: the spec's weakest clause on the predicted tracks, with its robustness.
     """
 
     missions: dict[str, MissionPlan]
@@ -101,6 +102,7 @@ class MissionConversion:
     iterations: int
     retimed: bool
     simplify_m: float = 0.0
+    weakest: str = ""
 
 
 def auto_acceptance_m(plan: Plan, nav_acc_rad_m: float = PX4_DEFAULTS["NAV_ACC_RAD"]) -> float:
@@ -292,7 +294,26 @@ def convert_plan(
         iterations=runs,
         retimed=retimed,
         simplify_m=best.simplify,
+        weakest=_weakest(phi, best.prediction, t, dt),
     )
+
+
+def _weakest(phi: Any, pred: PredictedMissions, t: np.ndarray, dt: float) -> str:
+    """The spec's weakest top-level clause on the predicted tracks, with its robustness."""
+    sig = {n: pred.signal(n, t) for n in pred.pos_enu_m}
+    parts = list(getattr(phi, "children", ())) or [phi]
+    rho, clause = min(((float(c.robustness(sig, dt)), c) for c in parts), key=lambda x: x[0])
+    return f"{clause} {rho:+.3f}"
+
+
+def timing_summary(late_s: Mapping[str, float]) -> str:
+    """How late the missions are predicted to finish, in words."""
+    worst = max(late_s.values(), default=0.0)
+    if not math.isfinite(worst):
+        return "a mission not finished within the prediction"
+    if worst > 0.05:
+        return f"up to {worst:.1f} s late"
+    return f"on time (each finishing {max(0.0, -worst):.1f} s early or more)"
 
 
 @dataclass(frozen=True, slots=True, eq=False)

@@ -308,6 +308,7 @@ def outcome_json(plan: Plan, outcome: FlightOutcome) -> dict[str, Any]:
             "retimed": outcome.mission.conversion.retimed,
             "simplify_m": outcome.mission.conversion.simplify_m,
             "predictions": outcome.mission.conversion.iterations,
+            "weakest": outcome.mission.conversion.weakest,
             "predicted_robustness": num(outcome.mission.conversion.predicted_robustness),
             "straight_leg_robustness": num(outcome.mission.conversion.straight_leg_robustness),
             "predicted_late_s": {k: num(v) for k, v in outcome.mission.conversion.late_s.items()},
