@@ -97,6 +97,10 @@ def report_markdown(
         lines.append(f"| safety stop | {_cell(outcome.safety_event.describe())} |")
     if outcome.monitor is not None and outcome.monitor.stale:
         lines.append(f"| late telemetry | {_cell(outcome.monitor.describe_stale())} |")
+    if outcome.monitor is not None and outcome.monitor.unheard:
+        lines.append(f"| link lost | {_cell(outcome.monitor.describe_unheard())} |")
+    for line in ev.describe_gaps() if ev is not None else ():
+        lines.append(f"| telemetry missed | {_cell(line)} |")
     if outcome.interrupted:
         lines.append("| interrupted | Ctrl-C: every vehicle was commanded to hold |")
     for name, why in outcome.end_failures.items():

@@ -60,6 +60,7 @@ from planner.stl.batch import ClauseBatch
 if TYPE_CHECKING:
     from mavlink.link.fleet import Fleet
     from mavlink.link.vehicle import Vehicle
+    from mavlink.link.vehicle_status import VehicleStatus
     from planner.trajectory import Trajectory
 
 
@@ -190,6 +191,10 @@ class SafetyMonitor:
         max_off_plan_m: stop the flight when a vehicle is farther than this from its plan
             (``None``: never).
         on_warning: called with one line for the operator (on the monitor's thread).
+        ride_out_link_loss: a lost vehicle is not a stop (mission mode: PX4 flies its mission
+            on board, and with NAV_DLL_ACT at its default 0 a lost data link is no failsafe):
+            its clauses go unchecked until its telemetry returns, and the stretch is recorded
+            (:attr:`MonitorStats.unheard`, ``on_warning`` when it is lost and when it is back).
         clock: the monotonic clock (seconds) the ticks and ages are read on (default: the
             fleet's, :attr:`mavlink.link.fleet.Fleet.clock`); tests inject a simulated one
             together with ``wait``.
@@ -213,6 +218,7 @@ class SafetyMonitor:
         on_warning: Callable[[str], None] | None = None,
         clock: Callable[[], float] | None = None,
         wait: Callable[[asyncio.Event, float], Awaitable[bool]] | None = None,
+        ride_out_link_loss: bool = False,
     ) -> None:
         if not (math.isfinite(horizon_s) and horizon_s >= 0):
             raise LinkError(f"monitor horizon_s must be >= 0, got {horizon_s!r}")
@@ -234,6 +240,7 @@ class SafetyMonitor:
         self.warn_off_plan_m = warn_off_plan_m
         self.max_off_plan_m = max_off_plan_m
         self.on_warning = on_warning
+        self.ride_out_link_loss = ride_out_link_loss
         self._clock = clock  # None: the fleet's, from run()
         self._wait = wait
         self._batch = ClauseBatch([c.formula for c in self.clauses])
@@ -478,8 +485,11 @@ class SafetyMonitor:
                     or (st.position_age_s is not None and st.position_age_s > self.offboard_loss_s)
                 )
             )
-            if lost:
+            if lost and not self.ride_out_link_loss:
                 return _Finding(Verdict.LINK_LOST, None, lost, t_s, None, None, now)
+            if self.ride_out_link_loss:
+                self._note_unheard(statuses, set(lost), t_s)
+                statuses = {n: st for n, st in statuses.items() if n not in lost}
             if expected_mode is not None:
                 left = {
                     n: st
@@ -535,6 +545,31 @@ class SafetyMonitor:
             return _Finding(verdict, clause, clause.vehicles, t_s, rho, ahead, sample)
         finally:
             self.stats.tick_s.append(time.perf_counter() - t_cpu)
+
+    def _note_unheard(
+        self, statuses: Mapping[str, VehicleStatus], lost: set[str], t_s: float
+    ) -> None:
+        """Open a stretch for each vehicle newly lost (from its last sample), close it for
+        each heard again (at its fresh sample), and say so once each way."""
+        for name, st in statuses.items():
+            gaps = self.stats.unheard.setdefault(name, [])
+            age = st.position_age_s if st.position_age_s is not None else 0.0
+            if name in lost and (not gaps or gaps[-1][1] is not None):
+                gaps.append((t_s - age, None))
+                if self.on_warning is not None:
+                    self.on_warning(
+                        f"{name}: link lost at t = {t_s - age:.1f} s: its mission flies on "
+                        "board; waiting for its telemetry"
+                    )
+            elif name not in lost and gaps and gaps[-1][1] is None:
+                gaps[-1] = (gaps[-1][0], t_s - age)
+                if self.on_warning is not None:
+                    self.on_warning(
+                        f"{name}: heard again at t = {t_s - age:.1f} s, after "
+                        f"{t_s - age - gaps[-1][0]:.1f} s; monitoring it again"
+                    )
+            if not gaps:
+                del self.stats.unheard[name]
 
     def _off_plan(
         self,

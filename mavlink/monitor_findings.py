@@ -179,7 +179,12 @@ class SafetyEvent:
         """One line for the operator."""
         who = ", ".join(self.vehicles)
         if self.verdict is Verdict.LINK_LOST:
-            head = f"link lost to {who} at t={self.t_s:.2f} s"
+            # only a setpoint stream stops on it (a mission monitor rides it out)
+            head = (
+                f"link lost to {who} at t={self.t_s:.2f} s (without setpoints PX4 leaves "
+                "offboard by itself after COM_OF_LOSS_T: its offboard-loss failsafe, "
+                "COM_OBL_RC_ACT)"
+            )
         elif self.verdict is Verdict.LEFT_MODE:
             head = f"{who} left the flight mode at t={self.t_s:.2f} s ({self.detail})"
         elif self.verdict is Verdict.ORIGIN_MOVED:
@@ -224,6 +229,9 @@ class MonitorStats:
         off_plan_max_t_s: when that was (plan time, s).
         warned: per vehicle, when it first went farther from its plan than the warning
             distance and how far it was (plan time s, m).
+        unheard: per vehicle, the stretches (plan time s, from its last sample to its next;
+            the end ``None`` while it is still unheard) in which its link counted as lost
+            and a monitor that rides out link losses (mission mode) left its clauses unchecked.
     """
 
     checks: int = 0
@@ -233,6 +241,7 @@ class MonitorStats:
     off_plan_max_m: dict[str, float] = field(default_factory=dict)
     off_plan_max_t_s: dict[str, float] = field(default_factory=dict)
     warned: dict[str, tuple[float, float]] = field(default_factory=dict)
+    unheard: dict[str, list[tuple[float, float | None]]] = field(default_factory=dict)
 
     def as_json(self) -> dict[str, object]:
         """The figures as JSON values (tick times in ms)."""
@@ -246,7 +255,25 @@ class MonitorStats:
             "off_plan_max_m": dict(self.off_plan_max_m),
             "off_plan_max_t_s": dict(self.off_plan_max_t_s),
             "off_plan_warned": {n: {"t_s": t, "off_m": d} for n, (t, d) in self.warned.items()},
+            "unheard": {n: [list(g) for g in gaps] for n, gaps in self.unheard.items()},
         }
+
+    def describe_unheard(self) -> str:
+        """One line on the vehicles the monitor lost and rode out (empty when none)."""
+        if not self.unheard:
+            return ""
+        parts = []
+        for n in sorted(self.unheard):
+            for a, b in self.unheard[n]:
+                parts.append(
+                    f"{n} from t = {a:.1f} s to {b:.1f} s ({b - a:.1f} s)"
+                    if b is not None
+                    else f"{n} from t = {a:.1f} s to the end"
+                )
+        return (
+            "link lost and ridden out (the missions fly on board; their clauses were not "
+            "checked meanwhile): " + "; ".join(parts)
+        )
 
     def describe_stale(self) -> str:
         """One line on the vehicles checked on predictions (empty when none was)."""

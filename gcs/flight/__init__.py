@@ -70,7 +70,7 @@ if TYPE_CHECKING:
     from mavlink.link.camera import CameraInfo, CapturedImage
     from mavlink.link.fleet import Fleet
     from mavlink.link.vehicle import Vehicle
-    from mavlink.link.vehicle_status import VehicleSpec
+    from mavlink.link.vehicle_status import VehicleSpec, VehicleStatus
     from mavlink.mission import CaptureSpan
     from mavlink.offboard.setpoints import EndAction
     from mavlink.tracks import FlownTrack
@@ -487,7 +487,7 @@ async def fly_plan(
                         fleet, plan, opts, starts, tuning, note, spans, camera
                     )
                 else:
-                    mission = await fly_mission_plan(fleet, plan, opts, starts, tuning, spans)
+                    mission = await fly_mission_plan(fleet, plan, opts, starts, tuning, spans, note)
         except asyncio.CancelledError:
             # Ctrl-C: asyncio.run cancelled us, and every vehicle was commanded to hold on the
             # way out of the flight. Take the cancellation back to report.
@@ -519,10 +519,7 @@ async def fly_plan(
             await _show_mode(fleet, "AUTO.LOITER", end_failures)
         elif result is not None:
             await _show_mode(fleet, _END_MODE[cfg_end(opts)], end_failures)
-        final_modes = {
-            s.name: (s.mode.label if s.mode is not None else str(s.custom_mode))
-            for s in fleet.statuses()
-        }
+        final_modes = {s.name: _final_mode(s) for s in fleet.statuses()}
     flight_s = clock.monotonic() - t_connected
     t0 = dict(starts.t0_monotonic_s)
     if result is not None:
@@ -583,6 +580,21 @@ async def fly_plan(
         coverage=coverage,
         camera=camera if camera is not None and any(spans.values()) else None,
     )
+
+
+def _final_mode(st: VehicleStatus) -> str:
+    """A vehicle's mode at the end, as last heard; a vehicle not heard for longer than
+    :data:`SILENT_S` is reported as such, not by a mode it may have left since."""
+    mode = st.mode.label if st.mode is not None else str(st.custom_mode)
+    if not st.connected or (st.heartbeat_age_s is not None and st.heartbeat_age_s > SILENT_S):
+        age = "" if st.heartbeat_age_s is None else f" {st.heartbeat_age_s:.0f} s ago"
+        return f"unknown (link lost; {mode} when last heard{age})"
+    return mode
+
+
+#: A vehicle without a heartbeat for this long (s; PX4 sends one a second) is reported as
+#: unheard at the end of a flight.
+SILENT_S = 3.0
 
 
 async def _cameras(

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -26,6 +26,7 @@ if TYPE_CHECKING:
     from planner.stl import Formula
 
 __all__ = [
+    "GAP_S",
     "ClauseOutcome",
     "FlownEvaluation",
     "TrackingError",
@@ -34,6 +35,10 @@ __all__ = [
     "plan_formula",
     "reads_heading",
 ]
+
+#: A stretch without telemetry longer than this (s) is a gap in the flown record (PX4 sends
+#: positions at 10-50 Hz; MAVSDK counts a link lost after 3 s without heartbeats).
+GAP_S = 1.0
 
 
 def reads_heading(formula: Formula) -> bool:
@@ -96,6 +101,9 @@ class FlownEvaluation:
         clauses: per top-level clause, planned and flown.
         tracking: per vehicle tracking error.
         coverage_problem: why flown robustness could not be evaluated, else ``""``.
+        gaps: per vehicle, the stretches of the horizon (plan time s, from one sample to the
+            next) longer than :data:`GAP_S` without telemetry: the flown robustness
+            interpolates the track across them (a lost link in mission mode).
     """
 
     dt_s: float
@@ -104,6 +112,18 @@ class FlownEvaluation:
     clauses: tuple[ClauseOutcome, ...]
     tracking: tuple[TrackingError, ...]
     coverage_problem: str = ""
+    gaps: dict[str, tuple[tuple[float, float], ...]] = field(default_factory=dict)
+
+    def describe_gaps(self) -> list[str]:
+        """One line per vehicle with gaps (none without)."""
+        return [
+            f"{name}: no telemetry "
+            + ", ".join(f"from t = {a:.1f} to {b:.1f} s ({b - a:.1f} s)" for a, b in spans)
+            + ": the flown robustness interpolates its track across "
+            + ("it" if len(spans) == 1 else "them")
+            + " (PX4's own log has what it flew)"
+            for name, spans in self.gaps.items()
+        ]
 
     @property
     def weakest_flown(self) -> ClauseOutcome | None:
@@ -194,6 +214,20 @@ def evaluate_flight(plan: Plan, tracks: Mapping[str, FlownTrack]) -> FlownEvalua
         if v.name in tracks
     )
     whole = flown is not None and not headless
+    gaps = {}
+    for v in plan.vehicles:
+        tr = tracks.get(v.name)
+        if tr is None:
+            continue
+        ts = tr.t_s[(tr.t_s >= -GAP_S) & (tr.t_s <= plan.horizon_s + GAP_S)]
+        jumps = np.flatnonzero(np.diff(ts) > GAP_S)
+        spans = tuple(
+            (float(ts[k]), float(ts[k + 1]))
+            for k in jumps
+            if ts[k + 1] > 0.0 and ts[k] < plan.horizon_s
+        )
+        if spans:
+            gaps[v.name] = spans
     return FlownEvaluation(
         dt_s=dt,
         planned_robustness=float(phi.robustness(planned, dt)),
@@ -201,4 +235,5 @@ def evaluate_flight(plan: Plan, tracks: Mapping[str, FlownTrack]) -> FlownEvalua
         clauses=tuple(clauses),
         tracking=tracking,
         coverage_problem=problem,
+        gaps=gaps,
     )

@@ -19,14 +19,17 @@ uploaded and read back (retried as a whole on a bad link until read back as sent
 4. the safety monitor of the spec's always-clauses runs as in offboard flights (expected
    mode AUTO.MISSION); progress is read from MISSION_CURRENT (PX4 reports reached items only
    as the last one processed), and the vehicles are recorded until the plan's horizon is
-   covered, so the flown data is judged on the shared clock.
+   covered, so the flown data is judged on the shared clock. A vehicle whose link is lost is
+   not a stop: its mission flies on board, its clauses go unchecked until it is heard again,
+   and the report says for how long (:attr:`mavlink.monitor_findings.MonitorStats.unheard`,
+   the telemetry's gaps in :class:`gcs.flight.evaluation.FlownEvaluation`).
 """
 
 from __future__ import annotations
 
 import asyncio
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -110,9 +113,11 @@ async def fly_mission_plan(
     starts: PlanStarts,
     tuning: dict[str, VehicleTuning],
     spans: Mapping[str, Sequence[CaptureSpan]],
+    note: Callable[[str], None] | None = None,
 ) -> MissionFlight:
     """Mission mode (module docstring); ``spans``: where each vehicle's camera takes pictures
-    (:func:`gcs.flight.payload.capture_spans`), camera items in its mission.
+    (:func:`gcs.flight.payload.capture_spans`), camera items in its mission; ``note``: one
+    line for the operator (a link lost and ridden out, heard again).
 
     Raises:
         MissionRefused: predicted robustness below epsilon without ``force``.
@@ -254,7 +259,12 @@ async def fly_mission_plan(
     starts.t0_monotonic_s.update(dict.fromkeys(names, t0))
     stop = asyncio.Event()
     clauses = always_clauses(_formula(plan), names, reads_heading) if opts.monitor else ()
-    monitor = SafetyMonitor(clauses, horizon_s=0.5 if opts.monitor else 0.0)
+    # A lost link is ridden out: the missions fly on board (PX4's NAV_DLL_ACT 0, its default:
+    # no data-link failsafe), the ground station checks the others meanwhile and judges the
+    # whole flight from what it heard (the report says what it missed).
+    monitor = SafetyMonitor(
+        clauses, horizon_s=0.5 if opts.monitor else 0.0, ride_out_link_loss=True, on_warning=note
+    )
     mon_task = asyncio.create_task(
         monitor.run(
             fleet,

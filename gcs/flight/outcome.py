@@ -112,6 +112,8 @@ def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
         lines.append(f"safety stop: {outcome.safety_event.describe()}")
     if outcome.monitor is not None and outcome.monitor.stale:
         lines.append(f"monitor: {outcome.monitor.describe_stale()}")
+    if outcome.monitor is not None and outcome.monitor.unheard:
+        lines.append(f"monitor: {outcome.monitor.describe_unheard()}")
     verdict = "completed" if outcome.completed else "NOT completed"
     lines.append(
         f"flight {verdict} in {outcome.flight_s:.1f} s ({outcome.mode.value}, "
@@ -134,6 +136,7 @@ def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
                 f"{outcome.flown_lower_bound:+.4f} if each was within the accuracy its "
                 f"estimator reported (worst {acc[0]:.2f} m horizontal, {acc[1]:.2f} m vertical)"
             )
+        lines += [f"  {line}" for line in ev.describe_gaps()]
         w = ev.weakest_flown
         if w is not None:
             lines.append(
@@ -254,6 +257,9 @@ def outcome_json(plan: Plan, outcome: FlightOutcome) -> dict[str, Any]:
         "planned_robustness": None if ev is None else num(ev.planned_robustness),
         "flown_robustness": None if ev is None else num(ev.flown_robustness),
         "coverage_problem": None if ev is None else ev.coverage_problem or None,
+        "telemetry_gaps": {}
+        if ev is None
+        else {n: [list(g) for g in spans] for n, spans in ev.gaps.items()},
         "clauses": []
         if ev is None
         else [
