@@ -435,6 +435,9 @@ def run(args: argparse.Namespace) -> int:
             "acceptance_m": conv.acceptance_m,
             "acceptance_auto": conv.acceptance_auto,
             "retimed": conv.retimed,
+            "simplify_m": conv.simplify_m,
+            "weakest": conv.weakest,
+            "tolerance_s": conv.tolerance_s,
             "fence_inflate_m": None if fp is None else fp.inflate_m,
             "fence_notes": [] if fp is None else list(fp.notes),
             "fence_action": args.fence_action,
@@ -442,14 +445,19 @@ def run(args: argparse.Namespace) -> int:
         }
         print(json.dumps(out))
     else:
+        from gcs.flight.missions import timing_summary
+
         print(table(rows))
         how = "chosen" if conv.acceptance_auto else "given"
         print(
             f"acceptance radius {conv.acceptance_m:.2f} m ({how}); PX4 is predicted to fly "
-            f"these missions with robustness {conv.predicted_robustness:+.4f}, up to "
-            f"{max(conv.late_s.values()):.1f} s late (plan {plan.robustness:+.4f}; along the "
-            f"straight legs on time {conv.straight_leg_robustness:+.4f})"
+            f"these missions with robustness {conv.predicted_robustness:+.4f}, "
+            f"{timing_summary(conv.late_s)} (plan {plan.robustness:+.4f}; along the "
+            f"straight legs on time {conv.straight_leg_robustness:+.4f}; weakest: "
+            f"{conv.weakest})"
         )
+        if conv.tolerance_warning():
+            print(conv.tolerance_warning())
         for note in fp.notes if fp is not None else ():
             print(note)
         if args.fence_action is not None:

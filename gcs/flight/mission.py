@@ -177,6 +177,8 @@ async def fly_mission_plan(
             f"{plan.robustness:+.3f}; weakest: {conv.weakest}; "
             f"{timing_summary(conv.late_s)}); fly offboard (gcs fly), or --force"
         )
+    if conv.tolerance_warning() and note is not None:
+        note(conv.tolerance_warning())
     start_enu = {pv.name: np.asarray(pv.start_enu_m, dtype=float) for pv in plan.vehicles}
     start_ned = {n: enu_to_ned(start_enu[n], plan.origin, origins[n]) for n in names}
     yaw0 = {n: float(conv.missions[n].items[1].param4) for n in names}

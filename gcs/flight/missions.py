@@ -36,7 +36,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -64,6 +64,11 @@ ITERATIONS = 6
 HOLD_GAIN = 0.5
 #: The legs into a hover aim to arrive this early (s): the hold waits for the plan's clock.
 ARRIVE_EARLY_S = 1.0
+#: The largest timing error (s) :func:`time_tolerance` looks for.
+TOLERANCE_MAX_S = 3.0
+#: PX4 SITL kept a mission's clock to about this (s) between two vehicles of the power line
+#: (docs/px4-sitl.md); a clause that tolerates less is named in the report.
+KEEPS_CLOCK_S = 0.5
 #: Seconds of predictions a conversion may spend.
 BUDGET_S = 20.0
 #: A candidate whose first prediction is this far below the best so far is not re-timed (m).
@@ -90,6 +95,9 @@ class MissionConversion:
         simplify_m: the tolerance of the waypoints dropped (0: a waypoint at every
             segment's end; :func:`mavlink.mission.keep_waypoints`).
         weakest: the spec's weakest clause on the predicted tracks, with its robustness.
+        tolerance_s: per top-level clause, the seconds of timing error (one vehicle early or
+            late, or two off the opposite ways) it tolerates on the predicted flight
+            (:func:`time_tolerance`).
     """
 
     missions: dict[str, MissionPlan]
@@ -103,6 +111,26 @@ class MissionConversion:
     retimed: bool
     simplify_m: float = 0.0
     weakest: str = ""
+    tolerance_s: dict[str, float] = field(default_factory=dict)
+
+    def tolerance_warning(self) -> str:
+        """One line when a clause tolerates less timing error than PX4 keeps (else "")."""
+        least = self.least_tolerant()
+        if least is None or least[1] >= KEEPS_CLOCK_S:
+            return ""
+        clause, d = least
+        return (
+            f"warning: on PX4's predicted flight {clause} tolerates only {d:.2f} s of timing "
+            f"error (a vehicle early or late, two off the opposite ways); PX4 kept missions' "
+            f"clocks to about {KEEPS_CLOCK_S:g} s between vehicles on SITL, so the safety "
+            "monitor may stop the flight there (fly offboard to keep the plan's clock)"
+        )
+
+    def least_tolerant(self) -> tuple[str, float] | None:
+        """The clause that tolerates the least timing error, and how much (s)."""
+        if not self.tolerance_s:
+            return None
+        return min(self.tolerance_s.items(), key=lambda kv: kv[1])
 
 
 def auto_acceptance_m(plan: Plan, nav_acc_rad_m: float = PX4_DEFAULTS["NAV_ACC_RAD"]) -> float:
@@ -295,15 +323,62 @@ def convert_plan(
         retimed=retimed,
         simplify_m=best.simplify,
         weakest=_weakest(phi, best.prediction, t, dt),
+        tolerance_s=time_tolerance(phi, best.prediction, t, dt, epsilon=plan.epsilon),
     )
 
 
 def _weakest(phi: Any, pred: PredictedMissions, t: np.ndarray, dt: float) -> str:
     """The spec's weakest top-level clause on the predicted tracks, with its robustness."""
     sig = {n: pred.signal(n, t) for n in pred.pos_enu_m}
-    parts = list(getattr(phi, "children", ())) or [phi]
-    rho, clause = min(((float(c.robustness(sig, dt)), c) for c in parts), key=lambda x: x[0])
+    rho, clause = min(((float(c.robustness(sig, dt)), c) for c in phi.clauses), key=lambda x: x[0])
     return f"{clause} {rho:+.3f}"
+
+
+def time_tolerance(
+    phi: Any,
+    pred: PredictedMissions,
+    t: np.ndarray,
+    dt: float,
+    *,
+    epsilon: float = 0.0,
+    up_to_s: float = TOLERANCE_MAX_S,
+) -> dict[str, float]:
+    """Per top-level clause, how many seconds of timing error it tolerates on the predicted
+    flight: the largest ``d`` (to 0.05 s, at most ``up_to_s``) for which the clause stays at
+    or above ``epsilon`` when any one of its vehicles flies ``d`` seconds early or late, and
+    when two of them are off by ``d`` the opposite ways (a separation between two vehicles
+    sees ``2 d`` between them). The temporal robustness of Donzé and Maler ("Robust
+    satisfaction of temporal logic over real-valued signals", FORMATS 2010), taken per vehicle
+    on the predicted tracks; 0 for a clause already below ``epsilon``.
+    """
+    out: dict[str, float] = {}
+    names = list(pred.pos_enu_m)
+    for clause in phi.clauses:
+        mine = [n for n in names if n in clause.signal_names()]
+
+        def holds(d: float, clause: Any = clause, mine: list[str] = mine) -> bool:
+            shifts: list[dict[str, float]] = [{n: s * d} for n in mine for s in (-1.0, 1.0)]
+            shifts += [{a: d, b: -d} for i, a in enumerate(mine) for b in mine[i + 1 :]] + [
+                {a: -d, b: d} for i, a in enumerate(mine) for b in mine[i + 1 :]
+            ]
+            for shift in shifts or [{}]:
+                sig = {n: pred.signal(n, t + shift.get(n, 0.0)) for n in names}
+                if float(clause.robustness(sig, dt)) < epsilon:
+                    return False
+            return True
+
+        if not holds(0.0):
+            out[str(clause)] = 0.0
+            continue
+        if holds(up_to_s):
+            out[str(clause)] = up_to_s
+            continue
+        lo, hi = 0.0, up_to_s
+        while hi - lo > 0.05:
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if holds(mid) else (lo, mid)
+        out[str(clause)] = round(lo, 2)
+    return out
 
 
 def timing_summary(late_s: Mapping[str, float]) -> str:

@@ -173,6 +173,12 @@ def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
             f"robustness predicted {c.predicted_robustness:+.4f} (straight legs "
             f"{c.straight_leg_robustness:+.4f}; {c.iterations} predictions)"
         )
+        least = c.least_tolerant()
+        if least is not None:
+            lines.append(
+                f"  timing error tolerated on the prediction: {least[1]:.2f} s at the least "
+                f"({least[0]})"
+            )
     for name, run in outcome.missions.items():
         extra = ""
         if m is not None:
@@ -315,6 +321,7 @@ def outcome_json(plan: Plan, outcome: FlightOutcome) -> dict[str, Any]:
             "simplify_m": outcome.mission.conversion.simplify_m,
             "predictions": outcome.mission.conversion.iterations,
             "weakest": outcome.mission.conversion.weakest,
+            "tolerance_s": outcome.mission.conversion.tolerance_s,
             "predicted_robustness": num(outcome.mission.conversion.predicted_robustness),
             "straight_leg_robustness": num(outcome.mission.conversion.straight_leg_robustness),
             "predicted_late_s": {k: num(v) for k, v in outcome.mission.conversion.late_s.items()},

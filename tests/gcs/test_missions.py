@@ -16,9 +16,11 @@ import pytest
 from gcs.flight.evaluation import plan_formula
 from gcs.flight.missions import (
     MIN_ACCEPTANCE_M,
+    TOLERANCE_MAX_S,
     auto_acceptance_m,
     convert_plan,
     radius_candidates,
+    time_tolerance,
 )
 from mavlink.errors import MissionError
 from mavlink.mission import (
@@ -30,9 +32,10 @@ from mavlink.mission import (
     path_deviation,
     trajectory_to_mission,
 )
-from mavlink.mock.predict import predict_missions
+from mavlink.mock.predict import PredictedMissions, predict_missions
 from planner.frames import GeodeticPoint
 from planner.planfile import load_plan
+from planner.stl import FunctionRegistry, parse
 from planner.trajectory import Trajectory
 from tests.mavlink.test_link_mission import min_jerk
 
@@ -240,3 +243,32 @@ def test_the_power_line_converts_to_missions_px4_is_predicted_to_fly_on_its_cloc
     t = np.arange(round(plan.horizon_s / plan.check_dt_s) + 1) * plan.check_dt_s
     sig = {n: conv.prediction.signal(n, t) for n in conv.missions}
     assert float(phi.robustness(sig, plan.check_dt_s)) == pytest.approx(conv.predicted_robustness)
+
+
+def test_the_time_tolerance_of_a_clause_is_what_the_geometry_and_speeds_allow() -> None:
+    # a flies along x at 4 m/s and b 3 m ahead of it; they must stay 1.5 m apart, and a must
+    # pass x = 20 m by t = 6 s (it does at 5 s). Opposite timing errors of d close the gap by
+    # 2 * 4 * d: tolerated up to (3 - 1.5) / 8 = 0.1875 s; a late by d passes at 5 + d: 1 s.
+    t = np.arange(0.0, 10.0 + 1e-9, 0.01)
+    a = np.column_stack([4.0 * t, np.zeros_like(t), np.full_like(t, 5.0)])
+    pred = PredictedMissions(
+        t_s=t, pos_enu_m={"a": a, "b": a + np.array([3.0, 0.0, 0.0])}, left_s={}, finished_s={}
+    )
+    reg = FunctionRegistry()
+    reg.register(
+        "dist", 2, lambda args, s: np.linalg.norm(s[args[0]] - s[args[1]], axis=1),
+        lambda args, s: None, signal_args=(0, 1),
+    )  # fmt: skip
+    reg.register("x", 1, lambda args, s: s[args[0]][:, 0], lambda args, s: None, signal_args=(0,))
+    phi = parse("always[0, 8] (dist(a, b) >= 1.5) and eventually[0, 6] (x(a) >= 20)", reg)
+    grid = np.arange(0.0, 10.0 + 1e-9, 0.05)
+    tol = time_tolerance(phi, pred, grid, 0.05)
+    sep, reach = (tol[str(c)] for c in phi.clauses)
+    assert 0.1875 - 0.05 <= sep <= 0.1875, tol
+    assert 1.0 - 0.05 <= reach <= 1.0, tol
+    # a clause already failing tolerates nothing; one that cannot fail, the whole range
+    assert time_tolerance(parse("always[0, 8] (dist(a, b) >= 4)", reg), pred, grid, 0.05) == {
+        "always[0,8] (dist(a, b) >= 4)": 0.0
+    }
+    far = time_tolerance(parse("always[0, 8] (dist(a, b) >= 0)", reg), pred, grid, 0.05)
+    assert list(far.values()) == [TOLERANCE_MAX_S]
