@@ -262,12 +262,17 @@ def convert_plan(
         ]
     )
     deadline = time.monotonic() + budget_s
+    tried: set[str] = set()
     for radius, simplify in candidates:
         if best is not None and time.monotonic() > deadline:
             break
         missions = plain if (radius, simplify) == (radius0, 0.0) else build(radius, simplify)
         if _scheduled(missions) < _scheduled(plain):
             continue  # a capture span without a waypoint left in it: no pictures there
+        key = repr(sorted((n, m.items) for n, m in missions.items()))
+        if key in tried:
+            continue  # the same missions as a candidate already tried (a small plan)
+        tried.add(key)
         base = {n: m.leg_speed_m_s.copy() for n, m in missions.items()}
         speeds = {n: s.copy() for n, s in base.items()}
         holds = {n: m.hold_s.copy() for n, m in missions.items()}
