@@ -4,7 +4,7 @@
 
 Plans the scenario once (``gcs plan --json``), then flies the plan on mock PX4 vehicles with a
 MAVLink camera and gimbal (``gcs fly --dry-run --json --log DIR``), offboard and as PX4
-missions (with ``--force``: PX4 is predicted to fly this plan's missions late, which ``gcs fly``
+missions (with ``--force``: PX4 is predicted to fly this plan's missions below epsilon, which ``gcs fly``
 refuses otherwise; the prediction is printed), with the default ``px4`` profile.  Per flight mode and target: the pictures that count
 (taken from within the inspection place, view within face's 15 degrees) against those planned,
 their range and largest view angle; per mode the targets covered, the pictures taken and the
