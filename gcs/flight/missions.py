@@ -69,7 +69,7 @@ TOLERANCE_MAX_S = 3.0
 #: PX4 SITL kept a mission's clock to about this (s) between two vehicles of the power line
 #: (docs/px4-sitl.md); a clause that tolerates less is named in the report.
 KEEPS_CLOCK_S = 0.5
-#: Seconds of predictions a conversion may spend.
+#: CPU seconds of predictions a conversion may spend.
 BUDGET_S = 20.0
 #: A candidate whose first prediction is this far below the best so far is not re-timed (m).
 HOPELESS_M = 1.0
@@ -190,8 +190,9 @@ def convert_plan(
             speeds, every waypoint, the chosen radius, predicted once).
         captures: where each vehicle's camera takes pictures (:func:`gcs.flight.payload.capture_spans`;
             ``None``: nowhere): camera and gimbal items in its mission.
-        budget_s: no new prediction starts after this many seconds (the best so far is
-            kept; at least one is always made).
+        budget_s: no new prediction starts after this many seconds of CPU time of this
+            process (the best so far is kept; at least one is always made): a busy machine
+            makes the same search, only later.
     """
     from gcs.flight.evaluation import plan_formula
     from gcs.flight.landing import landing_targets
@@ -261,10 +262,10 @@ def convert_plan(
             for r in (radius_candidates(radius0, nav_rad) if auto and not shots else (radius0,))
         ]
     )
-    deadline = time.monotonic() + budget_s
+    deadline = time.process_time() + budget_s
     tried: set[str] = set()
     for radius, simplify in candidates:
-        if best is not None and time.monotonic() > deadline:
+        if best is not None and time.process_time() > deadline:
             break
         missions = plain if (radius, simplify) == (radius0, 0.0) else build(radius, simplify)
         if _scheduled(missions) < _scheduled(plain):
@@ -285,7 +286,7 @@ def convert_plan(
                 best = _Candidate(rho, missions, pred, radius, simplify)
             stale = 0 if rho > mine + 0.01 else stale + 1
             mine = max(mine, rho)
-            if k + 1 >= iterations or not retime or stale >= 2 or time.monotonic() > deadline:
+            if k + 1 >= iterations or not retime or stale >= 2 or time.process_time() > deadline:
                 break
             if k == 0 and rho < best.robustness - HOPELESS_M:
                 break  # re-timing has not made up that much on any plan tried
