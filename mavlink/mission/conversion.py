@@ -32,7 +32,12 @@ becomes global ``*_INT`` items (docs/architecture.md, "The MAVLink side"):
   (:attr:`MissionPlan.captures` says when each is taken).
 
 A segment whose peak speed stays below ``hover_speed_m_s`` (or which ends
-less than the acceptance radius from where it started) is a hover.
+less than the acceptance radius from where it started) is a hover; one of at least half the
+radius that ends a leg before a hover extends the leg to where the plan hovers.
+``simplify_m`` drops the waypoints flown through that straight legs at constant speed can skip
+while they stay that close to the plan at every instant (:func:`keep_waypoints`): PX4 slows at
+every waypoint to a speed from which it could stop at the next one, so the plan's dense segment
+ends are too close for its speeds (:mod:`gcs.flight.missions` chooses the tolerance).
 
 The mission flies straight legs at constant speed: :class:`PiecewiseLinearPath`
 is that path as a function of time (knots at the segment boundaries, so it
