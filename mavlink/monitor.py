@@ -552,10 +552,10 @@ class SafetyMonitor:
         """Open a stretch for each vehicle newly lost (from its last sample), close it for
         each heard again (at its fresh sample), and say so once each way."""
         for name, st in statuses.items():
-            gaps = self.stats.unheard.setdefault(name, [])
+            gaps = self.stats.unheard.get(name, [])
             age = st.position_age_s if st.position_age_s is not None else 0.0
             if name in lost and (not gaps or gaps[-1][1] is not None):
-                gaps.append((t_s - age, None))
+                self.stats.unheard.setdefault(name, []).append((t_s - age, None))
                 if self.on_warning is not None:
                     self.on_warning(
                         f"{name}: link lost at t = {t_s - age:.1f} s: its mission flies on "
@@ -568,8 +568,6 @@ class SafetyMonitor:
                         f"{name}: heard again at t = {t_s - age:.1f} s, after "
                         f"{t_s - age - gaps[-1][0]:.1f} s; monitoring it again"
                     )
-            if not gaps:
-                del self.stats.unheard[name]
 
     def _off_plan(
         self,

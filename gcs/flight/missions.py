@@ -91,7 +91,8 @@ class MissionConversion:
         late_s: per vehicle, predicted finish minus the plan's last arrival (s; ``inf``
             when the prediction did not see it finish).
         iterations: predictions run.
-        retimed: the leg speeds were changed from the legs' average speeds.
+        retimed: the leg speeds and holds were changed from the legs' average speeds and
+            the plan's hovers (a re-timed prediction was the best).
         simplify_m: the tolerance of the waypoints dropped (0: a waypoint at every
             segment's end; :func:`mavlink.mission.keep_waypoints`).
         weakest: the spec's weakest clause on the predicted tracks, with its robustness.
@@ -283,7 +284,8 @@ def convert_plan(
             rho, pred = predict(missions)
             runs += 1
             if best is None or rho > best.robustness:
-                best = _Candidate(rho, missions, pred, radius, simplify)
+                # past the first prediction the legs and holds are the re-timed ones
+                best = _Candidate(rho, missions, pred, radius, simplify, retimed=k > 0)
             stale = 0 if rho > mine + 0.01 else stale + 1
             mine = max(mine, rho)
             if k + 1 >= iterations or not retime or stale >= 2 or time.process_time() > deadline:
@@ -311,12 +313,6 @@ def convert_plan(
     for name, m in best.missions.items():
         fin = best.prediction.finished_s[name]
         late[name] = math.inf if fin is None else fin - float(m.arrival_t_s[-1] + m.hold_s[-1])
-    retimed = any(
-        not np.allclose(best.missions[n].leg_speed_m_s, plain[n].leg_speed_m_s)
-        if best.missions[n].leg_speed_m_s.shape == plain[n].leg_speed_m_s.shape
-        else True
-        for n in best.missions
-    )
     return MissionConversion(
         missions=best.missions,
         acceptance_m=best.radius,
@@ -326,7 +322,7 @@ def convert_plan(
         straight_leg_robustness=float(straight),
         late_s=late,
         iterations=runs,
-        retimed=retimed,
+        retimed=best.retimed,
         simplify_m=best.simplify,
         weakest=_weakest(phi, best.prediction, t, dt),
         tolerance_s=time_tolerance(phi, best.prediction, t, dt, epsilon=plan.epsilon),
@@ -359,6 +355,7 @@ def time_tolerance(
     """
     out: dict[str, float] = {}
     names = list(pred.pos_enu_m)
+    base = {n: pred.signal(n, t) for n in names}
     for clause in phi.clauses:
         mine = [n for n in names if n in clause.signal_names()]
 
@@ -368,7 +365,7 @@ def time_tolerance(
                 {a: -d, b: d} for i, a in enumerate(mine) for b in mine[i + 1 :]
             ]
             for shift in shifts or [{}]:
-                sig = {n: pred.signal(n, t + shift.get(n, 0.0)) for n in names}
+                sig = base | {n: pred.signal(n, t + d_n) for n, d_n in shift.items()}
                 if float(clause.robustness(sig, dt)) < epsilon:
                     return False
             return True
@@ -404,6 +401,7 @@ class _Candidate:
     prediction: PredictedMissions
     radius: float
     simplify: float
+    retimed: bool
 
 
 def _scheduled(missions: Mapping[str, MissionPlan]) -> int:
