@@ -12,10 +12,12 @@ actions, missions and offboard, pymavlink for logs)::
                         settled)
     mavlink.offboard.stream      deadline-scheduled setpoint streaming and its statistics
     mavlink.offboard.setpoints  a plan sampled into PX4 setpoints (OffboardConfig)
+    mavlink.flight      the flight engine: the phases every flight has (checks, take-off,
+                        arrival gate, one shared start, monitor, tracks), a driver per mode
     mavlink.offboard    fly_offboard: a plan flown in offboard mode, all in step
     mavlink.mission     package: items and their comparison, trajectory -> PX4 mission,
                         geofence items, transfer, whole-transfer retries within a time
-                        budget, starting and following a mission
+                        budget, starting and following a mission, the mission driver
     mavlink.monitor     online safety monitor of the spec's always-clauses
     mavlink.link.scan        who answers on the udpin ports (duplicate system ids)
     mavlink.tlog        telemetry recording to .tlog, tracks rebuilt from it

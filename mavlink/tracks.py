@@ -141,6 +141,50 @@ class FlownTrack:
         return self.signal(t, heading=heading)
 
 
+#: The span of samples (s) among which the fastest delivery sets a sample's clock offset
+#: (:func:`vehicle_instants`): long enough to hold a quick delivery on a busy link, short
+#: enough that two clocks' rates (a few ppm apart) do not part within it.
+INSTANT_WINDOW_S = 5.0
+
+#: ``time_boot_ms`` is a uint32 of milliseconds: it wraps after 2**32 ms (49.7 days).
+_BOOT_WRAP_S = 2.0**32 * 1e-3
+
+
+def vehicle_instants(
+    t_recv_s: np.ndarray, t_boot_s: np.ndarray, window_s: float = INSTANT_WINDOW_S
+) -> np.ndarray:
+    """When each sample was taken, on the receiver's clock: the vehicle's own time
+    (``time_boot_ms``, s) plus the smallest ``t_recv - t_boot`` among the samples received
+    within ``window_s / 2`` of it.
+
+    A sample's receipt time is its instant plus the link's latency, and the latency varies:
+    MAVSDK hands telemetry over on its own thread, and on a busy machine (or link) a sample
+    waits. The fastest delivery around a sample bounds the clocks' offset best (the
+    minimum-delay filter of clock synchronisation: NTP's, Mills, RFC 5905), so only that
+    latency, which no sample escapes, is left in the instants. A vehicle clock that jumps
+    back (a reboot) keeps the receipt times.
+
+    Args:
+        t_recv_s: receipt times, in order of receipt.
+        t_boot_s: the same samples' ``time_boot_ms`` in seconds.
+        window_s: the span of samples whose fastest delivery counts.
+    """
+    t_recv = np.asarray(t_recv_s, dtype=float)
+    t_boot = np.asarray(t_boot_s, dtype=float).copy()
+    n = t_recv.size
+    if n < 2:
+        return t_recv.copy()
+    step = np.diff(t_boot)
+    t_boot[1:] += _BOOT_WRAP_S * np.cumsum(step < -0.5 * _BOOT_WRAP_S)
+    if np.any(np.diff(t_boot) < -1.0):  # a reboot: the vehicle's time means nothing here
+        return t_recv.copy()
+    offset = t_recv - t_boot
+    period = float(np.median(np.diff(t_recv)))
+    half = min(n, round(0.5 * window_s / period)) if period > 0 else n
+    padded = np.pad(offset, (half, half), mode="edge")
+    return t_boot + np.lib.stride_tricks.sliding_window_view(padded, 2 * half + 1).min(axis=1)
+
+
 def track_from_rows(
     name: str,
     rows: np.ndarray,

@@ -7,11 +7,13 @@
 2. records everything the vehicles send to ``flight.tlog`` (:class:`mavlink.tlog.TlogRecorder`)
    and MAVSDK's own log lines to ``mavsdk.log`` (:func:`mavlink.link.mavsdk_glue.mavsdk_log_file`)
    when a log directory is given (only MAVSDK's errors the user can act on show on stderr);
-3. flies: in **offboard** mode :func:`mavlink.offboard.fly_offboard` (take-off to the plan's
-   start, one shared start time, setpoints against absolute deadlines, the safety monitor of
-   the spec's always-clauses), in **mission** mode the plan's PX4 mission conversion
-   (:func:`mavlink.mission.trajectory_to_mission`: uploaded, read back and compared, then
-   flown with :func:`mavlink.mission.fly_missions`);
+3. flies with the flight engine (:func:`mavlink.flight.fly`: checks, take-off, the arrival
+   gate, one shared start, the safety monitor of the spec's always-clauses, the flown tracks)
+   and the mode's driver: in **offboard** mode a :class:`mavlink.offboard.OffboardDriver`
+   (setpoints against absolute deadlines), in **mission** mode a
+   :class:`mavlink.mission.flight.MissionDriver` flying the plan's PX4 mission conversion
+   (:func:`gcs.flight.mission.mission_driver`: converted against PX4's predicted flight,
+   refused below epsilon, uploaded and read back before anything is armed);
 4. shows progress while flying (:class:`gcs.flight.progress.FlightProgress`): per vehicle its mode,
    its distance to where the plan is at that instant, and the robustness of the clauses it
    takes part in *so far* (exact semantics of the flown prefix completed by the plan for the
@@ -50,7 +52,7 @@ import time
 from collections.abc import AsyncIterator, Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -64,14 +66,17 @@ from mavlink.clock import WALL, Clock
 if TYPE_CHECKING:
     from gcs.checks import Check
     from gcs.flight.mission import MissionFlight
-    from gcs.flight.payload import CameraCommands
+    from gcs.flight.missions import MissionConversion
     from gcs.flight.tuning import VehicleTuning
     from gcs.plot.coverage import CoverageReport
+    from mavlink.flight import FlightDriver, FlightResult, StartGate
     from mavlink.link.camera import CameraInfo, CapturedImage
     from mavlink.link.fleet import Fleet
     from mavlink.link.vehicle import Vehicle
     from mavlink.link.vehicle_status import VehicleSpec, VehicleStatus
     from mavlink.mission import CaptureSpan
+    from mavlink.monitor import SafetyMonitor
+    from mavlink.offboard import OffboardDriver
     from mavlink.offboard.setpoints import EndAction
     from mavlink.tracks import FlownTrack
     from planner.frames import GeodeticPoint
@@ -328,44 +333,14 @@ async def _show_mode(
     await asyncio.gather(*(one(v) for v in fleet if v.name not in skip))
 
 
-async def _fly_offboard(
-    fleet: Fleet,
-    plan: Plan,
-    opts: FlyOptions,
-    starts: PlanStarts,
-    tuning: Mapping[str, VehicleTuning],
-    note: Callable[[str], None],
-    spans: Mapping[str, Sequence[CaptureSpan]],
-    camera: CameraCommands,
-) -> Any:
+def _offboard_driver(
+    plan: Plan, opts: FlyOptions, tuning: Mapping[str, VehicleTuning]
+) -> tuple[OffboardDriver, StartGate]:
+    """Offboard mode's driver for the flight engine, and its start gate."""
     from gcs.flight.mission import arrive_gate_m
-    from gcs.flight.payload import run_offboard_captures
-    from mavlink.monitor import SafetyMonitor
-    from mavlink.monitor_findings import always_clauses
-    from mavlink.offboard import fly_offboard
+    from mavlink.offboard import OffboardDriver
     from mavlink.offboard.setpoints import EndAction, OffboardConfig
 
-    names = [v.name for v in plan.vehicles]
-    start: asyncio.Future[float] = asyncio.get_running_loop().create_future()
-
-    def started(t0_monotonic_s: float) -> None:
-        """The shared start time, for the progress view and the camera's clock."""
-        starts.t0_monotonic_s.update(dict.fromkeys(names, t0_monotonic_s))
-        if not start.done():
-            start.set_result(t0_monotonic_s)
-
-    clauses = (
-        always_clauses(plan_formula(plan), names, exclude=reads_heading) if opts.monitor else ()
-    )
-    monitor = SafetyMonitor(
-        clauses,
-        horizon_s=0.5 if opts.monitor else 0.0,
-        on_start=started,
-        # the tracking alarm: warn past the plan's margin, hold past the bound
-        warn_off_plan_m=plan.robustness if opts.monitor and plan.robustness > 0 else None,
-        max_off_plan_m=opts.max_off_plan_m if opts.monitor else None,
-        on_warning=note,
-    )
     cfg = OffboardConfig(
         rate_hz=opts.rate_hz,
         start_tolerance_m=opts.tolerance_m,
@@ -383,18 +358,35 @@ async def _fly_offboard(
             land_at[name] = (lat, lon, alt)
         cfg = dataclasses.replace(cfg, land_at=land_at)
     trajs = {v.name: v.trajectory for v in plan.vehicles}
-    shots = (
-        asyncio.create_task(run_offboard_captures(fleet, spans, start, note, camera))
-        if any(spans.values())
-        else None
+    return OffboardDriver(trajs, plan.origin, cfg), cfg
+
+
+def _monitor(
+    plan: Plan,
+    opts: FlyOptions,
+    driver: FlightDriver,
+    started: Callable[[float], None],
+    note: Callable[[str], None],
+) -> SafetyMonitor:
+    """The safety monitor of the spec's always-clauses for ``driver``'s flight: where the
+    vehicles fly the plan's trajectories (offboard), the tracking alarm too (warn past the
+    plan's margin, hold past ``max_off_plan_m``); where the plan runs on board (missions), a
+    lost link is ridden out."""
+    from mavlink.monitor import SafetyMonitor
+    from mavlink.monitor_findings import always_clauses
+
+    names = [v.name for v in plan.vehicles]
+    on = opts.monitor
+    tracked = on and driver.plans is not None
+    return SafetyMonitor(
+        always_clauses(plan_formula(plan), names, exclude=reads_heading) if on else (),
+        horizon_s=0.5 if on else 0.0,
+        on_start=started,
+        warn_off_plan_m=plan.robustness if tracked and plan.robustness > 0 else None,
+        max_off_plan_m=opts.max_off_plan_m if tracked else None,
+        ride_out_link_loss=driver.on_board,
+        on_warning=note,
     )
-    try:
-        return await fly_offboard(fleet, trajs, plan.origin, cfg, monitor=monitor)
-    finally:
-        if shots is not None:
-            shots.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await shots
 
 
 async def fly_plan(
@@ -423,9 +415,10 @@ async def fly_plan(
         mavlink.errors.PreflightError: a vehicle too far from its start / cannot reach it.
         mavlink.errors.LinkError: other link failures before the flight.
     """
-    from gcs.flight.mission import fly_mission_plan
-    from gcs.flight.payload import CameraCommands, capture_spans
+    from gcs.flight.mission import mission_driver, mission_record
+    from gcs.flight.payload import CameraCommands, capture_spans, run_offboard_captures
     from gcs.flight.tuning import expected_error_m, margin_warnings, read_tuning
+    from mavlink.flight import fly
     from mavlink.link.fleet import Fleet
     from mavlink.tlog import TlogRecorder
     from mavlink.tracks import write_tracks_csv
@@ -454,8 +447,8 @@ async def fly_plan(
             else None
         )
         interrupted = False
-        result: Any = None
-        mission: MissionFlight | None = None
+        result: FlightResult | None = None
+        conv: MissionConversion | None = None
         end_failures: dict[str, str] = {}
         for v in fleet:
             v.start_track()
@@ -477,17 +470,37 @@ async def fly_plan(
         spans = capture_spans(plan, opts.photo_interval_s)
         camera = CameraCommands() if opts.mode is FlightMode.OFFBOARD else None
         infos = await _cameras(fleet, [n for n, s in spans.items() if s], note)
+        start: asyncio.Future[float] = asyncio.get_running_loop().create_future()
+
+        def started(t0_monotonic_s: float) -> None:
+            """The shared start time, for the progress view and the camera's clock."""
+            starts.t0_monotonic_s.update(dict.fromkeys(names, t0_monotonic_s))
+            if not start.done():
+                start.set_result(t0_monotonic_s)
 
         try:
             # the flight's own tasks end with it; leaving it abnormally holds every vehicle
             async with fleet.flight() as guard:
+                driver: FlightDriver
                 if opts.mode is FlightMode.OFFBOARD:
-                    assert camera is not None
-                    result = await _fly_offboard(
-                        fleet, plan, opts, starts, tuning, note, spans, camera
-                    )
+                    driver, gate = _offboard_driver(plan, opts, tuning)
                 else:
-                    mission = await fly_mission_plan(fleet, plan, opts, starts, tuning, spans, note)
+                    driver, conv = await mission_driver(fleet, plan, opts, tuning, spans, note)
+                    gate = driver.gate
+                monitor = _monitor(plan, opts, driver, started, note)
+                # the ground station's camera commands where no mission carries them
+                shots = (
+                    asyncio.create_task(run_offboard_captures(fleet, spans, start, note, camera))
+                    if camera is not None and any(spans.values())
+                    else None
+                )
+                try:
+                    result = await fly(fleet, driver, plan.origin, gate, monitor)
+                finally:
+                    if shots is not None:
+                        shots.cancel()
+                        with contextlib.suppress(asyncio.CancelledError):
+                            await shots
         except asyncio.CancelledError:
             # Ctrl-C: asyncio.run cancelled us, and every vehicle was commanded to hold on the
             # way out of the flight. Take the cancellation back to report.
@@ -510,11 +523,7 @@ async def fly_plan(
             if progress is not None:
                 progress.close()
             tlog = recorder.stop() if recorder is not None else None
-        safety_event = (
-            result.safety_event
-            if result is not None
-            else (mission.safety_event if mission is not None else None)
-        )
+        safety_event = result.safety_event if result is not None else None
         if interrupted or safety_event is not None:
             await _show_mode(fleet, "AUTO.LOITER", end_failures)
         elif result is not None:
@@ -523,13 +532,14 @@ async def fly_plan(
     flight_s = clock.monotonic() - t_connected
     t0 = dict(starts.t0_monotonic_s)
     if result is not None:
-        # fly_offboard recorded the tracks itself (from just before the shared start).
+        # the engine recorded the tracks itself (from just before the shared start)
         tracks = dict(result.tracks)
     else:
         tracks = _tracks_from_rows(rows, t0, plan.origin, origins)
     if opts.log_dir is not None:
         files["csv"] = write_tracks_csv(opts.log_dir / "flight.csv", tracks)
     evaluation = evaluate_flight(plan, tracks) if tracks else None
+    mission = mission_record(conv, result) if conv is not None and result is not None else None
     coverage = _coverage(plan, images, spans, mission, infos, opts.log_dir, files)
     lower = None
     if evaluation is not None and evaluation.flown_robustness is not None:
@@ -539,20 +549,11 @@ async def fly_plan(
             # between two vehicles by both): flown - 2 * worst 3-D accuracy
             lower = evaluation.flown_robustness - 2.0 * max(errs)
     t0_unix = min(t0.values()) + clock.unix_offset() if t0 else None
-    missions = dict(mission.runs) if mission is not None else {}
     if result is not None:
         end_failures = dict(result.end_failures)
-        completed = bool(result.completed) and not end_failures
-    else:
-        completed = (
-            not interrupted
-            and safety_event is None
-            and bool(missions)
-            and all(r.finished for r in missions.values())
-        )
     return FlightOutcome(
         mode=opts.mode,
-        completed=completed and not interrupted,
+        completed=result is not None and result.completed and not interrupted,
         interrupted=interrupted,
         connect_s=connect_s,
         flight_s=flight_s,
@@ -560,13 +561,9 @@ async def fly_plan(
         tracks=tracks,
         evaluation=evaluation,
         stats=dict(result.stats) if result is not None else {},
-        missions=missions,
+        missions=dict(result.runs) if result is not None else {},
         safety_event=safety_event,
-        monitor=(
-            result.monitor
-            if result is not None
-            else (mission.monitor if mission is not None else None)
-        ),
+        monitor=result.monitor if result is not None else None,
         end_failures=end_failures,
         final_modes=final_modes,
         tlog=tlog,

@@ -57,6 +57,7 @@ from mavlink.px4_modes import (
     decode_custom_mode,
     set_mode_params,
 )
+from mavlink.tracks import vehicle_instants
 from planner.frames import GeodeticPoint
 
 log = logging.getLogger(__name__)
@@ -155,8 +156,8 @@ class Vehicle:
         tel = self.telemetry
         self._handles += [
             (
-                tel.unsubscribe_position_velocity_ned,
-                tel.subscribe_position_velocity_ned(self._on_pv),
+                self.direct.unsubscribe_message,
+                self.direct.subscribe_message("LOCAL_POSITION_NED", self._on_pv),
             ),
             (tel.unsubscribe_in_air, tel.subscribe_in_air(self._on_in_air)),
             (
@@ -189,17 +190,21 @@ class Vehicle:
             ),
         ]
 
-    def _on_pv(self, pv: Any, _ud: Any) -> None:
+    def _on_pv(self, msg: MavlinkMessage, _ud: Any) -> None:
+        """LOCAL_POSITION_NED, read whole (MAVSDK's telemetry drops its ``time_boot_ms``,
+        which the track needs: :meth:`stop_track`)."""
+        if msg.system_id != self.spec.sysid or msg.component_id != 1:
+            return
         t = self.clock.monotonic()
-        p, v = pv.position, pv.velocity
-        pos = (float(p.north_m), float(p.east_m), float(p.down_m))
-        vel = (float(v.north_m_s), float(v.east_m_s), float(v.down_m_s))
+        f = json.loads(msg.fields_json)
+        pos = (float(f["x"]), float(f["y"]), float(f["z"]))
+        vel = (float(f["vx"]), float(f["vy"]), float(f["vz"]))
         heading = self._latest_heading_deg()
         with self._lock:
             self._note_heading(heading)
             self._pos_ned, self._vel_ned, self._t_position = pos, vel, t
             if self._track is not None:
-                self._track.append((t, *pos, *vel, self._yaw_ned_rad))
+                self._track.append((t, *pos, *vel, self._yaw_ned_rad, 1e-3 * f["time_boot_ms"]))
 
     def _latest_heading_deg(self) -> float | None:
         """MAVSDK's latest heading (degrees; NaN: none yet, or unknown; ``None`` after
@@ -496,12 +501,20 @@ class Vehicle:
     def stop_track(self) -> np.ndarray:
         """Stop recording; ``(k, 8)`` rows ``(t_monotonic_s, n, e, d, vn, ve, vd, yaw)``, the
         yaw the vehicle's NED heading (rad, clockwise from north; NaN before the first
-        heading). :func:`mavlink.tracks.track_from_rows` makes them a flown track."""
+        heading). :func:`mavlink.tracks.track_from_rows` makes them a flown track.
+
+        Each sample's instant is when the vehicle took it, on :attr:`clock`: its own
+        ``time_boot_ms`` carried onto the clock by the fastest delivery around it
+        (:func:`mavlink.tracks.vehicle_instants`), so that the link's latency, which the
+        receipt times carry (and a busy ground station lengthens), is not read as a lag
+        of the vehicle."""
         with self._lock:
             rows, self._track = self._track, None
         if not rows:
             return np.zeros((0, 8))
-        return np.asarray(rows, dtype=float)
+        a = np.asarray(rows, dtype=float)
+        a[:, 0] = vehicle_instants(a[:, 0], a[:, 8])
+        return a[:, :8]
 
     # -- commands -------------------------------------------------------
 

@@ -1,25 +1,23 @@
 """Fly a plan in PX4 offboard mode: every vehicle streams its own trajectory, all in step.
 
-:func:`fly_offboard` does, in order (docs/architecture.md, "Frames and units" and "From a scenario file to UDP bytes"):
+:func:`fly_offboard` flies the phases of :func:`mavlink.flight.fly` (docs/architecture.md,
+"Frames and units" and "From a scenario file to UDP bytes") with an :class:`OffboardDriver`,
+which supplies what is particular to offboard:
 
-1. learns each vehicle's EKF origin (GPS_GLOBAL_ORIGIN) and transforms the
-   vehicle's trajectory from the mission ENU frame into its own local NED
-   frame (:func:`~mavlink.plan_setpoints.plan_setpoints_ned`);
-2. refuses the flight, before anything is armed, if a vehicle is farther
-   than ``start_tolerance_m`` from its planned start (horizontally while it
-   is on the ground, in 3-D if it is in the air) (:class:`PreflightError`);
-3. takes off to the plan's start altitude (or checks the vehicle already
-   hovers at its start) and waits until each vehicle is within the
-   tolerance of its start;
-4. streams the start setpoint for ``prestream_s`` (>= 1 s), switches all
-   vehicles to offboard and waits until every one reports OFFBOARD;
-5. picks one shared start time and streams position + velocity +
-   acceleration + yaw setpoints at ``rate_hz`` against absolute deadlines
-   (:mod:`mavlink.offboard.stream`), while a :class:`~mavlink.monitor.SafetyMonitor`
-   watches the links and the spec's always-clauses;
-6. holds the final setpoint for ``hold_after_s`` and then holds, lands or
-   returns as asked, and returns a :class:`FlightResult` with per-vehicle
-   stream statistics and the flown tracks in the mission frame.
+1. each vehicle's trajectory is transformed from the mission ENU frame into its own local
+   NED frame and sampled into setpoints (:func:`~mavlink.plan_setpoints.plan_setpoints_ned`);
+   its start is the first setpoint;
+2. onto the starts: the start setpoint is streamed for ``prestream_s`` (>= 1 s), every
+   vehicle is switched to offboard (a denial is retried while the stream goes on) and must
+   report OFFBOARD; PX4 holds the streamed start until every vehicle has passed the arrival
+   gate;
+3. from one shared start time, position + velocity + acceleration + yaw setpoints are
+   streamed at ``rate_hz`` against absolute deadlines (:mod:`mavlink.offboard.stream`),
+   while the safety monitor watches the links and the spec's always-clauses along the
+   vehicles' plans;
+4. the final setpoint is held for ``hold_after_s``, then every vehicle holds, lands or
+   returns as asked; the :class:`~mavlink.flight.FlightResult` has the stream's statistics
+   per vehicle and the flown tracks in the mission frame.
 
 Setpoints go through MAVSDK's Offboard plugin
 (``set_position_velocity_acceleration_ned``: SET_POSITION_TARGET_LOCAL_NED,
@@ -27,9 +25,9 @@ frame LOCAL_NED, yaw rate ignored), called directly on the event loop; it
 does not block (it packs and queues one UDP datagram).
 
 The flight's settings (:class:`~mavlink.offboard.setpoints.OffboardConfig`) and the
-sampling of a plan into setpoints are in :mod:`mavlink.offboard.setpoints`; the start
-checks it shares with the mission flight (distance to the start, take-off height, the
-arrival gate) are in :mod:`mavlink.preflight`. This module runs the flight.
+sampling of a plan into setpoints are in :mod:`mavlink.offboard.setpoints`; the phases it
+shares with the mission flight (checks, take-off, release, monitor, tracks) are in
+:mod:`mavlink.flight`.
 """
 
 from __future__ import annotations
@@ -37,8 +35,7 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -46,13 +43,14 @@ import numpy as np
 import pymap3d as pm
 from mavsdk.plugins.offboard import OffboardResult
 
-from mavlink.errors import CommandError, LinkError, LinkLostError, PreflightError
+from mavlink.errors import CommandError, PreflightError
+from mavlink.flight import DriverReport, FlightResult, StartPoint, fly, start_point
 from mavlink.link.fleet import Fleet
 from mavlink.link.mavsdk_glue import mavsdk_call
 from mavlink.link.vehicle import Vehicle
 from mavlink.link.vehicle_status import VehicleStatus
-from mavlink.monitor import SafetyMonitor, safe_stop
-from mavlink.monitor_findings import MonitorStats, SafetyAction, SafetyEvent
+from mavlink.monitor import SafetyMonitor
+from mavlink.monitor_findings import SafetyEvent
 from mavlink.offboard.setpoints import (
     EndAction,
     OffboardConfig,
@@ -65,106 +63,18 @@ from mavlink.offboard.stream import (
     auto_send_groups,
     send_offsets,
 )
-from mavlink.plan_setpoints import plan_setpoints_ned
-from mavlink.preflight import check_start, check_takeoff_height, wait_settled
+from mavlink.plan_setpoints import NedSetpoints, plan_setpoints_ned
+from mavlink.preflight import wait_settled
 from mavlink.px4_modes import Px4Mode
-from mavlink.tlog import TlogRecorder, TlogStats
-from mavlink.tracks import FlownTrack, track_from_rows, write_tracks_csv
-from planner.frames import GeodeticPoint, enu_to_geodetic
+from mavlink.tlog import TlogRecorder
+from mavlink.tracks import write_tracks_csv
+from planner.frames import GeodeticPoint
 from planner.trajectory import Trajectory
+
+__all__ = ["FlightResult", "OffboardDriver", "fly_offboard"]
 
 #: A vehicle sent to a landing point lands once this close to it (m) and nearly still.
 LAND_AT_M = 0.3
-
-
-@dataclass(frozen=True, slots=True, eq=False)
-class FlightResult:
-    """The outcome of :func:`fly_offboard`.
-
-    Attributes:
-        completed: every setpoint was streamed and no safety stop happened.
-        t0_monotonic_s: the shared start on the fleet's clock (:mod:`mavlink.clock`).
-        t0_unix_s: the same instant as Unix time (to align a ``.tlog``).
-        stats: stream statistics per vehicle (the main stream only).
-        tracks: flown tracks per vehicle, in the mission frame.
-        safety_event: what stopped the flight, if the monitor did.
-        end_failures: vehicles whose end action failed, with the reason.
-        origins: each vehicle's EKF origin used for the transform.
-        tlog: what the ``.tlog`` recording holds, if one was asked for.
-        monitor: what the safety monitor did (evaluations, their cost, vehicles checked
-            on their prediction while their telemetry was late).
-    """
-
-    completed: bool
-    t0_monotonic_s: float
-    t0_unix_s: float
-    stats: dict[str, StreamStats]
-    tracks: dict[str, FlownTrack]
-    safety_event: SafetyEvent | None
-    end_failures: dict[str, str] = field(default_factory=dict)
-    origins: dict[str, GeodeticPoint] = field(default_factory=dict)
-    tlog: TlogStats | None = None
-    monitor: MonitorStats | None = None
-
-
-# --------------------------------------------------------------------------
-# Take-off
-# --------------------------------------------------------------------------
-
-
-def _is_hovering(st: VehicleStatus, settle_speed_m_s: float) -> bool:
-    return bool(
-        st.armed
-        and st.in_air
-        and st.mode in (Px4Mode.AUTO_LOITER, Px4Mode.POSCTL, Px4Mode.OFFBOARD)
-        and st.vel_ned_m_s is not None
-        and float(np.linalg.norm(st.vel_ned_m_s)) < settle_speed_m_s
-    )
-
-
-async def _takeoff_to_start(
-    v: Vehicle,
-    start_ned_m: np.ndarray,
-    start_alt_amsl_m: float,
-    yaw_deg: float,
-    cfg: OffboardConfig,
-    mission_origin: GeodeticPoint,
-    vehicle_origin: GeodeticPoint,
-) -> None:
-    """Arm, take off to the start's altitude on the plan's heading, and wait until airborne
-    (EXTENDED_SYS_STATE in air) near the start altitude and hovering."""
-    await v.arm()
-    await v.takeoff_to(start_alt_amsl_m, yaw_deg)
-
-    def airborne(s: VehicleStatus) -> bool:
-        return (
-            s.pos_ned_m is not None
-            and bool(s.in_air)
-            and abs(float(s.pos_ned_m[2]) - float(start_ned_m[2])) <= cfg.start_tolerance_m
-            and _is_hovering(s, cfg.settle_speed_m_s)
-        )
-
-    try:
-        await v.wait_for(
-            airborne, "airborne near the start after takeoff", timeout_s=cfg.takeoff_timeout_s
-        )
-    except (PreflightError, LinkLostError):
-        raise
-    except LinkError as exc:
-        raise PreflightError(exc.detail, vehicle=v.name, url=v.url) from None
-    check_start(
-        v.status(),
-        start_ned_m,
-        tolerance_m=cfg.start_tolerance_m,
-        on_ground=False,
-        mission_origin=mission_origin,
-        vehicle_origin=vehicle_origin,
-    )
-
-
-# --------------------------------------------------------------------------
-# The flight
-# --------------------------------------------------------------------------
 
 
 async def _start_offboard(v: Vehicle, retries: int = 3, retry_after_s: float = 0.5) -> None:
@@ -226,6 +136,179 @@ async def _end(v: Vehicle, action: EndAction, cfg: OffboardConfig | None = None)
         await v.return_to_launch()
 
 
+class OffboardDriver:
+    """Offboard mode for :func:`mavlink.flight.fly` (the module docstring).
+
+    Args:
+        trajectories: mission-frame (ENU) trajectory per vehicle name, in plan order.
+        mission_origin: geodetic origin of the mission frame.
+        config: the flight's settings.
+    """
+
+    expected_mode = Px4Mode.OFFBOARD
+    mode_grace_s = 0.5
+    on_board = False
+
+    def __init__(
+        self,
+        trajectories: Mapping[str, Trajectory],
+        mission_origin: GeodeticPoint,
+        config: OffboardConfig,
+    ) -> None:
+        self.names: Sequence[str] = list(trajectories)
+        self.plans: Mapping[str, Trajectory] | None = trajectories
+        self.mission_origin = mission_origin
+        self.cfg = config
+        n = len(self.names)
+        groups = auto_send_groups(n) if config.send_groups is None else config.send_groups
+        self.groups = min(groups, n) if n else 1
+        self.setpoints: dict[str, NedSetpoints] = {}
+        self._main: SetpointStreamer | None = None
+        self._hover: asyncio.Task[Any] | None = None
+        self._hover_stop = asyncio.Event()
+        self._stats: dict[str, StreamStats] = {}
+
+    def starts(self, origins: Mapping[str, GeodeticPoint]) -> dict[str, StartPoint]:
+        cfg = self.cfg
+        offsets = send_offsets(len(self.names), cfg.rate_hz, self.groups)
+        for i, name in enumerate(self.names):
+            self.setpoints[name] = plan_setpoints_ned(
+                self.trajectories[name],
+                cfg.rate_hz,
+                self.mission_origin,
+                origins[name],
+                t_offset_s=float(offsets[i]),
+                drag_per_s=cfg.drag_of(name),
+            )
+        return {
+            name: start_point(
+                self.trajectories[name].position(0.0),
+                math.degrees(float(self.setpoints[name].yaw_ned_rad[0])),
+                self.mission_origin,
+                origins[name],
+            )
+            for name in self.names
+        }
+
+    @property
+    def trajectories(self) -> Mapping[str, Trajectory]:
+        assert self.plans is not None
+        return self.plans
+
+    async def prepare(self, fleet: Fleet, vehicles: Sequence[Vehicle]) -> None:
+        return None
+
+    async def approach(
+        self, fleet: Fleet, vehicles: Sequence[Vehicle], starts: Mapping[str, StartPoint]
+    ) -> None:
+        """Pre-stream the start setpoint, switch everyone to offboard, wait at the starts."""
+        cfg, clock = self.cfg, fleet.clock
+        n_pre = math.ceil(
+            (cfg.prestream_s + cfg.mode_timeout_s + cfg.arrive_timeout_s + cfg.dwell_s + 2.0)
+            * cfg.rate_hz
+        )
+        hover = SetpointStreamer(
+            [
+                StreamTarget(
+                    v.name, offboard_sender(v.offboard), self.setpoints[v.name].constant(0, n_pre)
+                )
+                for v in vehicles
+            ],
+            cfg.rate_hz,
+            clock=clock.monotonic,
+            sleep=clock.sleep,
+        )
+        self._hover = asyncio.create_task(hover.run(clock.monotonic(), stop=self._hover_stop))
+        await clock.sleep(cfg.prestream_s)
+        failures = await fleet.for_each(_start_offboard, vehicles)
+        if failures:
+            name, exc = next(iter(failures.items()))
+            raise PreflightError(
+                f"did not switch to offboard: {exc}", vehicle=name, url=fleet[name].url
+            )
+        await asyncio.gather(
+            *(
+                v.wait_for(
+                    lambda s: s.mode is Px4Mode.OFFBOARD,
+                    "mode OFFBOARD",
+                    timeout_s=cfg.mode_timeout_s,
+                )
+                for v in vehicles
+            )
+        )
+        # The arrival gate: PX4 holds the streamed start in offboard; the plan starts once
+        # every vehicle is on it (a fraction of the plan's margin), still and on heading.
+        await asyncio.gather(
+            *(
+                wait_settled(
+                    v,
+                    starts[v.name].ned_m,
+                    arrive_m=cfg.arrive_m,
+                    settle_speed_m_s=cfg.settle_speed_m_s,
+                    dwell_s=cfg.dwell_s,
+                    timeout_s=cfg.arrive_timeout_s,
+                    yaw_deg=starts[v.name].yaw_deg,
+                    yaw_tolerance_deg=cfg.yaw_tolerance_deg,
+                )
+                for v in vehicles
+            )
+        )
+
+    async def release(self, fleet: Fleet, vehicles: Sequence[Vehicle]) -> float:
+        """One shared start; the hover stream runs until just before it."""
+        cfg, clock = self.cfg, fleet.clock
+        t0 = clock.monotonic() + cfg.start_delay_s
+        self._main = SetpointStreamer(
+            [
+                StreamTarget(v.name, offboard_sender(v.offboard), self.setpoints[v.name])
+                for v in vehicles
+            ],
+            cfg.rate_hz,
+            late_threshold_s=cfg.late_threshold_s,
+            groups=self.groups,
+            clock=clock.monotonic,
+            sleep=clock.sleep,
+        )
+        await clock.sleep(t0 - clock.monotonic() - 0.5 / cfg.rate_hz)
+        failed = await self._end_hover()
+        if failed is not None:
+            raise failed
+        return t0
+
+    async def _end_hover(self) -> BaseException | None:
+        if self._hover is None:
+            return None
+        task, self._hover = self._hover, None
+        return await _end_task(task, self._hover_stop)
+
+    async def abort(self) -> None:
+        await self._end_hover()
+
+    def done(self, name: str) -> bool:
+        return False
+
+    async def run(
+        self, fleet: Fleet, vehicles: Sequence[Vehicle], t0: float, stop: asyncio.Event
+    ) -> None:
+        assert self._main is not None
+        extra = round(self.cfg.hold_after_s * self.cfg.rate_hz)
+        self._stats = await self._main.run(t0, stop=stop, extra_ticks=extra)
+
+    async def finish(
+        self, fleet: Fleet, vehicles: Sequence[Vehicle], t0: float, event: SafetyEvent | None
+    ) -> DriverReport:
+        """The end action, unless the monitor stopped the flight (it held every vehicle)."""
+        end_failures: dict[str, str] = {}
+        if event is None:
+            cfg = self.cfg
+            failed = await fleet.for_each(lambda v: _end(v, cfg.end_action, cfg), vehicles)
+            end_failures = {k: str(e) for k, e in failed.items()}
+        assert self._main is not None
+        stats = dict(self._stats)
+        flown = all(s.sent + s.skipped >= self._main.n_ticks for s in stats.values())
+        return DriverReport(completed=flown, end_failures=end_failures, stats=stats)
+
+
 async def fly_offboard(
     fleet: Fleet,
     trajectories: Mapping[str, Trajectory],
@@ -259,12 +342,17 @@ async def fly_offboard(
         LinkError: a vehicle is unknown, its origin unknown or its link lost
             before the stream starts.
     """
+    cfg = config or OffboardConfig()
     recorder = TlogRecorder(fleet, tlog_path) if tlog_path is not None else None
     if recorder is not None:
         recorder.start()
     try:
-        result = await _fly(
-            fleet, trajectories, mission_origin, config or OffboardConfig(), monitor
+        result = await fly(
+            fleet,
+            OffboardDriver(trajectories, mission_origin, cfg),
+            mission_origin,
+            cfg,
+            monitor,
         )
     finally:
         stats = recorder.stop() if recorder is not None else None
@@ -282,214 +370,3 @@ async def _end_task(task: asyncio.Task[Any], stop: asyncio.Event) -> BaseExcepti
         task.cancel()
     outcome: Any = (await asyncio.gather(task, return_exceptions=True))[0]
     return outcome if isinstance(outcome, BaseException) else None
-
-
-async def _fly(
-    fleet: Fleet,
-    trajectories: Mapping[str, Trajectory],
-    mission_origin: GeodeticPoint,
-    cfg: OffboardConfig,
-    monitor: SafetyMonitor | None,
-) -> FlightResult:
-    vehicles = [fleet[name] for name in trajectories]
-    clock = fleet.clock
-    origins = await fleet.origins()
-    groups = auto_send_groups(len(vehicles)) if cfg.send_groups is None else cfg.send_groups
-    groups = min(groups, len(vehicles))
-    offsets = send_offsets(len(vehicles), cfg.rate_hz, groups)
-    setpoints = {
-        v.name: plan_setpoints_ned(
-            trajectories[v.name],
-            cfg.rate_hz,
-            mission_origin,
-            origins[v.name],
-            t_offset_s=float(offsets[i]),
-            drag_per_s=cfg.drag_of(v.name),
-        )
-        for i, v in enumerate(vehicles)
-    }
-    await asyncio.gather(
-        *(
-            v.wait_for(
-                lambda s: s.pos_ned_m is not None and s.armed is not None and s.in_air is not None,
-                "local position",
-                timeout_s=5.0,
-            )
-            for v in vehicles
-        )
-    )
-
-    # Preflight: check every vehicle before arming any.
-    needs_takeoff: list[Vehicle] = []
-    for v in vehicles:
-        st = v.status()
-        start = setpoints[v.name].pos_ned_m[0]
-        # In the air (EXTENDED_SYS_STATE): judged in 3-D where it is; on the ground:
-        # horizontally, as it will climb straight up to its start.
-        airborne = bool(st.armed and st.in_air)
-        if not airborne and not cfg.takeoff:
-            raise PreflightError(
-                "refused: on the ground and takeoff is disabled",
-                vehicle=v.name,
-                url=v.url,
-            )
-        check_start(
-            st,
-            start,
-            tolerance_m=cfg.start_tolerance_m,
-            on_ground=not airborne,
-            mission_origin=mission_origin,
-            vehicle_origin=origins[v.name],
-        )
-        if not airborne:
-            needs_takeoff.append(v)
-    start_alt: dict[str, float] = {}
-    for v in needs_takeoff:
-        alt = float(enu_to_geodetic(trajectories[v.name].position(0.0), mission_origin)[2][0])
-        await check_takeoff_height(v, alt, cfg.takeoff_margin_m)
-        start_alt[v.name] = alt
-    yaw0 = {v.name: math.degrees(float(setpoints[v.name].yaw_ned_rad[0])) for v in vehicles}
-
-    # Take off together; every vehicle finishes (or fails) before the first failure is raised.
-    results = await asyncio.gather(
-        *(
-            _takeoff_to_start(
-                v,
-                setpoints[v.name].pos_ned_m[0],
-                start_alt[v.name],
-                yaw0[v.name],
-                cfg,
-                mission_origin,
-                origins[v.name],
-            )
-            for v in needs_takeoff
-        ),
-        return_exceptions=True,
-    )
-    errors = [r for r in results if isinstance(r, BaseException)]
-    if errors:
-        for other in errors[1:]:
-            errors[0].add_note(f"also: {other}")
-        raise errors[0]
-
-    # Pre-stream the start setpoint, switch everyone to offboard, wait at the starts.
-    n_pre = math.ceil(
-        (cfg.prestream_s + cfg.mode_timeout_s + cfg.arrive_timeout_s + cfg.dwell_s + 2.0)
-        * cfg.rate_hz
-    )
-    hover = SetpointStreamer(
-        [
-            StreamTarget(v.name, offboard_sender(v.offboard), setpoints[v.name].constant(0, n_pre))
-            for v in vehicles
-        ],
-        cfg.rate_hz,
-        clock=clock.monotonic,
-        sleep=clock.sleep,
-    )
-    hover_stop = asyncio.Event()
-    hover_task = asyncio.create_task(hover.run(clock.monotonic(), stop=hover_stop))
-    try:
-        try:
-            await clock.sleep(cfg.prestream_s)
-            failures = await fleet.for_each(_start_offboard, vehicles)
-            if failures:
-                name, exc = next(iter(failures.items()))
-                raise PreflightError(
-                    f"did not switch to offboard: {exc}", vehicle=name, url=fleet[name].url
-                )
-            await asyncio.gather(
-                *(
-                    v.wait_for(
-                        lambda s: s.mode is Px4Mode.OFFBOARD,
-                        "mode OFFBOARD",
-                        timeout_s=cfg.mode_timeout_s,
-                    )
-                    for v in vehicles
-                )
-            )
-            # The arrival gate: PX4 holds the streamed start in offboard; the plan starts once
-            # every vehicle is on it (a fraction of the plan's margin), still and on heading.
-            await asyncio.gather(
-                *(
-                    wait_settled(
-                        v,
-                        setpoints[v.name].pos_ned_m[0],
-                        arrive_m=cfg.arrive_m,
-                        settle_speed_m_s=cfg.settle_speed_m_s,
-                        dwell_s=cfg.dwell_s,
-                        timeout_s=cfg.arrive_timeout_s,
-                        yaw_deg=yaw0[v.name],
-                        yaw_tolerance_deg=cfg.yaw_tolerance_deg,
-                    )
-                    for v in vehicles
-                )
-            )
-        except Exception as exc:
-            await _end_task(hover_task, hover_stop)
-            failed = await fleet.for_each(lambda v: safe_stop(v, SafetyAction.HOLD), vehicles)
-            for name, err in failed.items():
-                exc.add_note(f"vehicle {name}: hold after the failed start also failed: {err}")
-            raise
-
-        # One shared start; the hover stream runs until just before it.
-        t0 = clock.monotonic() + cfg.start_delay_s
-        main = SetpointStreamer(
-            [
-                StreamTarget(v.name, offboard_sender(v.offboard), setpoints[v.name])
-                for v in vehicles
-            ],
-            cfg.rate_hz,
-            late_threshold_s=cfg.late_threshold_s,
-            groups=groups,
-            clock=clock.monotonic,
-            sleep=clock.sleep,
-        )
-        for v in vehicles:
-            v.start_track()
-        await clock.sleep(t0 - clock.monotonic() - 0.5 / cfg.rate_hz)
-    finally:
-        # whatever ends the pre-stream (its end, a failure, a cancellation) ends its task
-        failed_stream = await _end_task(hover_task, hover_stop)
-    if failed_stream is not None:
-        raise failed_stream
-
-    mon = monitor or SafetyMonitor(())
-    stop = asyncio.Event()
-    mon_task = asyncio.create_task(
-        mon.run(
-            fleet,
-            vehicles,
-            t0_monotonic_s=t0,
-            mission_origin=mission_origin,
-            origins=origins,
-            stop=stop,
-            plans=trajectories,
-            expected_mode=Px4Mode.OFFBOARD,
-        )
-    )
-    extra = round(cfg.hold_after_s * cfg.rate_hz)
-    try:
-        stats = await main.run(t0, stop=stop, extra_ticks=extra)
-    finally:
-        stop.set()
-        event = await mon_task
-    end_failures: dict[str, str] = {}
-    if event is None:
-        failed = await fleet.for_each(lambda v: _end(v, cfg.end_action, cfg), vehicles)
-        end_failures = {k: str(e) for k, e in failed.items()}
-    tracks = {
-        v.name: track_from_rows(v.name, v.stop_track(), t0, mission_origin, origins[v.name])
-        for v in vehicles
-    }
-    completed = event is None and all(s.sent + s.skipped >= main.n_ticks for s in stats.values())
-    return FlightResult(
-        completed=completed,
-        t0_monotonic_s=t0,
-        t0_unix_s=t0 + clock.unix_offset(),
-        stats=stats,
-        tracks=tracks,
-        safety_event=event,
-        end_failures=end_failures,
-        origins=origins,
-        monitor=mon.stats,
-    )

@@ -1,8 +1,8 @@
 """How an offboard flight streams: its settings, and the sender of one setpoint.
 
 :class:`OffboardConfig` holds the settings of :func:`mavlink.offboard.fly_offboard`
-(setpoint rate, pre-stream, start tolerance and arrival gate, take-off, drag feed-forward,
-end action); :func:`offboard_sender` puts one setpoint on the wire through MAVSDK's Offboard
+(setpoint rate, pre-stream, drag feed-forward, end action, and the start tolerance, arrival
+gate and take-off of every flight: :class:`mavlink.flight.StartGate`); :func:`offboard_sender` puts one setpoint on the wire through MAVSDK's Offboard
 plugin. The plan is sampled into setpoints by :func:`mavlink.plan_setpoints.plan_setpoints_ned`,
 which the batch simulator shares.
 
@@ -26,8 +26,8 @@ from mavsdk.plugins.offboard import (
 )
 
 from mavlink.errors import LinkError
+from mavlink.flight import StartGate
 from mavlink.offboard.stream import MAX_RATE_HZ, Setpoint
-from mavlink.preflight import TAKEOFF_MARGIN_M
 
 
 class EndAction(Enum):
@@ -39,33 +39,18 @@ class EndAction(Enum):
 
 
 @dataclass(frozen=True, slots=True)
-class OffboardConfig:
-    """Settings of an offboard flight.
+class OffboardConfig(StartGate):
+    """Settings of an offboard flight: how the vehicles get onto their starts (the
+    :class:`~mavlink.flight.StartGate` it extends: start tolerance, arrival gate, take-off),
+    and how it streams.
 
     Attributes:
         rate_hz: setpoint rate, 2 < rate <= 100 (default 20 Hz).
         prestream_s: how long the start setpoint is streamed before the
             switch to offboard (>= 1 s; PX4 needs a live stream; a denied
             switch is retried twice, 0.5 s apart, while the stream goes on).
-        start_tolerance_m: refuse a vehicle farther than this from its planned start
-            (before anything is armed; horizontally on the ground, in 3-D in the air).
-        arrive_m: the arrival gate: the plan starts only when every vehicle (its estimate)
-            is this close to its start in 3-D, slower than ``settle_speed_m_s`` and on the
-            plan's heading (``yaw_tolerance_deg``), for ``dwell_s`` without a break.
-            ``gcs fly`` sets it from the plan's margin.
-        dwell_s: how long the arrival gate must hold.
-        arrive_timeout_s: time allowed for the gate after the switch to offboard.
-        yaw_tolerance_deg: heading error the gate accepts.
-        takeoff: take off to the start altitude if a vehicle is on the ground
-            (otherwise a vehicle must already hover at its start).
-        takeoff_margin_m: a start must be this much more than NAV_MC_ALT_RAD above the
-            vehicle for a take-off: PX4 counts a take-off within NAV_MC_ALT_RAD as reached
-            at once, and below ~1 m the ground-effect creep of its altitude estimate keeps
-            the vehicle on the ground (docs/px4-behaviour.md).
-        takeoff_timeout_s: time allowed to be airborne near the start after takeoff.
         drag_per_s: the vehicles' drag per unit mass (1/s; one for all or per vehicle name),
             added to the acceleration feed-forward (:func:`mavlink.plan_setpoints.plan_setpoints_ned`); 0: none.
-        settle_speed_m_s: a vehicle counts as hovering below this speed.
         mode_timeout_s: time allowed for all vehicles to report OFFBOARD.
         start_delay_s: the shared start time is this long after the switch.
         hold_after_s: keep streaming the final setpoint this long.
@@ -86,16 +71,7 @@ class OffboardConfig:
 
     rate_hz: float = 20.0
     prestream_s: float = 1.2
-    start_tolerance_m: float = 1.0
-    arrive_m: float = 0.3
-    dwell_s: float = 1.0
-    arrive_timeout_s: float = 20.0
-    yaw_tolerance_deg: float = 10.0
-    takeoff: bool = True
-    takeoff_margin_m: float = TAKEOFF_MARGIN_M
-    takeoff_timeout_s: float = 30.0
     drag_per_s: float | Mapping[str, float] = 0.0
-    settle_speed_m_s: float = 0.3
     mode_timeout_s: float = 5.0
     start_delay_s: float = 0.3
     hold_after_s: float = 1.0
@@ -112,6 +88,7 @@ class OffboardConfig:
         return float(self.drag_per_s)
 
     def __post_init__(self) -> None:
+        StartGate.__post_init__(self)
         if self.send_groups is not None and not (
             isinstance(self.send_groups, int) and self.send_groups >= 1
         ):
@@ -120,24 +97,15 @@ class OffboardConfig:
             raise LinkError(f"offboard rate_hz {self.rate_hz!r} outside (2, {MAX_RATE_HZ:g}]")
         if not self.prestream_s >= 1.0:
             raise LinkError(f"prestream_s {self.prestream_s!r} must be >= 1 s (PX4 offboard rule)")
-        for name in (
-            "start_tolerance_m",
-            "arrive_m",
-            "arrive_timeout_s",
-            "yaw_tolerance_deg",
-            "takeoff_timeout_s",
-            "mode_timeout_s",
-            "settle_speed_m_s",
-        ):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise LinkError(f"{name} must be a finite number > 0, got {value!r}")
+        value = self.mode_timeout_s
+        if not (math.isfinite(value) and value > 0):
+            raise LinkError(f"mode_timeout_s must be a finite number > 0, got {value!r}")
         drags = (
             self.drag_per_s.values() if isinstance(self.drag_per_s, Mapping) else [self.drag_per_s]
         )
         if not all(math.isfinite(c) and c >= 0 for c in drags):
             raise LinkError(f"drag_per_s must be finite numbers >= 0, got {self.drag_per_s!r}")
-        for name in ("start_delay_s", "hold_after_s", "dwell_s", "takeoff_margin_m"):
+        for name in ("start_delay_s", "hold_after_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise LinkError(f"{name} must be a finite number >= 0, got {value!r}")

@@ -47,8 +47,8 @@ THEN = ("--drag", "0", "--arrive", "1.0")
 
 def fly(plan: Path, capsys: pytest.CaptureFixture[str], *params: str, gcs: tuple[str, ...] = THEN) -> dict:  # type: ignore[type-arg]  # fmt: skip
     capsys.readouterr()
-    # at twice real time, not the suite's 4: what these flights measure (tracking, lag) is
-    # what MAVSDK's own latency, on the wall clock, shifts when the machine is busy
+    # at the suite's simulation speed; the tracks are stamped with the vehicles' own time
+    # (time_boot_ms), so MAVSDK's latency on a busy machine does not read as lag
     argv = ["fly", str(plan), "--dry-run", "--json", "--seed", "0", *gcs]
     for p in params:
         argv += ["--mock-param", p]
@@ -98,13 +98,20 @@ def test_reach_avoid_tracks_as_on_px4_and_fails_as_it_did(
     # the vehicle) fed forward takes the lag out. At 0.75 m/s the lag is 0.44 m of a tracking
     # error that also holds the estimator's ~0.15 m and the hovers, which have no lag to take
     # out: rms down by at least 30 % (by 35-37 % in three runs, at the mock's speeds 2 and 4;
-    # the power line, at 3-6 m/s, is halved and more: benchmarks/bench_px4_flight.py), and the
-    # best-fit lag gone.
+    # the power line, at 3-6 m/s, is halved and more: benchmarks/bench_px4_flight.py).
     now = fly(plans["reach_avoid"], capsys, *low, gcs=())
     assert {t["drag_source"] for t in now["tuning"].values()} == {"SIH_KDV/SIH_MASS"}
     for before, after in zip(res["tracking"], now["tracking"], strict=True):
         assert after["rms_m"] <= 0.7 * before["rms_m"], (before, after)
-        assert abs(after["lag_s"]) < 0.15, after
+    # And the best-fit lag is gone. On a 6 s flight at 0.75 m/s the estimator's errors move
+    # one vehicle's best-fit lag by up to 0.3 s (its slow velocity bias alone by
+    # bias_lag_s(0.75)), and which errors it has when the plan starts depends on how long
+    # the take-off took (random walks drawn every tick): the lag is judged on a quiet
+    # estimator, where only the drag and its feed-forward act (seeds 0-2: 0.03-0.08 s with
+    # the feed-forward, 0.31-0.36 s without).
+    quiet = ("MOCK_EST_VB=0", "MOCK_EST_SLOW_B=0", "MOCK_EST_V_N=0", "MOCK_EST_P_N=0")
+    for after in fly(plans["reach_avoid"], capsys, *low, *quiet, gcs=())["tracking"]:
+        assert abs(after["lag_s"]) < 0.12, after
 
 
 def test_power_line_tracks_and_scores_as_on_px4(

@@ -147,8 +147,11 @@ def test_heading_position_home_and_battery_are_read_not_subscribed_and_follow_th
             return v, on_ground, subscribed, rows, origin
 
     v, st, subscribed, rows, origin = asyncio.run(run())
-    # subscribed: what is needed as it comes; the rest is MAVSDK's latest value, read
-    assert "unsubscribe_position_velocity_ned" in subscribed
+    # subscribed: what is needed as it comes; the rest is MAVSDK's latest value, read. The
+    # local position comes whole through mavlink_direct (MAVSDK's telemetry drops its
+    # time_boot_ms, which the track's instants are taken from)
+    assert "unsubscribe_position_velocity_ned" not in subscribed
+    assert "unsubscribe_message" in subscribed
     for read in ("position", "home", "battery", "heading"):
         assert f"unsubscribe_{read}" not in subscribed
     assert st.battery_remaining == pytest.approx(1.0, abs=0.05)

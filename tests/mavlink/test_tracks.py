@@ -14,7 +14,13 @@ import pytest
 from gcs.errors import InputFileError
 from gcs.telemetry import load_telemetry
 from mavlink.errors import MissingHeadingError
-from mavlink.tracks import CSV_COLUMNS, FlownTrack, track_from_rows, write_tracks_csv
+from mavlink.tracks import (
+    CSV_COLUMNS,
+    FlownTrack,
+    track_from_rows,
+    vehicle_instants,
+    write_tracks_csv,
+)
 from planner.frames import GeodeticPoint, ned_vector_to_enu
 
 MISSION = GeodeticPoint(47.397742, 8.545594, 488.0)
@@ -123,3 +129,54 @@ def test_a_users_yaw_column_is_read_and_a_bad_value_named(tmp_path: Path) -> Non
     inf.write_text("t,vehicle,x,y,z,yaw\n0,d1,0,0,1,inf\n")
     with pytest.raises(InputFileError, match=r"line 2: column yaw: must be finite"):
         load_telemetry(inf)
+
+
+# -- the vehicle's own instants (time_boot_ms) carried onto the ground station's clock
+
+
+def _brute_instants(t_recv: np.ndarray, t_boot: np.ndarray, half: int) -> np.ndarray:
+    """The definition, sample by sample: the vehicle's time plus the fastest delivery among
+    the ``half`` samples either side."""
+    off = t_recv - t_boot
+    n = len(off)
+    return np.array(
+        [t_boot[i] + min(off[max(0, i - half) : min(n, i + half + 1)]) for i in range(n)]
+    )
+
+
+def test_vehicle_instants_take_the_jitter_out_and_match_their_definition() -> None:
+    rng = np.random.default_rng(3)
+    t_boot = np.arange(0.0, 60.0, 0.02) + 12.345  # 50 Hz, since the vehicle's boot
+    # 5 ms of constant latency, and a busy ground station's jitter (mean 40 ms, tail 0.4 s)
+    jitter = rng.exponential(0.04, t_boot.size)
+    t_recv = np.maximum.accumulate(1000.0 + t_boot + 0.005 + jitter)  # delivered in order
+    got = vehicle_instants(t_recv, t_boot)
+    truth = 1000.0 + t_boot  # the instant each sample was taken, on the receiver's clock
+    # only the latency no sample escapes is left (5 ms and the luckiest sample's jitter)
+    assert np.max(np.abs(got - truth - 0.005)) < 0.005
+    assert np.mean(t_recv - truth) > 0.04  # what the receipt times carried
+    assert np.allclose(got, _brute_instants(t_recv, t_boot, half=125), atol=1e-12)
+
+
+def test_vehicle_instants_follow_a_clock_that_runs_at_another_rate() -> None:
+    # 50 ppm apart (an oscillator's worth) over 10 minutes: 30 ms in all, which a single
+    # offset would leave at one end
+    t_boot = np.arange(0.0, 600.0, 0.05)
+    t_recv = 5.0 + t_boot * (1.0 + 50e-6) + 0.002
+    got = vehicle_instants(t_recv, t_boot)
+    # no jitter here: the instants are the receipt times (the constant latency stays)
+    assert np.max(np.abs(got - t_recv)) < 2e-4
+    one_offset = t_boot + np.min(t_recv - t_boot)
+    assert np.max(np.abs(one_offset - t_recv)) > 0.025
+
+
+def test_vehicle_instants_unwrap_time_boot_ms_and_give_up_on_a_reboot() -> None:
+    wrap = 2.0**32 * 1e-3
+    t_boot = np.arange(wrap - 1.0, wrap + 1.0, 0.1)
+    t_recv = 7.0 + t_boot + 0.01
+    got = vehicle_instants(t_recv, np.mod(t_boot, wrap))
+    assert np.allclose(got, t_recv)
+    rebooted = np.concatenate([np.arange(100.0, 101.0, 0.1), np.arange(0.0, 1.0, 0.1)])
+    t_recv = np.arange(rebooted.size) * 0.1
+    assert np.array_equal(vehicle_instants(t_recv, rebooted), t_recv)
+    assert vehicle_instants(np.array([3.0]), np.array([1.0])).tolist() == [3.0]
