@@ -62,9 +62,12 @@ __all__ = [
     "FlightResult",
     "StartGate",
     "StartPoint",
+    "Started",
+    "check_starts",
     "fly",
     "gather_or_raise",
     "start_point",
+    "start_together",
 ]
 
 
@@ -256,6 +259,68 @@ class FlightDriver(Protocol):
         ...
 
 
+@dataclass(frozen=True, slots=True)
+class Started:
+    """The fleet released into the plan (:func:`start_together`).
+
+    Attributes:
+        t0_monotonic_s: the shared start (the plan's t = 0) on the fleet's clock.
+        t0_unix_s: the same instant as Unix time.
+        origins: each vehicle's EKF origin.
+    """
+
+    t0_monotonic_s: float
+    t0_unix_s: float
+    origins: dict[str, GeodeticPoint]
+
+
+async def start_together(
+    fleet: Fleet,
+    driver: FlightDriver,
+    mission_origin: GeodeticPoint,
+    gate: StartGate,
+    *,
+    record: bool = False,
+) -> Started:
+    """Phases 1-5 of the module docstring: the checks, the take-off, the arrival gate and
+    one release. :func:`fly` goes on with the flight; ``gcs upload --start`` leaves the
+    missions to fly on board from here.
+
+    Args:
+        record: start every vehicle's track just before the release (:func:`fly`).
+
+    Raises:
+        PreflightError, LinkError: as :func:`fly`; a failure from the take-off on holds
+            every vehicle before it is raised.
+    """
+    vehicles = [fleet[name] for name in driver.names]
+    origins, starts, needs_takeoff = await _checked_starts(fleet, driver, mission_origin, gate)
+    await driver.prepare(fleet, vehicles)
+    released = False
+    try:
+        try:
+            await gather_or_raise(
+                _takeoff(v, starts[v.name], gate, mission_origin, origins[v.name])
+                for v in needs_takeoff
+            )
+            await driver.approach(fleet, vehicles, starts)
+            if record:  # the tracks start before the release, so that they cover t = 0
+                for v in vehicles:
+                    v.start_track()
+            t0 = await driver.release(fleet, vehicles)
+            released = True
+        except Exception as exc:
+            await driver.abort()
+            failed = await fleet.for_each(lambda v: safe_stop(v, SafetyAction.HOLD), vehicles)
+            for name, err in failed.items():
+                exc.add_note(f"vehicle {name}: hold after the failed start also failed: {err}")
+            raise
+    finally:
+        if not released:  # a failure or a cancellation: nothing of the driver runs on
+            await driver.abort()
+    return Started(t0, t0 + fleet.clock.unix_offset(), dict(origins))
+
+
 async def fly(
     fleet: Fleet,
     driver: FlightDriver,
@@ -282,34 +347,8 @@ async def fly(
             transfer failed.
     """
     vehicles = [fleet[name] for name in driver.names]
-    clock = fleet.clock
-    origins = await fleet.origins()
-    await asyncio.gather(*(_wait_position(v) for v in vehicles))
-    starts = driver.starts(origins)
-    needs_takeoff = await _check_starts(vehicles, starts, gate, mission_origin, origins)
-    await driver.prepare(fleet, vehicles)
-    released = False
-    try:
-        try:
-            await gather_or_raise(
-                _takeoff(v, starts[v.name], gate, mission_origin, origins[v.name])
-                for v in needs_takeoff
-            )
-            await driver.approach(fleet, vehicles, starts)
-            # the tracks start before the release, so that they cover the plan's t = 0
-            for v in vehicles:
-                v.start_track()
-            t0 = await driver.release(fleet, vehicles)
-            released = True
-        except Exception as exc:
-            await driver.abort()
-            failed = await fleet.for_each(lambda v: safe_stop(v, SafetyAction.HOLD), vehicles)
-            for name, err in failed.items():
-                exc.add_note(f"vehicle {name}: hold after the failed start also failed: {err}")
-            raise
-    finally:
-        if not released:  # a failure or a cancellation: nothing of the driver runs on
-            await driver.abort()
+    started = await start_together(fleet, driver, mission_origin, gate, record=True)
+    t0, origins = started.t0_monotonic_s, started.origins
 
     mon = monitor or SafetyMonitor(())
     stop = asyncio.Event()
@@ -344,7 +383,7 @@ async def fly(
     return FlightResult(
         completed=report.completed and event is None and not report.end_failures,
         t0_monotonic_s=t0,
-        t0_unix_s=t0 + clock.unix_offset(),
+        t0_unix_s=started.t0_unix_s,
         tracks=tracks,
         safety_event=event,
         end_failures=report.end_failures,
@@ -354,6 +393,30 @@ async def fly(
         runs=report.runs,
         start_skew_s=report.start_skew_s,
     )
+
+
+async def check_starts(
+    fleet: Fleet, driver: FlightDriver, mission_origin: GeodeticPoint, gate: StartGate
+) -> None:
+    """Phase 2's checks alone, before anything is sent (``gcs upload --start`` runs them
+    before its upload; :func:`start_together` runs them again).
+
+    Raises:
+        PreflightError: a vehicle too far from its start, or too low below it to take off.
+    """
+    await _checked_starts(fleet, driver, mission_origin, gate)
+
+
+async def _checked_starts(
+    fleet: Fleet, driver: FlightDriver, mission_origin: GeodeticPoint, gate: StartGate
+) -> tuple[dict[str, GeodeticPoint], dict[str, StartPoint], list[Vehicle]]:
+    """The origins, the starts, and the vehicles that must take off, every start checked."""
+    vehicles = [fleet[name] for name in driver.names]
+    origins = dict(await fleet.origins())
+    await asyncio.gather(*(_wait_position(v) for v in vehicles))
+    starts = driver.starts(origins)
+    needs_takeoff = await _check_starts(vehicles, starts, gate, mission_origin, origins)
+    return origins, starts, needs_takeoff
 
 
 async def _wait_position(v: Vehicle) -> None:

@@ -7,9 +7,15 @@ with the MAVLink mission protocol (MAVSDK ``mission_raw``), downloaded again and
 field by field at the wire's precision. With ``--fence`` the geofence goes too (the
 workspace's footprint as inclusion polygon, full-height stay-out regions as exclusions,
 polygons for boxes and prisms, circles for cylinders: :func:`mavlink.mission.fence_zones`, as
-``gcs export`` writes it), also read back. ``--start``
-then arms every vehicle and starts its mission (after checking each is within ``--tolerance``
-of its planned start, horizontally), and confirms each start.
+``gcs export`` writes it), also read back. ``--start`` (after checking, before anything is
+sent, that each vehicle is within ``--tolerance`` of its planned start, horizontally) then
+starts the missions as ``gcs fly --mode mission`` does, with the flight engine's start
+(:func:`mavlink.flight.start_together`): every vehicle takes off to its start's altitude, is
+brought onto its start through the arrival gate, and all are switched into AUTO.MISSION from
+the start waypoint at one instant, each start confirmed. That instant is the plan's t = 0 for
+every vehicle (printed; ``t0_unix_s`` in the JSON), so the missions keep the plan's clock as
+predicted; they then fly on board, and the ground station leaves them (``gcs fly --mode
+mission`` stays, watches and judges).
 
 Interlocks (before anything is sent): a plan that fails ``gcs verify``'s checks is refused, and
 with ``--start`` so is a mission whose straight-leg path has exact robustness below the plan's
@@ -29,13 +35,15 @@ bounds the wait for the vehicles to answer (10 s).
 
 Read-back compares each item as PX4 stores it (fence items come back without autocontinue,
 yaw wrapped to [0, 360): :func:`mavlink.mission.compare_items`); a position, command or count
-that differs is a failure. A start is reported only when it happened: PX4 in AUTO.MISSION,
-armed and climbing (a start PX4 rejects 12 ms after accepting it is retried); a start too low
-for PX4's mission take-off (NAV_MC_ALT_RAD) is refused before anything is armed.
+that differs is a failure. A start is reported only when it happened: PX4 in AUTO.MISSION
+(a start PX4 rejects 12 ms after accepting it is retried); a start too low for PX4's take-off
+(NAV_MC_ALT_RAD) is refused before anything is sent; a start that fails on one vehicle holds
+them all.
 
 Exit status: 0 every upload read back as sent (and, with ``--start``, every mission started),
-1 refused by an interlock, a read-back differs, a transfer failed or a start did not happen,
-2 bad input (plan file, URL, option value, unreachable vehicle).
+1 refused by an interlock (a plan or prediction that fails its checks, a vehicle away from
+its start), 2 bad input (plan file, URL, option value, unreachable vehicle), 3 a vehicle
+failed it (a read-back differs, a transfer gave up, a start did not happen).
 """
 
 from __future__ import annotations
@@ -59,6 +67,7 @@ if TYPE_CHECKING:
     from mavlink.link.vehicle import Vehicle
     from mavlink.link.vehicle_status import VehicleSpec
     from mavlink.mission import MissionItem, MissionPlan, MissionStart, TransferProgress
+    from mavlink.mission.flight import MissionDriver
     from planner.planfile import Plan
 
 #: GF_ACTION values (PX4 v1.17 geofence breach action).
@@ -217,39 +226,23 @@ async def _upload_one(
     )
 
 
-async def _check_starts(fleet: Fleet, plan: Plan, tolerance_m: float) -> None:
-    """Refuse (before anything is sent or armed) a vehicle away from its start horizontally,
-    or on the ground below a start too low for PX4's mission take-off."""
-    import numpy as np
+async def _start(fleet: Fleet, driver: MissionDriver, plan: Plan) -> tuple[float | None, str]:
+    """The flight engine's start (:func:`mavlink.flight.start_together`): every vehicle takes
+    off, is brought onto its start through the arrival gate, and all are released into
+    AUTO.MISSION at one instant, each start confirmed; the missions then fly on board.
 
-    from mavlink.preflight import TAKEOFF_MARGIN_M, check_start, check_takeoff_height
-    from planner.frames import enu_to_geodetic, enu_to_ned
+    Returns:
+        The shared start (Unix time; ``None`` if it did not happen) and, if it did not, why
+        (every vehicle was commanded to hold).
+    """
+    from mavlink.errors import LinkError
+    from mavlink.flight import start_together
 
-    origins = await fleet.origins()
-    for pv in plan.vehicles:
-        v = fleet[pv.name]
-        st = await v.wait_for(lambda s: s.pos_ned_m is not None, "local position", timeout_s=5.0)
-        check_start(
-            st,
-            enu_to_ned(np.asarray(pv.start_enu_m), plan.origin, origins[v.name]),
-            tolerance_m=tolerance_m,
-            on_ground=not bool(st.in_air),
-            mission_origin=plan.origin,
-            vehicle_origin=origins[v.name],
-        )
-        if not st.in_air:
-            alt = float(np.ravel(enu_to_geodetic(np.asarray(pv.start_enu_m), plan.origin)[2])[0])
-            await check_takeoff_height(v, alt, TAKEOFF_MARGIN_M)
-
-
-async def _start(fleet: Fleet) -> dict[str, MissionStart]:
-    """Arm and start every vehicle's mission, each start confirmed
-    (:func:`start_mission_confirmed`)."""
-    from mavlink.mission import start_mission_confirmed
-
-    await asyncio.gather(*(v.arm() for v in fleet))
-    starts = await asyncio.gather(*(start_mission_confirmed(v) for v in fleet))
-    return {s.vehicle: s for s in starts}
+    try:
+        started = await start_together(fleet, driver, plan.origin, driver.gate)
+    except LinkError as exc:
+        return None, str(exc).splitlines()[0]
+    return started.t0_unix_s, ""
 
 
 async def upload_plan(
@@ -268,7 +261,7 @@ async def upload_plan(
     budget_s: float = DEFAULT_BUDGET_S,
     progress: Callable[[TransferProgress], None] | None = None,
     photo_interval_s: float = 1.0,
-) -> tuple[list[UploadRow], MissionConversion, FencePlan | None]:
+) -> tuple[list[UploadRow], MissionConversion, FencePlan | None, float | None]:
     """Convert (with the vehicles' parameters), upload, read back (and start) every
     vehicle's mission; a row per vehicle, and the conversion with its predicted flight.
 
@@ -283,19 +276,30 @@ async def upload_plan(
         gcs.flight.mission.MissionRefused: with ``start``, the predicted mission robustness
             is below epsilon (and not ``force``); nothing was uploaded.
     """
-    from dataclasses import replace
-
-    from gcs.flight.mission import MissionRefused, prediction_params, read_nav_params
+    from gcs.flight.mission import (
+        MissionRefused,
+        mission_gate,
+        missions_driver,
+        prediction_params,
+        read_nav_params,
+    )
     from gcs.flight.missions import convert_plan_apart, fence_plan, timing_summary
     from gcs.flight.payload import capture_spans
     from gcs.flight.tuning import read_tuning
+    from mavlink.flight import check_starts
     from mavlink.link.fleet import Fleet
     from mavlink.mission import MissionEnd
 
     names = [pv.name for pv in plan.vehicles]
-    async with Fleet(specs, connect_timeout_s=connect_timeout_s, telemetry_rate_hz=None) as fleet:
-        if start:
-            await _check_starts(fleet, plan, tolerance_m)
+    # the start follows the vehicles' positions (the gate): ask for them at the flight's rate
+    rate = 20.0 if start else None
+    t0_unix: float | None = None
+    async with Fleet(specs, connect_timeout_s=connect_timeout_s, telemetry_rate_hz=rate) as fleet:
+        # with --start the missions are sent (and read back) below, with the transfers' report
+        driver = missions_driver(plan, mission_gate(plan, tolerance_m)) if start else None
+        if driver is not None:
+            # before anything is sent: each vehicle near its start, high enough to take off
+            await check_starts(fleet, driver, plan.origin, driver.gate)
         tuning = await read_tuning(fleet, names, drag_per_s)
         known = await read_nav_params(fleet, names[0])
         fp = fence_plan(plan, acc_hor_m_s2=known.get("MPC_ACC_HOR", 3.0)) if fence else None
@@ -327,18 +331,25 @@ async def upload_plan(
             await asyncio.gather(
                 *(v.set_param_int("GF_ACTION", FENCE_ACTIONS[fence_action]) for v in fleet)
             )
-        if start and all(r.verified for r in rows):
-            starts = await _start(fleet)
-            rows = [
-                replace(
-                    r,
-                    started=starts[r.vehicle].started,
-                    start_detail=starts[r.vehicle].detail,
-                    start_attempts=starts[r.vehicle].attempts,
-                )
-                for r in rows
-            ]
-    return rows, conv, fp
+        if driver is not None and all(r.verified for r in rows):
+            t0_unix, failure = await _start(fleet, driver, plan)
+            rows = [_started_row(r, driver.confirmed.get(r.vehicle), failure) for r in rows]
+    return rows, conv, fp, t0_unix
+
+
+def _started_row(row: UploadRow, confirmed: MissionStart | None, failure: str) -> UploadRow:
+    """``row`` with what its vehicle's start did: confirmed (and the whole fleet released),
+    or why not."""
+    from dataclasses import replace
+
+    if confirmed is None:
+        return replace(row, started=False, start_detail=failure or "not started")
+    return replace(
+        row,
+        started=confirmed.started and not failure,
+        start_detail=confirmed.detail if not failure else f"{confirmed.detail}; {failure}",
+        start_attempts=confirmed.attempts,
+    )
 
 
 def table(rows: list[UploadRow]) -> str:
@@ -397,7 +408,9 @@ def run(args: argparse.Namespace) -> int:
 
     interval = photo_interval(args)
 
-    async def signed_upload() -> tuple[list[UploadRow], MissionConversion, FencePlan | None]:
+    async def signed_upload() -> tuple[
+        list[UploadRow], MissionConversion, FencePlan | None, float | None
+    ]:
         async with signed_links(specs, args.signing_key) as links:
             return await upload_plan(
                 plan,
@@ -417,7 +430,7 @@ def run(args: argparse.Namespace) -> int:
             )
 
     try:
-        rows, conv, fp = asyncio.run(signed_upload())
+        rows, conv, fp, t0_unix = asyncio.run(signed_upload())
     except (PreflightError, MissionRefused) as exc:  # refused before anything was stored
         print(f"gcs upload: {exc}", file=sys.stderr)
         return EXIT_CHECK_FAILED
@@ -441,6 +454,8 @@ def run(args: argparse.Namespace) -> int:
             "fence_inflate_m": None if fp is None else fp.inflate_m,
             "fence_notes": [] if fp is None else list(fp.notes),
             "fence_action": args.fence_action,
+            # --start: the plan's t = 0, when every vehicle was released into its mission
+            "t0_unix_s": t0_unix,
             "vehicles": [_row_json(r) for r in rows],
         }
         print(json.dumps(out))
@@ -466,6 +481,11 @@ def run(args: argparse.Namespace) -> int:
             if args.start and r.start_detail:
                 verdict = "started" if r.started else "NOT started"
                 print(f"  {r.vehicle}: mission {verdict}: {r.start_detail}")
+        if t0_unix is not None:
+            from datetime import UTC, datetime
+
+            when = datetime.fromtimestamp(t0_unix, UTC).isoformat(timespec="milliseconds")
+            print(f"released together at {when}: the plan's t = 0 for every vehicle")
         if ok:
             print(
                 "OK: every upload read back as sent"

@@ -85,15 +85,38 @@ async def read_nav_params(fleet: Fleet, name: str) -> dict[str, float]:
     return {n: float(x) for n, x in zip(names, values, strict=True) if x is not None}
 
 
-def mission_gate(plan: Plan, opts: FlyOptions) -> StartGate:
-    """The arrival gate at the starts: the start tolerance and gate of ``opts``; 30 s to
+def mission_gate(plan: Plan, tolerance_m: float, arrive_m: float | None = None) -> StartGate:
+    """The start gate of a mission flight: refuse a vehicle farther than ``tolerance_m`` from
+    its start; the arrival gate ``arrive_m`` (default :func:`arrive_gate_m`), with 30 s to
     get there (a reposition in Hold, at PX4's own speed)."""
     from mavlink.flight import StartGate
 
     return StartGate(
-        start_tolerance_m=opts.tolerance_m,
-        arrive_m=opts.arrive_m or arrive_gate_m(plan),
+        start_tolerance_m=tolerance_m,
+        arrive_m=arrive_m or arrive_gate_m(plan),
         arrive_timeout_s=30.0,
+    )
+
+
+def missions_driver(
+    plan: Plan, gate: StartGate, conv: MissionConversion | None = None
+) -> MissionDriver:
+    """The flight engine's driver for the plan's missions: ``conv``'s, uploaded first; without
+    one, the missions are on the vehicles already (``gcs upload`` sent them). Each vehicle
+    starts where its plan does, on the plan's heading there (the start waypoint's)."""
+    from mavlink.mission.flight import MissionDriver
+    from planner.frames import yaw_enu_to_ned
+
+    return MissionDriver(
+        starts_enu_m={pv.name: np.asarray(pv.start_enu_m, dtype=float) for pv in plan.vehicles},
+        yaw_deg={
+            pv.name: math.degrees(float(yaw_enu_to_ned(pv.trajectory.yaw_rad(np.zeros(1)))[0]))
+            for pv in plan.vehicles
+        },
+        mission_origin=plan.origin,
+        horizon_s=plan.horizon_s,
+        gate=gate,
+        items=None if conv is None else {n: m.items for n, m in conv.missions.items()},
     )
 
 
@@ -114,7 +137,6 @@ async def mission_driver(
     """
     from gcs.flight.missions import convert_plan_apart, timing_summary
     from mavlink.mission import MissionEnd
-    from mavlink.mission.flight import START_ITEM, MissionDriver
 
     names = [v.name for v in plan.vehicles]
     known = await read_nav_params(fleet, names[0])
@@ -136,14 +158,7 @@ async def mission_driver(
         )
     if conv.tolerance_warning() and note is not None:
         note(conv.tolerance_warning())
-    driver = MissionDriver(
-        items={n: conv.missions[n].items for n in names},
-        starts_enu_m={pv.name: np.asarray(pv.start_enu_m, dtype=float) for pv in plan.vehicles},
-        yaw_deg={n: float(conv.missions[n].items[START_ITEM].param4) for n in names},
-        mission_origin=plan.origin,
-        horizon_s=plan.horizon_s,
-        gate=mission_gate(plan, opts),
-    )
+    driver = missions_driver(plan, mission_gate(plan, opts.tolerance_m, opts.arrive_m), conv)
     return driver, conv
 
 

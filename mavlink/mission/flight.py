@@ -33,7 +33,12 @@ from mavlink.link.fleet import Fleet
 from mavlink.link.vehicle import Vehicle
 from mavlink.mission.items import MissionItem
 from mavlink.mission.retries import upload_with_retries
-from mavlink.mission.run import MissionFollower, MissionRun, start_mission_confirmed
+from mavlink.mission.run import (
+    MissionFollower,
+    MissionRun,
+    MissionStart,
+    start_mission_confirmed,
+)
 from mavlink.monitor_findings import SafetyEvent
 from mavlink.preflight import wait_settled
 from mavlink.px4_modes import Px4Mode
@@ -53,12 +58,17 @@ class MissionDriver:
     """Mission mode for :func:`mavlink.flight.fly` (the module docstring).
 
     Args:
-        items: each vehicle's mission (plan order), its start waypoint at :data:`START_ITEM`.
-        starts_enu_m: each vehicle's start in the mission frame (ENU, m).
+        starts_enu_m: each vehicle's start in the mission frame (ENU, m), in plan order.
         yaw_deg: the plan's heading at each start (degrees from north).
         mission_origin: the mission frame's geodetic origin.
         horizon_s: the plan's horizon: the vehicles are recorded until it is covered.
         gate: the arrival gate at the starts.
+        items: each vehicle's mission, its start waypoint at :data:`START_ITEM`, uploaded
+            and read back before anything is armed; ``None``: the missions are on the
+            vehicles already (``gcs upload`` sent them).
+
+    Attributes:
+        confirmed: after the release, each vehicle's confirmed start.
     """
 
     expected_mode = Px4Mode.AUTO_MISSION
@@ -69,20 +79,22 @@ class MissionDriver:
 
     def __init__(
         self,
-        items: Mapping[str, Sequence[MissionItem]],
         starts_enu_m: Mapping[str, np.ndarray],
         yaw_deg: Mapping[str, float],
         mission_origin: GeodeticPoint,
         horizon_s: float,
         gate: StartGate,
+        *,
+        items: Mapping[str, Sequence[MissionItem]] | None = None,
     ) -> None:
-        self.names: Sequence[str] = list(items)
+        self.names: Sequence[str] = list(starts_enu_m)
         self.items = items
         self.starts_enu_m = starts_enu_m
         self.yaw_deg = yaw_deg
         self.mission_origin = mission_origin
         self.horizon_s = horizon_s
         self.gate = gate
+        self.confirmed: dict[str, MissionStart] = {}
         self._follower: MissionFollower | None = None
         self._t_accepted: dict[str, float] = {}
         self._done: dict[str, float] = {}
@@ -94,8 +106,11 @@ class MissionDriver:
         }
 
     async def prepare(self, fleet: Fleet, vehicles: Sequence[Vehicle]) -> None:
+        items = self.items
+        if items is None:
+            return
         # retried as a whole on a bad link, within the default budget, until read back as sent
-        await asyncio.gather(*(upload_with_retries(v, self.items[v.name]) for v in vehicles))
+        await asyncio.gather(*(upload_with_retries(v, items[v.name]) for v in vehicles))
 
     async def approach(
         self, fleet: Fleet, vehicles: Sequence[Vehicle], starts: Mapping[str, StartPoint]
@@ -129,6 +144,7 @@ class MissionDriver:
         started = await asyncio.gather(
             *(start_mission_confirmed(v, climb_m=None) for v in vehicles)
         )
+        self.confirmed = {s.vehicle: s for s in started}
         refused = [s for s in started if not s.started]
         if refused:
             s = refused[0]

@@ -10,6 +10,7 @@ import contextlib
 import json
 import math
 import re
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -139,6 +140,12 @@ def test_upload_stores_the_mission_and_fence_on_each_vehicle_and_starts_them(
         state = fleet.vehicles[i].state
         assert state.armed and state.mode is Px4Mode.AUTO_MISSION
         assert fleet.vehicles[i].params["GF_ACTION"] == 5  # land, read back from the vehicle
+        # Released as gcs fly --mode mission releases: taken off and brought onto the start
+        # first, then into the mission at its start waypoint (its take-off item skipped)
+        assert state.mission_seq >= 1 and not state.landed
+    # ... all at one instant, the plan's t = 0, reported to align what they fly with the plan
+    assert res["t0_unix_s"] is not None and abs(res["t0_unix_s"] - time.time()) < 60.0
+    assert all(r["start_detail"] == "AUTO.MISSION" for r in res["vehicles"])
     # Along the straight legs on time the spec would hold; PX4 cannot fly them on time.
     assert 0 < res["mission_path_robustness"] <= plan.robustness + 0.05
     assert res["predicted_mission_robustness"] < plan.epsilon
