@@ -18,8 +18,12 @@ predicted; they then fly on board, and the ground station leaves them (``gcs fly
 mission`` stays, watches and judges).
 
 Interlocks (before anything is sent): a plan that fails ``gcs verify``'s checks is refused, and
-with ``--start`` so is a mission whose straight-leg path has exact robustness below the plan's
-epsilon (the mission flies those legs, not the smooth plan); ``--force`` overrides both.
+with ``--start`` so are missions PX4 is predicted to fly below the plan's epsilon, and missions
+with a clause that tolerates less timing error than PX4 keeps between vehicles
+(:data:`gcs.flight.missions.KEEPS_CLOCK_S`, 0.5 s): released missions fly without the
+ground station's safety monitor, so nothing would stop them where the clock slips (on PX4
+SITL the power line's d1-d2 separation, which tolerates 0.14 s, broke by 1.3 m in one of three
+released flights); ``--force`` overrides them.
 
 The table gives per vehicle the items sent, the times of upload and read-back, the verdict,
 and how far the mission's straight legs stray from the planned trajectory; below it, the
@@ -283,7 +287,12 @@ async def upload_plan(
         prediction_params,
         read_nav_params,
     )
-    from gcs.flight.missions import convert_plan_apart, fence_plan, timing_summary
+    from gcs.flight.missions import (
+        KEEPS_CLOCK_S,
+        convert_plan_apart,
+        fence_plan,
+        timing_summary,
+    )
     from gcs.flight.payload import capture_spans
     from gcs.flight.tuning import read_tuning
     from mavlink.flight import check_starts
@@ -318,6 +327,17 @@ async def upload_plan(
                 f"{plan.robustness:+.4f}; straight legs {conv.straight_leg_robustness:+.4f}; "
                 f"weakest: {conv.weakest}; {timing_summary(conv.late_s)}); fly the plan in "
                 "offboard mode (gcs fly), or --force; nothing was uploaded"
+            )
+        least = conv.least_tolerant()
+        if start and not force and least is not None and least[1] < KEEPS_CLOCK_S:
+            # released missions fly without the ground station's monitor: nothing would stop
+            # them where the clock slips further than the clause tolerates
+            raise MissionRefused(
+                f"refused to start: on PX4's predicted flight {least[0]} tolerates only "
+                f"{least[1]:.2f} s of timing error, and PX4 keeps missions' clocks to about "
+                f"{KEEPS_CLOCK_S:g} s between vehicles; released missions fly without the "
+                "safety monitor: fly them with gcs fly --mode mission (monitored), offboard "
+                "(gcs fly), or --force; nothing was uploaded"
             )
         rows = list(
             await asyncio.gather(
