@@ -117,7 +117,9 @@ def summary(result: Any, output: str | None) -> dict[str, Any]:
     }
 
 
-def _table(result: Any) -> str:
+def plan_table(result: Any) -> str:
+    """The summary table ``gcs plan`` prints: per vehicle its path and limits, per top-level
+    clause its robustness (the weakest ones when there are many), the status."""
     lines = []
     lines.append(
         f"{'vehicle':<8} {'path m':>9} {'max |v| m/s':>12} {'max |a| m/s2':>13} {'limits':>7}"
@@ -271,7 +273,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({**summary(result, str(out)), "px4_notes": notes}))
     else:
-        print(_table(result))
+        print(plan_table(result))
         for note in notes:
             print(note)
         print(f"plan written to {out}")

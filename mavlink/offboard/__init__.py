@@ -71,7 +71,7 @@ from mavlink.tracks import write_tracks_csv
 from planner.frames import GeodeticPoint
 from planner.trajectory import Trajectory
 
-__all__ = ["FlightResult", "OffboardDriver", "fly_offboard"]
+__all__ = ["FlightResult", "OffboardDriver", "end_action_of", "fly_offboard"]
 
 #: A vehicle sent to a landing point lands once this close to it (m) and nearly still.
 LAND_AT_M = 0.3
@@ -101,7 +101,9 @@ async def _stop_offboard(v: Vehicle) -> None:
         )
 
 
-async def _end(v: Vehicle, action: EndAction, cfg: OffboardConfig | None = None) -> None:
+async def end_action_of(v: Vehicle, action: EndAction, cfg: OffboardConfig | None = None) -> None:
+    """Leave offboard into ``action`` (hold, land, return) at the end of the stream; with
+    ``cfg.land_at`` a vehicle lands at its landing point, flown to first."""
     # Hold first, while MAVSDK still re-sends the last setpoint, and only then stop the
     # setpoints: stopping first leaves the vehicle without setpoints until the Hold command
     # arrives, and on a lossy or busy link that can outlast COM_OF_LOSS_T, so PX4's own
@@ -301,7 +303,7 @@ class OffboardDriver:
         end_failures: dict[str, str] = {}
         if event is None:
             cfg = self.cfg
-            failed = await fleet.for_each(lambda v: _end(v, cfg.end_action, cfg), vehicles)
+            failed = await fleet.for_each(lambda v: end_action_of(v, cfg.end_action, cfg), vehicles)
             end_failures = {k: str(e) for k, e in failed.items()}
         assert self._main is not None
         stats = dict(self._stats)

@@ -145,7 +145,7 @@ def visit_targets(
 _HELD_M = 1e6
 
 
-def _avoided(formula: Formula, vehicle: str, problem: Problem) -> list[Place]:
+def keep_outs_of(formula: Formula, vehicle: str, problem: Problem) -> list[Place]:
     """The places the vehicle must always keep out of (``always`` keep-outs of the spec's
     conjunction, whatever their spelling: :func:`planner.spec.geometry.keep_out`)."""
     out: list[Place] = []
@@ -167,7 +167,7 @@ def _avoided(formula: Formula, vehicle: str, problem: Problem) -> list[Place]:
     return out
 
 
-def _stay_within(formula: Formula, vehicle: str, problem: Problem) -> list[list[Place]]:
+def stay_within(formula: Formula, vehicle: str, problem: Problem) -> list[list[Place]]:
     """The unions of places the vehicle must be in at every sample of the whole plan:
     ``always[0, T] (P1 or P2 or ...)`` (or one place) of the spec's conjunction, with ``T``
     the horizon and each option a place of this vehicle, whatever its spelling (stlpy's
@@ -233,7 +233,7 @@ _GRID_CELLS = 40_000
 _GAP_COST = 3.0
 
 
-def _grid_path(
+def grid_path(
     problem: Problem,
     avoid: Sequence[Any],
     points: Sequence[np.ndarray],
@@ -241,7 +241,7 @@ def _grid_path(
     reach_m: np.ndarray | None = None,
 ) -> np.ndarray:
     """Shortest polyline through ``points`` (in order) on a voxel grid, around ``avoid``
-    boxes and within each of the unions ``within`` (:func:`_stay_within`).
+    boxes and within each of the unions ``within`` (:func:`stay_within`).
 
     A 26-connected grid over the workspace (cell size from the smallest box and a cell
     budget); cells whose centre lies in an avoided box grown by half a cell are blocked, and
@@ -479,7 +479,7 @@ def _shift_m(problem: Problem, formula: Formula) -> float:
         if ko.shape[0] == "box"
         else ko.depth_m  # a keep-out turned about the vertical: not its bounding box's
         for v in problem.vehicles
-        for ko in _avoided(formula, v.name, problem)
+        for ko in keep_outs_of(formula, v.name, problem)
     ]
     return max(1.0, min(halves, default=1.0))
 
@@ -524,22 +524,22 @@ def initial_guess(
             boxes.setdefault(key, pl)
             sharing.setdefault(key, []).append(name)
     sep = float(problem.separation_m or 0.0)
-    slots = {key: _box_slots(boxes[key], users, starts, sep) for key, users in sharing.items()}
+    slots = {key: box_slots(boxes[key], users, starts, sep) for key, users in sharing.items()}
 
     options: list[list[np.ndarray]] = []
     avoids: list[list[Any]] = []
     for v in problem.vehicles:
         targets = per_vehicle[v.name]
         pts = [starts[v.name], *(slots[pl.shape][v.name] for pl in targets)]
-        avoid = _avoided(formula, v.name, problem)
+        avoid = keep_outs_of(formula, v.name, problem)
         avoids.append(avoid)
         if len(pts) == 1:
             options.append([np.tile(pts[0], (len(times), 1))])
             continue
-        within = _stay_within(formula, v.name, problem)
+        within = stay_within(formula, v.name, problem)
         reach = 0.5 * axis_limits(v)[0] * problem.timing.check_dt_s
         legs = [
-            _grid_path(problem, [*avoid, *_clear_of(targets[i:])], [a, b], within, reach)
+            grid_path(problem, [*avoid, *_clear_of(targets[i:])], [a, b], within, reach)
             for i, (a, b) in enumerate(itertools.pairwise(pts))
         ]
         v_lim, a_lim = (_GUESS_LIMIT_FRACTION * lim for lim in axis_limits(v))
@@ -590,7 +590,7 @@ def _fitted(
     return np.concatenate(cols)
 
 
-def _box_slots(
+def box_slots(
     box: Any, users: Sequence[str], starts: Mapping[str, np.ndarray], sep_m: float = 0.0
 ) -> dict[str, np.ndarray]:
     """Target points for the vehicles sharing ``box``: a k_x x k_y x k_z lattice (the counts

@@ -413,7 +413,7 @@ class NlpBuilder:
             w, p = self.w, self.p
             # Separation rows enter the Hessian flat unless asked otherwise (derivatives).
             flat = [
-                _is_separation(leaf) and not self.opts.separation_curvature
+                is_separation(leaf) and not self.opts.separation_curvature
                 for leaf in self.direct_steps
             ]
             exact = self.opts.hessian == "exact"
@@ -721,7 +721,7 @@ def _assemble(
     )
 
 
-def _is_separation(leaf: Formula) -> bool:
+def is_separation(leaf: Formula) -> bool:
     """``dist(a, b) >= c`` (or ``c <= dist(a, b)``) with a constant ``c``: a keep-apart row."""
     if not isinstance(leaf, Comparison):
         return False

@@ -48,10 +48,12 @@ __all__ = [
     "Outline",
     "OutlineShape",
     "convex_cover",
+    "crossing_fan",
     "drawn_regions",
     "part_name",
     "polygon_regions",
     "reflex_corners",
+    "seam_bridge",
 ]
 
 #: Relative tolerance of the geometry (times the polygon's size in metres).
@@ -358,10 +360,10 @@ def _grow_parts(cells: Sequence[Any], tol: float) -> list[Any]:
             needs.append(need)
         elif len(need) == 2:
             i, j = sorted(need)
-            bridges.append(_seam_bridge(cells[i], cells[j]))
+            bridges.append(seam_bridge(cells[i], cells[j]))
         else:
             point = next(p for p, around in crossings if around == need)
-            bridges.append(_crossing_fan(point, [cells[k] for k in sorted(need)], tol))
+            bridges.append(crossing_fan(point, [cells[k] for k in sorted(need)], tol))
 
     # drop unions inside others, then those the rest make redundant (smallest first)
     kept = [u for u in unions if not any(u < w for w in unions)]
@@ -405,7 +407,7 @@ def _angle_at(cell: Any, p: np.ndarray, tol: float) -> float:
     return float(np.arccos(np.clip(a @ b / (np.hypot(*a) * np.hypot(*b)), -1.0, 1.0)))
 
 
-def _seam_bridge(a: Any, b: Any) -> Any:
+def seam_bridge(a: Any, b: Any) -> Any:
     """A convex quadrilateral over the edge two convex cells share, in their union and holding
     the edge's inside: the edge's ends, and a point into each cell straight off its middle
     (half way to the cell's far side)."""
@@ -425,7 +427,7 @@ def _seam_bridge(a: Any, b: Any) -> Any:
     return shapely.Polygon([e0, off_middle(a), e1, off_middle(b)])
 
 
-def _crossing_fan(point: np.ndarray, around: Sequence[Any], tol: float) -> Any:
+def crossing_fan(point: np.ndarray, around: Sequence[Any], tol: float) -> Any:
     """A convex polygon round a point where cut lines cross, in the cells round it: a point
     along each cell edge from it, all at one distance (half the shortest edge), so they lie
     on a circle with gaps under a straight angle."""

@@ -79,6 +79,7 @@ __all__ = [
     "casadi_functions",
     "face_margin",
     "face_tolerance_deg",
+    "numpy_functions",
     "positions",
     "predicate_sharpness",
     "role_of",
@@ -295,7 +296,7 @@ def _region(problem: RegionSource, name: str) -> Region:
         raise EvaluationError(f"unknown region {name!r} (regions: {known})") from None
 
 
-def _np_functions(problem: RegionSource) -> dict[str, Callable[..., np.ndarray]]:
+def numpy_functions(problem: RegionSource) -> dict[str, Callable[..., np.ndarray]]:
     def inside(args: tuple[str, ...], signals: Mapping[str, Any]) -> np.ndarray:
         return box_margin(positions(_vehicle_signal(signals, args[0])), _region(problem, args[1]))
 
@@ -374,7 +375,7 @@ def build_registry(problem: RegionSource, k_pred: float | None = None) -> Functi
     ``k_pred`` is the predicate sharpness (1/m); default :func:`predicate_sharpness`.
     """
     k = predicate_sharpness(problem) if k_pred is None else k_pred
-    np_f = _np_functions(problem)
+    np_f = numpy_functions(problem)
     # The CasADi side is built on first use: checking and flying a plan (exact semantics,
     # numpy) never imports CasADi.
     built: dict[str, Callable[..., Any]] = {}

@@ -91,7 +91,7 @@ from planner.stl.signals import casadi_signals, is_symbolic, numpy_signals
 Values = Any
 
 
-class _NumpyOps:
+class NumpyOps:
     """Array operations on numpy vectors (m,)."""
 
     symbolic = False
@@ -132,7 +132,7 @@ class _NumpyOps:
         return call_numpy(node, view, rows)
 
 
-class _CasadiOps:
+class CasadiOps:
     """Array operations on CasADi columns (m, 1), SX or MX."""
 
     symbolic = True
@@ -257,11 +257,11 @@ class SmoothEvaluator:
             raise EvaluationError(f"sharpness k must be positive and finite, got {k!r}")
         if isinstance(signals, Mapping) and signals and is_symbolic(signals):
             self.signals, self.n, self.kind = casadi_signals(signals)
-            self.ops: Any = _CasadiOps()
+            self.ops: Any = CasadiOps()
         else:
             self.signals, self.n = numpy_signals(signals)
             self.kind = float
-            self.ops = _NumpyOps()
+            self.ops = NumpyOps()
 
     def evaluate(self, formula: Formula) -> Any:
         """Smooth robustness at step 0: float (numpy) or 1x1 SX/MX (CasADi)."""

@@ -14,7 +14,7 @@ import pytest
 
 from gcs import cli
 from gcs.checks import verify_plan, weakest_detail
-from gcs.commands.plan import _table, clause_cell
+from gcs.commands.plan import clause_cell, plan_table
 from planner.checks import WORKSPACE_TOL_M, LimitReport
 from planner.planfile import load_plan
 from planner.stl import parse
@@ -61,7 +61,7 @@ def test_a_workspace_breach_is_reported_as_the_workspace_not_as_limits() -> None
     out = _limit("d1", -3e-6)
     hair = _limit("d2", -0.56e-6)
     fast = _limit("d3", 0.2, v_ratio=1.2)
-    table = _table(_result([out, hair, fast], ["always dist(d1, d2) >= 1"]))
+    table = plan_table(_result([out, hair, fast], ["always dist(d1, d2) >= 1"]))
     rows = {ln.split()[0]: ln.split() for ln in table.splitlines() if ln[:2] in ("d1", "d2", "d3")}
     assert "workspace" in table.splitlines()[0]
     # columns: vehicle, path, |v|, |a|, limits, workspace

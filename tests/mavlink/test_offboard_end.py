@@ -15,7 +15,7 @@ import pytest
 from mavsdk.plugins.offboard import OffboardResult
 
 from mavlink.errors import CommandError
-from mavlink.offboard import _end
+from mavlink.offboard import end_action_of
 from mavlink.offboard.setpoints import EndAction
 
 
@@ -59,12 +59,12 @@ def test_hold_is_commanded_before_the_setpoints_stop(
     action: EndAction, expected: list[str]
 ) -> None:
     v = _Vehicle()
-    asyncio.run(_end(v, action))  # type: ignore[arg-type]
+    asyncio.run(end_action_of(v, action))  # type: ignore[arg-type]
     assert v.log == expected
 
 
 def test_a_refused_hold_still_stops_the_setpoints_and_is_reported() -> None:
     v = _Vehicle(hold_fails=True)
     with pytest.raises(CommandError, match="hold failed"):
-        asyncio.run(_end(v, EndAction.LAND))  # type: ignore[arg-type]
+        asyncio.run(end_action_of(v, EndAction.LAND))  # type: ignore[arg-type]
     assert v.log == ["hold", "setpoints stopped"]  # no land on an unconfirmed end

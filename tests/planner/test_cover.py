@@ -16,11 +16,11 @@ from matplotlib.path import Path as MplPath
 
 from planner.scenario import ScenarioError, parse_scenario
 from planner.spec.cover import (
-    _crossing_fan,
-    _seam_bridge,
     convex_cover,
+    crossing_fan,
     polygon_regions,
     reflex_corners,
+    seam_bridge,
 )
 from planner.spec.regions import Prism, Region, RegionKind, ShapeError
 
@@ -208,7 +208,7 @@ def test_a_bridge_over_a_seam_and_a_fan_round_a_crossing_are_convex_and_hold_the
 
     a = shapely.Polygon([(0, 0), (4, 0), (4, 1), (0, 3)])  # trapezoids sharing x in [0, 4]
     b = shapely.Polygon([(0, 0), (0, -3), (4, -1), (4, 0)])
-    bridge = _seam_bridge(a, b)
+    bridge = seam_bridge(a, b)
     assert bridge.is_valid and bridge.convex_hull.area == pytest.approx(bridge.area)
     assert bridge.difference(a.union(b)).area < 1e-12
     for x in np.linspace(0.05, 3.95, 40):
@@ -219,7 +219,7 @@ def test_a_bridge_over_a_seam_and_a_fan_round_a_crossing_are_convex_and_hold_the
         shapely.Polygon([(0, 0), (-1, 0), (-2, -2), (0, -1)]),
         shapely.Polygon([(0, 0), (0, -1), (3, -1), (3, 0)]),
     ]
-    fan = _crossing_fan(np.zeros(2), quads, 1e-9)
+    fan = crossing_fan(np.zeros(2), quads, 1e-9)
     assert fan.is_valid and fan.convex_hull.area == pytest.approx(fan.area)
     assert fan.difference(shapely.union_all(quads)).area < 1e-12
     assert fan.contains(shapely.Point(0, 0)) and fan.exterior.distance(shapely.Point(0, 0)) > 0.1

@@ -18,7 +18,7 @@ import yaml
 
 from planner.optimize import plan
 from planner.scenario import parse_scenario
-from planner.solve.guess import _avoided, visit_targets
+from planner.solve.guess import keep_outs_of, visit_targets
 from planner.spec.geometry import keep_out, place
 from planner.stl import conjunction
 
@@ -136,7 +136,7 @@ def test_the_guess_picks_the_nearest_option_and_visits_in_deadline_then_nearest_
     # the deadline-8 box first (it is `far`); then, from there, `far` again is the nearest
     # option of the choice (already visited: nothing to add), then the goal
     assert [_box(p)[:2] + _box(p)[3:5] for p in got] == [[8, 1, 9, 2], [7, 8, 8, 9]]
-    avoid = _avoided(f, "d1", pr)
+    avoid = keep_outs_of(f, "d1", pr)
     assert [_box(a) for a in avoid] == [
         pytest.approx([0, 0, 0.5, 10, 10, 0.8]),
         pytest.approx([0, 0, 1.2, 10, 10, 1.5]),
@@ -216,16 +216,16 @@ def test_a_route_that_must_stay_on_stepping_stones_hops_between_them() -> None:
     # stlpy's SteppingStones: `always (inside(s0) or ... or inside(s14))`, reach s14.  The
     # guess routes inside the stones, crossing only gaps one sample's flight spans (before:
     # a straight line over the gaps, and the regions spelling failed at -0.46).
-    from planner.solve.guess import _grid_path, _stay_within, axis_limits
+    from planner.solve.guess import axis_limits, grid_path, stay_within
 
     pr = parse_scenario(
         yaml.safe_load((_ZOO / "stlpy_stepping_stones_regions.yaml").read_text()), "ss.yaml"
     )
     f = conjunction(list(pr.formulas))
-    (stones,) = _stay_within(f, "d1", pr)
+    (stones,) = stay_within(f, "d1", pr)
     assert len(stones) == 15
     reach = 0.5 * axis_limits(pr.vehicles[0])[0] * pr.timing.check_dt_s
-    path = _grid_path(pr, [], [np.array([2.0, 1.3, 1.0]), stones[14].point], [stones], reach)
+    path = grid_path(pr, [], [np.array([2.0, 1.3, 1.0]), stones[14].point], [stones], reach)
     dense = np.concatenate([np.linspace(a, b, 20) for a, b in itertools.pairwise(path)])
 
     def gap(p: np.ndarray) -> float:  # per-axis distance to the nearest stone
@@ -239,8 +239,8 @@ def test_a_route_that_must_stay_on_stepping_stones_hops_between_them() -> None:
         "always[5, 20] (inside(d1, near) or inside(d1, far))", "always[0, 20] x(d2) >= 5"
     )
     f2 = conjunction(list(pr2.formulas))
-    assert _stay_within(f2, "d1", pr2) == []
-    assert [[_box(p)[0] for p in u] for u in _stay_within(f2, "d2", pr2)] == [[5.0]]
+    assert stay_within(f2, "d1", pr2) == []
+    assert [[_box(p)[0] for p in u] for u in stay_within(f2, "d2", pr2)] == [[5.0]]
 
 
 @pytest.mark.parametrize("spelling", ["regions", "halfplanes"])

@@ -61,13 +61,13 @@ def test_the_starts_are_the_nearest_route_then_runners_up_and_shifted_legs() -> 
 
 def test_a_runner_up_option_meets_what_the_nearest_choices_do_not(monkeypatch) -> None:
     # Stepping stones (half-planes), with the guess blind to "stay on the stones"
-    # (planner.solve.guess._stay_within, which now routes over them at the first start): the
+    # (planner.solve.guess.stay_within, which now routes over them at the first start): the
     # nearest stones first leave the plan short of the mission; turning one choice to its
     # runner-up stone meets it.
     # (no lexicographic rounds: they would raise the other clauses of the failed plan)
     import planner.solve.guess
 
-    monkeypatch.setattr(planner.solve.guess, "_stay_within", lambda *_: [])
+    monkeypatch.setattr(planner.solve.guess, "stay_within", lambda *_: [])
     one = plan(_zoo("stlpy_stepping_stones_halfplanes", starts=1, lexicographic_rounds=0))
     assert not one.success and one.stats is not None and one.stats.starts == 1
     many = plan(_zoo("stlpy_stepping_stones_halfplanes"))

@@ -214,12 +214,12 @@ def test_flat_blocks_keep_their_gradient_and_leave_the_hessian() -> None:
 @pytest.mark.slow
 def test_separation_without_curvature_reaches_the_exact_hessian_optimum() -> None:
     from planner.scenario.spec import parse_clause
-    from planner.solve.nlp import _is_separation
+    from planner.solve.nlp import is_separation
     from planner.spec.predicates import build_registry
 
     problem = load_scenario(CONFIGS / "reach_avoid.yaml", vehicles=2)
     registry = build_registry(problem)
-    kinds = [_is_separation(parse_clause(problem, c, registry).child) for c in problem.clauses]
+    kinds = [is_separation(parse_clause(problem, c, registry).child) for c in problem.clauses]
     assert kinds == [False, False, False, False, True]  # reach x2, avoid x2, the pair
     # The plain maximisation from the guess (no combinatorial stage, whose time budget
     # could end at another incumbent), so that only the Hessian differs between the solves.
@@ -233,14 +233,14 @@ def test_separation_without_curvature_reaches_the_exact_hessian_optimum() -> Non
 def test_shared_target_slots_are_lattice_points_with_equal_depth_and_spacing_margins() -> None:
     from types import SimpleNamespace
 
-    from planner.solve.guess import _box_slots
+    from planner.solve.guess import box_slots
 
     cube = SimpleNamespace(lo_enu_m=(1.5, 1.5, 0.5), hi_enu_m=(2.0, 2.0, 1.0))
 
     def margins(n: int, sep: float) -> tuple[float, float, np.ndarray]:
         names = [f"d{i}" for i in range(n)]
         starts = {nm: np.array([-1.5, 1.5 - 0.2 * i, 0.75]) for i, nm in enumerate(names)}
-        slots = _box_slots(cube, names, starts, sep)
+        slots = box_slots(cube, names, starts, sep)
         pts = np.array([slots[nm] for nm in names])
         gaps = np.linalg.norm(pts[:, None] - pts[None], axis=2)[np.triu_indices(n, 1)]
         depth = np.min(np.minimum(pts - cube.lo_enu_m, np.subtract(cube.hi_enu_m, pts)))
@@ -260,13 +260,13 @@ def test_shared_target_slots_are_lattice_points_with_equal_depth_and_spacing_mar
     # A long box shared by two: split along its length, the west start takes the west point,
     # (5 - 1.5) / 3 m from the ends; the short axes keep the middle.
     long_box = SimpleNamespace(lo_enu_m=(0.0, 0.0, 9.5), hi_enu_m=(5.0, 2.0, 12.5))
-    two = _box_slots(
+    two = box_slots(
         long_box, ["a", "b"], {"a": np.array([9.0, 0, 9]), "b": np.array([-9.0, 0, 9])}, 1.5
     )
     np.testing.assert_allclose(two["b"], [3.5 / 3, 1.0, 11.0])
     np.testing.assert_allclose(two["a"], [5 - 3.5 / 3, 1.0, 11.0])
     # One vehicle: the centre.
-    one = _box_slots(cube, ["x"], {"x": np.zeros(3)})
+    one = box_slots(cube, ["x"], {"x": np.zeros(3)})
     np.testing.assert_allclose(one["x"], [1.75, 1.75, 0.75])
 
 

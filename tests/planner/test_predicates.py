@@ -15,9 +15,9 @@ from planner.scenario.spec import FUNCTION_NAMES
 from planner.spec.predicates import (
     PREDICATES,
     Role,
-    _np_functions,
     build_registry,
     casadi_functions,
+    numpy_functions,
     role_of,
 )
 from planner.stl import parse
@@ -27,7 +27,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 def test_every_declared_predicate_has_both_implementations_and_the_scenario_follows_it() -> None:
     problem = load_scenario(REPO / "configs" / "reach_avoid.yaml", vehicles=2)
-    assert set(_np_functions(problem)) == set(PREDICATES)
+    assert set(numpy_functions(problem)) == set(PREDICATES)
     assert set(casadi_functions(problem, 10.0)) == set(PREDICATES)
     assert {name: p.args for name, p in PREDICATES.items()} == FUNCTION_NAMES
     registry = build_registry(problem)

@@ -12,7 +12,7 @@ import pytest
 from planner.optimize import make_model
 from planner.scenario import parse_scenario
 from planner.solve.leaf_templates import local_hessian
-from planner.solve.nlp import NlpBuilder, _is_separation
+from planner.solve.nlp import NlpBuilder, is_separation
 from planner.solve.nlp_solvers import derivatives
 from planner.solve.rowwise import block_hessian, block_jacobian, sample_leaf
 from planner.stl import conjunction
@@ -81,7 +81,7 @@ def test_each_blocks_derivatives_equal_casadis_of_the_whole_block(builder) -> No
             args = _random(ref_fn, seed)
             for a, b in zip(ref_fn.call(args), mine_fn.call(args), strict=True):
                 assert np.allclose(np.asarray(a), np.asarray(b), rtol=1e-10, atol=1e-10), leaf
-        kinds.add(type(leaf).__name__ + (" separation" if _is_separation(leaf) else ""))
+        kinds.add(type(leaf).__name__ + (" separation" if is_separation(leaf) else ""))
         row += m
     # the scenario exercises predicates, comparisons and separations
     assert {"Predicate", "Comparison", "Comparison separation"} <= kinds
@@ -92,7 +92,7 @@ def test_the_constraint_jacobian_and_lagrangian_hessian_are_unchanged(builder) -
     """The assembled ``jac_g`` and ``hess_lag`` with per-sample blocks equal the ones
     differentiated block by block, separations' flat rows included."""
     w, p = builder.w, builder.p
-    flat = [_is_separation(leaf) for leaf in builder.direct_steps]
+    flat = [is_separation(leaf) for leaf in builder.direct_steps]
     rowwise = [builder._sample_leaf(leaf, st) for leaf, st in builder.direct_steps.items()]
     assert any(r is not None for r in rowwise)
     args = (w, p, builder.f, builder.linear, builder.nonlinear, True, flat)

@@ -494,14 +494,14 @@ def test_smooth_graph_holds_only_the_needed_steps():
 @pytest.mark.parametrize("rows", [2, 5, 17])
 @pytest.mark.parametrize("width", [2, 3, 7, 16])
 def test_block_window_lse_equals_direct_lse_in_both_back_ends(rows, width):
-    from planner.stl.smooth import _CasadiOps, _NumpyOps, window_lse
+    from planner.stl.smooth import CasadiOps, NumpyOps, window_lse
 
     rng = np.random.default_rng(rows * 100 + width)
     y = 30.0 * rng.normal(size=rows + width - 1)
     direct = np.array([np.log(np.sum(np.exp(y[i : i + width] - 50))) + 50 for i in range(rows)])
-    np.testing.assert_allclose(window_lse(_NumpyOps(), y, width, rows), direct, rtol=1e-13)
+    np.testing.assert_allclose(window_lse(NumpyOps(), y, width, rows), direct, rtol=1e-13)
     sym = ca.SX.sym("y", y.size)
-    expr = window_lse(_CasadiOps(), sym, width, rows)
+    expr = window_lse(CasadiOps(), sym, width, rows)
     got = np.asarray(ca.Function("w", [sym], [expr])(y)).ravel()
     np.testing.assert_allclose(got, direct, rtol=1e-13)
 
