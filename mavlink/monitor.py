@@ -614,6 +614,12 @@ class SafetyMonitor:
         sample = now - max(ages[n] for n in far)
         return _Finding(Verdict.OFF_PLAN, None, far, t_s, None, None, sample, detail=detail)
 
+    @property
+    def templates(self) -> int:
+        """How many distinct clause templates the clauses make (one evaluation each per
+        tick: :class:`planner.stl.batch.ClauseBatch`)."""
+        return self._batch.templates
+
     async def run(
         self,
         fleet: Fleet,

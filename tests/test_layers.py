@@ -79,3 +79,19 @@ def test_no_module_imports_another_modules_private_names() -> None:
                     if a.name.startswith("_") and not a.name.startswith("__")
                 ]
     assert bad == []
+
+
+def test_no_test_reaches_into_an_objects_private_attributes() -> None:
+    """A test uses what an object offers (its public attributes and properties), not its
+    underscored ones; a test's own helper class may use its own (``self._x``)."""
+    bad = []
+    for path in sorted((REPO / "tests").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if not (isinstance(node, ast.Attribute) and node.attr.startswith("_")):
+                continue
+            if node.attr.startswith("__"):
+                continue
+            if isinstance(node.value, ast.Name) and node.value.id in ("self", "cls"):
+                continue
+            bad.append(f"{path.relative_to(REPO)}:{node.lineno}: .{node.attr}")
+    assert bad == []

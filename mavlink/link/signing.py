@@ -237,6 +237,14 @@ class SigningProxy:
                 f"signing proxy: cannot bind {self.host}:{self.listen_port}: {exc.strerror or exc}"
             ) from None
 
+    @property
+    def own_inner_port(self) -> int | None:
+        """The proxy's own port on MAVSDK's side, where the ground station's frames arrive
+        (``None`` before :meth:`start`)."""
+        if self._inner is None:
+            return None
+        return int(self._inner.get_extra_info("sockname")[1])
+
     def close(self) -> None:
         """Close both sockets."""
         for t in (self._outer, self._inner):

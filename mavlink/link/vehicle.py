@@ -481,6 +481,12 @@ class Vehicle:
             image_from_fields(f, self.name, t - t0_monotonic_s, comp) for t, comp, f in got
         )
 
+    @property
+    def subscriptions(self) -> tuple[str, ...]:
+        """The MAVSDK subscriptions it holds, by their unsubscribe function's name (a
+        mavlink_direct message's is ``unsubscribe_message``)."""
+        return tuple(unsubscribe.__name__ for unsubscribe, _ in self._handles)
+
     # -- recording of the flown track ----------------------------------
 
     def start_track(self) -> None:

@@ -94,7 +94,7 @@ class CommandsMixin(VehicleParts):
         if self.armed:
             return ACCEPTED
         if not force:
-            reason = self._arming_denied_reason()
+            reason = self.arming_denied_reason()
             if reason:
                 self.statustext(mavlink2.MAV_SEVERITY_CRITICAL, f"Arming denied: {reason}")
                 return TEMPORARILY_REJECTED
@@ -112,7 +112,7 @@ class CommandsMixin(VehicleParts):
         self.statustext(mavlink2.MAV_SEVERITY_INFO, "Armed by external command")
         return ACCEPTED
 
-    def _arming_denied_reason(self) -> str:
+    def arming_denied_reason(self) -> str:
         if self._now() < self.config.ready_after_s:
             return "EKF not ready, wait for GPS lock"
         if self.mode is Px4Mode.OFFBOARD and not self._stream_ok():

@@ -346,7 +346,7 @@ class MissionServer:
         px4_storage: Callable[[], bool] = lambda: False,
     ) -> None:
         self._px4_storage = px4_storage
-        self._send = send
+        self.send = send
         self._clock_s = clock_s
         self._on_changed = on_changed
         self._current_seq = current_seq
@@ -476,7 +476,7 @@ class MissionServer:
                 tsys, tcomp, up.next_seq, up.mission_type
             )
         up.last_sent_s = self._clock_s()
-        self._send(msg)
+        self.send(msg)
 
     def _on_ack(self, msg: mavlink2.MAVLink_message) -> None:
         up = self._upload
@@ -495,7 +495,7 @@ class MissionServer:
         if mtype not in self.plans:
             self._ack(partner, mavlink2.MAV_MISSION_INVALID, mtype)
             return
-        self._send(
+        self.send(
             mavlink2.MAVLink_mission_count_message(
                 partner[0], partner[1], len(self.plans[mtype]), mtype
             )
@@ -535,7 +535,7 @@ class MissionServer:
                 partner[0], partner[1], it.seq, it.frame, it.command, current, it.autocontinue,
                 it.param1, it.param2, it.param3, it.param4, it.x, it.y, it.z, mtype,
             )  # fmt: skip
-        self._send(out)
+        self.send(out)
 
     # ---------------------------------------------------------------- clear
     def _on_clear_all(self, msg: mavlink2.MAVLink_message) -> None:
@@ -554,7 +554,7 @@ class MissionServer:
             self._on_changed(t)
 
     def _ack(self, partner: tuple[int, int], result: int, mission_type: int) -> None:
-        self._send(
+        self.send(
             mavlink2.MAVLink_mission_ack_message(partner[0], partner[1], result, mission_type)
         )
 

@@ -54,7 +54,7 @@ class OriginMixin(VehicleParts):
         n, e, d = pymap3d.geodetic2ned(lat_deg, lon_deg, alt_m, lat0, lon0, h0)
         return np.array([float(n), float(e), float(d)])
 
-    def _home_alt_amsl(self) -> float:
+    def home_alt_amsl(self) -> float:
         return self.origin_lla[2] - float(self.home_ned_m[2])
 
     def _item_target_ned(

@@ -361,7 +361,7 @@ class PayloadMixin(VehicleParts):
         assert cam is not None
         i = self.index
         lat, lon, alt = self.fleet.geodetic(i)  # as this tick's GLOBAL_POSITION_INT
-        rel = alt - self._home_alt_amsl()
+        rel = alt - self.home_alt_amsl()
         index = cam.image_count
         msg = mavlink2.MAVLink_camera_image_captured_message(
             self._boot_ms(), round((self.fleet.utc_start_s + self._now()) * 1e6), 0,
@@ -679,7 +679,7 @@ class PayloadMixin(VehicleParts):
             # the position at double precision, the altitude AMSL
             p[4], p[5] = item.x * 1e-7, item.y * 1e-7
             if item.frame in _RELATIVE_FRAMES:
-                p[6] = item.z + self._home_alt_amsl()
+                p[6] = item.z + self.home_alt_amsl()
         target = 0
         if cmd in (mavlink2.MAV_CMD_IMAGE_START_CAPTURE, mavlink2.MAV_CMD_IMAGE_STOP_CAPTURE):
             camera = _int(item.param1)

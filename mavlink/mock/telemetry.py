@@ -176,7 +176,7 @@ class TelemetryMixin(VehicleParts):
         i = self.index
         lat, lon, alt = self.fleet.geodetic(i)
         vel = self.phys.vel_ned_m_s[i] + self.phys.noise_vel_m_s[i]
-        rel = alt - self._home_alt_amsl()
+        rel = alt - self.home_alt_amsl()
         hdg = round(math.degrees(self.phys.yaw_rad[i]) * 100) % 36000
         return mavlink2.MAVLink_global_position_int_message(
             self._boot_ms(), round(lat * 1e7), round(lon * 1e7), round(alt * 1000),
@@ -222,7 +222,7 @@ class TelemetryMixin(VehicleParts):
     def _msg_altitude(self) -> Msg:
         i = self.index
         _, _, alt = self.fleet.geodetic(i)
-        rel = alt - self._home_alt_amsl()
+        rel = alt - self.home_alt_amsl()
         return mavlink2.MAVLink_altitude_message(
             self._usec(), alt, alt, -self.phys.pos_ned_m[i, 2], rel, rel, -1000.0
         )

@@ -455,6 +455,23 @@ class MockVehicle(
             est_vel_ned_m_s=_vec3(p.vel_ned_m_s[i]),
         )
 
+    @property
+    def offboard_setpoint(self) -> Setpoint | None:
+        """The latest offboard setpoint received (``None``: none since the last boot)."""
+        return self._sp
+
+    @property
+    def last_setpoint_s(self) -> float:
+        """When the latest offboard setpoint came, simulated s (-inf: none since the boot)."""
+        return self._sp_last_s
+
+    @property
+    def mission_phase(self) -> str:
+        """What the navigator does with the current mission item: ``"pre_takeoff"``,
+        ``"takeoff"``, ``"goto"``, ``"hold"``, ``"delay"``, ``"loiter"``, ``"land_approach"``,
+        ``"land"``, ``"done"`` (``""`` before a mission)."""
+        return self._mis_phase
+
     def mission_items(self, mission_type: int = MISSION) -> tuple[MissionItem, ...]:
         """The stored plan of ``mission_type`` (MAV_MISSION_TYPE_*)."""
         return self.missions.plans[mission_type]

@@ -417,7 +417,7 @@ class NlpBuilder:
                 for leaf in self.direct_steps
             ]
             exact = self.opts.hessian == "exact"
-            rowwise = [self._sample_leaf(leaf, steps) for leaf, steps in self.direct_steps.items()]
+            rowwise = [self.sample_leaf(leaf, steps) for leaf, steps in self.direct_steps.items()]
             sx = derivatives(
                 w, p, self.f, self.linear, self.nonlinear, exact, flat, rowwise,
                 check=self.check_deadline,
@@ -432,7 +432,7 @@ class NlpBuilder:
             self._sx = sx
         return self._sx
 
-    def _sample_leaf(self, leaf: Formula, steps: list[int]) -> tuple[SampleLeaf, np.ndarray] | None:
+    def sample_leaf(self, leaf: Formula, steps: list[int]) -> tuple[SampleLeaf, np.ndarray] | None:
         """A row-wise leaf at one sample (:mod:`planner.solve.rowwise`) and the entries of ``w``
         its positions are at each of its steps (None: constant rows)."""
         self.check_deadline()

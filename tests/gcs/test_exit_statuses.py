@@ -102,7 +102,7 @@ def test_a_vehicle_that_refuses_to_arm_is_a_vehicle_failure_with_its_reason(
 ) -> None:
     with mock_vehicles(load_plan(PLAN)) as dry:
         refusing = dry.mock.vehicles[1]
-        refusing._arming_denied_reason = lambda: "Preflight Fail: Accel 0 missing"  # type: ignore[method-assign]  # fmt: skip
+        refusing.arming_denied_reason = lambda: "Preflight Fail: Accel 0 missing"  # type: ignore[method-assign]  # fmt: skip
         rc = main(["fly", str(PLAN), *(a for u in dry.urls for a in ("--connection", u))])
         err = capsys.readouterr().err
         states = [v.state for v in dry.mock.vehicles]

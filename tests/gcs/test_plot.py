@@ -499,9 +499,11 @@ def test_long_titles_are_wrapped_inside_the_figure_not_cut_off(view: str) -> Non
     figure_png(fig)  # drawn as it is written
     renderer = fig.canvas.get_renderer()
     width, height = fig.bbox.width, fig.bbox.height
-    title = fig._suptitle
-    assert title is not None
-    text = title.get_text()
+    from matplotlib.text import Text
+
+    text = fig.get_suptitle()
+    assert text
+    title = next(t for t in fig.findobj(Text) if t.get_text() == text)
     # all of it, on more lines than one: the outcome in full (it was cut at 40 characters)
     assert len(text.splitlines()) >= 2
     assert LONG_STATUS.split(":")[0] in " ".join(text.split())

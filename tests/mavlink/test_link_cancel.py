@@ -33,7 +33,7 @@ PHASES: dict[str, Callable[[MockFleet, asyncio.Event], bool]] = {
     "take-off": lambda mock, started: _in_mode(mock, MockMode.AUTO_TAKEOFF),
     # the start setpoint streamed, nobody in offboard yet
     "pre-stream": lambda mock, started: (
-        any(math.isfinite(v._sp_last_s) for v in mock.vehicles)
+        any(math.isfinite(v.last_setpoint_s) for v in mock.vehicles)
         and not _in_mode(mock, MockMode.OFFBOARD)
     ),
     # a vehicle has switched; its acknowledgement is still on the (slow) way back
@@ -89,9 +89,9 @@ def test_a_cancelled_flight_holds_every_vehicle_and_leaves_nothing_running(phase
             while not _in_mode(mock, MockMode.AUTO_LOITER, every=True):
                 assert time.monotonic() < t_end, [v.mode for v in mock.vehicles]
                 await asyncio.sleep(0.05)
-            last = [v._sp_last_s for v in mock.vehicles]
+            last = [v.last_setpoint_s for v in mock.vehicles]
             await asyncio.sleep(1.0)
-            assert [v._sp_last_s for v in mock.vehicles] == last
+            assert [v.last_setpoint_s for v in mock.vehicles] == last
             assert _in_mode(mock, MockMode.AUTO_LOITER, every=True)
 
     asyncio.run(run())

@@ -399,7 +399,7 @@ def test_upload_whose_final_ack_is_lost_is_settled_by_the_read_back() -> None:
     async def run():
         async with mock_and_fleet(["d1"], plan.origin, [spawn]) as (mock, fleet):
             vehicle = mock.vehicles[0]
-            send = vehicle.missions._send
+            send = vehicle.missions.send
 
             def drop_mission_acks(msg):  # type: ignore[no-untyped-def]
                 # Every ACCEPTED ack of a MISSION upload is lost on the way to the GCS.
@@ -407,7 +407,7 @@ def test_upload_whose_final_ack_is_lost_is_settled_by_the_read_back() -> None:
                     return
                 send(msg)
 
-            vehicle.missions._send = drop_mission_acks
+            vehicle.missions.send = drop_mission_acks
             with pytest.raises(MissionError) as plain:
                 await upload(fleet["d1"], mp.items)
             report = await upload_and_verify(fleet["d1"], mp.items)

@@ -151,7 +151,7 @@ def test_a_read_back_that_differs_is_uploaded_again_until_it_matches() -> None:
     async def run():  # type: ignore[no-untyped-def]
         async with mock_and_fleet(["d1"], plan.origin, [(0.0, 0.0, 0.0)]) as (mock, fleet):
             vehicle = mock.vehicles[0]
-            send = vehicle.missions._send
+            send = vehicle.missions.send
             corrupted: list[int] = []
 
             def corrupt_first_download(msg):  # type: ignore[no-untyped-def]
@@ -161,7 +161,7 @@ def test_a_read_back_that_differs_is_uploaded_again_until_it_matches() -> None:
                     msg.z += 5.0
                 send(msg)
 
-            vehicle.missions._send = corrupt_first_download
+            vehicle.missions.send = corrupt_first_download
             report = await asyncio.wait_for(
                 upload_with_retries(fleet["d1"], mission, policy=RetryPolicy(seed=0)), HANG_S
             )

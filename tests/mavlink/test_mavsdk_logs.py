@@ -120,7 +120,7 @@ def test_heading_position_home_and_battery_are_read_not_subscribed_and_follow_th
         spawn = (3.0, -2.0, 0.0)  # ENU of the mission origin
         async with mock_and_fleet(["d1"], ORIGIN, [spawn], profile="ideal") as (mock, fleet):
             v = fleet["d1"]
-            subscribed = [unsubscribe.__name__ for unsubscribe, _ in v._handles]
+            subscribed = list(v.subscriptions)
             on_ground = await v.wait_for(
                 lambda s: None not in (s.position, s.home, s.battery_remaining, s.heading_deg),
                 "global position, home, battery and heading",

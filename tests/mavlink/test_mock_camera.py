@@ -419,7 +419,7 @@ def test_gimbal_yaw_lock_holds_a_bearing_while_the_vehicle_turns() -> None:
 
 def airborne(f: MockFleet, v: MockVehicle, above_home_m: float) -> None:
     assert v.arm() == mavlink2.MAV_RESULT_ACCEPTED
-    alt = v._home_alt_amsl() + above_home_m
+    alt = v.home_alt_amsl() + above_home_m
     send_command(v, mavlink2.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, NAN, NAN, NAN, alt)
     f.advance(12.0)
     assert v.mode is Px4Mode.AUTO_LOITER and not v.landed
@@ -427,7 +427,7 @@ def airborne(f: MockFleet, v: MockVehicle, above_home_m: float) -> None:
 
 def reposition(v: MockVehicle, north_m: float, east_m: float, up_m: float, yaw_deg: float = NAN) -> None:  # fmt: skip
     lat, lon = e7(v, north_m, east_m)
-    alt = v._home_alt_amsl() + up_m
+    alt = v.home_alt_amsl() + up_m
     v.receive(
         mavlink2.MAVLink_command_int_message(
             v.sysid, 1, mavlink2.MAV_FRAME_GLOBAL_INT, mavlink2.MAV_CMD_DO_REPOSITION, 0, 0,
@@ -440,7 +440,7 @@ def test_gimbal_follows_a_roi_as_the_vehicle_moves_and_goes_neutral_after() -> N
     f = offline(profile="ideal")
     v = f.vehicles[0]
     airborne(f, v, 10.0)
-    home_alt = v._home_alt_amsl()
+    home_alt = v.home_alt_amsl()
     roi_lat, roi_lon = e7(v, 40.0, 30.0)  # on the ground, 50 m away
     v.sent_messages()
     v.receive(

@@ -87,7 +87,7 @@ def ne_to_e7(v: MockVehicle, north_m: float, east_m: float) -> tuple[int, int]:
 
 
 def takeoff(v: MockVehicle, above_home_m: float) -> None:
-    alt = v._home_alt_amsl() + above_home_m
+    alt = v.home_alt_amsl() + above_home_m
     nan = math.nan
     cmd(v, mavlink2.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, nan, nan, nan, alt)
 
@@ -138,7 +138,7 @@ def test_takeoff_to_2_5_m_climbs_through_the_creep_and_settles() -> None:
 def mission_items(v: MockVehicle, legs_ne_m, alt_above_home_m: float, radius_m: float,
                   hold_s: float = 0.0, speed_m_s: float | None = None,
                   takeoff_m: float | None = None) -> list:  # type: ignore[no-untyped-def]  # fmt: skip
-    home_alt = v._home_alt_amsl()
+    home_alt = v.home_alt_amsl()
     items = []
     if takeoff_m is not None:
         items.append(
@@ -272,7 +272,7 @@ def test_mission_item_reached_is_the_last_item_processed_and_resent_up_to_ten_ti
     # wp 0, DO_CHANGE_SPEED 1, wp 2, DO_CHANGE_SPEED 3, wp 4 (last)
     items = mission_items(v, [(0.0, 0.0), (6.0, 0.0)], 4.0, 1.0, speed_m_s=2.0)
     items.append(item(len(items), mavlink2.MAV_CMD_NAV_WAYPOINT, *ne_to_e7(v, 6.0, 6.0),
-                      v._home_alt_amsl() + 4.0, p2=1.0))  # fmt: skip
+                      v.home_alt_amsl() + 4.0, p2=1.0))  # fmt: skip
     upload(f, v, items)
     start_mission(f, v)
     _, msgs = fly_until_done(f, v, 60.0)
@@ -302,13 +302,13 @@ def test_a_waypoint_is_reported_reached_when_its_hold_is_over_and_a_loiter_unlim
     airborne(f, v, 4.0, 10.0)
     items = mission_items(v, [(0.0, 0.0), (5.0, 0.0)], 4.0, 1.0, hold_s=3.0)
     items.append(item(len(items), mavlink2.MAV_CMD_NAV_LOITER_UNLIM, *ne_to_e7(v, 5.0, 5.0),
-                      v._home_alt_amsl() + 4.0))  # fmt: skip
+                      v.home_alt_amsl() + 4.0))  # fmt: skip
     upload(f, v, items)
     start_mission(f, v)
     arrived, reached, t0 = None, {}, f.time_s
     while f.time_s - t0 < 40.0:
         f.advance(0.01)
-        if arrived is None and v.mission_seq == 1 and v._mis_phase == "hold":
+        if arrived is None and v.mission_seq == 1 and v.mission_phase == "hold":
             arrived = f.time_s
         for m in v.sent_messages():
             if m.get_type() == "MISSION_ITEM_REACHED":
@@ -398,7 +398,7 @@ def test_a_mission_land_flies_to_its_point_then_descends_at_px4s_graded_land_spe
     f = fleet(seed=5, profile=profile)
     v = f.vehicles[0]
     airborne(f, v, 12.0, 14.0)
-    home_alt = v._home_alt_amsl()
+    home_alt = v.home_alt_amsl()
     items = mission_items(v, [(0.0, 0.0)], 12.0, 1.0)
     items.append(item(1, mavlink2.MAV_CMD_NAV_LAND, *ne_to_e7(v, 20.0, 0.0), home_alt))
     upload(f, v, items)
@@ -440,7 +440,7 @@ def test_a_mission_land_over_its_point_is_reported_when_landed() -> None:
     v = f.vehicles[0]
     airborne(f, v, 12.0, 14.0)
     items = mission_items(v, [(0.0, 0.0), (20.0, 0.0)], 12.0, 1.0)
-    items.append(item(2, mavlink2.MAV_CMD_NAV_LAND, *ne_to_e7(v, 20.0, 0.0), v._home_alt_amsl()))
+    items.append(item(2, mavlink2.MAV_CMD_NAV_LAND, *ne_to_e7(v, 20.0, 0.0), v.home_alt_amsl()))
     upload(f, v, items)
     start_mission(f, v)
     first: dict[int, float] = {}
@@ -580,7 +580,7 @@ def test_takeoff_ignores_its_yaw_and_reposition_takes_its_yaw_in_radians() -> No
     f = fleet(seed=2, **QUIET)
     v = f.vehicles[0]
     v.arm()
-    alt = v._home_alt_amsl() + 3.0
+    alt = v.home_alt_amsl() + 3.0
     cmd(v, mavlink2.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 90.0, math.nan, math.nan, alt)
     f.advance(12.0)
     assert v.mode is Px4Mode.AUTO_LOITER
@@ -610,7 +610,7 @@ def test_a_waypoints_yaw_is_flown_from_when_it_is_current_turning_at_mpc_yawraut
     f = fleet(seed=5, profile=profile, **QUIET)
     v = f.vehicles[0]
     airborne(f, v, 4.0, 10.0)
-    home = v._home_alt_amsl() + 4.0
+    home = v.home_alt_amsl() + 4.0
     items = [
         item(0, mavlink2.MAV_CMD_NAV_WAYPOINT, *ne_to_e7(v, 0.0, 0.0), home, p2=1.0, p4=0.0),
         item(1, mavlink2.MAV_CMD_NAV_WAYPOINT, *ne_to_e7(v, 0.0, 25.0), home, p2=1.0, p4=200.0),

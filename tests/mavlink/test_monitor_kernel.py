@@ -80,7 +80,7 @@ def test_the_vectorised_evaluation_is_the_definition_for_16_vehicles(shared_segm
     problem, spec = fleet_spec(16)
     names = [v.name for v in problem.vehicles]
     mon = SafetyMonitor(always_clauses(spec, names), horizon_s=0.5, steps=5)
-    assert len(mon.clauses) == 16 + 120 and mon._batch.templates == 2
+    assert len(mon.clauses) == 16 + 120 and mon.templates == 2
     plans = {
         n: random_plan(n, i)
         if shared_segments or i % 2

@@ -70,7 +70,7 @@ def test_each_blocks_derivatives_equal_casadis_of_the_whole_block(builder) -> No
     for (leaf, steps), part in zip(builder.direct_steps.items(), builder.nonlinear, strict=True):
         m = int(part.shape[0])
         lam = lam_all[row : row + m]
-        got = builder._sample_leaf(leaf, steps)
+        got = builder.sample_leaf(leaf, steps)
         assert got is not None, str(leaf)
         rows = part + builder.r * builder.a_direct[row : row + m]  # the leaf's own rows
         reference = [local_hessian(ca.dot(lam, rows), w), ca.jacobian(rows, w)]
@@ -93,7 +93,7 @@ def test_the_constraint_jacobian_and_lagrangian_hessian_are_unchanged(builder) -
     differentiated block by block, separations' flat rows included."""
     w, p = builder.w, builder.p
     flat = [is_separation(leaf) for leaf in builder.direct_steps]
-    rowwise = [builder._sample_leaf(leaf, st) for leaf, st in builder.direct_steps.items()]
+    rowwise = [builder.sample_leaf(leaf, st) for leaf, st in builder.direct_steps.items()]
     assert any(r is not None for r in rowwise)
     args = (w, p, builder.f, builder.linear, builder.nonlinear, True, flat)
     ref, mine = derivatives(*args), derivatives(*args, rowwise)

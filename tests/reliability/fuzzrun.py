@@ -49,7 +49,7 @@ class FuzzReport:
 def vehicle_snapshot(v: MockVehicle) -> tuple[Any, ...]:
     """Everything a command could change on a mock vehicle (not the clock-driven motion)."""
     s = v.state
-    sp = v._sp
+    sp = v.offboard_setpoint
     return (
         s.armed,
         s.mode,

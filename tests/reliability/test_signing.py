@@ -168,8 +168,9 @@ def test_proxy_passes_only_validly_signed_vehicle_frames_to_the_gcs() -> None:
 
 def proxy_inner_port(proxy: SigningProxy) -> int:
     """The proxy's MAVSDK-side socket port (where the GCS's frames arrive)."""
-    assert proxy._inner is not None
-    return int(proxy._inner.get_extra_info("sockname")[1])
+    port = proxy.own_inner_port
+    assert port is not None
+    return port
 
 
 def test_mavsdk_fleet_commands_a_signed_vehicle_only_through_the_signing_proxy() -> None:

@@ -78,9 +78,9 @@ def test_a_vehicle_rebooting_in_the_air_is_lost_the_rest_held_and_never_streamed
             assert time.monotonic() < t_end, "d2 did not come back"
             await asyncio.sleep(0.05)
         # ... and is never streamed to again
-        last = mock.vehicles[1]._sp_last_s
+        last = mock.vehicles[1].last_setpoint_s
         await asyncio.sleep(1.5)
-        return {"streamed": mock.vehicles[1]._sp_last_s != last, "d1": mock.vehicles[0].mode}
+        return {"streamed": mock.vehicles[1].last_setpoint_s != last, "d1": mock.vehicles[0].mode}
 
     result, seen = fly_with(reboot, after)
     ev = result.safety_event
