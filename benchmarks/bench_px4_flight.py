@@ -10,7 +10,7 @@
    prediction), safety stops.
 3. ``gcs upload --fence --start`` on the stored 2-vehicle plan (``--upload-runs``): exit
    status, starts confirmed and their attempts (PX4 rejects a start for ~90 ms after an
-   upload), every vehicle in AUTO.MISSION and climbing.
+   upload), every vehicle in AUTO.MISSION and its height a second after the release.
 
 Every flight is a real dry run: ``gcs fly --dry-run`` in a subprocess, MAVSDK over UDP to
 mock vehicles in real time. Prints a table, then one JSON line.  Usage::
