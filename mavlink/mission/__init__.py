@@ -19,7 +19,7 @@ trajectory_to_mission``); each lives in the room named for what it holds::
     mavlink.mission.retries     whole-transfer retries within a time budget on a bad
                                 link (RetryPolicy, upload_with_retries)
     mavlink.mission.run         a mission started and confirmed, followed as it is
-                                flown (MissionRun, MissionFollower, fly_missions)
+                                flown (MissionRun, MissionFollower)
 
 Dependencies run down the list: items uses nothing of the package; conversion and geofence
 build items; transfer sends and compares them; retries builds on transfer; run acts on a
@@ -63,7 +63,6 @@ from mavlink.mission.run import (
     MissionFollower,
     MissionRun,
     MissionStart,
-    fly_missions,
     start_mission_confirmed,
 )
 from mavlink.mission.transfer import (
@@ -103,7 +102,6 @@ __all__ = [
     "download",
     "fence_boxes",
     "fence_zones",
-    "fly_missions",
     "geofence_items",
     "keep_waypoints",
     "path_deviation",

@@ -2,7 +2,8 @@
 
 :func:`start_mission_confirmed` starts an uploaded mission and waits until the vehicle is
 in AUTO.MISSION, armed (and climbing); :class:`MissionFollower` records MISSION_CURRENT and
-MISSION_ITEM_REACHED as :class:`MissionRun`; :func:`fly_missions` does both for a fleet.
+MISSION_ITEM_REACHED as :class:`MissionRun`. :class:`mavlink.mission.flight.MissionDriver` uses both to fly
+missions with the flight engine.
 
 A room of its own because it acts on a plan already on the vehicles: it uploads nothing.
 """
@@ -10,7 +11,6 @@ A room of its own because it acts on a plan already on the vehicles: it uploads 
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 import json
 import math
 from collections.abc import Sequence
@@ -18,7 +18,6 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from mavlink.clock import WALL, Clock
-from mavlink.errors import MissionError, MissionResult
 
 if TYPE_CHECKING:
     from mavlink.link.vehicle import Vehicle
@@ -243,7 +242,7 @@ def _seq_of(msg: Any, sysid: int) -> int | None:
     return int(json.loads(msg.fields_json)["seq"])
 
 
-#: How long (s) fly_missions keeps listening after a vehicle reports its mission finished,
+#: How long (s) a follower keeps listening after a vehicle reports its mission finished,
 #: for the last MISSION_CURRENT progress update.
 _FINISH_GRACE_S = 1.0
 
@@ -380,42 +379,3 @@ class MissionFollower:
         ):
             await self.clock.sleep(poll_s)
         return done
-
-
-async def fly_missions(
-    vehicles: Sequence[Vehicle], *, timeout_s: float, poll_s: float = 0.1
-) -> dict[str, MissionRun]:
-    """Arm, start the uploaded missions together (each start confirmed) and follow them
-    until finished or timeout.
-
-    Progress comes from MISSION_CURRENT (MAVSDK's mission progress),
-    MISSION_ITEM_REACHED (mavlink_direct, each seq once) and MAVSDK's ``is_mission_finished``.
-
-    Raises:
-        CommandError: a vehicle refused to arm.
-        MissionError: a vehicle's start did not take effect (names it and what PX4 said).
-    """
-    follower = MissionFollower(vehicles)
-    follower.attach()
-    try:
-        await asyncio.gather(*(v.arm() for v in vehicles))
-        follower.t_start = follower.clock.monotonic()
-        starts = await asyncio.gather(*(start_mission_confirmed(v, climb_m=None) for v in vehicles))
-        for v, st in zip(vehicles, starts, strict=True):
-            if not st.started:
-                raise MissionError(
-                    MissionResult.TRANSFER_FAILED,
-                    "start_mission",
-                    st.detail,
-                    vehicle=v.name,
-                    url=v.url,
-                )
-        done = await follower.until_finished(timeout_s=timeout_s, poll_s=poll_s)
-    finally:
-        follower.detach()
-    now = follower.clock.monotonic() - follower.t_start
-    out = {}
-    for v, st in zip(vehicles, starts, strict=True):
-        run = follower.run(v.name, finished=v.name in done, duration_s=done.get(v.name, now))
-        out[v.name] = dataclasses.replace(run, start=st)
-    return out

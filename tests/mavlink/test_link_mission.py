@@ -11,6 +11,7 @@ import pymap3d
 import pytest
 
 from mavlink.errors import MissionError, MissionResult
+from mavlink.flight import StartGate, fly
 from mavlink.mission import (
     Cmd,
     Frame,
@@ -20,7 +21,6 @@ from mavlink.mission import (
     compare_items,
     fence_boxes,
     fence_zones,
-    fly_missions,
     geofence_items,
     path_deviation,
     path_robustness,
@@ -30,6 +30,7 @@ from mavlink.mission import (
     upload_and_verify,
     verify,
 )
+from mavlink.mission.flight import START_ITEM, MissionDriver
 from mavlink.mock import Px4Mode
 from planner.frames import GeodeticPoint
 from planner.trajectory import Trajectory
@@ -220,10 +221,17 @@ def test_upload_read_back_identical_then_fly_the_mission_on_the_mock(profile: st
             with pytest.raises(MissionError) as info:
                 await verify(v, mp.items)
             await upload(v, mp.items)
-            runs = await fly_missions([v], timeout_s=40.0)
-            return report, fence_report, stored, stored_fence, info.value, runs
+            # flown as gcs fly --mode mission flies it: take-off, onto the start, released
+            # into the mission at its start waypoint (the mission already on the vehicle)
+            yaw = {"d1": float(mp.items[START_ITEM].param4)}
+            driver = MissionDriver(
+                {"d1": np.asarray(v1.start_enu_m)}, yaw, plan.origin, plan.horizon_s,
+                StartGate(arrive_m=0.3, arrive_timeout_s=30.0),
+            )  # fmt: skip
+            flown = await fly(fleet, driver, plan.origin, driver.gate)
+            return report, fence_report, stored, stored_fence, info.value, flown, driver
 
-    report, fence_report, stored, stored_fence, mismatch, runs = asyncio.run(run())
+    report, fence_report, stored, stored_fence, mismatch, flown, driver = asyncio.run(run())
     assert report.items == len(mp.items) and fence_report.items == 8
     # The vehicle's own copy (the mock's storage, not MAVSDK's download) equals what we sent.
     assert compare_items(mp.items, [MissionItem(**dataclasses.asdict(i)) for i in stored]) == []
@@ -232,9 +240,9 @@ def test_upload_read_back_identical_then_fly_the_mission_on_the_mock(profile: st
     assert "item 3: param1 sent 2.0, read back 9.0" in str(mismatch) or "item 3: param1" in str(
         mismatch
     )
-    run = runs["d1"]
-    assert run.finished
-    assert run.start is not None and run.start.started
+    run = flown.runs["d1"]
+    assert run.finished and flown.completed and flown.safety_event is None
+    assert driver.confirmed["d1"].started
     wp_seqs = [i.seq for i in mp.items if i.command == Cmd.NAV_WAYPOINT]
     assert run.passed(wp_seqs) == wp_seqs  # every waypoint
     # ... left in order (read from MISSION_CURRENT: PX4 reports only the last item processed)
