@@ -56,12 +56,31 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from gcs.checks import verify_plan
 from gcs.errors import GcsError, InputFileError, UserError
 from gcs.flight.dryrun import free_udp_ports
 from gcs.flight.evaluation import evaluate_flight, plan_formula, reads_heading
+from gcs.flight.landing import landing_targets
+from gcs.flight.mission import arrive_gate_m, mission_driver, mission_record
 from gcs.flight.outcome import FlightMode, FlightOutcome
+from gcs.flight.payload import CameraCommands, capture_spans, run_offboard_captures
 from gcs.flight.progress import FlightProgress, PlanStarts
+from gcs.flight.tuning import expected_error_m, margin_warnings, read_tuning
 from mavlink.clock import WALL, Clock
+from mavlink.errors import LinkError
+from mavlink.flight import fly
+from mavlink.link.fleet import Fleet
+from mavlink.link.mavsdk_glue import mavsdk_log_file
+from mavlink.link.signing import SigningProxy, load_key
+from mavlink.link.urls import Scheme, default_url, parse_url
+from mavlink.link.vehicle_status import VehicleSpec
+from mavlink.monitor import SafetyMonitor
+from mavlink.monitor_findings import always_clauses
+from mavlink.offboard import OffboardDriver
+from mavlink.offboard.setpoints import EndAction, OffboardConfig
+from mavlink.tlog import TlogRecorder
+from mavlink.tracks import track_from_rows, write_tracks_csv
+from planner.frames import enu_to_geodetic
 
 if TYPE_CHECKING:
     from gcs.checks import Check
@@ -71,13 +90,9 @@ if TYPE_CHECKING:
     from gcs.plot.coverage import CoverageReport
     from mavlink.flight import FlightDriver, FlightResult, StartGate
     from mavlink.link.camera import CameraInfo, CapturedImage
-    from mavlink.link.fleet import Fleet
     from mavlink.link.vehicle import Vehicle
-    from mavlink.link.vehicle_status import VehicleSpec, VehicleStatus
+    from mavlink.link.vehicle_status import VehicleStatus
     from mavlink.mission import CaptureSpan
-    from mavlink.monitor import SafetyMonitor
-    from mavlink.offboard import OffboardDriver
-    from mavlink.offboard.setpoints import EndAction
     from mavlink.tracks import FlownTrack
     from planner.frames import GeodeticPoint
     from planner.planfile import Plan
@@ -162,7 +177,6 @@ def preflight_interlock(plan: Plan, *, force: bool = False) -> tuple[Check, ...]
     Raises:
         FlightRefused: naming the first failed check, its value and bound, and how many fail.
     """
-    from gcs.checks import verify_plan
 
     checks = tuple(verify_plan(plan))
     failed = [c for c in checks if not c.ok]
@@ -191,8 +205,6 @@ def vehicle_specs(
         UserError: a number of URLs other than the number of vehicles.
         mavlink.errors.UrlError: a malformed URL (names it and the vehicle).
     """
-    from mavlink.link.urls import default_url, parse_url
-    from mavlink.link.vehicle_status import VehicleSpec
 
     n = len(plan.vehicles)
     if urls and len(urls) != n:
@@ -227,9 +239,6 @@ async def signed_links(
     if key_file is None:
         yield tuple(specs)
         return
-    from mavlink.link.signing import SigningProxy, load_key
-    from mavlink.link.urls import Scheme, parse_url
-    from mavlink.link.vehicle_status import VehicleSpec
 
     key = load_key(key_file)
     proxies: list[SigningProxy] = []
@@ -277,7 +286,6 @@ async def _library_log(log_dir: Path | None, files: dict[str, Path]) -> AsyncIte
     if log_dir is None:
         yield
         return
-    from mavlink.link.mavsdk_glue import mavsdk_log_file
 
     path = log_dir / MAVSDK_LOG_NAME
     with contextlib.ExitStack() as scope:
@@ -297,7 +305,6 @@ def _tracks_from_rows(
     origins: Mapping[str, GeodeticPoint],
 ) -> dict[str, FlownTrack]:
     """FlownTracks from :meth:`Vehicle.stop_track` rows ``(t, n, e, d, vn, ve, vd, yaw)``."""
-    from mavlink.tracks import track_from_rows
 
     return {
         name: track_from_rows(name, r, t0[name], mission_origin, origins[name])
@@ -322,7 +329,6 @@ async def _show_mode(
 
     A vehicle that does not get there in time is reported by its final mode, not an error.
     """
-    from mavlink.errors import LinkError
 
     async def one(v: Vehicle) -> None:
         with contextlib.suppress(LinkError):
@@ -337,9 +343,6 @@ def _offboard_driver(
     plan: Plan, opts: FlyOptions, tuning: Mapping[str, VehicleTuning]
 ) -> tuple[OffboardDriver, StartGate]:
     """Offboard mode's driver for the flight engine, and its start gate."""
-    from gcs.flight.mission import arrive_gate_m
-    from mavlink.offboard import OffboardDriver
-    from mavlink.offboard.setpoints import EndAction, OffboardConfig
 
     cfg = OffboardConfig(
         rate_hz=opts.rate_hz,
@@ -349,9 +352,6 @@ def _offboard_driver(
         drag_per_s={n: t.drag_per_s for n, t in tuning.items()},
     )
     if cfg.end_action is EndAction.LAND:
-        from gcs.flight.landing import landing_targets
-        from planner.frames import enu_to_geodetic
-
         land_at = {}
         for name, point in landing_targets(plan).items():
             lat, lon, alt = (float(np.ravel(x)[0]) for x in enu_to_geodetic(point, plan.origin))
@@ -372,8 +372,6 @@ def _monitor(
     vehicles fly the plan's trajectories (offboard), the tracking alarm too (warn past the
     plan's margin, hold past ``max_off_plan_m``); where the plan runs on board (missions), a
     lost link is ridden out."""
-    from mavlink.monitor import SafetyMonitor
-    from mavlink.monitor_findings import always_clauses
 
     names = [v.name for v in plan.vehicles]
     on = opts.monitor
@@ -415,13 +413,6 @@ async def fly_plan(
         mavlink.errors.PreflightError: a vehicle too far from its start / cannot reach it.
         mavlink.errors.LinkError: other link failures before the flight.
     """
-    from gcs.flight.mission import mission_driver, mission_record
-    from gcs.flight.payload import CameraCommands, capture_spans, run_offboard_captures
-    from gcs.flight.tuning import expected_error_m, margin_warnings, read_tuning
-    from mavlink.flight import fly
-    from mavlink.link.fleet import Fleet
-    from mavlink.tlog import TlogRecorder
-    from mavlink.tracks import write_tracks_csv
 
     opts = options or FlyOptions()
     _make_log_dir(opts.log_dir)
