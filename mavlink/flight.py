@@ -1,7 +1,8 @@
 """One flight engine for both ways of flying a plan: offboard setpoints and PX4 missions.
 
 A flight has the same phases whatever flies it; :func:`fly` runs them in order, and a
-:class:`FlightDriver` supplies what differs between the modes:
+:class:`FlightDriver` supplies what differs between the modes (and its :class:`StartGate`:
+how far a start may be, the take-off, the arrival gate):
 
 1. **positions**: every vehicle's EKF origin (GPS_GLOBAL_ORIGIN), local and global position,
    armed and in-air state are known (:meth:`FlightDriver.starts` then gives each vehicle's
@@ -202,6 +203,7 @@ class FlightDriver(Protocol):
 
     Attributes:
         names: the vehicles flown, in plan order.
+        gate: how the vehicles get onto their starts (checks, take-off, arrival gate).
         expected_mode: the PX4 mode the vehicles fly the plan in (the monitor stops a
             vehicle found in another).
         mode_grace_s: how long after t0 a heartbeat may still show another mode.
@@ -213,6 +215,7 @@ class FlightDriver(Protocol):
     """
 
     names: Sequence[str]
+    gate: StartGate
     expected_mode: Px4Mode
     mode_grace_s: float
     plans: Mapping[str, Trajectory] | None
@@ -278,7 +281,6 @@ async def start_together(
     fleet: Fleet,
     driver: FlightDriver,
     mission_origin: GeodeticPoint,
-    gate: StartGate,
     *,
     record: bool = False,
 ) -> Started:
@@ -294,7 +296,8 @@ async def start_together(
             every vehicle before it is raised.
     """
     vehicles = [fleet[name] for name in driver.names]
-    origins, starts, needs_takeoff = await _checked_starts(fleet, driver, mission_origin, gate)
+    gate = driver.gate
+    origins, starts, needs_takeoff = await _checked_starts(fleet, driver, mission_origin)
     await driver.prepare(fleet, vehicles)
     released = False
     try:
@@ -325,7 +328,6 @@ async def fly(
     fleet: Fleet,
     driver: FlightDriver,
     mission_origin: GeodeticPoint,
-    gate: StartGate,
     monitor: SafetyMonitor | None = None,
 ) -> FlightResult:
     """Fly ``driver``'s plan on ``fleet`` (the module docstring's phases).
@@ -334,7 +336,6 @@ async def fly(
         fleet: a connected :class:`~mavlink.link.fleet.Fleet` holding every vehicle named.
         driver: the mode of flight.
         mission_origin: the geodetic origin of the plan's frame.
-        gate: how the vehicles get onto their starts.
         monitor: the safety monitor (default: one that only watches the links).
 
     Returns:
@@ -347,7 +348,7 @@ async def fly(
             transfer failed.
     """
     vehicles = [fleet[name] for name in driver.names]
-    started = await start_together(fleet, driver, mission_origin, gate, record=True)
+    started = await start_together(fleet, driver, mission_origin, record=True)
     t0, origins = started.t0_monotonic_s, started.origins
 
     mon = monitor or SafetyMonitor(())
@@ -395,27 +396,25 @@ async def fly(
     )
 
 
-async def check_starts(
-    fleet: Fleet, driver: FlightDriver, mission_origin: GeodeticPoint, gate: StartGate
-) -> None:
+async def check_starts(fleet: Fleet, driver: FlightDriver, mission_origin: GeodeticPoint) -> None:
     """Phase 2's checks alone, before anything is sent (``gcs upload --start`` runs them
     before its upload; :func:`start_together` runs them again).
 
     Raises:
         PreflightError: a vehicle too far from its start, or too low below it to take off.
     """
-    await _checked_starts(fleet, driver, mission_origin, gate)
+    await _checked_starts(fleet, driver, mission_origin)
 
 
 async def _checked_starts(
-    fleet: Fleet, driver: FlightDriver, mission_origin: GeodeticPoint, gate: StartGate
+    fleet: Fleet, driver: FlightDriver, mission_origin: GeodeticPoint
 ) -> tuple[dict[str, GeodeticPoint], dict[str, StartPoint], list[Vehicle]]:
     """The origins, the starts, and the vehicles that must take off, every start checked."""
     vehicles = [fleet[name] for name in driver.names]
     origins = dict(await fleet.origins())
     await asyncio.gather(*(_wait_position(v) for v in vehicles))
     starts = driver.starts(origins)
-    needs_takeoff = await _check_starts(vehicles, starts, gate, mission_origin, origins)
+    needs_takeoff = await _check_starts(vehicles, starts, driver.gate, mission_origin, origins)
     return origins, starts, needs_takeoff
 
 

@@ -243,7 +243,7 @@ async def _start(fleet: Fleet, driver: MissionDriver, plan: Plan) -> tuple[float
     from mavlink.flight import start_together
 
     try:
-        started = await start_together(fleet, driver, plan.origin, driver.gate)
+        started = await start_together(fleet, driver, plan.origin)
     except LinkError as exc:
         return None, str(exc).splitlines()[0]
     return started.t0_unix_s, ""
@@ -308,7 +308,7 @@ async def upload_plan(
         driver = missions_driver(plan, mission_gate(plan, tolerance_m)) if start else None
         if driver is not None:
             # before anything is sent: each vehicle near its start, high enough to take off
-            await check_starts(fleet, driver, plan.origin, driver.gate)
+            await check_starts(fleet, driver, plan.origin)
         tuning = await read_tuning(fleet, names, drag_per_s)
         known = await read_nav_params(fleet, names[0])
         fp = fence_plan(plan, acc_hor_m_s2=known.get("MPC_ACC_HOR", 3.0)) if fence else None

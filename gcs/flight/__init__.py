@@ -88,7 +88,7 @@ if TYPE_CHECKING:
     from gcs.flight.missions import MissionConversion
     from gcs.flight.tuning import VehicleTuning
     from gcs.plot.coverage import CoverageReport
-    from mavlink.flight import FlightDriver, FlightResult, StartGate
+    from mavlink.flight import FlightDriver, FlightResult
     from mavlink.link.camera import CameraInfo, CapturedImage
     from mavlink.link.vehicle import Vehicle
     from mavlink.link.vehicle_status import VehicleStatus
@@ -341,8 +341,8 @@ async def _show_mode(
 
 def _offboard_driver(
     plan: Plan, opts: FlyOptions, tuning: Mapping[str, VehicleTuning]
-) -> tuple[OffboardDriver, StartGate]:
-    """Offboard mode's driver for the flight engine, and its start gate."""
+) -> OffboardDriver:
+    """Offboard mode's driver for the flight engine."""
 
     cfg = OffboardConfig(
         rate_hz=opts.rate_hz,
@@ -358,7 +358,7 @@ def _offboard_driver(
             land_at[name] = (lat, lon, alt)
         cfg = dataclasses.replace(cfg, land_at=land_at)
     trajs = {v.name: v.trajectory for v in plan.vehicles}
-    return OffboardDriver(trajs, plan.origin, cfg), cfg
+    return OffboardDriver(trajs, plan.origin, cfg)
 
 
 def _monitor(
@@ -474,10 +474,9 @@ async def fly_plan(
             async with fleet.flight() as guard:
                 driver: FlightDriver
                 if opts.mode is FlightMode.OFFBOARD:
-                    driver, gate = _offboard_driver(plan, opts, tuning)
+                    driver = _offboard_driver(plan, opts, tuning)
                 else:
                     driver, conv = await mission_driver(fleet, plan, opts, tuning, spans, note)
-                    gate = driver.gate
                 monitor = _monitor(plan, opts, driver, started, note)
                 # the ground station's camera commands where no mission carries them
                 shots = (
@@ -486,7 +485,7 @@ async def fly_plan(
                     else None
                 )
                 try:
-                    result = await fly(fleet, driver, plan.origin, gate, monitor)
+                    result = await fly(fleet, driver, plan.origin, monitor)
                 finally:
                     if shots is not None:
                         shots.cancel()

@@ -44,7 +44,7 @@ import pymap3d as pm
 from mavsdk.plugins.offboard import OffboardResult
 
 from mavlink.errors import CommandError, PreflightError
-from mavlink.flight import DriverReport, FlightResult, StartPoint, fly, start_point
+from mavlink.flight import DriverReport, FlightResult, StartGate, StartPoint, fly, start_point
 from mavlink.link.fleet import Fleet
 from mavlink.link.mavsdk_glue import mavsdk_call
 from mavlink.link.vehicle import Vehicle
@@ -161,6 +161,7 @@ class OffboardDriver:
         self.plans: Mapping[str, Trajectory] | None = trajectories
         self.mission_origin = mission_origin
         self.cfg = config
+        self.gate: StartGate = config
         n = len(self.names)
         groups = auto_send_groups(n) if config.send_groups is None else config.send_groups
         self.groups = min(groups, n) if n else 1
@@ -349,13 +350,8 @@ async def fly_offboard(
     if recorder is not None:
         recorder.start()
     try:
-        result = await fly(
-            fleet,
-            OffboardDriver(trajectories, mission_origin, cfg),
-            mission_origin,
-            cfg,
-            monitor,
-        )
+        driver = OffboardDriver(trajectories, mission_origin, cfg)
+        result = await fly(fleet, driver, mission_origin, monitor)
     finally:
         stats = recorder.stop() if recorder is not None else None
     if csv_path is not None:

@@ -228,7 +228,7 @@ def test_upload_read_back_identical_then_fly_the_mission_on_the_mock(profile: st
                 {"d1": np.asarray(v1.start_enu_m)}, yaw, plan.origin, plan.horizon_s,
                 StartGate(arrive_m=0.3, arrive_timeout_s=30.0),
             )  # fmt: skip
-            flown = await fly(fleet, driver, plan.origin, driver.gate)
+            flown = await fly(fleet, driver, plan.origin)
             return report, fence_report, stored, stored_fence, info.value, flown, driver
 
     report, fence_report, stored, stored_fence, mismatch, flown, driver = asyncio.run(run())
