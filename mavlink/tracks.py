@@ -4,7 +4,8 @@ The one track type of the project (:class:`FlownTrack`): the flight records it
 (:mod:`mavlink.offboard`, :mod:`gcs.flight`), a ``.tlog`` rebuilds it
 (:func:`mavlink.tlog.tracks_from_tlog`), a telemetry file is read into it
 (:func:`gcs.telemetry.load_telemetry`, the one reader of :func:`write_tracks_csv`'s files).
-A module of its own, numpy only, so that reading flown data never loads pymavlink.
+A module of its own, numpy and the STL engine's window filter only, so that reading flown
+data never loads pymavlink.
 
 A track may carry the vehicle's heading (``yaw_enu_rad``: the mission frame's ENU yaw, 0 =
 east, counter-clockwise, from ATTITUDE.yaw), which ``face(d, target)`` reads as the fourth
@@ -25,6 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mavlink.errors import LinkError, MissingHeadingError
+from planner.stl.exact import window_extreme
 
 if TYPE_CHECKING:
     from planner.frames import GeodeticPoint
@@ -182,7 +184,7 @@ def vehicle_instants(
     period = float(np.median(np.diff(t_recv)))
     half = min(n, round(0.5 * window_s / period)) if period > 0 else n
     padded = np.pad(offset, (half, half), mode="edge")
-    return t_boot + np.lib.stride_tricks.sliding_window_view(padded, 2 * half + 1).min(axis=1)
+    return t_boot + window_extreme(padded, 0, 2 * half, minimum=True)
 
 
 def track_from_rows(

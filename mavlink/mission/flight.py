@@ -96,7 +96,6 @@ class MissionDriver:
         self.gate = gate
         self.confirmed: dict[str, MissionStart] = {}
         self._follower: MissionFollower | None = None
-        self._t_accepted: dict[str, float] = {}
         self._done: dict[str, float] = {}
 
     def starts(self, origins: Mapping[str, GeodeticPoint]) -> dict[str, StartPoint]:
@@ -151,8 +150,7 @@ class MissionDriver:
             raise PreflightError(
                 f"mission start did not take effect: {s.detail}", vehicle=s.vehicle
             )
-        self._t_accepted = {s.vehicle: s.t_accepted_monotonic_s for s in started}
-        t0 = float(np.median(list(self._t_accepted.values())))
+        t0 = float(np.median([s.t_accepted_monotonic_s for s in started]))
         follower.t_start = t0
         return t0
 
@@ -192,5 +190,5 @@ class MissionDriver:
         return DriverReport(
             completed=bool(runs) and all(r.finished for r in runs.values()),
             runs=runs,
-            start_skew_s={n: t - t0 for n, t in self._t_accepted.items()},
+            start_skew_s={n: s.t_accepted_monotonic_s - t0 for n, s in self.confirmed.items()},
         )

@@ -158,7 +158,8 @@ class OffboardDriver:
         config: OffboardConfig,
     ) -> None:
         self.names: Sequence[str] = list(trajectories)
-        self.plans: Mapping[str, Trajectory] | None = trajectories
+        self.trajectories = trajectories
+        self.plans: Mapping[str, Trajectory] | None = trajectories  # the monitor's
         self.mission_origin = mission_origin
         self.cfg = config
         self.gate: StartGate = config
@@ -192,11 +193,6 @@ class OffboardDriver:
             )
             for name in self.names
         }
-
-    @property
-    def trajectories(self) -> Mapping[str, Trajectory]:
-        assert self.plans is not None
-        return self.plans
 
     async def prepare(self, fleet: Fleet, vehicles: Sequence[Vehicle]) -> None:
         return None
