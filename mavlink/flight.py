@@ -241,8 +241,9 @@ class FlightDriver(Protocol):
 
     async def abort(self) -> None:
         """End whatever of the driver runs (idempotent): called when the flight ends before
-        the release or during the run (a failure, a cancellation), never after a release
-        that :meth:`run` and :meth:`finish` follow."""
+        the release or during the run (a failure, a cancellation), or after a release that
+        no :meth:`run` follows; never after a release that :meth:`run` and :meth:`finish`
+        follow."""
         ...
 
     def done(self, name: str) -> bool:
@@ -286,7 +287,8 @@ async def start_together(
 ) -> Started:
     """Phases 1-5 of the module docstring: the checks, the take-off, the arrival gate and
     one release. :func:`fly` goes on with the flight; ``gcs upload --start`` leaves the
-    missions to fly on board from here.
+    missions to fly on board from here, and a caller that does so ends the driver with
+    :meth:`FlightDriver.abort` (a mission driver's follower holds MAVSDK subscriptions).
 
     Args:
         record: start every vehicle's track just before the release (:func:`fly`).

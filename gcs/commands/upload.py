@@ -246,6 +246,10 @@ async def _start(fleet: Fleet, driver: MissionDriver, plan: Plan) -> tuple[float
         started = await start_together(fleet, driver, plan.origin)
     except LinkError as exc:
         return None, str(exc).splitlines()[0]
+    finally:
+        # nothing follows the missions from here: the driver's mission follower lets go of
+        # its MAVSDK subscriptions before the link closes under them
+        await driver.abort()
     return started.t0_unix_s, ""
 
 
