@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from planner.assurance import Assurance, assurance_from_json
 from planner.dynamics.limits import PX4_LIMIT_KEYS
 from planner.errors import FileFieldError
 from planner.frames import GeodeticPoint
@@ -126,6 +127,8 @@ class Plan:
     check_dt_s: float
     #: How far (degrees) a ``face`` may be off its target (the scenario's; 15 in older files).
     face_tolerance_deg: float = 15.0
+    #: How the plan was made to a probability (``gcs plan --target-probability``), else None.
+    assurance: Assurance | None = None
     #: The file the plan was read from; ``""`` for a plan made in memory (``PlanResult.to_plan``).
     source: str = field(default="", compare=False)
     #: The parsed and checked spec, made on first use (:func:`plan_formula`), once per plan.
@@ -228,6 +231,7 @@ def plan_to_json(plan: Plan) -> dict[str, Any]:
         "workspace": _region_json(plan.workspace),
         "regions": {r.name: _region_json(r) for r in plan.regions},
         "vehicles": vehicles,
+        **({} if plan.assurance is None else {"assurance": plan.assurance.to_json()}),
     }
 
 
@@ -480,6 +484,11 @@ def load_plan(path: str | Path) -> Plan:
         sample_dt_s=rd.number(data, "sample_dt_s", positive=True),
         check_dt_s=check_dt_s,
         face_tolerance_deg=_face_tolerance(rd, data),
+        assurance=(
+            None
+            if data.get("assurance") is None
+            else assurance_from_json(data["assurance"], rd.fail)
+        ),
         source=src,
     )
 

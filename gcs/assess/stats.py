@@ -154,6 +154,8 @@ class AssessResult:
         planned: the plan's own exact robustness.
         quantiles, quantiles_reported: the spec's robustness quantiles (true, reported).
         clauses: per top-level clause.
+        clause_true: ``(runs, clauses)`` each clause's robustness in each run (true
+            positions), in run order.
         worst: the worst runs (lowest true robustness first).
         margin_needed_m: the planned robustness a plan would need for P(holds) >= 0.99 if it
             lost as much as this one does: the 99th percentile of ``planned - true``
@@ -179,6 +181,7 @@ class AssessResult:
     quantiles: dict[str, float]
     quantiles_reported: dict[str, float]
     clauses: tuple[ClauseStats, ...]
+    clause_true: np.ndarray
     worst: tuple[RunSummary, ...]
     margin_needed_m: float | None
     failsafes: int
@@ -356,6 +359,7 @@ def summarise(
         quantiles=_quantiles(true),
         quantiles_reported=_quantiles(rep),
         clauses=tuple(clause_stats),
+        clause_true=c_true,
         worst=worst,
         margin_needed_m=margin,
         failsafes=int(np.isfinite(table["failsafe_s"]).sum()),

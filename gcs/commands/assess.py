@@ -84,14 +84,7 @@ def _options(args: argparse.Namespace) -> Any:
     from gcs.assess import AssessOptions
     from gcs.errors import UserError
 
-    settings: dict[str, str] = {}
-    for item in args.disturbance:
-        name, sep, text = item.partition("=")
-        if not sep or not name.strip():
-            raise UserError(f"--disturbance {item!r}: expected NAME=DIST")
-        settings[name.strip()] = text
-    if args.wind is not None:
-        settings["wind_m_s"] = args.wind
+    settings = disturbance_settings(args.disturbance, args.wind)
     if not (2.0 < args.rate <= 100.0):
         raise UserError(f"--rate: must be in (2, 100] Hz, got {args.rate:g}")
     if args.drag is not None and not (math.isfinite(args.drag) and 0 <= args.drag <= 10):
@@ -116,6 +109,21 @@ def _options(args: argparse.Namespace) -> Any:
         monitor=args.monitor,
         max_off_plan_m=args.max_off_plan or None,
     )
+
+
+def disturbance_settings(items: list[str], wind: str | None) -> dict[str, str]:
+    """``-d NAME=DIST`` options and ``--wind DIST`` as ``{name: distribution text}``."""
+    from gcs.errors import UserError
+
+    settings: dict[str, str] = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        if not sep or not name.strip():
+            raise UserError(f"--disturbance {item!r}: expected NAME=DIST")
+        settings[name.strip()] = text
+    if wind is not None:
+        settings["wind_m_s"] = wind
+    return settings
 
 
 def _list_disturbances(out: TextIO) -> None:

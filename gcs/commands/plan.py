@@ -52,6 +52,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         choices=["ipopt", "sqpmethod"],
         help="override the scenario's NLP method (sqpmethod: with BFGS and solver.qpsol)",
     )
+    g = p.add_argument_group(
+        "planning to a probability",
+        "plan, assess the plan as gcs assess does, tighten the clauses that fail and plan "
+        "again until P(spec holds) reaches P on runs the loop did not tune on",
+    )
+    g.add_argument("--target-probability", type=float, metavar="P",
+                   help="the probability the plan must hold with (0 < P < 1)")  # fmt: skip
+    g.add_argument("-d", "--disturbance", action="append", default=[], metavar="NAME=DIST",
+                   help="a disturbance's distribution, as gcs assess (repeatable)")  # fmt: skip
+    g.add_argument("--wind", metavar="DIST", help="short for -d wind_m_s=DIST")
+    g.add_argument("--profile", default="px4", help="simulated vehicle, as gcs assess (px4)")
+    g.add_argument("--assess-runs", type=int, default=2000, metavar="N",
+                   help="runs of each round's assessment (2000)")  # fmt: skip
+    g.add_argument("--final-runs", type=int, default=4000, metavar="N",
+                   help="runs of each check on fresh seeds (4000)")  # fmt: skip
+    g.add_argument("--rounds", type=int, default=6, metavar="K", help="most plans made (6)")
+    g.add_argument("--seed", type=int, default=0,
+                   help="base campaign seed: round k tunes on seed+k (0)")  # fmt: skip
+    g.add_argument("--workers", type=int, help="CPUs for a local Ray (default all; 0: no Ray)")
+    g.add_argument("--ray-address", metavar="ADDRESS",
+                   help="an existing Ray cluster (default: RAY_ADDRESS, else a local Ray)")  # fmt: skip
 
 
 def summary(result: Any, output: str | None) -> dict[str, Any]:
@@ -258,6 +279,9 @@ def run(args: argparse.Namespace) -> int:
         method = SolverMethod(args.solver)
         hessian = "limited-memory" if method is SolverMethod.SQP else problem.solver.hessian
         problem = replace(problem, solver=replace(problem.solver, method=method, hessian=hessian))
+    if args.target_probability is not None:
+        return _to_probability(args, problem, out)
+    _no_target_options(args)
     with _Ticker(enabled=True) as ticker:
         result = plan(
             problem,
@@ -278,3 +302,115 @@ def run(args: argparse.Namespace) -> int:
             print(note)
         print(f"plan written to {out}")
     return 0 if result.success else 1
+
+
+#: Options that only mean something with --target-probability, and their defaults.
+_TARGET_ONLY: dict[str, Any] = {
+    "disturbance": [],
+    "wind": None,
+    "profile": "px4",
+    "assess_runs": 2000,
+    "final_runs": 4000,
+    "rounds": 6,
+    "seed": 0,
+    "workers": None,
+    "ray_address": None,
+}
+
+
+def _no_target_options(args: argparse.Namespace) -> None:
+    from gcs.errors import UserError
+
+    for name, default in _TARGET_ONLY.items():
+        if getattr(args, name) != default:
+            raise UserError(f"--{name.replace('_', '-')} needs --target-probability")
+
+
+def _to_probability(args: argparse.Namespace, problem: Any, out: Path) -> int:
+    """``--target-probability``: the loop of :mod:`gcs.assess.target`; 0 when met."""
+    from gcs.assess import AssessOptions
+    from gcs.assess.target import TargetOptions, plan_to_probability
+    from gcs.commands.assess import disturbance_settings
+    from gcs.errors import UserError
+    from mavlink.mock.profiles import PROFILES
+    from planner.planfile import save_plan
+
+    if args.profile not in PROFILES:
+        raise UserError(f"--profile: unknown {args.profile!r} (profiles: {', '.join(PROFILES)})")
+    opts = TargetOptions(
+        probability=args.target_probability,
+        assess=AssessOptions(
+            runs=args.assess_runs,
+            seed=args.seed,
+            disturbances=disturbance_settings(args.disturbance, args.wind),
+            profile=args.profile,
+            workers=args.workers,
+            ray_address=args.ray_address,
+        ),
+        final_runs=args.final_runs,
+        rounds=args.rounds,
+        time_limit_s=args.time_limit or None,
+    )
+    t0 = time.perf_counter()
+
+    def say(line: str) -> None:
+        print(f"gcs plan: {line} ({time.perf_counter() - t0:.1f} s)", file=sys.stderr, flush=True)
+
+    r = plan_to_probability(problem, opts, scenario_path=str(args.scenario), say=say)
+    save_plan(out, r.plan)
+    if args.json:
+        print(json.dumps({**summary(r.result, str(out)), **target_json(r)}))
+    else:
+        print(plan_table(r.result))
+        print(target_table(r))
+        print(f"plan written to {out}")
+    return 0 if r.met else 1
+
+
+def target_json(r: Any) -> dict[str, Any]:
+    """The loop's record for ``--json``: the assurance, each round, the first plan's figure."""
+    assert r.plan.assurance is not None
+    return {
+        "assurance": r.plan.assurance.to_json(),
+        "first_robustness": r.first,
+        "rounds": [
+            {
+                "round": rd.index,
+                "robustness": rd.robustness,
+                "plan_s": rd.planned_s,
+                "tuning": {"runs": rd.runs, "seed": rd.seed, "p_holds": rd.p, "ci95": list(rd.ci)},
+                "fresh": None
+                if rd.fresh is None
+                else {
+                    "runs": rd.fresh.runs,
+                    "seed": rd.fresh.seed,
+                    "p_holds": rd.fresh.p,
+                    "ci95": list(rd.fresh.ci),
+                },
+                "margins": dict(rd.margins),
+            }
+            for rd in r.rounds
+        ],
+    }
+
+
+def target_table(r: Any) -> str:
+    """The loop's rounds, the margins of the plan kept and its assurance, as text."""
+    lines = ["", f"{'round':>5} {'robust':>8} {'plan s':>7} {'P tuning':>18} {'P fresh':>18}"]
+    for rd in r.rounds:
+        fresh = "-" if rd.fresh is None else f"{rd.fresh.p:.4f} [{rd.fresh.ci[0]:.4f}]"
+        lines.append(
+            f"{rd.index:>5} {rd.robustness:>+8.3f} {rd.planned_s:>7.1f} "
+            f"{f'{rd.p:.4f} [{rd.ci[0]:.4f}]':>18} {fresh:>18}"
+        )
+    if r.margins:
+        lines.append("clauses tightened (margin, m):")
+        for text, m in sorted(r.margins.items(), key=lambda kv: -kv[1]):
+            lines.append(f"  {m:6.2f}  {clause_cell(text, set())}")
+    lines.append(
+        f"robustness {r.result.robustness:+.3f} as written (first plan {r.first:+.3f}); "
+        f"{r.elapsed_s:.0f} s"
+    )
+    assert r.plan.assurance is not None
+    lines.append(("OK: " if r.met else "NOT MET: ") + r.plan.assurance.summary())
+    return "\n".join(lines)

@@ -92,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
                         for c in checks
                     ],
                     "coverage": None if report is None else coverage_json(report),
+                    "assurance": None if plan.assurance is None else plan.assurance.to_json(),
                 }
             )
         )
@@ -107,6 +108,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"{mark} {c.name}: {c.value:.4g} (bound {c.bound:.4g}) {c.detail}".rstrip())
         if report is not None:
             print("\n".join(coverage_lines(report)))
+        if plan.assurance is not None:
+            print(plan.assurance.summary())
         if failed:
             print(f"FAILED: {len(failed)} of {len(checks)} checks; first: {failed[0].name}")
         else:

@@ -122,6 +122,8 @@ def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
     )
     for name, why in outcome.end_failures.items():
         lines.append(f"  {name}: end action failed: {why}")
+    if plan.assurance is not None:
+        lines.append(plan.assurance.summary())
     ev = outcome.evaluation
     if ev is not None:
         flown = "n/a" if ev.flown_robustness is None else f"{ev.flown_robustness:+.4f}"
@@ -248,6 +250,7 @@ def outcome_json(plan: Plan, outcome: FlightOutcome) -> dict[str, Any]:
 
     return {
         "mode": outcome.mode.value,
+        "assurance": None if plan.assurance is None else plan.assurance.to_json(),
         "completed": outcome.completed,
         "interrupted": outcome.interrupted,
         "connect_s": outcome.connect_s,

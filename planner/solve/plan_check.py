@@ -6,19 +6,21 @@ what the start alone allows (:func:`start_bound`).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
-from planner.checks import LimitReport
+from planner.checks import LimitReport, check_trajectories
 from planner.dynamics import DoubleIntegrator, MinimumJerkChain
 from planner.problem import DynamicsModel, Problem
-from planner.results import ClauseReport, StartBound, Weakest
+from planner.results import ClauseReport, PlanResult, StartBound, Weakest
+from planner.scenario.spec import parse_clause
 from planner.solve.nlp import is_direct
-from planner.spec.heading import heading_signals
-from planner.stl import Formula, explanation
+from planner.spec.heading import heading_signals, uses_heading
+from planner.stl import Formula, conjunction, explanation
 from planner.trajectory import Trajectory
 
 __all__ = [
@@ -28,6 +30,7 @@ __all__ = [
     "evaluate",
     "initial_states",
     "make_model",
+    "recheck",
     "start_bound",
     "verdict",
 ]
@@ -167,4 +170,37 @@ def verdict(
     return False, "; ".join(
         ([f"limits violated by {', '.join(bad)}"] if bad else [])
         + ([f"outside the workspace: {', '.join(out)}"] if out else [])
+    )
+
+
+def recheck(result: PlanResult, problem: Problem, note: str = "") -> PlanResult:
+    """``result``'s trajectories judged against ``problem`` instead of the problem they were
+    planned for (a plan made for tightened clauses, :mod:`planner.spec.margins`, judged
+    against the spec as written): its robustness, clauses, weakest sub-formula, limits and
+    verdict; the solver's figures kept.  ``note`` is added to the status."""
+    formulas = list(problem.formulas)
+    if len(formulas) != len(problem.clauses):
+        formulas = [parse_clause(problem, c) for c in problem.clauses]
+    heading = uses_heading(formulas)
+    rob, rob_grid, weakest, clauses = evaluate(
+        problem, conjunction(formulas), formulas, result.trajectories, heading
+    )
+    t = problem.timing
+    limits = check_trajectories(
+        problem, result.trajectories, problem.vehicles, t.check_dt_s, t.horizon_s
+    )
+    success, said = verdict(problem, rob, weakest, limits)
+    status = ("the mission is met: " if success else "the mission is not met: ") + said
+    return dataclasses.replace(
+        result,
+        problem=problem,
+        success=success,
+        status=status + (f" ({note})" if note else ""),
+        robustness=rob,
+        robustness_planning_grid=rob_grid,
+        weakest=weakest,
+        clauses=clauses,
+        limits=tuple(limits),
+        needs=(),
+        start_bound=None,
     )
