@@ -2,7 +2,9 @@
 
 Written by ``gcs demo`` (``<out>/report.md``, next to the picture) and by ``gcs fly --log DIR``
 (``DIR/report.md``). Sections: a summary table (planned and flown robustness, planning and
-flight time, completion), the wall-time split, the picture (``gcs.plot``'s figure with the
+flight time, completion), the wall-time split, how the plan was made to a probability
+(``gcs plan --target-probability``: its record and the margin of each tightened clause), the
+picture (``gcs.plot``'s figure with the
 flown tracks over the plan) when there is one, every top-level clause with its planned and
 flown robustness (weakest flown first), tracking errors per vehicle, the setpoint stream's
 timing, and the files written. Markdown reads as plain text in a terminal and renders with
@@ -113,6 +115,14 @@ def report_markdown(
             share = 100.0 * s / total if total > 0 else 0.0
             lines.append(f"| {stage} | {s:.2f} | {share:.0f} % |")
         lines += [f"| total | {total:.2f} | |", ""]
+    a = plan.assurance
+    if a is not None:
+        lines += ["## Planned to a probability", "", _cell(a.summary()), ""]
+        if a.margins:
+            lines += ["| margin m | clause (tightened by it when planned) |", "|---:|---|"]
+            for text, m in sorted(a.margins.items(), key=lambda kv: -kv[1]):
+                lines.append(f"| {m:.2f} | `{_cell(text)}` |")
+            lines.append("")
     if picture is not None:
         lines += [
             "## Picture",

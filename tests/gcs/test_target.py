@@ -4,6 +4,7 @@ checked by an independent assessment on other seeds), and its bad input."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -22,6 +23,9 @@ from gcs.assess.target import (
     STEP_M,
     needed_margins,
 )
+from gcs.flight.outcome import FlightMode, FlightOutcome, format_outcome, outcome_json
+from gcs.report import report_markdown
+from planner.assurance import Assurance
 from planner.planfile import PlanFileError, load_plan
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
@@ -159,3 +163,25 @@ def test_a_bad_assurance_in_a_plan_file_names_its_field(tmp_path: Path) -> None:
         p.write_text(json.dumps({**data, "assurance": {**good, key: bad}}))
         with pytest.raises(PlanFileError, match=field.replace("[", r"\[").replace("]", r"\]")):
             load_plan(p)
+
+
+def test_the_flight_summary_and_report_say_how_the_plan_was_made() -> None:
+
+    src = Path(__file__).resolve().parents[1] / "mavlink" / "data" / "reach_avoid_2.plan.json"
+    record = Assurance(
+        target=0.99, met=False, p=0.982, ci=(0.977, 0.986), runs=4000, seed=100002,
+        disturbances={"wind_m_s": "uniform(0, 6)"}, margins={"always[0,6] (dist(d1, d2) >= 0.2)": 0.35},
+        rounds=3, elapsed_s=170.0, limiting="eventually[0,5] inside(d1, goal)",
+    )  # fmt: skip
+    plan = dataclasses.replace(load_plan(src), assurance=record)
+    outcome = FlightOutcome(
+        mode=FlightMode.OFFBOARD, completed=False, interrupted=True, connect_s=0.0,
+        flight_s=0.0, t0_unix_s=None, tracks={}, evaluation=None,
+    )  # fmt: skip
+    text = format_outcome(plan, outcome)
+    assert "planned to P >= 0.99 (NOT met): P(spec holds) = 0.9820 [0.9770, 0.9860]" in text
+    assert "limited by eventually[0,5] inside(d1, goal)" in text
+    assert outcome_json(plan, outcome)["assurance"] == record.to_json()
+    md = report_markdown(plan, outcome, title="t", base_dir=src.parent)
+    assert "## Planned to a probability" in md
+    assert "| 0.35 | `always[0,6] (dist(d1, d2) >= 0.2)` |" in md
