@@ -120,8 +120,8 @@ def report_markdown(
         lines += ["## Planned to a probability", "", _cell(a.summary()), ""]
         if a.margins:
             lines += ["| margin m | clause (tightened by it when planned) |", "|---:|---|"]
-            for text, m in sorted(a.margins.items(), key=lambda kv: -kv[1]):
-                lines.append(f"| {m:.2f} | `{_cell(text)}` |")
+            for text, margin in sorted(a.margins.items(), key=lambda kv: -kv[1]):
+                lines.append(f"| {margin:.2f} | `{_cell(text)}` |")
             lines.append("")
     if picture is not None:
         lines += [

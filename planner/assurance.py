@@ -16,7 +16,27 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["Assurance", "assurance_from_json"]
+__all__ = ["Assurance", "AssuranceGoal", "assurance_from_json"]
+
+
+@dataclass(frozen=True, slots=True)
+class AssuranceGoal:
+    """A scenario's ``assurance`` section: what ``gcs plan`` plans to when it has one (the
+    command's ``--target-probability`` and its options override it).
+
+    Attributes:
+        probability: the target, 0 < P < 1.
+        disturbances: per disturbance name, its distribution as text (``gcs assess -d``).
+        runs: runs of each round's assessment; ``final_runs``: of each check on fresh seeds.
+        rounds: most plans made; ``seed``: the base campaign seed.
+    """
+
+    probability: float
+    disturbances: Mapping[str, str] = field(default_factory=dict)
+    runs: int = 2000
+    final_runs: int = 4000
+    rounds: int = 6
+    seed: int = 0
 
 
 @dataclass(frozen=True, slots=True)

@@ -14,6 +14,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from typing import Any
 
+from planner.assurance import AssuranceGoal
 from planner.frames import GeodeticPoint
 from planner.spec.regions import Region
 from planner.stl import Formula
@@ -181,6 +182,8 @@ class Problem:
     constants: Mapping[str, float] = field(default_factory=dict)
     #: How far (degrees) a ``face`` may be off its target (the scenario's face_tolerance_deg).
     face_tolerance_deg: float = 15.0
+    #: The scenario's ``assurance`` section (``gcs plan`` plans to that probability), or None.
+    assurance: AssuranceGoal | None = None
     #: The clauses parsed at load (exact and smooth semantics), in order; empty for a
     #: problem made otherwise (``dataclasses.replace``), which is parsed where it is used.
     formulas: tuple[Formula, ...] = field(default=(), init=False, repr=False, compare=False)

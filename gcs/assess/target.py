@@ -140,7 +140,8 @@ class TargetResult:
     Attributes:
         result: the plan kept, judged against the spec as written (:func:`recheck`).
         plan: it as a plan file, with its :class:`Assurance`.
-        final: the assessment on fresh seeds the plan file records.
+        final: the assessment on fresh seeds the plan file records (``None``, and no
+            assurance, when the scenario as written cannot be planned: nothing was assessed).
         rounds: every round, in order.
         met: the final interval's lower end is at least the target.
         limiting: when not met, the clause that limits it (its text) and why.
@@ -149,7 +150,7 @@ class TargetResult:
 
     result: PlanResult
     plan: Plan
-    final: AssessResult
+    final: AssessResult | None
     rounds: tuple[TargetRound, ...]
     met: bool
     limiting: str | None
@@ -316,8 +317,18 @@ def plan_to_probability(
                 fresh = assess(plans[top][0].to_plan(scenario_path), check)
                 rounds[top] = dataclasses.replace(chosen, fresh=fresh)
             best = (fresh.ci[0], plans[top][1], fresh, dict(chosen.margins))
-    if best is None:  # the scenario itself cannot be planned: nothing was assessed
-        raise UserError(f"{written.source}: {limiting}")
+    if best is None:  # the scenario as written cannot be planned: nothing to assess
+        fail = recheck(tight, written)
+        return TargetResult(
+            result=fail,
+            plan=fail.to_plan(scenario_path),
+            final=None,
+            rounds=(),
+            met=False,
+            limiting=limiting,
+            first=first,
+            elapsed_s=time.perf_counter() - t0,
+        )
     _, kept_tight, final, kept_margins = best
     kept = recheck(
         kept_tight,

@@ -55,21 +55,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group(
         "planning to a probability",
         "plan, assess the plan as gcs assess does, tighten the clauses that fail and plan "
-        "again until P(spec holds) reaches P on runs the loop did not tune on",
+        "again until P(spec holds) reaches P on runs the loop did not tune on (the scenario's "
+        "assurance section sets the same; these options override it)",
     )
     g.add_argument("--target-probability", type=float, metavar="P",
                    help="the probability the plan must hold with (0 < P < 1)")  # fmt: skip
     g.add_argument("-d", "--disturbance", action="append", default=[], metavar="NAME=DIST",
                    help="a disturbance's distribution, as gcs assess (repeatable)")  # fmt: skip
     g.add_argument("--wind", metavar="DIST", help="short for -d wind_m_s=DIST")
-    g.add_argument("--profile", default="px4", help="simulated vehicle, as gcs assess (px4)")
-    g.add_argument("--assess-runs", type=int, default=2000, metavar="N",
+    g.add_argument("--profile", help="simulated vehicle, as gcs assess (px4)")
+    g.add_argument("--assess-runs", type=int, metavar="N",
                    help="runs of each round's assessment (2000)")  # fmt: skip
-    g.add_argument("--final-runs", type=int, default=4000, metavar="N",
+    g.add_argument("--final-runs", type=int, metavar="N",
                    help="runs of each check on fresh seeds (4000)")  # fmt: skip
-    g.add_argument("--rounds", type=int, default=6, metavar="K", help="most plans made (6)")
-    g.add_argument("--seed", type=int, default=0,
-                   help="base campaign seed: round k tunes on seed+k (0)")  # fmt: skip
+    g.add_argument("--rounds", type=int, metavar="K", help="most plans made (6)")
+    g.add_argument("--seed", type=int, help="base campaign seed: round k tunes on seed+k (0)")
     g.add_argument("--workers", type=int, help="CPUs for a local Ray (default all; 0: no Ray)")
     g.add_argument("--ray-address", metavar="ADDRESS",
                    help="an existing Ray cluster (default: RAY_ADDRESS, else a local Ray)")  # fmt: skip
@@ -279,7 +279,7 @@ def run(args: argparse.Namespace) -> int:
         method = SolverMethod(args.solver)
         hessian = "limited-memory" if method is SolverMethod.SQP else problem.solver.hessian
         problem = replace(problem, solver=replace(problem.solver, method=method, hessian=hessian))
-    if args.target_probability is not None:
+    if args.target_probability is not None or problem.assurance is not None:
         return _to_probability(args, problem, out)
     _no_target_options(args)
     with _Ticker(enabled=True) as ticker:
@@ -304,15 +304,15 @@ def run(args: argparse.Namespace) -> int:
     return 0 if result.success else 1
 
 
-#: Options that only mean something with --target-probability, and their defaults.
+#: Options that only mean something with a target probability (their unset values).
 _TARGET_ONLY: dict[str, Any] = {
     "disturbance": [],
     "wind": None,
-    "profile": "px4",
-    "assess_runs": 2000,
-    "final_runs": 4000,
-    "rounds": 6,
-    "seed": 0,
+    "profile": None,
+    "assess_runs": None,
+    "final_runs": None,
+    "rounds": None,
+    "seed": None,
     "workers": None,
     "ray_address": None,
 }
@@ -321,34 +321,55 @@ _TARGET_ONLY: dict[str, Any] = {
 def _no_target_options(args: argparse.Namespace) -> None:
     from gcs.errors import UserError
 
-    for name, default in _TARGET_ONLY.items():
-        if getattr(args, name) != default:
-            raise UserError(f"--{name.replace('_', '-')} needs --target-probability")
+    for name, unset in _TARGET_ONLY.items():
+        if getattr(args, name) != unset:
+            raise UserError(
+                f"--{name.replace('_', '-')} needs --target-probability "
+                "(or the scenario's assurance section)"
+            )
+
+
+def _first(*values: Any) -> Any:
+    return next(v for v in values if v is not None)
 
 
 def _to_probability(args: argparse.Namespace, problem: Any, out: Path) -> int:
-    """``--target-probability``: the loop of :mod:`gcs.assess.target`; 0 when met."""
+    """The loop of :mod:`gcs.assess.target`, set by the options over the scenario's
+    ``assurance`` section; 0 when met."""
     from gcs.assess import AssessOptions
     from gcs.assess.target import TargetOptions, plan_to_probability
     from gcs.commands.assess import disturbance_settings
     from gcs.errors import UserError
+    from mavlink.mock.disturbances import parse_disturbances
+    from mavlink.mock.errors import MockConfigError
     from mavlink.mock.profiles import PROFILES
+    from planner.assurance import AssuranceGoal
     from planner.planfile import save_plan
 
-    if args.profile not in PROFILES:
-        raise UserError(f"--profile: unknown {args.profile!r} (profiles: {', '.join(PROFILES)})")
+    goal = problem.assurance or AssuranceGoal(probability=math.nan)
+    if problem.assurance is not None:
+        try:
+            parse_disturbances(goal.disturbances)
+        except MockConfigError as exc:
+            raise UserError(f"{problem.source}: assurance.disturbances: {exc}") from None
+    profile = _first(args.profile, "px4")
+    if profile not in PROFILES:
+        raise UserError(f"--profile: unknown {profile!r} (profiles: {', '.join(PROFILES)})")
     opts = TargetOptions(
-        probability=args.target_probability,
+        probability=_first(args.target_probability, goal.probability),
         assess=AssessOptions(
-            runs=args.assess_runs,
-            seed=args.seed,
-            disturbances=disturbance_settings(args.disturbance, args.wind),
-            profile=args.profile,
+            runs=_first(args.assess_runs, goal.runs),
+            seed=_first(args.seed, goal.seed),
+            disturbances={
+                **goal.disturbances,
+                **disturbance_settings(args.disturbance, args.wind),
+            },
+            profile=profile,
             workers=args.workers,
             ray_address=args.ray_address,
         ),
-        final_runs=args.final_runs,
-        rounds=args.rounds,
+        final_runs=_first(args.final_runs, goal.final_runs),
+        rounds=_first(args.rounds, goal.rounds),
         time_limit_s=args.time_limit or None,
     )
     t0 = time.perf_counter()
@@ -358,6 +379,14 @@ def _to_probability(args: argparse.Namespace, problem: Any, out: Path) -> int:
 
     r = plan_to_probability(problem, opts, scenario_path=str(args.scenario), say=say)
     save_plan(out, r.plan)
+    if r.final is None:  # the scenario as written cannot be planned: nothing was assessed
+        if args.json:
+            print(json.dumps({**summary(r.result, str(out)), "assurance": None, "rounds": []}))
+        else:
+            print(plan_table(r.result))
+            print("not assessed: the scenario as written cannot be planned")
+            print(f"plan written to {out}")
+        return 1
     if args.json:
         print(json.dumps({**summary(r.result, str(out)), **target_json(r)}))
     else:

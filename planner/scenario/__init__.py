@@ -70,6 +70,7 @@ from planner.scenario.sections import (
     Reader,
     ScenarioError,
     join_key,
+    read_assurance,
     read_limits,
     read_region,
     read_solver,
@@ -100,6 +101,7 @@ _TOP_KEYS = {
     "constants",
     "spec",
     "description",
+    "assurance",
 }
 
 
@@ -323,6 +325,7 @@ def parse_scenario(
         clauses=tuple(clauses),
         constants=constants,
         face_tolerance_deg=face_tol,
+        assurance=None if top.get("assurance") is None else read_assurance(rd, top["assurance"]),
     )
     for finding in start_findings(problem, start_keys):
         raise rd.fail(finding.key_path, finding.message)

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from planner.assurance import AssuranceGoal
 from planner.dynamics.limits import PX4_LIMIT_KEYS
 from planner.errors import FileFieldError
 from planner.problem import QP_SOLVERS, SolverMethod, SolverOptions, Vehicle
@@ -519,3 +520,30 @@ def read_solver(rd: Reader, value: Any) -> SolverOptions:
             m["lexicographic_rounds"], "solver.lexicographic_rounds", minimum=0
         )
     return SolverOptions(**kw)
+
+
+def read_assurance(rd: Reader, value: Any) -> AssuranceGoal:
+    """The ``assurance`` section: ``probability`` (required, in (0, 1)), ``disturbances``
+    (``{name: distribution}``, as ``gcs assess -d``; the names and distributions are checked
+    where the campaign is set up), ``runs``, ``final_runs``, ``rounds``, ``seed``."""
+    allowed = {"probability", "disturbances", "runs", "final_runs", "rounds", "seed"}
+    m = rd.mapping(value, "assurance", allowed)
+    p = rd.number(rd.require(m, "probability", "assurance"), "assurance.probability")
+    if not 0.0 < p < 1.0:
+        raise rd.fail("assurance.probability", f"must be in (0, 1), got {p:g}")
+    dist: dict[str, str] = {}
+    for name, text in rd.mapping(m.get("disturbances", {}) or {}, "assurance.disturbances").items():
+        key = join_key("assurance.disturbances", name)
+        if isinstance(text, bool) or not isinstance(text, str | int | float):
+            raise rd.fail(
+                key, f"expected a distribution such as 'uniform(0, 6)', got {_kind(text)}"
+            )
+        dist[name] = str(text)
+    return AssuranceGoal(
+        probability=p,
+        disturbances=dist,
+        runs=rd.integer(m.get("runs", 2000), "assurance.runs", minimum=1),
+        final_runs=rd.integer(m.get("final_runs", 4000), "assurance.final_runs", minimum=1),
+        rounds=rd.integer(m.get("rounds", 6), "assurance.rounds", minimum=1),
+        seed=rd.integer(m.get("seed", 0), "assurance.seed", minimum=0),
+    )

@@ -80,11 +80,16 @@ def test_a_plan_made_to_a_probability_holds_with_it_on_runs_it_was_not_tuned_on(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "plan.json"
-    # one drone along a 4-pole line in strong wind: about 0.84 as planned
-    scenario = ZOO / "powerline_line4_1drone.yaml"
+    # one drone along a 4-pole line in strong wind: about 0.84 as planned; the scenario's
+    # assurance section sets the campaign, the command's option the probability over it
+    scenario = tmp_path / "line4.yaml"
+    goal = (
+        "assurance: {probability: 0.9, disturbances: {wind_m_s: 'uniform(3, 9)'}, runs: 300,"
+        " final_runs: 400, rounds: 4}\n"
+    )
+    scenario.write_text((ZOO / "powerline_line4_1drone.yaml").read_text() + goal)
     args = ["plan", str(scenario), "-o", str(out), "--json", "--target-probability", "0.95"]
-    args += ["--wind", "uniform(3, 9)", "--workers", "0", "--assess-runs", "300"]
-    args += ["--final-runs", "400", "--rounds", "4"]
+    args += ["--workers", "0"]
     code = cli.main(args)
     rec = json.loads(capsys.readouterr().out)
     plan = load_plan(out)
@@ -128,14 +133,31 @@ def test_a_plan_made_to_a_probability_holds_with_it_on_runs_it_was_not_tuned_on(
         (["--target-probability", "0.9", "--profile", "nope"], "--profile: unknown 'nope'"),
         (["--wind", "uniform(0, 6)"], "--wind needs --target-probability"),
         (["--rounds", "3"], "--rounds needs --target-probability"),
+        ([], None),
     ],
 )
 def test_bad_target_options_are_one_line_and_exit_2(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: list[str], message: str
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: list[str], message: str | None
 ) -> None:
-    code = cli.main(
-        ["plan", str(CONFIGS / "reach_avoid.yaml"), "-o", str(tmp_path / "p.json"), *extra]
-    )
+    scenario = CONFIGS / "reach_avoid.yaml"
+    if message is None:  # a bad assurance section
+        scenario = tmp_path / "s.yaml"
+        base = (CONFIGS / "reach_avoid.yaml").read_text()
+        for section, said in [
+            ("assurance: {probability: 1.5}", "assurance.probability: must be in (0, 1)"),
+            ("assurance: {probability: 0.9, runz: 3}", "assurance.runz: unknown key"),
+            (
+                "assurance: {probability: 0.9, disturbances: {wnd: 'uniform(0, 1)'}}",
+                "assurance.disturbances: unknown disturbance 'wnd'",
+            ),
+        ]:
+            scenario.write_text(base + section + "\n")
+            code = cli.main(["plan", str(scenario), "-o", str(tmp_path / "p.json")])
+            err = capsys.readouterr().err.strip().splitlines()
+            assert code == 2
+            assert len(err) == 1 and said in err[0] and str(scenario) in err[0], err
+        return
+    code = cli.main(["plan", str(scenario), "-o", str(tmp_path / "p.json"), *extra])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2
     assert len(err) == 1 and message in err[0], err
