@@ -53,6 +53,8 @@ class Assurance:
         disturbances: per disturbance name, its distribution as text (others: defaults).
         profile: the simulated vehicle (``gcs assess --profile``).
         margins: per top-level clause (its text), the margin (m) it was planned with.
+        dwells: per clause, how much longer (s) its hover was planned
+            (:func:`planner.spec.margins.lengthened`).
         rounds: plans made by the loop; ``elapsed_s``: the loop's wall time.
         limiting: when not met, the clause that limits it (its text), else ``None``.
     """
@@ -66,6 +68,7 @@ class Assurance:
     disturbances: Mapping[str, str] = field(default_factory=dict)
     profile: str = "px4"
     margins: Mapping[str, float] = field(default_factory=dict)
+    dwells: Mapping[str, float] = field(default_factory=dict)
     rounds: int = 1
     elapsed_s: float = 0.0
     limiting: str | None = None
@@ -81,6 +84,7 @@ class Assurance:
             "disturbances": dict(self.disturbances),
             "profile": self.profile,
             "margins": [{"clause": k, "margin_m": v} for k, v in self.margins.items()],
+            "dwells": [{"clause": k, "dwell_s": v} for k, v in self.dwells.items()],
             "rounds": self.rounds,
             "elapsed_s": self.elapsed_s,
             "limiting": self.limiting,
@@ -96,6 +100,11 @@ class Assurance:
             f"[{self.ci[0]:.4f}, {self.ci[1]:.4f}] on {self.runs} fresh runs (seed {self.seed}, "
             f"{self.profile}, {dist}); {len(tight)} clause(s) tightened"
             + (f", by up to {max(tight):.2f} m" if tight else "")
+            + (
+                f"; {len(self.dwells)} hover(s) longer, by up to {max(self.dwells.values()):g} s"
+                if self.dwells
+                else ""
+            )
         )
         if self.limiting:
             line += f"; limited by {self.limiting}"
@@ -141,6 +150,16 @@ def assurance_from_json(v: Any, fail: Any) -> Assurance:
         if not ok or isinstance(val, bool) or not isinstance(val, int | float):
             raise fail(f"assurance.margins[{i}]", "expected {clause: text, margin_m: number}")
         margins[m["clause"]] = float(val)
+    dwells: dict[str, float] = {}
+    raw_d = v.get("dwells", [])
+    if not isinstance(raw_d, list):
+        raise fail("assurance.dwells", "expected a list of {clause, dwell_s}")
+    for i, d in enumerate(raw_d):
+        ok = isinstance(d, dict) and isinstance(d.get("clause"), str)
+        val = d.get("dwell_s") if isinstance(d, dict) else None
+        if not ok or isinstance(val, bool) or not isinstance(val, int | float):
+            raise fail(f"assurance.dwells[{i}]", "expected {clause: text, dwell_s: number}")
+        dwells[d["clause"]] = float(val)
     limiting = v.get("limiting")
     if limiting is not None and not isinstance(limiting, str):
         raise fail("assurance.limiting", "expected the clause's text or null")
@@ -160,6 +179,7 @@ def assurance_from_json(v: Any, fail: Any) -> Assurance:
         disturbances=dict(dist),
         profile=profile,
         margins=margins,
+        dwells=dwells,
         rounds=whole("rounds"),
         elapsed_s=number("elapsed_s", 0.0, math.inf),
         limiting=limiting,

@@ -40,7 +40,15 @@ from gcs.errors import UserError
 from planner.assurance import Assurance
 from planner.optimize import plan
 from planner.solve.plan_check import recheck
-from planner.spec.margins import MarginError, clause_texts, max_margin, split_clauses, tighten
+from planner.spec.margins import (
+    MarginError,
+    clause_texts,
+    conjuncts,
+    has_dwell,
+    max_margin,
+    split_clauses,
+    tighten,
+)
 
 if TYPE_CHECKING:
     from gcs.assess.stats import AssessResult
@@ -53,6 +61,7 @@ __all__ = [
     "TargetOptions",
     "TargetResult",
     "TargetRound",
+    "longer_dwells",
     "needed_margins",
     "plan_to_probability",
 ]
@@ -67,6 +76,11 @@ CAP_SHARE = 0.8
 #: The most a clause's margin grows in one round (m): the next plan flies differently, so
 #: its losses are not this one's; small steps let the runs say again.
 STEP_M = 0.3
+#: Dwell added to a clause at its margin's cap that still breaks (s), and the most in all.
+DWELL_STEP_S = 1.0
+DWELL_MAX_S = 3.0
+#: The share of runs a clause must break first in to be given a longer dwell.
+DWELL_AFTER = 0.001
 #: Halvings of a round's margin increments tried when they cannot be planned.
 BACK_OFFS = 1
 #: Every clause is planned with at least this quantile of its losses.
@@ -120,6 +134,7 @@ class TargetRound:
         robustness: its exact robustness on the spec as written; ``planned_s``: plan time.
         p, ci, runs, seed: the tuning assessment.
         fresh: the check on fresh seeds (``None``: not reached).
+        dwells: the longer dwells (s) it was planned with, per clause text.
     """
 
     index: int
@@ -131,6 +146,7 @@ class TargetRound:
     runs: int
     seed: int
     fresh: AssessResult | None = None
+    dwells: Mapping[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, slots=True)
@@ -250,11 +266,14 @@ def plan_to_probability(
     with ray_session(base.ray_address, base.workers) if base.workers != 0 else nullcontext():
         rounds: list[TargetRound] = []
         margins: dict[str, float] = {}
+        dwells: dict[str, float] = {}
+        dwelling = {t for t, c in conjuncts(problem).items() if has_dwell(c)}
         t_plan = time.perf_counter()
         tight = plan(problem, time_limit_s=opts.time_limit_s)
         result = recheck(tight, problem)
         first = result.robustness
-        best: tuple[float, PlanResult, AssessResult, dict[str, float]] | None = None
+        best: tuple[float, PlanResult, AssessResult, dict[str, float], dict[str, float]] | None
+        best = None
         plans: list[tuple[PlanResult, PlanResult]] = []  # per round: judged split, as planned
         limiting: str | None = None
         if not result.success:
@@ -282,11 +301,11 @@ def plan_to_probability(
                     f"{fresh.p:.4f} [{fresh.ci[0]:.4f}, {fresh.ci[1]:.4f}]"
                 )
                 if best is None or fresh.ci[0] > best[2].ci[0]:
-                    best = (fresh.ci[0], tight, fresh, dict(margins))
+                    best = (fresh.ci[0], tight, fresh, dict(margins), dict(dwells))
             rounds.append(
                 TargetRound(
                     k, dict(margins), result.robustness, planned_s, a.p, a.ci, a.runs,
-                    tune.seed, fresh,
+                    tune.seed, fresh, dict(dwells),
                 )
             )  # fmt: skip
             if fresh is not None and fresh.ci[0] >= opts.probability:
@@ -294,16 +313,17 @@ def plan_to_probability(
             new = needed_margins(
                 fresh or a, opts.probability, margins, problem.epsilon, cap=caps.get
             )
-            if new == margins:
+            new_dwells = longer_dwells(fresh or a, new, dwells, caps.get, dwelling)
+            if new == margins and new_dwells == dwells:
                 limiting = _worst_clause(fresh or a, "no margin the runs ask for is left to add")
                 break
             t_plan = time.perf_counter()
-            tight_k, new, failed = _replan(problem, tight, margins, new, opts, say, k)
+            tight_k, new, failed = _replan(problem, tight, margins, new, new_dwells, opts, say, k)
             if tight_k is None:
                 limiting = failed
                 say(f"round {k + 1}: {limiting}")
                 break
-            tight, margins = tight_k, new
+            tight, margins, dwells = tight_k, new, new_dwells
             result = recheck(tight, problem)
         if rounds and (best is None or best[2].ci[0] < opts.probability):
             # not met: keep the round whose tuning runs did best, judged on fresh runs
@@ -316,7 +336,7 @@ def plan_to_probability(
                 )
                 fresh = assess(plans[top][0].to_plan(scenario_path), check)
                 rounds[top] = dataclasses.replace(chosen, fresh=fresh)
-            best = (fresh.ci[0], plans[top][1], fresh, dict(chosen.margins))
+            best = (fresh.ci[0], plans[top][1], fresh, dict(chosen.margins), dict(chosen.dwells))
     if best is None:  # the scenario as written cannot be planned: nothing to assess
         fail = recheck(tight, written)
         return TargetResult(
@@ -329,11 +349,11 @@ def plan_to_probability(
             first=first,
             elapsed_s=time.perf_counter() - t0,
         )
-    _, kept_tight, final, kept_margins = best
+    _, kept_tight, final, kept_margins, kept_dwells = best
     kept = recheck(
         kept_tight,
         written,
-        note="planned with clause margins: see assurance" if kept_margins else "",
+        note="planned with clause margins: see assurance" if kept_margins or kept_dwells else "",
     )
     met = final.ci[0] >= opts.probability
     if not met and limiting is None:
@@ -349,6 +369,7 @@ def plan_to_probability(
         disturbances=dict(final.disturbances),
         profile=base.profile,
         margins={t: kept_margins[t] for t in texts if kept_margins.get(t, 0.0) > 0.0},
+        dwells={t: kept_dwells[t] for t in texts if kept_dwells.get(t, 0.0) > 0.0},
         rounds=len(rounds),
         elapsed_s=elapsed,
         limiting=None if met else limiting,
@@ -372,23 +393,28 @@ def _replan(
     tight: PlanResult,
     margins: Mapping[str, float],
     new: Mapping[str, float],
+    dwells: Mapping[str, float],
     opts: TargetOptions,
     say: Callable[[str], None],
     k: int,
 ) -> tuple[PlanResult | None, dict[str, float], str]:
-    """Plan ``problem`` tightened by ``new`` (warm from ``tight``, then cold); where that
-    cannot be planned, by the margins half way from ``margins`` to ``new``, once.  Returns
-    the plan and the margins it was made with, or ``None`` and why not."""
+    """Plan ``problem`` tightened by ``new`` and ``dwells`` (warm from ``tight``, then cold);
+    where that cannot be planned, by the margins half way from ``margins`` to ``new``, once.
+    Returns the plan and the margins it was made with, or ``None`` and why not."""
     why = ""
     for attempt in range(1 + BACK_OFFS):
         share = 0.5**attempt
         asked = {t: margins.get(t, 0.0) + share * (m - margins.get(t, 0.0)) for t, m in new.items()}
         grown = {t: m for t, m in asked.items() if m > margins.get(t, 0.0) + 1e-3}
-        if not grown:
+        if attempt and not grown:
             break
-        say(f"round {k}: tightening {_describe(grown)}")
+        longer = ", ".join(f"{t} by {d:g} s" for t, d in dwells.items())
+        say(
+            f"round {k}: tightening {_describe(grown) or 'no clause'}"
+            + (f"; dwelling longer: {longer}" if longer else "")
+        )
         try:
-            tightened = tighten(problem, asked)
+            tightened = tighten(problem, asked, dwells)
         except MarginError as exc:
             why = str(exc)
             continue
@@ -404,6 +430,28 @@ def _replan(
             f"(tightened, it reached {tight_k.robustness:+.3f} < epsilon {problem.epsilon:g})"
         )
     return None, dict(margins), why
+
+
+def longer_dwells(
+    a: AssessResult,
+    margins: Mapping[str, float],
+    dwells: Mapping[str, float],
+    cap: Callable[[str], float],
+    dwelling: set[str],
+) -> dict[str, float]:
+    """The dwells of the next round: a clause that asks for a hover, broke first in at least
+    :data:`DWELL_AFTER` of the runs and cannot be given a larger margin (it is at its cap) is
+    given :data:`DWELL_STEP_S` more (up to :data:`DWELL_MAX_S`): margins in time where
+    margins in space have run out."""
+    out = dict(dwells)
+    for c in a.clauses:
+        t = c.text
+        if t not in dwelling or c.first_to_fail < max(1.0, DWELL_AFTER * a.runs):
+            continue
+        if margins.get(t, 0.0) < cap(t) - 1e-3:
+            continue
+        out[t] = min(out.get(t, 0.0) + DWELL_STEP_S, DWELL_MAX_S)
+    return out
 
 
 def _worst_clause(a: AssessResult, why: str = "") -> str:

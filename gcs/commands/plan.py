@@ -417,6 +417,7 @@ def target_json(r: Any) -> dict[str, Any]:
                     "ci95": list(rd.fresh.ci),
                 },
                 "margins": dict(rd.margins),
+                "dwells": dict(rd.dwells),
             }
             for rd in r.rounds
         ],
@@ -436,6 +437,11 @@ def target_table(r: Any) -> str:
         lines.append("clauses tightened (margin, m):")
         for text, m in sorted(r.margins.items(), key=lambda kv: -kv[1]):
             lines.append(f"  {m:6.2f}  {clause_cell(text, set())}")
+    dwells = r.plan.assurance.dwells if r.plan.assurance is not None else {}
+    if dwells:
+        lines.append("hovers planned longer (s):")
+        for text, d in sorted(dwells.items(), key=lambda kv: -kv[1]):
+            lines.append(f"  {d:6g}  {clause_cell(text, set())}")
     lines.append(
         f"robustness {r.result.robustness:+.3f} as written (first plan {r.first:+.3f}); "
         f"{r.elapsed_s:.0f} s"

@@ -26,6 +26,10 @@ combinatorial stage, the NLP, the exact check) reads it as it reads any clause:
   (``and``) of its convex parts, each moved;
 * any other function used as an atom (``face``) becomes ``f(...) >= m``.
 
+A clause can also be given a longer dwell (:func:`lengthened`: a hover of ``tau`` seconds
+more within the same window), a margin in time: the flight then keeps the clause if any
+hover-long part of the dwell holds, which wind gusts shorter than the dwell leave.
+
 Where a region cannot shrink by ``m`` (it would be empty), :func:`tighten` raises
 :class:`MarginError` naming it: no plan can keep that clause by that margin.
 """
@@ -65,6 +69,9 @@ from planner.stl import (
 __all__ = [
     "MarginError",
     "clause_texts",
+    "conjuncts",
+    "has_dwell",
+    "lengthened",
     "max_margin",
     "offset_region",
     "shifted",
@@ -160,14 +167,54 @@ def shifted(node: Formula, m: float, region: Callable[[str, float], str]) -> For
     raise MarginError(f"cannot tighten {type(node).__name__} {node}")
 
 
-def tighten(problem: Problem, margins: Mapping[str, float]) -> Problem:
+def lengthened(node: Formula, tau: float) -> Formula:
+    """``node`` with every dwell lengthened by ``tau`` seconds: an ``always[c, d] psi`` that
+    an ``eventually[a, b]`` (or the right side of an ``until[a, b]``) asks for becomes
+    ``always[c, d + tau] psi`` within ``[a, b - tau]`` (never below ``a``): the same look
+    ahead, a longer hover that must start earlier.  A plan meeting it meets ``node`` with at
+    least the same robustness (a longer window contains the shorter one), and a flight
+    keeps ``node`` if any one-hover-long part of the longer dwell holds, not only the one
+    planned.  ``and``, ``or`` and ``always`` are looked through; ``not`` and ``implies``
+    are not (a dwell under a negation is not something to make longer)."""
+    if tau <= 0.0:
+        return node
+    if isinstance(node, And | Or):
+        return type(node)(tuple(lengthened(c, tau) for c in node.operands))
+    if isinstance(node, Always):
+        return dataclasses.replace(node, child=lengthened(node.child, tau))
+    if isinstance(node, Eventually) and isinstance(node.child, Always):
+        inner = node.child
+        end = max(node.start_s, node.end_s - tau)
+        longer = dataclasses.replace(inner, end_s=inner.end_s + (node.end_s - end))
+        return dataclasses.replace(node, child=longer, end_s=end)
+    if isinstance(node, Until) and isinstance(node.rhs, Always):
+        inner = node.rhs
+        end = max(node.start_s, node.end_s - tau)
+        longer = dataclasses.replace(inner, end_s=inner.end_s + (node.end_s - end))
+        return dataclasses.replace(node, rhs=longer, end_s=end)
+    return node
+
+
+def has_dwell(node: Formula) -> bool:
+    """Whether :func:`lengthened` would change ``node`` (it asks for a hover in a window)."""
+    return lengthened(node, 1.0) != node
+
+
+def tighten(
+    problem: Problem,
+    margins: Mapping[str, float],
+    dwells: Mapping[str, float] | None = None,
+) -> Problem:
     """``problem`` with each top-level conjunct whose text is a key of ``margins`` tightened
     by that many metres (conjuncts as :attr:`Formula.clauses` lists them, the units the
-    assessment judges), the moved regions added.  Margins <= 0 leave their conjunct alone.
+    assessment judges), the moved regions added, and each one in ``dwells`` lengthened by
+    that many seconds (:func:`lengthened`).  Margins and dwells <= 0 leave their conjunct
+    alone.
 
     Raises:
         MarginError: a region cannot shrink that far.
     """
+    dwells = dwells or {}
     regions = {r.name: r for r in problem.all_regions}
     added: dict[str, Region] = {}
 
@@ -185,12 +232,15 @@ def tighten(problem: Problem, margins: Mapping[str, float]) -> Problem:
             m = float(margins.get(str(c), 0.0))
             if not math.isfinite(m):
                 raise MarginError(f"margin of {c} is not a number: {m!r}")
-            if m > 0.0:
+            tau = float(dwells.get(str(c), 0.0))
+            if m > 0.0 or tau > 0.0:
                 used.add(str(c))
-            parts.append(shifted(c, m, moved) if m > 0.0 else c)
+            part = shifted(c, m, moved) if m > 0.0 else c
+            parts.append(lengthened(part, tau) if tau > 0.0 else part)
         text = clause.text if all(p is c for p, c in zip(parts, phi.clauses, strict=True)) else None
         clauses.append(Clause(clause.key_path, text or str(conjunction(parts))))
-    unknown = sorted(k for k, v in margins.items() if v > 0.0 and k not in used)
+    asked = [*margins.items(), *dwells.items()]
+    unknown = sorted(k for k, v in asked if v > 0.0 and k not in used)
     if unknown:
         raise MarginError(f"no clause of the spec reads {unknown[0]!r}")
     return dataclasses.replace(
@@ -248,6 +298,11 @@ def _formulas(problem: Problem, parse: Callable[..., Formula]) -> list[Formula]:
     if len(formulas) != len(problem.clauses):
         formulas = [parse(problem, c) for c in problem.clauses]
     return formulas
+
+
+def conjuncts(problem: Problem) -> dict[str, Formula]:
+    """The top-level conjuncts of ``problem``'s spec by their text."""
+    return {str(c): c for phi in _formulas(problem, parse_clause) for c in phi.clauses}
 
 
 def clause_texts(problem: Problem) -> list[str]:

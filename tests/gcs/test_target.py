@@ -17,10 +17,13 @@ from gcs import cli
 from gcs.assess import AssessOptions, assess
 from gcs.assess.target import (
     BUFFER_M,
+    DWELL_MAX_S,
+    DWELL_STEP_S,
     FAIL_SHARE,
     KEEP_SHARE,
     Q_KEEP,
     STEP_M,
+    longer_dwells,
     needed_margins,
 )
 from gcs.flight.outcome import FlightMode, FlightOutcome, format_outcome, outcome_json
@@ -73,6 +76,23 @@ def test_the_margins_lift_the_clauses_that_break_until_the_runs_would_hold() -> 
     a = _campaign(list(first), first[None, :] - loss)
     capped = needed_margins(a, target, {}, eps, cap=lambda t: 0.5 if t == "c0" else math.inf)  # type: ignore[arg-type]
     assert capped["c0"] <= 0.5
+
+
+def test_a_hover_at_its_margins_cap_that_still_breaks_is_planned_longer() -> None:
+    clauses = [
+        SimpleNamespace(text="hover", first_to_fail=30),
+        SimpleNamespace(text="hover_with_room", first_to_fail=30),
+        SimpleNamespace(text="rare_hover", first_to_fail=1),
+        SimpleNamespace(text="keep_out", first_to_fail=30),
+    ]
+    a = SimpleNamespace(clauses=clauses, runs=2000)
+    margins = {"hover": 0.88, "hover_with_room": 0.5, "rare_hover": 0.88, "keep_out": 0.4}
+    dwelling = {"hover", "hover_with_room", "rare_hover"}
+    got = longer_dwells(a, margins, {}, lambda _t: 0.88, dwelling)  # type: ignore[arg-type]
+    assert got == {"hover": DWELL_STEP_S}
+    for _ in range(10):
+        got = longer_dwells(a, margins, got, lambda _t: 0.88, dwelling)  # type: ignore[arg-type]
+    assert got == {"hover": DWELL_MAX_S}
 
 
 @pytest.mark.slow
@@ -170,6 +190,7 @@ def test_a_bad_assurance_in_a_plan_file_names_its_field(tmp_path: Path) -> None:
         "target": 0.99, "met": True, "p_holds": 0.995, "ci95": [0.991, 0.998], "runs": 4000,
         "seed": 100002, "disturbances": {"wind_m_s": "uniform(0, 6)"}, "profile": "px4",
         "margins": [{"clause": "always[0,6] (dist(d1, d2) >= 0.2)", "margin_m": 0.3}],
+        "dwells": [{"clause": "eventually[0,5] always[0,1] inside(d1, goal)", "dwell_s": 1.0}],
         "rounds": 2, "elapsed_s": 90.5, "limiting": None,
     }  # fmt: skip
     p = tmp_path / "plan.json"
@@ -181,6 +202,7 @@ def test_a_bad_assurance_in_a_plan_file_names_its_field(tmp_path: Path) -> None:
         ("ci95", [0.9], "assurance.ci95"),
         ("margins", [{"clause": 3}], "assurance.margins[0]"),
         ("met", "yes", "assurance.met"),
+        ("dwells", [{"clause": "x", "dwell_s": "1"}], "assurance.dwells[0]"),
     ]:
         p.write_text(json.dumps({**data, "assurance": {**good, key: bad}}))
         with pytest.raises(PlanFileError, match=field.replace("[", r"\[").replace("]", r"\]")):

@@ -17,6 +17,8 @@ from planner.solve.plan_check import recheck
 from planner.spec.margins import (
     MarginError,
     clause_texts,
+    has_dwell,
+    lengthened,
     max_margin,
     offset_region,
     shifted,
@@ -164,3 +166,38 @@ def test_a_plan_for_the_tightened_spec_keeps_the_spec_as_written_by_the_margins(
     # the tightened plan's own robustness is the written one's less the margins (or more)
     assert judged.robustness >= tight.robustness - 1e-9
     assert math.isfinite(judged.robustness_planning_grid)
+
+
+@pytest.mark.parametrize(
+    "text,want",
+    [
+        (
+            "eventually[0,29] always[0,1] inside(a, box)",
+            "eventually[0,27] always[0,3] inside(a, box)",
+        ),
+        (
+            "not inside(a, turned) until[0,15] always[0,1] inside(b, turned)",
+            "not inside(a, turned) until[0,13] always[0,3] inside(b, turned)",
+        ),
+        (
+            "always[0,4] (eventually[1,2] always[0,1] z(a) >= 1)",
+            "always[0,4] eventually[1,1] always[0,2] z(a) >= 1",
+        ),
+        ("always[0,4] inside(a, workspace)", "always[0,4] inside(a, workspace)"),
+        (
+            "not eventually[0,3] always[0,1] inside(a, box)",
+            "not eventually[0,3] always[0,1] inside(a, box)",
+        ),
+    ],
+)
+def test_a_longer_dwell_asks_more_and_looks_no_further(text: str, want: str) -> None:
+    src = _regions()
+    phi = parse(text, functions=build_registry(src))
+    longer = lengthened(phi, 2.0)
+    assert str(longer) == str(parse(want, functions=build_registry(src)))
+    assert longer.horizon == phi.horizon
+    assert has_dwell(phi) == (str(longer) != str(phi))
+    # never more robust than the clause as written, for any signal
+    for _ in range(20):
+        walk = {v: np.cumsum(RNG.normal(0, 0.3, (400, 3)), axis=0) for v in ("a", "b")}
+        assert longer.robustness(walk, 0.1) <= phi.robustness(walk, 0.1) + 1e-12
