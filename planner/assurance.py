@@ -29,6 +29,7 @@ class AssuranceGoal:
         disturbances: per disturbance name, its distribution as text (``gcs assess -d``).
         runs: runs of each round's assessment; ``final_runs``: of each check on fresh seeds.
         rounds: most plans made; ``seed``: the base campaign seed.
+        budget_s: the loop's wall time (s).
     """
 
     probability: float
@@ -37,6 +38,7 @@ class AssuranceGoal:
     final_runs: int = 4000
     rounds: int = 6
     seed: int = 0
+    budget_s: float = 240.0
 
 
 @dataclass(frozen=True, slots=True)

@@ -35,7 +35,7 @@ from planner.checks import LimitReport, check_trajectories
 from planner.dynamics.limits import vehicle_bounds
 from planner.problem import Clause, Problem, SolverMethod
 from planner.results import ClauseReport, PlanResult, SolveStats, Weakest
-from planner.scenario.spec import parse_clause
+from planner.scenario.spec import clause_formulas
 from planner.solve.coarse_start import CoarseOutcome, StageBeside, coarse_budget_s
 from planner.solve.explain import needs
 from planner.solve.fix_choices import fixed_clauses
@@ -74,9 +74,6 @@ from planner.solve.solver_runs import (
     watch_sigint,
 )
 from planner.spec.heading import facing_rules, heading_signals, uses_heading, with_heading
-from planner.spec.predicates import (
-    build_registry,
-)
 from planner.stl import (
     Always,
     conjunction,
@@ -166,10 +163,7 @@ class PlanSearch:
         self.time_limit_s = time_limit_s
         self.deadline = math.inf if time_limit_s is None else self.t_start + float(time_limit_s)
         self.progress_every_s = progress_every_s
-        formulas = list(problem.formulas)  # parsed once, at load
-        if len(formulas) != len(problem.clauses):
-            registry = build_registry(problem)
-            formulas = [parse_clause(problem, c, registry) for c in problem.clauses]
+        formulas = clause_formulas(problem)  # parsed once, at load
         self.formulas = formulas
         self.formula = conjunction(formulas)
         # The heading is derived from the positions (planner.spec.heading): where face(d, T) holds

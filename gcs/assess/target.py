@@ -106,6 +106,8 @@ class TargetOptions:
         final_runs: runs of each check on fresh seeds.
         rounds: most plans the loop makes.
         time_limit_s: the first plan's time limit (``None``: none).
+        budget_s: the loop's wall time: no round starts that would not end in it (by the
+            last round's time), and a replan gets at most what is left (``None``: none).
         replan_time_limit_s: each tightened plan's (one that does not meet the tightened
             spec in that time is taken as impossible).
     """
@@ -116,6 +118,7 @@ class TargetOptions:
     rounds: int = 6
     time_limit_s: float | None = None
     replan_time_limit_s: float = 60.0
+    budget_s: float | None = 240.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.probability) and 0.0 < self.probability < 1.0):
@@ -124,6 +127,8 @@ class TargetOptions:
             )
         if not (isinstance(self.final_runs, int) and self.final_runs > 0):
             raise UserError(f"--final-runs: must be a whole number > 0, got {self.final_runs!r}")
+        if self.budget_s is not None and not (math.isfinite(self.budget_s) and self.budget_s > 0):
+            raise UserError(f"--budget: must be a number of seconds > 0, got {self.budget_s!r}")
         if not (isinstance(self.rounds, int) and self.rounds > 0):
             raise UserError(f"--rounds: must be a whole number > 0, got {self.rounds!r}")
 
@@ -166,6 +171,8 @@ class TargetResult:
         met: the final interval's lower end is at least the target.
         limiting: when not met, the clause that limits it (its text) and why.
         first: the first plan's robustness (before any margin), to show what was given up.
+        elapsed_s: the loop's wall time.
+        margins: the kept plan's margins (m), per clause text (the record's).
     """
 
     result: PlanResult
@@ -197,7 +204,8 @@ def needed_margins(
     lack there (plus :data:`BUFFER_M`), so the clauses that break are raised and the ones
     that hold anyway are left alone.  A raised clause is given the margin ``planned_c +
     lift_c - epsilon`` (a tightened plan meeting epsilon then has that robustness), never
-    less than it had: margins only grow.  ``cap(text)`` bounds a clause's margin (how far its
+    less than it had, and at most :data:`STEP_M` more: margins only grow, a little per round
+    (the next plan flies differently, so its runs are asked again).  ``cap(text)`` bounds a clause's margin (how far its
     regions can shrink, :func:`planner.spec.margins.max_margin`); a clause at its cap is
     raised no further, and the next weakest is.  Every clause, raised or not, is then given
     at least :data:`KEEP_SHARE` of the :data:`Q_KEEP` quantile of its losses, or of what the
@@ -321,8 +329,18 @@ def plan_to_probability(
             if new == margins and new_dwells == dwells:
                 limiting = _worst_clause(fresh or a, "no margin the runs ask for is left to add")
                 break
-            t_plan = time.perf_counter()
-            tight_k, new, failed = _replan(problem, tight, margins, new, new_dwells, opts, say, k)
+            now = time.perf_counter()
+            left = math.inf if opts.budget_s is None else t0 + opts.budget_s - now
+            round_s = now - t_plan  # this round: its plan and its assessments
+            if left < round_s:
+                limiting = _worst_clause(
+                    fresh or a, f"the loop's budget ({opts.budget_s:g} s) allows no more rounds"
+                )
+                break
+            t_plan = now
+            tight_k, new, failed = _replan(
+                problem, tight, margins, new, new_dwells, opts, say, k, left - 0.5 * round_s
+            )
             if tight_k is None:
                 limiting = failed
                 say(f"round {k + 1}: {limiting}")
@@ -401,11 +419,14 @@ def _replan(
     opts: TargetOptions,
     say: Callable[[str], None],
     k: int,
+    left_s: float = math.inf,
 ) -> tuple[PlanResult | None, dict[str, float], str]:
     """Plan ``problem`` tightened by ``new`` and ``dwells`` (warm from ``tight``, then cold);
     where that cannot be planned, by the margins half way from ``margins`` to ``new``, once.
-    Returns the plan and the margins it was made with, or ``None`` and why not."""
+    Returns the plan and the margins it was made with, or ``None`` and why not.  The plans
+    share ``left_s`` seconds (each at most ``opts.replan_time_limit_s``)."""
     why = ""
+    until = time.perf_counter() + left_s
     for attempt in range(1 + BACK_OFFS):
         share = 0.5**attempt
         asked = {t: margins.get(t, 0.0) + share * (m - margins.get(t, 0.0)) for t, m in new.items()}
@@ -422,10 +443,13 @@ def _replan(
         except MarginError as exc:
             why = str(exc)
             continue
-        limit = opts.replan_time_limit_s
-        tight_k = plan(tightened, initial_guess=tight.decision, time_limit_s=limit)
-        if not tight_k.success:
-            tight_k = plan(tightened, time_limit_s=limit)
+
+        def limit() -> float:
+            return max(1.0, min(opts.replan_time_limit_s, until - time.perf_counter()))
+
+        tight_k = plan(tightened, initial_guess=tight.decision, time_limit_s=limit())
+        if not tight_k.success and until - time.perf_counter() > 1.0:
+            tight_k = plan(tightened, time_limit_s=limit())
         if tight_k.success:
             return tight_k, asked, ""
         i = int(np.argmin([c.robustness for c in tight_k.clauses]))

@@ -69,6 +69,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--final-runs", type=int, metavar="N",
                    help="runs of each check on fresh seeds (4000)")  # fmt: skip
     g.add_argument("--rounds", type=int, metavar="K", help="most plans made (6)")
+    g.add_argument("--budget", type=float, metavar="S",
+                   help="the loop's wall time: no round starts that would not end in it (240)")  # fmt: skip
     g.add_argument("--seed", type=int, help="base campaign seed: round k tunes on seed+k (0)")
     g.add_argument("--workers", type=int, help="CPUs for a local Ray (default all; 0: no Ray)")
     g.add_argument("--ray-address", metavar="ADDRESS",
@@ -312,6 +314,7 @@ _TARGET_ONLY: dict[str, Any] = {
     "assess_runs": None,
     "final_runs": None,
     "rounds": None,
+    "budget": None,
     "seed": None,
     "workers": None,
     "ray_address": None,
@@ -371,6 +374,7 @@ def _to_probability(args: argparse.Namespace, problem: Any, out: Path) -> int:
         final_runs=_first(args.final_runs, goal.final_runs),
         rounds=_first(args.rounds, goal.rounds),
         time_limit_s=args.time_limit or None,
+        budget_s=_first(args.budget, goal.budget_s),
     )
     t0 = time.perf_counter()
 

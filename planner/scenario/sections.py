@@ -525,8 +525,9 @@ def read_solver(rd: Reader, value: Any) -> SolverOptions:
 def read_assurance(rd: Reader, value: Any) -> AssuranceGoal:
     """The ``assurance`` section: ``probability`` (required, in (0, 1)), ``disturbances``
     (``{name: distribution}``, as ``gcs assess -d``; the names and distributions are checked
-    where the campaign is set up), ``runs``, ``final_runs``, ``rounds``, ``seed``."""
-    allowed = {"probability", "disturbances", "runs", "final_runs", "rounds", "seed"}
+    where the campaign is set up), ``runs``, ``final_runs``, ``rounds``, ``seed``,
+    ``budget_s``."""
+    allowed = {"probability", "disturbances", "runs", "final_runs", "rounds", "seed", "budget_s"}
     m = rd.mapping(value, "assurance", allowed)
     p = rd.number(rd.require(m, "probability", "assurance"), "assurance.probability")
     if not 0.0 < p < 1.0:
@@ -546,4 +547,5 @@ def read_assurance(rd: Reader, value: Any) -> AssuranceGoal:
         final_runs=rd.integer(m.get("final_runs", 4000), "assurance.final_runs", minimum=1),
         rounds=rd.integer(m.get("rounds", 6), "assurance.rounds", minimum=1),
         seed=rd.integer(m.get("seed", 0), "assurance.seed", minimum=0),
+        budget_s=rd.number(m.get("budget_s", 240.0), "assurance.budget_s", positive=True),
     )

@@ -216,6 +216,16 @@ def check_calls(
                     )
 
 
+def clause_formulas(problem: Problem) -> list[Formula]:
+    """``problem``'s clauses parsed: those parsed at load, or (for a problem made otherwise,
+    ``dataclasses.replace``) parsed now with one registry."""
+    formulas = list(problem.formulas)
+    if len(formulas) != len(problem.clauses):
+        registry = build_registry(problem)
+        formulas = [parse_clause(problem, c, registry) for c in problem.clauses]
+    return formulas
+
+
 def parse_clause(
     problem: Problem, clause: Clause, registry: FunctionRegistry | None = None
 ) -> Formula:

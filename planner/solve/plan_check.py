@@ -17,7 +17,7 @@ from planner.checks import LimitReport, check_trajectories
 from planner.dynamics import DoubleIntegrator, MinimumJerkChain
 from planner.problem import DynamicsModel, Problem
 from planner.results import ClauseReport, PlanResult, StartBound, Weakest
-from planner.scenario.spec import parse_clause
+from planner.scenario.spec import clause_formulas
 from planner.solve.nlp import is_direct
 from planner.spec.heading import heading_signals, uses_heading
 from planner.stl import Formula, conjunction, explanation
@@ -178,9 +178,7 @@ def recheck(result: PlanResult, problem: Problem, note: str = "") -> PlanResult:
     planned for (a plan made for tightened clauses, :mod:`planner.spec.margins`, judged
     against the spec as written): its robustness, clauses, weakest sub-formula, limits and
     verdict; the solver's figures kept.  ``note`` is added to the status."""
-    formulas = list(problem.formulas)
-    if len(formulas) != len(problem.clauses):
-        formulas = [parse_clause(problem, c) for c in problem.clauses]
+    formulas = clause_formulas(problem)
     heading = uses_heading(formulas)
     rob, rob_grid, weakest, clauses = evaluate(
         problem, conjunction(formulas), formulas, result.trajectories, heading

@@ -44,7 +44,7 @@ import numpy as np
 
 from planner.errors import PlannerError
 from planner.problem import Clause, Problem
-from planner.scenario.spec import parse_clause
+from planner.scenario.spec import clause_formulas
 from planner.spec.regions import Cylinder, Prism, Region, ShapeError
 from planner.stl import (
     Always,
@@ -226,7 +226,7 @@ def tighten(
 
     clauses = []
     used: set[str] = set()
-    for clause, phi in zip(problem.clauses, _formulas(problem, parse_clause), strict=True):
+    for clause, phi in zip(problem.clauses, clause_formulas(problem), strict=True):
         parts = []
         for c in phi.clauses:
             m = float(margins.get(str(c), 0.0))
@@ -268,7 +268,7 @@ def split_clauses(problem: Problem) -> Problem:
     (inside(d, workspace) and outside(d, pole1) and ...)`` and not the others."""
     clauses = [
         Clause(c.key_path, str(part))
-        for c, phi in zip(problem.clauses, _formulas(problem, parse_clause), strict=True)
+        for c, phi in zip(problem.clauses, clause_formulas(problem), strict=True)
         for part in split(phi)
     ]
     return dataclasses.replace(problem, clauses=tuple(clauses))
@@ -293,18 +293,11 @@ def max_margin(problem: Problem, text: str, hi_m: float = 20.0, tol_m: float = 0
     return lo
 
 
-def _formulas(problem: Problem, parse: Callable[..., Formula]) -> list[Formula]:
-    formulas = list(problem.formulas)
-    if len(formulas) != len(problem.clauses):
-        formulas = [parse(problem, c) for c in problem.clauses]
-    return formulas
-
-
 def conjuncts(problem: Problem) -> dict[str, Formula]:
     """The top-level conjuncts of ``problem``'s spec by their text."""
-    return {str(c): c for phi in _formulas(problem, parse_clause) for c in phi.clauses}
+    return {str(c): c for phi in clause_formulas(problem) for c in phi.clauses}
 
 
 def clause_texts(problem: Problem) -> list[str]:
     """The top-level conjuncts of ``problem``'s spec as text (the keys of ``margins``)."""
-    return [str(c) for phi in _formulas(problem, parse_clause) for c in phi.clauses]
+    return [str(c) for phi in clause_formulas(problem) for c in phi.clauses]

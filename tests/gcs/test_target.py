@@ -153,6 +153,7 @@ def test_a_plan_made_to_a_probability_holds_with_it_on_runs_it_was_not_tuned_on(
         (["--target-probability", "0.9", "--profile", "nope"], "--profile: unknown 'nope'"),
         (["--wind", "uniform(0, 6)"], "--wind needs --target-probability"),
         (["--rounds", "3"], "--rounds needs --target-probability"),
+        (["--target-probability", "0.9", "--budget", "0"], "--budget: must be a number of"),
         ([], None),
     ],
 )
