@@ -391,11 +391,16 @@ def _to_probability(args: argparse.Namespace, problem: Any, out: Path) -> int:
             print("not assessed: the scenario as written cannot be planned")
             print(f"plan written to {out}")
         return 1
+    from gcs.flight.tuning import px4_notes
+
+    notes = px4_notes(r.plan) if r.result.success else []
     if args.json:
-        print(json.dumps({**summary(r.result, str(out)), **target_json(r)}))
+        print(json.dumps({**summary(r.result, str(out)), **target_json(r), "px4_notes": notes}))
     else:
         print(plan_table(r.result))
         print(target_table(r))
+        for note in notes:
+            print(note)
         print(f"plan written to {out}")
     return 0 if r.met else 1
 

@@ -67,6 +67,7 @@ def test_the_predicates_do_not_load_the_scenario_reader_or_casadi() -> None:
 
 def test_a_scenario_and_a_plan_are_parsed_once(monkeypatch: pytest.MonkeyPatch) -> None:
     import planner.optimize as optimize
+    import planner.scenario.spec as scenario_spec
     from planner.planfile import load_plan, plan_formula
 
     problem = load_scenario(REPO / "configs" / "reach_avoid.yaml", vehicles=1)
@@ -78,7 +79,7 @@ def test_a_scenario_and_a_plan_are_parsed_once(monkeypatch: pytest.MonkeyPatch) 
     def parse_again(*_a: object, **_k: object) -> None:
         raise AssertionError("the planner parsed the spec again")
 
-    monkeypatch.setattr(optimize, "parse_clause", parse_again)
+    monkeypatch.setattr(scenario_spec, "parse_clause", parse_again)  # clause_formulas' parser
     assert optimize.plan(problem).success  # on the formulas parsed at load
     plan = load_plan(REPO / "tests" / "mavlink" / "data" / "reach_avoid_2.plan.json")
     assert plan_formula(plan) is plan_formula(plan)  # checked and parsed on first use only
