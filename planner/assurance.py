@@ -52,7 +52,8 @@ class Assurance:
         p: P(spec holds) in the final assessment; ``ci``: its 95 % Clopper-Pearson interval.
         runs: runs of the final assessment; ``seed``: its campaign seed (the loop tuned on
             others).
-        disturbances: per disturbance name, its distribution as text (others: defaults).
+        disturbances: per disturbance name, its distribution as text, as asked (the others
+            at ``gcs assess --list-disturbances``'s calm-day defaults).
         profile: the simulated vehicle (``gcs assess --profile``).
         margins: per top-level clause (its text), the margin (m) it was planned with.
         dwells: per clause, how much longer (s) its hover was planned
@@ -95,7 +96,8 @@ class Assurance:
     def summary(self) -> str:
         """One line: the target, P with its interval, on how many fresh runs, the margins."""
         verdict = "met" if self.met else "NOT met"
-        dist = ", ".join(f"{k}={v}" for k, v in self.disturbances.items()) or "calm defaults"
+        dist = ", ".join(f"{k}={v}" for k, v in self.disturbances.items()) or "calm day"
+        dist += ", the rest calm" if self.disturbances else ""
         tight = [m for m in self.margins.values() if m > 0]
         line = (
             f"planned to P >= {self.target:g} ({verdict}): P(spec holds) = {self.p:.4f} "

@@ -106,8 +106,9 @@ class TargetOptions:
         final_runs: runs of each check on fresh seeds.
         rounds: most plans the loop makes.
         time_limit_s: the first plan's time limit (``None``: none).
-        budget_s: the loop's wall time: no round starts that would not end in it (by the
-            last round's time), and a replan gets at most what is left (``None``: none).
+        budget_s: the loop's wall time: no round starts that would not end in it with the
+            check on fresh runs after it (by the last round's times), and a replan gets at
+            most what is left (``None``: none).
         replan_time_limit_s: each tightened plan's (one that does not meet the tightened
             spec in that time is taken as impossible).
     """
@@ -330,7 +331,10 @@ def plan_to_probability(
                 limiting = _worst_clause(fresh or a, "no margin the runs ask for is left to add")
                 break
             now = time.perf_counter()
-            left = math.inf if opts.budget_s is None else t0 + opts.budget_s - now
+            # what is left once a check on fresh runs (as long as this round's assessment
+            # would take for final_runs) is set aside
+            check_s = a.elapsed_s * opts.final_runs / max(1, a.runs)
+            left = math.inf if opts.budget_s is None else t0 + opts.budget_s - now - check_s
             round_s = now - t_plan  # this round: its plan and its assessments
             if left < round_s:
                 limiting = _worst_clause(
@@ -388,7 +392,7 @@ def plan_to_probability(
         ci=final.ci,
         runs=final.runs,
         seed=final.seed,
-        disturbances=dict(final.disturbances),
+        disturbances=dict(base.disturbances),
         profile=base.profile,
         margins={t: kept_margins[t] for t in texts if kept_margins.get(t, 0.0) > 0.0},
         dwells={t: kept_dwells[t] for t in texts if kept_dwells.get(t, 0.0) > 0.0},

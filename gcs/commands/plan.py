@@ -456,5 +456,5 @@ def target_table(r: Any) -> str:
         f"{r.elapsed_s:.0f} s"
     )
     assert r.plan.assurance is not None
-    lines.append(("OK: " if r.met else "NOT MET: ") + r.plan.assurance.summary())
+    lines.append(r.plan.assurance.summary())
     return "\n".join(lines)
