@@ -141,6 +141,8 @@ def assurance_from_json(v: Any, fail: Any) -> Assurance:
         and all(isinstance(x, int | float) and not isinstance(x, bool) for x in ci)
     ):
         raise fail("assurance.ci95", "expected [low, high]")
+    if not 0.0 <= ci[0] <= ci[1] <= 1.0:
+        raise fail("assurance.ci95", f"expected 0 <= low <= high <= 1, got {ci}")
     dist = v.get("disturbances", {})
     if not (isinstance(dist, dict) and all(isinstance(x, str) for x in dist.values())):
         raise fail("assurance.disturbances", "expected {name: distribution text}")

@@ -201,6 +201,7 @@ def test_a_bad_assurance_in_a_plan_file_names_its_field(tmp_path: Path) -> None:
     for key, bad, field in [
         ("target", 1.5, "assurance.target"),
         ("ci95", [0.9], "assurance.ci95"),
+        ("ci95", [0.99, 0.98], "assurance.ci95"),
         ("margins", [{"clause": 3}], "assurance.margins[0]"),
         ("met", "yes", "assurance.met"),
         ("dwells", [{"clause": "x", "dwell_s": "1"}], "assurance.dwells[0]"),
