@@ -85,6 +85,9 @@ DWELL_MAX_S = 3.0
 DWELL_CAP_SHARE = 1.0
 #: The share of runs a clause must break first in to be given a longer dwell.
 DWELL_AFTER = 0.001
+#: The least time (s) left in the budget for which a cold plan or a halved increment is
+#: tried (the planner's time limit does not bound its initial guess and build).
+MIN_PLAN_S = 10.0
 #: Halvings of a round's margin increments tried when they cannot be planned.
 BACK_OFFS = 1
 #: Every clause is planned with at least this quantile of its losses.
@@ -432,6 +435,9 @@ def _replan(
     why = ""
     until = time.perf_counter() + left_s
     for attempt in range(1 + BACK_OFFS):
+        if attempt and until - time.perf_counter() < MIN_PLAN_S:
+            why += " (no time left in the budget to try half the increment)"
+            break
         share = 0.5**attempt
         asked = {t: margins.get(t, 0.0) + share * (m - margins.get(t, 0.0)) for t, m in new.items()}
         grown = {t: m for t, m in asked.items() if m > margins.get(t, 0.0) + 1e-3}
@@ -452,7 +458,7 @@ def _replan(
             return max(1.0, min(opts.replan_time_limit_s, until - time.perf_counter()))
 
         tight_k = plan(tightened, initial_guess=tight.decision, time_limit_s=limit())
-        if not tight_k.success and until - time.perf_counter() > 1.0:
+        if not tight_k.success and until - time.perf_counter() > MIN_PLAN_S:
             tight_k = plan(tightened, time_limit_s=limit())
         if tight_k.success:
             return tight_k, asked, ""
