@@ -15,12 +15,15 @@
    the plan file records (:class:`planner.assurance.Assurance`).  If it falls short, its
    runs tune the next round and the next check takes another fresh seed.
 
-It stops when the target is met, when the margins asked for cannot be planned (a region
-would vanish, or the tightened spec cannot be met: the clause that stops it is named), or
-after ``rounds`` plans.  The plan kept is the one that met the target on fresh runs, else
-the round whose tuning runs gave the highest lower end of the interval, judged on fresh runs
-(the first plan, as written, when no margin helped).  Seeds: round ``k`` tunes on campaign seed ``seed + k`` and checks on
-``seed + FRESH_SEED_OFFSET + k``; an independent assessment should use another.
+Clauses that still break when their margin is at its cap and that ask for a hover are
+planned with a longer one (:func:`longer_dwells`).  It stops when the target is met, when the
+margins asked for cannot be planned (a region would vanish, or the tightened spec cannot be
+met: the clause that stops it is named), after ``rounds`` plans, or when the next round and
+the check after it would not end within ``budget_s``.  The plan kept is the one that met the
+target on fresh runs, else the round whose tuning runs gave the highest lower end of the
+interval, judged on fresh runs (the first plan, as written, when no margin helped).  Seeds:
+round ``k`` tunes on campaign seed ``seed + k`` and checks on ``seed + FRESH_SEED_OFFSET +
+k``; an independent assessment should use another.
 """
 
 from __future__ import annotations
