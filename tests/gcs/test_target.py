@@ -23,13 +23,16 @@ from gcs.assess.target import (
     KEEP_SHARE,
     Q_KEEP,
     STEP_M,
+    TargetOptions,
     longer_dwells,
     needed_margins,
+    plan_to_probability,
 )
 from gcs.flight.outcome import FlightMode, FlightOutcome, format_outcome, outcome_json
 from gcs.report import report_markdown
 from planner.assurance import Assurance
 from planner.planfile import PlanFileError, load_plan
+from planner.scenario import load_scenario
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 ZOO = Path(__file__).resolve().parents[2] / "benchmarks" / "scenarios"
@@ -231,3 +234,20 @@ def test_the_flight_summary_and_report_say_how_the_plan_was_made() -> None:
     md = report_markdown(plan, outcome, title="t", base_dir=src.parent)
     assert "## Planned to a probability" in md
     assert "| 0.35 | `always[0,6] (dist(d1, d2) >= 0.2)` |" in md
+
+
+@pytest.mark.slow
+def test_the_loop_keeps_to_its_budget() -> None:
+    problem = load_scenario(ZOO / "powerline_line4_1drone.yaml")
+    wind = {"wind_m_s": "uniform(3, 9)"}
+    opts = TargetOptions(
+        probability=0.95,
+        assess=AssessOptions(runs=200, seed=0, disturbances=wind, workers=0),
+        final_runs=200,
+        budget_s=1.0,  # the first round alone takes longer: no second one starts
+    )
+    r = plan_to_probability(problem, opts)
+    assert len(r.rounds) == 1 and not r.met
+    assert r.limiting is not None and "the loop's budget (1 s) allows no more rounds" in r.limiting
+    assert r.final is not None and r.rounds[0].fresh is r.final  # judged on fresh runs all the same
+    assert r.plan.assurance is not None and r.plan.assurance.margins == {}
