@@ -179,7 +179,6 @@ class TargetResult:
         limiting: when not met, the clause that limits it (its text) and why.
         first: the first plan's robustness (before any margin), to show what was given up.
         elapsed_s: the loop's wall time.
-        margins: the kept plan's margins (m), per clause text (the record's).
     """
 
     result: PlanResult
@@ -190,7 +189,11 @@ class TargetResult:
     limiting: str | None
     first: float
     elapsed_s: float
-    margins: Mapping[str, float] = field(default_factory=dict)
+
+    @property
+    def margins(self) -> Mapping[str, float]:
+        """The kept plan's margins (m) per clause text, as its record says ({}: none)."""
+        return {} if self.plan.assurance is None else self.plan.assurance.margins
 
 
 def needed_margins(
@@ -236,14 +239,16 @@ def needed_margins(
         failing = (now <= 0.0).any(axis=1)
         if int(failing.sum()) <= allowed:
             break
-        counts = np.bincount(np.argmin(now[failing], axis=1), minlength=len(texts))
+        fails = now[failing]
+        weakest = np.argmin(fails, axis=1)
+        counts = np.bincount(weakest, minlength=len(texts))
         step = 0.0
         for c in np.argsort(-counts, kind="stable"):
             if counts[c] == 0:
                 break
             if np.isnan(room[c]):
                 room[c] = cap(texts[c]) + epsilon - planned[c]
-            lacks = -now[failing][np.argmin(now[failing], axis=1) == c, c]
+            lacks = -fails[weakest == c, c]
             step = min(float(np.median(lacks)) + BUFFER_M, float(room[c]) - lift[c])
             if step > 1e-3:
                 lift[c] += step
@@ -291,9 +296,8 @@ def plan_to_probability(
         tight = plan(problem, time_limit_s=opts.time_limit_s)
         result = recheck(tight, problem)
         first = result.robustness
-        best: tuple[float, PlanResult, AssessResult, dict[str, float], dict[str, float]] | None
-        best = None
-        plans: list[tuple[PlanResult, PlanResult]] = []  # per round: judged split, as planned
+        plans: list[PlanResult] = []  # per round: its plan, judged on the split spec
+        met_i: int | None = None  # the round whose fresh check met the target
         limiting: str | None = None
         if not result.success:
             limiting = f"the scenario as written: {result.status}"
@@ -302,7 +306,7 @@ def plan_to_probability(
             k += 1
             planned_s = time.perf_counter() - t_plan
             plan_k = result.to_plan(scenario_path)
-            plans.append((result, tight))
+            plans.append(result)
             tune = dataclasses.replace(base, seed=base.seed + k)
             a = assess(plan_k, tune)
             say(
@@ -319,15 +323,16 @@ def plan_to_probability(
                     f"round {k}: {fresh.runs} fresh runs (seed {check.seed}): P = "
                     f"{fresh.p:.4f} [{fresh.ci[0]:.4f}, {fresh.ci[1]:.4f}]"
                 )
-                if best is None or fresh.ci[0] > best[2].ci[0]:
-                    best = (fresh.ci[0], tight, fresh, dict(margins), dict(dwells))
             rounds.append(
                 TargetRound(
                     k, dict(margins), result.robustness, planned_s, a.p, a.ci, a.runs,
                     tune.seed, fresh, dict(dwells),
                 )
             )  # fmt: skip
-            if (fresh is not None and fresh.ci[0] >= opts.probability) or k == opts.rounds:
+            if fresh is not None and fresh.ci[0] >= opts.probability:
+                met_i = len(rounds) - 1
+                break
+            if k == opts.rounds:
                 break
             new = needed_margins(
                 fresh or a, opts.probability, margins, problem.epsilon, cap=caps.get
@@ -357,19 +362,21 @@ def plan_to_probability(
                 break
             tight, margins, dwells = tight_k, new, new_dwells
             result = recheck(tight, problem)
-        if rounds and (best is None or best[2].ci[0] < opts.probability):
-            # not met: keep the round whose tuning runs did best, judged on fresh runs
-            top = max(range(len(rounds)), key=lambda i: rounds[i].ci[0])
-            chosen = rounds[top]
-            fresh = chosen.fresh
-            if fresh is None:
+        if rounds:
+            # met: that round; else the round whose tuning runs did best, on fresh runs
+            i = (
+                met_i
+                if met_i is not None
+                else max(range(len(rounds)), key=lambda j: rounds[j].ci[0])
+            )
+            if rounds[i].fresh is None:
                 check = dataclasses.replace(
-                    base, runs=opts.final_runs, seed=base.seed + FRESH_SEED_OFFSET + chosen.index
+                    base, runs=opts.final_runs, seed=base.seed + FRESH_SEED_OFFSET + rounds[i].index
                 )
-                fresh = assess(plans[top][0].to_plan(scenario_path), check)
-                rounds[top] = dataclasses.replace(chosen, fresh=fresh)
-            best = (fresh.ci[0], plans[top][1], fresh, dict(chosen.margins), dict(chosen.dwells))
-    if best is None:  # the scenario as written cannot be planned: nothing to assess
+                rounds[i] = dataclasses.replace(
+                    rounds[i], fresh=assess(plans[i].to_plan(scenario_path), check)
+                )
+    if not rounds:  # the scenario as written cannot be planned: nothing to assess
         fail = recheck(tight, written)
         return TargetResult(
             result=fail,
@@ -381,13 +388,17 @@ def plan_to_probability(
             first=first,
             elapsed_s=time.perf_counter() - t0,
         )
-    _, kept_tight, final, kept_margins, kept_dwells = best
+    chosen = rounds[i]
+    final = chosen.fresh
+    assert final is not None
     kept = recheck(
-        kept_tight,
+        plans[i],
         written,
-        note="planned with clause margins: see assurance" if kept_margins or kept_dwells else "",
+        note="planned with clause margins: see assurance"
+        if chosen.margins or chosen.dwells
+        else "",
     )
-    met = final.ci[0] >= opts.probability
+    met = met_i is not None
     if not met and limiting is None:
         limiting = _worst_clause(final, f"{len(rounds)} round(s) reached")
     elapsed = time.perf_counter() - t0
@@ -400,8 +411,8 @@ def plan_to_probability(
         seed=final.seed,
         disturbances=dict(base.disturbances),
         profile=base.profile,
-        margins={t: kept_margins[t] for t in texts if kept_margins.get(t, 0.0) > 0.0},
-        dwells={t: kept_dwells[t] for t in texts if kept_dwells.get(t, 0.0) > 0.0},
+        margins={t: chosen.margins[t] for t in texts if chosen.margins.get(t, 0.0) > 0.0},
+        dwells={t: chosen.dwells[t] for t in texts if chosen.dwells.get(t, 0.0) > 0.0},
         rounds=len(rounds),
         elapsed_s=elapsed,
         limiting=None if met else limiting,
@@ -416,7 +427,6 @@ def plan_to_probability(
         limiting=record.limiting,
         first=first,
         elapsed_s=elapsed,
-        margins=record.margins,
     )
 
 

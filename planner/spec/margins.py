@@ -300,4 +300,4 @@ def conjuncts(problem: Problem) -> dict[str, Formula]:
 
 def clause_texts(problem: Problem) -> list[str]:
     """The top-level conjuncts of ``problem``'s spec as text (the keys of ``margins``)."""
-    return [str(c) for phi in clause_formulas(problem) for c in phi.clauses]
+    return list(conjuncts(problem))
