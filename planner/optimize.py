@@ -22,11 +22,12 @@ Errors: bad scenarios are :class:`~planner.scenario.sections.ScenarioError` (rai
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 import numpy as np
@@ -47,6 +48,7 @@ from planner.solve.nlp import (
     Structure,
     build_structure,
     clear_cache,
+    row_steps,
     structure_key,
     vehicle_limit_bounds,
 )
@@ -61,6 +63,13 @@ from planner.solve.plan_check import (
     verdict,
 )
 from planner.solve.refine import raise_the_rest, sharpen
+from planner.solve.screen import (
+    GUARD_M,
+    REACH_M,
+    Screen,
+    chosen_screen,
+    near_rows,
+)
 from planner.solve.solver_runs import (
     EPS_MARGIN_STEP_M,
     Attempt,
@@ -76,6 +85,7 @@ from planner.solve.solver_runs import (
 from planner.spec.heading import facing_rules, heading_signals, uses_heading, with_heading
 from planner.stl import (
     Always,
+    Formula,
     conjunction,
 )
 from planner.trajectory import Trajectory
@@ -198,23 +208,56 @@ class PlanSearch:
         self._iterate_rho = -math.inf  # the best iterate seen during a solve
         self._iterate_w: np.ndarray | None = None
         self._next_progress = 0.0
+        #: the row-wise leaves' constraint steps, when the NLP is screened
+        #: (:mod:`planner.solve.screen`; None: every row is in the NLP)
+        self.rows: dict[Formula, list[int]] | None = None
+        self.screen: Screen | None = None
+        #: solves again with rows the screen had left out (row generation)
+        self.screen_rounds = 0
+        self.build_s = 0.0
+        self.cached = False
+        #: the structures' locks this search holds (:meth:`run`)
+        self._held: contextlib.ExitStack | None = None
+        self._held_ids: set[int] = set()
 
     # ------------------------------------------------------------------ the NLP's pieces
 
-    def _prepare_nlp(self) -> None:
-        problem, model = self.problem, self.model
+    def _prepare_nlp(self, z_ref: np.ndarray) -> None:
+        """The NLP for the first start ``z_ref`` (built, or from the cache): screened
+        (:mod:`planner.solve.screen`) to the row-wise steps within reach of binding there,
+        where screening is on."""
+        self.rows = row_steps(self.problem, self.formula)
+        self.screen = chosen_screen(self.problem, self.rows, lambda: self._near(z_ref, REACH_M))
+        if self.screen is not None:
+            self.say(f"screening the NLP's rows: {self.screen.describe()}")
+        self._load_structure(first=True)
+
+    def _load_structure(self, first: bool = False) -> None:
+        """``self.struct`` for the problem and the screen, and its bounds.
+
+        Raises:
+            BuildTimeout: the time limit came during the build.
+        """
+        problem, model, screen = self.problem, self.model, self.screen
 
         def build() -> Structure:
             self.say(f"building the NLP for {len(problem.vehicles)} vehicle(s)")
-            return build_structure(problem, model, self.formula, deadline=self.solve_deadline())
+            return build_structure(
+                problem, model, self.formula, deadline=self.solve_deadline(), screen=screen
+            )
 
-        self.struct, self.cached = STRUCTURES.get_or_build(structure_key(problem), build)
+        self.struct, cached = STRUCTURES.get_or_build(structure_key(problem, screen=screen), build)
         struct = self.struct
+        if first:
+            self.cached = cached
+        if self._held is not None and id(struct) not in self._held_ids:
+            self._held.enter_context(struct.lock)
+            self._held_ids.add(id(struct))
         # p: the start states, and every leaf row >= r (weight 1; raise_the_rest settles)
         self.p_val = np.concatenate(
             [*[x.reshape(-1, order="F") for x in self.x0s], np.ones(struct.leaf_group.size)]
         )
-        self.build_s = struct.build_s if not self.cached else 0.0
+        self.build_s += struct.build_s if not cached else 0.0
         self.watch = struct.watch
         # Numeric bounds: limits per vehicle into lbg/ubg, r bounds.
         lbg = struct.lbg_fixed.copy()
@@ -449,6 +492,92 @@ class PlanSearch:
         self._coarse_starts.append(z)
         return what, z
 
+    # --------------------------------------------------------------------- the screen
+
+    def _near(self, w: np.ndarray, below: float) -> dict[Formula, set[int]]:
+        """The row-wise steps (of :attr:`rows`) where the leaf's exact value at ``w`` is
+        below ``below`` (m), and a segment either side of them."""
+        assert self.rows is not None
+        dt = self.problem.timing.sample_dt_s
+        times = np.arange(len(self.model.times_s)) * dt
+        sig = heading_signals(self.trajectories_of(w), times, self.heading)
+        spread = max(1, round(self.problem.timing.segment_s / dt))
+        return near_rows(self.rows, sig, dt, below, spread)
+
+    def _rescreen(self, more: Mapping[Formula, set[int]]) -> bool:
+        """The NLP with the rows ``more`` added to the screen (built within the time
+        limit); whether it was (False: the time limit came in the build, the NLP stays)."""
+        assert self.screen is not None
+        old_screen, old_struct = self.screen, self.struct
+        self.screen = old_screen.grown(more)
+        old = self.watch
+        try:
+            self._load_structure()
+        except BuildTimeout:
+            self.screen, self.struct = old_screen, old_struct
+            self.say("screening: the time limit came while adding rows; the NLP stays")
+            return False
+        new = self.struct.watch
+        if new is not old:
+            new.deadline, new.iterations, new.stopped = old.deadline, old.iterations, False
+            new.on_iteration, old.on_iteration = old.on_iteration, None
+        self.watch = new
+        return True
+
+    def _cover(self, w: np.ndarray) -> None:
+        """Before a start at ``w``: the rows within reach of binding there join the NLP."""
+        if self.screen is None:
+            return
+        near = self._near(w, REACH_M)
+        if not self.screen.covers(near) and self._rescreen(near):
+            self.say(f"screening: for this start, {self.screen.describe()}")
+
+    def _missed(self, w: np.ndarray) -> dict[Formula, set[int]]:
+        """The rows the screen left out that come within :data:`GUARD_M` of the NLP's
+        robustness at its solution ``w`` (of the mission's epsilon, if more)."""
+        assert self.screen is not None
+        r = max(float(w[-1]), self.problem.epsilon)
+        out = {}
+        for leaf, steps in self._near(w, r + GUARD_M).items():
+            left = steps - self.screen.steps.get(leaf, frozenset())
+            if left:
+                out[leaf] = left
+        return out
+
+    def _generated(self, got: Attempt, stop: SigintWatch) -> Attempt:
+        """Row generation after a start: while rows left out come near binding at the
+        solution, they (and every row within reach there) join the NLP, which is solved
+        again from the solution; the better plan in exact robustness is kept."""
+        for _ in range(_SCREEN_ROUNDS):
+            if self.screen is None or self.out_of_time(stop):
+                break
+            missed = self._missed(got.w)
+            if not missed:
+                break
+            n = sum(len(s) for s in missed.values())
+            near = self._near(got.w, REACH_M)
+            for leaf, steps in missed.items():
+                near[leaf] = near.get(leaf, set()) | steps
+            if not self._rescreen(near):
+                break
+            self.screen_rounds += 1
+            self.say(
+                f"screening: {n} step rows left out came within {GUARD_M:g} m of binding; "
+                f"solving again with them ({self.screen.describe()})"
+            )
+            self._reset_r()
+            again = self.attempt(self.lifted(got.w[: self.struct.n_z]), stop)
+            if again.robustness > got.robustness:
+                got = again
+        return got
+
+    def _reset_r(self) -> None:
+        """r's bounds for a start: the structure's, and eq. (1)'s floor if asked for."""
+        struct, problem = self.struct, self.problem
+        self.lbx[-1], self.ubx[-1] = struct.lbx[-1], struct.ubx[-1]
+        if problem.solver.robustness_constraint:
+            lower_r(self.lbx, self.ubx, problem.epsilon + struct.margin)
+
     def attempt(self, w0: np.ndarray, stop: SigintWatch) -> Attempt:
         """One start: the maximisation from ``w0`` (with the eq. (1) rounds if asked for)."""
         problem, struct, bounds = self.problem, self.struct, self.bounds
@@ -533,7 +662,7 @@ class PlanSearch:
         once met, more starts only for solver.polish_s seconds (default 0).  The best exact
         robustness wins.  No start is drawn (its guess can take seconds on a long line)
         once the time is up."""
-        problem, struct = self.problem, self.struct
+        problem = self.problem
         met_at: float | None = None  # when a start first met the mission
         spent: SolverRun | None = None
         while True:
@@ -548,10 +677,9 @@ class PlanSearch:
             self.n_starts += 1
             if self.n_starts > 1:
                 self.say(f"start {self.n_starts}: {what}")
-            self.lbx[-1], self.ubx[-1] = struct.lbx[-1], struct.ubx[-1]
-            if problem.solver.robustness_constraint:
-                lower_r(self.lbx, self.ubx, problem.epsilon + struct.margin)
-            got = self.attempt(self.lifted(z0), stop)
+            self._cover(z0)
+            self._reset_r()
+            got = self._generated(self.attempt(self.lifted(z0), stop), stop)
             spent = got.run if spent is None else spent.then(got.run)
             if self.n_starts > 1 or got.robustness < problem.epsilon:
                 self.say(f"start {self.n_starts}: exact robustness {got.robustness:+.4f}")
@@ -592,12 +720,18 @@ class PlanSearch:
                 self._guess()
                 self._start_stage()
             self._build_t0 = time.perf_counter()
+            z_ref = (
+                self._guess()[2]
+                if initial_guess is None
+                else np.asarray(initial_guess, dtype=float).reshape(-1)
+            )
             try:
-                self._prepare_nlp()
+                self._prepare_nlp(z_ref)
             except BuildTimeout as exc:
                 return self._unbuilt(initial_guess, str(exc))
-            struct = self.struct
-            with struct.lock, watch_sigint() as stop:
+            with contextlib.ExitStack() as held, watch_sigint() as stop:
+                held.enter_context(self.struct.lock)
+                self._held, self._held_ids = held, {id(self.struct)}
                 self._sigint = stop
                 self.watch.deadline = self.deadline
                 self.watch.iterations = 0
@@ -632,7 +766,7 @@ class PlanSearch:
             sharp = sharpen(problem, self.model, formula, best, self.bounds, self.p_val,
                              self.exact_of, say, stop,
                              min(self.solve_deadline(), time.perf_counter() + budget),
-                             self._on_iteration)  # fmt: skip
+                             self._on_iteration, self.screen)  # fmt: skip
             if sharp is not None:
                 self.struct, best, self.bounds, sharp_build_s = sharp
                 self.build_s += sharp_build_s
@@ -743,6 +877,13 @@ class PlanSearch:
             cached=self.cached,
             starts=self.n_starts,
             coarse=None if self.combinatorial is None else self.combinatorial.summary(),
+            screen=None
+            if self.screen is None
+            else {
+                "kept": self.screen.kept,
+                "total": self.screen.total,
+                "rounds": self.screen_rounds,
+            },
         )
         return PlanResult(
             problem=problem,
@@ -777,6 +918,8 @@ class PlanSearch:
 _PLAN_LOCK = threading.RLock()
 #: The share of the time left one start may take while the coarse plan's starts remain.
 _START_SHARE = 0.5
+#: Solves again with rows the screen left out, at most, per start (row generation).
+_SCREEN_ROUNDS = 3
 #: Evaluations of the clauses the final check costs (the result's, the start bound's, and
 #: room for the explanation): the solvers stop this many evaluations before the time limit.
 _CHECK_EVALUATIONS = 4

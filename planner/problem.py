@@ -152,6 +152,11 @@ class SolverOptions:
     #: NLP's first start), at most a quarter of the time limit; 0: off (the initial
     #: guess's starts only).
     coarse_s: float = 5.0
+    #: Keep the row-wise constraints (keep-outs, separations, boxes) only where they can
+    #: bind, grown until no row left out is missed (:mod:`planner.solve.screen`); None
+    #: (auto): where the rows are many and most are far from binding
+    #: (:func:`planner.solve.screen.chosen_screen`).
+    screen: bool | None = None
 
 
 @dataclass(frozen=True, slots=True)

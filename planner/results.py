@@ -66,6 +66,10 @@ class SolveStats:
     #: the combinatorial stage's figures (:meth:`planner.solve.coarse_start.CoarseOutcome.summary`;
     #: None when it did not run)
     coarse: Mapping[str, Any] | None = None
+    #: the row-wise constraints kept (:mod:`planner.solve.screen`): ``{"kept", "total",
+    #: "rounds"}`` (step rows kept at the end, in all, and the solves again with rows
+    #: added); None when the NLP was not screened
+    screen: Mapping[str, int] | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -131,6 +131,7 @@ def summary(result: Any, output: str | None) -> dict[str, Any]:
             "solver": s.solver,
             "starts": s.starts,
             "coarse": None if s.coarse is None else dict(s.coarse),
+            "screen": None if s.screen is None else dict(s.screen),
         },
         "needs": list(result.needs),
         "start_bound": None

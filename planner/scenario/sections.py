@@ -452,6 +452,7 @@ def read_solver(rd: Reader, value: Any) -> SolverOptions:
         "polish_s",
         "lexicographic_rounds",
         "coarse_s",
+        "screen",
     }
     m = rd.mapping(value, "solver", allowed)
     kw: dict[str, Any] = {}
@@ -515,6 +516,10 @@ def read_solver(rd: Reader, value: Any) -> SolverOptions:
         kw["polish_s"] = rd.number(m["polish_s"], "solver.polish_s", nonnegative=True)
     if "coarse_s" in m:
         kw["coarse_s"] = rd.number(m["coarse_s"], "solver.coarse_s", nonnegative=True)
+    if "screen" in m and m["screen"] != "auto":
+        if not isinstance(m["screen"], bool):
+            raise rd.fail("solver.screen", "expected auto, true or false")
+        kw["screen"] = m["screen"]
     if "lexicographic_rounds" in m:
         kw["lexicographic_rounds"] = rd.integer(
             m["lexicographic_rounds"], "solver.lexicographic_rounds", minimum=0

@@ -34,6 +34,7 @@ from planner.solve.leaf_templates import (
 from planner.solve.leaves import chunks_of, decompose, local_positions, lse
 from planner.solve.nlp_solvers import IterationWatch, derivatives, make_solver
 from planner.solve.rowwise import SampleLeaf, sample_leaf
+from planner.solve.screen import Screen
 from planner.spec.predicates import (
     Role,
     ca_box_margins,
@@ -135,10 +136,11 @@ def clear_cache() -> None:
     clear_templates()
 
 
-def structure_key(problem: Problem, sharp: bool = False) -> Any:
+def structure_key(problem: Problem, sharp: bool = False, screen: Screen | None = None) -> Any:
     s = problem.solver
     return (
         sharp,
+        None if screen is None else screen.key(),
         problem.spec_text,
         tuple((r.name, r.lo_enu_m, r.hi_enu_m, r.shape) for r in problem.all_regions),
         problem.timing,
@@ -219,6 +221,7 @@ class NlpBuilder:
         formula: Formula,
         sharp: bool = False,
         deadline: float = math.inf,
+        screen: Screen | None = None,
     ) -> None:
         self.t0 = time.perf_counter()
         #: when (``time.perf_counter()``) the build must give up (:meth:`check_deadline`)
@@ -246,13 +249,15 @@ class NlpBuilder:
         self.k_list = [*[kk for kk in opts.continuation if kk < self.k_final], self.k_final]
         self.k_pred = predicate_sharpness(problem)  # the direct rows' (outside: the obstacles)
         self.fns = casadi_functions(problem, self.k_pred)
-        c_dt = opts.constraint_dt_s if opts.constraint_dt_s is not None else max(self.dt, 0.1)
-        stride = max(1, round(c_dt / self.dt))
-        self.direct_steps: dict[Formula, list[int]] = {}
-        for leaf, steps_set in self.leaves.items():
-            if is_direct(leaf):
-                steps = sorted(steps_set)
-                self.direct_steps[leaf] = sorted(set(steps[::stride]) | {steps[-1]})
+        stride = constraint_stride(problem)
+        self.screen = screen
+        self.direct_steps = direct_steps_of(self.leaves, stride)
+        if screen is not None:  # only the steps where a row can bind (planner.solve.screen)
+            self.direct_steps = {
+                leaf: kept
+                for leaf, steps in self.direct_steps.items()
+                if (kept := [st for st in steps if st in screen.steps.get(leaf, ())])
+            }
         # The workspace bounds the lifted positions, so every constraint step of the horizon
         # is lifted, whether or not the spec itself constrains it there.
         grid = {*range(0, self.n, stride), self.n - 1}
@@ -587,15 +592,17 @@ def build_structure(
     formula: Formula,
     sharp: bool = False,
     deadline: float = math.inf,
+    screen: Screen | None = None,
 ) -> Structure:
     """The NLP of ``problem``: its pieces in order (:class:`NlpBuilder`); with ``sharp``, the
-    smooth leaves' box predicates at the leaves' own sharpness.
+    smooth leaves' box predicates at the leaves' own sharpness; with ``screen``, the
+    row-wise leaves only at the steps it keeps (:mod:`planner.solve.screen`).
 
     Raises:
         BuildTimeout: ``time.perf_counter()`` passed ``deadline`` during the build.
     """
     return (
-        NlpBuilder(problem, model, formula, sharp, deadline)
+        NlpBuilder(problem, model, formula, sharp, deadline, screen)
         .add_spec_constraints()
         .add_dynamics_constraints()
         .add_robustness_cost()
@@ -719,6 +726,32 @@ def _assemble(
         ca.Function("leaves", [wm, pm], [leaf_all]),
         ca.Function("chunks", [wm, pm], [chunk_out]),
     )
+
+
+def constraint_stride(problem: Problem) -> int:
+    """Planning samples between two constraint steps of a row-wise leaf
+    (``solver.constraint_dt_s``, by default every sample, at most every 0.1 s)."""
+    dt = problem.timing.sample_dt_s
+    c_dt = problem.solver.constraint_dt_s
+    return max(1, round((c_dt if c_dt is not None else max(dt, 0.1)) / dt))
+
+
+def direct_steps_of(leaves: Mapping[Formula, set[int]], stride: int) -> dict[Formula, list[int]]:
+    """The constraint steps of each row-wise leaf of ``leaves`` (:func:`decompose`'s): every
+    ``stride``-th of its steps, and its last."""
+    out: dict[Formula, list[int]] = {}
+    for leaf, steps_set in leaves.items():
+        if is_direct(leaf):
+            steps = sorted(steps_set)
+            out[leaf] = sorted(set(steps[::stride]) | {steps[-1]})
+    return out
+
+
+def row_steps(problem: Problem, formula: Formula) -> dict[Formula, list[int]]:
+    """The row-wise leaves of ``formula`` and their constraint steps, as the NLP has them."""
+    leaves: dict[Formula, set[int]] = {}
+    decompose(formula, np.array([0]), problem.timing.sample_dt_s, leaves)
+    return direct_steps_of(leaves, constraint_stride(problem))
 
 
 def is_separation(leaf: Formula) -> bool:

@@ -14,6 +14,7 @@ import numpy as np
 
 from planner.problem import Problem
 from planner.solve.nlp import STRUCTURES, Structure, build_structure, structure_key
+from planner.solve.screen import Screen
 from planner.solve.solver_runs import (
     Attempt,
     SigintWatch,
@@ -170,6 +171,7 @@ def sharpen(
     stop: SigintWatch,
     deadline: float,
     on_iteration: Callable[[np.ndarray, float], None] | None,
+    screen: Screen | None = None,
 ) -> tuple[Structure, Attempt, dict[str, np.ndarray], float] | None:
     """Solve again from ``best`` with the smooth leaves' box predicates at the leaves' own
     sharpness (:func:`planner.solve.nlp.build_structure` with ``sharp``: a box is smoothed exactly as its
@@ -181,17 +183,18 @@ def sharpen(
     limits flight and the paddock clearance took IPOPT's iteration limit), but where the
     plan's margin is within that error the smoothing, not the geometry, decides it (stlpy's
     stepping stones, regions: 0.0003, and 0.0527, the certified optimum, sharpened).
-    The solve stops at ``deadline``; ``on_iteration`` is the plan's progress callback."""
+    The solve stops at ``deadline``; ``on_iteration`` is the plan's progress callback; the
+    NLP keeps the row-wise steps of ``screen`` (:mod:`planner.solve.screen`), if given."""
     built: list[float] = []
 
     def build() -> Structure:
         say("building the NLP with sharper box margins")
         t0 = time.perf_counter()
-        got = build_structure(problem, model, formula, sharp=True)
+        got = build_structure(problem, model, formula, sharp=True, screen=screen)
         built.append(time.perf_counter() - t0)
         return got
 
-    sharp, _ = STRUCTURES.get_or_build(structure_key(problem, sharp=True), build)
+    sharp, _ = STRUCTURES.get_or_build(structure_key(problem, sharp=True, screen=screen), build)
     lbx, ubx = sharp.lbx.copy(), sharp.ubx.copy()
     if problem.solver.robustness_constraint:
         lower_r(lbx, ubx, problem.epsilon + sharp.margin)
