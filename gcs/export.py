@@ -1,4 +1,5 @@
-"""Exports of a plan: QGroundControl ``.plan`` files, setpoint CSV, setpoint JSON.
+"""Exports of a plan: QGroundControl ``.plan`` files, setpoint CSV, setpoint JSON, KML/KMZ
+for Google Earth (:mod:`gcs.kml`).
 
 QGroundControl plan (one file per vehicle)
 ------------------------------------------
@@ -81,6 +82,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from gcs.errors import InputFileError, UserError
+from gcs.kml import kml_bytes
 
 if TYPE_CHECKING:
     from mavlink.mission import MissionEnd, MissionItem, MissionPlan
@@ -132,6 +134,7 @@ class ExportFormat(enum.Enum):
     CSV = "csv"
     JSON = "json"
     HOMES = "homes"
+    KML = "kml"
 
     @classmethod
     def parse(cls, text: str | None) -> ExportFormat:
@@ -442,6 +445,18 @@ def write_export(
     stem = src.stem
     if fmt is ExportFormat.QGC:
         return write_qgc_plans(plan, output if output is not None else src.parent, stem, qgc)
+    if fmt is ExportFormat.KML:
+        target = Path(output) if output is not None else src.with_name(stem + ".kml")
+        if target.is_dir():
+            raise InputFileError(f"{target}: -o for --format kml must be a .kml or .kmz file")
+        if target.suffix.lower() not in (".kml", ".kmz"):
+            raise InputFileError(f"{target}: -o for --format kml must end in .kml or .kmz")
+        data = kml_bytes(plan, target.suffix.lower() == ".kmz", name=stem)
+        try:
+            target.write_bytes(data)
+        except OSError as exc:
+            raise InputFileError(f"{target}: cannot write: {exc.strerror or exc}") from None
+        return [target]
     if fmt is ExportFormat.HOMES:
         target = Path(output) if output is not None else src.with_name(stem + ".homes")
         if target.is_dir():

@@ -1,18 +1,20 @@
-"""``gcs export PLAN.json --format qgc|csv|json [-o DIR|FILE]``: files for other tools.
+"""``gcs export PLAN.json --format qgc|csv|json|homes|kml [-o DIR|FILE]``: files for other tools.
 
 * ``qgc``: one QGroundControl ``.plan`` per vehicle (the mission items ``gcs upload`` sends,
   and the geofence), written to a directory (default: beside the plan file);
 * ``csv``: setpoints ``t,vehicle,x,y,z,vx,vy,vz,ax,ay,az,yaw`` (mission ENU, SI units);
 * ``json``: the same setpoints as JSON;
 * ``homes``: where each vehicle must stand (the ground below its start) as PX4's
-  ``PX4_HOME_LAT/LON/ALT``, one line per vehicle, for PX4 SITL's spawn points.
+  ``PX4_HOME_LAT/LON/ALT``, one line per vehicle, for PX4 SITL's spawn points;
+* ``kml``: the plan for review in Google Earth (paths, poles, keep-outs, inspection places;
+  :mod:`gcs.kml`), ``.kml`` or, with ``-o FILE.kmz``, zipped.
 
 See :mod:`gcs.export` for the exact layouts.
 
 What reaches a vehicle (``qgc`` missions, ``csv``/``json`` setpoints) is written only for a plan
 that passes ``gcs verify``: otherwise exit 1 naming the failed check, as ``gcs fly`` and
 ``gcs upload`` refuse it, unless ``--force`` (then a warning on standard error). ``homes``
-places simulated vehicles and is always written.
+places simulated vehicles and ``kml`` is for people to look at: both are always written.
 """
 
 from __future__ import annotations
@@ -21,7 +23,10 @@ import argparse
 
 from gcs.commands import add_photo_argument, photo_interval
 
-HELP = "export a plan: QGroundControl .plan files, setpoint CSV or JSON, SITL home positions"
+HELP = (
+    "export a plan: QGroundControl .plan files, setpoint CSV or JSON, SITL home positions, "
+    "KML/KMZ for Google Earth"
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -30,12 +35,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--format",
         help="qgc (QGroundControl .plan per vehicle), csv or json (setpoints), homes (the "
-        "ground below each start as PX4_HOME_LAT/LON/ALT, for PX4 SITL)",
+        "ground below each start as PX4_HOME_LAT/LON/ALT, for PX4 SITL), kml (paths, poles, "
+        "keep-outs and inspection places for Google Earth; -o FILE.kmz zips it)",
     )
     p.add_argument(
         "-o",
         "--output",
-        help="directory for qgc, file for csv/json (default: beside the plan file)",
+        help="directory for qgc, file for csv/json/homes/kml (default: beside the plan file)",
     )
     p.add_argument(
         "--rate", type=float, default=None, help="setpoint rate in Hz for csv/json (default 20)"
@@ -92,10 +98,10 @@ def run(args: argparse.Namespace) -> int:
         )
     elif args.end is not None or args.acceptance_radius is not None or args.no_fence:
         raise UserError("--end, --acceptance-radius and --no-fence apply to --format qgc only")
-    if fmt in (ExportFormat.QGC, ExportFormat.HOMES) and args.rate is not None:
+    if fmt in (ExportFormat.QGC, ExportFormat.HOMES, ExportFormat.KML) and args.rate is not None:
         raise UserError("--rate applies to --format csv and json only")
     plan = load_plan(args.plan)
-    if fmt is not ExportFormat.HOMES:
+    if fmt not in (ExportFormat.HOMES, ExportFormat.KML):
         import sys
 
         from gcs.flight import FlightRefused, preflight_interlock

@@ -5,8 +5,8 @@
     line:
       poles: [[0, 0], [24, 18], ...]      # ENU [x, y] metres, or {lat: .., lon: ..} each
       # along: {start: [0, 0], bearing_deg: 37, span_m: 30, count: 10}
-      # file: poles.csv                   # a GIS export: CSV (x,y or lat,lon columns) or
-      #                                   # GeoJSON (Point features, or one LineString)
+      # file: poles.csv                   # a GIS export: CSV (x,y or lat,lon columns),
+      #                                   # GeoJSON or KML/KMZ (Points, or one LineString)
       pole: {radius_m: 0.4, height_m: 12}
       conductors: {half_width_m: 1.8, z: [9, 12], clearance_m: 1.0}
       inspection: {standoff_m: 1.5, depth_m: 2.2, length_m: 5, z: [9.5, 12.5], side: right}
@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from planner.frames import GeodeticPoint, geodetic_to_enu
+from planner.scenario.kml import KmlError, read_kml_towers
 from planner.spec.regions import Cylinder, Region, RegionKind
 from planner.strict_read import DuplicateKeyError, NotTextError, load_json, read_text
 
@@ -242,8 +243,16 @@ def _along(v: Any, fail: Any, number: Any) -> np.ndarray:
 
 def _pole_file(v: Any, origin: GeodeticPoint, base_dir: Path, fail: Any) -> np.ndarray:
     if not isinstance(v, str):
-        raise fail("line.file", "expected a file name (CSV or GeoJSON)")
+        raise fail("line.file", "expected a file name (CSV, GeoJSON, KML or KMZ)")
     path = (base_dir / v) if not Path(v).is_absolute() else Path(v)
+    if path.suffix.lower() in (".kml", ".kmz"):
+        try:
+            towers = read_kml_towers(path)
+        except OSError as exc:
+            raise fail("line.file", f"cannot read {path}: {exc.strerror or exc}") from None
+        except KmlError as exc:
+            raise fail("line.file", str(exc)) from None
+        return _to_enu(towers[:, 0], towers[:, 1], origin)
     try:
         text = read_text(path)
     except OSError as exc:
