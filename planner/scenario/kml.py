@@ -27,6 +27,8 @@ from fastkml.exceptions import FastKMLError
 from fastkml.features import Placemark
 from lxml import etree
 
+from planner.errors import PlannerError
+
 __all__ = ["KML_NS", "KmlError", "kml_towers", "main_kml", "read_kml_towers"]
 
 #: The KML 2.2 namespace (OGC).
@@ -36,7 +38,7 @@ _OLD_NS = ("http://earth.google.com/kml/2.0", "http://earth.google.com/kml/2.1",
            "http://earth.google.com/kml/2.2", "")  # fmt: skip
 
 
-class KmlError(ValueError):
+class KmlError(PlannerError, ValueError):
     """A KML/KMZ file that gives no towers: the reason, in one line."""
 
 

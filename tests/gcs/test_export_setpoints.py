@@ -88,8 +88,8 @@ def test_json_setpoints_hold_the_same_samples(tmp_path: Path) -> None:
         ),
         (
             "ok",
-            ["--format", "kml"],
-            r"--format: unknown format 'kml' \(choose qgc, csv, json, homes\)",
+            ["--format", "kmz"],
+            r"--format: unknown format 'kmz' \(choose qgc, csv, json, homes, kml\)",
         ),
         ("ok", [], r"--format: required"),
         ("ok", ["--format", "csv", "--rate", "0"], r"--rate: must be in \(0, 1000\] Hz"),

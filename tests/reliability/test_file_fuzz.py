@@ -192,13 +192,14 @@ def test_the_good_files_of_the_fuzz_are_read(tmp_path: Path) -> None:
 def test_a_line_file_that_is_not_text_is_one_line_naming_it(
     content: bytes | None, says: str, tmp_path: Path
 ) -> None:
-    target = tmp_path / "poles.kmz"
+    # (a CSV name: a file named .kml or .kmz is read as KML, tests/planner/test_kml.py)
+    target = tmp_path / "poles.csv"
     if content is None:
         target.mkdir()
     else:
         target.write_bytes(content)
-    (tmp_path / "s.yaml").write_text(_LINE_SCENARIO.replace("FILE", "poles.kmz"))
+    (tmp_path / "s.yaml").write_text(_LINE_SCENARIO.replace("FILE", "poles.csv"))
     with pytest.raises(FileFieldError) as err:
         load_scenario(tmp_path / "s.yaml")
     msg = str(err.value)
-    assert "line.file" in msg and "poles.kmz" in msg and says in msg and "\n" not in msg
+    assert "line.file" in msg and "poles.csv" in msg and says in msg and "\n" not in msg
