@@ -567,8 +567,16 @@ class PlanSearch:
             )
             self._reset_r()
             again = self.attempt(self.lifted(got.w[: self.struct.n_z]), stop)
-            if again.robustness > got.robustness:
-                got = again
+            # the better plan, with what both solves cost (the NLP's point has the same
+            # layout in every screen: planner.solve.nlp lifts every constraint step)
+            best = again if again.robustness > got.robustness else got
+            cost = got.run.then(again.run)
+            got = dataclasses.replace(
+                best,
+                run=dataclasses.replace(
+                    cost, w=best.run.w, status=best.run.status, lam_g=best.run.lam_g
+                ),
+            )
         return got
 
     def _reset_r(self) -> None:

@@ -252,17 +252,19 @@ class NlpBuilder:
         stride = constraint_stride(problem)
         self.screen = screen
         self.direct_steps = direct_steps_of(self.leaves, stride)
+        # The workspace bounds the lifted positions, so every constraint step of the horizon
+        # is lifted, whether or not the spec itself constrains it there; and whatever a
+        # screen keeps, so that the NLP's point has one layout in every screen (row
+        # generation moves a point from one screen's NLP to the next).
+        grid = {*range(0, self.n, stride), self.n - 1}
+        self.used = sorted(grid.union(*self.direct_steps.values()))
+        self.row_of = {st: i for i, st in enumerate(self.used)}
         if screen is not None:  # only the steps where a row can bind (planner.solve.screen)
             self.direct_steps = {
                 leaf: kept
                 for leaf, steps in self.direct_steps.items()
                 if (kept := [st for st in steps if st in screen.steps.get(leaf, ())])
             }
-        # The workspace bounds the lifted positions, so every constraint step of the horizon
-        # is lifted, whether or not the spec itself constrains it there.
-        grid = {*range(0, self.n, stride), self.n - 1}
-        self.used = sorted(grid.union(*self.direct_steps.values()))
-        self.row_of = {st: i for i, st in enumerate(self.used)}
 
         # The smooth leaves at their steps; a long eventually's chunks (chunks_of) in S.
         self.smooth_items = [
