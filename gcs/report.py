@@ -107,6 +107,10 @@ def report_markdown(
         lines.append("| interrupted | Ctrl-C: every vehicle was commanded to hold |")
     for name, why in outcome.end_failures.items():
         lines.append(f"| end action failed ({name}) | {_cell(why)} |")
+    for vehicle, heard in outcome.vehicle_messages.items():
+        for t_said, severity, text in heard:
+            when = "before the start" if t_said is None else f"t = {t_said:.2f} s"
+            lines.append(f"| {vehicle} said ({severity}) | {_cell(text)}, {when} |")
     lines.append("")
     if timings_s:
         total = sum(timings_s.values())

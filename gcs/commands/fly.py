@@ -28,7 +28,9 @@ import asyncio
 import json
 import math
 import sys
+from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from gcs.commands import (
     add_link_arguments,
@@ -38,6 +40,10 @@ from gcs.commands import (
     parse_param_overrides,
     photo_interval,
 )
+
+if TYPE_CHECKING:
+    from mavlink.mock.vehicle_faults import VehicleFault
+    from planner.planfile import Plan
 
 HELP = "fly a plan in offboard (or mission) mode on PX4 vehicles, or on mock ones with --dry-run"
 
@@ -102,7 +108,45 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_link_arguments(p, plan_order=True, timeout_s=10.0, timeout_help="connection timeout (10 s)")
     p.add_argument("--json", action="store_true", help="print the outcome as JSON")
     add_mock_vehicle_arguments(p, param_flag="--mock-param")
+    p.add_argument(
+        "--mock-fault",
+        action="append",
+        default=[],
+        metavar="VEHICLE:KIND@T",
+        help="--dry-run: inject a fault T seconds into VEHICLE's plan: lost (its link goes "
+        "silent), failsafe (PX4 returns home), battery (falls to critical; PX4 acts as "
+        "COM_LOW_BAT_ACT says); repeatable",
+    )
     add_speed_argument(p)
+
+
+def parse_mock_faults(texts: list[str], plan: Plan) -> list[tuple[int, VehicleFault]]:
+    """``--mock-fault VEHICLE:KIND@T`` values: (vehicle index, fault), in plan order of
+    vehicles; UserError naming the value otherwise."""
+    from gcs.errors import UserError
+    from mavlink.mock.vehicle_faults import FAULT_KINDS, VehicleFault
+
+    names = [v.name for v in plan.vehicles]
+    horizon = max(v.trajectory.duration_s for v in plan.vehicles)
+    out: list[tuple[int, VehicleFault]] = []
+    for text in texts:
+        where = f"--mock-fault {text!r}"
+        vehicle, colon, rest = text.partition(":")
+        kind, at, t_text = rest.partition("@")
+        if not (colon and at and vehicle and kind):
+            raise UserError(f"{where}: expected VEHICLE:KIND@T, e.g. d2:lost@10")
+        if vehicle not in names:
+            raise UserError(f"{where}: no vehicle {vehicle!r} in the plan ({', '.join(names)})")
+        if kind not in FAULT_KINDS:
+            raise UserError(f"{where}: unknown kind {kind!r} (choose {', '.join(FAULT_KINDS)})")
+        try:
+            t = float(t_text)
+        except ValueError:
+            raise UserError(f"{where}: T must be seconds into the plan, got {t_text!r}") from None
+        if not (math.isfinite(t) and 0.0 <= t <= horizon):
+            raise UserError(f"{where}: T must be in [0, {horizon:g}] s (the plan), got {t_text}")
+        out.append((names.index(vehicle), VehicleFault(kind, t)))
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
@@ -143,7 +187,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--dry-run and --connection exclude each other")
     if args.speed is not None and not args.dry_run:
         raise UserError("--speed: only for --dry-run (real vehicles fly in real time)")
+    if args.mock_fault and not args.dry_run:
+        raise UserError("--mock-fault: only for --dry-run (faults are injected into mock vehicles)")
     plan = load_plan(args.plan)
+    faults = parse_mock_faults(args.mock_fault, plan)
     out = sys.stderr if args.json else sys.stdout
     if args.end == "land":
         # where landing straight down would meet a keep-out, somewhere clear (or refused)
@@ -181,6 +228,7 @@ def run(args: argparse.Namespace) -> int:
 
         return asyncio.run(signed_flight())
 
+    fired: list[dict[str, Any]] = []  # the injected faults (--mock-fault), what they did
     try:
         if args.dry_run:
             with mock_vehicles(
@@ -189,6 +237,7 @@ def run(args: argparse.Namespace) -> int:
                 profile=args.profile,
                 params=parse_param_overrides(args.mock_param, "--mock-param"),
                 speed=args.speed,
+                faults=faults,
             ) as dry:
                 print(
                     f"dry run: {len(dry.urls)} mock vehicle(s) ({args.profile} profile) on the "
@@ -197,7 +246,21 @@ def run(args: argparse.Namespace) -> int:
                     file=out,
                     flush=True,
                 )
+                for i, f in faults:
+                    print(
+                        f"dry run: {plan.vehicles[i].name} will be {f.kind} at {f.at_s:g} s "
+                        "of its plan (--mock-fault)",
+                        file=out,
+                        flush=True,
+                    )
+                options = replace(options, on_plan_start=dry.mock.plan_started)
                 outcome = fly(list(dry.urls), dry.clock)
+                fired = [
+                    {"vehicle": plan.vehicles[i].name, "kind": f.kind, "at_s": f.at_s,
+                     "fired_at_s": next((t for g, t in v.plan_faults.fired if g is f), None)}
+                    for i, f in faults
+                    for v in [dry.mock.vehicles[i]]
+                ]  # fmt: skip
         else:
             outcome = fly(args.connection)
     except (PreflightError, MissionRefused) as exc:
@@ -214,9 +277,19 @@ def run(args: argparse.Namespace) -> int:
             files={"plan": Path(args.plan)},
         )
     if args.json:
-        print(json.dumps(outcome_json(plan, outcome)))
+        data = outcome_json(plan, outcome)
+        if args.dry_run:
+            data["mock_faults"] = fired
+        print(json.dumps(data))
     else:
         print(format_outcome(plan, outcome))
+        for rec in fired:
+            when = rec["fired_at_s"]
+            print(
+                f"injected: {rec['vehicle']} {rec['kind']} at {rec['at_s']:g} s of its plan: "
+                + (f"fired at {when:.2f} s" if when is not None else "did not fire (the "
+                   "vehicle did not fly its plan that far)")
+            )  # fmt: skip
     if outcome.interrupted:
         return EXIT_INTERRUPTED
     ev = outcome.evaluation

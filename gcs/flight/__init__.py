@@ -62,7 +62,7 @@ from gcs.flight.dryrun import free_udp_ports
 from gcs.flight.evaluation import evaluate_flight, plan_formula, reads_heading
 from gcs.flight.landing import landing_targets
 from gcs.flight.mission import arrive_gate_m, mission_driver, mission_record
-from gcs.flight.outcome import FlightMode, FlightOutcome
+from gcs.flight.outcome import SEVERITY_NAMES, FlightMode, FlightOutcome
 from gcs.flight.payload import CameraCommands, capture_spans, run_offboard_captures
 from gcs.flight.progress import FlightProgress, PlanStarts
 from gcs.flight.tuning import expected_error_m, margin_warnings, read_tuning
@@ -148,6 +148,8 @@ class FlyOptions:
             (its robustness) a vehicle is warned about once, in flight and in the report.
         photo_interval_s: time between pictures where the plan faces an inspection target
             (:mod:`gcs.flight.payload`); 0: the camera is left alone.
+        on_plan_start: called once with the plan's start on the fleet's clock (a dry run
+            times its injected faults from it, :meth:`mavlink.mock.MockFleet.plan_started`).
     """
 
     mode: FlightMode = FlightMode.OFFBOARD
@@ -163,6 +165,7 @@ class FlyOptions:
     force: bool = False
     max_off_plan_m: float | None = 3.0
     photo_interval_s: float = 1.0
+    on_plan_start: Callable[[float], None] | None = None
 
 
 # ---------------------------------------------------------------------------- before flight
@@ -467,6 +470,8 @@ async def fly_plan(
             """The shared start time, for the progress view and the camera's clock."""
             starts.t0_monotonic_s.update(dict.fromkeys(names, t0_monotonic_s))
             if not start.done():
+                if opts.on_plan_start is not None:
+                    opts.on_plan_start(t0_monotonic_s)
                 start.set_result(t0_monotonic_s)
 
         try:
@@ -501,6 +506,7 @@ async def fly_plan(
             end_failures = dict(guard.failures) if guard is not None else {}
         finally:
             accuracy = {v.name: v.track_accuracy_m for v in fleet}
+            said = _vehicle_messages(fleet, t_connected, starts)
             rows = {v.name: v.stop_track() for v in fleet}
             images = {
                 v.name: tuple(v.images(starts.t0_monotonic_s[v.name]))
@@ -566,7 +572,25 @@ async def fly_plan(
         images=images,
         coverage=coverage,
         camera=camera if camera is not None and any(spans.values()) else None,
+        vehicle_messages=said,
     )
+
+
+def _vehicle_messages(
+    fleet: Fleet, since_s: float, starts: PlanStarts
+) -> dict[str, tuple[tuple[float | None, str, str], ...]]:
+    """Per vehicle the warnings it sent since ``since_s`` (STATUSTEXT severity WARNING or
+    worse), as (plan time or None before the start, severity name, text)."""
+    out = {}
+    for v in fleet:
+        said = [
+            (starts.plan_time(v.name, t), SEVERITY_NAMES[sev], text)
+            for t, sev, text in v.timed_statustexts(since_s)
+            if sev < len(SEVERITY_NAMES)
+        ]
+        if said:
+            out[v.name] = tuple(said)
+    return out
 
 
 def _final_mode(st: VehicleStatus) -> str:

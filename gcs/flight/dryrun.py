@@ -30,6 +30,7 @@ if TYPE_CHECKING:
     from mavlink.clock import Clock
     from mavlink.mock import MockFleet
     from mavlink.mock.config import MockVehicleConfig, WindConfig
+    from mavlink.mock.vehicle_faults import VehicleFault
     from planner.planfile import Plan
 
 __all__ = ["SPEED_ENV", "DryRun", "free_udp_ports", "ground_spawns", "mock_vehicles", "sim_speed"]
@@ -103,6 +104,7 @@ def mock_vehicles(
     vehicle_configs: Sequence[MockVehicleConfig] | None = None,
     wind: WindConfig | None = None,
     speed: float | None = None,
+    faults: Sequence[tuple[int, VehicleFault]] = (),
 ) -> Iterator[DryRun]:
     """Mock PX4 vehicles on the ground below the plan's starts, in a background thread.
 
@@ -112,7 +114,8 @@ def mock_vehicles(
     ``vehicle_configs`` (one per vehicle, plan order: spawn, link faults, parameters) replace
     them where each vehicle differs (``gcs assess --replay --realtime``), and ``wind`` blows on all.
     ``speed``: simulated seconds per wall second (:func:`sim_speed`: default
-    ``$STL_GCS_SIM_SPEED`` or 1); fly them on :attr:`DryRun.clock`.
+    ``$STL_GCS_SIM_SPEED`` or 1); fly them on :attr:`DryRun.clock`. ``faults``: (vehicle
+    index, fault) injected on each vehicle's plan clock (:mod:`mavlink.mock.vehicle_faults`).
     """
     from mavlink.mock import MockFleet
 
@@ -131,6 +134,8 @@ def mock_vehicles(
         wind=wind,
         speed=sim_speed(speed),
     )
+    for i, fault in faults:
+        mock.vehicles[i].plan_faults.add(fault)
     with mock.running_in_thread():
         yield DryRun(
             mock=mock,

@@ -30,7 +30,7 @@ if TYPE_CHECKING:
     from mavlink.tracks import FlownTrack
     from planner.planfile import Plan
 
-__all__ = ["FlightMode", "FlightOutcome", "format_outcome", "outcome_json"]
+__all__ = ["SEVERITY_NAMES", "FlightMode", "FlightOutcome", "format_outcome", "outcome_json"]
 
 
 class FlightMode(Enum):
@@ -73,6 +73,9 @@ class FlightOutcome:
         coverage: what they cover of the inspection targets (``None``: the plan has none).
         camera: offboard: the camera and gimbal commands sent and refused (``None``:
             none sent by the ground station; a mission carries them as items).
+        vehicle_messages: per vehicle the warnings it sent during the flight (STATUSTEXT of
+            severity WARNING or worse: "Critical battery", "Failsafe activated"), as (plan
+            time or ``None`` before the start, severity name, text).
     """
 
     mode: FlightMode
@@ -99,6 +102,13 @@ class FlightOutcome:
     images: dict[str, tuple[CapturedImage, ...]] = field(default_factory=dict)
     coverage: CoverageReport | None = None
     camera: CameraCommands | None = None
+    vehicle_messages: dict[str, tuple[tuple[float | None, str, str], ...]] = field(
+        default_factory=dict
+    )
+
+
+#: MAV_SEVERITY names (0 .. 4: the warnings a flight records).
+SEVERITY_NAMES = ("EMERGENCY", "ALERT", "CRITICAL", "ERROR", "WARNING")
 
 
 def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
@@ -122,6 +132,10 @@ def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
     )
     for name, why in outcome.end_failures.items():
         lines.append(f"  {name}: end action failed: {why}")
+    for name, said in outcome.vehicle_messages.items():
+        for t, severity, text in said:
+            when = "before the start" if t is None else f"at t={t:.2f} s"
+            lines.append(f"  {name} said {when}: {text!r} ({severity})")
     if plan.assurance is not None:
         lines.append(plan.assurance.summary())
     ev = outcome.evaluation
@@ -257,6 +271,10 @@ def outcome_json(plan: Plan, outcome: FlightOutcome) -> dict[str, Any]:
         "flight_s": outcome.flight_s,
         "t0_unix_s": outcome.t0_unix_s,
         "safety_event": None if outcome.safety_event is None else outcome.safety_event.describe(),
+        "vehicle_messages": {
+            name: [{"t_s": t, "severity": sev, "text": text} for t, sev, text in said]
+            for name, said in outcome.vehicle_messages.items()
+        },
         "monitor": None if outcome.monitor is None else outcome.monitor.as_json(),
         "decision_latency_s": (
             None if outcome.safety_event is None else outcome.safety_event.latency_s

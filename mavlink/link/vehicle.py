@@ -339,8 +339,13 @@ class Vehicle:
 
     def statustexts(self, since_monotonic_s: float = 0.0) -> list[tuple[int, str]]:
         """STATUSTEXTs heard since ``since_monotonic_s`` (severity, text), oldest first."""
+        return [(sev, text) for _t, sev, text in self.timed_statustexts(since_monotonic_s)]
+
+    def timed_statustexts(self, since_monotonic_s: float = 0.0) -> list[tuple[float, int, str]]:
+        """STATUSTEXTs heard since ``since_monotonic_s`` (time on the link's clock, severity,
+        text), oldest first (the latest 50 are kept)."""
         with self._lock:
-            return [(sev, text) for t, sev, text in self._texts if t >= since_monotonic_s]
+            return [m for m in self._texts if m[0] >= since_monotonic_s]
 
     @property
     def position_accuracy_m(self) -> tuple[float, float] | None:

@@ -292,6 +292,12 @@ class MockFleet:
         e, n, u = pymap3d.geodetic2enu(lat, lon, alt, o.lat_deg, o.lon_deg, o.alt_m)
         return np.stack([e, n, u], axis=-1).reshape(shape)
 
+    def plan_started(self, t0_s: float) -> None:
+        """The flight's plan started at ``t0_s`` (simulation time): the vehicles' injected
+        faults (:mod:`mavlink.mock.vehicle_faults`) are timed from it. Safe from any thread."""
+        for v in self.vehicles:
+            v.plan_faults.start(t0_s)
+
     def configure_links(self, vehicle: MockVehicle, faults: FaultConfig) -> None:
         """(Re)build the fault channels of ``vehicle``; usable before or while running."""
         if self._loop is None:

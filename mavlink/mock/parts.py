@@ -75,6 +75,8 @@ class VehicleParts:
     _builders: dict[int, Callable[[], Any]]
     _streams: dict[int, Stream]
     _deferred: list[tuple[float, Callable[[], None]]]
+    # the battery's charge (%) a fault set (mavlink.mock.vehicle_faults), None: it drains
+    battery_override_pct: float | None
     downlink: Link | None
     # the command being answered: (MAV_CMD, sender's sysid, sender's compid)
     _cmd_partner: tuple[int, int, int]

@@ -152,6 +152,8 @@ class ParamSpec:
 PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("COM_DISARM_LAND", ParamType.REAL32, 2.0),
     ParamSpec("COM_DISARM_PRFLT", ParamType.REAL32, 10.0),
+    ParamSpec("COM_FAIL_ACT_T", ParamType.REAL32, 5.0, 0.0, 25.0),
+    ParamSpec("COM_LOW_BAT_ACT", ParamType.INT32, 0, 0.0, 3.0),
     ParamSpec("COM_OBL_RC_ACT", ParamType.INT32, 0),
     ParamSpec("COM_OF_LOSS_T", ParamType.REAL32, 1.0),
     ParamSpec("COM_RC_IN_MODE", ParamType.INT32, 3),

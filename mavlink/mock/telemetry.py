@@ -140,6 +140,8 @@ class TelemetryMixin(VehicleParts):
         )  # fmt: skip
 
     def _battery_remaining(self) -> float:
+        if self.battery_override_pct is not None:  # a fault's (mavlink.mock.vehicle_faults)
+            return self.battery_override_pct
         flown_s = self._now() - self._armed_at_s if self.armed else 0.0
         return max(5.0, 100.0 - 0.05 * flown_s)
 
@@ -149,7 +151,7 @@ class TelemetryMixin(VehicleParts):
         return mavlink2.MAVLink_battery_status_message(
             0, mavlink2.MAV_BATTERY_FUNCTION_ALL, mavlink2.MAV_BATTERY_TYPE_LIPO, 2500,
             volts, 1200 if self.armed else 50, -1, -1, int(remaining), -1,
-            mavlink2.MAV_BATTERY_CHARGE_STATE_OK, [0, 0, 0, 0], 0, 0,
+            _charge_state(remaining), [0, 0, 0, 0], 0, 0,
         )  # fmt: skip
 
     def _msg_extended_sys_state(self) -> Msg:
@@ -342,3 +344,15 @@ def euler_to_quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, f
         cr * sp * cy + sr * cp * sy,
         cr * cp * sy - sr * sp * cy,
     )
+
+
+def _charge_state(remaining_pct: float) -> int:
+    """MAV_BATTERY_CHARGE_STATE of a charge (%) at PX4 v1.17's default thresholds
+    (BAT_LOW_THR 15 %, BAT_CRIT_THR 7 %, BAT_EMERGEN_THR 5 %)."""
+    if remaining_pct < 5.0:
+        return int(mavlink2.MAV_BATTERY_CHARGE_STATE_EMERGENCY)
+    if remaining_pct < 7.0:
+        return int(mavlink2.MAV_BATTERY_CHARGE_STATE_CRITICAL)
+    if remaining_pct < 15.0:
+        return int(mavlink2.MAV_BATTERY_CHARGE_STATE_LOW)
+    return int(mavlink2.MAV_BATTERY_CHARGE_STATE_OK)

@@ -50,6 +50,7 @@ from mavlink.mock.payload import PayloadMixin
 from mavlink.mock.physics import FleetPhysics
 from mavlink.mock.px4 import Px4Mode
 from mavlink.mock.telemetry import DEFAULT_RATES_HZ, Stream, TelemetryMixin
+from mavlink.mock.vehicle_faults import PlanFaults
 
 
 class FleetSide(Protocol):
@@ -213,6 +214,10 @@ class MockVehicle(
         self._leg_next: np.ndarray | None = None
         # (due time, action) run by tick: PX4's late second COMMAND_ACK
         self._deferred: list[tuple[float, Callable[[], None]]] = []
+        #: faults injected on the plan's clock (:mod:`mavlink.mock.vehicle_faults`)
+        self.plan_faults = PlanFaults()
+        #: the battery's charge (%) a fault set (None: it drains with the flight time)
+        self.battery_override_pct: float | None = None
         self._cmd_partner: tuple[int, int, int] = (0, 0, 0)
         # geofence in local NE (m): list of (kind, inclusion, data)
         self._fence: list[tuple[str, bool, np.ndarray, float]] = []
@@ -597,6 +602,7 @@ class MockVehicle(
                 action()
         if self.missions.busy:
             self.missions.tick()
+        self.plan_faults.tick(self, now)
         self._payload_tick(now)
         for stream in list(self._streams.values()):
             if now + 1e-9 >= stream.next_s:

@@ -22,51 +22,9 @@ from planner.optimize import plan
 from planner.planfile import load_plan, save_plan
 from planner.scenario import ScenarioError, load_scenario
 from planner.scenario.kml import kml_towers
+from tests.planner.line_support import ORIGIN, enu_poles, geodetic, pole_centres, scenario
 
 KML22 = "http://www.opengis.net/kml/2.2"
-ORIGIN = {"lat": 47.397742, "lon": 8.545594, "alt": 488.0}
-#: A 4-pole line of two drones; LINE is where the poles go.
-BASE = """
-name: kml_line
-origin: {lat: 47.397742, lon: 8.545594, alt: 488.0}
-workspace: {min: [-150, -150, 0.5], max: [250, 250, 20]}
-line:
-LINE
-  pole: {radius_m: 0.4, height_m: 12}
-  conductors: {half_width_m: 1.8, z: [9, 12], clearance_m: 1.0}
-  inspection: {standoff_m: 1.5, depth_m: 2.2, length_m: 5, z: [9.5, 12.5], side: right}
-vehicles:
-  - {name: d1, start: [-12, -12, 8]}
-  - {name: d2, start: [-8, -12, 8]}
-limits: {v_max_m_s: 5, a_max_m_s2: 3}
-timing: {horizon_s: 60, segment_s: 3, Ts_s: 0.5}
-separation_m: 1.5
-spec:
-  - formula: eventually[0, 55] always[0, 2] inside(d1, insp2)
-  - each: [d in all, s in spans]
-    formula: always[0, $horizon] outside(d, s)
-  - each: [d in all, p in poles]
-    formula: always[0, $horizon] outside(d, p)
-"""
-
-
-def _scenario(line: str) -> dict:  # type: ignore[type-arg]
-    return yaml.safe_load(BASE.replace("LINE", line.rstrip("\n")))  # type: ignore[no-any-return]
-
-
-def _enu_poles() -> np.ndarray:
-    return np.array([[0.0, 0.0], [24.0, 18.0], [55.0, 30.0], [80.0, 52.0]])
-
-
-def _geodetic(xy: np.ndarray) -> list[tuple[float, float]]:
-    lat, lon, _ = pymap3d.enu2geodetic(
-        xy[:, 0], xy[:, 1], 0.0, ORIGIN["lat"], ORIGIN["lon"], ORIGIN["alt"]
-    )
-    return list(zip(np.atleast_1d(lat).tolist(), np.atleast_1d(lon).tolist(), strict=True))
-
-
-def _pole_centres(pr) -> np.ndarray:  # type: ignore[no-untyped-def]
-    return np.array([r.shape.center_xy for r in pr.regions if r.name.startswith("pole")])
 
 
 def _points_kml(ll: list[tuple[float, float]], ns: str = KML22, alt: float = 0.0) -> str:
@@ -103,17 +61,17 @@ def _kmz(text: str, name: str = "doc.kml") -> bytes:
 
 def _load_with(tmp_path: Path, file_name: str) -> np.ndarray:
     path = tmp_path / "s.yaml"
-    path.write_text(yaml.safe_dump(_scenario(f"  file: {file_name}\n")))
-    return _pole_centres(load_scenario(path))
+    path.write_text(yaml.safe_dump(scenario(f"  file: {file_name}\n")))
+    return pole_centres(load_scenario(path))
 
 
 def test_towers_from_kml_points_a_linestring_old_namespaces_and_kmz_are_the_same_line(
     tmp_path: Path,
 ) -> None:
-    xy = _enu_poles()
-    ll = _geodetic(xy)
+    xy = enu_poles()
+    ll = geodetic(xy)
     listed = "  poles: [" + ", ".join(f"{{lat: {a!r}, lon: {o!r}}}" for a, o in ll) + "]\n"
-    want = _pole_centres(load_scenario(_write(tmp_path, listed)))
+    want = pole_centres(load_scenario(_write(tmp_path, listed)))
     np.testing.assert_allclose(want, xy, atol=1e-6)
     files = {
         "points.kml": _points_kml(ll).encode(),
@@ -130,12 +88,12 @@ def test_towers_from_kml_points_a_linestring_old_namespaces_and_kmz_are_the_same
 
 def _write(tmp_path: Path, line: str) -> Path:
     path = tmp_path / "listed.yaml"
-    path.write_text(yaml.safe_dump(_scenario(line)))
+    path.write_text(yaml.safe_dump(scenario(line)))
     return path
 
 
 def test_kml_altitudes_are_read_and_missing_ones_are_nan() -> None:
-    ll = _geodetic(_enu_poles())
+    ll = geodetic(enu_poles())
     got = kml_towers(_points_kml(ll, alt=512.5).encode(), "t.kml")
     np.testing.assert_allclose(got[:, :2], np.array(ll), atol=1e-12)
     assert np.all(got[:, 2] == 512.5)
@@ -190,14 +148,14 @@ def test_a_kmz_without_kml_or_not_a_zip_is_refused(tmp_path: Path) -> None:
 def test_import_plan_export_and_import_again_keeps_the_towers(tmp_path: Path) -> None:
     # Towers from a KMZ (the 4-pole line along 37 degrees), planned, exported as KML and KMZ
     # by `gcs export`, then read back as a line: the same towers within 1e-6 deg.
-    ll = _geodetic(_enu_poles())
+    ll = geodetic(enu_poles())
     (tmp_path / "towers.kmz").write_bytes(_kmz(_points_kml(ll)))
-    scenario = tmp_path / "s.yaml"
-    scenario.write_text(yaml.safe_dump(_scenario("  file: towers.kmz\n")))
-    result = plan(load_scenario(scenario))
+    scen_path = tmp_path / "s.yaml"
+    scen_path.write_text(yaml.safe_dump(scenario("  file: towers.kmz\n")))
+    result = plan(load_scenario(scen_path))
     assert result.success, result.status
     plan_path = tmp_path / "plan.json"
-    save_plan(plan_path, result, str(scenario))
+    save_plan(plan_path, result, str(scen_path))
     for out in ("plan.kml", "plan.kmz"):
         assert (
             cli.main(["export", str(plan_path), "--format", "kml", "-o", str(tmp_path / out)]) == 0
@@ -205,7 +163,7 @@ def test_import_plan_export_and_import_again_keeps_the_towers(tmp_path: Path) ->
         back = kml_towers((tmp_path / out).read_bytes(), out)
         np.testing.assert_allclose(back[:, :2], np.array(ll), atol=1e-6, rtol=0)
         np.testing.assert_allclose(back[:, 2], ORIGIN["alt"], atol=1e-3)  # on the ground
-        np.testing.assert_allclose(_load_with(tmp_path, out), _enu_poles(), atol=1e-3)
+        np.testing.assert_allclose(_load_with(tmp_path, out), enu_poles(), atol=1e-3)
     # the paths: each vehicle's LineString starts where its trajectory does (pymap3d)
     text = (tmp_path / "plan.kml").read_text()
     saved = load_plan(plan_path)

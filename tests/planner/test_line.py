@@ -8,47 +8,12 @@ import math
 from pathlib import Path
 
 import numpy as np
-import pymap3d
 import pytest
 import yaml
 
 from planner.scenario import ScenarioError, load_scenario, parse_scenario
 from planner.spec.regions import Cylinder, Prism
-
-ORIGIN = {"lat": 47.397742, "lon": 8.545594, "alt": 488.0}
-
-_BASE = """
-name: line
-origin: {lat: 47.397742, lon: 8.545594, alt: 488.0}
-workspace: {min: [-150, -150, 0.5], max: [250, 250, 20]}
-line:
-LINE
-vehicles:
-  - {name: d1, start: [-12, -12, 8]}
-  - {name: d2, start: [-8, -12, 8]}
-limits: {v_max_m_s: 5, a_max_m_s2: 3}
-timing: {horizon_s: 60, segment_s: 3, Ts_s: 0.5}
-separation_m: 1.5
-spec:
-  - formula: eventually[0, 55] always[0, 2] inside(d1, insp2)
-  - each: [d in all, s in spans]
-    formula: always[0, $horizon] outside(d, s)
-  - each: [d in all, p in poles]
-    formula: always[0, $horizon] outside(d, p)
-"""
-
-_PARTS = """
-  pole: {radius_m: 0.4, height_m: 12}
-  conductors: {half_width_m: 1.8, z: [9, 12], clearance_m: 1.0}
-  inspection: {standoff_m: 1.5, depth_m: 2.2, length_m: 5, z: [9.5, 12.5], side: SIDE}
-"""
-
-
-def _scenario(poles: str, side: str = "right") -> dict:  # type: ignore[type-arg]
-    text = _BASE.replace("LINE", poles.rstrip("\n") + _PARTS.replace("SIDE", side).rstrip("\n"))
-    if side == "both":
-        text = text.replace("inside(d1, insp2)", "inside(d1, insp2_left)")
-    return yaml.safe_load(text)  # type: ignore[no-any-return]
+from tests.planner.line_support import enu_poles, geodetic, pole_centres, scenario
 
 
 def _along(bearing: float, count: int = 4) -> str:
@@ -56,7 +21,7 @@ def _along(bearing: float, count: int = 4) -> str:
 
 
 def test_poles_along_a_bearing_are_spaced_and_turned_as_asked() -> None:
-    pr = parse_scenario(_scenario(_along(37.0)), "l.yaml")
+    pr = parse_scenario(scenario(_along(37.0)), "l.yaml")
     b = math.radians(37.0)
     u = np.array([math.sin(b), math.cos(b)])
     for i in range(4):
@@ -69,7 +34,7 @@ def test_poles_along_a_bearing_are_spaced_and_turned_as_asked() -> None:
 
 
 def test_a_line_along_an_axis_makes_axis_aligned_boxes() -> None:
-    pr = parse_scenario(_scenario(_along(90.0)), "l.yaml")
+    pr = parse_scenario(scenario(_along(90.0)), "l.yaml")
     assert all(r.shape is None for r in pr.regions if r.name[:4] in ("span", "insp"))
     insp = pr.region("insp2")  # east-bound: the right is south
     np.testing.assert_allclose(insp.lo_enu_m, (27.5, -1.8 - 1.5 - 2.2, 9.5), atol=1e-9)
@@ -78,7 +43,7 @@ def test_a_line_along_an_axis_makes_axis_aligned_boxes() -> None:
 
 @pytest.mark.parametrize("side", ["right", "left", "both"])
 def test_inspection_boxes_face_the_insulators_from_the_standoff(side: str) -> None:
-    pr = parse_scenario(_scenario(_along(37.0), side), "l.yaml")
+    pr = parse_scenario(scenario(_along(37.0), side), "l.yaml")
     b = math.radians(37.0)
     u = np.array([math.sin(b), math.cos(b)])
     left = np.array([-u[1], u[0]])
@@ -99,7 +64,7 @@ def test_inspection_boxes_face_the_insulators_from_the_standoff(side: str) -> No
 
 
 def test_the_span_keep_outs_hold_the_conductors_with_the_clearance() -> None:
-    pr = parse_scenario(_scenario(_along(37.0)), "l.yaml")
+    pr = parse_scenario(scenario(_along(37.0)), "l.yaml")
     b = math.radians(37.0)
     u = np.array([math.sin(b), math.cos(b)])
     left = np.array([-u[1], u[0]])
@@ -116,24 +81,9 @@ def test_the_span_keep_outs_hold_the_conductors_with_the_clearance() -> None:
         assert span.margin(edge)[0] == pytest.approx(1.0, abs=1e-9)
 
 
-def _enu_poles() -> np.ndarray:
-    return np.array([[0.0, 0.0], [24.0, 18.0], [55.0, 30.0], [80.0, 52.0]])
-
-
-def _geodetic(xy: np.ndarray) -> list[tuple[float, float]]:
-    lat, lon, _ = pymap3d.enu2geodetic(
-        xy[:, 0], xy[:, 1], 0.0, ORIGIN["lat"], ORIGIN["lon"], ORIGIN["alt"]
-    )
-    return list(zip(np.atleast_1d(lat).tolist(), np.atleast_1d(lon).tolist(), strict=True))
-
-
-def _pole_centres(pr) -> np.ndarray:  # type: ignore[no-untyped-def]
-    return np.array([r.shape.center_xy for r in pr.regions if r.name.startswith("pole")])
-
-
 def test_poles_given_as_enu_geodetic_csv_or_geojson_are_the_same_line(tmp_path: Path) -> None:
-    xy = _enu_poles()
-    ll = _geodetic(xy)
+    xy = enu_poles()
+    ll = geodetic(xy)
     listed = "  poles: [" + ", ".join(f"[{x}, {y}]" for x, y in xy) + "]\n"
     geo = "  poles: [" + ", ".join(f"{{lat: {a!r}, lon: {o!r}}}" for a, o in ll) + "]\n"
     (tmp_path / "poles.csv").write_text(
@@ -168,13 +118,13 @@ def test_poles_given_as_enu_geodetic_csv_or_geojson_are_the_same_line(tmp_path: 
         "  file: route.geojson\n",
     ):
         path = tmp_path / "s.yaml"
-        path.write_text(yaml.safe_dump(_scenario(poles)))
-        got = _pole_centres(load_scenario(path))
+        path.write_text(yaml.safe_dump(scenario(poles)))
+        got = pole_centres(load_scenario(path))
         np.testing.assert_allclose(got, xy, atol=1e-6, err_msg=poles)
 
 
 def test_the_line_names_bind_in_each() -> None:
-    pr = parse_scenario(_scenario(_along(37.0)), "l.yaml")
+    pr = parse_scenario(scenario(_along(37.0)), "l.yaml")
     texts = [c.text for c in pr.clauses]
     assert sum("outside(d1, span" in t for t in texts) == 3
     assert sum("outside(d2, pole" in t for t in texts) == 4
@@ -193,14 +143,14 @@ def test_the_line_names_bind_in_each() -> None:
 )
 def test_a_bad_line_is_one_line_naming_its_field(line: str, says: str) -> None:
     with pytest.raises(ScenarioError, match=says) as err:
-        parse_scenario(_scenario(line), "l.yaml")
+        parse_scenario(scenario(line), "l.yaml")
     assert "\n" not in str(err.value)
 
 
 def test_a_bad_side_or_key_names_its_field() -> None:
     with pytest.raises(ScenarioError, match=r"line\.inspection\.side.*left, right, both"):
-        parse_scenario(_scenario(_along(37.0), "north"), "l.yaml")
-    bad = _scenario(_along(37.0))
+        parse_scenario(scenario(_along(37.0), "north"), "l.yaml")
+    bad = scenario(_along(37.0))
     bad["line"]["pole"]["radius"] = 1
     with pytest.raises(ScenarioError, match=r"line\.pole\.radius.*unknown key"):
         parse_scenario(bad, "l.yaml")
@@ -216,13 +166,13 @@ def test_a_bad_gis_file_is_one_line_naming_the_file_and_row(tmp_path: Path) -> N
         ("cols.csv", "expected columns x,y"),
     ):
         path = tmp_path / "s.yaml"
-        path.write_text(yaml.safe_dump(_scenario(f"  file: {name}\n")))
+        path.write_text(yaml.safe_dump(scenario(f"  file: {name}\n")))
         with pytest.raises(ScenarioError, match=says):
             load_scenario(path)
 
 
 def test_a_region_named_like_a_line_part_is_refused() -> None:
-    data = _scenario(_along(37.0))
+    data = scenario(_along(37.0))
     data["regions"] = {"pole2": {"min": [0, 0, 0], "max": [1, 1, 1]}}
     with pytest.raises(ScenarioError, match=r"regions\.pole2.*line section"):
         parse_scenario(data, "l.yaml")
@@ -232,7 +182,7 @@ def test_a_region_named_like_a_line_part_is_refused() -> None:
 def test_a_line_along_a_bearing_plans_to_its_optimum() -> None:
     from planner.optimize import plan
 
-    data = _scenario(_along(37.0))
+    data = scenario(_along(37.0))
     c, s = math.cos(math.radians(53.0)), math.sin(math.radians(53.0))
     for v in data["vehicles"]:  # the starts turned with the line about pole 1
         x, y, z = v["start"]
