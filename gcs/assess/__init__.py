@@ -121,6 +121,8 @@ class BatchOutcome:
         reported: ``(R,)`` on the reported positions (what ``gcs fly`` evaluates).
         clause_true, clause_reported: ``(R, C)`` per top-level clause.
         failsafe_s: ``(R,)`` the first offboard-loss failsafe of the run (NaN: none).
+        lost_s: ``(R,)`` when the run's first vehicle was lost (disturbance ``lost``; NaN:
+            none).
         draws: per disturbance ``(R,)`` (per run) or ``(R, V)`` (per vehicle).
         sim_s: seconds the batch took to fly and judge.
         monitored: with the safety monitor, the same runs flown under it.
@@ -133,6 +135,7 @@ class BatchOutcome:
     clause_true: np.ndarray
     clause_reported: np.ndarray
     failsafe_s: np.ndarray
+    lost_s: np.ndarray
     draws: dict[str, np.ndarray]
     sim_s: float
     monitored: MonitoredRuns | None = None
@@ -241,6 +244,8 @@ def fly_batch(
     fs = flights.failsafe_s
     first = np.where(np.isnan(fs), np.inf, fs).min(axis=1)  # the run's first failsafe
     first_fs = np.where(np.isinf(first), np.nan, first)
+    first_lost = flights.lost_s.min(axis=1)
+    first_lost = np.where(np.isinf(first_lost), np.nan, first_lost)
     monitored = None
     if monitor is not None:
         watched, clause_index = monitor.build(plan)
@@ -267,6 +272,7 @@ def fly_batch(
         clause_true=c_true,
         clause_reported=c_rep,
         failsafe_s=first_fs,
+        lost_s=first_lost,
         draws={k: (v[:, 0] if v.shape[1] == 1 else v) for k, v in flights.draws.items()},
         sim_s=time.perf_counter() - t0,
         monitored=monitored,

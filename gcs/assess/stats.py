@@ -193,6 +193,8 @@ class AssessResult:
     interrupted: bool
     seed: int
     monitor: MonitorSummary | None = None
+    #: runs where a vehicle was lost (disturbance ``lost``)
+    lost: int = 0
 
     @property
     def runs_per_s(self) -> float:
@@ -216,6 +218,7 @@ class AssessResult:
             "robustness_reported": self.quantiles_reported,
             "margin_needed_m_for_p99": self.margin_needed_m,
             "failsafes": self.failsafes,
+            "lost": self.lost,
             "clauses": [
                 {
                     "clause": c.text,
@@ -259,6 +262,7 @@ def _runs_table(
         ("reported", np.float64),
         ("weakest_clause", np.int64),
         ("failsafe_s", np.float64),
+        ("lost_s", np.float64),
     ]
     if outcomes and outcomes[0].monitored is not None:
         dtype += [("monitored", np.float64), ("stop_s", np.float64), ("stop_code", np.int64)]
@@ -272,6 +276,7 @@ def _runs_table(
     table["reported"] = rep
     table["weakest_clause"] = weakest
     table["failsafe_s"] = np.concatenate([o.failsafe_s for o in outcomes])
+    table["lost_s"] = np.concatenate([o.lost_s for o in outcomes])
     if "stop_s" in (table.dtype.names or ()):
         mon = [o.monitored for o in outcomes]
         assert all(m is not None for m in mon)
@@ -363,6 +368,7 @@ def summarise(
         worst=worst,
         margin_needed_m=margin,
         failsafes=int(np.isfinite(table["failsafe_s"]).sum()),
+        lost=int(np.isfinite(table["lost_s"]).sum()),
         runs_table=table,
         disturbances={k: str(v) for k, v in dists.items()},
         elapsed_s=elapsed_s,
@@ -396,6 +402,7 @@ def _monitor_summary(
     labels = {
         Verdict.OFF_PLAN: "off its plan (tracking alarm)",
         Verdict.LEFT_MODE: "a vehicle left offboard (its failsafe)",
+        Verdict.LINK_LOST: "a vehicle lost (its link silent)",
     }
     for code, clause in zip(cat["stop_code"][stopped], cat["stop_clause"][stopped], strict=True):
         verdict = RunFindings.VERDICTS[int(code) - 1]
@@ -422,6 +429,6 @@ def _monitor_summary(
 
 
 _FIXED = (
-    "run", "seed", "robustness", "reported", "weakest_clause", "failsafe_s",
+    "run", "seed", "robustness", "reported", "weakest_clause", "failsafe_s", "lost_s",
     "monitored", "stop_s", "stop_code",
 )  # fmt: skip

@@ -192,6 +192,8 @@ def format_result(plan_name: str, r: AssessResult) -> str:
     else:
         lines.append("margin needed for P >= 0.99: needs at least 100 runs")
     lines.append(f"offboard-loss failsafes: {r.failsafes} run(s)")
+    if r.lost:
+        lines.append(f"vehicles lost (disturbance lost): in {r.lost} run(s)")
     if r.monitor is not None:
         lines.extend(_format_monitor(r))
     failing = sorted(

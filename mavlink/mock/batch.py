@@ -287,6 +287,7 @@ class BatchFlights:
         reported_enu_m: ``(R, V, S, 3)`` what each vehicle reported (its estimate), mission ENU.
         true_enu_m: ``(R, V, S, 3)`` where it really was.
         failsafe_s: ``(R, V)`` when the offboard-loss failsafe took it (NaN: never).
+        lost_s: ``(R, V)`` when the vehicle was lost (disturbance ``lost``; inf: never).
         draws: per disturbance, ``(R, 1)`` or ``(R, V)`` the values drawn.
         stop_s: ``(R,)`` with a safety monitor, when it stopped the run (s from the plan's
             start; NaN: never); ``None`` without a monitor.
@@ -303,6 +304,7 @@ class BatchFlights:
     reported_enu_m: np.ndarray
     true_enu_m: np.ndarray
     failsafe_s: np.ndarray
+    lost_s: np.ndarray
     draws: dict[str, np.ndarray]
     stop_s: np.ndarray | None = None
     stop: RunFindings | None = None
@@ -431,6 +433,17 @@ def simulate(
     arrive_s = setup.t_send_s[None, :] + setup.settle_s + latency[:, None] + jitter[:, None] * u_jit
     arrive_tick = np.ceil(arrive_s / dt - 1e-9).astype(np.int64)
     arrive_tick[u_loss < loss[:, None]] = -1
+    # a vehicle lost for good (disturbance ``lost``): nothing arrives from a time uniform over
+    # the plan (drawn after the run's other link draws, so earlier campaigns stay as they were)
+    horizon_s = (setup.samples - 1) * setup.stride * dt
+    u_gone = np.concatenate([g.random(n_veh) for g in link_rngs]) if rows else np.zeros(0)
+    t_gone = (
+        np.concatenate([g.uniform(0.0, horizon_s, n_veh) for g in link_rngs])
+        if rows
+        else np.zeros(0)
+    )
+    lost_at_s = np.where(u_gone < per_row("lost"), t_gone, np.inf)
+    arrive_tick[setup.t_send_s[None, :] >= lost_at_s[:, None]] = -1
     arrive_tick[:, 0] = 0  # the vehicle already flies the start setpoint
     ev_row, ev_k = np.nonzero(arrive_tick >= 0)
     ev_tick = arrive_tick[ev_row, ev_k]
@@ -446,7 +459,9 @@ def simulate(
     off = np.zeros(rows, dtype=bool)  # no longer flies setpoints (failsafe, or stopped)
     failsafe_s = np.full(rows, np.nan)
     watch = (
-        _MonitorState(monitor, setup, n_runs, n_ticks, settle_ticks, latency) if monitor else None
+        _MonitorState(monitor, setup, n_runs, n_ticks, settle_ticks, latency, lost_at_s)
+        if monitor
+        else None
     )
     auto_limits = mode_limits(prm, Px4Mode.AUTO_LOITER, prm["MPC_XY_CRUISE"])
     newest = np.full(rows, -1, dtype=np.int64)
@@ -530,6 +545,7 @@ def simulate(
         reported_enu_m=rep,
         true_enu_m=true,
         failsafe_s=failsafe_s.reshape(n_runs, n_veh),
+        lost_s=lost_at_s.reshape(n_runs, n_veh),
         draws=table,
         stop_s=None if watch is None else watch.stop_s,
         stop=None if watch is None else watch.found,
@@ -558,6 +574,7 @@ class _MonitorState:
         n_ticks: int,
         settle_ticks: int,
         latency_s: np.ndarray,
+        lost_at_s: np.ndarray,
     ) -> None:
         from mavlink.monitor_findings import RunFindings, SafetyAction, Verdict
 
@@ -578,6 +595,9 @@ class _MonitorState:
         self.stop_s = np.full(n_runs, np.nan)
         self.found = RunFindings.none(n_runs)
         self._left = RunFindings.code_of(Verdict.LEFT_MODE)
+        self._silent = RunFindings.code_of(Verdict.LINK_LOST)
+        #: per row, when the vehicle's link went silent for good (inf: never)
+        self.lost_at_s = lost_at_s
 
     def tick(
         self, n: int, phys: FleetPhysics, origin: np.ndarray, failed: np.ndarray, off: np.ndarray
@@ -604,9 +624,16 @@ class _MonitorState:
             vel_enu[:, v] = m.vector(vel[:, v])
         got = self.monitor.evaluate_runs(t_s, self.setup.names, pos_enu, vel_enu, self.setup.plans)
         # a vehicle that left offboard (its own failsafe) stops the flight first, as the
-        # flight's mode check runs before the clauses
-        left = failed.reshape(self.n_runs, self.n_veh)[live].any(axis=1)
+        # flight's mode check runs before the clauses; one whose link went silent is seen
+        # as lost (gcs fly: no telemetry for longer than COM_OF_LOSS_T, as long as PX4 waits
+        # before its offboard-loss failsafe)
+        by_run = failed.reshape(self.n_runs, self.n_veh)[live]
+        left = by_run.any(axis=1)
+        silent = (by_run & (self.lost_at_s.reshape(self.n_runs, self.n_veh)[live] <= t_s)).any(
+            axis=1
+        )
         got.code[left] = self._left
+        got.code[silent] = self._silent
         got.clause[left] = -1
         got.value[left] = np.nan
         hit = got.code != 0

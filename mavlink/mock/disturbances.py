@@ -183,6 +183,11 @@ DISTURBANCES: dict[str, Disturbance] = {
         _d("const(1)"), 0.05, 1.0, True, "x",
         "fraction of its speed and acceleration limits a vehicle has (battery, payload)",
     ),
+    "lost": Disturbance(
+        _d("const(0)"), 0.0, 1.0, True, "",
+        "probability a vehicle is lost during the plan: its link silent for good from a "
+        "time uniform over the horizon",
+    ),
 }  # fmt: skip
 
 

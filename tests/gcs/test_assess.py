@@ -282,3 +282,18 @@ def test_the_assessment_picture_draws_each_region_as_seen_from_above(
     np.testing.assert_allclose(np.hypot(*(outlines[-1] - [-2.5, 2.5]).T), 0.3, atol=1e-12)
     (x0, y0, _), (x1, y1, _) = plan.regions[0].lo_enu_m, plan.regions[0].hi_enu_m
     np.testing.assert_allclose(outlines[0], [[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+
+
+def test_random_vehicle_loss_is_counted_and_the_monitor_stops_on_the_lost_link(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # issue 43: P(spec holds) under random vehicle loss, the baseline replanning is to beat
+    rc = cli.main(["assess", str(PLAN), "--runs", "60", "-d", "lost=0.5", "--monitor", "--json",
+               "--workers", "0"])  # fmt: skip
+    assert rc in (0, 1)
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    # each of 2 vehicles lost with probability 0.5: about 3 runs in 4 lose one
+    assert 30 <= out["lost"] <= 58
+    reasons = {r["why"]: r["runs"] for r in out["monitor"]["reasons"]}
+    assert reasons.get("a vehicle lost (its link silent)", 0) > 0.5 * out["lost"]
+    assert out["p_holds"] < 0.75

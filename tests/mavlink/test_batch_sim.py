@@ -155,3 +155,33 @@ def test_bad_vehicles_are_refused(plan) -> None:  # type: ignore[no-untyped-def]
         prepare(plan, params={"COM_OBL_RC_ACT": 3})
     with pytest.raises(MockConfigError, match="setpoint rate"):
         prepare(plan, rate_hz=1.0)
+
+
+def test_a_lost_vehicle_flies_no_setpoint_sent_after_its_loss_and_fails_safe_then(plan) -> None:  # type: ignore[no-untyped-def]
+    # issue 43's random vehicle loss: with probability 1 each vehicle's link goes silent for
+    # good at a time uniform over the plan; PX4's offboard-loss failsafe takes it
+    # COM_OF_LOSS_T after the last setpoint that arrived (the ideal link: no loss, no delay)
+    setup = prepare(plan, profile="ideal", params={"COM_OF_LOSS_T": 0.5})
+    seeds = [run_seed(5, r) for r in range(6)]
+    flights = simulate(setup, seeds, parse_disturbances(dict(QUIET, lost="1")))
+    horizon = flights.t_s[-1]
+    assert np.all((flights.lost_s >= 0.0) & (flights.lost_s < horizon))
+    # the last setpoint sent before the loss arrived; its successors never did
+    period = 1.0 / setup.rate_hz
+    last_sent = np.floor(flights.lost_s / period - 1e-9) * period
+    expect = last_sent + 0.5 + setup.dt_s
+    took = expect < horizon - setup.dt_s
+    np.testing.assert_allclose(flights.failsafe_s[took], expect[took], atol=setup.dt_s + 1e-9)
+    # a run without the disturbance set draws what it drew before (const(0): no draw at all)
+    calm = simulate(setup, seeds, parse_disturbances(QUIET))
+    again = simulate(setup, seeds, parse_disturbances(dict(QUIET, lost="0")))
+    np.testing.assert_array_equal(calm.true_enu_m, again.true_enu_m)
+    assert np.isinf(calm.lost_s).all() and np.isnan(calm.failsafe_s).all()
+    # at most the plan's setpoints up to the loss: the lost vehicle holds where it was
+    lost_v = np.isfinite(flights.failsafe_s)
+    assert lost_v.any()
+    r, v = np.argwhere(lost_v)[0]
+    after = flights.t_s > flights.failsafe_s[r, v] + 1.0
+    if after.any():
+        moved = np.linalg.norm(np.diff(flights.true_enu_m[r, v, after], axis=0), axis=-1).sum()
+        assert moved < 0.5
