@@ -6,7 +6,7 @@ CSV that ``gcs verify --telemetry`` and ``gcs plot --telemetry`` read.  With ``-
 flies the run's disturbances against the real-time mock vehicles as ``gcs fly --dry-run`` does
 (MAVLink over UDP, MAVSDK, the safety monitor): the same mean wind and gust strength, the same
 link latency, jitter and loss, the same estimator and EKF-origin magnitudes, the same derated
-limits.  What cannot be the same there is the random *realisation* (the gusts' and the
+limits, a vehicle lost at the same plan time.  What cannot be the same there is the random *realisation* (the gusts' and the
 estimate's noise, the EKF origin's direction, the start error), which the real-time mock draws
 from its own seed on its own clock.
 """
@@ -138,12 +138,26 @@ def fly_realtime(
     from gcs.flight import FlyOptions, fly_plan, signed_links, vehicle_specs
     from gcs.flight.dryrun import mock_vehicles
     from gcs.flight.progress import FlightProgress
+    from mavlink.mock.vehicle_faults import VehicleFault
 
     configs, wind = realtime_configs(plan, opts, flights)
-    options = FlyOptions(rate_hz=opts.rate_hz, drag_per_s=opts.drag_per_s)
+    # a vehicle the run lost (disturbance ``lost``) is lost at the same plan time here
+    lost = [
+        (v, VehicleFault("lost", float(t)))
+        for v, t in enumerate(np.asarray(flights.lost_s)[0])
+        if math.isfinite(t)
+    ]
     with mock_vehicles(
-        plan, seed=seed % (2**32), profile=opts.profile, vehicle_configs=configs, wind=wind
+        plan,
+        seed=seed % (2**32),
+        profile=opts.profile,
+        vehicle_configs=configs,
+        wind=wind,
+        faults=lost,
     ) as dry:
+        options = FlyOptions(
+            rate_hz=opts.rate_hz, drag_per_s=opts.drag_per_s, on_plan_start=dry.mock.plan_started
+        )
         specs = vehicle_specs(plan, list(dry.urls))
         progress = FlightProgress(plan, out) if out is not None else None
 

@@ -340,7 +340,10 @@ def simulate(
     left); every vehicle of a stopped run then gets the monitor's action (Hold or Land),
     arriving after its link latency, and flies no more setpoints.  Not modelled: telemetry
     delay and loss (the monitor reads each tick's state), the heartbeat that reports a mode
-    change (seen at the next tick).
+    change (seen at the next tick), and a lost vehicle's silence towards the ground station
+    (disturbance ``lost``: its setpoints stop, but the monitor still reads its state and its
+    reported track goes on; the stop comes when its failsafe takes it, COM_OF_LOSS_T after
+    its last setpoint, about when ``gcs fly`` calls the link lost).
     """
     n_runs, n_veh = len(seeds), len(setup.names)
     rows = n_runs * n_veh
