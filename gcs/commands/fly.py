@@ -248,8 +248,8 @@ def run(args: argparse.Namespace) -> int:
                 )
                 for i, f in faults:
                     print(
-                        f"dry run: {plan.vehicles[i].name} will be {f.kind} at {f.at_s:g} s "
-                        "of its plan (--mock-fault)",
+                        f"dry run: fault to inject (--mock-fault): {plan.vehicles[i].name} "
+                        f"{f.kind} at {f.at_s:g} s of the plan",
                         file=out,
                         flush=True,
                     )
@@ -288,7 +288,7 @@ def run(args: argparse.Namespace) -> int:
             print(
                 f"injected: {rec['vehicle']} {rec['kind']} at {rec['at_s']:g} s of its plan: "
                 + (f"fired at {when:.2f} s" if when is not None else "did not fire (the "
-                   "vehicle did not fly its plan that far)")
+                   "flight ended before)")
             )  # fmt: skip
     if outcome.interrupted:
         return EXIT_INTERRUPTED

@@ -104,6 +104,8 @@ class PlanFaults:
             silent = Outage(now, math.inf)
             v.fleet.configure_links(v, replace(faults, outages=(*faults.outages, silent)))
         elif fault.kind == "failsafe":
+            if not v.armed:  # on the ground already: nothing to return from
+                return
             v.failsafe = True
             v.statustext(mavlink2.MAV_SEVERITY_CRITICAL, "Failsafe activated")
             v.set_mode(Px4Mode.AUTO_RTL)
