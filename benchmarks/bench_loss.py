@@ -37,7 +37,7 @@ def run_cli(args: list[str]) -> tuple[int, dict[str, Any], float]:
     t0 = time.perf_counter()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         rc = cli.main(args)
-    lines = out.getvalue().strip().splitlines()
+    lines = [ln for ln in out.getvalue().splitlines() if ln.startswith("{")]
     return rc, json.loads(lines[-1]) if lines else {}, time.perf_counter() - t0
 
 
