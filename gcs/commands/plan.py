@@ -191,6 +191,12 @@ def plan_table(result: Any) -> str:
         f"{result.solve_time_s:.2f} s"
         + (f" (build {s.build_s:.2f}, solver {s.solver_s:.2f}, check {s.check_s:.2f})" if s else "")
         + (f", {s.starts} starts" if s and s.starts > 1 else "")
+        + (
+            f"; rows screened: {s.screen['kept']:,} of {s.screen['total']:,} kept"
+            + (f", {s.screen['rounds']} round(s) adding rows" if s.screen["rounds"] else "")
+            if s and s.screen
+            else ""
+        )
     )
     lines.append(("OK: " if result.success else "FAILED: ") + result.status)
     return "\n".join(lines)

@@ -10,6 +10,7 @@ check of the plan for whether a keep-out the screen left out is kept.
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 from typing import Any
 
@@ -133,3 +134,17 @@ def test_solver_screen_takes_auto_true_or_false_and_names_the_key_otherwise() ->
         assert parse_scenario(data, "s.yaml").solver.screen is want
     with pytest.raises(ScenarioError, match=r"solver\.screen.*auto, true or false"):
         parse_scenario({**base, "solver": {"screen": "sometimes"}}, "s.yaml")
+
+
+def test_gcs_plan_says_how_many_rows_it_kept(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from gcs import cli
+
+    scenario = ZOO / "powerline_line8_3drones.yaml"  # auto screens it (749 of 5,973 rows)
+    assert cli.main(["plan", str(scenario), "-o", str(tmp_path / "p.json")]) == 0
+    out = capsys.readouterr().out
+    assert "rows screened: 749 of 5,973 kept" in out
+    assert cli.main(["plan", str(scenario), "-o", str(tmp_path / "p.json"), "--json"]) == 0
+    data = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert data["stats"]["screen"] == {"kept": 749, "total": 5973, "rounds": 0}
