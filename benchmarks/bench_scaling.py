@@ -8,7 +8,9 @@ for two sweeps:
 * horizon: 8 poles, 2 drones (4 poles each), horizon 100 ... 400 s;
 * poles: 4 drones, horizon 300 s, 4 ... 40 poles (a quarter each; at 40 the farthest drone
   needs about 290 s of the 300, so a plan that meets it is not expected in the time limit:
-  the build is the figure, issue 40's "40 poles x 4 drones x 300 s builds in under 15 s").
+  the build is the figure, issue 40's "40 poles x 4 drones x 300 s builds in under 15 s");
+* long (``--sweeps long``): 100 and 200 poles (3 and 6 km), 8 drones, each starting at its own
+  section's first pole, 300 s, a time limit of at least 600 s.
 
 Each mission is planned cold in this process (:func:`planner.solve.nlp.clear_cache` first), with a
 time limit.  Printed per run: the NLP's size, the build and solver times, the total, the
@@ -43,8 +45,12 @@ from planner.solve.nlp import clear_cache  # noqa: E402
 SPAN_M = 30.0
 
 
-def line_scenario(poles: int, drones: int, horizon_s: float) -> dict[str, Any]:
-    """A straight line of ``poles`` poles along x, ``drones`` drones sharing them in runs."""
+def line_scenario(
+    poles: int, drones: int, horizon_s: float, spread: bool = False
+) -> dict[str, Any]:
+    """A straight line of ``poles`` poles along x, ``drones`` drones sharing them in runs;
+    with ``spread``, each drone starts at its own run's first pole (a crew that drove there),
+    else all near pole 1."""
     regions: dict[str, Any] = {}
     for i in range(poles):
         x = SPAN_M * i
@@ -98,7 +104,10 @@ def line_scenario(poles: int, drones: int, horizon_s: float) -> dict[str, Any]:
             "a_up_max_m_s2": 3,
             "a_down_max_m_s2": 2,
         },
-        "vehicles": [{"name": nm, "start": [-6 + 4 * j, -12, 8]} for j, nm in enumerate(names)],
+        "vehicles": [
+            {"name": nm, "start": [(SPAN_M * j * per if spread else 4 * j) - 6, -12, 8]}
+            for j, nm in enumerate(names)
+        ],
         "timing": {"horizon_s": horizon_s, "segment_s": 5, "Ts_s": 1, "check_dt_s": 0.2},
         "separation_m": 1.5,
         "epsilon": 0.01,
@@ -113,8 +122,10 @@ def line_scenario(poles: int, drones: int, horizon_s: float) -> dict[str, Any]:
     }
 
 
-def run(poles: int, drones: int, horizon_s: float, time_limit_s: float) -> dict[str, Any]:
-    problem = parse_scenario(line_scenario(poles, drones, horizon_s), "<bench_scaling>")
+def run(
+    poles: int, drones: int, horizon_s: float, time_limit_s: float, spread: bool = False
+) -> dict[str, Any]:
+    problem = parse_scenario(line_scenario(poles, drones, horizon_s, spread), "<bench_scaling>")
     clear_cache()
     t0 = time.perf_counter()
     result = plan(problem, time_limit_s=time_limit_s)
@@ -151,10 +162,17 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="two points per sweep")
     ap.add_argument("--time-limit", type=float, default=120.0, help="per plan (s)")
+    ap.add_argument(
+        "--sweeps",
+        default="horizon,poles",
+        help="which sweeps: horizon, poles, long (100 and 200 poles, 8 drones starting at their "
+        "own sections, 300 s; the time limit 600 s)",
+    )
     args = ap.parse_args(argv)
+    chosen = set(args.sweeps.split(","))
     horizons = [100.0, 400.0] if args.quick else [100.0, 200.0, 300.0, 400.0]
     poles = [4, 20] if args.quick else [4, 8, 12, 16, 20, 30, 40]
-    sweeps: dict[str, list[dict[str, Any]]] = {"horizon": [], "poles": []}
+    sweeps: dict[str, list[dict[str, Any]]] = {"horizon": [], "poles": [], "long": []}
     head = (
         f"{'sweep':8} {'poles':>5} {'drones':>6} {'horizon':>7} {'vars':>6} {'cons':>6} "
         f"{'build s':>8} {'solver s':>8} {'total s':>8} {'iter':>5} {'robust':>8} {'met':>4} "
@@ -165,9 +183,13 @@ def main(argv: list[str] | None = None) -> int:
     for name, cases in (
         ("horizon", [(8, 2, h) for h in horizons]),
         ("poles", [(n, 4, 300.0) for n in poles]),
+        ("long", [(100, 8, 300.0), (200, 8, 300.0)]),
     ):
+        if name not in chosen:
+            continue
         for n, d, h in cases:
-            row = run(n, d, h, args.time_limit)
+            long = name == "long"
+            row = run(n, d, h, max(args.time_limit, 600.0) if long else args.time_limit, long)
             sweeps[name].append(row)
             print(
                 f"{name:8} {n:5d} {d:6d} {h:7.0f} {row['n_variables']:6d} "
@@ -177,24 +199,12 @@ def main(argv: list[str] | None = None) -> int:
                 flush=True,
             )
     growth = {
-        "horizon": {
-            "total": slope(
-                [r["horizon_s"] for r in sweeps["horizon"]],
-                [r["total_s"] for r in sweeps["horizon"]],
-            ),
-            "build": slope(
-                [r["horizon_s"] for r in sweeps["horizon"]],
-                [r["build_s"] for r in sweeps["horizon"]],
-            ),
-        },
-        "poles": {
-            "total": slope(
-                [r["poles"] for r in sweeps["poles"]], [r["total_s"] for r in sweeps["poles"]]
-            ),
-            "build": slope(
-                [r["poles"] for r in sweeps["poles"]], [r["build_s"] for r in sweeps["poles"]]
-            ),
-        },
+        name: {
+            "total": slope([r[key] for r in sweeps[name]], [r["total_s"] for r in sweeps[name]]),
+            "build": slope([r[key] for r in sweeps[name]], [r["build_s"] for r in sweeps[name]]),
+        }
+        for name, key in (("horizon", "horizon_s"), ("poles", "poles"))
+        if len(sweeps[name]) > 1
     }
     print()
     for name, g in growth.items():
