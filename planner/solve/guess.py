@@ -239,9 +239,14 @@ def grid_path(
     points: Sequence[np.ndarray],
     within: Sequence[Sequence[Place]] = (),
     reach_m: np.ndarray | None = None,
+    masks: dict[Any, np.ndarray] | None = None,
 ) -> np.ndarray:
     """Shortest polyline through ``points`` (in order) on a voxel grid, around ``avoid``
     boxes and within each of the unions ``within`` (:func:`stay_within`).
+
+    ``masks``: a cache of the cells each avoided box blocks, by box and grid, shared by the
+    legs of one initial guess (a long line's legs all avoid the same hundred poles: 100
+    legs of 8 drones along 100 poles drew their guess in 27 s without it).
 
     A 26-connected grid over the workspace (cell size from the smallest box and a cell
     budget); cells whose centre lies in an avoided box grown by half a cell are blocked, and
@@ -267,9 +272,16 @@ def grid_path(
     centres = np.column_stack([cx.ravel(), cy.ravel(), cz.ravel()])
     step = ext / shape
     blocked = np.zeros(len(centres), dtype=bool)
+    grid_key = (tuple(shape), tuple(lo), tuple(hi), feature)
     for b in avoid:  # within half a cell (and 5 % of the feature) of every face
-        grow = 0.5 * step + 0.05 * feature
-        blocked |= np.all(centres @ b.A.T - b.b < np.abs(b.A) @ grow, axis=1)
+        key = (b, grid_key)  # the box itself (hashed by identity): alive while cached
+        mask = None if masks is None else masks.get(key)
+        if mask is None:
+            grow = 0.5 * step + 0.05 * feature
+            mask = np.all(centres @ b.A.T - b.b < np.abs(b.A) @ grow, axis=1)
+            if masks is not None:
+                masks[key] = mask
+        blocked |= mask
     gap = np.zeros(len(centres), dtype=bool)
     reach = np.zeros(3) if reach_m is None else np.asarray(reach_m, dtype=float)
     for places in within:
@@ -528,6 +540,7 @@ def initial_guess(
 
     options: list[list[np.ndarray]] = []
     avoids: list[list[Any]] = []
+    masks: dict[Any, np.ndarray] = {}  # grid_path's blocked cells per box, shared by the legs
     for v in problem.vehicles:
         targets = per_vehicle[v.name]
         pts = [starts[v.name], *(slots[pl.shape][v.name] for pl in targets)]
@@ -539,7 +552,7 @@ def initial_guess(
         within = stay_within(formula, v.name, problem)
         reach = 0.5 * axis_limits(v)[0] * problem.timing.check_dt_s
         legs = [
-            grid_path(problem, [*avoid, *_clear_of(targets[i:])], [a, b], within, reach)
+            grid_path(problem, [*avoid, *_clear_of(targets[i:])], [a, b], within, reach, masks)
             for i, (a, b) in enumerate(itertools.pairwise(pts))
         ]
         v_lim, a_lim = (_GUESS_LIMIT_FRACTION * lim for lim in axis_limits(v))
