@@ -109,7 +109,7 @@ def report_markdown(
         lines.append(f"| end action failed ({name}) | {_cell(why)} |")
     for vehicle, heard in outcome.vehicle_messages.items():
         for t_said, severity, text in heard:
-            when = "before the start" if t_said is None else f"t = {t_said:.2f} s"
+            when = "the plan never started" if t_said is None else f"t = {t_said:.2f} s"
             lines.append(f"| {vehicle} said ({severity}) | {_cell(text)}, {when} |")
     lines.append("")
     if timings_s:

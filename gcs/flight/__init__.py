@@ -580,7 +580,8 @@ def _vehicle_messages(
     fleet: Fleet, since_s: float, starts: PlanStarts
 ) -> dict[str, tuple[tuple[float | None, str, str], ...]]:
     """Per vehicle the warnings it sent since ``since_s`` (STATUSTEXT severity WARNING or
-    worse), as (plan time or None before the start, severity name, text)."""
+    worse), as (plan time, negative before the start and None if the plan never started,
+    severity name, text)."""
     out = {}
     for v in fleet:
         said = [

@@ -75,7 +75,8 @@ class FlightOutcome:
             none sent by the ground station; a mission carries them as items).
         vehicle_messages: per vehicle the warnings it sent during the flight (STATUSTEXT of
             severity WARNING or worse: "Critical battery", "Failsafe activated"), as (plan
-            time or ``None`` before the start, severity name, text).
+            time, negative before the start and ``None`` if the plan never started,
+            severity name, text).
     """
 
     mode: FlightMode
@@ -134,7 +135,7 @@ def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
         lines.append(f"  {name}: end action failed: {why}")
     for name, said in outcome.vehicle_messages.items():
         for t, severity, text in said:
-            when = "before the start" if t is None else f"at t={t:.2f} s"
+            when = "before the plan started" if t is None else f"at t={t:.2f} s"
             lines.append(f"  {name} said {when}: {text!r} ({severity})")
     if plan.assurance is not None:
         lines.append(plan.assurance.summary())
