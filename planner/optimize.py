@@ -41,6 +41,7 @@ from planner.solve.coarse_start import CoarseOutcome, StageBeside, coarse_budget
 from planner.solve.explain import needs
 from planner.solve.fix_choices import fixed_clauses
 from planner.solve.guess import initial_guess, starts
+from planner.solve.leaves import row_steps
 from planner.solve.nlp import (
     K_MIN,
     STRUCTURES,
@@ -48,7 +49,6 @@ from planner.solve.nlp import (
     Structure,
     build_structure,
     clear_cache,
-    row_steps,
     structure_key,
     vehicle_limit_bounds,
 )

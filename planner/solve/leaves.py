@@ -1,11 +1,13 @@
 """The spec's conjunctive leaves for the NLP: the ``and``/``always`` walk that collects them
-with their sample steps (:func:`decompose`), a long ``eventually`` split into chunks
+with their sample steps (:func:`decompose`), the row-wise ones' constraint steps
+(:func:`row_steps`), a long ``eventually`` split into chunks
 (:func:`chunks_of`), and the log-sum-exp that joins a chunked leaf's values (:func:`lse`).
 Why: ``docs/solver-notes.md``, "The formulation".
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -13,17 +15,22 @@ import casadi as ca
 import numpy as np
 
 from planner.cache import BoundedCache
+from planner.problem import Problem
 from planner.solve.leaf_templates import canonical_leaf
-from planner.stl import Always, And, BoolConst, Eventually, Formula
+from planner.stl import Always, And, BoolConst, Comparison, Eventually, Formula, Predicate
 
 __all__ = [
     "CHUNK_ABOVE_SEGMENTS",
     "CHUNK_SEGMENTS",
     "Lse",
     "chunks_of",
+    "constraint_stride",
     "decompose",
+    "direct_steps_of",
+    "is_direct",
     "local_positions",
     "lse",
+    "row_steps",
 ]
 
 #: A smooth ``eventually`` leaf whose window spans more segments than this, divided by the
@@ -116,3 +123,34 @@ def lse(m: int, k: float) -> Lse:
         )
 
     return _LSE.get_or_build((m, k), build)[0]
+
+
+def is_direct(node: Formula) -> bool:
+    """Leaves evaluated directly (vectorised over steps) rather than through the engine."""
+    return isinstance(node, Comparison | Predicate)
+
+
+def constraint_stride(problem: Problem) -> int:
+    """Planning samples between two constraint steps of a row-wise leaf
+    (``solver.constraint_dt_s``, by default every sample, at most every 0.1 s)."""
+    dt = problem.timing.sample_dt_s
+    c_dt = problem.solver.constraint_dt_s
+    return max(1, round((c_dt if c_dt is not None else max(dt, 0.1)) / dt))
+
+
+def direct_steps_of(leaves: Mapping[Formula, set[int]], stride: int) -> dict[Formula, list[int]]:
+    """The constraint steps of each row-wise leaf of ``leaves`` (:func:`decompose`'s): every
+    ``stride``-th of its steps, and its last."""
+    out: dict[Formula, list[int]] = {}
+    for leaf, steps_set in leaves.items():
+        if is_direct(leaf):
+            steps = sorted(steps_set)
+            out[leaf] = sorted(set(steps[::stride]) | {steps[-1]})
+    return out
+
+
+def row_steps(problem: Problem, formula: Formula) -> dict[Formula, list[int]]:
+    """The row-wise leaves of ``formula`` and their constraint steps, as the NLP has them."""
+    leaves: dict[Formula, set[int]] = {}
+    decompose(formula, np.array([0]), problem.timing.sample_dt_s, leaves)
+    return direct_steps_of(leaves, constraint_stride(problem))

@@ -31,7 +31,15 @@ from planner.solve.leaf_templates import (
     instance,
     smoothing_terms,
 )
-from planner.solve.leaves import chunks_of, decompose, local_positions, lse
+from planner.solve.leaves import (
+    chunks_of,
+    constraint_stride,
+    decompose,
+    direct_steps_of,
+    is_direct,
+    local_positions,
+    lse,
+)
 from planner.solve.nlp_solvers import IterationWatch, derivatives, make_solver
 from planner.solve.rowwise import SampleLeaf, sample_leaf
 from planner.solve.screen import Screen
@@ -61,11 +69,6 @@ _K_TOLERANCE = 0.06
 _REG_WEIGHT = 1e-3
 #: Upper bound of the epigraph variable r (m): keeps IPOPT bounded on trivial specs.
 _R_MAX = 1e3
-
-
-def is_direct(node: Formula) -> bool:
-    """Leaves evaluated directly (vectorised over steps) rather than through the engine."""
-    return isinstance(node, Comparison | Predicate)
 
 
 def _ca_expr(e: Expr, rows: Mapping[str, Any], fns: Mapping[str, Callable[..., Any]]) -> Any:
@@ -728,32 +731,6 @@ def _assemble(
         ca.Function("leaves", [wm, pm], [leaf_all]),
         ca.Function("chunks", [wm, pm], [chunk_out]),
     )
-
-
-def constraint_stride(problem: Problem) -> int:
-    """Planning samples between two constraint steps of a row-wise leaf
-    (``solver.constraint_dt_s``, by default every sample, at most every 0.1 s)."""
-    dt = problem.timing.sample_dt_s
-    c_dt = problem.solver.constraint_dt_s
-    return max(1, round((c_dt if c_dt is not None else max(dt, 0.1)) / dt))
-
-
-def direct_steps_of(leaves: Mapping[Formula, set[int]], stride: int) -> dict[Formula, list[int]]:
-    """The constraint steps of each row-wise leaf of ``leaves`` (:func:`decompose`'s): every
-    ``stride``-th of its steps, and its last."""
-    out: dict[Formula, list[int]] = {}
-    for leaf, steps_set in leaves.items():
-        if is_direct(leaf):
-            steps = sorted(steps_set)
-            out[leaf] = sorted(set(steps[::stride]) | {steps[-1]})
-    return out
-
-
-def row_steps(problem: Problem, formula: Formula) -> dict[Formula, list[int]]:
-    """The row-wise leaves of ``formula`` and their constraint steps, as the NLP has them."""
-    leaves: dict[Formula, set[int]] = {}
-    decompose(formula, np.array([0]), problem.timing.sample_dt_s, leaves)
-    return direct_steps_of(leaves, constraint_stride(problem))
 
 
 def is_separation(leaf: Formula) -> bool:

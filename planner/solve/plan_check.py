@@ -18,7 +18,7 @@ from planner.dynamics import DoubleIntegrator, MinimumJerkChain
 from planner.problem import DynamicsModel, Problem
 from planner.results import ClauseReport, PlanResult, StartBound, Weakest
 from planner.scenario.spec import clause_formulas
-from planner.solve.nlp import is_direct
+from planner.solve.leaves import is_direct
 from planner.spec.heading import heading_signals, uses_heading
 from planner.stl import Formula, conjunction, explanation
 from planner.trajectory import Trajectory

@@ -1,6 +1,6 @@
 """Derivatives of the row-wise leaves, differentiated once per leaf at one sample.
 
-A row-wise leaf of the NLP (:func:`planner.solve.nlp.is_direct`: a predicate or a comparison,
+A row-wise leaf of the NLP (:func:`planner.solve.leaves.is_direct`: a predicate or a comparison,
 ``outside(d, pole7)``, ``dist(d1, d2) >= 1.5``) is the same function of the vehicles'
 positions at every constraint step: its rows at step ``j`` depend on the lifted positions of
 that step only.  Differentiating the whole block (every step at once) twice, as CasADi's
