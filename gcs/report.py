@@ -119,6 +119,37 @@ def report_markdown(
             share = 100.0 * s / total if total > 0 else 0.0
             lines.append(f"| {stage} | {s:.2f} | {share:.0f} % |")
         lines += [f"| total | {total:.2f} | |", ""]
+    if outcome.replans:
+        lines += [
+            "## Replans",
+            "",
+            "Each vehicle that left the flight, the plan made for the others from the switch "
+            "time on (`gcs fly --replan`), and what became of the clauses that read it."
+            + (
+                " The flight is judged on the spec as amended by the last replan, on the "
+                "vehicles that flew on."
+                if outcome.judged_spec is not None
+                else ""
+            ),
+            "",
+            "| event | switch at s | solved in s | new plan ρ | flown |",
+            "|---|---:|---:|---:|---|",
+        ]
+        for rp in outcome.replans:
+            flown = "yes" if rp.success else f"no: {rp.reason}"
+            lines.append(
+                f"| {_cell(rp.event)} | {rp.switch_s:g} | {rp.solve_s:.2f} | "
+                f"{_num(rp.robustness)} | {_cell(flown)} |"
+            )
+        lines.append("")
+        for rp in outcome.replans:
+            for what, texts in (
+                ("dropped with the vehicle", rp.dropped),
+                ("taken over by the others", rp.taken_over),
+                ("met before it left", rp.discharged),
+            ):
+                lines += [f"- {what}: `{_cell(t)}`" for t in texts]
+        lines.append("")
     a = plan.assurance
     if a is not None:
         lines += ["## Planned to a probability", "", _cell(a.summary()), ""]

@@ -24,6 +24,15 @@ how far a start may be, the take-off, the arrival gate):
    it; then :meth:`FlightDriver.finish` (offboard: the end action; a mission carries its own);
 7. **record**: the flown tracks in the mission frame from t = 0, in one :class:`FlightResult`.
 
+With a :class:`Replanner` and a driver that can take a new plan in flight
+(:class:`Switchable`: offboard), a vehicle that leaves the flight (its link lost, its own
+failsafe) does not stop it: the monitor hands it over (``on_departure``), the driver stops
+streaming to it, the replanner plans the rest for the others, and the driver switches to the
+new plan at its switch time, which the vehicles fly without a break (the new plan equals the
+old one until then); the monitor then checks the new plan's clauses.  A replan that finds no
+plan, or whose plan comes after its switch time, stops the flight (every vehicle still
+flying holds; verdict NO_REPLAN, with the reason).
+
 The drivers: :class:`mavlink.offboard.OffboardDriver` and
 :class:`mavlink.mission.flight.MissionDriver`. A failure from the take-off to the release
 (phases 3-5) holds every vehicle before it is raised; a cancellation (Ctrl-C) is left to
@@ -34,15 +43,22 @@ from __future__ import annotations
 
 import asyncio
 import math
-from collections.abc import Awaitable, Iterable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 
-from mavlink.errors import LinkError, LinkLostError, PreflightError
+from mavlink.errors import LinkError, LinkLostError, PreflightError, StreamError
 from mavlink.monitor import SafetyMonitor, safe_stop
-from mavlink.monitor_findings import MonitorStats, SafetyAction, SafetyEvent
+from mavlink.monitor_findings import (
+    MonitorStats,
+    SafetyAction,
+    SafetyClause,
+    SafetyEvent,
+    VehicleLeft,
+    Verdict,
+)
 from mavlink.preflight import TAKEOFF_MARGIN_M, check_start, check_takeoff_height
 from mavlink.px4_modes import Px4Mode
 from mavlink.tracks import FlownTrack, track_from_rows
@@ -61,9 +77,12 @@ __all__ = [
     "DriverReport",
     "FlightDriver",
     "FlightResult",
+    "NewPlan",
+    "Replanner",
     "StartGate",
     "StartPoint",
     "Started",
+    "Switchable",
     "check_starts",
     "fly",
     "gather_or_raise",
@@ -264,6 +283,44 @@ class FlightDriver(Protocol):
 
 
 @dataclass(frozen=True, slots=True)
+class NewPlan:
+    """A replan's answer (:class:`Replanner`).
+
+    Attributes:
+        switch_s: plan time from which ``trajectories`` differ from the plan flown.
+        trajectories: the vehicles' new trajectories (those that fly on), on the plan's clock.
+        clauses: the invariants the monitor checks from then on.
+    """
+
+    switch_s: float
+    trajectories: Mapping[str, Trajectory]
+    clauses: Sequence[SafetyClause]
+
+
+class Replanner(Protocol):
+    """Plans the rest of a flight for the vehicles that fly on (``gcs fly --replan``)."""
+
+    async def __call__(self, left: Sequence[VehicleLeft], now_s: float) -> NewPlan | str:
+        """The new plan after ``left`` left at plan time ``now_s``, or why there is none."""
+        ...
+
+
+@runtime_checkable
+class Switchable(Protocol):
+    """A driver that can drop vehicles and take new trajectories in flight (offboard)."""
+
+    plans: Mapping[str, Trajectory] | None
+
+    def drop(self, names: Sequence[str]) -> None:
+        """Send nothing more to ``names``."""
+        ...
+
+    def switch(self, trajectories: Mapping[str, Trajectory], switch_s: float) -> None:
+        """Fly ``trajectories`` from now on (raises StreamError past ``switch_s``)."""
+        ...
+
+
+@dataclass(frozen=True, slots=True)
 class Started:
     """The fleet released into the plan (:func:`start_together`).
 
@@ -331,6 +388,7 @@ async def fly(
     driver: FlightDriver,
     mission_origin: GeodeticPoint,
     monitor: SafetyMonitor | None = None,
+    replanner: Replanner | None = None,
 ) -> FlightResult:
     """Fly ``driver``'s plan on ``fleet`` (the module docstring's phases).
 
@@ -339,6 +397,8 @@ async def fly(
         driver: the mode of flight.
         mission_origin: the geodetic origin of the plan's frame.
         monitor: the safety monitor (default: one that only watches the links).
+        replanner: plans the rest when a vehicle leaves the flight (the module docstring;
+            only with a :class:`Switchable` driver).
 
     Returns:
         A :class:`FlightResult`; a safety stop is a result, not an exception.
@@ -354,6 +414,9 @@ async def fly(
     t0, origins = started.t0_monotonic_s, started.origins
 
     mon = monitor or SafetyMonitor(())
+    replans: list[asyncio.Task[None]] = []
+    if replanner is not None and isinstance(driver, Switchable):
+        mon.on_departure = _departure_handler(fleet, driver, mon, replanner, t0, replans)
     stop = asyncio.Event()
     mon_task = asyncio.create_task(
         mon.run(
@@ -375,6 +438,8 @@ async def fly(
         flown = True
     finally:
         stop.set()
+        for task in replans:
+            task.cancel()
         event = await mon_task
         if not flown:
             await driver.abort()
@@ -396,6 +461,46 @@ async def fly(
         runs=report.runs,
         start_skew_s=report.start_skew_s,
     )
+
+
+def _departure_handler(
+    fleet: Fleet,
+    driver: Switchable,
+    mon: SafetyMonitor,
+    replanner: Replanner,
+    t0: float,
+    tasks: list[asyncio.Task[None]],
+) -> Callable[[Sequence[VehicleLeft]], bool]:
+    """The monitor's ``on_departure`` for :func:`fly`: drop the vehicles that left, replan in
+    a task, and switch to its plan or halt the flight (one replan at a time: a departure
+    during one stops the flight)."""
+
+    async def replan(left: Sequence[VehicleLeft], now_s: float) -> None:
+        names = [d.vehicle for d in left]
+        verdict = Verdict.NO_REPLAN
+        try:
+            got = await replanner(left, now_s)
+        except Exception as exc:  # reported as the reason the flight stopped
+            got = f"the replan failed: {exc}"
+        t_s = fleet.clock.monotonic() - t0
+        if isinstance(got, str):
+            mon.halt(verdict, names, t_s, got)
+            return
+        try:
+            driver.switch(got.trajectories, got.switch_s)
+        except StreamError as exc:
+            mon.halt(verdict, names, t_s, f"the new plan came too late: {exc}")
+            return
+        mon.replace(driver.plans, got.clauses)
+
+    def on_departure(left: Sequence[VehicleLeft]) -> bool:
+        if any(not t.done() for t in tasks):
+            return False
+        driver.drop([d.vehicle for d in left])
+        tasks.append(asyncio.create_task(replan(left, fleet.clock.monotonic() - t0)))
+        return True
+
+    return on_departure
 
 
 async def check_starts(fleet: Fleet, driver: FlightDriver, mission_origin: GeodeticPoint) -> None:

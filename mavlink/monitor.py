@@ -51,6 +51,7 @@ from mavlink.monitor_findings import (
     SafetyAction,
     SafetyClause,
     SafetyEvent,
+    VehicleLeft,
     Verdict,
 )
 from mavlink.px4_modes import Px4Mode
@@ -200,6 +201,10 @@ class SafetyMonitor:
             together with ``wait``.
         wait: ``await wait(stop, delay_s)`` waits until ``stop`` is set or ``delay_s`` has
             passed and returns whether ``stop`` is set (default: on the fleet's clock).
+        on_departure: called (on the event loop) with the vehicles that left the flight, a
+            link lost or another mode, when others fly on; if it returns True the flight goes
+            on without them (a replan has begun: :meth:`replace` or :meth:`halt` follows):
+            they are no longer watched, told to hold on a stop or checked in any clause.
     """
 
     def __init__(
@@ -219,6 +224,7 @@ class SafetyMonitor:
         clock: Callable[[], float] | None = None,
         wait: Callable[[asyncio.Event, float], Awaitable[bool]] | None = None,
         ride_out_link_loss: bool = False,
+        on_departure: Callable[[Sequence[VehicleLeft]], bool] | None = None,
     ) -> None:
         if not (math.isfinite(horizon_s) and horizon_s >= 0):
             raise LinkError(f"monitor horizon_s must be >= 0, got {horizon_s!r}")
@@ -226,7 +232,6 @@ class SafetyMonitor:
             raise LinkError(f"monitor steps must be >= 1, got {steps!r}")
         if not (math.isfinite(rate_hz) and rate_hz > 0):
             raise LinkError(f"monitor rate_hz must be > 0, got {rate_hz!r}")
-        self.clauses = tuple(clauses)
         self.horizon_s = float(horizon_s)
         self.steps = int(steps) if horizon_s > 0 else 1
         self.rate_hz = float(rate_hz)
@@ -243,6 +248,18 @@ class SafetyMonitor:
         self.ride_out_link_loss = ride_out_link_loss
         self._clock = clock  # None: the fleet's, from run()
         self._wait = wait
+        self.on_departure = on_departure
+        #: vehicles that left the flight and are no longer watched (on_departure)
+        self.excused: set[str] = set()
+        self._halt: tuple[Verdict, tuple[str, ...], float, str] | None = None
+        self._plans: Mapping[str, Trajectory] | None = None
+        self.stats = MonitorStats()
+        self._table: tuple[tuple[int, ...], tuple[str, ...], _PlanTable] | None = None
+        self._set_clauses(clauses)
+
+    def _set_clauses(self, clauses: Sequence[SafetyClause]) -> None:
+        """The invariants checked from now on, batched per template."""
+        self.clauses = tuple(clauses)
         self._batch = ClauseBatch([c.formula for c in self.clauses])
         # the signals the clauses read, and per clause the rows of its vehicles (padded with
         # the extra last row, always "present")
@@ -255,8 +272,20 @@ class SafetyMonitor:
                 self._clause_rows[i, j] = self._signal_row.get(name, len(self._signals))
         self._ends = np.array([c.end_s for c in self.clauses])
         self._starts = np.array([c.start_s for c in self.clauses])
-        self.stats = MonitorStats()
-        self._table: tuple[tuple[int, ...], tuple[str, ...], _PlanTable] | None = None
+
+    def replace(
+        self, plans: Mapping[str, Trajectory] | None, clauses: Sequence[SafetyClause]
+    ) -> None:
+        """After a replan: predict along ``plans`` and check ``clauses`` from the next tick
+        (called on the event loop; a tick in progress on the monitor's thread finishes with
+        what it read)."""
+        self._plans = plans
+        self._set_clauses(clauses)
+
+    def halt(self, verdict: Verdict, vehicles: Sequence[str], t_s: float, detail: str) -> None:
+        """Stop the flight at the next tick with this finding (a replan that found no plan);
+        called on the event loop."""
+        self._halt = (verdict, tuple(vehicles), t_s, detail)
 
     @property
     def checks(self) -> int:
@@ -475,7 +504,7 @@ class SafetyMonitor:
         t_cpu = time.perf_counter()
         now = clock()
         t_s = now - t0_monotonic_s
-        statuses = {v.name: v.status(now) for v in vehicles}
+        statuses = {v.name: v.status(now) for v in vehicles if v.name not in self.excused}
         try:
             lost = tuple(
                 sorted(
@@ -652,6 +681,7 @@ class SafetyMonitor:
         if self.on_start is not None:
             self.on_start(t0_monotonic_s)
         self.stats = MonitorStats()
+        self._plans = plans
         maps = {v.name: NedToEnuMap.between(mission_origin, origins[v.name]) for v in vehicles}
         period = 1.0 / self.rate_hz
         loop = asyncio.get_running_loop()
@@ -666,20 +696,64 @@ class SafetyMonitor:
                     break
                 k = max(k + 1, int((clock() - t0_monotonic_s) / period - 0.5) + 1)
                 found = await loop.run_in_executor(
-                    worker, self._tick, vehicles, t0_monotonic_s, maps, origins, plans,
+                    worker, self._tick, vehicles, t0_monotonic_s, maps, origins, self._plans,
                     expected_mode, mode_grace_s, done, clock,
                 )  # fmt: skip
+                if self._halt is not None and not stop.is_set():
+                    verdict, names, t_s, detail = self._halt
+                    found = _Finding(verdict, None, names, t_s, None, None, clock(), detail=detail)
+                    return await self._stop(fleet, stop, found, clock())
                 if found is not None and not stop.is_set():
+                    if self._departed(found, vehicles, maps, t0_monotonic_s, clock()):
+                        continue
                     return await self._stop(fleet, stop, found, clock())
         finally:
             worker.shutdown(wait=False, cancel_futures=True)
         return None
 
+    def _departed(
+        self,
+        found: _Finding,
+        vehicles: Sequence[Vehicle],
+        maps: Mapping[str, NedToEnuMap],
+        t0_monotonic_s: float,
+        now: float,
+    ) -> bool:
+        """Whether the flight goes on without the vehicles of ``found`` (a lost link or another
+        mode, others flying on, and ``on_departure`` accepting them)."""
+        if self.on_departure is None or found.verdict not in (Verdict.LINK_LOST, Verdict.LEFT_MODE):
+            return False
+        names = set(found.vehicles)
+        if not any(v.name not in names and v.name not in self.excused for v in vehicles):
+            return False
+        left = []
+        for v in vehicles:
+            if v.name not in names:
+                continue
+            st = v.status(now)
+            age = st.position_age_s if st.position_age_s is not None else 0.0
+            pos = None
+            if st.pos_ned_m is not None:
+                pos = tuple(float(x) for x in maps[v.name].position(st.pos_ned_m))
+            left.append(
+                VehicleLeft(
+                    v.name,
+                    found.verdict,
+                    now - t0_monotonic_s - age,
+                    pos,  # type: ignore[arg-type]
+                    None if found.verdict is Verdict.LINK_LOST else st.mode,
+                )
+            )
+        if not self.on_departure(left):
+            return False
+        self.excused |= names
+        return True
+
     async def _stop(
         self, fleet: Fleet, stop: asyncio.Event, found: _Finding, t_command: float
     ) -> SafetyEvent:
         stop.set()
-        others = [v for v in fleet if v.name not in found.exclude]
+        others = [v for v in fleet if v.name not in found.exclude and v.name not in self.excused]
         failures = await fleet.for_each(lambda v: safe_stop(v, self.action), others)
         return SafetyEvent(
             verdict=found.verdict,

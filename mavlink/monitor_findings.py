@@ -14,6 +14,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from mavlink.px4_modes import Px4Mode
 from planner.stl.ast import Always, Formula
 
 __all__ = [
@@ -22,6 +23,7 @@ __all__ = [
     "SafetyAction",
     "SafetyClause",
     "SafetyEvent",
+    "VehicleLeft",
     "Verdict",
     "always_clause_indices",
     "always_clauses",
@@ -39,6 +41,26 @@ class Verdict(Enum):
     ORIGIN_MOVED = "origin_moved"  # a vehicle's EKF origin moved in flight: its positions and
     # the setpoints streamed to it are in another frame than the flight's
     OFF_PLAN = "off_plan"  # a vehicle is farther from its plan than the flight allows
+    NO_REPLAN = "no_replan"  # a vehicle left, and no new plan for the others was flown
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleLeft:
+    """A vehicle that left the flight while others fly on (the monitor's ``on_departure``).
+
+    Attributes:
+        vehicle: its name.
+        verdict: LINK_LOST (silent) or LEFT_MODE (its own failsafe took it).
+        t_s: plan time of its last position sample.
+        position_enu_m: that position in the mission frame (None: never heard).
+        mode: the mode it is in (LEFT_MODE), else None.
+    """
+
+    vehicle: str
+    verdict: Verdict
+    t_s: float
+    position_enu_m: tuple[float, float, float] | None
+    mode: Px4Mode | None = None
 
 
 class SafetyAction(Enum):
@@ -192,6 +214,8 @@ class SafetyEvent:
                 f"the EKF origin of {who} moved at t={self.t_s:.2f} s ({self.detail}): its "
                 "positions and setpoints are no longer in the flight's frame"
             )
+        elif self.verdict is Verdict.NO_REPLAN:
+            head = f"{who} left the flight and no new plan was flown ({self.detail})"
         elif self.verdict is Verdict.OFF_PLAN:
             head = f"{who} off its plan at t={self.t_s:.2f} s ({self.detail})"
         elif self.verdict is Verdict.VIOLATED:

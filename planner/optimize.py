@@ -34,6 +34,7 @@ import numpy as np
 
 from planner.checks import LimitReport, check_trajectories
 from planner.dynamics.limits import vehicle_bounds
+from planner.dynamics.prefix import Prefix, fixed_entries
 from planner.problem import Clause, Problem, SolverMethod
 from planner.results import ClauseReport, PlanResult, SolveStats, Weakest
 from planner.scenario.spec import clause_formulas
@@ -120,6 +121,7 @@ def plan(
     progress: Callable[[str], None] | None = None,
     time_limit_s: float | None = None,
     progress_every_s: float = 2.0,
+    prefix: Prefix | None = None,
 ) -> PlanResult:
     """Plan trajectories that maximise the robustness of ``problem``'s spec.
 
@@ -135,13 +137,19 @@ def plan(
             the check included: the solver stops early enough for the check to fit (its
             cost is measured on the first start), no new start begins after it, and the
             best plan found by then is returned, its status saying so.
+        prefix: the waypoints up to ``prefix.until_s`` fixed to those of its trajectories
+            (a replan, :mod:`planner.replan`; minimum-jerk model only).
 
     Returns:
         :class:`PlanResult`; ``success=False`` (with the best trajectories) when the
         exact robustness is below ``epsilon`` or a check fails.
     """
     search = PlanSearch(
-        problem, progress=progress, time_limit_s=time_limit_s, progress_every_s=progress_every_s
+        problem,
+        progress=progress,
+        time_limit_s=time_limit_s,
+        progress_every_s=progress_every_s,
+        prefix=prefix,
     )
     return search.run(initial_guess)
 
@@ -166,6 +174,7 @@ class PlanSearch:
         progress: Callable[[str], None] | None = None,
         time_limit_s: float | None = None,
         progress_every_s: float = 2.0,
+        prefix: Prefix | None = None,
     ) -> None:
         self.problem = problem
         self.say: Callable[[str], None] = progress or (lambda _msg: None)
@@ -182,6 +191,12 @@ class PlanSearch:
         self.t_dense = dense_times(problem)
         self.model = make_model(problem)
         self.x0s = initial_states(problem, self.model)
+        #: the decisions fixed to a prefix (indices, values; :mod:`planner.dynamics.prefix`)
+        self.fixed: tuple[np.ndarray, np.ndarray] | None = (
+            None
+            if prefix is None
+            else fixed_entries(self.model, [v.name for v in problem.vehicles], prefix)
+        )
         self.check_s = 0.0
         #: seconds one exact evaluation of the clauses took (the check's cost is a few)
         self.exact_eval_s = 0.0
@@ -270,6 +285,9 @@ class PlanSearch:
             lbg[struct.lim_slices[i]], ubg[struct.lim_slices[i]] = cons_cache[keyl]
         self.lbx = struct.lbx.copy()
         self.ubx = struct.ubx.copy()
+        if self.fixed is not None:
+            idx, vals = self.fixed
+            self.lbx[idx] = self.ubx[idx] = vals
         self.bounds = {"p": self.p_val, "lbx": self.lbx, "ubx": self.ubx, "lbg": lbg, "ubg": ubg}
 
     def lifted(self, z0: np.ndarray) -> np.ndarray:
@@ -774,7 +792,7 @@ class PlanSearch:
             sharp = sharpen(problem, self.model, formula, best, self.bounds, self.p_val,
                              self.exact_of, say, stop,
                              min(self.solve_deadline(), time.perf_counter() + budget),
-                             self._on_iteration, self.screen)  # fmt: skip
+                             self._on_iteration, self.screen, self.fixed)  # fmt: skip
             if sharp is not None:
                 self.struct, best, self.bounds, sharp_build_s = sharp
                 self.build_s += sharp_build_s

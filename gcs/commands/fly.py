@@ -117,6 +117,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "silent), failsafe (PX4 returns home), battery (falls to critical; PX4 acts as "
         "COM_LOW_BAT_ACT says); repeatable",
     )
+    p.add_argument(
+        "--replan",
+        action="store_true",
+        help="offboard: when a vehicle leaves the flight (link lost, its failsafe), plan the "
+        "rest for the others and fly it (docs/replanning.md); without it the flight stops",
+    )
+    p.add_argument(
+        "--replan-budget",
+        type=float,
+        default=3.0,
+        metavar="S",
+        help="--replan: plan seconds from a departure to the switch to the new plan (3)",
+    )
+    p.add_argument(
+        "--scenario",
+        default=None,
+        metavar="FILE",
+        help="--replan: the scenario the plan was made from (default: the one it names)",
+    )
     add_speed_argument(p)
 
 
@@ -189,8 +208,22 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--speed: only for --dry-run (real vehicles fly in real time)")
     if args.mock_fault and not args.dry_run:
         raise UserError("--mock-fault: only for --dry-run (faults are injected into mock vehicles)")
+    if not (math.isfinite(args.replan_budget) and args.replan_budget > 0):
+        raise UserError(f"--replan-budget: must be a number > 0 s, got {args.replan_budget:g}")
+    if args.replan and args.mode != "offboard":
+        raise UserError(
+            "--replan: only offboard flights switch to a new plan in flight (missions: not yet)"
+        )
+    for flag, given in (("--replan-budget", args.replan_budget != 3.0), ("--scenario", args.scenario)):  # fmt: skip
+        if given and not args.replan:
+            raise UserError(f"{flag}: only with --replan")
     plan = load_plan(args.plan)
     faults = parse_mock_faults(args.mock_fault, plan)
+    replanner = None
+    if args.replan:
+        from gcs.flight.replan import FlightReplanner, replan_problem
+
+        replanner = FlightReplanner(replan_problem(plan, args.scenario), plan, args.replan_budget)
     out = sys.stderr if args.json else sys.stdout
     if args.end == "land":
         # where landing straight down would meet a keep-out, somewhere clear (or refused)
@@ -218,6 +251,9 @@ def run(args: argparse.Namespace) -> int:
         photo_interval_s=photo_interval(args),
     )
     progress = FlightProgress(plan, out)
+    if replanner is not None:
+        replanner.note = progress.note
+        options = replace(options, replanner=replanner)
 
     def fly(urls: list[str] | None, clock: Clock = WALL) -> FlightOutcome:
         specs = vehicle_specs(plan, urls, args.base_port)

@@ -86,6 +86,7 @@ if TYPE_CHECKING:
     from gcs.checks import Check
     from gcs.flight.mission import MissionFlight
     from gcs.flight.missions import MissionConversion
+    from gcs.flight.replan import FlightReplanner
     from gcs.flight.tuning import VehicleTuning
     from gcs.plot.coverage import CoverageReport
     from mavlink.flight import FlightDriver, FlightResult
@@ -150,6 +151,8 @@ class FlyOptions:
             (:mod:`gcs.flight.payload`); 0: the camera is left alone.
         on_plan_start: called once with the plan's start on the fleet's clock (a dry run
             times its injected faults from it, :meth:`mavlink.mock.MockFleet.plan_started`).
+        replanner: offboard: plan the rest when a vehicle leaves the flight (``gcs fly
+            --replan``, :mod:`gcs.flight.replan`); None: a departure stops the flight.
     """
 
     mode: FlightMode = FlightMode.OFFBOARD
@@ -166,6 +169,7 @@ class FlyOptions:
     max_off_plan_m: float | None = 3.0
     photo_interval_s: float = 1.0
     on_plan_start: Callable[[float], None] | None = None
+    replanner: FlightReplanner | None = None
 
 
 # ---------------------------------------------------------------------------- before flight
@@ -472,6 +476,8 @@ async def fly_plan(
             if not start.done():
                 if opts.on_plan_start is not None:
                     opts.on_plan_start(t0_monotonic_s)
+                if opts.replanner is not None:
+                    opts.replanner.plan_started(t0_monotonic_s)
                 start.set_result(t0_monotonic_s)
 
         try:
@@ -490,7 +496,9 @@ async def fly_plan(
                     else None
                 )
                 try:
-                    result = await fly(fleet, driver, plan.origin, monitor)
+                    result = await fly(
+                        fleet, driver, plan.origin, monitor, replanner=opts.replanner
+                    )
                 finally:
                     if shots is not None:
                         shots.cancel()
@@ -534,7 +542,15 @@ async def fly_plan(
         tracks = _tracks_from_rows(rows, t0, plan.origin, origins)
     if opts.log_dir is not None:
         files["csv"] = write_tracks_csv(opts.log_dir / "flight.csv", tracks)
-    evaluation = evaluate_flight(plan, tracks) if tracks else None
+    judged = plan
+    replanner = opts.replanner
+    if replanner is not None and replanner.judged_plan is not None:
+        # judged on the spec as amended, on the vehicles that flew on
+        judged = replanner.judged_plan
+        tracks_judged = {v.name: tracks[v.name] for v in judged.vehicles if v.name in tracks}
+    else:
+        tracks_judged = tracks
+    evaluation = evaluate_flight(judged, tracks_judged) if tracks_judged else None
     mission = mission_record(conv, result) if conv is not None and result is not None else None
     coverage = _coverage(plan, images, spans, mission, infos, opts.log_dir, files)
     lower = None
@@ -573,6 +589,8 @@ async def fly_plan(
         coverage=coverage,
         camera=camera if camera is not None and any(spans.values()) else None,
         vehicle_messages=said,
+        replans=tuple(replanner.records) if replanner is not None else (),
+        judged_spec=judged.spec if judged is not plan else None,
     )
 
 

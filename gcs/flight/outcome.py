@@ -20,6 +20,7 @@ if TYPE_CHECKING:
     from gcs.flight.evaluation import FlownEvaluation
     from gcs.flight.mission import MissionFlight
     from gcs.flight.payload import CameraCommands
+    from gcs.flight.replan import ReplanRecord
     from gcs.flight.tuning import VehicleTuning
     from gcs.plot.coverage import CoverageReport
     from mavlink.link.camera import CapturedImage
@@ -77,6 +78,10 @@ class FlightOutcome:
             severity WARNING or worse: "Critical battery", "Failsafe activated"), as (plan
             time, negative before the start and ``None`` if the plan never started,
             severity name, text).
+        replans: the replans of ``gcs fly --replan``, in order (the last may be the one that
+            found no plan, and stopped the flight).
+        judged_spec: the spec the flight was judged on when a replan amended it (the
+            evaluation is of it, on the vehicles that flew on), else None.
     """
 
     mode: FlightMode
@@ -106,6 +111,8 @@ class FlightOutcome:
     vehicle_messages: dict[str, tuple[tuple[float | None, str, str], ...]] = field(
         default_factory=dict
     )
+    replans: tuple[ReplanRecord, ...] = ()
+    judged_spec: str | None = None
 
 
 #: MAV_SEVERITY names (0 .. 4: the warnings a flight records).
@@ -137,6 +144,7 @@ def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
         for t, severity, text in said:
             when = "before the plan started" if t is None else f"at t={t:.2f} s"
             lines.append(f"  {name} said {when}: {text!r} ({severity})")
+    lines += _replan_lines(outcome)
     if plan.assurance is not None:
         lines.append(plan.assurance.summary())
     ev = outcome.evaluation
@@ -235,6 +243,28 @@ def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
     return "\n".join(lines)
 
 
+def _replan_lines(outcome: FlightOutcome) -> list[str]:
+    """What each replan did, and what the flight is judged on."""
+    lines = []
+    for r in outcome.replans:
+        head = (
+            f"replan after {r.event}: switch at t = {r.switch_s:g} s, solved in {r.solve_s:.2f} s"
+        )
+        if r.success:
+            lines.append(f"{head}, robustness {r.robustness:+.4f} on what was left; flown")
+        else:
+            lines.append(f"{head}; NOT flown: {r.reason}")
+        for what, texts in (
+            ("dropped with the vehicle", r.dropped),
+            ("taken over by the others", r.taken_over),
+            ("met before it left", r.discharged),
+        ):
+            lines += [f"  {what}: {t}" for t in texts]
+    if outcome.judged_spec is not None:
+        lines.append("the flight is judged on the spec as amended by the last replan")
+    return lines
+
+
 def _tuning_lines(outcome: FlightOutcome) -> list[str]:
     """Drag fed forward per vehicle, the lag it still showed, and the drag to set."""
     from gcs.flight.tuning import LAG_NOISE_S, drag_from_lag
@@ -277,6 +307,8 @@ def outcome_json(plan: Plan, outcome: FlightOutcome) -> dict[str, Any]:
             for name, said in outcome.vehicle_messages.items()
         },
         "monitor": None if outcome.monitor is None else outcome.monitor.as_json(),
+        "replans": [r.to_json() for r in outcome.replans],
+        "judged_spec": outcome.judged_spec,
         "decision_latency_s": (
             None if outcome.safety_event is None else outcome.safety_event.latency_s
         ),

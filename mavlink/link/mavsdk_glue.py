@@ -60,13 +60,17 @@ _LEVELS = {
 }
 
 #: How MAVSDK's lines about its own callback thread begin (queue full, callbacks dropped, a
-#: slow callback), whatever their level: nothing the user of a flight can do about them, so
-#: they go to the flight's log, not the terminal.
+#: slow callback), and its failed sends, whatever their level: nothing the user of a flight
+#: can do about them (a lost link is reported by the flight), so they go to the flight's log,
+#: not the terminal.
 _LIBRARY_INTERNAL = (
     "Dropping subscription callbacks",
     "User callback queue",
     "Callback took more than",
     "Callback called from",
+    # a datagram to a vehicle that does not answer (its link lost: the flight reports that
+    # itself, once; MAVSDK says this on every heartbeat it sends there)
+    "Sending message failed",
 )
 
 _logs_routed = threading.Lock()

@@ -43,7 +43,7 @@ import numpy as np
 import pymap3d as pm
 from mavsdk.plugins.offboard import OffboardResult
 
-from mavlink.errors import CommandError, PreflightError
+from mavlink.errors import CommandError, PreflightError, StreamError
 from mavlink.flight import DriverReport, FlightResult, StartGate, StartPoint, fly, start_point
 from mavlink.link.fleet import Fleet
 from mavlink.link.mavsdk_glue import mavsdk_call
@@ -167,23 +167,22 @@ class OffboardDriver:
         groups = auto_send_groups(n) if config.send_groups is None else config.send_groups
         self.groups = min(groups, n) if n else 1
         self.setpoints: dict[str, NedSetpoints] = {}
+        self._offsets: dict[str, float] = {}
+        self._origins: dict[str, GeodeticPoint] = {}
         self._main: SetpointStreamer | None = None
         self._hover: asyncio.Task[Any] | None = None
         self._hover_stop = asyncio.Event()
         self._stats: dict[str, StreamStats] = {}
+        #: vehicles that left the flight (:meth:`drop`)
+        self.dropped: set[str] = set()
 
     def starts(self, origins: Mapping[str, GeodeticPoint]) -> dict[str, StartPoint]:
         cfg = self.cfg
         offsets = send_offsets(len(self.names), cfg.rate_hz, self.groups)
         for i, name in enumerate(self.names):
-            self.setpoints[name] = plan_setpoints_ned(
-                self.trajectories[name],
-                cfg.rate_hz,
-                self.mission_origin,
-                origins[name],
-                t_offset_s=float(offsets[i]),
-                drag_per_s=cfg.drag_of(name),
-            )
+            self._offsets[name] = float(offsets[i])
+            self._origins[name] = origins[name]
+            self.setpoints[name] = self._setpoints_of(name, self.trajectories[name])
         return {
             name: start_point(
                 self.trajectories[name].position(0.0),
@@ -193,6 +192,38 @@ class OffboardDriver:
             )
             for name in self.names
         }
+
+    def _setpoints_of(self, name: str, trajectory: Trajectory) -> NedSetpoints:
+        cfg = self.cfg
+        return plan_setpoints_ned(
+            trajectory,
+            cfg.rate_hz,
+            self.mission_origin,
+            self._origins[name],
+            t_offset_s=self._offsets[name],
+            drag_per_s=cfg.drag_of(name),
+        )
+
+    def drop(self, names: Sequence[str]) -> None:
+        """Stream nothing more to ``names`` (they left the flight); no end action for them."""
+        for name in names:
+            self.dropped.add(name)
+            if self._main is not None:
+                self._main.drop(name)
+
+    def switch(self, trajectories: Mapping[str, Trajectory], switch_s: float) -> None:
+        """Stream ``trajectories`` from the next setpoint on (a replan: each equals the
+        trajectory it replaces up to ``switch_s``, so the vehicles see one stream)."""
+        assert self._main is not None
+        k = self._main.next_tick
+        if k > switch_s * self.cfg.rate_hz + 1e-6:
+            raise StreamError(f"the switch at t = {switch_s:g} s came after setpoint {k}")
+        plans = dict(self.trajectories)
+        for name, tr in trajectories.items():
+            self._main.splice(name, self._setpoints_of(name, tr), k)
+            plans[name] = tr
+        self.trajectories = plans
+        self.plans = plans
 
     async def prepare(self, fleet: Fleet, vehicles: Sequence[Vehicle]) -> None:
         return None
@@ -298,13 +329,18 @@ class OffboardDriver:
     ) -> DriverReport:
         """The end action, unless the monitor stopped the flight (it held every vehicle)."""
         end_failures: dict[str, str] = {}
+        flying = [v for v in vehicles if v.name not in self.dropped]
         if event is None:
             cfg = self.cfg
-            failed = await fleet.for_each(lambda v: end_action_of(v, cfg.end_action, cfg), vehicles)
+            failed = await fleet.for_each(lambda v: end_action_of(v, cfg.end_action, cfg), flying)
             end_failures = {k: str(e) for k, e in failed.items()}
         assert self._main is not None
         stats = dict(self._stats)
-        flown = all(s.sent + s.skipped >= self._main.n_ticks for s in stats.values())
+        flown = all(
+            s.sent + s.skipped >= self._main.n_ticks
+            for name, s in stats.items()
+            if name not in self.dropped
+        )
         return DriverReport(completed=flown, end_failures=end_failures, stats=stats)
 
 

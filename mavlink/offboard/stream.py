@@ -166,20 +166,28 @@ class SetpointStreamer:
         self.late_threshold_s = self.period_s / 4 if late_threshold_s is None else late_threshold_s
         self.n_ticks = max(len(t.setpoints) for t in self.targets)
         # Plain Python floats per setpoint: the hot loop must not touch numpy.
-        self._rows = [
-            [
-                Setpoint(*row)
-                for row in np.column_stack(
-                    [
-                        t.setpoints.pos_ned_m,
-                        t.setpoints.vel_ned_m_s,
-                        t.setpoints.acc_ned_m_s2,
-                        np.degrees(t.setpoints.yaw_ned_rad),
-                    ]
-                ).tolist()
-            ]
-            for t in self.targets
-        ]
+        self._rows = [_rows_of(t.setpoints) for t in self.targets]
+        self._last = [len(r) - 1 for r in self._rows]
+        self._index = {t.name: i for i, t in enumerate(self.targets)}
+        #: vehicles no longer sent to (:meth:`drop`)
+        self.dropped: set[str] = set()
+        self._dropped_i: set[int] = set()
+        #: the tick the stream sends next (0 before it runs)
+        self.next_tick = 0
+
+    def drop(self, name: str) -> None:
+        """Send nothing more to vehicle ``name`` (it left the flight); on the event loop."""
+        self.dropped.add(name)
+        self._dropped_i.add(self._index[name])
+
+    def splice(self, name: str, setpoints: NedSetpoints, from_tick: int) -> None:
+        """Send ``setpoints`` to vehicle ``name`` from tick ``from_tick`` on (a replanned
+        trajectory, sampled at the same ticks); on the event loop, between two sends."""
+        i = self._index[name]
+        new = _rows_of(setpoints)
+        k = max(0, min(int(from_tick), len(new)))
+        self._rows[i] = self._rows[i][:k] + new[k:]
+        self._last[i] = len(self._rows[i]) - 1
 
     async def run(
         self,
@@ -208,7 +216,8 @@ class SetpointStreamer:
         members = [list(range(g, n_v, n_g)) for g in range(n_g)]
         sends = [t.send for t in self.targets]
         rows = self._rows
-        last = [len(r) - 1 for r in rows]
+        last = self._last
+        dropped = self._dropped_i
         clock = self._clock
         sleep = self._sleep
         period = self.period_s
@@ -233,10 +242,13 @@ class SetpointStreamer:
                 j += jump
                 deadline = t0_s + j * step
             k, g = divmod(j, n_g)
+            self.next_tick = k + 1
             group = members[g]
             start = k % len(group)
             for m in range(len(group)):
                 i = group[(start + m) % len(group)]
+                if dropped and i in dropped:
+                    continue
                 r = rows[i][min(k, last[i])]
                 try:
                     sends[i](r)
@@ -268,3 +280,18 @@ class SetpointStreamer:
             t.name: e for t, e in zip(self.targets, errors, strict=True) if e is not None
         }
         return out
+
+
+def _rows_of(setpoints: NedSetpoints) -> list[Setpoint]:
+    """``setpoints`` as plain :class:`Setpoint` rows."""
+    return [
+        Setpoint(*row)
+        for row in np.column_stack(
+            [
+                setpoints.pos_ned_m,
+                setpoints.vel_ned_m_s,
+                setpoints.acc_ned_m_s2,
+                np.degrees(setpoints.yaw_ned_rad),
+            ]
+        ).tolist()
+    ]

@@ -172,6 +172,7 @@ def sharpen(
     deadline: float,
     on_iteration: Callable[[np.ndarray, float], None] | None,
     screen: Screen | None = None,
+    fixed: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[Structure, Attempt, dict[str, np.ndarray], float] | None:
     """Solve again from ``best`` with the smooth leaves' box predicates at the leaves' own
     sharpness (:func:`planner.solve.nlp.build_structure` with ``sharp``: a box is smoothed exactly as its
@@ -184,7 +185,8 @@ def sharpen(
     plan's margin is within that error the smoothing, not the geometry, decides it (stlpy's
     stepping stones, regions: 0.0003, and 0.0527, the certified optimum, sharpened).
     The solve stops at ``deadline``; ``on_iteration`` is the plan's progress callback; the
-    NLP keeps the row-wise steps of ``screen`` (:mod:`planner.solve.screen`), if given."""
+    NLP keeps the row-wise steps of ``screen`` (:mod:`planner.solve.screen`), if given, and
+    the decisions ``fixed`` (indices, values: a replan's kept prefix) at their values."""
     built: list[float] = []
 
     def build() -> Structure:
@@ -196,6 +198,8 @@ def sharpen(
 
     sharp, _ = STRUCTURES.get_or_build(structure_key(problem, sharp=True, screen=screen), build)
     lbx, ubx = sharp.lbx.copy(), sharp.ubx.copy()
+    if fixed is not None:
+        lbx[fixed[0]] = ubx[fixed[0]] = fixed[1]
     if problem.solver.robustness_constraint:
         lower_r(lbx, ubx, problem.epsilon + sharp.margin)
     sharp_bounds = {**bounds, "lbx": lbx, "ubx": ubx}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -46,11 +47,29 @@ def test_upload_reaches_signed_vehicles_only_with_the_key(
     assert all(not v.mission_items(0) for v in fleet.vehicles)
     assert sum(v.signing_rejected for v in fleet.vehicles) > 0
     capsys.readouterr()
-    rejected_before = [v.signing_rejected for v in fleet.vehicles]
+    # The refused transfer's last datagrams may still be on their way to the vehicles (its
+    # MAVSDK server stops after the command returns): count once they have stopped coming.
+    rejected_before = _settled_rejections(fleet)
     # Signed through the proxies: stored and read back, nothing more rejected.
     assert main(["upload", str(PLAN), "--signing-key", str(key_file), *connections]) == 0
     assert all(v.mission_items(0) for v in fleet.vehicles)
     assert [v.signing_rejected for v in fleet.vehicles] == rejected_before
+
+
+def _settled_rejections(
+    fleet: MockFleet, quiet_s: float = 0.5, within_s: float = 10.0
+) -> list[int]:
+    """Each vehicle's count of rejected unsigned packets once it has not changed for
+    ``quiet_s`` (wall time), or as it is after ``within_s``."""
+    last = [v.signing_rejected for v in fleet.vehicles]
+    t_end = time.monotonic() + within_s
+    t_changed = time.monotonic()
+    while time.monotonic() < t_end and time.monotonic() - t_changed < quiet_s:
+        time.sleep(0.05)
+        now = [v.signing_rejected for v in fleet.vehicles]
+        if now != last:
+            last, t_changed = now, time.monotonic()
+    return last
 
 
 def test_signing_needs_a_connection_the_vehicle_sends_to(

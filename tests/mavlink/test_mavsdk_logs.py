@@ -51,7 +51,9 @@ def test_only_actionable_mavsdk_errors_reach_stderr_and_the_flight_log_keeps_eve
             forward_mavsdk_line(LogLevel.WARN, "Heartbeats from system 3 timed out", "s.cpp", 1)
             forward_mavsdk_line(LogLevel.INFO, "New system on: 127.0.0.1:1", "udp.cpp", 2)
             forward_mavsdk_line(LogLevel.DEBUG, "Component Autopilot added.", "s.cpp", 3)
-            forward_mavsdk_line(LogLevel.ERROR, "Sending message failed", "mavsdk_impl.cpp", 4)
+            forward_mavsdk_line(LogLevel.ERROR, "bind error: Address in use", "udp.cpp", 4)
+            # a send to a silent vehicle, on every heartbeat: the flight reports the lost link
+            forward_mavsdk_line(LogLevel.ERROR, "Sending message failed", "mavsdk_impl.cpp", 7)
         finally:
             mavsdk_instance_opened(False)
         # an instance already destroyed (a command's fleet closed) reports a heartbeat it could
@@ -60,12 +62,12 @@ def test_only_actionable_mavsdk_errors_reach_stderr_and_the_flight_log_keeps_eve
     forward_mavsdk_line(LogLevel.WARN, "Vehicle type changed", "s.cpp", 5)  # after the flight
 
     err = capsys.readouterr().err
-    assert err == "MAVSDK: Sending message failed (mavsdk_impl.cpp:4)\n"
+    assert err == "MAVSDK: bind error: Address in use (udp.cpp:4)\n"
     lines = path.read_text(encoding="utf-8").splitlines()
     levels = [line.split()[2] for line in lines if not line.startswith("See:")]
-    assert levels == ["ERROR", "WARNING", "INFO", "DEBUG", "ERROR", "ERROR"]
+    assert levels == ["ERROR", "WARNING", "INFO", "DEBUG", "ERROR", "ERROR", "ERROR"]
     text = "\n".join(lines)
-    for said in (DROPPING, "timed out", "New system", "Autopilot added", "Sending message"):
+    for said in (DROPPING, "timed out", "New system", "Autopilot added", "bind", "Sending message"):
         assert said in text
     assert "Vehicle type changed" not in text  # the file is the flight's only
     assert (MAVSDK_LOG.level, MAVSDK_LOG.propagate) == (level, propagate)

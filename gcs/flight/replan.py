@@ -1,0 +1,308 @@
+"""``gcs fly --replan``: plan the rest of the mission when a vehicle leaves the flight.
+
+The flight engine (:func:`mavlink.flight.fly`) hands the vehicles that left (a link silent
+for longer than PX4's offboard-loss time, or a vehicle its own failsafe took: Return, Land,
+Hold) to :class:`FlightReplanner`, which plans the rest for the others with
+:func:`planner.replan.replan`: from the switch time (the first waypoint at least
+``budget_s`` after the departure was seen), the waypoints before it kept, the spec amended
+(clauses discharged, taken over, dropped with the vehicle; a keep-out where it stops), within
+the time to the switch.  A plan that meets what is left of the spec is streamed from the
+switch time; otherwise the flight stops with the reason.  Each replan is recorded
+(:class:`ReplanRecord`: the report's and ``--json``'s ``replans``), and the flight is judged
+on the spec as last amended (:attr:`FlightReplanner.judged_plan`).
+
+The scenario the plan was made from gives what the plan file does not carry (the timing
+grid, the model, the solver's settings); :func:`replan_problem` checks that the plan's
+trajectories are on that scenario's waypoint grid, so that the kept part is the plan itself.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from gcs.errors import UserError
+from gcs.flight.evaluation import reads_heading
+from mavlink.flight import NewPlan
+from mavlink.monitor_findings import VehicleLeft, Verdict, always_clauses
+from mavlink.px4_modes import Px4Mode
+from planner.dynamics.prefix import PrefixError, decisions_of
+from planner.planfile import plan_formula
+from planner.problem import Clause, Problem
+from planner.replan import Departure, ReplanError, replan, switch_time
+from planner.scenario import load_scenario
+from planner.scenario.sections import ScenarioError
+from planner.solve.plan_check import initial_states, make_model
+
+if TYPE_CHECKING:
+    from planner.planfile import Plan
+    from planner.trajectory import Trajectory
+
+__all__ = ["DEFAULT_BUDGET_S", "FlightReplanner", "ReplanRecord", "replan_problem"]
+
+#: The time (s, the plan's) between seeing a departure and the switch to the new plan.
+DEFAULT_BUDGET_S = 3.0
+#: What the switch keeps free after the solve (s, the plan's): the new setpoints are sampled
+#: and spliced into the stream before the switch time.
+SWITCH_MARGIN_S = 0.3
+#: A plan's trajectory may differ this much (m) from the chain through its waypoints and
+#: still be replanned (the plan file stores coefficients to about 1e-12).
+GRID_TOLERANCE_M = 1e-4
+
+
+@dataclass(frozen=True, slots=True)
+class ReplanRecord:
+    """One replan in a flight.
+
+    Attributes:
+        event: what happened, for the operator ("d2: link lost").
+        vehicles: the vehicles that left.
+        t_s: plan time the departure was seen.
+        switch_s: plan time the new plan differs from.
+        solve_s: the replan's wall time (s).
+        robustness: the new plan's exact robustness on the amended spec (None: no plan).
+        success: the new plan met what is left of the spec and was flown.
+        discharged, taken_over, dropped: the clauses that read a departed vehicle, by what
+            became of them (:class:`planner.replan.Amendment`).
+        reason: why the flight stopped instead ("" when the new plan was flown).
+    """
+
+    event: str
+    vehicles: tuple[str, ...]
+    t_s: float
+    switch_s: float
+    solve_s: float
+    robustness: float | None
+    success: bool
+    discharged: tuple[str, ...] = ()
+    taken_over: tuple[str, ...] = ()
+    dropped: tuple[str, ...] = ()
+    reason: str = ""
+
+    def to_json(self) -> dict[str, object]:
+        """The record as ``--json`` writes it."""
+
+        def num(x: float | None) -> float | None:
+            return None if x is None or not math.isfinite(x) else round(float(x), 6)
+
+        return {
+            "event": self.event,
+            "vehicles": list(self.vehicles),
+            "t_s": num(self.t_s),
+            "switch_s": num(self.switch_s),
+            "solve_s": num(self.solve_s),
+            "robustness": num(self.robustness),
+            "success": self.success,
+            "discharged": list(self.discharged),
+            "taken_over": list(self.taken_over),
+            "dropped": list(self.dropped),
+            "reason": self.reason,
+        }
+
+
+def replan_problem(plan: Plan, scenario: str | None = None) -> Problem:
+    """The problem to replan ``plan`` with: its scenario (``scenario``, else the file the
+    plan names) with the plan's vehicles, regions and spec.
+
+    Raises:
+        UserError: the scenario cannot be read, is not the plan's (vehicles, horizon), does
+            not plan on the minimum-jerk model, or the plan's trajectories are not on its
+            waypoint grid (one line naming the file).
+    """
+    path = scenario or plan.scenario
+    if not path:
+        raise UserError(f"{plan.input_file}: --replan needs the plan's scenario (--scenario)")
+    try:
+        problem = load_scenario(path, vehicles=len(plan.vehicles))
+    except (OSError, ScenarioError) as exc:
+        raise UserError(f"--replan: cannot read the plan's scenario: {exc}") from None
+    names = [v.name for v in plan.vehicles]
+    if [v.name for v in problem.vehicles] != names:
+        raise UserError(
+            f"{path}: its vehicles ({', '.join(v.name for v in problem.vehicles)}) are not "
+            f"the plan's ({', '.join(names)}): --replan needs the scenario the plan was made from"
+        )
+    if abs(problem.timing.horizon_s - plan.horizon_s) > 1e-9:
+        raise UserError(
+            f"{path}: horizon {problem.timing.horizon_s:g} s, the plan's {plan.horizon_s:g} s: "
+            "--replan needs the scenario the plan was made from"
+        )
+    # the plan's spec, regions and starts (a plan made to a probability has its margins)
+    clauses = problem.clauses
+    if problem.spec_text != plan.spec:
+        clauses = tuple(
+            Clause(f"spec[{i}]", str(c)) for i, c in enumerate(plan_formula(plan).clauses)
+        )
+    vehicles = tuple(
+        dataclasses.replace(
+            v,
+            start_enu_m=(float(p.start_enu_m[0]), float(p.start_enu_m[1]), float(p.start_enu_m[2])),
+        )
+        for v, p in zip(problem.vehicles, plan.vehicles, strict=True)
+    )
+    problem = dataclasses.replace(
+        problem,
+        workspace=plan.workspace,
+        regions=plan.regions,
+        clauses=clauses,
+        vehicles=vehicles,
+        separation_m=plan.separation_m,
+        epsilon=plan.epsilon,
+    )
+    try:
+        model = make_model(problem)
+        x0s = initial_states(problem, model)
+        for pv, x0 in zip(plan.vehicles, x0s, strict=True):
+            chain = model.trajectory(decisions_of(model, pv.trajectory), x0, pv.name)
+            t = np.linspace(0.0, plan.horizon_s, 601)
+            off = float(np.abs(chain.position(t) - pv.trajectory.position(t)).max())
+            if off > GRID_TOLERANCE_M:
+                raise UserError(
+                    f"{plan.input_file}: {pv.name}'s trajectory is {off:.3g} m off the "
+                    f"waypoint grid of {path} (segment_s {problem.timing.segment_s:g}): "
+                    "--replan needs the scenario the plan was made from"
+                )
+    except PrefixError as exc:
+        raise UserError(f"{path}: --replan: {exc}") from None
+    return problem
+
+
+class FlightReplanner:
+    """The :class:`mavlink.flight.Replanner` of ``gcs fly --replan`` (module docstring).
+
+    Args:
+        problem: :func:`replan_problem` of the plan.
+        plan: the plan flown.
+        budget_s: plan seconds from a departure to the switch (``--replan-budget``).
+        note: one line for the operator (the flight's progress view).
+    """
+
+    def __init__(
+        self,
+        problem: Problem,
+        plan: Plan,
+        budget_s: float = DEFAULT_BUDGET_S,
+        note: Callable[[str], None] | None = None,
+    ) -> None:
+        self.problem = problem
+        self.plan = plan
+        self.budget_s = float(budget_s)
+        self.note = note or (lambda _line: None)
+        self.trajectories: dict[str, Trajectory] = {v.name: v.trajectory for v in plan.vehicles}
+        self.records: list[ReplanRecord] = []
+        #: the plan as last amended (None: no replan was flown)
+        self.judged_plan: Plan | None = None
+        self._t0_wall: float | None = None
+        self._t0_clock: float | None = None
+
+    def plan_started(self, t0_monotonic_s: float) -> None:
+        """The flight's start on its clock (to convert the plan's seconds to the wall's:
+        a dry run's clock may run faster)."""
+        self._t0_wall = time.perf_counter()
+        self._t0_clock = t0_monotonic_s
+
+    def _wall_per_plan_s(self, now_s: float) -> float:
+        if self._t0_wall is None or now_s <= 1.0:
+            return 1.0
+        return max(0.05, (time.perf_counter() - self._t0_wall) / now_s)
+
+    def _departure(self, d: VehicleLeft) -> Departure:
+        tr = self.trajectories[d.vehicle]
+        pos = d.position_enu_m
+        if pos is None:
+            pos = tuple(float(x) for x in np.ravel(tr.position(max(d.t_s, 0.0))))  # type: ignore[assignment]
+        home = None
+        if d.mode is Px4Mode.AUTO_RTL:
+            x, y, _ = (float(v) for v in np.ravel(tr.position(0.0)))
+            home = (x, y, 0.0)
+        if d.verdict is Verdict.LINK_LOST:
+            reason = "link lost"
+        else:
+            reason = f"left the flight ({d.mode.name if d.mode is not None else 'another mode'})"
+        assert pos is not None
+        return Departure(d.vehicle, max(d.t_s, 0.0), pos, reason, home)
+
+    async def __call__(self, left: Sequence[VehicleLeft], now_s: float) -> NewPlan | str:
+        departures = [self._departure(d) for d in left]
+        event = "; ".join(f"{d.vehicle}: {d.reason} at t = {d.t_s:.1f} s" for d in departures)
+        names = tuple(d.vehicle for d in departures)
+        switch = switch_time(self.problem, now_s, self.budget_s)
+        horizon = self.problem.timing.horizon_s
+        self.note(f"replanning without {', '.join(names)} ({event}); switch at t = {switch:g} s")
+        if switch >= horizon:
+            return self._refused(
+                event,
+                names,
+                now_s,
+                switch,
+                0.0,
+                None,
+                "no time is left in the plan to switch to another",
+            )
+        limit = max(0.2, (switch - now_s - SWITCH_MARGIN_S) * self._wall_per_plan_s(now_s))
+        t0 = time.perf_counter()
+        try:
+            got = await asyncio.to_thread(
+                replan,
+                self.problem,
+                self.trajectories,
+                departures,
+                switch,
+                time_limit_s=limit,
+            )
+        except ReplanError as exc:
+            return self._refused(
+                event, names, now_s, switch, time.perf_counter() - t0, None, str(exc)
+            )
+        solve_s = time.perf_counter() - t0
+        a, result = got.amendment, got.result
+        kinds = (a.discharged, a.taken_over, a.dropped)
+        if not result.success:
+            why = (
+                f"no plan meets what is left of the spec: the best found has robustness "
+                f"{result.robustness:+.3f} ({result.status})"
+            )
+            return self._refused(
+                event, names, now_s, switch, solve_s, result.robustness, why, kinds
+            )
+        self.records.append(
+            ReplanRecord(event, names, now_s, switch, solve_s, result.robustness, True, *kinds)
+        )
+        self.problem = a.problem
+        self.trajectories = {n: tr for n, tr in self.trajectories.items() if n not in names}
+        self.trajectories.update(got.trajectories)
+        amended = result.to_plan(self.plan.scenario)
+        self.judged_plan = amended
+        self.note(
+            f"replanned in {solve_s:.2f} s: robustness {result.robustness:+.3f} on what is left "
+            f"({len(a.dropped)} clause(s) dropped with {', '.join(names)}, {len(a.taken_over)} "
+            f"taken over, {len(a.discharged)} already met); flying it from t = {switch:g} s"
+        )
+        formula = plan_formula(amended)
+        flying = [v.name for v in amended.vehicles]
+        clauses = always_clauses(formula, flying, exclude=reads_heading)
+        return NewPlan(switch, got.trajectories, clauses)
+
+    def _refused(
+        self,
+        event: str,
+        names: tuple[str, ...],
+        now_s: float,
+        switch: float,
+        solve_s: float,
+        robustness: float | None,
+        why: str,
+        kinds: tuple[tuple[str, ...], tuple[str, ...], tuple[str, ...]] = ((), (), ()),
+    ) -> str:
+        self.records.append(
+            ReplanRecord(event, names, now_s, switch, solve_s, robustness, False, *kinds, why)
+        )
+        self.note(f"replanning failed: {why}")
+        return why

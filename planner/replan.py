@@ -1,0 +1,314 @@
+"""The rest of a plan after vehicles left the flight: the spec amended, the flown part kept.
+
+When a vehicle leaves a flight (its link lost, a failsafe took it), the ground station plans
+the rest of the mission for the vehicles that fly on (``gcs fly --replan``; issue 43).  This
+module is that planning, with no flight in it:
+
+* **The spec as amended** (:func:`amend`).  Each clause that reads a departed vehicle is, in
+  this order: *discharged* if it holds on the plan up to the departure whatever comes after
+  (every vehicle taken as far away after it: an inspection done, a separation kept while it
+  flew); *taken over* if options of an ``or`` in positive position do not read it
+  (the allocation "some drone inspects each pole": the others now must); else *dropped with
+  the vehicle* (its own inspections, its workspace).  Clauses that read no departed vehicle
+  stay as they are, deadlines on the original clock.  Where the vehicle is, or will stop, is
+  a keep-out for the others from the switch time on (a column from the ground to above it,
+  ``separation_m`` wider than the plan's path over the time PX4 takes to stop it, and one over
+  its home when it returns there).
+* **The flown part kept** (:class:`Prefix`).  The new plan is a plan of the whole horizon
+  whose waypoints up to the switch time are fixed to the current plan's (bounds with equal
+  ends in the NLP), so the vehicles fly the same setpoints until the switch and the spec's
+  robustness is judged over the whole mission: windows that have passed are judged on the
+  part flown, ``eventually`` clauses met already stay met (STL progression by fixing the
+  prefix, exact on the planning grid).  It is warm-started from the current plan.
+
+Only the minimum-jerk model (``model: minimum_jerk``) has waypoints to fix; a problem of the
+double integrator is refused (:class:`ReplanError`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from planner.dynamics.prefix import Prefix, warm_start
+from planner.errors import PlannerError
+from planner.optimize import plan
+from planner.problem import Clause, DynamicsModel, Problem
+from planner.results import PlanResult
+from planner.scenario.spec import clause_formulas
+from planner.solve.plan_check import make_model
+from planner.spec.regions import Region, RegionKind
+from planner.stl import Always, And, Eventually, Formula, Or, Until
+from planner.trajectory import Trajectory
+
+__all__ = [
+    "Amendment",
+    "Departure",
+    "Replan",
+    "ReplanError",
+    "amend",
+    "replan",
+    "switch_time",
+]
+
+#: How long after its last sample PX4 may still move a vehicle that left the flight (s): the
+#: offboard-loss timeout COM_OF_LOSS_T (1 s by default) towards its last setpoint, then
+#: braking to a stop (under a second from 5 m/s; docs/px4-behaviour.md); its plan over this
+#: time bounds where it stops.
+STOP_WITHIN_S = 2.0
+#: A far-away position (m) for a departed vehicle's signal after its departure.
+_GONE_M = 1.0e6
+
+
+class ReplanError(PlannerError, ValueError):
+    """A replan that cannot be asked for: the model has no waypoints to fix, a vehicle
+    unknown, no vehicle left, a switch time outside the horizon."""
+
+
+@dataclass(frozen=True, slots=True)
+class Departure:
+    """A vehicle that left the flight.
+
+    Attributes:
+        vehicle: its name.
+        t_s: plan time of its last sample (when it left).
+        position_enu_m: where it was then (mission frame).
+        reason: what happened, for the operator ("link lost", "failsafe: AUTO_RTL").
+        home_enu_m: where it flies to when it returns (None: it stops where it is).
+    """
+
+    vehicle: str
+    t_s: float
+    position_enu_m: tuple[float, float, float]
+    reason: str
+    home_enu_m: tuple[float, float, float] | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Amendment:
+    """The spec for the vehicles that fly on (:func:`amend`).
+
+    Attributes:
+        problem: the amended problem: the vehicles that fly on, the clauses left (pruned where
+            taken over) and the keep-outs of the departed vehicles.
+        switch_s: from when the new plan differs from the current one.
+        departures: who left.
+        discharged, taken_over, dropped: the texts of the clauses that read a departed
+            vehicle, by what became of them (module docstring).
+        keep_outs: the regions added around the departed vehicles.
+    """
+
+    problem: Problem
+    switch_s: float
+    departures: tuple[Departure, ...]
+    discharged: tuple[str, ...]
+    taken_over: tuple[str, ...]
+    dropped: tuple[str, ...]
+    keep_outs: tuple[Region, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class Replan:
+    """A replan's answer: the amendment and the plan of the vehicles that fly on."""
+
+    amendment: Amendment
+    result: PlanResult
+
+    @property
+    def trajectories(self) -> dict[str, Trajectory]:
+        """The new plan's trajectories by vehicle name."""
+        return {tr.name: tr for tr in self.result.trajectories}
+
+
+def switch_time(problem: Problem, now_s: float, budget_s: float) -> float:
+    """The first waypoint time at or after ``now_s + budget_s`` (the new plan may differ
+    only after a fixed waypoint); the horizon if none is left."""
+    seg = problem.timing.segment_s
+    t = math.ceil((now_s + budget_s) / seg - 1e-9) * seg
+    return float(min(max(t, 0.0), problem.timing.horizon_s))
+
+
+# ------------------------------------------------------------------------ the amendment
+
+
+def _prune(f: Formula, gone: frozenset[str]) -> Formula | None:
+    """``f`` without the options that read ``gone`` (``or`` in positive position only);
+    None where what is left still reads them."""
+    if not (f.signal_names() & gone):
+        return f
+    if isinstance(f, Or):
+        kept = [g for g in (_prune(c, gone) for c in f.operands) if g is not None]
+        if not kept:
+            return None
+        return kept[0] if len(kept) == 1 else Or(tuple(kept))
+    if isinstance(f, And):
+        parts = [_prune(c, gone) for c in f.operands]
+        return None if any(p is None for p in parts) else And(tuple(p for p in parts if p))
+    if isinstance(f, (Always, Eventually)):
+        child = _prune(f.child, gone)
+        return None if child is None else dataclasses.replace(f, child=child)
+    if isinstance(f, Until):
+        lhs, rhs = _prune(f.lhs, gone), _prune(f.rhs, gone)
+        if lhs is None or rhs is None:
+            return None
+        return dataclasses.replace(f, lhs=lhs, rhs=rhs)
+    return None  # an atom, a negation or an implication that reads a departed vehicle
+
+
+def _signals_until(
+    trajectories: Mapping[str, Trajectory], until_s: float, t: np.ndarray
+) -> dict[str, np.ndarray]:
+    """Every vehicle's planned positions at ``t`` up to ``until_s``, and after it each far away
+    from everything (and from each other): a clause that holds on these holds on what was
+    flown before ``until_s``, whatever comes after."""
+    out = {}
+    for k, (name, tr) in enumerate(sorted(trajectories.items())):
+        sig = np.array(tr.position(t), dtype=float)
+        sig[t > until_s] = (_GONE_M * (k + 1), 0.0, 0.0)
+        out[name] = sig
+    return out
+
+
+def _keep_outs(
+    problem: Problem,
+    trajectories: Mapping[str, Trajectory],
+    departures: Sequence[Departure],
+) -> list[Region]:
+    """A column per departed vehicle over where it may stop (and one over its home when it
+    returns), ``separation_m`` wider, from the ground to ``separation_m`` above."""
+    sep = max(problem.separation_m, 0.0)
+    floor = min(0.0, problem.workspace.lo_enu_m[2])
+    out = []
+    for d in departures:
+        tr = trajectories[d.vehicle]
+        t = np.linspace(d.t_s, min(d.t_s + STOP_WITHIN_S, tr.duration_s), 16)
+        pts = np.vstack([tr.position(t), np.asarray(d.position_enu_m, dtype=float)[None]])
+        places = [pts]
+        if d.home_enu_m is not None:
+            places.append(np.asarray(d.home_enu_m, dtype=float)[None])
+        for j, p in enumerate(places):
+            lo, hi = p.min(axis=0) - sep, p.max(axis=0) + sep
+            name = f"left_{d.vehicle}" if j == 0 else f"left_{d.vehicle}_home"
+            out.append(
+                Region(
+                    name,
+                    RegionKind.OBSTACLE,
+                    (float(lo[0]), float(lo[1]), float(floor)),
+                    (float(hi[0]), float(hi[1]), float(max(hi[2], pts[:, 2].max() + sep))),
+                )
+            )
+    return out
+
+
+def amend(
+    problem: Problem,
+    trajectories: Mapping[str, Trajectory],
+    departures: Sequence[Departure],
+    switch_s: float,
+) -> Amendment:
+    """The spec for the vehicles that fly on after ``departures`` (module docstring).
+
+    Args:
+        problem: the current plan's problem.
+        trajectories: the current plan, by vehicle name (every vehicle of ``problem``).
+        departures: the vehicles that left.
+        switch_s: from when the new plan may differ (the keep-outs hold from then on).
+
+    Raises:
+        ReplanError: a departed vehicle unknown, none left to fly on, or ``switch_s`` outside
+            the horizon.
+    """
+    names = {v.name for v in problem.vehicles}
+    gone = frozenset(d.vehicle for d in departures)
+    if not gone <= names:
+        raise ReplanError(f"unknown vehicle(s) {', '.join(sorted(gone - names))}")
+    if gone == names:
+        raise ReplanError("no vehicle is left to fly on")
+    horizon = problem.timing.horizon_s
+    if not 0.0 <= switch_s <= horizon:
+        raise ReplanError(f"switch time {switch_s:g} s outside the horizon [0, {horizon:g}] s")
+    missing = names - set(trajectories)
+    if missing:
+        raise ReplanError(f"no trajectory for {', '.join(sorted(missing))}")
+    formulas = clause_formulas(problem)
+    dt = problem.timing.check_dt_s
+    t = np.arange(round(horizon / dt) + 1) * dt
+    sig = _signals_until(trajectories, min(d.t_s for d in departures), t)
+    kept: list[Clause] = []
+    discharged, taken, dropped = [], [], []
+    for clause, f in zip(problem.clauses, formulas, strict=True):
+        if not (f.signal_names() & gone):
+            kept.append(clause)
+            continue
+        if f.robustness(sig, dt) > 0.0:
+            discharged.append(clause.text)
+            continue
+        pruned = _prune(f, gone)
+        if pruned is None:
+            dropped.append(clause.text)
+        else:
+            taken.append(clause.text)
+            kept.append(Clause(clause.key_path, str(pruned)))
+    regions = _keep_outs(problem, trajectories, departures)
+    flying = tuple(v for v in problem.vehicles if v.name not in gone)
+    for r in regions:
+        for v in flying:
+            kept.append(
+                Clause(
+                    f"replan.keep_out({r.name})",
+                    f"always[{switch_s:g}, {horizon:g}] outside({v.name}, {r.name})",
+                )
+            )
+    amended = dataclasses.replace(
+        problem,
+        vehicles=flying,
+        groups={g: tuple(n for n in m if n not in gone) for g, m in problem.groups.items()},
+        regions=(*problem.regions, *regions),
+        clauses=tuple(kept),
+    )
+    return Amendment(
+        amended,
+        float(switch_s),
+        tuple(departures),
+        tuple(discharged),
+        tuple(taken),
+        tuple(dropped),
+        tuple(regions),
+    )
+
+
+def replan(
+    problem: Problem,
+    trajectories: Mapping[str, Trajectory],
+    departures: Sequence[Departure],
+    switch_s: float,
+    *,
+    time_limit_s: float | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> Replan:
+    """Plan the rest of the mission for the vehicles that fly on (module docstring): the
+    amended spec, every waypoint up to ``switch_s`` fixed to ``trajectories``, warm-started
+    from them, within ``time_limit_s``.  The result is checked like any plan (its
+    ``success``)."""
+    if problem.model is not DynamicsModel.MINIMUM_JERK:
+        raise ReplanError(
+            "replanning keeps the flown part's waypoints, which only the minimum-jerk model "
+            "has (model: minimum_jerk)"
+        )
+    amendment = amend(problem, trajectories, departures, switch_s)
+    amended = amendment.problem
+    model = make_model(amended)
+    names = [v.name for v in amended.vehicles]
+    guess = warm_start(model, names, trajectories)
+    result = plan(
+        amended,
+        initial_guess=guess,
+        prefix=Prefix(switch_s, {n: trajectories[n] for n in names}),
+        time_limit_s=time_limit_s,
+        progress=progress,
+    )
+    return Replan(amendment, result)
