@@ -253,6 +253,7 @@ def run(args: argparse.Namespace) -> int:
     progress = FlightProgress(plan, out)
     if replanner is not None:
         replanner.note = progress.note
+        replanner.on_new_plan = progress.replanned
         options = replace(options, replanner=replanner)
 
     def fly(urls: list[str] | None, clock: Clock = WALL) -> FlightOutcome:

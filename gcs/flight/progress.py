@@ -78,41 +78,56 @@ class FlightProgress:
         tty: bool | None = None,
         plain_interval_s: float = 2.0,
     ) -> None:
-        from planner.stl.batch import ClauseBatch
-
-        self.plan = plan
         self.stream = stream if stream is not None else sys.stdout
         self.tty = self.stream.isatty() if tty is None else tty
         self.plain_interval_s = plain_interval_s
-        self.phi = plan_formula(plan)
         self.dt_s = max(plan.check_dt_s, 0.05)
         n = round(plan.horizon_s / self.dt_s) + 1
         self.t_grid = np.arange(n) * self.dt_s
-        from planner.planfile import planned_signals
-
-        # with the heading as a fourth column where the spec reads it (face)
-        self.planned = planned_signals(plan, self.t_grid)
-        self._heading = heading_readers(self.phi)
-        names = [v.name for v in plan.vehicles]
-        clauses = list(self.phi.clauses)
-        self._batch = ClauseBatch(clauses)
-        self._members = {
-            name: np.array([i for i, c in enumerate(clauses) if name in c.signal_names()], int)
-            for name in names
-        }
-        self._samples: dict[str, list[tuple[float, ...]]] = {n: [] for n in names}
-        # the signals: flown up to _filled[name] grid steps, planned after
-        self._signals = {name: p.copy() for name, p in self.planned.items()}
-        self._filled = dict.fromkeys(names, 0)
+        #: every vehicle flown, in plan order, and those that left it (``gcs fly --replan``)
+        self.order = [v.name for v in plan.vehicles]
+        self.left: dict[str, str] = {}
+        self._samples: dict[str, list[tuple[float, ...]]] = {n: [] for n in self.order}
         self._headless: set[str] = set()  # flown without a known heading the spec reads
-        self._reads_heading = {
-            name: np.array([i for i, c in enumerate(clauses) if name in heading_readers(c)], int)
-            for name in names
-        }
         self._lock = threading.Lock()  # record() and so_far() may run on different threads
         self._maps: dict[GeodeticPoint, NedToEnuMap] = {}  # per EKF origin
         self.lines = 0
         self.last_line = ""
+        self._load(plan)
+
+    def _load(self, plan: Plan) -> None:
+        """The plan's signals and clauses (the flown samples so far written in again)."""
+        from planner.planfile import planned_signals
+        from planner.stl.batch import ClauseBatch
+
+        phi = plan_formula(plan)
+        # with the heading as a fourth column where the spec reads it (face)
+        planned = planned_signals(plan, self.t_grid)
+        names = [v.name for v in plan.vehicles]
+        clauses = list(phi.clauses)
+        members = {
+            name: np.array([i for i, c in enumerate(clauses) if name in c.signal_names()], int)
+            for name in names
+        }
+        reads_heading = {
+            name: np.array([i for i, c in enumerate(clauses) if name in heading_readers(c)], int)
+            for name in names
+        }
+        with self._lock:
+            self.plan, self.phi, self.planned = plan, phi, planned
+            self._heading = heading_readers(phi)
+            self._batch = ClauseBatch(clauses)
+            self._members = members
+            self._reads_heading = reads_heading
+            # the signals: flown up to _filled[name] grid steps, planned after
+            self._signals = {name: p.copy() for name, p in planned.items()}
+            self._filled = dict.fromkeys(names, 0)
+
+    def replanned(self, plan: Plan, left: Mapping[str, str]) -> None:
+        """Show the plan made after vehicles left (``left``: name -> why) from now on: the
+        others' distances to it and their clauses of it; the vehicles that left as such."""
+        self.left.update(left)
+        self._load(plan)
 
     def _fill(self, name: str, t_now_s: float) -> None:
         """Write the flown positions into the grid steps up to ``t_now_s`` not yet written
@@ -147,14 +162,17 @@ class FlightProgress:
 
     def so_far(self, t_now_s: float) -> dict[str, float]:
         """Robustness so far per vehicle (see class docstring) at plan time ``t_now_s``."""
-        for name in self._signals:
+        signals = self._signals
+        for name in signals:
             self._fill(name, t_now_s)
-        values = self._batch.values(self._signals, self.dt_s)
+        batch, members, reads_heading = self._batch, self._members, self._reads_heading
+        values = batch.values(signals, self.dt_s)
         for name in self._headless:
-            values[self._reads_heading[name]] = math.nan
+            if name in reads_heading:
+                values[reads_heading[name]] = math.nan
         return {
             name: float(values[idx].min()) if idx.size else math.nan
-            for name, idx in self._members.items()
+            for name, idx in members.items()
         }
 
     def record(
@@ -185,7 +203,12 @@ class FlightProgress:
         now = fleet.clock.monotonic()
         parts = []
         t_plan: float | None = None
-        for v in self.plan.vehicles:
+        plan = self.plan
+        for name in self.order:
+            if name in self.left:
+                parts.append(f"{name} left ({self.left[name]})")
+                continue
+            v = plan.vehicle(name)
             st = fleet[v.name].status(now)
             mode = st.mode.label if st.mode is not None else str(st.custom_mode)
             t = starts.plan_time(v.name, now)
@@ -209,10 +232,12 @@ class FlightProgress:
         if t_plan is not None and with_robustness:
             rho = self.so_far(t_plan)
             parts = [
-                f"{p} rho n/a (no heading)"
-                if v.name in self._headless and math.isnan(rho[v.name])
-                else f"{p} rho {rho[v.name]:+.3f}"
-                for p, v in zip(parts, self.plan.vehicles, strict=True)
+                p
+                if name not in rho
+                else f"{p} rho n/a (no heading)"
+                if name in self._headless and math.isnan(rho[name])
+                else f"{p} rho {rho[name]:+.3f}"
+                for p, name in zip(parts, self.order, strict=True)
             ]
             head = f"t {min(t_plan, self.plan.horizon_s):5.1f}/{self.plan.horizon_s:g} s"
         else:

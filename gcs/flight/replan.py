@@ -22,7 +22,7 @@ import asyncio
 import dataclasses
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -182,6 +182,8 @@ class FlightReplanner:
         plan: the plan flown.
         budget_s: plan seconds from a departure to the switch (``--replan-budget``).
         note: one line for the operator (the flight's progress view).
+        on_new_plan: called with the plan as amended and the vehicles that left (name ->
+            why) when a new plan is flown (the progress view shows it from then on).
     """
 
     def __init__(
@@ -190,11 +192,13 @@ class FlightReplanner:
         plan: Plan,
         budget_s: float = DEFAULT_BUDGET_S,
         note: Callable[[str], None] | None = None,
+        on_new_plan: Callable[[Plan, Mapping[str, str]], None] | None = None,
     ) -> None:
         self.problem = problem
         self.plan = plan
         self.budget_s = float(budget_s)
         self.note = note or (lambda _line: None)
+        self.on_new_plan = on_new_plan
         self.trajectories: dict[str, Trajectory] = {v.name: v.trajectory for v in plan.vehicles}
         self.records: list[ReplanRecord] = []
         #: the plan as last amended (None: no replan was flown)
@@ -280,6 +284,8 @@ class FlightReplanner:
         self.trajectories.update(got.trajectories)
         amended = result.to_plan(self.plan.scenario)
         self.judged_plan = amended
+        if self.on_new_plan is not None:
+            self.on_new_plan(amended, {d.vehicle: d.reason for d in departures})
         self.note(
             f"replanned in {solve_s:.2f} s: robustness {result.robustness:+.3f} on what is left "
             f"({len(a.dropped)} clause(s) dropped with {', '.join(names)}, {len(a.taken_over)} "

@@ -3,6 +3,7 @@ scratch: flown positions up to now, the plan after, every clause of the vehicle.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -58,6 +59,31 @@ def test_the_incremental_view_gives_the_definition_at_every_update() -> None:
                 assert got[name] == want[name], (t, name)
             checked += 1
     assert checked > 10
+
+
+def test_after_a_replan_the_view_judges_the_new_plan_and_shows_who_left() -> None:
+    plan = load_plan(PLANS / "reach_avoid_4.plan.json")
+    view = FlightProgress(plan, tty=False)
+    samples: dict[str, list] = {v.name: [] for v in plan.vehicles}
+    for k in range(1, 31):  # 3 s of telemetry, 0.3 m off the plan
+        t = 0.1 * k
+        for v in plan.vehicles:
+            p = v.trajectory.position([t])[0] + 0.3
+            view.record(v.name, t, p)
+            samples[v.name].append((t, *p))
+    view.so_far(3.0)
+    # d2 left: the plan of the others, without the clauses that read d2
+    kept = [str(c) for c in plan_formula(plan).clauses if "d2" not in c.signal_names()]
+    amended = dataclasses.replace(
+        plan,
+        vehicles=tuple(v for v in plan.vehicles if v.name != "d2"),
+        spec=" and\n".join(f"({c})" for c in kept),
+    )
+    view.replanned(amended, {"d2": "link lost"})
+    got = view.so_far(3.0)
+    want = definition(view, samples, 3.0)
+    assert got == want and set(got) == {"d1", "d3", "d4"}
+    assert view.order == ["d1", "d2", "d3", "d4"] and view.left == {"d2": "link lost"}
 
 
 @pytest.mark.slow

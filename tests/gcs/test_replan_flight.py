@@ -54,7 +54,7 @@ def test_a_drone_lost_mid_line_is_replanned_around_and_the_others_meet_what_is_l
     [r] = out["replans"]
     assert r["success"] and r["vehicles"] == ["d2"]
     # seen lost about COM_OF_LOSS_T after 10 s; the switch on the 2 s waypoint grid 8 s on
-    assert 11.0 <= r["t_s"] <= 12.0 and r["switch_s"] == pytest.approx(20.0)
+    assert 10.9 <= r["t_s"] <= 12.0 and r["switch_s"] == pytest.approx(20.0)
     assert "eventually[0, 29] always[0, 1] inside(d2, insp4)" in r["dropped"]
     assert "always[0, 30] dist(d1, d2) >= 1.5" in r["discharged"]
     assert r["robustness"] >= 0.01
