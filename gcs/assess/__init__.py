@@ -42,6 +42,7 @@ from gcs.errors import UserError
 from gcs.flight.evaluation import heading_readers, plan_formula, reads_heading
 
 if TYPE_CHECKING:
+    from gcs.assess.replanned import ReplannedRuns, ReplanSettings
     from mavlink.mock.batch import BatchFlights, SimSetup
     from mavlink.mock.disturbances import Distribution
     from mavlink.monitor import SafetyMonitor
@@ -80,6 +81,8 @@ class AssessOptions:
             (the run is flown twice on the same draws: without the monitor, then with it).
         max_off_plan_m: the monitor's off-plan bound, as ``gcs fly --max-off-plan``
             (``None``: none).
+        replan: with ``monitor``, replan the runs stopped on a lost link as ``gcs fly
+            --replan`` would and fly them again (:mod:`gcs.assess.replanned`; ``None``: no).
     """
 
     runs: int
@@ -95,6 +98,7 @@ class AssessOptions:
     worst: int = 5
     monitor: bool = False
     max_off_plan_m: float | None = 3.0
+    replan: ReplanSettings | None = None
 
     def __post_init__(self) -> None:
         bound = self.max_off_plan_m
@@ -108,6 +112,8 @@ class AssessOptions:
             raise UserError(f"--workers: must be a whole number >= 0, got {self.workers!r}")
         if not (isinstance(self.seed, int) and self.seed >= 0):
             raise UserError(f"--seed: must be a whole number >= 0, got {self.seed!r}")
+        if self.replan is not None and not self.monitor:
+            raise UserError("--replan: with --monitor only (the monitor hands a lost vehicle over)")
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -126,6 +132,7 @@ class BatchOutcome:
         draws: per disturbance ``(R,)`` (per run) or ``(R, V)`` (per vehicle).
         sim_s: seconds the batch took to fly and judge.
         monitored: with the safety monitor, the same runs flown under it.
+        replanned: with ``--replan``, those runs with the lost vehicles replanned around.
     """
 
     index: int
@@ -139,6 +146,7 @@ class BatchOutcome:
     draws: dict[str, np.ndarray]
     sim_s: float
     monitored: MonitoredRuns | None = None
+    replanned: ReplannedRuns | None = None
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -247,6 +255,7 @@ def fly_batch(
     first_lost = flights.lost_s.min(axis=1)
     first_lost = np.where(np.isinf(first_lost), np.nan, first_lost)
     monitored = None
+    replanned = None
     if monitor is not None:
         watched, clause_index = monitor.build(plan)
         again = simulate(setup, seeds, dists, monitor=watched)
@@ -264,6 +273,12 @@ def fly_batch(
             stop_clause=stop_clause,
             stop_value=again.stop.value,
         )
+        if monitor.replan is not None:
+            from gcs.assess.replanned import replan_runs
+
+            replanned = replan_runs(
+                plan, monitor.replan, seeds, dists, flights, again, monitor.max_off_plan_m
+            )
     return BatchOutcome(
         index=index,
         seeds=flights.seeds,
@@ -276,14 +291,17 @@ def fly_batch(
         draws={k: (v[:, 0] if v.shape[1] == 1 else v) for k, v in flights.draws.items()},
         sim_s=time.perf_counter() - t0,
         monitored=monitored,
+        replanned=replanned,
     )
 
 
 @dataclass(frozen=True, slots=True)
 class MonitorSettings:
-    """The safety monitor of a campaign, as ``gcs fly`` sets it up (what a task is sent)."""
+    """The safety monitor of a campaign, as ``gcs fly`` sets it up (what a task is sent),
+    and how it replans (``None``: it does not)."""
 
     max_off_plan_m: float | None
+    replan: ReplanSettings | None = None
 
     def build(self, plan: Plan) -> tuple[SafetyMonitor, np.ndarray]:
         """The monitor, and for each of its clauses the index of its top-level clause."""
@@ -340,7 +358,7 @@ def assess(
         UserError: bad options or distributions, an unreachable Ray address.
     """
     setup, dists, seeds = prepare_campaign(plan, opts)
-    watch = MonitorSettings(opts.max_off_plan_m) if opts.monitor else None
+    watch = MonitorSettings(opts.max_off_plan_m, opts.replan) if opts.monitor else None
     t0 = time.perf_counter()
     outcomes: list[BatchOutcome] = []
     interrupted = False

@@ -89,6 +89,94 @@ class RunSummary:
 
 
 @dataclass(frozen=True, slots=True)
+class ReplanSummary:
+    """``gcs assess --replan``: the runs the monitor stopped on a lost link, replanned.
+
+    A run *completes* when the flight ends without a stop and the spec it is judged on holds
+    (true positions): the spec itself without replanning; with it, where a new plan was
+    flown, the spec as amended (what ``gcs fly --replan`` judges; its exit status 0).
+
+    Attributes:
+        lost_links: runs the monitor stopped on a lost link.
+        tried: of these, those with a vehicle left to fly on (replanned).
+        flown: replans whose plan met what was left of the spec (flown again).
+        completed_flown: of the flown, the runs that completed.
+        solve_s_median, solve_s_max: the replans' wall time (NaN: none).
+        without, p_without, ci_without: runs that complete without replanning.
+        with_, p_with, ci_with: with it.
+    """
+
+    lost_links: int
+    tried: int
+    flown: int
+    completed_flown: int
+    solve_s_median: float
+    solve_s_max: float
+    without: int
+    p_without: float
+    ci_without: tuple[float, float]
+    with_: int
+    p_with: float
+    ci_with: tuple[float, float]
+
+    def as_json(self) -> dict[str, Any]:
+        """JSON-ready values."""
+        return {
+            "lost_links": self.lost_links,
+            "replanned": self.tried,
+            "flown": self.flown,
+            "completed_flown": self.completed_flown,
+            "solve_s_median": _finite(self.solve_s_median),
+            "solve_s_max": _finite(self.solve_s_max),
+            "completed_without": self.without,
+            "p_completed_without": self.p_without,
+            "ci95_without": list(self.ci_without),
+            "completed_with": self.with_,
+            "p_completed_with": self.p_with,
+            "ci95_with": list(self.ci_with),
+        }
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def _replan_summary(outcomes: Sequence[BatchOutcome]) -> ReplanSummary | None:
+    from mavlink.monitor_findings import RunFindings, Verdict
+
+    if not outcomes or any(o.replanned is None or o.monitored is None for o in outcomes):
+        return None
+    mon = [o.monitored for o in outcomes if o.monitored is not None]
+    rep = [o.replanned for o in outcomes if o.replanned is not None]
+    code = np.concatenate([m.stop_code for m in mon])
+    m_true = np.concatenate([m.true for m in mon])
+    tried = np.concatenate([r.tried for r in rep])
+    flown = np.concatenate([r.flown for r in rep])
+    stopped = np.concatenate([r.stopped for r in rep])
+    r_true = np.concatenate([r.true for r in rep])
+    solve = np.concatenate([r.solve_s for r in rep])
+    n = int(code.size)
+    without = int(((code == 0) & (m_true > 0)).sum())
+    done = ~stopped & (r_true > 0)
+    with_ = int(done.sum())
+    solved = solve[np.isfinite(solve)]
+    return ReplanSummary(
+        lost_links=int((code == RunFindings.code_of(Verdict.LINK_LOST)).sum()),
+        tried=int(tried.sum()),
+        flown=int(flown.sum()),
+        completed_flown=int((done & flown).sum()),
+        solve_s_median=float(np.median(solved)) if solved.size else math.nan,
+        solve_s_max=float(solved.max()) if solved.size else math.nan,
+        without=without,
+        p_without=without / n if n else math.nan,
+        ci_without=clopper_pearson(without, n),
+        with_=with_,
+        p_with=with_ / n if n else math.nan,
+        ci_with=clopper_pearson(with_, n),
+    )
+
+
+@dataclass(frozen=True, slots=True)
 class MonitorSummary:
     """What ``gcs fly``'s safety monitor did over the campaign (``gcs assess --monitor``):
     every run was flown twice on the same draws, without the monitor and under it.
@@ -195,6 +283,8 @@ class AssessResult:
     monitor: MonitorSummary | None = None
     #: runs where a vehicle was lost (disturbance ``lost``)
     lost: int = 0
+    #: with ``--replan``, what replanning did
+    replan: ReplanSummary | None = None
 
     @property
     def runs_per_s(self) -> float:
@@ -243,6 +333,7 @@ class AssessResult:
                 for w in self.worst
             ],
             "monitor": None if self.monitor is None else self.monitor.as_json(self.clauses),
+            "replan": None if self.replan is None else self.replan.as_json(),
             "disturbances": self.disturbances,
             "engine": self.engine,
             "elapsed_s": self.elapsed_s,
@@ -377,6 +468,7 @@ def summarise(
         interrupted=interrupted,
         seed=opts.seed,
         monitor=_monitor_summary(phi, outcomes, true, c_true),
+        replan=_replan_summary(outcomes),
     )
 
 

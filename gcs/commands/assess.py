@@ -73,6 +73,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "the flight, why, and whether the stops were needed")  # fmt: skip
     p.add_argument("--max-off-plan", type=float, default=3.0, metavar="M",
                    help="with --monitor: its off-plan bound, as gcs fly (default 3 m; 0: none)")  # fmt: skip
+    p.add_argument(
+        "--replan",
+        action="store_true",
+        help="with --monitor: replan the runs stopped on a lost link as gcs fly "
+        "--replan would, and fly them again (docs/replanning.md)",
+    )
+    p.add_argument(
+        "--replan-budget",
+        type=float,
+        default=3.0,
+        metavar="S",
+        help="--replan: plan seconds from a loss seen to the switch (3)",
+    )
+    p.add_argument("--scenario", metavar="FILE",
+                   help="--replan: the scenario the plan was made from (default: the one it names)")  # fmt: skip
     p.add_argument("-o", "--out", metavar="DIR", help="write report.json, runs.csv, assess.png")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--replay", type=int, metavar="SEED", help="fly the run with this seed again")
@@ -80,7 +95,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with --replay: fly its disturbances on real-time mock vehicles")  # fmt: skip
 
 
-def _options(args: argparse.Namespace) -> Any:
+def _options(args: argparse.Namespace, plan: Plan) -> Any:
     from gcs.assess import AssessOptions
     from gcs.errors import UserError
 
@@ -95,6 +110,15 @@ def _options(args: argparse.Namespace) -> Any:
         raise UserError("--realtime needs --replay SEED")
     if not (math.isfinite(args.max_off_plan) and args.max_off_plan >= 0):
         raise UserError(f"--max-off-plan: must be a number >= 0 m, got {args.max_off_plan:g}")
+    if not (math.isfinite(args.replan_budget) and args.replan_budget > 0):
+        raise UserError(f"--replan-budget: must be a number > 0 s, got {args.replan_budget:g}")
+    for flag, given in (("--replan-budget", args.replan_budget != 3.0), ("--scenario", args.scenario)):  # fmt: skip
+        if given and not args.replan:
+            raise UserError(f"{flag}: only with --replan")
+    if args.replan and not args.monitor:
+        raise UserError("--replan: with --monitor only (the monitor hands a lost vehicle over)")
+    if args.replan and args.replay is not None:
+        raise UserError("--replan: not with --replay (a replayed run is flown without replanning)")
     return AssessOptions(
         runs=args.runs,
         seed=args.seed,
@@ -108,6 +132,21 @@ def _options(args: argparse.Namespace) -> Any:
         ray_address=args.ray_address,
         monitor=args.monitor,
         max_off_plan_m=args.max_off_plan or None,
+        replan=_replan_settings(args, plan) if args.replan else None,
+    )
+
+
+def _replan_settings(args: argparse.Namespace, plan: Plan) -> Any:
+    from gcs.assess.replanned import ReplanSettings
+    from gcs.flight.replan import replan_problem
+
+    return ReplanSettings(
+        problem=replan_problem(plan, args.scenario),
+        budget_s=args.replan_budget,
+        profile=args.profile,
+        params=parse_param_overrides(args.param, "--param"),
+        rate_hz=args.rate,
+        drag_per_s=args.drag,
     )
 
 
@@ -196,6 +235,8 @@ def format_result(plan_name: str, r: AssessResult) -> str:
         lines.append(f"vehicles lost (disturbance lost): in {r.lost} run(s)")
     if r.monitor is not None:
         lines.extend(_format_monitor(r))
+    if r.replan is not None:
+        lines.extend(_format_replan(r))
     failing = sorted(
         (c for c in r.clauses if c.failures or c.failures_reported),
         key=lambda c: -c.failures,
@@ -219,6 +260,23 @@ def format_result(plan_name: str, r: AssessResult) -> str:
                 f"  weakest: {weakest}"
             )
     return "\n".join(lines)
+
+
+def _format_replan(r: AssessResult) -> list[str]:
+    q = r.replan
+    assert q is not None
+    solve = (
+        f"; replans took {q.solve_s_median:.2f} s (median), {q.solve_s_max:.2f} s at most"
+        if math.isfinite(q.solve_s_median)
+        else ""
+    )
+    return [
+        f"replanning (--replan): {q.lost_links} run(s) stopped on a lost link, {q.tried} "
+        f"replanned, {q.flown} flown on a new plan, {q.completed_flown} of those completed{solve}",
+        f"  P(flight completes and its judged spec holds) = {q.p_with:.3f} "
+        f"[{q.ci_with[0]:.3f}, {q.ci_with[1]:.3f}] with replanning, {q.p_without:.3f} "
+        f"[{q.ci_without[0]:.3f}, {q.ci_without[1]:.3f}] without",
+    ]
 
 
 def _format_monitor(r: AssessResult) -> list[str]:
@@ -288,8 +346,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if not args.plan:
         raise UserError("gcs assess: a plan file is needed (PLAN.json)")
-    opts = _options(args)
     plan = load_plan(args.plan)
+    opts = _options(args, plan)
     out = sys.stderr if args.json else sys.stdout
     _verify_first(plan, args.plan, sys.stderr)
     if args.replay is not None:

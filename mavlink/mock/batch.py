@@ -330,6 +330,7 @@ def simulate(
     *,
     monitor: SafetyMonitor | None = None,
     block_ticks: int = 250,
+    excused: Sequence[str] = (),
 ) -> BatchFlights:
     """Fly one batch of runs (one per seed) of the plan in ``setup`` under ``dists``.
 
@@ -343,7 +344,9 @@ def simulate(
     change (seen at the next tick), and a lost vehicle's silence towards the ground station
     (disturbance ``lost``: its setpoints stop, but the monitor still reads its state and its
     reported track goes on; the stop comes when its failsafe takes it, COM_OF_LOSS_T after
-    its last setpoint, about when ``gcs fly`` calls the link lost).
+    its last setpoint, about when ``gcs fly`` calls the link lost).  ``excused`` vehicles
+    left the flight before it is flown again (``gcs assess --replan``): their failsafe or
+    silence is no stop.
     """
     n_runs, n_veh = len(seeds), len(setup.names)
     rows = n_runs * n_veh
@@ -462,7 +465,7 @@ def simulate(
     off = np.zeros(rows, dtype=bool)  # no longer flies setpoints (failsafe, or stopped)
     failsafe_s = np.full(rows, np.nan)
     watch = (
-        _MonitorState(monitor, setup, n_runs, n_ticks, settle_ticks, latency, lost_at_s)
+        _MonitorState(monitor, setup, n_runs, n_ticks, settle_ticks, latency, lost_at_s, excused)
         if monitor
         else None
     )
@@ -578,6 +581,7 @@ class _MonitorState:
         settle_ticks: int,
         latency_s: np.ndarray,
         lost_at_s: np.ndarray,
+        excused: Sequence[str] = (),
     ) -> None:
         from mavlink.monitor_findings import RunFindings, SafetyAction, Verdict
 
@@ -601,6 +605,9 @@ class _MonitorState:
         self._silent = RunFindings.code_of(Verdict.LINK_LOST)
         #: per row, when the vehicle's link went silent for good (inf: never)
         self.lost_at_s = lost_at_s
+        #: per vehicle, whether its departure (failsafe, silence) is no stop (it left the
+        #: flight before and the others fly on: ``gcs fly --replan``)
+        self.counts = np.array([n not in excused for n in setup.names], dtype=bool)
 
     def tick(
         self, n: int, phys: FleetPhysics, origin: np.ndarray, failed: np.ndarray, off: np.ndarray
@@ -630,7 +637,7 @@ class _MonitorState:
         # flight's mode check runs before the clauses; one whose link went silent is seen
         # as lost (gcs fly: no telemetry for longer than COM_OF_LOSS_T, as long as PX4 waits
         # before its offboard-loss failsafe)
-        by_run = failed.reshape(self.n_runs, self.n_veh)[live]
+        by_run = failed.reshape(self.n_runs, self.n_veh)[live] & self.counts[None, :]
         left = by_run.any(axis=1)
         silent = (by_run & (self.lost_at_s.reshape(self.n_runs, self.n_veh)[live] <= t_s)).any(
             axis=1

@@ -110,3 +110,32 @@ def test_a_replan_that_cannot_be_asked_for_is_one_line(
     assert main(["fly", str(power_line), "--dry-run", *extra]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and says in err[0], err
+
+
+def test_assess_replans_the_runs_stopped_on_a_lost_link_and_flies_them_again(
+    power_line: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rc = main(
+        ["assess", str(power_line), "--runs", "10", "--workers", "0", "--monitor", "--replan",
+         "-d", "lost=0.5", "--seed", "3", "--json"]
+    )  # fmt: skip
+    assert rc in (0, 1)
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    rp, mon = out["replan"], out["monitor"]
+    stops = {r["why"]: r["runs"] for r in mon["reasons"]}
+    assert rp["lost_links"] == stops.get("a vehicle lost (its link silent)", 0) > 0
+    assert rp["replanned"] <= rp["lost_links"] and rp["flown"] <= rp["replanned"]
+    assert rp["flown"] > 0 and rp["solve_s_median"] > 0
+    # a run that completes without replanning was never stopped on a lost link: it
+    # completes with it too, and replanning can only add runs that complete
+    assert rp["completed_with"] == rp["completed_without"] + rp["completed_flown"]
+
+
+def test_assess_replan_needs_the_monitor(
+    power_line: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    args = ["assess", str(power_line), "--runs", "2", "--workers", "0"]
+    assert main([*args, "--replan"]) == 2
+    assert "--replan: with --monitor only" in capsys.readouterr().err
+    assert main([*args, "--monitor", "--replan-budget", "4"]) == 2
+    assert "--replan-budget: only with --replan" in capsys.readouterr().err
