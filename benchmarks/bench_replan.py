@@ -10,9 +10,14 @@ plan's robustness, the exit status and the flown robustness of the spec as amend
 ``--replan`` every one of these flights ends with the hold when the link is lost
 (``benchmarks/bench_loss.py``).
 
-Printed: a table, then one JSON line.
+Then ``gcs assess --monitor --replan -d lost=P`` of the same plan (each drone lost with
+probability P at a time uniform over the plan), P = 0.02, 0.05, 0.1, ``--runs`` runs each:
+the runs stopped on a lost link, replanned, flown on a new plan, and P(the flight completes and
+the spec it is judged on holds) with and without replanning (``gcs fly``'s exit status 0).
 
-    .venv/bin/python benchmarks/bench_replan.py
+Printed: two tables, then one JSON line.
+
+    .venv/bin/python benchmarks/bench_replan.py --runs 1000
 """
 
 from __future__ import annotations
@@ -48,6 +53,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--budget", type=float, default=3.0, help="--replan-budget (s)")
     ap.add_argument("--speed", type=float, default=1.0, help="the mock's speed (1: real time)")
     ap.add_argument("--plan", default=None, help="a power-line plan file (default: plan it)")
+    ap.add_argument("--runs", type=int, default=1000, help="runs per assessment (0: none)")
+    ap.add_argument("--probabilities", default="0.02,0.05,0.1")
     args = ap.parse_args(argv)
     result: dict[str, Any] = {"bench": "replan", "budget_s": args.budget, "speed": args.speed}
     cases = []
@@ -68,7 +75,8 @@ def main(argv: list[str] | None = None) -> int:
         for name in args.vehicles.split(","):
             for t in args.times.split(","):
                 rc, out, wall = run_cli(
-                    ["fly", plan, "--dry-run", "--json", "--replan",
+                    ["fly", plan, "--dry-run", "--json", "--replan", "--scenario",
+                     str(ROOT / "configs/powerline_inspection.yaml"),
                      "--replan-budget", f"{args.budget:g}", "--speed", f"{args.speed:g}",
                      "--mock-fault", f"{name}:lost@{t}"]
                 )  # fmt: skip
@@ -105,6 +113,29 @@ def main(argv: list[str] | None = None) -> int:
                     + (case["reason"][:90] if not case["replanned"] else ""),
                     flush=True,
                 )
+        result["assess"] = assessments = []
+        if args.runs > 0:
+            print(
+                f"\n{'P(lost)':>7} {'stops':>5} {'replanned':>9} {'flown':>5} {'done':>4} "
+                f"{'solve s':>8} {'P(completes) without':>24} {'with replanning':>24} {'wall s':>7}"
+            )
+        for p in args.probabilities.split(",") if args.runs > 0 else ():
+            rc, out, wall = run_cli(
+                ["assess", plan, "--monitor", "--replan", "-d", f"lost={p}",
+                 "--runs", str(args.runs), "--json", "--scenario",
+                 str(ROOT / "configs/powerline_inspection.yaml")]
+            )  # fmt: skip
+            r = out["replan"]
+            assessments.append({"p_lost": float(p), "wall_s": round(wall, 1), **r})
+            ci0, ci1 = r["ci95_without"], r["ci95_with"]
+            without = f"{r['p_completed_without']:.3f} [{ci0[0]:.3f}, {ci0[1]:.3f}]"
+            with_ = f"{r['p_completed_with']:.3f} [{ci1[0]:.3f}, {ci1[1]:.3f}]"
+            solve = r["solve_s_median"] or 0.0
+            print(
+                f"{float(p):7.2f} {r['lost_links']:5d} {r['replanned']:9d} {r['flown']:5d} "
+                f"{r['completed_flown']:4d} {solve:8.2f} {without:>24} {with_:>24} {wall:7.1f}",
+                flush=True,
+            )
     result["cases"] = cases
     print(json.dumps(result))
     return 0
