@@ -72,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
             f"{'drop/take/met':>13} {'exit':>4} {'flown rho':>9}  why not"
         )
         print(head)
-        for name in args.vehicles.split(","):
+        for name in [n for n in args.vehicles.split(",") if n]:
             for t in args.times.split(","):
                 rc, out, wall = run_cli(
                     ["fly", plan, "--dry-run", "--json", "--replan", "--scenario",

@@ -147,6 +147,7 @@ def report_markdown(
                 ("dropped with the vehicle", rp.dropped),
                 ("taken over by the others", rp.taken_over),
                 ("met before it left", rp.discharged),
+                (f"handed to {rp.reassigned_to}", rp.reassigned),
             ):
                 lines += [f"- {what}: `{_cell(t)}`" for t in texts]
         lines.append("")

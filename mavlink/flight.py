@@ -301,7 +301,13 @@ class Replanner(Protocol):
     """Plans the rest of a flight for the vehicles that fly on (``gcs fly --replan``)."""
 
     async def __call__(self, left: Sequence[VehicleLeft], now_s: float) -> NewPlan | str:
-        """The new plan after ``left`` left at plan time ``now_s``, or why there is none."""
+        """The new plan after ``left`` left at plan time ``now_s`` (none: a replan it asked
+        for itself), or why there is none."""
+        ...
+
+    def attach(self, request: Callable[[], bool] | None) -> None:
+        """Given at the flight's start: ``request()`` begins a replan with no departure (on
+        the event loop; False while one runs or after a stop); None when the flight ends."""
         ...
 
 
@@ -438,6 +444,8 @@ async def fly(
         flown = True
     finally:
         stop.set()
+        if mon.on_departure is not None and replanner is not None:
+            replanner.attach(None)
         for task in replans:
             task.cancel()
         event = await mon_task
@@ -500,6 +508,14 @@ def _departure_handler(
         tasks.append(asyncio.create_task(replan(left, fleet.clock.monotonic() - t0)))
         return True
 
+    def request() -> bool:
+        """A replan with no departure (regions closed); whether it began."""
+        if mon.halted or any(not t.done() for t in tasks):
+            return False
+        tasks.append(asyncio.create_task(replan((), fleet.clock.monotonic() - t0)))
+        return True
+
+    replanner.attach(request)
     return on_departure
 
 

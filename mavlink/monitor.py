@@ -288,6 +288,11 @@ class SafetyMonitor:
         self._halt = (verdict, tuple(vehicles), t_s, detail)
 
     @property
+    def halted(self) -> bool:
+        """Whether :meth:`halt` was called."""
+        return self._halt is not None
+
+    @property
     def checks(self) -> int:
         """Evaluations done in the last run (for tests and reports)."""
         return self.stats.checks

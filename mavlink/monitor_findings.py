@@ -214,8 +214,10 @@ class SafetyEvent:
                 f"the EKF origin of {who} moved at t={self.t_s:.2f} s ({self.detail}): its "
                 "positions and setpoints are no longer in the flight's frame"
             )
-        elif self.verdict is Verdict.NO_REPLAN:
+        elif self.verdict is Verdict.NO_REPLAN and who:
             head = f"{who} left the flight and no new plan was flown ({self.detail})"
+        elif self.verdict is Verdict.NO_REPLAN:
+            head = f"no new plan was flown at t={self.t_s:.2f} s ({self.detail})"
         elif self.verdict is Verdict.OFF_PLAN:
             head = f"{who} off its plan at t={self.t_s:.2f} s ({self.detail})"
         elif self.verdict is Verdict.VIOLATED:

@@ -29,6 +29,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
+import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
@@ -51,6 +53,8 @@ __all__ = [
     "Replan",
     "ReplanError",
     "amend",
+    "reassign",
+    "reassign_candidates",
     "replan",
     "switch_time",
 ]
@@ -100,6 +104,8 @@ class Amendment:
         discharged, taken_over, dropped: the texts of the clauses that read a departed
             vehicle, by what became of them (module docstring).
         keep_outs: the regions added around the departed vehicles.
+        reassigned: the dropped clauses handed to another vehicle (:func:`reassign`), as
+            they were, and ``reassigned_to`` that vehicle (None: none).
     """
 
     problem: Problem
@@ -109,6 +115,8 @@ class Amendment:
     taken_over: tuple[str, ...]
     dropped: tuple[str, ...]
     keep_outs: tuple[Region, ...]
+    reassigned: tuple[str, ...] = ()
+    reassigned_to: str | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -209,8 +217,11 @@ def amend(
     trajectories: Mapping[str, Trajectory],
     departures: Sequence[Departure],
     switch_s: float,
+    keep_outs: Sequence[Region] = (),
 ) -> Amendment:
-    """The spec for the vehicles that fly on after ``departures`` (module docstring).
+    """The spec for the vehicles that fly on after ``departures`` (module docstring), and
+    out of ``keep_outs`` (regions closed in flight, ``gcs fly --live-regions``) from the
+    switch time on.
 
     Args:
         problem: the current plan's problem.
@@ -228,6 +239,12 @@ def amend(
         raise ReplanError(f"unknown vehicle(s) {', '.join(sorted(gone - names))}")
     if gone == names:
         raise ReplanError("no vehicle is left to fly on")
+    if not gone and not keep_outs:
+        raise ReplanError("nothing to replan for: no vehicle left and no region closed")
+    taken = {r.name for r in problem.all_regions}
+    for r in keep_outs:
+        if r.name in taken:
+            raise ReplanError(f"region {r.name!r} is already a region of the plan")
     horizon = problem.timing.horizon_s
     if not 0.0 <= switch_s <= horizon:
         raise ReplanError(f"switch time {switch_s:g} s outside the horizon [0, {horizon:g}] s")
@@ -237,9 +254,9 @@ def amend(
     formulas = clause_formulas(problem)
     dt = problem.timing.check_dt_s
     t = np.arange(round(horizon / dt) + 1) * dt
-    sig = _signals_until(trajectories, min(d.t_s for d in departures), t)
+    sig = _signals_until(trajectories, min((d.t_s for d in departures), default=0.0), t)
     kept: list[Clause] = []
-    discharged, taken, dropped = [], [], []
+    discharged, taken_over, dropped = [], [], []
     for clause, f in zip(problem.clauses, formulas, strict=True):
         if not (f.signal_names() & gone):
             kept.append(clause)
@@ -251,9 +268,9 @@ def amend(
         if pruned is None:
             dropped.append(clause.text)
         else:
-            taken.append(clause.text)
+            taken_over.append(clause.text)
             kept.append(Clause(clause.key_path, str(pruned)))
-    regions = _keep_outs(problem, trajectories, departures)
+    regions = [*_keep_outs(problem, trajectories, departures), *keep_outs]
     flying = tuple(v for v in problem.vehicles if v.name not in gone)
     for r in regions:
         for v in flying:
@@ -275,10 +292,77 @@ def amend(
         float(switch_s),
         tuple(departures),
         tuple(discharged),
-        tuple(taken),
+        tuple(taken_over),
         tuple(dropped),
         tuple(regions),
     )
+
+
+def _own_clauses(amendment: Amendment) -> list[str]:
+    """The dropped clauses that read one departed vehicle and no other vehicle (its own
+    obligations, which another vehicle can take on as they are)."""
+    names = {v.name for v in amendment.problem.vehicles} | {d.vehicle for d in amendment.departures}
+    out = []
+    for text in amendment.dropped:
+        read = {n for n in names if re.search(rf"\b{re.escape(n)}\b", text)}
+        if len(read) == 1:
+            out.append(text)
+    return out
+
+
+def reassign(amendment: Amendment, to: str) -> Amendment:
+    """``amendment`` with the departed vehicles' own dropped clauses (:func:`_own_clauses`)
+    given to vehicle ``to`` as they are, the departed vehicle's name replaced by ``to``."""
+    own = _own_clauses(amendment)
+    gone = [d.vehicle for d in amendment.departures]
+    have = {c.text for c in amendment.problem.clauses}
+    added = []
+    for text in own:
+        new = text
+        for g in gone:
+            new = re.sub(rf"\b{re.escape(g)}\b", to, new)
+        if new not in have:  # the same obligation ``to`` has already (its workspace)
+            have.add(new)
+            added.append(Clause(f"replan.reassigned({to})", new))
+    problem = dataclasses.replace(amendment.problem, clauses=(*amendment.problem.clauses, *added))
+    return dataclasses.replace(
+        amendment,
+        problem=problem,
+        dropped=tuple(t for t in amendment.dropped if t not in own),
+        reassigned=tuple(own),
+        reassigned_to=to,
+    )
+
+
+def reassign_candidates(amendment: Amendment, trajectories: Mapping[str, Trajectory]) -> list[str]:
+    """The vehicles that fly on, nearest first at the switch time to the regions the
+    departed vehicles' own dropped clauses name (none: no clause to hand over)."""
+    own = _own_clauses(amendment)
+    problem = amendment.problem
+    boxes = [
+        r
+        for r in problem.all_regions
+        if any(re.search(rf"\b{re.escape(r.name)}\b", t) for t in own)
+    ]
+    if not own:
+        return []
+
+    def distance(name: str) -> float:
+        p = np.ravel(trajectories[name].position(amendment.switch_s))
+        if not boxes:
+            return 0.0
+        return min(
+            float(
+                np.linalg.norm(
+                    np.maximum(
+                        0.0, np.maximum(np.subtract(r.lo_enu_m, p), np.subtract(p, r.hi_enu_m))
+                    )
+                )
+            )
+            for r in boxes
+        )
+
+    return sorted((v.name for v in problem.vehicles), key=distance)
 
 
 def replan(
@@ -289,17 +373,48 @@ def replan(
     *,
     time_limit_s: float | None = None,
     progress: Callable[[str], None] | None = None,
+    reassign_clauses: bool = False,
+    keep_outs: Sequence[Region] = (),
 ) -> Replan:
     """Plan the rest of the mission for the vehicles that fly on (module docstring): the
     amended spec, every waypoint up to ``switch_s`` fixed to ``trajectories``, warm-started
-    from them, within ``time_limit_s``.  The result is checked like any plan (its
-    ``success``)."""
+    from them, within ``time_limit_s``, every vehicle out of ``keep_outs`` from the switch
+    on.  The result is checked like any plan (its ``success``).
+
+    With ``reassign_clauses``, the departed vehicles' own dropped clauses are handed to one vehicle
+    that flies on (:func:`reassign`): each candidate in turn, nearest first
+    (:func:`reassign_candidates`), each within an equal share of the time left; the best plan
+    that meets its spec wins; where none does, the plan without the handover is the answer
+    (if time is left for it)."""
     if problem.model is not DynamicsModel.MINIMUM_JERK:
         raise ReplanError(
             "replanning keeps the flown part's waypoints, which only the minimum-jerk model "
             "has (model: minimum_jerk)"
         )
-    amendment = amend(problem, trajectories, departures, switch_s)
+    t_end = math.inf if time_limit_s is None else time.perf_counter() + time_limit_s
+    amendment = amend(problem, trajectories, departures, switch_s, keep_outs)
+    candidates = reassign_candidates(amendment, trajectories) if reassign_clauses else []
+    best: Replan | None = None
+    for i, to in enumerate(candidates):
+        left = t_end - time.perf_counter()
+        if left <= 0.2:
+            break
+        share = None if math.isinf(left) else left / (len(candidates) - i + 1)
+        got = _solve(reassign(amendment, to), trajectories, share, progress)
+        if got.result.success and (best is None or got.result.robustness > best.result.robustness):
+            best = got
+    if best is not None:
+        return best
+    left = t_end - time.perf_counter()
+    return _solve(amendment, trajectories, None if math.isinf(left) else max(left, 0.2), progress)
+
+
+def _solve(
+    amendment: Amendment,
+    trajectories: Mapping[str, Trajectory],
+    time_limit_s: float | None,
+    progress: Callable[[str], None] | None,
+) -> Replan:
     amended = amendment.problem
     model = make_model(amended)
     names = [v.name for v in amended.vehicles]
@@ -307,7 +422,7 @@ def replan(
     result = plan(
         amended,
         initial_guess=guess,
-        prefix=Prefix(switch_s, {n: trajectories[n] for n in names}),
+        prefix=Prefix(amendment.switch_s, {n: trajectories[n] for n in names}),
         time_limit_s=time_limit_s,
         progress=progress,
     )

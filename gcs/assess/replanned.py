@@ -53,6 +53,7 @@ class ReplanSettings:
         problem: :func:`gcs.flight.replan.replan_problem` of the plan.
         budget_s: plan seconds from a loss seen to the switch (``--replan-budget``).
         profile, params, rate_hz, drag_per_s: the simulated vehicles, as the campaign's.
+        reassign: hand a lost vehicle's own clauses to another (``--reassign``).
     """
 
     problem: Problem
@@ -61,6 +62,7 @@ class ReplanSettings:
     params: Mapping[str, float]
     rate_hz: float
     drag_per_s: float | None
+    reassign: bool = False
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -74,6 +76,8 @@ class ReplannedRuns:
         true: the judged spec's exact robustness on the true positions: the amended spec
             where a new plan was flown, else the monitored run's.
         solve_s: the replan's wall time (NaN: none).
+        why_not: why a tried run was not flown again (codes of
+            :data:`gcs.assess.stats.WHY_NOT`, from 1; 0: it was, or it was not tried).
     """
 
     tried: np.ndarray
@@ -81,6 +85,7 @@ class ReplannedRuns:
     stopped: np.ndarray
     true: np.ndarray
     solve_s: np.ndarray
+    why_not: np.ndarray
 
 
 def replan_runs(
@@ -107,6 +112,7 @@ def replan_runs(
         stopped=code != 0,
         true=true,
         solve_s=np.full(n, np.nan),
+        why_not=np.zeros(n, dtype=np.int8),
     )
     names = [v.name for v in plan.vehicles]
     for r in (int(x) for x in np.flatnonzero(code == silent)):
@@ -116,7 +122,8 @@ def replan_runs(
             continue
         out.tried[r] = True
         got = _replan_one(plan, settings, plain, r, gone, t_seen)
-        if got is None:
+        if isinstance(got, int):
+            out.why_not[r] = got
             continue
         new_plan, solve_s = got
         out.solve_s[r] = solve_s
@@ -137,13 +144,14 @@ def _replan_one(
     r: int,
     gone: Sequence[int],
     t_seen: float,
-) -> tuple[Plan, float] | None:
+) -> tuple[Plan, float] | int:
     """The plan flown after the replan of run ``r`` (every vehicle, those that left on their
-    old trajectories), and the solve's wall time; None: no plan met what was left."""
+    old trajectories), and the solve's wall time; else why not (a code of
+    :data:`gcs.assess.stats.WHY_NOT`)."""
     problem = settings.problem
     switch = switch_time(problem, t_seen, settings.budget_s)
     if switch >= problem.timing.horizon_s:
-        return None
+        return 1
     trajectories = {v.name: v.trajectory for v in plan.vehicles}
     dt = plain.t_s[1] - plain.t_s[0] if plain.t_s.size > 1 else plan.check_dt_s
     departures = []
@@ -161,12 +169,13 @@ def _replan_one(
             departures,
             switch,
             time_limit_s=max(0.2, switch - t_seen - SWITCH_MARGIN_S),
+            reassign_clauses=settings.reassign,
         )
     except ReplanError:
-        return None
+        return 3
     solve_s = time.perf_counter() - t0
     if not got.result.success:
-        return None
+        return 2
     amended = got.result.to_plan(plan.scenario)
     new = {v.name: v for v in amended.vehicles}
     vehicles = tuple(new.get(v.name, v) for v in plan.vehicles)

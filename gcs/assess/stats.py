@@ -88,6 +88,10 @@ class RunSummary:
     draws: dict[str, float]
 
 
+#: Why a run replanned under ``--replan`` was not flown again, by code (from 1).
+WHY_NOT = ("no time left to switch in the plan", "no plan met what was left", "refused")
+
+
 @dataclass(frozen=True, slots=True)
 class ReplanSummary:
     """``gcs assess --replan``: the runs the monitor stopped on a lost link, replanned.
@@ -104,6 +108,7 @@ class ReplanSummary:
         solve_s_median, solve_s_max: the replans' wall time (NaN: none).
         without, p_without, ci_without: runs that complete without replanning.
         with_, p_with, ci_with: with it.
+        not_flown: ``(why, runs)`` of the replans not flown.
     """
 
     lost_links: int
@@ -118,6 +123,7 @@ class ReplanSummary:
     with_: int
     p_with: float
     ci_with: tuple[float, float]
+    not_flown: tuple[tuple[str, int], ...] = ()
 
     def as_json(self) -> dict[str, Any]:
         """JSON-ready values."""
@@ -134,6 +140,7 @@ class ReplanSummary:
             "completed_with": self.with_,
             "p_completed_with": self.p_with,
             "ci95_with": list(self.ci_with),
+            "not_flown": [{"why": w, "runs": k} for w, k in self.not_flown],
         }
 
 
@@ -155,6 +162,10 @@ def _replan_summary(outcomes: Sequence[BatchOutcome]) -> ReplanSummary | None:
     stopped = np.concatenate([r.stopped for r in rep])
     r_true = np.concatenate([r.true for r in rep])
     solve = np.concatenate([r.solve_s for r in rep])
+    why = np.concatenate([r.why_not for r in rep])
+    not_flown = tuple(
+        (text, int((why == k).sum())) for k, text in enumerate(WHY_NOT, 1) if (why == k).any()
+    )
     n = int(code.size)
     without = int(((code == 0) & (m_true > 0)).sum())
     done = ~stopped & (r_true > 0)
@@ -173,6 +184,7 @@ def _replan_summary(outcomes: Sequence[BatchOutcome]) -> ReplanSummary | None:
         with_=with_,
         p_with=with_ / n if n else math.nan,
         ci_with=clopper_pearson(with_, n),
+        not_flown=not_flown,
     )
 
 

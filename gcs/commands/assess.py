@@ -86,6 +86,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="S",
         help="--replan: plan seconds from a loss seen to the switch (3)",
     )
+    p.add_argument(
+        "--reassign",
+        action="store_true",
+        help="--replan: hand a lost vehicle's own clauses to another, as gcs fly",
+    )
     p.add_argument("--scenario", metavar="FILE",
                    help="--replan: the scenario the plan was made from (default: the one it names)")  # fmt: skip
     p.add_argument("-o", "--out", metavar="DIR", help="write report.json, runs.csv, assess.png")
@@ -112,7 +117,7 @@ def _options(args: argparse.Namespace, plan: Plan) -> Any:
         raise UserError(f"--max-off-plan: must be a number >= 0 m, got {args.max_off_plan:g}")
     if not (math.isfinite(args.replan_budget) and args.replan_budget > 0):
         raise UserError(f"--replan-budget: must be a number > 0 s, got {args.replan_budget:g}")
-    for flag, given in (("--replan-budget", args.replan_budget != 3.0), ("--scenario", args.scenario)):  # fmt: skip
+    for flag, given in (("--replan-budget", args.replan_budget != 3.0), ("--scenario", args.scenario), ("--reassign", args.reassign)):  # fmt: skip
         if given and not args.replan:
             raise UserError(f"{flag}: only with --replan")
     if args.replan and not args.monitor:
@@ -147,6 +152,7 @@ def _replan_settings(args: argparse.Namespace, plan: Plan) -> Any:
         params=parse_param_overrides(args.param, "--param"),
         rate_hz=args.rate,
         drag_per_s=args.drag,
+        reassign=args.reassign,
     )
 
 
@@ -273,6 +279,7 @@ def _format_replan(r: AssessResult) -> list[str]:
     return [
         f"replanning (--replan): {q.lost_links} run(s) stopped on a lost link, {q.tried} "
         f"replanned, {q.flown} flown on a new plan, {q.completed_flown} of those completed{solve}",
+        *(f"  not flown: {k} run(s): {why}" for why, k in q.not_flown),
         f"  P(flight completes and its judged spec holds) = {q.p_with:.3f} "
         f"[{q.ci_with[0]:.3f}, {q.ci_with[1]:.3f}] with replanning, {q.p_without:.3f} "
         f"[{q.ci_without[0]:.3f}, {q.ci_without[1]:.3f}] without",

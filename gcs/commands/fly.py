@@ -131,6 +131,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="--replan: plan seconds from a departure to the switch to the new plan (3)",
     )
     p.add_argument(
+        "--reassign",
+        action="store_true",
+        help="--replan: hand the lost vehicle's own clauses (its inspections) to the vehicle "
+        "that flies on for which a plan meets them best, nearest first",
+    )
+    p.add_argument(
+        "--live-regions",
+        metavar="FILE",
+        help="--replan: a YAML file of regions (`regions:` in the scenario's syntax) closed in "
+        "flight; read at the start and whenever it changes, each new region is kept out of "
+        "from the next switch on",
+    )
+    p.add_argument(
         "--scenario",
         default=None,
         metavar="FILE",
@@ -214,7 +227,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(
             "--replan: only offboard flights switch to a new plan in flight (missions: not yet)"
         )
-    for flag, given in (("--replan-budget", args.replan_budget != 3.0), ("--scenario", args.scenario)):  # fmt: skip
+    for flag, given in (("--replan-budget", args.replan_budget != 3.0), ("--scenario", args.scenario), ("--reassign", args.reassign), ("--live-regions", args.live_regions)):  # fmt: skip
         if given and not args.replan:
             raise UserError(f"{flag}: only with --replan")
     plan = load_plan(args.plan)
@@ -222,8 +235,23 @@ def run(args: argparse.Namespace) -> int:
     replanner = None
     if args.replan:
         from gcs.flight.replan import FlightReplanner, replan_problem
+        from planner.scenario.sections import ScenarioError
 
-        replanner = FlightReplanner(replan_problem(plan, args.scenario), plan, args.replan_budget)
+        live = Path(args.live_regions) if args.live_regions else None
+        try:
+            replanner = FlightReplanner(
+                replan_problem(plan, args.scenario),
+                plan,
+                args.replan_budget,
+                reassign=args.reassign,
+                live_regions=live,
+            )
+        except OSError as exc:
+            raise UserError(
+                f"--live-regions: {args.live_regions}: cannot read: {exc.strerror or exc}"
+            ) from None
+        except ScenarioError as exc:
+            raise UserError(f"--live-regions: {exc}") from None
     out = sys.stderr if args.json else sys.stdout
     if args.end == "land":
         # where landing straight down would meet a keep-out, somewhere clear (or refused)
@@ -303,6 +331,9 @@ def run(args: argparse.Namespace) -> int:
     except (PreflightError, MissionRefused) as exc:
         print(f"gcs fly: {exc}", file=sys.stderr)
         return 1
+    finally:
+        if replanner is not None:
+            replanner.close()  # its warm-up solve, before the process may exit
     if options.log_dir is not None:
         from gcs.report import write_report
 

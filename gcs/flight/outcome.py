@@ -258,6 +258,7 @@ def _replan_lines(outcome: FlightOutcome) -> list[str]:
             ("dropped with the vehicle", r.dropped),
             ("taken over by the others", r.taken_over),
             ("met before it left", r.discharged),
+            (f"handed to {r.reassigned_to}", r.reassigned),
         ):
             lines += [f"  {what}: {t}" for t in texts]
     if outcome.judged_spec is not None:

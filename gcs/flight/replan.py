@@ -19,11 +19,14 @@ trajectories are on that scenario's waypoint grid, so that the kept part is the 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
 import math
+import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -37,9 +40,10 @@ from planner.dynamics.prefix import PrefixError, decisions_of
 from planner.planfile import plan_formula
 from planner.problem import Clause, Problem
 from planner.replan import Departure, ReplanError, replan, switch_time
-from planner.scenario import load_scenario
+from planner.scenario import load_live_regions, load_scenario
 from planner.scenario.sections import ScenarioError
 from planner.solve.plan_check import initial_states, make_model
+from planner.spec.regions import Region
 
 if TYPE_CHECKING:
     from planner.planfile import Plan
@@ -72,6 +76,8 @@ class ReplanRecord:
         discharged, taken_over, dropped: the clauses that read a departed vehicle, by what
             became of them (:class:`planner.replan.Amendment`).
         reason: why the flight stopped instead ("" when the new plan was flown).
+        reassigned, reassigned_to: the clauses of the vehicle that left handed to another
+            (``--reassign``), and to which.
     """
 
     event: str
@@ -85,6 +91,8 @@ class ReplanRecord:
     taken_over: tuple[str, ...] = ()
     dropped: tuple[str, ...] = ()
     reason: str = ""
+    reassigned: tuple[str, ...] = ()
+    reassigned_to: str | None = None
 
     def to_json(self) -> dict[str, object]:
         """The record as ``--json`` writes it."""
@@ -104,6 +112,8 @@ class ReplanRecord:
             "taken_over": list(self.taken_over),
             "dropped": list(self.dropped),
             "reason": self.reason,
+            "reassigned": list(self.reassigned),
+            "reassigned_to": self.reassigned_to,
         }
 
 
@@ -181,9 +191,14 @@ class FlightReplanner:
         problem: :func:`replan_problem` of the plan.
         plan: the plan flown.
         budget_s: plan seconds from a departure to the switch (``--replan-budget``).
+        reassign: hand the departed vehicle's own clauses to another (``--reassign``,
+            :func:`planner.replan.replan`).
         note: one line for the operator (the flight's progress view).
         on_new_plan: called with the plan as amended and the vehicles that left (name ->
             why) when a new plan is flown (the progress view shows it from then on).
+        live_regions: a file of regions closed in flight (``--live-regions``,
+            :func:`planner.scenario.load_live_regions`), read at the start and whenever it
+            changes: each region it names anew is kept out of from the next switch on.
     """
 
     def __init__(
@@ -192,11 +207,14 @@ class FlightReplanner:
         plan: Plan,
         budget_s: float = DEFAULT_BUDGET_S,
         note: Callable[[str], None] | None = None,
+        reassign: bool = False,
         on_new_plan: Callable[[Plan, Mapping[str, str]], None] | None = None,
+        live_regions: Path | None = None,
     ) -> None:
         self.problem = problem
         self.plan = plan
         self.budget_s = float(budget_s)
+        self.reassign = reassign
         self.note = note or (lambda _line: None)
         self.on_new_plan = on_new_plan
         self.trajectories: dict[str, Trajectory] = {v.name: v.trajectory for v in plan.vehicles}
@@ -205,12 +223,80 @@ class FlightReplanner:
         self.judged_plan: Plan | None = None
         self._t0_wall: float | None = None
         self._t0_clock: float | None = None
+        self.live_regions = live_regions
+        #: regions of the live file kept out of, and those read but not yet
+        self.closed: dict[str, Region] = {}
+        self._pending: dict[str, Region] = {}
+        self._live_seen: tuple[float, int] | None = None
+        self._request: Callable[[], bool] | None = None
+        self._watch: asyncio.Task[None] | None = None
+        if live_regions is not None:
+            self._read_live()  # a bad file is refused before the flight (ScenarioError)
+        self._warm = threading.Thread(target=self._warm_up, name="stl-gcs-replan-warm-up")
+        self._warm.daemon = True
+        self._warm.start()
+
+    def _warm_up(self) -> None:
+        """One replan of no consequence before the flight (a vehicle leaving at its start):
+        the first solve of a process loads IPOPT and builds CasADi's functions, which took 2 s
+        of the first replan's 3 s budget on PX4 SITL; later ones take a quarter of that.
+        Its answer is not used, and a failure here is the real replan's to report."""
+        first = self.plan.vehicles[-1]
+        x, y, z = (float(c) for c in first.start_enu_m)
+        with contextlib.suppress(Exception):
+            replan(
+                self.problem,
+                self.trajectories,
+                [Departure(first.name, 0.0, (x, y, z), "warm-up")],
+                self.problem.timing.segment_s,
+                time_limit_s=10.0,
+            )
+
+    def close(self, timeout_s: float = 30.0) -> None:
+        """Wait for the warm-up to end (a process should not exit inside a solve)."""
+        self._warm.join(timeout_s)
 
     def plan_started(self, t0_monotonic_s: float) -> None:
         """The flight's start on its clock (to convert the plan's seconds to the wall's:
-        a dry run's clock may run faster)."""
+        a dry run's clock may run faster); the live regions are watched from now on."""
         self._t0_wall = time.perf_counter()
         self._t0_clock = t0_monotonic_s
+        if self.live_regions is not None and self._watch is None:
+            self._watch = asyncio.get_running_loop().create_task(self._watch_live())
+
+    def attach(self, request: Callable[[], bool] | None) -> None:
+        """The flight engine's way to begin a replan without a departure (None: the flight
+        ended, and the live regions are no longer watched)."""
+        self._request = request
+        if request is None and self._watch is not None:
+            self._watch.cancel()
+
+    def _read_live(self) -> bool:
+        """Read the live-regions file if it changed; whether regions not kept out of yet
+        are pending."""
+        assert self.live_regions is not None
+        st = self.live_regions.stat()
+        seen = (st.st_mtime, st.st_size)
+        if seen != self._live_seen:
+            self._live_seen = seen
+            for r in load_live_regions(self.live_regions):
+                if r.name not in self.closed:
+                    self._pending[r.name] = r
+        return bool(self._pending)
+
+    async def _watch_live(self, every_s: float = 0.5) -> None:
+        """Poll the live-regions file (wall time: it is for a person to edit); ask for a
+        replan while regions are pending.  A file that cannot be read in flight is said once
+        per change and otherwise left alone."""
+        while True:
+            try:
+                pending = self._read_live()
+            except (OSError, ScenarioError) as exc:
+                self.note(f"live regions: {exc}; the regions read before stand")
+                pending = bool(self._pending)
+            if pending and self._request is not None:
+                self._request()
+            await asyncio.sleep(every_s)
 
     def _wall_per_plan_s(self, now_s: float) -> float:
         if self._t0_wall is None or now_s <= 1.0:
@@ -235,11 +321,15 @@ class FlightReplanner:
 
     async def __call__(self, left: Sequence[VehicleLeft], now_s: float) -> NewPlan | str:
         departures = [self._departure(d) for d in left]
-        event = "; ".join(f"{d.vehicle}: {d.reason} at t = {d.t_s:.1f} s" for d in departures)
+        closing = dict(self._pending)
+        events = [f"{d.vehicle}: {d.reason} at t = {d.t_s:.1f} s" for d in departures]
+        if closing:
+            events.append(f"closed at t = {max(now_s, 0.0):.1f} s: {', '.join(closing)}")
+        event = "; ".join(events)
         names = tuple(d.vehicle for d in departures)
         switch = switch_time(self.problem, now_s, self.budget_s)
         horizon = self.problem.timing.horizon_s
-        self.note(f"replanning without {', '.join(names)} ({event}); switch at t = {switch:g} s")
+        self.note(f"replanning ({event}); switch at t = {switch:g} s")
         if switch >= horizon:
             return self._refused(
                 event,
@@ -260,6 +350,8 @@ class FlightReplanner:
                 departures,
                 switch,
                 time_limit_s=limit,
+                reassign_clauses=self.reassign,
+                keep_outs=tuple(closing.values()),
             )
         except ReplanError as exc:
             return self._refused(
@@ -276,10 +368,14 @@ class FlightReplanner:
             return self._refused(
                 event, names, now_s, switch, solve_s, result.robustness, why, kinds
             )
+        record = ReplanRecord(event, names, now_s, switch, solve_s, result.robustness, True, *kinds)
         self.records.append(
-            ReplanRecord(event, names, now_s, switch, solve_s, result.robustness, True, *kinds)
+            dataclasses.replace(record, reassigned=a.reassigned, reassigned_to=a.reassigned_to)
         )
         self.problem = a.problem
+        self.closed.update(closing)
+        for name in closing:
+            self._pending.pop(name, None)
         self.trajectories = {n: tr for n, tr in self.trajectories.items() if n not in names}
         self.trajectories.update(got.trajectories)
         amended = result.to_plan(self.plan.scenario)
@@ -289,7 +385,9 @@ class FlightReplanner:
         self.note(
             f"replanned in {solve_s:.2f} s: robustness {result.robustness:+.3f} on what is left "
             f"({len(a.dropped)} clause(s) dropped with {', '.join(names)}, {len(a.taken_over)} "
-            f"taken over, {len(a.discharged)} already met); flying it from t = {switch:g} s"
+            f"taken over, {len(a.discharged)} already met"
+            + (f", {len(a.reassigned)} handed to {a.reassigned_to}" if a.reassigned_to else "")
+            + f"); flying it from t = {switch:g} s"
         )
         formula = plan_formula(amended)
         flying = [v.name for v in amended.vehicles]

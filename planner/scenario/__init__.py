@@ -143,29 +143,7 @@ def parse_scenario(
             "turned or polygonal area in regions and keep to it in the spec",
         )
 
-    regions: list[Region] = []
-    reg_map = top.get("regions", {}) or {}
-    rd.mapping(reg_map, "regions")
-    for rname, rval in reg_map.items():
-        p = join_key("regions", rname)
-        rd.name(rname, p)
-        if rname == "workspace":
-            raise rd.fail(p, "'workspace' is defined by the top-level workspace key")
-        rm = rd.mapping(rval, p)
-        kind_s = rm.get("kind", "region")
-        try:
-            kind = RegionKind(kind_s)
-        except ValueError:
-            raise rd.fail(
-                join_key(p, "kind"),
-                f"unknown kind {kind_s!r} (kinds: {', '.join(k.value for k in RegionKind)})",
-            ) from None
-        for r in read_region(rd, rname, rval, p, kind):
-            if r.part_of is not None and (
-                r.name in reg_map or any(q.name == r.name for q in regions)
-            ):
-                raise rd.fail(p, f"its part {r.name!r} has the name of another region")
-            regions.append(r)
+    regions = read_regions(rd, top.get("regions", {}) or {})
 
     line_names: dict[str, list[str]] = {}
     if "line" in top:
@@ -368,3 +346,51 @@ def load_scenario(path: str | Path, *, vehicles: int | None = None) -> Problem:
         problem = getattr(exc, "problem", None) or str(exc)
         raise ScenarioError(str(p), where, f"invalid YAML: {' '.join(problem.split())}") from None
     return parse_scenario(data, str(p), vehicles=vehicles)
+
+
+def read_regions(
+    rd: Reader, reg_map: Any, path: str = "regions", default_kind: str = "region"
+) -> list[Region]:
+    """The regions of a ``regions:`` mapping (name -> region, :func:`read_region`), a
+    polygon that is not convex as its convex parts; ScenarioError naming the key."""
+    regions: list[Region] = []
+    rd.mapping(reg_map, path)
+    for rname, rval in reg_map.items():
+        p = join_key(path, rname)
+        rd.name(rname, p)
+        if rname == "workspace":
+            raise rd.fail(p, "'workspace' is defined by the top-level workspace key")
+        rm = rd.mapping(rval, p)
+        kind_s = rm.get("kind", default_kind)
+        try:
+            kind = RegionKind(kind_s)
+        except ValueError:
+            raise rd.fail(
+                join_key(p, "kind"),
+                f"unknown kind {kind_s!r} (kinds: {', '.join(k.value for k in RegionKind)})",
+            ) from None
+        for r in read_region(rd, rname, rval, p, kind):
+            if r.part_of is not None and (
+                r.name in reg_map or any(q.name == r.name for q in regions)
+            ):
+                raise rd.fail(p, f"its part {r.name!r} has the name of another region")
+            regions.append(r)
+    return regions
+
+
+def load_live_regions(path: str | Path) -> tuple[Region, ...]:
+    """The keep-outs of a live-regions file (``gcs fly --replan --live-regions FILE``): a
+    YAML mapping with one key, ``regions``, in the scenario's syntax, mission frame; a
+    region's kind is ``no_fly`` unless it says otherwise.
+
+    Raises:
+        ScenarioError: the file unreadable, not such a mapping, or a bad region (names the
+            key).
+    """
+    rd = Reader(str(path))
+    try:
+        top = load_yaml(read_text(Path(path)))
+    except (OSError, NotTextError, DuplicateKeyError, yaml.YAMLError) as exc:
+        raise rd.fail("", f"cannot read: {exc}") from None
+    rd.mapping(top, "", {"regions"})
+    return tuple(read_regions(rd, top.get("regions", {}) or {}, default_kind="no_fly"))

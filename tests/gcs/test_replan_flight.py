@@ -46,12 +46,18 @@ def _fly(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, dict[str,
 def test_a_drone_lost_mid_line_is_replanned_around_and_the_others_meet_what_is_left(
     power_line: Path, capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
+    # an area closed in flight (north of the line, where nobody flies), read at the start
+    live = tmp_path / "closed.yaml"
+    live.write_text("regions:\n  closed: {min: [60, 5, 0], max: [63, 8, 20]}\n", "utf-8")
     rc, out = _fly(
         capsys, str(power_line), "--speed", "2", "--mock-fault", "d2:lost@10",
-        "--replan", "--replan-budget", "8", "--log", str(tmp_path),
+        "--replan", "--replan-budget", "8", "--log", str(tmp_path), "--live-regions", str(live),
     )  # fmt: skip
     assert out["safety_event"] is None, out["safety_event"]
-    [r] = out["replans"]
+    closed, r = out["replans"]
+    assert closed["success"] and closed["vehicles"] == []
+    assert closed["event"].startswith("closed at t = ") and closed["event"].endswith(": closed")
+    assert closed["switch_s"] < 10.0  # the first poll after the start, 8 s on
     assert r["success"] and r["vehicles"] == ["d2"]
     # seen lost about COM_OF_LOSS_T after 10 s; the switch on the 2 s waypoint grid 8 s on
     assert 10.9 <= r["t_s"] <= 12.0 and r["switch_s"] == pytest.approx(20.0)
@@ -60,6 +66,8 @@ def test_a_drone_lost_mid_line_is_replanned_around_and_the_others_meet_what_is_l
     assert r["robustness"] >= 0.01
     judged = out["judged_spec"]
     assert "outside(d1, left_d2)" in judged and "inside(d2" not in judged
+    for name in ("d1", "d3", "d4"):  # the closed area kept out of, on the original clock
+        assert f"outside({name}, closed)" in judged
     assert out["completed"] and out["flown_robustness"] >= 0.0 and rc == 0
     # the drones that flew on were streamed one plan: no jump at the switch
     tracks = load_telemetry(tmp_path / "flight.csv").vehicles
@@ -80,8 +88,9 @@ def test_a_drone_lost_mid_line_is_replanned_around_and_the_others_meet_what_is_l
 def test_no_time_left_to_switch_is_the_safe_stop_saying_why(
     power_line: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
+    # lost at 5 s, with a budget that puts the switch past the 30 s plan
     rc, out = _fly(
-        capsys, str(power_line), "--mock-fault", "d3:lost@24", "--replan", "--replan-budget", "8"
+        capsys, str(power_line), "--mock-fault", "d3:lost@5", "--replan", "--replan-budget", "40"
     )
     assert rc == 1 and not out["completed"]
     [r] = out["replans"]
@@ -97,6 +106,12 @@ def test_no_time_left_to_switch_is_the_safe_stop_saying_why(
         (("--replan", "--replan-budget", "0"), "--replan-budget: must be a number > 0 s"),
         (("--replan-budget", "5"), "--replan-budget: only with --replan"),
         (("--scenario", "x.yaml"), "--scenario: only with --replan"),
+        (("--reassign",), "--reassign: only with --replan"),
+        (("--live-regions", "x.yaml"), "--live-regions: only with --replan"),
+        (
+            ("--replan", "--live-regions", "nowhere.yaml"),
+            "--live-regions: nowhere.yaml: cannot read",
+        ),
         (("--replan", "--scenario", "nowhere.yaml"), "cannot read the plan's scenario"),
         (
             ("--replan", "--scenario", str(ROOT / "configs" / "reach_avoid.yaml")),
@@ -116,8 +131,8 @@ def test_assess_replans_the_runs_stopped_on_a_lost_link_and_flies_them_again(
     power_line: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     rc = main(
-        ["assess", str(power_line), "--runs", "10", "--workers", "0", "--monitor", "--replan",
-         "-d", "lost=0.5", "--seed", "3", "--json"]
+        ["assess", str(power_line), "--runs", "6", "--workers", "0", "--monitor", "--replan",
+         "--reassign", "-d", "lost=0.6", "--seed", "3", "--json"]
     )  # fmt: skip
     assert rc in (0, 1)
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])

@@ -4,6 +4,7 @@ the spec amended clause by clause, the flown part kept exactly, the rest planned
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import re
 
 import numpy as np
@@ -12,12 +13,20 @@ import yaml
 
 from planner.dynamics.prefix import Prefix, PrefixError, fixed_entries
 from planner.optimize import plan
-from planner.problem import DynamicsModel
-from planner.replan import Departure, ReplanError, amend, replan, switch_time
+from planner.problem import DynamicsModel, Problem
+from planner.replan import (
+    Departure,
+    ReplanError,
+    amend,
+    reassign_candidates,
+    replan,
+    switch_time,
+)
 from planner.results import PlanResult
 from planner.scenario import parse_scenario
 from planner.scenario.spec import clause_formulas
 from planner.solve.plan_check import make_model
+from planner.spec.regions import Region, RegionKind
 
 pytestmark = pytest.mark.slow  # whole solves
 
@@ -70,7 +79,7 @@ def _who_inspects_a(result: PlanResult) -> str:
     t = np.arange(round(problem.timing.horizon_s / dt) + 1) * dt
     sig = {tr.name: tr.position(t) for tr in result.trajectories}
     alloc = clause_formulas(problem)[0]
-    options = alloc.child.operands  # eventually[0, 18] (option or option or option)
+    options = alloc.children[0].children  # eventually[0, 18] (option or option or option)
     best = max(range(3), key=lambda i: options[i].robustness_trace(sig, dt).max())
     return f"d{best + 1}"
 
@@ -122,7 +131,7 @@ def test_a_vehicle_lost_after_its_inspection_leaves_it_discharged(planned: PlanR
     t = np.arange(round(problem.timing.horizon_s / dt) + 1) * dt
     alloc = clause_formulas(problem)[0]
     sig = {n: tr.position(t) for n, tr in trs.items()}
-    option = alloc.child.operands[int(inspector[1]) - 1]
+    option = alloc.children[0].children[int(inspector[1]) - 1]
     trace = option.robustness_trace(sig, dt)
     done = float(t[np.argmax(trace > 0)]) + 1.0  # its hover at a is over
     a = amend(problem, trs, [_departure(planned, inspector, done + 0.5)], done + 3.0)
@@ -130,7 +139,7 @@ def test_a_vehicle_lost_after_its_inspection_leaves_it_discharged(planned: PlanR
     assert alloc_text(problem) not in a.taken_over
 
 
-def alloc_text(problem) -> str:  # type: ignore[no-untyped-def]
+def alloc_text(problem: Problem) -> str:
     return problem.clauses[0].text
 
 
@@ -194,3 +203,70 @@ def test_what_cannot_be_replanned_is_refused_in_one_line(planned: PlanResult) ->
         replan(di, trs, [dep], 3.0)
     with pytest.raises(PrefixError, match="minimum-jerk"):
         fixed_entries(make_model(di), ["d1"], Prefix(3.0, trs))
+
+
+def test_a_lost_vehicles_own_inspection_is_handed_to_the_nearest_that_can_and_done(
+    planned: PlanResult,
+) -> None:
+    trs = _trajectories(planned)
+    switch = 4.0
+    a = amend(planned.problem, trs, [_departure(planned, "d3", 0.5)], switch)
+    order = reassign_candidates(a, trs)
+    # nearest to b (the only region d3's own dropped clauses name) at the switch first
+    b = a.problem.region("b")
+
+    def gap(name: str) -> float:
+        p = np.ravel(trs[name].position(switch))
+        return float(
+            np.linalg.norm(
+                np.maximum(0.0, np.maximum(np.subtract(b.lo_enu_m, p), np.subtract(p, b.hi_enu_m)))
+            )
+        )
+
+    assert sorted(order) == ["d1", "d2"] and gap(order[0]) <= gap(order[1])
+    got = replan(
+        planned.problem, trs, [_departure(planned, "d3", 0.5)], switch, reassign_clauses=True
+    )
+    am = got.amendment
+    assert am.reassigned_to in ("d1", "d2") and got.result.success, got.result.status
+    assert am.reassigned == (
+        "eventually[0, 18] always[0, 1] inside(d3, b)",
+        "always[0, 20] inside(d3, workspace)",
+    )
+    assert am.dropped == ()
+    # the workspace clause the receiver has already is not added twice
+    texts = [c.text for c in am.problem.clauses]
+    assert texts.count(f"always[0, 20] inside({am.reassigned_to}, workspace)") == 1
+    # independently: the receiver hovers in b for a second within [0, 18]
+    dt = 0.05
+    t = np.arange(0.0, 20.0 + dt / 2, dt)
+    p = got.trajectories[am.reassigned_to].position(t)
+    inside = np.all((p >= np.asarray(b.lo_enu_m)) & (p <= np.asarray(b.hi_enu_m)), axis=1)
+    run = max((len(list(g)) for k, g in itertools.groupby(inside) if k), default=0)
+    assert run * dt >= 1.0
+
+
+def test_a_region_closed_in_flight_is_kept_out_of_from_the_switch_or_is_no_plan(
+    planned: PlanResult,
+) -> None:
+    trs = _trajectories(planned)
+    problem = planned.problem
+    far = Region("closed", RegionKind.NO_FLY, (22.0, 4.0, 0.0), (25.0, 6.0, 8.0))
+    got = replan(problem, trs, [], 5.0, keep_outs=[far])
+    assert got.result.success, got.result.status
+    texts = [c.text for c in got.amendment.problem.clauses]
+    assert [t for t in texts if "closed" in t] == [
+        f"always[5, 20] outside({n}, closed)" for n in ("d1", "d2", "d3")
+    ]
+    assert [v.name for v in got.amendment.problem.vehicles] == ["d1", "d2", "d3"]
+    t = np.linspace(0.0, 5.0, 100)
+    for name, tr in got.trajectories.items():
+        assert np.abs(tr.position(t) - trs[name].position(t)).max() < 1e-6
+    # closed over d1 where it is at the switch: no plan can be out of it then
+    at = np.ravel(trs["d1"].position(5.0))
+    over = Region("over", RegionKind.NO_FLY, tuple(at - 1.0), tuple(at + 1.0))
+    assert not replan(problem, trs, [], 5.0, keep_outs=[over], time_limit_s=20).result.success
+    with pytest.raises(ReplanError, match="already a region"):
+        amend(problem, trs, [], 5.0, [dataclasses.replace(far, name="a")])
+    with pytest.raises(ReplanError, match="nothing to replan"):
+        amend(problem, trs, [], 5.0)
