@@ -54,10 +54,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--speed", type=float, default=1.0, help="the mock's speed (1: real time)")
     ap.add_argument("--plan", default=None, help="a power-line plan file (default: plan it)")
     ap.add_argument("--runs", type=int, default=1000, help="runs per assessment (0: none)")
+    ap.add_argument("--reassign", action="store_true", help="fly and assess with --reassign")
     ap.add_argument("--probabilities", default="0.02,0.05,0.1")
     args = ap.parse_args(argv)
     result: dict[str, Any] = {"bench": "replan", "budget_s": args.budget, "speed": args.speed}
     cases = []
+    extra = ["--reassign"] if args.reassign else []
+    result["reassign"] = args.reassign
     with tempfile.TemporaryDirectory() as tmp:
         plan = args.plan
         if plan is None:
@@ -69,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"power line planned in {plan_s:.1f} s")
         head = (
             f"{'lost':<10} {'seen s':>6} {'switch':>6} {'solve s':>7} {'new rho':>8} "
-            f"{'drop/take/met':>13} {'exit':>4} {'flown rho':>9}  why not"
+            f"{'drop/take/met':>13} {'to':>3} {'exit':>4} {'flown rho':>9}  why not"
         )
         print(head)
         for name in [n for n in args.vehicles.split(",") if n]:
@@ -78,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
                     ["fly", plan, "--dry-run", "--json", "--replan", "--scenario",
                      str(ROOT / "configs/powerline_inspection.yaml"),
                      "--replan-budget", f"{args.budget:g}", "--speed", f"{args.speed:g}",
-                     "--mock-fault", f"{name}:lost@{t}"]
+                     "--mock-fault", f"{name}:lost@{t}", *extra]
                 )  # fmt: skip
                 reps = out.get("replans", [])
                 r = reps[0] if reps else {}
@@ -95,6 +98,7 @@ def main(argv: list[str] | None = None) -> int:
                     "dropped": len(r.get("dropped", [])),
                     "taken_over": len(r.get("taken_over", [])),
                     "met_before": len(r.get("discharged", [])),
+                    "reassigned_to": r.get("reassigned_to"),
                     "reason": r.get("reason", "") if r else "no replan",
                     "flown_robustness": out.get("flown_robustness"),
                     "completed": out.get("completed"),
@@ -109,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
                     f"{name + '@' + t:<10} {f(case['seen_s'], '6.2f')} {f(case['switch_s'], '6g')} "
                     f"{f(case['solve_s'], '7.2f')} {f(case['new_robustness'], '+8.3f')} "
                     f"{case['dropped']:>4}/{case['taken_over']}/{case['met_before']:<6} "
-                    f"{rc:>4} {f(case['flown_robustness'], '+9.3f')}  "
+                    f"{case['reassigned_to'] or '-':>3} {rc:>4} {f(case['flown_robustness'], '+9.3f')}  "
                     + (case["reason"][:90] if not case["replanned"] else ""),
                     flush=True,
                 )
@@ -123,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
             rc, out, wall = run_cli(
                 ["assess", plan, "--monitor", "--replan", "-d", f"lost={p}",
                  "--runs", str(args.runs), "--json", "--scenario",
-                 str(ROOT / "configs/powerline_inspection.yaml")]
+                 str(ROOT / "configs/powerline_inspection.yaml"), *extra]
             )  # fmt: skip
             r = out["replan"]
             assessments.append({"p_lost": float(p), "wall_s": round(wall, 1), **r})
