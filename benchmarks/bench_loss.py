@@ -18,27 +18,15 @@ Replanning (issue 43) is to beat these figures. Printed: two tables, then one JS
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import json
 import sys
 import tempfile
-import time
 from pathlib import Path
 from typing import Any
 
-from gcs import cli
+from cli_runs import run_cli
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def run_cli(args: list[str]) -> tuple[int, dict[str, Any], float]:
-    out, err = io.StringIO(), io.StringIO()
-    t0 = time.perf_counter()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        rc = cli.main(args)
-    lines = [ln for ln in out.getvalue().splitlines() if ln.startswith("{")]
-    return rc, json.loads(lines[-1]) if lines else {}, time.perf_counter() - t0
 
 
 def main(argv: list[str] | None = None) -> int:

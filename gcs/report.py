@@ -143,12 +143,7 @@ def report_markdown(
             )
         lines.append("")
         for rp in outcome.replans:
-            for what, texts in (
-                ("dropped with the vehicle", rp.dropped),
-                ("taken over by the others", rp.taken_over),
-                ("met before it left", rp.discharged),
-                (f"handed to {rp.reassigned_to}", rp.reassigned),
-            ):
+            for what, texts in rp.fates():
                 lines += [f"- {what}: `{_cell(t)}`" for t in texts]
         lines.append("")
     a = plan.assurance

@@ -253,6 +253,7 @@ class SafetyMonitor:
         self.excused: set[str] = set()
         self._halt: tuple[Verdict, tuple[str, ...], float, str] | None = None
         self._plans: Mapping[str, Trajectory] | None = None
+        self._next: tuple[Mapping[str, Trajectory] | None, tuple[SafetyClause, ...]] | None = None
         self.stats = MonitorStats()
         self._table: tuple[tuple[int, ...], tuple[str, ...], _PlanTable] | None = None
         self._set_clauses(clauses)
@@ -277,10 +278,9 @@ class SafetyMonitor:
         self, plans: Mapping[str, Trajectory] | None, clauses: Sequence[SafetyClause]
     ) -> None:
         """After a replan: predict along ``plans`` and check ``clauses`` from the next tick
-        (called on the event loop; a tick in progress on the monitor's thread finishes with
-        what it read)."""
-        self._plans = plans
-        self._set_clauses(clauses)
+        (called on the event loop; taken up between two ticks, never during one on the
+        monitor's thread)."""
+        self._next = (plans, tuple(clauses))
 
     def halt(self, verdict: Verdict, vehicles: Sequence[str], t_s: float, detail: str) -> None:
         """Stop the flight at the next tick with this finding (a replan that found no plan);
@@ -700,6 +700,9 @@ class SafetyMonitor:
                 if delay > 0 and await wait(stop, delay):
                     break
                 k = max(k + 1, int((clock() - t0_monotonic_s) / period - 0.5) + 1)
+                if self._next is not None:  # a replan's plan, between two ticks
+                    (self._plans, clauses), self._next = self._next, None
+                    self._set_clauses(clauses)
                 found = await loop.run_in_executor(
                     worker, self._tick, vehicles, t0_monotonic_s, maps, origins, self._plans,
                     expected_mode, mode_grace_s, done, clock,

@@ -339,10 +339,8 @@ def reassign_candidates(amendment: Amendment, trajectories: Mapping[str, Traject
     departed vehicles' own dropped clauses name (none: no clause to hand over)."""
     own = _own_clauses(amendment)
     problem = amendment.problem
-    boxes = [
-        r
-        for r in problem.all_regions
-        if any(re.search(rf"\b{re.escape(r.name)}\b", t) for t in own)
+    boxes = [  # the places of those clauses (not the workspace, which every vehicle is in)
+        r for r in problem.regions if any(re.search(rf"\b{re.escape(r.name)}\b", t) for t in own)
     ]
     if not own:
         return []
@@ -385,7 +383,8 @@ def replan(
     that flies on (:func:`reassign`): each candidate in turn, nearest first
     (:func:`reassign_candidates`), each within an equal share of the time left; the best plan
     that meets its spec wins; where none does, the plan without the handover is the answer
-    (if time is left for it)."""
+    (if time is left for it).  A vehicle that has every handed clause already (the power
+    line's two drones on one side inspect the same poles) is the only one tried."""
     if problem.model is not DynamicsModel.MINIMUM_JERK:
         raise ReplanError(
             "replanning keeps the flown part's waypoints, which only the minimum-jerk model "
@@ -393,14 +392,18 @@ def replan(
         )
     t_end = math.inf if time_limit_s is None else time.perf_counter() + time_limit_s
     amendment = amend(problem, trajectories, departures, switch_s, keep_outs)
-    candidates = reassign_candidates(amendment, trajectories) if reassign_clauses else []
+    names = reassign_candidates(amendment, trajectories) if reassign_clauses else []
+    handed = [reassign(amendment, to) for to in names]
+    # a vehicle that has every handed clause already takes them at no cost: the only try
+    free = [h for h in handed if len(h.problem.clauses) == len(amendment.problem.clauses)]
+    candidates = free[:1] or handed
     best: Replan | None = None
-    for i, to in enumerate(candidates):
+    for i, candidate in enumerate(candidates):
         left = t_end - time.perf_counter()
         if left <= 0.2:
             break
         share = None if math.isinf(left) else left / (len(candidates) - i + 1)
-        got = _solve(reassign(amendment, to), trajectories, share, progress)
+        got = _solve(candidate, trajectories, share, progress)
         if got.result.success and (best is None or got.result.robustness > best.result.robustness):
             best = got
     if best is not None:

@@ -254,12 +254,7 @@ def _replan_lines(outcome: FlightOutcome) -> list[str]:
             lines.append(f"{head}, robustness {r.robustness:+.4f} on what was left; flown")
         else:
             lines.append(f"{head}; NOT flown: {r.reason}")
-        for what, texts in (
-            ("dropped with the vehicle", r.dropped),
-            ("taken over by the others", r.taken_over),
-            ("met before it left", r.discharged),
-            (f"handed to {r.reassigned_to}", r.reassigned),
-        ):
+        for what, texts in r.fates():
             lines += [f"  {what}: {t}" for t in texts]
     if outcome.judged_spec is not None:
         lines.append("the flight is judged on the spec as amended by the last replan")

@@ -129,7 +129,9 @@ class FlightProgress:
         self.left.update(left)
         self._load(plan)
 
-    def _fill(self, name: str, t_now_s: float) -> None:
+    def _fill(
+        self, name: str, t_now_s: float, signals: dict[str, np.ndarray], filled: dict[str, int]
+    ) -> None:
         """Write the flown positions into the grid steps up to ``t_now_s`` not yet written
         (steps before the last sample only: a later sample could still move them)."""
         with self._lock:
@@ -137,7 +139,7 @@ class FlightProgress:
             if not rows:
                 return
             t_last = rows[-1][0]
-            k0 = self._filled[name]
+            k0 = filled[name]
             k1 = int(np.searchsorted(self.t_grid, min(t_now_s, t_last), side="right"))
             if k1 <= k0:
                 return
@@ -145,7 +147,7 @@ class FlightProgress:
             t_first = self.t_grid[k0]
             j = max(0, bisect.bisect_right(rows, (t_first, math.inf)) - 1)
             a = np.asarray(rows[j:])
-        sig = self._signals[name]
+        sig = signals[name]
         t = self.t_grid[k0:k1]
         for ax in range(3):
             sig[k0:k1, ax] = np.interp(t, a[:, 0], a[:, ax + 1])
@@ -158,14 +160,15 @@ class FlightProgress:
                 sig[k0:k1, 3] = wrap_pi(np.interp(t, a[known, 0], np.unwrap(a[known, 4])))
             else:
                 self._headless.add(name)
-        self._filled[name] = k1
+        filled[name] = k1
 
     def so_far(self, t_now_s: float) -> dict[str, float]:
         """Robustness so far per vehicle (see class docstring) at plan time ``t_now_s``."""
-        signals = self._signals
+        with self._lock:  # one plan's state throughout (a replan swaps it, :meth:`_load`)
+            signals, filled = self._signals, self._filled
+            batch, members, reads_heading = self._batch, self._members, self._reads_heading
         for name in signals:
-            self._fill(name, t_now_s)
-        batch, members, reads_heading = self._batch, self._members, self._reads_heading
+            self._fill(name, t_now_s, signals, filled)
         values = batch.values(signals, self.dt_s)
         for name in self._headless:
             if name in reads_heading:

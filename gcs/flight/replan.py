@@ -59,6 +59,9 @@ SWITCH_MARGIN_S = 0.3
 #: A plan's trajectory may differ this much (m) from the chain through its waypoints and
 #: still be replanned (the plan file stores coefficients to about 1e-12).
 GRID_TOLERANCE_M = 1e-4
+#: The warm-up solve's limit (s): it holds the planner while it runs, so a real replan that
+#: comes meanwhile waits at most this long (it comes at the earliest at the plan's start).
+_WARM_UP_S = 2.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -93,6 +96,15 @@ class ReplanRecord:
     reason: str = ""
     reassigned: tuple[str, ...] = ()
     reassigned_to: str | None = None
+
+    def fates(self) -> list[tuple[str, tuple[str, ...]]]:
+        """What became of the clauses that read the vehicles that left: (what, texts)."""
+        return [
+            ("dropped with the vehicle", self.dropped),
+            ("taken over by the others", self.taken_over),
+            ("met before it left", self.discharged),
+            (f"handed to {self.reassigned_to}", self.reassigned),
+        ]
 
     def to_json(self) -> dict[str, object]:
         """The record as ``--json`` writes it."""
@@ -222,7 +234,6 @@ class FlightReplanner:
         #: the plan as last amended (None: no replan was flown)
         self.judged_plan: Plan | None = None
         self._t0_wall: float | None = None
-        self._t0_clock: float | None = None
         self.live_regions = live_regions
         #: regions of the live file kept out of, and those read but not yet
         self.closed: dict[str, Region] = {}
@@ -249,7 +260,7 @@ class FlightReplanner:
                 self.trajectories,
                 [Departure(first.name, 0.0, (x, y, z), "warm-up")],
                 self.problem.timing.segment_s,
-                time_limit_s=10.0,
+                time_limit_s=_WARM_UP_S,
             )
 
     def close(self, timeout_s: float = 30.0) -> None:
@@ -260,7 +271,6 @@ class FlightReplanner:
         """The flight's start on its clock (to convert the plan's seconds to the wall's:
         a dry run's clock may run faster); the live regions are watched from now on."""
         self._t0_wall = time.perf_counter()
-        self._t0_clock = t0_monotonic_s
         if self.live_regions is not None and self._watch is None:
             self._watch = asyncio.get_running_loop().create_task(self._watch_live())
 
@@ -279,7 +289,16 @@ class FlightReplanner:
         seen = (st.st_mtime, st.st_size)
         if seen != self._live_seen:
             self._live_seen = seen
-            for r in load_live_regions(self.live_regions):
+            got = load_live_regions(self.live_regions)
+            taken = {r.name for r in self.problem.all_regions} - set(self.closed)
+            for r in got:
+                if r.name in taken:
+                    raise ScenarioError(
+                        str(self.live_regions),
+                        f"regions.{r.name}",
+                        "is the name of a region of the plan: give a closed area a name of its own",
+                    )
+            for r in got:
                 if r.name not in self.closed:
                     self._pending[r.name] = r
         return bool(self._pending)
@@ -288,11 +307,15 @@ class FlightReplanner:
         """Poll the live-regions file (wall time: it is for a person to edit); ask for a
         replan while regions are pending.  A file that cannot be read in flight is said once
         per change and otherwise left alone."""
+        said = ""
         while True:
             try:
                 pending = self._read_live()
+                said = ""
             except (OSError, ScenarioError) as exc:
-                self.note(f"live regions: {exc}; the regions read before stand")
+                if str(exc) != said:
+                    said = str(exc)
+                    self.note(f"live regions: {exc}; the regions read before stand")
                 pending = bool(self._pending)
             if pending and self._request is not None:
                 self._request()

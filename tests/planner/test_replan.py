@@ -48,6 +48,7 @@ timing: {horizon_s: 20, segment_s: 1, Ts_s: 0.25, check_dt_s: 0.05}
 separation_m: 1.0
 epsilon: 0.01
 model: minimum_jerk
+solver: {coarse_s: 0}  # no combinatorial stage beside the NLP: the same plan on any load
 spec:
   - formula: >-
       eventually[0, 18] (always[0, 1] inside(d1, a) or always[0, 1] inside(d2, a)
