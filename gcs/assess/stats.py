@@ -104,7 +104,8 @@ class ReplanSummary:
         lost_links: runs the monitor stopped on a lost link.
         tried: of these, those with a vehicle left to fly on (replanned).
         flown: replans whose plan met what was left of the spec (flown again).
-        completed_flown: of the flown, the runs that completed.
+        completed_flown: of the flown, the runs that completed; ``stopped_flown``: those the
+            monitor stopped after the switch (the others ended with the amended spec broken).
         solve_s_median, solve_s_max: the replans' wall time (NaN: none).
         without, p_without, ci_without: runs that complete without replanning.
         with_, p_with, ci_with: with it.
@@ -124,6 +125,7 @@ class ReplanSummary:
     p_with: float
     ci_with: tuple[float, float]
     not_flown: tuple[tuple[str, int], ...] = ()
+    stopped_flown: int = 0
 
     def as_json(self) -> dict[str, Any]:
         """JSON-ready values."""
@@ -132,6 +134,7 @@ class ReplanSummary:
             "replanned": self.tried,
             "flown": self.flown,
             "completed_flown": self.completed_flown,
+            "stopped_flown": self.stopped_flown,
             "solve_s_median": _finite(self.solve_s_median),
             "solve_s_max": _finite(self.solve_s_max),
             "completed_without": self.without,
@@ -185,6 +188,7 @@ def _replan_summary(outcomes: Sequence[BatchOutcome]) -> ReplanSummary | None:
         p_with=with_ / n if n else math.nan,
         ci_with=clopper_pearson(with_, n),
         not_flown=not_flown,
+        stopped_flown=int((flown & stopped).sum()),
     )
 
 

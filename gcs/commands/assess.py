@@ -278,7 +278,8 @@ def _format_replan(r: AssessResult) -> list[str]:
     )
     return [
         f"replanning (--replan): {q.lost_links} run(s) stopped on a lost link, {q.tried} "
-        f"replanned, {q.flown} flown on a new plan, {q.completed_flown} of those completed{solve}",
+        f"replanned, {q.flown} flown on a new plan, {q.completed_flown} of those completed "
+        f"({q.stopped_flown} stopped later by the monitor){solve}",
         *(f"  not flown: {k} run(s): {why}" for why, k in q.not_flown),
         f"  P(flight completes and its judged spec holds) = {q.p_with:.3f} "
         f"[{q.ci_with[0]:.3f}, {q.ci_with[1]:.3f}] with replanning, {q.p_without:.3f} "

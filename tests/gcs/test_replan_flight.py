@@ -145,6 +145,9 @@ def test_assess_replans_the_runs_stopped_on_a_lost_link_and_flies_them_again(
     assert rp["lost_links"] == stops.get("a vehicle lost (its link silent)", 0) > 0
     assert rp["replanned"] <= rp["lost_links"] and rp["flown"] <= rp["replanned"]
     assert rp["flown"] > 0 and rp["solve_s_median"] > 0
+    assert 0 <= rp["stopped_flown"] <= rp["flown"] - rp["completed_flown"]
+    not_flown = sum(r["runs"] for r in rp["not_flown"])
+    assert not_flown == rp["replanned"] - rp["flown"]
     # a run that completes without replanning was never stopped on a lost link: it
     # completes with it too, and replanning can only add runs that complete
     assert rp["completed_with"] == rp["completed_without"] + rp["completed_flown"]
