@@ -44,6 +44,7 @@ from planner.scenario import load_live_regions, load_scenario
 from planner.scenario.sections import ScenarioError
 from planner.solve.plan_check import initial_states, make_model
 from planner.spec.regions import Region
+from planner.strict_read import load_yaml, read_text
 
 if TYPE_CHECKING:
     from planner.planfile import Plan
@@ -141,11 +142,14 @@ def replan_problem(plan: Plan, scenario: str | None = None) -> Problem:
     path = scenario or plan.scenario
     if not path:
         raise UserError(f"{plan.input_file}: --replan needs the plan's scenario (--scenario)")
+    names = [v.name for v in plan.vehicles]
     try:
-        problem = load_scenario(path, vehicles=len(plan.vehicles))
+        problem = load_scenario(path)
+        if [v.name for v in problem.vehicles] != names and "count" in _vehicles_section(path):
+            # a generated fleet planned with gcs plan --vehicles N
+            problem = load_scenario(path, vehicles=len(plan.vehicles))
     except (OSError, ScenarioError) as exc:
         raise UserError(f"--replan: cannot read the plan's scenario: {exc}") from None
-    names = [v.name for v in plan.vehicles]
     if [v.name for v in problem.vehicles] != names:
         raise UserError(
             f"{path}: its vehicles ({', '.join(v.name for v in problem.vehicles)}) are not "
@@ -194,6 +198,13 @@ def replan_problem(plan: Plan, scenario: str | None = None) -> Problem:
     except PrefixError as exc:
         raise UserError(f"{path}: --replan: {exc}") from None
     return problem
+
+
+def _vehicles_section(path: str) -> dict[str, object]:
+    """The scenario's ``vehicles`` mapping (empty where it lists its vehicles)."""
+    data = load_yaml(read_text(Path(path)))
+    got = data.get("vehicles") if isinstance(data, dict) else None
+    return got if isinstance(got, dict) else {}
 
 
 class FlightReplanner:

@@ -171,3 +171,33 @@ def test_a_closed_area_named_like_a_region_of_the_plan_is_refused_before_the_fli
     assert main(["fly", str(power_line), "--dry-run", "--replan", "--live-regions", str(live)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "regions.pole1: is the name of a region of the plan" in err[0], err
+
+
+def test_a_scenario_that_lists_its_vehicles_is_replanned_with_as_it_is(tmp_path: Path) -> None:
+    from gcs.flight.replan import replan_problem
+
+    scenario = tmp_path / "hop.yaml"
+    scenario.write_text(
+        """\
+name: hop
+origin: {lat: 47.397742, lon: 8.545594, alt: 488.0}
+workspace: {min: [-3, -3, 0], max: [8, 3, 6]}
+regions:
+  goal: {kind: goal, center: [4.0, 0.0, 3.0], half_size: 0.8}
+limits: {v_max_m_s: 1.5, a_max_m_s2: 1.5}
+vehicles:
+  - {name: d1, start: [0.0, 0.0, 3.0]}
+timing: {horizon_s: 10, segment_s: 2, Ts_s: 0.1, check_dt_s: 0.02}
+separation_m: 1.0
+epsilon: 0.05
+model: minimum_jerk
+spec:
+  - formula: eventually[3, 9] always[0, 1] inside(d1, goal)
+""",
+        "utf-8",
+    )
+    result = plan(load_scenario(scenario))
+    path = tmp_path / "hop.json"
+    save_plan(path, result, str(scenario))
+    problem = replan_problem(load_plan(path))
+    assert [v.name for v in problem.vehicles] == ["d1"] and problem.timing.segment_s == 2

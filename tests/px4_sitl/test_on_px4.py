@@ -9,7 +9,8 @@ stands; the tests plan around its own home position, so no spawn pose is needed.
 What is checked is PX4's side of the contracts the mock was calibrated to
 (``docs/px4-behaviour.md``): the read-back of a mission and a fence as PX4 stores them,
 a mission start confirmed only when PX4 really flies it, an offboard flight with the drag
-fed forward that keeps the plan's margin, and mission mode on one shared clock.
+fed forward that keeps the plan's margin, mission mode on one shared clock, and a replan in
+flight (an area closed by ``--live-regions``) switched into the stream without a break.
 """
 
 from __future__ import annotations
@@ -240,4 +241,27 @@ def test_an_l_shaped_right_of_way_and_no_fly_area_are_fenced_and_flown_as_px4_do
     res = json.loads(out)
     assert res["completed"] and res["safety_event"] is None, err[-300:]
     assert res["flown_robustness"] > 0, res["flown_robustness"]
+    _land_and_wait()
+
+
+def test_an_area_closed_in_flight_is_replanned_around_and_the_stream_switches_without_a_break(
+    plan_file: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # a strip south of the hop, closed from the start (gcs fly --replan --live-regions): the
+    # replan comes at the first poll, the stream switches a waypoint later on PX4's clock
+    live = plan_file.parent / "closed.yaml"
+    live.write_text("regions:\n  strip: {min: [-3, -3, 0], max: [8, -1.5, 6]}\n", "utf-8")
+    rc = main(
+        ["fly", str(plan_file), "--json", "--end", "return", "--connection", URL,
+         "--replan", "--live-regions", str(live)]
+    )  # fmt: skip
+    out, err = capsys.readouterr()
+    assert out, err
+    res = json.loads(out)
+    [r] = res["replans"]
+    assert r["success"] and r["event"].endswith(": strip"), r
+    assert "outside(d1, strip)" in res["judged_spec"]
+    assert res["completed"] and res["safety_event"] is None, err
+    assert res["tracking"][0]["max_m"] < 1.0  # no jump at the switch
+    assert res["flown_robustness"] > 0 and rc == 0
     _land_and_wait()
