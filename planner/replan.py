@@ -14,12 +14,17 @@ module is that planning, with no flight in it:
   a keep-out for the others from the switch time on (a column from the ground to above it,
   ``separation_m`` wider than the plan's path over the time PX4 takes to stop it, and one over
   its home when it returns there).
-* **The flown part kept** (:class:`Prefix`).  The new plan is a plan of the whole horizon
-  whose waypoints up to the switch time are fixed to the current plan's (bounds with equal
-  ends in the NLP), so the vehicles fly the same setpoints until the switch and the spec's
-  robustness is judged over the whole mission: windows that have passed are judged on the
-  part flown, ``eventually`` clauses met already stay met (STL progression by fixing the
-  prefix, exact on the planning grid).  It is warm-started from the current plan.
+* **The flown part kept** (:class:`planner.dynamics.prefix.Prefix`).  The new plan is a plan
+  of the whole horizon whose waypoints up to the switch time are fixed to the current plan's
+  (bounds with equal ends in the NLP), so the vehicles fly the same setpoints until the
+  switch and the spec's robustness is judged over the whole mission: windows that have passed
+  are judged on the part flown, ``eventually`` clauses met already stay met (STL progression
+  by fixing the prefix, exact on the planning grid).  It is warm-started from the current
+  plan.
+
+Also: a departed vehicle's own dropped clauses handed to another (:func:`reassign`,
+``--reassign``), and regions closed in flight kept out of from the switch on (``keep_outs``,
+``--live-regions``; then no vehicle need have left).
 
 Only the minimum-jerk model (``model: minimum_jerk``) has waypoints to fix; a problem of the
 double integrator is refused (:class:`ReplanError`).
@@ -103,7 +108,7 @@ class Amendment:
         departures: who left.
         discharged, taken_over, dropped: the texts of the clauses that read a departed
             vehicle, by what became of them (module docstring).
-        keep_outs: the regions added around the departed vehicles.
+        keep_outs: the regions added: around the departed vehicles, and those closed in flight.
         reassigned: the dropped clauses handed to another vehicle (:func:`reassign`), as
             they were, and ``reassigned_to`` that vehicle (None: none).
     """

@@ -9,7 +9,10 @@ Hold) to :class:`FlightReplanner`, which plans the rest for the others with
 the time to the switch.  A plan that meets what is left of the spec is streamed from the
 switch time; otherwise the flight stops with the reason.  Each replan is recorded
 (:class:`ReplanRecord`: the report's and ``--json``'s ``replans``), and the flight is judged
-on the spec as last amended (:attr:`FlightReplanner.judged_plan`).
+on the spec as last amended (:attr:`FlightReplanner.judged_plan`).  The same happens, with
+no vehicle gone, when ``--live-regions`` names an area not yet kept out of; ``--reassign``
+hands a lost vehicle's own clauses to another.  A warm-up replan runs in a thread before the
+flight, so that the first real one does not pay for loading IPOPT.
 
 The scenario the plan was made from gives what the plan file does not carry (the timing
 grid, the model, the solver's settings); :func:`replan_problem` checks that the plan's
