@@ -169,15 +169,12 @@ class SetpointStreamer:
         self._rows = [_rows_of(t.setpoints) for t in self.targets]
         self._last = [len(r) - 1 for r in self._rows]
         self._index = {t.name: i for i, t in enumerate(self.targets)}
-        #: vehicles no longer sent to (:meth:`drop`)
-        self.dropped: set[str] = set()
-        self._dropped_i: set[int] = set()
+        self._dropped_i: set[int] = set()  # vehicles no longer sent to (:meth:`drop`)
         #: the tick the stream sends next (0 before it runs)
         self.next_tick = 0
 
     def drop(self, name: str) -> None:
         """Send nothing more to vehicle ``name`` (it left the flight); on the event loop."""
-        self.dropped.add(name)
         self._dropped_i.add(self._index[name])
 
     def splice(self, name: str, setpoints: NedSetpoints, from_tick: int) -> None:

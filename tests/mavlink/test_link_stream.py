@@ -163,3 +163,34 @@ def test_send_groups_are_validated() -> None:
         SetpointStreamer(
             [StreamTarget(x, lambda *_: None, ramp(3, 20.0)) for x in "ab"], 20.0, groups=3
         )
+
+
+def test_a_replan_splices_one_vehicles_setpoints_and_drops_another_between_two_sends() -> None:
+    clock = SimClock()
+    rate = 20.0
+    log: dict[str, list[float]] = {"a": [], "b": []}
+    base = ramp(10, rate)
+    shifted = base.pos_ned_m + np.array([100.0, 0.0, 0.0])
+    new = NedSetpoints(base.t_s, shifted, base.vel_ned_m_s, base.acc_ned_m_s2, base.yaw_ned_rad)
+    streamer: SetpointStreamer
+
+    def send_a(sp: Setpoint) -> None:
+        log["a"].append(sp.n_m)
+        if sp.n_m == 3:  # the replan lands on the event loop between two sends: after tick 3
+            assert streamer.next_tick == 4
+            streamer.splice("b", new, streamer.next_tick)
+            streamer.drop("a")
+
+    streamer = SetpointStreamer(
+        [
+            StreamTarget("a", send_a, base),
+            StreamTarget("b", lambda sp: log["b"].append(sp.n_m), base),
+        ],
+        rate,
+        clock=clock,
+        sleep=clock.sleep,
+    )
+    stats = asyncio.run(streamer.run(clock.t))
+    assert log["a"] == [0, 1, 2, 3]  # nothing more once dropped
+    assert log["b"] == [0, 1, 2, 3, *(100.0 + k for k in range(4, 10))]  # the new from tick 4
+    assert stats["a"].sent == 4 and stats["b"].sent == 10
