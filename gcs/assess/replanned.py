@@ -28,10 +28,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from gcs.flight.evaluation import plan_formula, reads_heading
 from mavlink.mock.batch import BatchFlights, prepare, simulate
-from mavlink.monitor import SafetyMonitor
-from mavlink.monitor_findings import RunFindings, Verdict, always_clauses
+from mavlink.monitor_findings import RunFindings, Verdict
 from planner.replan import Departure, ReplanError, replan, switch_time
 
 if TYPE_CHECKING:
@@ -209,6 +207,7 @@ def _fly_again(
     setup = dataclasses.replace(
         setup, plans={n: tr for n, tr in setup.plans.items() if n not in left}
     )
-    clauses = always_clauses(plan_formula(plan), [v.name for v in plan.vehicles], reads_heading)
-    monitor = SafetyMonitor(clauses, horizon_s=0.5, max_off_plan_m=max_off_plan_m)
+    from gcs.assess import MonitorSettings  # the package imports this module in its tasks
+
+    monitor = MonitorSettings(max_off_plan_m).build(plan)[0]  # as the campaign's, of this spec
     return simulate(setup, [seed], dists, monitor=monitor, excused=left)
