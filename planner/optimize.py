@@ -33,14 +33,12 @@ from typing import Any
 import numpy as np
 
 from planner.checks import LimitReport, check_trajectories
-from planner.dynamics.limits import vehicle_bounds
 from planner.dynamics.prefix import Prefix, fixed_entries
-from planner.problem import Clause, Problem, SolverMethod
+from planner.problem import Problem, SolverMethod
 from planner.results import ClauseReport, PlanResult, SolveStats, Weakest
 from planner.scenario.spec import clause_formulas
 from planner.solve.coarse_start import CoarseOutcome, StageBeside, coarse_budget_s
-from planner.solve.explain import needs
-from planner.solve.fix_choices import fixed_clauses
+from planner.solve.fix_choices import choices_problem
 from planner.solve.guess import initial_guess, starts
 from planner.solve.leaves import row_steps
 from planner.solve.nlp import (
@@ -51,17 +49,14 @@ from planner.solve.nlp import (
     build_structure,
     clear_cache,
     structure_key,
-    vehicle_limit_bounds,
 )
 from planner.solve.plan_check import (
+    check_plan,
     clause_robustness,
     dense_signals,
     dense_times,
-    evaluate,
     initial_states,
     make_model,
-    start_bound,
-    verdict,
 )
 from planner.solve.refine import raise_the_rest, sharpen
 from planner.solve.screen import (
@@ -72,20 +67,19 @@ from planner.solve.screen import (
     near_rows,
 )
 from planner.solve.solver_runs import (
-    EPS_MARGIN_STEP_M,
     Attempt,
     SigintWatch,
     SolverRun,
     lower_r,
-    min_leaf,
+    margin_rounds,
+    nlp_bounds,
     run_solvers,
     solved,
-    user_status,
+    start_point,
     watch_sigint,
 )
 from planner.spec.heading import facing_rules, heading_signals, uses_heading, with_heading
 from planner.stl import (
-    Always,
     Formula,
     conjunction,
 )
@@ -104,14 +98,6 @@ __all__ = [
     "make_model",
     "plan",
 ]
-
-# ------------------------------------------------------------------------------ models
-
-
-# ------------------------------------------------------------------------------ checks
-
-
-# ------------------------------------------------------------------------------- plan
 
 
 def plan(
@@ -274,39 +260,12 @@ class PlanSearch:
         )
         self.build_s += struct.build_s if not cached else 0.0
         self.watch = struct.watch
-        # Numeric bounds: limits per vehicle into lbg/ubg, r bounds.
-        lbg = struct.lbg_fixed.copy()
-        ubg = struct.ubg_fixed.copy()
-        cons_cache: dict[tuple[Any, Any], tuple[np.ndarray, np.ndarray]] = {}
-        for i, v in enumerate(problem.vehicles):
-            keyl = vehicle_bounds(v)
-            if keyl not in cons_cache:
-                cons_cache[keyl] = vehicle_limit_bounds(model, v, struct.lim_half, struct.norm_rows)
-            lbg[struct.lim_slices[i]], ubg[struct.lim_slices[i]] = cons_cache[keyl]
-        self.lbx = struct.lbx.copy()
-        self.ubx = struct.ubx.copy()
-        if self.fixed is not None:
-            idx, vals = self.fixed
-            self.lbx[idx] = self.ubx[idx] = vals
-        self.bounds = {"p": self.p_val, "lbx": self.lbx, "ubx": self.ubx, "lbg": lbg, "ubg": ubg}
+        self.bounds = nlp_bounds(struct, model, problem.vehicles, self.p_val, self.fixed)
+        self.lbx, self.ubx = self.bounds["lbx"], self.bounds["ubx"]
 
     def lifted(self, z0: np.ndarray) -> np.ndarray:
-        """The NLP's start point for decisions ``z0``: the sampled positions lifted, and r
-        at the smallest leaf value there."""
-        model, struct = self.model, self.struct
-        Mp, Np = np.asarray(model.Mp), np.asarray(model.Np)
-        nd = model.n_dec * 3
-        p0 = [
-            (Mp @ z0[i * nd : (i + 1) * nd].reshape((model.n_dec, 3), order="F") + Np @ x0)[
-                struct.used_steps
-            ].reshape(-1, order="F")
-            for i, x0 in enumerate(self.x0s)
-        ]
-        w0 = np.concatenate([z0, *p0, np.zeros(struct.n_s), [0.0]])
-        if struct.n_s:  # the chunks' values there (planner.solve.leaves.chunks_of)
-            w0[-1 - struct.n_s : -1] = np.asarray(struct.chunk_fn(w0, self.p_val)).reshape(-1)
-        w0[-1] = min_leaf(struct, w0, self.p_val, default=0.0)
-        return w0
+        """The NLP's start point for decisions ``z0`` (:func:`start_point`)."""
+        return start_point(self.struct, self.model, self.x0s, self.p_val, z0)
 
     def trajectories_of(self, w: np.ndarray) -> list[Trajectory]:
         """The vehicles' trajectories at the NLP's point ``w`` (with their heading)."""
@@ -481,17 +440,10 @@ class PlanSearch:
         z_c = self._coarse_z
         times = np.arange(problem.timing.n_samples) * problem.timing.sample_dt_s
         sig = heading_signals(self.trajectories_of(z_c), times, self.heading)
-        fixed = fixed_clauses(self.formula, sig, problem.timing.sample_dt_s)
-        if fixed is None:
+        restricted = choices_problem(problem, self.formula, sig)
+        if restricted is None:
             return None
-        clauses = tuple(
-            Clause(f"choices[{i}]", str(Always(f, a, b))) for i, (f, a, b) in enumerate(fixed)
-        )
-        restricted = dataclasses.replace(
-            problem,
-            clauses=clauses,
-            solver=dataclasses.replace(problem.solver, starts=1, coarse_s=0.0),
-        )
+        clauses = restricted.clauses
         left = self.deadline - time.perf_counter()
         self.say(f"refining the combinatorial stage's choices ({len(clauses)} clauses)")
         sub = PlanSearch(
@@ -535,11 +487,9 @@ class PlanSearch:
             self.screen, self.struct = old_screen, old_struct
             self.say("screening: the time limit came while adding rows; the NLP stays")
             return False
-        new = self.struct.watch
-        if new is not old:
-            new.deadline, new.iterations, new.stopped = old.deadline, old.iterations, False
-            new.on_iteration, old.on_iteration = old.on_iteration, None
-        self.watch = new
+        self.watch = self.struct.watch
+        if self.watch is not old:
+            self.watch.take_over(old)
         return True
 
     def _cover(self, w: np.ndarray) -> None:
@@ -555,12 +505,7 @@ class PlanSearch:
         robustness at its solution ``w`` (of the mission's epsilon, if more)."""
         assert self.screen is not None
         r = max(float(w[-1]), self.problem.epsilon)
-        out = {}
-        for leaf, steps in self._near(w, r + GUARD_M).items():
-            left = steps - self.screen.steps.get(leaf, frozenset())
-            if left:
-                out[leaf] = left
-        return out
+        return self.screen.left_out(self._near(w, r + GUARD_M))
 
     def _generated(self, got: Attempt, stop: SigintWatch) -> Attempt:
         """Row generation after a start: while rows left out come near binding at the
@@ -607,7 +552,6 @@ class PlanSearch:
     def attempt(self, w0: np.ndarray, stop: SigintWatch) -> Attempt:
         """One start: the maximisation from ``w0`` (with the eq. (1) rounds if asked for)."""
         problem, struct, bounds = self.problem, self.struct, self.bounds
-        lbx, ubx = self.lbx, self.ubx
         say = self.say
         rob_start = self._timed_exact(w0)
         self.watch.deadline = min(self.solve_deadline(), self.polish_until)
@@ -643,42 +587,11 @@ class PlanSearch:
             rob, w_opt = rob_start, w0
         if not problem.solver.robustness_constraint:
             return Attempt(rob, w_opt, status, solved(status), run)
-        # The paper's eq. (1): smooth robustness >= epsilon + margin as a constraint.  The
-        # margin starts at the smooth leaves' error bound; if the exact robustness on the
-        # dense samples still falls short (dips between constraint samples), the margin
-        # grows by the deficit and the solve restarts from the point it reached.  The best
-        # point of these rounds is kept.
-        eps = problem.epsilon
-        margin = struct.margin
-        best = (rob, w_opt, status)
-        for _ in range(_EPS_ROUNDS):
-            if rob >= eps or not solved(status) or self.out_of_time(stop):
-                break
-            margin += eps - rob + EPS_MARGIN_STEP_M
-            lower_r(lbx, ubx, eps + margin)
-            w_start = w_opt.copy()
-            w_start[-1] = lbx[-1]
-            run = run.then(run_solvers(struct, w_start, bounds, say, "eq. (1) margin", stop))
-            w_opt, status = run.w, run.status
-            rob = self._timed_exact(w_opt)
-            if rob > best[0]:
-                best = (rob, w_opt, status)
-        rob, w_opt, status = best
-        converged = solved(status)
-        if rob < eps and not self.out_of_time(stop):
-            # Infeasible as constrained: the plain maximisation from the same start finds
-            # the best trajectories there are (a failed result carries the best found).
-            lbx[-1], ubx[-1] = struct.lbx[-1], struct.ubx[-1]
-            plain = run_solvers(struct, w0, bounds, say, "plain maximisation", stop)
-            rob_plain = self._timed_exact(plain.w)
-            if rob_plain > rob:
-                rob, w_opt = rob_plain, plain.w
-                converged = solved(plain.status)
-                status = (
-                    f"eq. (1) constraint not met ({status}); plain maximisation: {plain.status}"
-                )
-            run = run.then(plain)
-        return Attempt(rob, w_opt, status, converged, run)
+        # the paper's eq. (1), in rounds of a growing margin
+        return margin_rounds(
+            struct, w0, Attempt(rob, w_opt, status, solved(status), run), bounds, problem.epsilon,
+            say, stop, self._timed_exact, lambda: self.out_of_time(stop), _EPS_ROUNDS,
+        )  # fmt: skip
 
     def _multistart(
         self, candidates: Iterator[tuple[str, np.ndarray]], stop: SigintWatch
@@ -759,10 +672,7 @@ class PlanSearch:
                 held.enter_context(self.struct.lock)
                 self._held, self._held_ids = held, {id(self.struct)}
                 self._sigint = stop
-                self.watch.deadline = self.deadline
-                self.watch.iterations = 0
-                self.watch.stopped = False
-                self.watch.on_iteration = self._on_iteration
+                self.watch.arm(self.deadline, self._on_iteration)
                 self._next_progress = time.perf_counter() + self.progress_every_s
                 try:
                     return self._run(initial_guess, stop)
@@ -827,7 +737,7 @@ class PlanSearch:
             )
             if raised.note:
                 w_opt, status = raised.w, f"{status}; {raised.note}"
-        return self._result(w_opt, status, converged, run, stop, by_time)
+        return self._checked(w_opt, status, converged, run, stop, by_time)
 
     def _unbuilt(self, initial_guess: np.ndarray | None, why: str) -> PlanResult:
         """The time limit came during the build: the initial guess (or the given one),
@@ -841,9 +751,9 @@ class PlanSearch:
         status = f"{why}; the initial guess, not refined"
         run = SolverRun(z, status, 0, 0.0, 0.0)
         with watch_sigint() as stop:
-            return self._result(z, status, False, run, stop, True)
+            return self._checked(z, status, False, run, stop, True)
 
-    def _result(
+    def _checked(
         self,
         w_opt: np.ndarray,
         status: str,
@@ -852,91 +762,12 @@ class PlanSearch:
         stop: SigintWatch,
         by_time: bool,
     ) -> PlanResult:
-        """Check the plan at ``w_opt`` on dense samples: the :class:`PlanResult`."""
-        problem, formula, formulas = self.problem, self.formula, self.formulas
+        """The combinatorial stage settled, the plan at ``w_opt`` checked on dense samples
+        (:func:`check_plan`): the :class:`PlanResult`."""
         if self._stage is not None and self.combinatorial is None:
             self._stage.settle(met=self._met())
             self.combinatorial = self._stage.outcome
-        self.say("checking on dense samples")
-        struct = getattr(self, "struct", None)  # None: the time limit came in the build
-        # The smooth value at the point returned (r itself may sit on a bound, eq. (1)).
-        smooth = (
-            math.nan
-            if struct is None
-            else min_leaf(struct, w_opt, self.p_val, default=float(w_opt[-1]))
-        )
-        t_check = time.perf_counter()
-        trajectories = self.trajectories_of(w_opt)
-        rob, rob_grid, weakest, clauses = evaluate(
-            problem, formula, formulas, trajectories, self.heading
-        )
-        limits = check_trajectories(
-            problem, trajectories, problem.vehicles, problem.timing.check_dt_s,
-            problem.timing.horizon_s,
-        )  # fmt: skip
-        success, said = verdict(problem, rob, weakest, limits)
-        stopped_by_time = by_time and not stop.hit
-        lines = (
-            needs(
-                problem,
-                formula,
-                solver_status=status,
-                stopped_by_time=stopped_by_time,
-                starts=self.n_starts,
-                combinatorial=self.combinatorial,
-            )
-            if rob < problem.epsilon
-            else []
-        )
-        at_start = start_bound(problem, formulas, trajectories, clauses, weakest, self.heading)
-        self.check_s += time.perf_counter() - t_check
-        stats = SolveStats(
-            build_s=self.build_s,
-            solver_s=run.solver_s,
-            function_eval_s=run.eval_s,
-            check_s=self.check_s,
-            n_variables=0 if struct is None else struct.n_w,
-            n_constraints=0 if struct is None else struct.n_g,
-            n_smooth_leaves=0 if struct is None else struct.n_smooth,
-            k=math.nan if struct is None else struct.k,
-            solver=problem.solver.method.value,
-            cached=self.cached,
-            starts=self.n_starts,
-            coarse=None if self.combinatorial is None else self.combinatorial.summary(),
-            screen=None
-            if self.screen is None
-            else {
-                "kept": self.screen.kept,
-                "total": self.screen.total,
-                "rounds": self.screen_rounds,
-            },
-        )
-        return PlanResult(
-            problem=problem,
-            success=success,
-            status=user_status(
-                status,
-                converged,
-                success,
-                rob < problem.epsilon,
-                said,
-                interrupted=stop.hit,
-                time_limit_s=self.time_limit_s if stopped_by_time else None,
-            ),
-            robustness=rob,
-            robustness_planning_grid=rob_grid,
-            smooth_robustness=smooth,
-            weakest=weakest,
-            clauses=clauses,
-            solve_time_s=time.perf_counter() - self.t_start,
-            iterations=run.iterations,
-            trajectories=tuple(trajectories),
-            limits=limits,
-            decision=w_opt,
-            stats=stats,
-            needs=tuple(lines),
-            start_bound=at_start,
-        )
+        return check_plan(self, w_opt, status, converged, run, stop, by_time)
 
 
 #: Held by a search while it runs (:meth:`PlanSearch.run`; re-entrant: the fixed choices

@@ -95,3 +95,13 @@ def test_no_test_reaches_into_an_objects_private_attributes() -> None:
                 continue
             bad.append(f"{path.relative_to(REPO)}:{node.lineno}: .{node.attr}")
     assert bad == []
+
+
+def test_no_module_is_over_800_lines() -> None:
+    long = {
+        str(path.relative_to(REPO)): n
+        for package in ("planner", "mavlink", "gcs")
+        for path in (REPO / package).rglob("*.py")
+        if (n := len(path.read_text(encoding="utf-8").splitlines())) > 800
+    }
+    assert long == {}

@@ -40,7 +40,7 @@ from mavlink.errors import (
     LinkError,
     LinkLostError,
 )
-from mavlink.link.mavsdk_glue import mavsdk_instance_opened, route_mavsdk_logs
+from mavlink.link.mavsdk_glue import calls_settled, mavsdk_instance_opened, route_mavsdk_logs
 from mavlink.link.urls import Scheme, default_sysid, default_url, parse_url
 from mavlink.link.vehicle import Vehicle
 from mavlink.link.vehicle_status import VehicleSpec, VehicleStatus
@@ -319,9 +319,14 @@ class Fleet:
         )
 
     def close(self) -> None:
-        """Unsubscribe and destroy the MAVSDK instance (closes every connection)."""
+        """Unsubscribe and destroy the MAVSDK instance (closes every connection), once the
+        MAVSDK calls under way have had their answers (:func:`calls_settled`, at most
+        :data:`SETTLE_S`; past that their callbacks are kept for the process's life)."""
         for v in self._vehicles.values():
             v.close()
+        if self._mavsdk is not None and not calls_settled(SETTLE_S):
+            for v in self._vehicles.values():
+                _keep_callbacks(v)
         self._vehicles = {}
         if self._mavsdk is not None:
             self._mavsdk.destroy()
@@ -421,3 +426,20 @@ class Fleet:
     async def land_all(self) -> dict[str, BaseException]:
         """Command Land on every vehicle; returns the failures by name."""
         return await self.for_each(lambda v: v.land())
+
+
+#: Seconds :meth:`Fleet.close` waits for the answers of MAVSDK calls under way (a cancelled
+#: upload's comes at once; a command to a silent vehicle's after MAVSDK's own retries).
+SETTLE_S = 3.0
+
+#: The ctypes trampolines of MAVSDK calls still unanswered when their fleet closed
+#: (:func:`_keep_callbacks`), kept so that a late answer finds live code.
+_KEPT_CALLBACKS: list[object] = []
+
+
+def _keep_callbacks(v: Vehicle) -> None:
+    """Keep ``v``'s plugins' call trampolines alive past MAVSDK's destroy: MAVSDK 4.1's
+    plugins drop them (their ``_callbacks`` list) when destroyed, though a call under way is
+    answered later through them (:mod:`mavlink.link.mavsdk_glue`)."""
+    for plugin in (v.action, v.telemetry, v.offboard, v.mission_raw, v.direct):
+        _KEPT_CALLBACKS.extend(getattr(plugin, "_callbacks", ()))

@@ -191,10 +191,62 @@ async def mavsdk_call(start: Callable[..., None], *args: Any, timeout_s: float =
     """
     loop = asyncio.get_running_loop()
     fut: asyncio.Future[Any] = loop.create_future()
+    answered = threading.Event()
 
     def callback(*values: Any) -> None:
+        if answered.is_set():
+            return
+        answered.set()
+        _call_answered()
         out = values[:-1]
-        loop.call_soon_threadsafe(resolve_future, fut, out[0] if len(out) == 1 else out)
+        with contextlib.suppress(RuntimeError):  # the loop closed since: nobody waits
+            loop.call_soon_threadsafe(resolve_future, fut, out[0] if len(out) == 1 else out)
 
-    start(*args, callback)
+    _call_started()
+    try:
+        start(*args, callback)
+    except BaseException:
+        if not answered.is_set():
+            answered.set()
+            _call_answered()
+        raise
     return await asyncio.wait_for(fut, timeout_s)
+
+
+# MAVSDK 4.1 keeps each ``*_async`` call's ctypes trampoline in its plugin only until the
+# plugin is destroyed, but answers a call still under way (an upload cancelled because its
+# budget ran out, a command to a silent vehicle) from its callback thread later, also after
+# that: the answer then jumps into freed memory and the process dies (a segmentation fault
+# seen in the suite, in ``mission_raw``'s callback while a fleet closed). So the calls under
+# way are counted here, and a fleet waits for their answers before it destroys MAVSDK
+# (:func:`calls_settled`).
+_calls = 0
+_calls_done = threading.Condition()
+
+
+def _call_started() -> None:
+    global _calls
+    with _calls_done:
+        _calls += 1
+
+
+def _call_answered() -> None:
+    global _calls
+    with _calls_done:
+        _calls = max(0, _calls - 1)
+        if _calls == 0:
+            _calls_done.notify_all()
+
+
+def calls_under_way() -> int:
+    """MAVSDK ``*_async`` calls of :func:`mavsdk_call` not yet answered, in this process."""
+    with _calls_done:
+        return _calls
+
+
+def calls_settled(timeout_s: float) -> bool:
+    """Block until every MAVSDK call of :func:`mavsdk_call` in this process has had its
+    answer (MAVSDK answers a cancelled or timed-out call itself, on its callback thread), at
+    most ``timeout_s``; whether they all have."""
+    with _calls_done:
+        return _calls_done.wait_for(lambda: _calls == 0, timeout_s)

@@ -19,11 +19,13 @@ that attains the max there).  So a plan that meets the fixed spec meets the spec
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
+from planner.problem import Clause, Problem
 from planner.stl import (
     Always,
     And,
@@ -36,7 +38,7 @@ from planner.stl import (
     Until,
 )
 
-__all__ = ["fixed_clauses", "negated"]
+__all__ = ["choices_problem", "fixed_clauses", "negated"]
 
 
 def negated(node: Formula) -> Formula:
@@ -158,3 +160,22 @@ def fixed_clauses(
                 merged.append([lo, hi])
         out.extend((f, lo * dt, hi * dt) for lo, hi in merged)
     return out
+
+
+def choices_problem(
+    problem: Problem, formula: Formula, signals: Mapping[str, np.ndarray]
+) -> Problem | None:
+    """``problem`` with its spec ``formula``'s choices fixed where ``signals`` (sampled every
+    ``sample_dt_s``) take them (:func:`fixed_clauses`): clauses ``choices[i]``, one start, no
+    combinatorial stage; None when the spec has no choice to fix."""
+    fixed = fixed_clauses(formula, signals, problem.timing.sample_dt_s)
+    if fixed is None:
+        return None
+    clauses = tuple(
+        Clause(f"choices[{i}]", str(Always(f, a, b))) for i, (f, a, b) in enumerate(fixed)
+    )
+    return dataclasses.replace(
+        problem,
+        clauses=clauses,
+        solver=dataclasses.replace(problem.solver, starts=1, coarse_s=0.0),
+    )

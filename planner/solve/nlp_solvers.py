@@ -45,6 +45,23 @@ class IterationWatch(ca.Callback):
         self.on_iteration: Callable[[np.ndarray, float], None] | None = None
         self.construct("stl_iteration_watch", {})
 
+    def arm(
+        self, deadline: float, on_iteration: Callable[[np.ndarray, float], None] | None
+    ) -> None:
+        """Before a solve: no iterations yet, not stopped, stop at ``deadline``, show each
+        iterate to ``on_iteration``."""
+        self.deadline = deadline
+        self.iterations = 0
+        self.stopped = False
+        self.on_iteration = on_iteration
+
+    def take_over(self, old: IterationWatch) -> None:
+        """Go on with ``old``'s solve (another structure's: a grown screen): its deadline,
+        its iterations and its ``on_iteration``, which ``old`` gives up."""
+        self.arm(old.deadline, old.on_iteration)
+        self.iterations = old.iterations
+        old.on_iteration = None
+
     def get_n_in(self) -> int:
         return int(ca.nlpsol_n_out())
 

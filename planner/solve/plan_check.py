@@ -1,29 +1,40 @@
 """The planner's models and the exact check of a plan: the linear model of the scenario's
 dynamics (:func:`make_model`), each vehicle's start state, the dense check times, and the
 exact robustness of the trajectories with the weakest sub-formula (:func:`evaluate`) and
-what the start alone allows (:func:`start_bound`).
+what the start alone allows (:func:`start_bound`); the check that ends a search
+(:func:`check_plan`: the :class:`~planner.results.PlanResult`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping, Sequence
-from typing import Any
+import time
+from collections.abc import Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from planner.checks import LimitReport, check_trajectories
 from planner.dynamics import DoubleIntegrator, MinimumJerkChain
 from planner.problem import DynamicsModel, Problem
-from planner.results import ClauseReport, PlanResult, StartBound, Weakest
+from planner.results import ClauseReport, PlanResult, SolveStats, StartBound, Weakest
 from planner.scenario.spec import clause_formulas
+from planner.solve.explain import needs
 from planner.solve.leaves import is_direct
+from planner.solve.solver_runs import SigintWatch, SolverRun, min_leaf, user_status
 from planner.spec.heading import heading_signals, uses_heading
 from planner.stl import Formula, conjunction, explanation
 from planner.trajectory import Trajectory
 
+if TYPE_CHECKING:
+    from planner.solve.coarse_start import CoarseOutcome
+    from planner.solve.nlp import Structure
+    from planner.solve.screen import Screen
+
 __all__ = [
+    "SearchState",
+    "check_plan",
     "clause_robustness",
     "dense_signals",
     "dense_times",
@@ -201,4 +212,131 @@ def recheck(result: PlanResult, problem: Problem, note: str = "") -> PlanResult:
         limits=tuple(limits),
         needs=(),
         start_bound=None,
+    )
+
+
+class SearchState(Protocol):
+    """What :func:`check_plan` reads of the search that found a plan
+    (:class:`planner.optimize.PlanSearch`)."""
+
+    problem: Problem
+    formula: Formula
+    formulas: list[Formula]
+    heading: bool
+    #: the NLP's structure (absent: the time limit came in the build)
+    struct: Structure
+    p_val: np.ndarray
+    n_starts: int
+    combinatorial: CoarseOutcome | None
+    screen: Screen | None
+    screen_rounds: int
+    build_s: float
+    cached: bool
+    check_s: float
+    t_start: float
+    time_limit_s: float | None
+    say: Callable[[str], None]
+
+    def trajectories_of(self, w: np.ndarray) -> list[Trajectory]: ...
+
+
+def check_plan(
+    search: SearchState,
+    w_opt: np.ndarray,
+    status: str,
+    converged: bool,
+    run: SolverRun,
+    stop: SigintWatch,
+    by_time: bool,
+) -> PlanResult:
+    """Check the plan at the NLP's point ``w_opt`` on dense samples: exact robustness, the
+    weakest sub-formula, each clause, the limits, what falls short (:func:`needs`) and what
+    the start alone allows; with the search's figures, the :class:`PlanResult`.
+
+    Args:
+        search: the search that found it (its ``check_s`` grows by this check's time).
+        w_opt: the NLP's point.
+        status: the solver's status line so far.
+        converged: whether the solver converged there.
+        run: what the solves cost.
+        stop: the search's Ctrl-C watch.
+        by_time: whether the time limit ended the search.
+    """
+    problem, formula, formulas = search.problem, search.formula, search.formulas
+    search.say("checking on dense samples")
+    struct: Structure | None = getattr(search, "struct", None)  # None: stopped in the build
+    # The smooth value at the point returned (r itself may sit on a bound, eq. (1)).
+    smooth = (
+        math.nan
+        if struct is None
+        else min_leaf(struct, w_opt, search.p_val, default=float(w_opt[-1]))
+    )
+    t_check = time.perf_counter()
+    trajectories = search.trajectories_of(w_opt)
+    rob, rob_grid, weakest, clauses = evaluate(
+        problem, formula, formulas, trajectories, search.heading
+    )
+    limits = check_trajectories(
+        problem, trajectories, problem.vehicles, problem.timing.check_dt_s,
+        problem.timing.horizon_s,
+    )  # fmt: skip
+    success, said = verdict(problem, rob, weakest, limits)
+    stopped_by_time = by_time and not stop.hit
+    lines = (
+        needs(
+            problem,
+            formula,
+            solver_status=status,
+            stopped_by_time=stopped_by_time,
+            starts=search.n_starts,
+            combinatorial=search.combinatorial,
+        )
+        if rob < problem.epsilon
+        else []
+    )
+    at_start = start_bound(problem, formulas, trajectories, clauses, weakest, search.heading)
+    search.check_s += time.perf_counter() - t_check
+    screen = search.screen
+    stats = SolveStats(
+        build_s=search.build_s,
+        solver_s=run.solver_s,
+        function_eval_s=run.eval_s,
+        check_s=search.check_s,
+        n_variables=0 if struct is None else struct.n_w,
+        n_constraints=0 if struct is None else struct.n_g,
+        n_smooth_leaves=0 if struct is None else struct.n_smooth,
+        k=math.nan if struct is None else struct.k,
+        solver=problem.solver.method.value,
+        cached=search.cached,
+        starts=search.n_starts,
+        coarse=None if search.combinatorial is None else search.combinatorial.summary(),
+        screen=None
+        if screen is None
+        else {"kept": screen.kept, "total": screen.total, "rounds": search.screen_rounds},
+    )
+    return PlanResult(
+        problem=problem,
+        success=success,
+        status=user_status(
+            status,
+            converged,
+            success,
+            rob < problem.epsilon,
+            said,
+            interrupted=stop.hit,
+            time_limit_s=search.time_limit_s if stopped_by_time else None,
+        ),
+        robustness=rob,
+        robustness_planning_grid=rob_grid,
+        smooth_robustness=smooth,
+        weakest=weakest,
+        clauses=clauses,
+        solve_time_s=time.perf_counter() - search.t_start,
+        iterations=run.iterations,
+        trajectories=tuple(trajectories),
+        limits=limits,
+        decision=w_opt,
+        stats=stats,
+        needs=tuple(lines),
+        start_bound=at_start,
     )

@@ -207,10 +207,7 @@ def sharpen(
     if sharp.n_s:  # the chunks' values at the same decisions, sharper
         w0[-1 - sharp.n_s : -1] = np.asarray(sharp.chunk_fn(w0, p_val)).reshape(-1)
     w0[-1] = min_leaf(sharp, w0, p_val, default=float(w0[-1]))
-    sharp.watch.deadline = deadline
-    sharp.watch.iterations = 0
-    sharp.watch.stopped = False
-    sharp.watch.on_iteration = on_iteration
+    sharp.watch.arm(deadline, on_iteration)
     refine = best.robustness >= problem.epsilon
     run = run_solvers(sharp, w0, sharp_bounds, say, "sharper box margins", stop, refine)
     sharp.watch.on_iteration = None

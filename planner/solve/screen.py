@@ -80,6 +80,16 @@ class Screen:
     def covers(self, rows: Mapping[Formula, set[int]]) -> bool:
         return all(s <= self.steps.get(leaf, frozenset()) for leaf, s in rows.items())
 
+    def left_out(self, rows: Mapping[Formula, set[int]]) -> dict[Formula, set[int]]:
+        """The steps of ``rows`` this screen does not keep (leaves with none left out
+        absent)."""
+        out = {}
+        for leaf, steps in rows.items():
+            left = steps - self.steps.get(leaf, frozenset())
+            if left:
+                out[leaf] = left
+        return out
+
     def grown(self, rows: Mapping[Formula, set[int]]) -> Screen:
         """This screen with ``rows`` kept as well."""
         steps = dict(self.steps)

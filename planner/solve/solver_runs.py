@@ -4,7 +4,8 @@
 :class:`SolverRun` is what they reached and cost, :class:`Attempt` one start of the
 multi-start judged by its exact robustness.  Also the status the user reads
 (:func:`user_status`), Ctrl-C noted during a solve (:func:`watch_sigint`) and the bounds of
-the robustness variable ``r`` (:func:`lower_r`, :func:`min_leaf`).
+the robustness variable ``r`` (:func:`lower_r`, :func:`min_leaf`), and the paper's eq. (1)
+as rounds of a growing margin (:func:`margin_rounds`).
 """
 
 from __future__ import annotations
@@ -13,13 +14,15 @@ import contextlib
 import signal
 import threading
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from planner.solve.nlp import Structure
+from planner.dynamics.limits import vehicle_bounds
+from planner.problem import Vehicle
+from planner.solve.nlp import Structure, vehicle_limit_bounds
 
 __all__ = [
     "EPS_MARGIN_STEP_M",
@@ -27,9 +30,12 @@ __all__ = [
     "SigintWatch",
     "SolverRun",
     "lower_r",
+    "margin_rounds",
     "min_leaf",
+    "nlp_bounds",
     "run_solvers",
     "solved",
+    "start_point",
     "user_status",
     "watch_sigint",
 ]
@@ -210,3 +216,106 @@ def min_leaf(struct: Structure, w: np.ndarray, p: np.ndarray, default: float) ->
     when the spec has no leaves."""
     values = np.asarray(struct.leaf_fn(w, p)).reshape(-1)
     return float(np.min(values)) if values.size else default
+
+
+def margin_rounds(
+    struct: Structure,
+    w0: np.ndarray,
+    first: Attempt,
+    bounds: Mapping[str, np.ndarray],
+    eps: float,
+    say: Callable[[str], None],
+    stop: SigintWatch,
+    exact: Callable[[np.ndarray], float],
+    out_of_time: Callable[[], bool],
+    rounds: int,
+) -> Attempt:
+    """The paper's eq. (1) after a start's first solve (``first``, from ``w0``): smooth
+    robustness >= ``eps`` + margin as a constraint (r's lower bound in ``bounds["lbx"]``).
+
+    The margin starts at the smooth leaves' error bound; while the exact robustness
+    (``exact``, dense samples) still falls short (dips between constraint samples), the
+    margin grows by the deficit and the solve restarts from the point it reached, at most
+    ``rounds`` times; the best point of these rounds is kept.  If it still falls short (and
+    there is time), the plain maximisation from ``w0`` runs too: a failed result carries the
+    best trajectories there are.
+    """
+    lbx, ubx = bounds["lbx"], bounds["ubx"]
+    rob, w_opt, status, run = first.robustness, first.w, first.status, first.run
+    margin = struct.margin
+    best = (rob, w_opt, status)
+    for _ in range(rounds):
+        if rob >= eps or not solved(status) or out_of_time():
+            break
+        margin += eps - rob + EPS_MARGIN_STEP_M
+        lower_r(lbx, ubx, eps + margin)
+        w_start = w_opt.copy()
+        w_start[-1] = lbx[-1]
+        run = run.then(run_solvers(struct, w_start, bounds, say, "eq. (1) margin", stop))
+        w_opt, status = run.w, run.status
+        rob = exact(w_opt)
+        if rob > best[0]:
+            best = (rob, w_opt, status)
+    rob, w_opt, status = best
+    converged = solved(status)
+    if rob < eps and not out_of_time():
+        # Infeasible as constrained: the plain maximisation from the same start.
+        lbx[-1], ubx[-1] = struct.lbx[-1], struct.ubx[-1]
+        plain = run_solvers(struct, w0, bounds, say, "plain maximisation", stop)
+        rob_plain = exact(plain.w)
+        if rob_plain > rob:
+            rob, w_opt = rob_plain, plain.w
+            converged = solved(plain.status)
+            status = f"eq. (1) constraint not met ({status}); plain maximisation: {plain.status}"
+        run = run.then(plain)
+    return Attempt(rob, w_opt, status, converged, run)
+
+
+def nlp_bounds(
+    struct: Structure,
+    model: Any,
+    vehicles: Sequence[Vehicle],
+    p_val: np.ndarray,
+    fixed: tuple[np.ndarray, np.ndarray] | None,
+) -> dict[str, np.ndarray]:
+    """The numeric bounds of ``struct``'s NLP for these vehicles: each vehicle's limits
+    into ``lbg``/``ubg`` (vehicles with equal limits share one computation), the decisions
+    ``fixed`` (indices, values: a replan's kept prefix) at their values, and the
+    parameters ``p_val``; the keys of CasADi's ``nlpsol`` call."""
+    lbg = struct.lbg_fixed.copy()
+    ubg = struct.ubg_fixed.copy()
+    per_limits: dict[tuple[Any, Any], tuple[np.ndarray, np.ndarray]] = {}
+    for i, v in enumerate(vehicles):
+        key = vehicle_bounds(v)
+        if key not in per_limits:
+            per_limits[key] = vehicle_limit_bounds(model, v, struct.lim_half, struct.norm_rows)
+        lbg[struct.lim_slices[i]], ubg[struct.lim_slices[i]] = per_limits[key]
+    lbx, ubx = struct.lbx.copy(), struct.ubx.copy()
+    if fixed is not None:
+        lbx[fixed[0]] = ubx[fixed[0]] = fixed[1]
+    return {"p": p_val, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg}
+
+
+def start_point(
+    struct: Structure,
+    model: Any,
+    x0s: Sequence[np.ndarray],
+    p_val: np.ndarray,
+    z0: np.ndarray,
+) -> np.ndarray:
+    """The NLP's start point for the decisions ``z0`` (of vehicles starting at ``x0s``):
+    the sampled positions lifted, the chunks' values there, and r at the smallest leaf
+    value."""
+    Mp, Np = np.asarray(model.Mp), np.asarray(model.Np)
+    nd = model.n_dec * 3
+    p0 = [
+        (Mp @ z0[i * nd : (i + 1) * nd].reshape((model.n_dec, 3), order="F") + Np @ x0)[
+            struct.used_steps
+        ].reshape(-1, order="F")
+        for i, x0 in enumerate(x0s)
+    ]
+    w0 = np.concatenate([z0, *p0, np.zeros(struct.n_s), [0.0]])
+    if struct.n_s:  # the chunks' values there (planner.solve.leaves.chunks_of)
+        w0[-1 - struct.n_s : -1] = np.asarray(struct.chunk_fn(w0, p_val)).reshape(-1)
+    w0[-1] = min_leaf(struct, w0, p_val, default=0.0)
+    return w0

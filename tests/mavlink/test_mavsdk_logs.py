@@ -8,9 +8,12 @@ on a real MAVSDK callback backlog (a deliberately slow subscriber against a mock
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import math
+import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -19,13 +22,18 @@ from mavsdk import LogLevel
 
 from mavlink.link.mavsdk_glue import (
     MAVSDK_LOG,
+    calls_settled,
+    calls_under_way,
     forward_mavsdk_line,
+    mavsdk_call,
     mavsdk_instance_opened,
     mavsdk_log_file,
     route_mavsdk_logs,
 )
 from mavlink.link.vehicle import Vehicle
 from mavlink.link.vehicle_status import VehicleStatus
+from mavlink.mission.items import MissionItem
+from mavlink.mission.transfer import upload
 from mavlink.px4_modes import Px4Mode
 from planner.frames import GeodeticPoint, geodetic_to_enu
 from tests.mavlink.linkutil import mock_and_fleet
@@ -172,3 +180,52 @@ def test_heading_position_home_and_battery_are_read_not_subscribed_and_follow_th
     assert yaw[-1] == pytest.approx(math.pi / 2, abs=math.radians(3.0))
     # Closed, the vehicle keeps what it last read.
     assert v.status().heading_deg == pytest.approx(90.0, abs=1.0)
+
+
+def test_a_mavsdk_call_is_counted_until_its_answer_even_one_nobody_waits_for() -> None:
+    assert calls_settled(30.0)  # calls of earlier tests in this process answered
+    answer: list[Callable[..., None]] = []
+
+    def start(value: int, callback: Callable[..., None]) -> None:
+        answer.append(lambda: callback(value * 2, None))
+
+    async def run() -> tuple[int, int]:
+        got = await asyncio.wait_for(_answered_soon(start, answer), 5.0)
+        with contextlib.suppress(TimeoutError):  # a call nobody waits for any more
+            await mavsdk_call(start, 1, timeout_s=0.01)
+        return got, calls_under_way()
+
+    got, left = asyncio.run(run())
+    assert (got, left) == (42, 1)
+    assert not calls_settled(0.05)
+    threading.Thread(target=answer[-1]).start()  # MAVSDK's callback thread, loop closed
+    assert calls_settled(5.0) and calls_under_way() == 0
+
+
+async def _answered_soon(start: Callable[..., None], answer: list[Callable[..., None]]) -> int:
+    task = asyncio.ensure_future(mavsdk_call(start, 21))
+    while not answer:
+        await asyncio.sleep(0.001)
+    threading.Thread(target=answer[-1]).start()
+    return int(await task)
+
+
+@pytest.mark.slow  # real MAVSDK over UDP
+def test_a_fleet_closed_during_an_upload_waits_for_its_answer_before_destroying_mavsdk() -> None:
+    items = [
+        MissionItem(i, 6, 16, int(i == 0), 1, 0.0, 0.5, 0.0, math.nan,
+                    473977420 + 100 * i, 85455940, 520.0, 0)
+        for i in range(40)
+    ]  # fmt: skip
+
+    assert calls_settled(30.0)
+
+    async def run() -> int:
+        async with mock_and_fleet(["d1"], ORIGIN, [(0.0, 0.0, 0.0)]) as (_mock, fleet):
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(upload(fleet["d1"], items), 0.01)
+            return calls_under_way()
+
+    under_way = asyncio.run(run())
+    assert under_way == 1  # the upload was still going when the fleet closed
+    assert calls_under_way() == 0  # and had its answer before MAVSDK was destroyed
