@@ -3,7 +3,7 @@
 0. Calibration of the ``px4`` profile against PX4 v1.17 SITL (SIH): the reach-avoid
    2-vehicle and power-line 4-vehicle plans flown offboard by ``gcs fly --dry-run``
    (``--seeds`` boots each), the best-fit lag and tracking rms side by side with PX4's
-   figures (``mavlink.mock.calibration``), flown by the ground station PX4 SITL was flown
+   figures (``mavlink.mock.sim.calibration``), flown by the ground station PX4 SITL was flown
    with (``--drag 0 --arrive 1``: no drag feed-forward, a 1 m start gate); reach-avoid's
    tracking with the ground-effect creep off and take-offs reached within 0.3 m (PX4's
    figures are of vehicles that flew), then drag-free, then the whole vehicle with today's
@@ -44,7 +44,7 @@ import time
 from pathlib import Path
 
 from mavlink.mock import MockFleet
-from mavlink.mock import calibration as px4
+from mavlink.mock.sim import calibration as px4
 from mavlink.mock.testing import free_udp_ports
 
 REPO = Path(__file__).resolve().parents[1]

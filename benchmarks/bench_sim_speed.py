@@ -5,7 +5,7 @@ Plans the power line (``configs/powerline_inspection.yaml``, 4 drones) once, the
 default) for each speed and ``--runs`` seeds. The flight runs on the mock's simulated clock, so
 what must not change with the speed is the flight: the tracking rms and the best-fit lag per
 vehicle (PX4 SITL's band for this flight: rms 0.26-0.68 m, lag 0.03-0.15 s,
-``mavlink.mock.calibration``), the flown robustness and the stream's lateness (simulated time).
+``mavlink.mock.sim.calibration``), the flown robustness and the stream's lateness (simulated time).
 What should change is the wall time. A datagram's way through MAVSDK (its own process, on the
 wall clock) takes K times longer in simulated time, which is what limits K. Prints a table,
 then one JSON line. Usage::

@@ -41,7 +41,7 @@ def fly_one(plan_path: Path, seed: int, speed: float, force: bool) -> dict:  # t
     from gcs.flight.dryrun import free_udp_ports, ground_spawns
     from gcs.flight.evaluation import evaluate_flight
     from mavlink.mock.fleet import MockFleet
-    from mavlink.mock.px4 import Px4Mode
+    from mavlink.mock.sim.px4 import Px4Mode
     from mavlink.tracks import FlownTrack
     from planner.planfile import load_plan
 

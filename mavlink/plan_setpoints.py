@@ -2,7 +2,7 @@
 
 Both sides of the link sample plans the same way: the ground station streams these setpoints
 to PX4 (:mod:`mavlink.offboard`), and the batch simulator of ``gcs assess``
-(:mod:`mavlink.mock.batch`) flies them without sockets. A module of its own, apart from both:
+(:mod:`mavlink.mock.sim.batch`) flies them without sockets. A module of its own, apart from both:
 it speaks no MAVLink and imports neither side.
 """
 

@@ -45,7 +45,7 @@ class AutoSubMode(IntEnum):
 class Px4Mode(Enum):
     """A complete PX4 mode; the value is ``(main, sub)``.
 
-    The mock vehicle has its own (:class:`mavlink.mock.px4.Px4Mode`) on purpose: the vehicle's
+    The mock vehicle has its own (:class:`mavlink.mock.sim.px4.Px4Mode`) on purpose: the vehicle's
     side shares only the wire with the ground station it tests.
     """
 

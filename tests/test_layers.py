@@ -105,3 +105,14 @@ def test_no_module_is_over_800_lines() -> None:
         if (n := len(path.read_text(encoding="utf-8").splitlines())) > 800
     }
     assert long == {}
+
+
+def test_no_folder_holds_more_than_15_modules() -> None:
+    crowded = {
+        str(folder.relative_to(REPO)): n
+        for package in ("planner", "mavlink", "gcs")
+        for folder in [REPO / package, *(REPO / package).rglob("*/")]
+        if folder.is_dir() and folder.name != "__pycache__"
+        if (n := sum(1 for p in folder.glob("*.py") if p.name != "__init__.py")) > 15
+    }
+    assert crowded == {}

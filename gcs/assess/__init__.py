@@ -1,16 +1,16 @@
 """How likely is a plan to hold? A statistical assessment campaign (``gcs assess``).
 
 A campaign flies the plan ``runs`` times in the batch simulator
-(:mod:`mavlink.mock.batch`: the mock PX4 vehicle's own physics, controller and estimator,
+(:mod:`mavlink.mock.sim.batch`: the mock PX4 vehicle's own physics, controller and estimator,
 stepped for many runs at once), each run under disturbances drawn from the user's
-distributions (:mod:`mavlink.mock.disturbances`), and judges every run with the exact STL
+distributions (:mod:`mavlink.mock.sim.disturbances`), and judges every run with the exact STL
 semantics: the spec and each top-level clause, on where the vehicles really were (*true*) and
 on what they reported (*reported*, what ``gcs fly`` evaluates).  The spec *holds* in a run when
 its exact robustness on the true positions is > 0.
 
 The runs are split into batches; a batch is one task: in this process (``workers=0``), or on
 Ray, started locally for the campaign (``ray_address=None``) or an existing cluster.  A run is
-determined by its seed (:func:`mavlink.mock.batch.run_seed` of the campaign seed and its
+determined by its seed (:func:`mavlink.mock.sim.batch.run_seed` of the campaign seed and its
 index), so the statistics are the same whatever the split and wherever the batches run.
 Batches come back as they finish (``on_batch``); an interrupt keeps the finished ones.
 
@@ -43,8 +43,8 @@ from gcs.flight.evaluation import heading_readers, plan_formula, reads_heading
 
 if TYPE_CHECKING:
     from gcs.assess.replanned import ReplannedRuns, ReplanSettings
-    from mavlink.mock.batch import BatchFlights, SimSetup
-    from mavlink.mock.disturbances import Distribution
+    from mavlink.mock.sim.batch import BatchFlights, SimSetup
+    from mavlink.mock.sim.disturbances import Distribution
     from mavlink.monitor import SafetyMonitor
     from planner.planfile import Plan
 
@@ -67,7 +67,7 @@ class AssessOptions:
         runs: how many runs (> 0).
         seed: the campaign seed (run ``i``'s seed is ``run_seed(seed, i)``).
         disturbances: per disturbance name, its distribution as text (others: defaults).
-        profile: the simulated vehicle (``px4`` or ``ideal``, :mod:`mavlink.mock.profiles`).
+        profile: the simulated vehicle (``px4`` or ``ideal``, :mod:`mavlink.mock.sim.profiles`).
         params: PX4 parameters over the profile.
         rate_hz: setpoint rate, as ``gcs fly --rate``.
         drag_per_s: drag fed forward (1/s); ``None``: the vehicle's own, as ``gcs fly``.
@@ -244,7 +244,7 @@ def fly_batch(
 ) -> BatchOutcome:
     """Fly and judge one batch of runs (the task a Ray worker runs); with ``monitor``, fly
     them again under the safety monitor."""
-    from mavlink.mock.batch import simulate
+    from mavlink.mock.sim.batch import simulate
 
     t0 = time.perf_counter()
     flights = simulate(setup, seeds, dists)
@@ -318,9 +318,9 @@ def prepare_campaign(
     plan: Plan, opts: AssessOptions
 ) -> tuple[SimSetup, dict[str, Distribution], list[int]]:
     """The shared set-up, the distributions and every run's seed (bad input: UserError)."""
-    from mavlink.mock.batch import prepare, run_seed
-    from mavlink.mock.disturbances import parse_disturbances
-    from mavlink.mock.errors import MockConfigError
+    from mavlink.mock.sim.batch import prepare, run_seed
+    from mavlink.mock.sim.disturbances import parse_disturbances
+    from mavlink.mock.sim.errors import MockConfigError
 
     try:
         dists = parse_disturbances(opts.disturbances)
@@ -484,7 +484,7 @@ def _ray_batches(
 def replay(plan: Plan, opts: AssessOptions, seed: int) -> BatchFlights:
     """Fly the run with ``seed`` again, alone: the same disturbances, the same flight (under
     the safety monitor with ``opts.monitor``)."""
-    from mavlink.mock.batch import simulate
+    from mavlink.mock.sim.batch import simulate
 
     setup, dists, _ = prepare_campaign(plan, dataclasses.replace(opts, runs=1))
     watched = MonitorSettings(opts.max_off_plan_m).build(plan)[0] if opts.monitor else None

@@ -17,7 +17,7 @@ from planner.spec.cover import drawn_regions
 
 if TYPE_CHECKING:
     from gcs.assess.stats import AssessResult
-    from mavlink.mock.batch import BatchFlights
+    from mavlink.mock.sim.batch import BatchFlights
     from planner.planfile import Plan
 
 __all__ = ["plot_assessment"]

@@ -28,12 +28,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mavlink.mock.batch import BatchFlights, prepare, simulate
+from mavlink.mock.sim.batch import BatchFlights, prepare, simulate
 from mavlink.monitor_findings import RunFindings, Verdict
 from planner.replan import Departure, ReplanError, replan, switch_time
 
 if TYPE_CHECKING:
-    from mavlink.mock.disturbances import Distribution
+    from mavlink.mock.sim.disturbances import Distribution
     from planner.planfile import Plan
     from planner.problem import Problem
 

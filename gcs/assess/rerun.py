@@ -24,7 +24,7 @@ import numpy as np
 if TYPE_CHECKING:
     from gcs.assess import AssessOptions
     from gcs.flight.outcome import FlightOutcome
-    from mavlink.mock.batch import BatchFlights
+    from mavlink.mock.sim.batch import BatchFlights
     from planner.planfile import Plan
 
 __all__ = ["fly_realtime", "realtime_configs", "write_replay_csv"]
@@ -79,11 +79,11 @@ def realtime_configs(plan: Plan, opts: AssessOptions, flights: BatchFlights) -> 
     """
     from gcs.errors import UserError
     from gcs.flight.dryrun import ground_spawns
-    from mavlink.mock.batch import estimator_overrides
-    from mavlink.mock.config import FaultConfig, MockVehicleConfig, WindConfig
-    from mavlink.mock.errors import MockConfigError
-    from mavlink.mock.parameters import vehicle_params
-    from mavlink.mock.px4 import PARAM_SPECS
+    from mavlink.mock.sim.batch import estimator_overrides
+    from mavlink.mock.sim.config import FaultConfig, MockVehicleConfig, WindConfig
+    from mavlink.mock.sim.errors import MockConfigError
+    from mavlink.mock.sim.params import vehicle_params
+    from mavlink.mock.sim.px4 import PARAM_SPECS
 
     specs = {p.name: p for p in PARAM_SPECS}
     prm = vehicle_params(opts.profile, opts.params)

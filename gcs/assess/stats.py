@@ -21,7 +21,7 @@ from gcs.flight.evaluation import plan_formula
 
 if TYPE_CHECKING:
     from gcs.assess import AssessOptions, BatchOutcome
-    from mavlink.mock.disturbances import Distribution
+    from mavlink.mock.sim.disturbances import Distribution
     from planner.planfile import Plan
 
 __all__ = ["QUANTILES", "AssessResult", "ClauseStats", "RunSummary", "clopper_pearson", "summarise"]

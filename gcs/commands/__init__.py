@@ -49,7 +49,7 @@ def add_mock_vehicle_arguments(p: argparse.ArgumentParser, *, param_flag: str) -
     Declared once for ``gcs mock`` (``--param``) and the dry runs of ``gcs fly`` and
     ``gcs demo`` (``--mock-param``).
     """
-    from mavlink.mock.profiles import DEFAULT_PROFILE, PROFILES
+    from mavlink.mock.sim.profiles import DEFAULT_PROFILE, PROFILES
 
     p.add_argument(
         "--profile",
@@ -87,7 +87,7 @@ def parse_param_overrides(items: list[str], flag: str) -> dict[str, float]:
     """``NAME=VALUE`` strings -> a dict; a malformed one raises :class:`gcs.errors.UserError`
     naming the flag, and so does a name the mock vehicle does not have."""
     from gcs.errors import UserError
-    from mavlink.mock.px4 import PARAM_SPECS
+    from mavlink.mock.sim.px4 import PARAM_SPECS
 
     specs = {p.name: p for p in PARAM_SPECS}
     params: dict[str, float] = {}

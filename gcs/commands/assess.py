@@ -40,7 +40,7 @@ HELP = "fly a plan many times under drawn disturbances: P(spec holds), clauses, 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``gcs assess``."""
-    from mavlink.mock.profiles import DEFAULT_PROFILE, PROFILES
+    from mavlink.mock.sim.profiles import DEFAULT_PROFILE, PROFILES
 
     p.add_argument("plan", nargs="?", help="plan file written by gcs plan")
     p.add_argument("--runs", type=int, default=1000, help="how many runs (default 1000)")
@@ -172,7 +172,7 @@ def disturbance_settings(items: list[str], wind: str | None) -> dict[str, str]:
 
 
 def _list_disturbances(out: TextIO) -> None:
-    from mavlink.mock.disturbances import DISTURBANCES
+    from mavlink.mock.sim.disturbances import DISTURBANCES
 
     for name, d in DISTURBANCES.items():
         per = "per vehicle" if d.per_vehicle else "per run"

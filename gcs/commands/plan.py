@@ -350,9 +350,9 @@ def _to_probability(args: argparse.Namespace, problem: Any, out: Path) -> int:
     from gcs.assess.target import TargetOptions, plan_to_probability
     from gcs.commands.assess import disturbance_settings
     from gcs.errors import UserError
-    from mavlink.mock.disturbances import parse_disturbances
-    from mavlink.mock.errors import MockConfigError
-    from mavlink.mock.profiles import PROFILES
+    from mavlink.mock.sim.disturbances import parse_disturbances
+    from mavlink.mock.sim.errors import MockConfigError
+    from mavlink.mock.sim.profiles import PROFILES
     from planner.assurance import AssuranceGoal
     from planner.planfile import save_plan
 

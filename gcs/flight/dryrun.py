@@ -29,7 +29,7 @@ from gcs.errors import UserError
 if TYPE_CHECKING:
     from mavlink.clock import Clock
     from mavlink.mock import MockFleet
-    from mavlink.mock.config import MockVehicleConfig, WindConfig
+    from mavlink.mock.sim.config import MockVehicleConfig, WindConfig
     from mavlink.mock.vehicle_faults import VehicleFault
     from planner.planfile import Plan
 
@@ -90,7 +90,7 @@ class DryRun:
 
     @property
     def clock(self) -> Clock:
-        """The vehicles' simulated time (:class:`mavlink.mock.clock.SimClock`)."""
+        """The vehicles' simulated time (:class:`mavlink.mock.sim.clock.SimClock`)."""
         return self.mock.clock
 
 
@@ -110,7 +110,7 @@ def mock_vehicles(
 
     Vehicle ``i`` has system id ``i + 1`` and sends to a free loopback port, reached at
     ``udpin://127.0.0.1:PORT`` (the URLs yielded, plan order).  ``profile`` and
-    ``params`` choose the vehicle (:mod:`mavlink.mock.profiles`: ``px4`` by default);
+    ``params`` choose the vehicle (:mod:`mavlink.mock.sim.profiles`: ``px4`` by default);
     ``vehicle_configs`` (one per vehicle, plan order: spawn, link faults, parameters) replace
     them where each vehicle differs (``gcs assess --replay --realtime``), and ``wind`` blows on all.
     ``speed``: simulated seconds per wall second (:func:`sim_speed`: default

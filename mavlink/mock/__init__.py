@@ -9,12 +9,13 @@ as a PX4 autopilot.  See docs/architecture.md, "The mock vehicle" for what it im
 By default the vehicles behave like PX4 v1.17 SITL with its SIH quad-rotor (the ``px4``
 profile: drag, PX4's cascade on a biased estimate, PX4's take-off, navigator, mission
 storage and predictive geofence); ``profile="ideal"`` gives the exact vehicle
-(:mod:`mavlink.mock.profiles`).  Each vehicle carries a MAVLink camera (component 100) on a
-gimbal the autopilot manages (device 154) unless ``camera=False``.  Modules: ``physics``
-(vectorised dynamics and controller), ``estimator`` (what the vehicles believe),
-``navigator`` (missions, RTL, geofence), ``mission`` (the mission protocol and storage),
-``telemetry``, ``payload`` (the camera and the gimbal), ``vehicle`` (one MAVLink endpoint),
-``fleet``, ``calibration`` (PX4 SITL's figures).
+(:mod:`mavlink.mock.sim.profiles`).  Each vehicle carries a MAVLink camera (component 100) on
+a gimbal the autopilot manages (device 154) unless ``camera=False``.  Modules: ``navigator``
+(missions, RTL, geofence), ``mission`` (the mission protocol and storage), ``telemetry``,
+``payload`` (the camera and the gimbal), ``vehicle`` (one MAVLink endpoint), ``fleet``; what
+the vehicle does apart from the link is the simulation, :mod:`mavlink.mock.sim` (physics,
+estimator, PX4's modes and parameters, profiles, disturbances, simulated time, the batch
+simulator, PX4 SITL's figures), which speaks no MAVLink.
 
 Public API::
 
@@ -36,7 +37,9 @@ Client mistakes on the link are not exceptions: they get PX4's MAVLink answers
 
 from __future__ import annotations
 
-from mavlink.mock.config import (
+from mavlink.mock.fleet import DEFAULT_ORIGIN, MockFleet
+from mavlink.mock.mission import MissionItem
+from mavlink.mock.sim.config import (
     CameraSpec,
     FaultConfig,
     GimbalSpec,
@@ -45,11 +48,9 @@ from mavlink.mock.config import (
     Outage,
     WindConfig,
 )
-from mavlink.mock.errors import MockConfigError, MockError, MockStartError
-from mavlink.mock.fleet import DEFAULT_ORIGIN, MockFleet
-from mavlink.mock.mission import MissionItem
-from mavlink.mock.profiles import DEFAULT_PROFILE, PROFILES
-from mavlink.mock.px4 import Px4Mode
+from mavlink.mock.sim.errors import MockConfigError, MockError, MockStartError
+from mavlink.mock.sim.profiles import DEFAULT_PROFILE, PROFILES
+from mavlink.mock.sim.px4 import Px4Mode
 from mavlink.mock.vehicle import MockVehicle, VehicleState
 
 __all__ = [

@@ -25,7 +25,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.mock.mission import MISSION
 from mavlink.mock.parts import VehicleParts
-from mavlink.mock.px4 import Px4Mode
+from mavlink.mock.sim.px4 import Px4Mode
 from mavlink.mock.telemetry import DEFAULT_RATES_HZ, Stream
 
 #: A pymavlink message (its fields are per message type: untyped to mypy).

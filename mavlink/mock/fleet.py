@@ -34,12 +34,12 @@ from typing import Any
 import numpy as np
 import pymap3d
 
-from mavlink.mock.clock import TICK_SLACK_S, SimClock
-from mavlink.mock.config import FaultConfig, MockVehicleConfig, NoiseConfig, WindConfig
-from mavlink.mock.errors import MockConfigError, MockStartError
-from mavlink.mock.faults import FaultyChannel
-from mavlink.mock.physics import FleetPhysics
-from mavlink.mock.profiles import DEFAULT_PROFILE, profile_params
+from mavlink.mock.sim.clock import TICK_SLACK_S, SimClock
+from mavlink.mock.sim.config import FaultConfig, MockVehicleConfig, NoiseConfig, WindConfig
+from mavlink.mock.sim.errors import MockConfigError, MockStartError
+from mavlink.mock.sim.faults import FaultyChannel
+from mavlink.mock.sim.physics import FleetPhysics
+from mavlink.mock.sim.profiles import DEFAULT_PROFILE, profile_params
 from mavlink.mock.vehicle import MockVehicle
 from planner.frames import GeodeticPoint, enu_to_geodetic
 
@@ -85,7 +85,7 @@ class MockFleet:
         and drop unsigned (except RADIO_STATUS), wrongly signed and replayed
         frames (counted in ``MockVehicle.signing_rejected``).
     profile : ``"px4"`` (default: PX4 v1.17 with SIH, drag, estimator, PX4's
-        navigator) or ``"ideal"`` (the exact vehicle); see :mod:`mavlink.mock.profiles`.
+        navigator) or ``"ideal"`` (the exact vehicle); see :mod:`mavlink.mock.sim.profiles`.
         ``params`` apply on top of it.
     camera : every vehicle carries a MAVLink camera on a gimbal (:mod:`mavlink.mock.payload`;
         per vehicle: ``MockVehicleConfig.camera``).
@@ -151,7 +151,7 @@ class MockFleet:
         #: simulated seconds per wall-clock second the fleet aims at (PX4 SITL's
         #: PX4_SIM_SPEED_FACTOR); a busy machine may hold it below (:attr:`real_time_factor`)
         self.speed = float(speed)
-        #: the simulated time as the ground station's clock (:mod:`mavlink.mock.clock`)
+        #: the simulated time as the ground station's clock (:mod:`mavlink.mock.sim.clock`)
         self.clock = SimClock(self)
         #: UTC (s since the epoch) at simulation time 0: the payloads' wall clock
         self.utc_start_s = time.time() if utc_start_s is None else float(utc_start_s)

@@ -52,11 +52,11 @@ import math
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
-from mavlink.mock import px4
 from mavlink.mock.mission import FENCE, MISSION, RALLY, MissionItem
 from mavlink.mock.parts import VehicleParts
 from mavlink.mock.payload import PAYLOAD_MISSION_COMMANDS
-from mavlink.mock.px4 import Px4Mode
+from mavlink.mock.sim import px4
+from mavlink.mock.sim.px4 import Px4Mode
 
 _RTL_MIN_DIST_M = 10.0
 _REACHED_RESENDS = 10  # PX4 re-sends the last reached item up to 10 times, once a second

@@ -19,10 +19,10 @@ from typing import Any, TypeAlias
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
-from mavlink.mock import px4
 from mavlink.mock.parts import VehicleParts
-from mavlink.mock.physics import GRAVITY_M_S2
-from mavlink.mock.px4 import Px4Mode
+from mavlink.mock.sim import px4
+from mavlink.mock.sim.physics import GRAVITY_M_S2
+from mavlink.mock.sim.px4 import Px4Mode
 
 #: A pymavlink message (its fields are per message type: untyped to mypy).
 Msg: TypeAlias = Any

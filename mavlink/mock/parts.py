@@ -23,12 +23,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from mavlink.mock.config import MockVehicleConfig
     from mavlink.mock.mission import MissionServer
     from mavlink.mock.offboard import Setpoint
-    from mavlink.mock.payload_state import CameraState, GimbalState
-    from mavlink.mock.physics import FleetPhysics
-    from mavlink.mock.px4 import ParamSpec, Px4Mode
+    from mavlink.mock.sim.config import MockVehicleConfig
+    from mavlink.mock.sim.payload_state import CameraState, GimbalState
+    from mavlink.mock.sim.physics import FleetPhysics
+    from mavlink.mock.sim.px4 import ParamSpec, Px4Mode
     from mavlink.mock.telemetry import Stream
     from mavlink.mock.vehicle import FleetSide, Link
 

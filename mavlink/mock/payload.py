@@ -82,8 +82,8 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.link.signing import signing_timestamp
 from mavlink.mock.parts import VehicleParts
-from mavlink.mock.payload_state import CameraState, GimbalControl, GimbalState
-from mavlink.mock.px4 import Px4Mode
+from mavlink.mock.sim.payload_state import CameraState, GimbalControl, GimbalState
+from mavlink.mock.sim.px4 import Px4Mode
 from mavlink.mock.telemetry import Stream, euler_to_quaternion
 
 #: A pymavlink message (its fields are per message type: untyped to mypy).

@@ -4,7 +4,7 @@ A PX4 mission is not flown at the legs' constant speeds: the vehicle accelerates
 within MPC_ACC_HOR and MPC_JERK_AUTO, takes corners at PX4's corner speed, brakes to a stop
 before holds and where the next waypoint lies within the acceptance radius, and lags its own
 trajectory setpoint by SIH's drag (docs/px4-behaviour.md).  The mock's ``px4`` profile implements
-those laws (:mod:`mavlink.mock.navigator`, :mod:`mavlink.mock.physics`), so the honest
+those laws (:mod:`mavlink.mock.navigator`, :mod:`mavlink.mock.sim.physics`), so the honest
 prediction of a mission is the mock flying it: offline, in simulated time, with the
 estimator's errors switched off (the prediction is the expected flight, not one draw).
 
@@ -24,7 +24,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.mock.fleet import MockFleet
-from mavlink.mock.px4 import Px4Mode
+from mavlink.mock.sim.px4 import Px4Mode
 from mavlink.tracks import wrap_pi
 from planner.frames import GeodeticPoint, yaw_ned_to_enu
 

@@ -22,7 +22,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from mavlink.mock import px4
 from mavlink.mock.mission import MISSION
 from mavlink.mock.parts import VehicleParts
-from mavlink.mock.px4 import Px4Mode
+from mavlink.mock.sim.px4 import Px4Mode
 
 #: A pymavlink message (its fields are per message type: untyped to mypy).
 Msg: TypeAlias = Any
@@ -111,7 +111,7 @@ class TelemetryMixin(VehicleParts):
         return LandedState.IN_AIR
 
     def _msg_heartbeat(self) -> Msg:
-        base = self.mode.base_mode_flags
+        base = px4.base_mode_flags(self.mode)
         if self.armed:
             base |= mavlink2.MAV_MODE_FLAG_SAFETY_ARMED
         if self.failsafe and self.armed:

@@ -1,7 +1,7 @@
 """One mock PX4 quad-rotor: the MAVLink endpoint and the flight logic of PX4's commander/navigator.
 
 A :class:`MockVehicle` owns row ``index`` of the fleet's vectorised
-:class:`~mavlink.mock.physics.FleetPhysics`; every physics tick the fleet
+:class:`~mavlink.mock.sim.physics.FleetPhysics`; every physics tick the fleet
 calls :meth:`MockVehicle.tick`, which runs the mode logic (takeoff, hold,
 land, return, mission, offboard failsafe, geofence, auto-disarm), the mission
 protocol timers and the telemetry streams due at that time.  Incoming
@@ -36,19 +36,20 @@ import pymap3d
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.link.signing import signing_timestamp
-from mavlink.mock import px4
 from mavlink.mock.commands import CommandsMixin
-from mavlink.mock.config import FaultConfig, MockVehicleConfig, Outage
-from mavlink.mock.errors import MockConfigError, MockError
-from mavlink.mock.estimator import EstimatorParams
 from mavlink.mock.mission import MISSION, MissionItem, MissionServer
 from mavlink.mock.navigator import NavigatorMixin
 from mavlink.mock.offboard import OffboardMixin, Setpoint
 from mavlink.mock.origin import OriginMixin
-from mavlink.mock.parameters import ParametersMixin, vehicle_params
+from mavlink.mock.parameters import ParametersMixin
 from mavlink.mock.payload import PayloadMixin
-from mavlink.mock.physics import FleetPhysics
-from mavlink.mock.px4 import Px4Mode
+from mavlink.mock.sim import px4
+from mavlink.mock.sim.config import FaultConfig, MockVehicleConfig, Outage
+from mavlink.mock.sim.errors import MockConfigError, MockError
+from mavlink.mock.sim.estimator import EstimatorParams
+from mavlink.mock.sim.params import vehicle_params
+from mavlink.mock.sim.physics import FleetPhysics
+from mavlink.mock.sim.px4 import Px4Mode
 from mavlink.mock.telemetry import DEFAULT_RATES_HZ, Stream, TelemetryMixin
 from mavlink.mock.vehicle_faults import PlanFaults
 

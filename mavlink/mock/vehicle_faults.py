@@ -33,9 +33,9 @@ from typing import TYPE_CHECKING
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from mavlink.mock.config import Outage
-from mavlink.mock.errors import MockConfigError
-from mavlink.mock.px4 import Px4Mode
+from mavlink.mock.sim.config import Outage
+from mavlink.mock.sim.errors import MockConfigError
+from mavlink.mock.sim.px4 import Px4Mode
 
 if TYPE_CHECKING:
     from mavlink.mock.vehicle import MockVehicle

@@ -18,8 +18,8 @@ from gcs.assess import AssessOptions, assess, evaluate_batch, replay
 from gcs.assess.stats import clopper_pearson
 from gcs.errors import UserError
 from gcs.flight.evaluation import plan_formula
-from mavlink.mock.batch import prepare, run_seed, simulate
-from mavlink.mock.disturbances import parse_disturbances
+from mavlink.mock.sim.batch import prepare, run_seed, simulate
+from mavlink.mock.sim.disturbances import parse_disturbances
 from planner.planfile import Plan, load_plan
 
 PLAN = Path(__file__).resolve().parents[1] / "mavlink" / "data" / "reach_avoid_2.plan.json"

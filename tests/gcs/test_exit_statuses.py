@@ -22,8 +22,8 @@ from gcs.errors import (
 )
 from gcs.flight.dryrun import mock_vehicles
 from mavlink.errors import LinkError
-from mavlink.mock.errors import MockError
-from mavlink.mock.px4 import Px4Mode
+from mavlink.mock.sim.errors import MockError
+from mavlink.mock.sim.px4 import Px4Mode
 from planner.errors import PlannerError
 from planner.planfile import load_plan
 

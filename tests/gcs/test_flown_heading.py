@@ -108,8 +108,8 @@ def test_the_live_view_judges_the_flown_heading_not_the_planned_one(face_plan: P
 
 def test_an_assessment_judges_face_on_each_runs_simulated_heading(face_plan: Path) -> None:
     from gcs.assess import evaluate_batch
-    from mavlink.mock.batch import prepare, simulate
-    from mavlink.mock.disturbances import parse_disturbances
+    from mavlink.mock.sim.batch import prepare, simulate
+    from mavlink.mock.sim.disturbances import parse_disturbances
     from planner.planfile import plan_formula
 
     plan = load_plan(face_plan)

@@ -22,8 +22,8 @@ from gcs.flight import FlyOptions, fly_plan, vehicle_specs
 from gcs.flight.dryrun import DryRun, mock_vehicles
 from gcs.flight.outcome import FlightMode, FlightOutcome, format_outcome
 from gcs.report import report_markdown
-from mavlink.mock.config import FaultConfig, Outage
-from mavlink.mock.px4 import Px4Mode
+from mavlink.mock.sim.config import FaultConfig, Outage
+from mavlink.mock.sim.px4 import Px4Mode
 from mavlink.monitor_findings import Verdict
 from planner.planfile import Plan, load_plan
 

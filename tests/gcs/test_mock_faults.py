@@ -16,8 +16,8 @@ from typing import Any
 import pytest
 
 from gcs.cli import main
-from mavlink.mock.errors import MockConfigError
-from mavlink.mock.px4 import Px4Mode
+from mavlink.mock.sim.errors import MockConfigError
+from mavlink.mock.sim.px4 import Px4Mode
 from mavlink.mock.vehicle_faults import CRITICAL_PCT, PlanFaults, VehicleFault
 
 PLAN = Path(__file__).resolve().parents[1] / "mavlink" / "data" / "reach_avoid_2.plan.json"

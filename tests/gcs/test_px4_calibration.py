@@ -1,6 +1,6 @@
 """The px4 mock against PX4 v1.17 SITL (SIH): the same plans flown by ``gcs fly --dry-run``.
 
-The figures PX4 produced (``mavlink.mock.calibration``, from ``docs/px4-behaviour.md``)
+The figures PX4 produced (``mavlink.mock.sim.calibration``, from ``docs/px4-behaviour.md``)
 must be reproduced within 25 %: best-fit lag and tracking rms on the reach-avoid
 2-vehicle plan and on the power-line 4-vehicle plan, and the lag without drag.  PX4 flew
 them with the ground station of then: no drag feed-forward and a 1 m start gate, which
@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from gcs.cli import main
-from mavlink.mock import calibration as px4
+from mavlink.mock.sim import calibration as px4
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -69,7 +69,7 @@ def bias_lag_s(speed_m_s: float) -> float:
     ``b`` up to 1.5 sigma of MOCK_EST_VB per axis.  PX4's own ranges come from 5 flights,
     so one flight of the mock may sit that far outside them.
     """
-    from mavlink.mock.px4 import PARAM_SPECS
+    from mavlink.mock.sim.px4 import PARAM_SPECS
 
     d = {p.name: p.default for p in PARAM_SPECS}
     return 1.5 * math.sqrt(2.0) * d["MOCK_EST_VB"] / (d["MPC_XY_P"] * speed_m_s)

@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mavlink.mock.batch import prepare, run_seed, simulate
-from mavlink.mock.disturbances import DISTURBANCES, Distribution, parse_disturbances
-from mavlink.mock.errors import MockConfigError
-from mavlink.mock.parameters import vehicle_params
+from mavlink.mock.sim.batch import prepare, run_seed, simulate
+from mavlink.mock.sim.disturbances import DISTURBANCES, Distribution, parse_disturbances
+from mavlink.mock.sim.errors import MockConfigError
+from mavlink.mock.sim.params import vehicle_params
 from planner.planfile import load_plan
 
 DATA = Path(__file__).resolve().parent / "data"

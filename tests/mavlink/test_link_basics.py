@@ -100,7 +100,7 @@ def test_custom_mode_matches_px4_bit_layout() -> None:
 def test_the_mock_and_the_ground_station_encode_every_px4_mode_alike() -> None:
     # two enums on purpose (the vehicle's side shares only the wire with the client it
     # tests): the same modes, the same (main, sub) custom-mode pairs
-    from mavlink.mock.px4 import Px4Mode as MockMode
+    from mavlink.mock.sim.px4 import Px4Mode as MockMode
 
     assert [m.name for m in MockMode] == [m.name for m in Px4Mode]
     for mode in Px4Mode:

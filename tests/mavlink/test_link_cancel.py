@@ -12,7 +12,7 @@ from collections.abc import Callable
 import pytest
 
 from mavlink.mock import FaultConfig, MockFleet
-from mavlink.mock.px4 import Px4Mode as MockMode
+from mavlink.mock.sim.px4 import Px4Mode as MockMode
 from mavlink.monitor import SafetyMonitor
 from mavlink.offboard import fly_offboard
 from mavlink.offboard.setpoints import OffboardConfig

@@ -16,8 +16,8 @@ from pymavlink import mavutil
 
 from gcs.telemetry import load_telemetry
 from mavlink.errors import PreflightError
-from mavlink.mock.config import FaultConfig, Outage
-from mavlink.mock.px4 import Px4Mode as MockMode
+from mavlink.mock.sim.config import FaultConfig, Outage
+from mavlink.mock.sim.px4 import Px4Mode as MockMode
 from mavlink.monitor import SafetyMonitor
 from mavlink.monitor_findings import Verdict, always_clauses
 from mavlink.offboard import FlightResult, fly_offboard

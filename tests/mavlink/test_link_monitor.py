@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mavlink.errors import PreflightError
-from mavlink.mock.px4 import Px4Mode as MockMode
+from mavlink.mock.sim.px4 import Px4Mode as MockMode
 from mavlink.monitor import SafetyMonitor
 from mavlink.monitor_findings import SafetyAction, Verdict, always_clauses
 from mavlink.offboard import fly_offboard

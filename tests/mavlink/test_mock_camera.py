@@ -31,7 +31,7 @@ from scipy.spatial.transform import Rotation
 
 from gcs.flight.dryrun import sim_speed
 from mavlink.mock import MissionItem, MockFleet, MockVehicleConfig, Px4Mode
-from mavlink.mock.config import CameraSpec
+from mavlink.mock.sim.config import CameraSpec
 from mavlink.mock.testing import GcsEndpoint, free_udp_ports
 from mavlink.mock.vehicle import MockVehicle
 

@@ -1,4 +1,4 @@
-"""The mock fleet's simulated time as the ground station's clock (mavlink.mock.clock).
+"""The mock fleet's simulated time as the ground station's clock (mavlink.mock.sim.clock).
 
 A flight in a dry run waits on the simulation: a sleep ends on the tick that reaches its
 instant, whatever the fleet's speed and however busy the machine; delayed datagrams keep their
@@ -14,8 +14,8 @@ import pytest
 
 from mavlink.clock import WALL, Clock
 from mavlink.mock import MockFleet
-from mavlink.mock.clock import SimClock
-from mavlink.mock.errors import MockConfigError
+from mavlink.mock.sim.clock import SimClock
+from mavlink.mock.sim.errors import MockConfigError
 from mavlink.mock.testing import free_udp_ports
 
 

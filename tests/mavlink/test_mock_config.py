@@ -15,7 +15,7 @@ from mavlink.mock import (
     Outage,
     WindConfig,
 )
-from mavlink.mock.px4 import Px4Mode
+from mavlink.mock.sim.px4 import Px4Mode
 from mavlink.mock.testing import free_udp_ports
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mavlink.mock.config import NoiseConfig, WindConfig
-from mavlink.mock.physics import FleetPhysics
+from mavlink.mock.sim.config import NoiseConfig, WindConfig
+from mavlink.mock.sim.physics import FleetPhysics
 
 
 def airborne_fleet(n: int, seed: int = 0, wind: WindConfig | None = None, noise: NoiseConfig | None = None) -> FleetPhysics:  # fmt: skip

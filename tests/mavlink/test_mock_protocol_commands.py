@@ -14,7 +14,8 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.mock import Px4Mode
-from mavlink.mock.px4 import PARAM_SPECS, ParamType, decode_param_value, encode_param_value
+from mavlink.mock.px4 import decode_param_value, encode_param_value
+from mavlink.mock.sim.px4 import PARAM_SPECS, ParamType
 from mavlink.mock.testing import GcsEndpoint
 from tests.mavlink.mock_protocol_helpers import ORIGIN, mock_vehicles, stream_setpoints, wait_for
 
@@ -26,6 +27,11 @@ def heartbeat_mode(gcs: GcsEndpoint) -> tuple[Px4Mode | None, mavlink2.MAVLink_h
 
 
 # ---------------------------------------------------------------- identity
+
+
+def test_the_simulations_parameter_types_are_mavlinks_numbers() -> None:
+    assert int(ParamType.INT32) == mavlink2.MAV_PARAM_TYPE_INT32
+    assert int(ParamType.REAL32) == mavlink2.MAV_PARAM_TYPE_REAL32
 
 
 def test_heartbeats_identify_px4_quadrotors_with_own_sysids() -> None:

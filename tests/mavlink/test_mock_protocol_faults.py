@@ -41,7 +41,7 @@ def test_duplication_and_reordering_are_visible_in_sequence_numbers() -> None:
 def test_fault_draws_are_reproducible_for_a_seed() -> None:
     import random
 
-    from mavlink.mock.faults import FaultyChannel
+    from mavlink.mock.sim.faults import FaultyChannel
 
     def pattern(seed: int) -> list[int]:
         out: list[int] = []
@@ -65,7 +65,7 @@ def test_fault_draws_are_reproducible_for_a_seed() -> None:
 def test_latency_jitter_and_reordering_delays_with_a_patched_clock() -> None:
     import random
 
-    from mavlink.mock.faults import FaultyChannel
+    from mavlink.mock.sim.faults import FaultyChannel
 
     delays: list[float] = []
 

@@ -253,8 +253,8 @@ def test_the_mock_px4_tracks_a_plan_within_its_descent_limit_and_lags_one_beyond
     # The case: a plan descending faster than MPC_Z_VEL_MAX_DN (1.5 m/s) falls behind
     # on PX4, whose position controller clamps the velocity setpoint. Flown in the batch
     # simulator (the mock vehicle's model) without disturbances.
-    from mavlink.mock.batch import prepare, run_seed, simulate
-    from mavlink.mock.disturbances import parse_disturbances
+    from mavlink.mock.sim.batch import prepare, run_seed, simulate
+    from mavlink.mock.sim.disturbances import parse_disturbances
     from planner.optimize import plan
 
     quiet = parse_disturbances(

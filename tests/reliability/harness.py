@@ -273,7 +273,7 @@ async def flight_run(
     import numpy as np
 
     from mavlink.mock import Outage
-    from mavlink.mock.px4 import Px4Mode
+    from mavlink.mock.sim.px4 import Px4Mode
     from mavlink.offboard import fly_offboard
     from mavlink.offboard.setpoints import OffboardConfig
     from planner.frames import GeodeticPoint, ned_to_enu

@@ -14,7 +14,7 @@ import pytest
 
 from mavlink.link.fleet import Fleet
 from mavlink.mock import MockFleet
-from mavlink.mock.px4 import Px4Mode as MockMode
+from mavlink.mock.sim.px4 import Px4Mode as MockMode
 from mavlink.monitor import SafetyMonitor
 from mavlink.monitor_findings import Verdict, always_clauses
 from mavlink.offboard import FlightResult, fly_offboard

@@ -1,7 +1,7 @@
 """Profiles of the mock vehicle: which vehicle it pretends to be, as a table of parameters.
 
 A profile is nothing but parameter values on top of the defaults of
-:data:`mavlink.mock.px4.PARAM_SPECS`, so every aspect of it can be overridden one
+:data:`mavlink.mock.sim.px4.PARAM_SPECS`, so every aspect of it can be overridden one
 parameter at a time (``MockFleet(params=...)``, ``gcs mock --param NAME=VALUE``) and read
 or set by any client through the MAVLink parameter protocol.
 
@@ -13,7 +13,7 @@ or set by any client through the MAVLink parameter protocol.
     the vehicle trails its setpoints by KDV / (MPC_XY_P * MPC_XY_VEL_P_ACC) = 0.585 s
     until the velocity integrator catches up; the loops closed on a biased, noisy
     estimate (a slow velocity bias holds the hover ``bias / MPC_XY_P`` off its setpoint)
-    with a per-boot EKF origin (``mavlink.mock.estimator``) and a ground-effect
+    with a per-boot EKF origin (``mavlink.mock.sim.estimator``) and a ground-effect
     altitude creep; yaw at MC_YAW_P; PX4's take-off (spool-up only when a climb is
     wanted, ramp MPC_TKO_RAMP_T, "reached" within NAV_MC_ALT_RAD); PX4's mission
     navigator and storage (``MOCK_PX4_NAV``): corner speeds, MISSION_ITEM_REACHED and
@@ -31,7 +31,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from types import MappingProxyType
 
-from mavlink.mock.errors import MockConfigError
+from mavlink.mock.sim.errors import MockConfigError
 
 _IDEAL: dict[str, float] = {
     "SIH_KDV": 0.0,

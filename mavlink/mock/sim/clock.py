@@ -16,12 +16,23 @@ import contextlib
 import heapq
 import itertools
 import threading
-from typing import TYPE_CHECKING
+from typing import Protocol
 
-if TYPE_CHECKING:
-    from mavlink.mock.fleet import MockFleet
+__all__ = ["TICK_SLACK_S", "SimClock", "SimulatedFleet"]
 
-__all__ = ["TICK_SLACK_S", "SimClock"]
+
+class SimulatedFleet(Protocol):
+    """What the clock reads of the fleet whose time it keeps (:class:`mavlink.mock.MockFleet`)."""
+
+    @property
+    def time_s(self) -> float: ...
+
+    @property
+    def utc_start_s(self) -> float: ...
+
+    @property
+    def speed(self) -> float: ...
+
 
 #: Rounding allowed when an instant is compared with a tick's (s): an instant that is a tick's,
 #: summed another way, is due on that tick (the fleet's timers and the clock's alarms alike).
@@ -49,7 +60,7 @@ class SimClock:
     Safe to use from any thread's event loop while the fleet runs in another.
     """
 
-    def __init__(self, fleet: MockFleet) -> None:
+    def __init__(self, fleet: SimulatedFleet) -> None:
         self._fleet = fleet
         self._lock = threading.Lock()
         self._alarms: list[_Alarm] = []

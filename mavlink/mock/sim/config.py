@@ -1,7 +1,7 @@
 """Configuration values of the mock fleet: faults, wind, noise, per-vehicle set-up, payload.
 
 All values are frozen dataclasses validated on construction; a bad value raises
-:class:`mavlink.mock.errors.MockConfigError` naming the field.
+:class:`mavlink.mock.sim.errors.MockConfigError` naming the field.
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from mavlink.mock.errors import MockConfigError
+from mavlink.mock.sim.errors import MockConfigError
 
 
 def _probability(name: str, value: float) -> None:
@@ -213,7 +213,7 @@ class MockVehicleConfig:
     ``params``: PX4 parameter overrides by name (e.g. ``{"COM_OF_LOSS_T": 0.5}``).
     ``ready_after_s``: simulated EKF/GPS convergence time; arming is refused before.
     ``profile``: ``"px4"`` (PX4 v1.17 with SIH, the default) or ``"ideal"``
-    (:mod:`mavlink.mock.profiles`); ``params`` apply on top of it.
+    (:mod:`mavlink.mock.sim.profiles`); ``params`` apply on top of it.
     ``camera``: the vehicle carries a MAVLink camera (component 100) on a gimbal (device
     154, managed by the autopilot; :mod:`mavlink.mock.payload`) with ``camera_spec`` and
     ``gimbal_spec``; False: neither, as PX4 without a camera or gimbal answers.
@@ -238,6 +238,6 @@ class MockVehicleConfig:
         params = self.params.items() if isinstance(self.params, dict) else self.params
         object.__setattr__(self, "params", tuple((str(k), float(v)) for k, v in params))
         _non_negative("ready_after_s", self.ready_after_s)
-        from mavlink.mock.profiles import profile_params
+        from mavlink.mock.sim.profiles import profile_params
 
         profile_params(self.profile)  # names the choices when unknown

@@ -21,7 +21,7 @@ point, ground at ``down = 0``) driven by a PX4-like cascaded controller:
   does on SIH.  With ``kdv = 0`` (the ideal profile) wind pushes with
   ``WindConfig.drag_per_s * wind`` instead.
 
-The controller closes its loops on the *estimate* (:mod:`mavlink.mock.estimator`):
+The controller closes its loops on the *estimate* (:mod:`mavlink.mock.sim.estimator`):
 ``pos_ned_m`` / ``vel_ned_m_s`` are what the vehicle believes, in its local frame (origin
 at its EKF origin); ``true_pos_ned_m`` / ``true_vel_ned_m_s`` are the truth in the spawn
 frame (origin at the spawn point, ground at ``down = 0``).
@@ -38,8 +38,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from mavlink.mock.config import NoiseConfig, WindConfig
-from mavlink.mock.estimator import FleetEstimator
+from mavlink.mock.sim.config import NoiseConfig, WindConfig
+from mavlink.mock.sim.estimator import FleetEstimator
 
 GRAVITY_M_S2 = 9.80665
 _GROUND_D_M = 0.0
@@ -64,7 +64,7 @@ class FleetPhysics:
         self.wind = wind or WindConfig()
         #: per vehicle: the mean wind (north, east, m/s), the gusts' stationary std per
         #: horizontal axis and their correlation time (from ``wind``; the batch simulator
-        #: (:mod:`mavlink.mock.batch`) gives every row its own)
+        #: (:mod:`mavlink.mock.sim.batch`) gives every row its own)
         self.wind_mean_ne_m_s = np.tile(np.asarray(self.wind.mean_ne_m_s, dtype=float), (n, 1))
         self.gust_sigma_m_s = np.full(n, self.wind.gust_sigma_m_s)
         self.gust_tau_s = np.full(n, self.wind.gust_tau_s)

@@ -3,7 +3,7 @@
 A :class:`FaultyChannel` sits between a producer of datagrams and the
 function that delivers them (the socket's ``sendto`` for the downlink, the
 vehicle's parser for the uplink).  It drops, duplicates, delays and reorders
-datagrams as its :class:`~mavlink.mock.config.FaultConfig` says, with a seeded
+datagrams as its :class:`~mavlink.mock.sim.config.FaultConfig` says, with a seeded
 ``random.Random`` so a run is reproducible for a given seed and traffic.
 """
 
@@ -13,7 +13,7 @@ import random
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from mavlink.mock.config import FaultConfig
+from mavlink.mock.sim.config import FaultConfig
 
 
 @dataclass(slots=True)

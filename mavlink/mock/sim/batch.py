@@ -1,12 +1,12 @@
 """Many offboard flights of one plan at once, faster than real time: the batch simulator.
 
 ``gcs assess`` flies a plan hundreds or thousands of times under drawn disturbances
-(:mod:`mavlink.mock.disturbances`).  Here every run and every vehicle is one row of one
-:class:`~mavlink.mock.physics.FleetPhysics`, stepped together as numpy arrays at the physics
+(:mod:`mavlink.mock.sim.disturbances`).  Here every run and every vehicle is one row of one
+:class:`~mavlink.mock.sim.physics.FleetPhysics`, stepped together as numpy arrays at the physics
 rate, with no UDP, no asyncio and no MAVLink: the *same* physics, controller and estimator
 code as the real-time mock vehicle (``gcs mock``, ``gcs fly --dry-run``), set up from the same
-PX4 parameters by the same functions (:func:`mavlink.mock.parameters.apply_controller_params`,
-:func:`~mavlink.mock.parameters.mode_limits`, :meth:`FleetEstimator.configure`).
+PX4 parameters by the same functions (:func:`mavlink.mock.sim.params.apply_controller_params`,
+:func:`~mavlink.mock.sim.params.mode_limits`, :meth:`FleetEstimator.configure`).
 
 What a run flies is what ``gcs fly`` streams in offboard mode (docs/architecture.md, "The MAVLink side"): the plan
 sampled at ``rate_hz`` into local-NED setpoints by :func:`mavlink.plan_setpoints.plan_setpoints_ned`
@@ -40,21 +40,21 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from mavlink.mock import px4
-from mavlink.mock.config import NoiseConfig
-from mavlink.mock.disturbances import Distribution, draw_disturbances
-from mavlink.mock.errors import MockConfigError
-from mavlink.mock.estimator import EstimatorParams
-from mavlink.mock.parameters import (
+from mavlink.mock.sim import px4
+from mavlink.mock.sim.config import NoiseConfig
+from mavlink.mock.sim.disturbances import Distribution, draw_disturbances
+from mavlink.mock.sim.errors import MockConfigError
+from mavlink.mock.sim.estimator import EstimatorParams
+from mavlink.mock.sim.params import (
     ModeLimits,
     apply_controller_params,
     apply_limits,
     mode_limits,
     vehicle_params,
 )
-from mavlink.mock.physics import FleetPhysics
-from mavlink.mock.profiles import DEFAULT_PROFILE
-from mavlink.mock.px4 import Px4Mode
+from mavlink.mock.sim.physics import FleetPhysics
+from mavlink.mock.sim.profiles import DEFAULT_PROFILE
+from mavlink.mock.sim.px4 import Px4Mode
 from mavlink.plan_setpoints import plan_setpoints_ned
 from mavlink.tracks import wrap_pi
 

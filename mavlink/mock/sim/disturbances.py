@@ -1,6 +1,6 @@
 """What can go differently on the day: the disturbances of a simulated flight, as distributions.
 
-A statistical assessment (``gcs assess``, :mod:`mavlink.mock.batch`) flies a plan many times,
+A statistical assessment (``gcs assess``, :mod:`mavlink.mock.sim.batch`) flies a plan many times,
 each run under disturbances drawn from distributions the user may set: the wind, the state
 estimate's errors, where a vehicle really stands when the plan starts, the setpoint link,
 and how much of its speed and acceleration a vehicle has.  Each disturbance has a name, a unit,
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mavlink.mock.errors import MockConfigError
+from mavlink.mock.sim.errors import MockConfigError
 
 __all__ = [
     "DISTURBANCES",
