@@ -201,7 +201,7 @@ class CommandsMixin(VehicleParts):
         was_mission = self.mode is Px4Mode.AUTO_MISSION
         self._payload_mode_change(self.mode, mode)
         self.mode = mode
-        self._traj_active = False
+        self.traj.active = False
         self._apply_limits()
         pos = phys.pos_ned_m[i]
         if mode is Px4Mode.AUTO_LOITER:

@@ -1,7 +1,10 @@
 """PX4 navigator behaviour of the mock vehicle: mission execution, return to launch, geofence.
 
 Mixed into :class:`mavlink.mock.vehicle.MockVehicle`; the methods use its
-state (``phys``, ``index``, ``params``, ``missions``, ``home_ned_m``, ...).
+state (``phys``, ``index``, ``params``, ``missions``, ``home_ned_m``, ...).  The mission
+items, what they command and what the vehicle reports about them are here; PX4's geometry
+under them (the auto modes' trajectory setpoint, corner speeds, the geofence and its
+braking point) is the simulation's (:mod:`mavlink.mock.sim.navigation`).
 
 Mission execution follows PX4 for multicopters: NAV items are flown one at a
 time (takeoff vertically, waypoints accepted within ``param2`` or NAV_ACC_RAD
@@ -56,50 +59,15 @@ from mavlink.mock.mission import FENCE, MISSION, RALLY, MissionItem
 from mavlink.mock.parts import VehicleParts
 from mavlink.mock.payload import PAYLOAD_MISSION_COMMANDS
 from mavlink.mock.sim import px4
+from mavlink.mock.sim.navigation import (
+    FenceZone,
+    Geofence,
+    braking_point,
+)
 from mavlink.mock.sim.px4 import Px4Mode
 
 _RTL_MIN_DIST_M = 10.0
 _REACHED_RESENDS = 10  # PX4 re-sends the last reached item up to 10 times, once a second
-_GF_DELAY_FACTOR = 0.6  # PX4's braking-distance delay: accel_delay_max = 0.6 * MPC_JERK_AUTO
-
-
-def max_speed_from_distance(jerk: float, accel: float, dist_m: float, final_m_s: float) -> float:
-    """PX4's ``computeMaxSpeedFromDistance`` (TrajMath.hpp): the speed from which a
-    jerk- and acceleration-limited stop ends at ``final_m_s`` after ``dist_m``."""
-    b = 4.0 * accel * accel / jerk
-    c = -2.0 * accel * max(dist_m, 0.0) - final_m_s * final_m_s
-    return 0.5 * (-b + math.sqrt(b * b - 4.0 * c))
-
-
-def corner_speed(
-    prev: np.ndarray, target: np.ndarray, nxt: np.ndarray | None, radius_m: float, p: dict
-) -> float:
-    """PX4's speed at ``target`` heading for ``nxt`` (TrajectoryConstraints.hpp), m/s.
-
-    ``alpha`` is the angle at the waypoint between the legs (pi: straight on); the speed
-    is 0 without a next waypoint or when the next one lies within the acceptance radius.
-    """
-    if nxt is None:
-        return 0.0
-    out = nxt - target
-    d_next = float(np.linalg.norm(out))
-    if d_next < radius_m:
-        return 0.0
-    inc = prev - target
-    n_in = float(np.linalg.norm(inc))
-    if n_in < 1e-6:
-        alpha = math.pi
-    else:
-        cos_a = float(np.dot(inc, out)) / (n_in * d_next)
-        alpha = math.acos(max(-1.0, min(1.0, cos_a)))
-    acc, jerk = p["MPC_ACC_HOR"], p["MPC_JERK_AUTO"]
-    half = alpha / 2.0
-    turn = (
-        math.inf
-        if half >= math.pi / 2 - 1e-9
-        else math.sqrt(max(0.0, p["MPC_XY_TRAJ_P"] * acc * radius_m * math.tan(half)))
-    )
-    return min(turn, max_speed_from_distance(jerk, acc, d_next, 0.0))
 
 
 class NavigatorMixin(VehicleParts):
@@ -169,7 +137,7 @@ class NavigatorMixin(VehicleParts):
             self._jump_counts.clear()
             self._mis_reached_sent = -1
             self._seq_reached = -1
-            self._traj_active = False
+            self.traj.active = False
             self._mission_valid_s = self._now()
             # MissionBase::update_mission: a new mission starts without the old ROI (the
             # gimbal keeps pointing where it was told)
@@ -252,7 +220,7 @@ class NavigatorMixin(VehicleParts):
                        mavlink2.MAV_CMD_NAV_LOITER_UNLIM, mavlink2.MAV_CMD_NAV_TAKEOFF,
                        mavlink2.MAV_CMD_NAV_VTOL_TAKEOFF, mavlink2.MAV_CMD_NAV_LAND,
                        mavlink2.MAV_CMD_NAV_VTOL_LAND):  # fmt: skip
-            self._traj_active = False
+            self.traj.active = False
         pos = self.phys.pos_ned_m[i].copy()
         if cmd == mavlink2.MAV_CMD_NAV_RETURN_TO_LAUNCH:
             # PX4 v1.17 (seen on SITL): the return item is reached at once, the mission is
@@ -280,7 +248,7 @@ class NavigatorMixin(VehicleParts):
                 target[:2] = pos[:2]
                 target[2] = min(target[2], pos[2])
                 self._mis_phase = "takeoff"
-                self._traj_active = False
+                self.traj.active = False
             elif cmd in (mavlink2.MAV_CMD_NAV_LAND, mavlink2.MAV_CMD_NAV_VTOL_LAND):
                 # PX4 v1.17 (Mission::do_need_move_to_land, rotary wing): farther than the
                 # acceptance radius from the land point it first flies there at its altitude
@@ -303,11 +271,11 @@ class NavigatorMixin(VehicleParts):
                 )
                 self._mis_target = target
                 self._mis_phase = "pre_takeoff"
-                self._traj_active = False
+                self.traj.active = False
                 self.phys.set_position(i, target_to)
             else:
                 # PX4's previous triplet waypoint: the last target, or here on a first leg
-                prev = self._mis_target.copy() if self._traj_active else pos.copy()
+                prev = self._mis_target.copy() if self.traj.active else pos.copy()
                 self._mis_target = target
                 self.phys.set_position(i, target)
                 self._head_for(item, target)
@@ -319,7 +287,7 @@ class NavigatorMixin(VehicleParts):
     def _mission_finish(self, then: Px4Mode | None = None) -> None:
         """The mission is complete: hold where it ends (or ``then``: AUTO.RTL at a return
         item)."""
-        self._traj_active = False
+        self.traj.active = False
         plan = self.missions.plans[MISSION]
         self.mission_finished = True
         self.mission_seq = max(0, len(plan) - 1)
@@ -377,28 +345,17 @@ class NavigatorMixin(VehicleParts):
 
     # ---------------------------------------------------------------- PX4 trajectory
     def _traj_begin(self, target: np.ndarray, prev: np.ndarray) -> None:
-        """Start the leg ``prev`` -> ``target`` from the current trajectory setpoint (PX4 nav
-        only)."""
+        """Start the leg ``prev`` -> ``target`` of the current item (PX4 nav only)."""
         if not self.px4_nav:
             return
-        i = self.index
-        if not self._traj_active:
-            self._traj_pos = self.phys.pos_ned_m[i].copy()
-            self._traj_vel = np.zeros(3)
-            self._traj_active = True
-        self._traj_from = self._traj_pos.copy()
-        plan = self.missions.plans[MISSION]
-        item = plan[self.mission_seq]
+        item = self.missions.plans[MISSION][self.mission_seq]
         radius = item.param2 if item.param2 > 0 else self.params["NAV_ACC_RAD"]
         hold = item.command == mavlink2.MAV_CMD_NAV_WAYPOINT and item.param1 > 0
         nxt = None if hold else self._next_position(self.mission_seq)
-        self._traj_exit_m_s = min(
-            corner_speed(self._traj_from, target, nxt, radius, self.params),
+        self.traj.begin(
+            self.phys.pos_ned_m[self.index], target, prev, nxt, radius, self.params,
             self.cruise_speed_m_s,
-        )
-        self._leg_prev = np.asarray(prev, dtype=float).copy()
-        self._leg_radius_m = radius
-        self._leg_next = nxt
+        )  # fmt: skip
 
     def _next_position(self, seq: int) -> np.ndarray | None:
         """Local position of the next waypoint-like item after ``seq`` (DO items skipped)."""
@@ -416,78 +373,14 @@ class NavigatorMixin(VehicleParts):
                 return None
         return None
 
-    def _aim(self, target: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        """Where PX4's trajectory heads this cycle: ``(aim, from, exit speed)``.
-
-        PX4's ``FlightTaskAuto::_getCurrentState`` / ``_updateInternalWaypoints``, on the
-        vehicle's estimate against the leg from the previous waypoint to the target:
-        the target behind the vehicle, it goes straight for the target; the previous
-        waypoint still ahead (and farther than the acceptance radius), for that one;
-        farther than the acceptance radius from the leg ("offtrack"), for the closest
-        point on the leg, turning there toward the target at the corner speed.  With a
-        small radius a vehicle that PX4's own lag or its estimate keeps off the line
-        hunts for it, stopping and turning back: PX4 SITL lost 18-35 s on one waypoint.
-        """
-        pos = self.phys.pos_ned_m[self.index]
-        prev, radius = self._leg_prev, self._leg_radius_m
-        leg = target - prev
-        length = float(np.linalg.norm(leg))
-        if length < 1e-6:
-            return target, self._traj_from, self._traj_exit_m_s
-        u = leg / length
-        if float(np.dot(u, target - pos)) < 0.0:  # target behind
-            return target, pos, self._traj_exit_m_s
-        to_pos = pos - prev
-        if float(np.dot(u, to_pos)) < 0.0 and float(np.linalg.norm(to_pos)) > radius:
-            return prev, pos, corner_speed(pos, prev, target, radius, self.params)
-        closest = prev + u * float(np.dot(to_pos, u))
-        if float(np.linalg.norm(pos - closest)) > radius:  # offtrack
-            return closest, pos, corner_speed(pos, closest, target, radius, self.params)
-        return target, self._traj_from, self._traj_exit_m_s
-
     def _traj_step(self, target: np.ndarray) -> None:
-        """Advance PX4's trajectory setpoint one step toward ``target`` and command it.
-
-        The setpoint heads for the target (or where :meth:`_aim` sends it) at the speed
-        from which it can still slow to the exit (corner) speed there, within the cruise
-        speed, turning at MPC_ACC_HOR; having passed it (the vehicle not yet accepted) it
-        comes back and waits there, as PX4 does when the vehicle misses the acceptance
-        circle.  While the vehicle is behind the setpoint, the setpoint's clock is slowed
-        by ``1 - error / MPC_XY_ERR_MAX`` (PX4's ``PositionSmoothing`` time stretch): a
-        vehicle trailing by its drag lag holds its own setpoint back.
-        """
-        dt = self.fleet.dt_s
-        prm = self.params
-        acc, jerk = prm["MPC_ACC_HOR"], prm["MPC_JERK_AUTO"]
-        aim, start, v_exit = self._aim(target)
-        behind = self._traj_pos[:2] - self.phys.pos_ned_m[self.index, :2]
-        if float(np.dot(behind, self._traj_vel[:2])) >= 0.0:
-            err_max = prm["MPC_XY_ERR_MAX"]
-            dt *= 1.0 - min(1.0, float(np.linalg.norm(behind)) / err_max)
-        if dt <= 1e-9:  # the vehicle a whole MPC_XY_ERR_MAX behind: the setpoint waits
-            self.phys.set_position(self.index, self._traj_pos.copy(), self._traj_vel.copy(), np.zeros(3))  # fmt: skip
-            return
-        target = aim
-        to = target - self._traj_pos
-        dist = float(np.linalg.norm(to))
-        passed = float(np.dot(target - start, to)) < 0.0
-        v_exit = 0.0 if passed else v_exit
-        speed = min(self.cruise_speed_m_s, max_speed_from_distance(jerk, acc, dist, v_exit))
-        if dist < 1e-3 and v_exit == 0.0:
-            self._traj_pos = target.copy()
-            self._traj_vel[:] = 0.0
-            a = np.zeros(3)
-        else:
-            v_des = to / max(dist, 1e-9) * speed
-            up, dn = prm["MPC_Z_VEL_MAX_UP"], prm["MPC_Z_VEL_MAX_DN"]
-            if v_des[2] < -up or v_des[2] > dn:
-                v_des *= (up if v_des[2] < 0 else dn) / abs(v_des[2])
-            dv = v_des - self._traj_vel
-            n = float(np.linalg.norm(dv))
-            a = dv / dt if n <= acc * dt else dv / n * acc
-            self._traj_vel = self._traj_vel + a * dt
-            self._traj_pos = self._traj_pos + self._traj_vel * dt
-        self.phys.set_position(self.index, self._traj_pos.copy(), self._traj_vel.copy(), a)
+        """Advance PX4's trajectory setpoint one step toward ``target`` and command it
+        (:meth:`AutoTrajectory.step`)."""
+        i = self.index
+        pos, vel, acc = self.traj.step(
+            self.phys.pos_ned_m[i], target, self.fleet.dt_s, self.params, self.cruise_speed_m_s
+        )
+        self.phys.set_position(i, pos, vel, acc)
 
     def _mission_tick(self) -> None:
         self._mission_step()
@@ -545,7 +438,7 @@ class NavigatorMixin(VehicleParts):
                 self._advance()
             return
         if phase == "goto":
-            if self._traj_active:
+            if self.traj.active:
                 self._traj_step(tgt)
             acc_rad = item.param2 if item.param2 > 0 else self.params["NAV_ACC_RAD"]
             if (
@@ -574,7 +467,7 @@ class NavigatorMixin(VehicleParts):
                     self._advance()
             return
         if phase in ("hold", "delay", "loiter"):
-            if self._traj_active and phase != "delay":
+            if self.traj.active and phase != "delay":
                 self._traj_step(tgt)  # brake to the waypoint
             if phase != "loiter" and now >= self._mis_hold_until_s:
                 if self.px4_nav:
@@ -584,7 +477,7 @@ class NavigatorMixin(VehicleParts):
                 self._advance()
             return
         if phase == "land_approach":
-            if self._traj_active:
+            if self.traj.active:
                 self._traj_step(tgt)
             if math.hypot(pos[0] - tgt[0], pos[1] - tgt[1]) < self.params["NAV_ACC_RAD"]:
                 if self.px4_nav and self._mis_land_moved:
@@ -606,12 +499,12 @@ class NavigatorMixin(VehicleParts):
         position (PX4) and the descent at PX4's land speed."""
         i = self.index
         phys = self.phys
-        if self._traj_active:
+        if self.traj.active:
             # the land setpoint has no altitude (NaN in PX4): the leg and the setpoint are
             # kept at the vehicle's height, so the trajectory's geometry is horizontal
             down = float(phys.pos_ned_m[i, 2])
-            self._traj_pos[2] = self._mis_target[2] = self._leg_prev[2] = down
-            self._traj_vel[2] = 0.0
+            self._mis_target[2] = down
+            self.traj.hold_height(down)
             self._traj_step(self._mis_target)
         phys.m_pos[i, 2] = 0.0
         phys.m_acc[i, 2] = 0.0
@@ -624,7 +517,7 @@ class NavigatorMixin(VehicleParts):
     # ================================================================ geofence
     def _build_fence(self) -> None:
         items = self.missions.plans[FENCE]
-        fence: list[tuple[str, bool, np.ndarray, float]] = []
+        fence: list[FenceZone] = []
         k = 0
         while k < len(items):
             it = items[k]
@@ -647,37 +540,20 @@ class NavigatorMixin(VehicleParts):
                 inclusion = it.command == mavlink2.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION
                 fence.append(("circle", inclusion, centre, float(it.param1)))
             k += 1
-        self._fence = fence
+        self._fence = Geofence(fence)
         self._fence_breached = False
 
     def fence_violated(self, pos_ned_m: np.ndarray) -> bool:
         """True if the local point (3,) lies outside an inclusion or inside an exclusion zone."""
-        ne = pos_ned_m[:2]
-        for kind, inclusion, data, radius in self._fence:
-            if kind == "circle":
-                inside = float(np.hypot(*(ne - data))) <= radius
-            else:
-                inside = _point_in_polygon(ne, data)
-            if inside != inclusion:
-                return True
-        return False
+        return self._fence.violated(pos_ned_m)
 
     def predicted_stop_ned_m(self) -> np.ndarray:
-        """Where PX4's geofence expects the vehicle to stop: the braking distance ahead.
-
-        ``computeBrakingDistanceFromVelocity(v, MPC_JERK_AUTO, MPC_ACC_HOR,
-        0.6 * MPC_JERK_AUTO)`` = ``v * (v / (2 MPC_ACC_HOR) + 0.6)`` along the horizontal
-        velocity (estimate), as PX4's geofence breach avoidance computes it.
-        """
+        """Where PX4's geofence expects the vehicle to stop (:func:`braking_point`, on the
+        estimate)."""
         i = self.index
-        pos = self.phys.pos_ned_m[i].copy()
-        vel = self.phys.vel_ned_m_s[i]
-        speed = math.hypot(vel[0], vel[1])
-        if speed > 1e-3:
-            acc = self.params["MPC_ACC_HOR"]
-            dist = speed * (speed / (2.0 * acc) + _GF_DELAY_FACTOR)
-            pos[:2] += vel[:2] / speed * dist
-        return pos
+        return braking_point(
+            self.phys.pos_ned_m[i], self.phys.vel_ned_m_s[i], self.params["MPC_ACC_HOR"]
+        )
 
     def _fence_tick(self) -> None:
         if not self._fence or not self.armed or self.landed:
@@ -734,14 +610,3 @@ _NAV_COMMANDS = frozenset(
         mavlink2.MAV_CMD_CONDITION_DELAY,
     }
 )
-
-
-def _point_in_polygon(pt: np.ndarray, poly: np.ndarray) -> bool:
-    """Even-odd rule for a point (2,) and polygon vertices (k, 2)."""
-    x, y = float(pt[0]), float(pt[1])
-    xs, ys = poly[:, 0], poly[:, 1]
-    xj, yj = np.roll(xs, 1), np.roll(ys, 1)
-    crosses = (ys > y) != (yj > y)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        x_int = (xj - xs) * (y - ys) / (yj - ys) + xs
-    return bool(np.count_nonzero(crosses & (x < x_int)) % 2)

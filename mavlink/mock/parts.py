@@ -26,6 +26,7 @@ if TYPE_CHECKING:
     from mavlink.mock.mission import MissionServer
     from mavlink.mock.offboard import Setpoint
     from mavlink.mock.sim.config import MockVehicleConfig
+    from mavlink.mock.sim.navigation import AutoTrajectory, Geofence
     from mavlink.mock.sim.payload_state import CameraState, GimbalState
     from mavlink.mock.sim.physics import FleetPhysics
     from mavlink.mock.sim.px4 import ParamSpec, Px4Mode
@@ -58,6 +59,9 @@ class VehicleParts:
     mission_finished: bool
     _armed_at_s: float
     _fence_breached: bool
+    _fence: Geofence
+    #: PX4's trajectory setpoint in the auto modes (:mod:`mavlink.mock.sim.navigation`)
+    traj: AutoTrajectory
     _rtl_phase: str
     _jump_counts: dict[int, int]
     _seq_reached: int

@@ -47,6 +47,7 @@ from mavlink.mock.sim import px4
 from mavlink.mock.sim.config import FaultConfig, MockVehicleConfig, Outage
 from mavlink.mock.sim.errors import MockConfigError, MockError
 from mavlink.mock.sim.estimator import EstimatorParams
+from mavlink.mock.sim.navigation import AutoTrajectory, Geofence
 from mavlink.mock.sim.params import vehicle_params
 from mavlink.mock.sim.physics import FleetPhysics
 from mavlink.mock.sim.px4 import Px4Mode
@@ -205,14 +206,7 @@ class MockVehicle(
         self._mission_valid_s = -math.inf
         self._jump_counts: dict[int, int] = {}
         # PX4's auto-mode trajectory setpoint (MOCK_PX4_NAV)
-        self._traj_active = False
-        self._traj_pos = np.zeros(3)
-        self._traj_vel = np.zeros(3)
-        self._traj_from = np.zeros(3)
-        self._traj_exit_m_s = 0.0
-        self._leg_prev = np.zeros(3)  # PX4's previous triplet waypoint
-        self._leg_radius_m = 2.0  # the current item's acceptance radius
-        self._leg_next: np.ndarray | None = None
+        self.traj = AutoTrajectory()
         # (due time, action) run by tick: PX4's late second COMMAND_ACK
         self._deferred: list[tuple[float, Callable[[], None]]] = []
         #: faults injected on the plan's clock (:mod:`mavlink.mock.vehicle_faults`)
@@ -221,7 +215,7 @@ class MockVehicle(
         self.battery_override_pct: float | None = None
         self._cmd_partner: tuple[int, int, int] = (0, 0, 0)
         # geofence in local NE (m): list of (kind, inclusion, data)
-        self._fence: list[tuple[str, bool, np.ndarray, float]] = []
+        self._fence = Geofence()
         self._fence_breached = False
         self.missions = MissionServer(
             send=self.send,

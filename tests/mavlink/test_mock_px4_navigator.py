@@ -21,7 +21,7 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.mock import MockFleet, Px4Mode, WindConfig
-from mavlink.mock.navigator import corner_speed, max_speed_from_distance
+from mavlink.mock.sim.navigation import corner_speed, max_speed_from_distance
 from mavlink.mock.vehicle import MockVehicle
 from tests.mavlink.mock_px4_helpers import (
     NO_CREEP,

@@ -1,7 +1,9 @@
 """The vehicle simulation behind the mock PX4 endpoint: no MAVLink in it.
 
 What a PX4 quad-rotor does, apart from what it says on the link: the vectorised physics
-and PX4's controller cascade (``physics``), what the vehicle believes (``estimator``), wind
+and PX4's controller cascade (``physics``), what the vehicle believes (``estimator``), PX4's
+navigation geometry (``navigation``: the auto modes' trajectory setpoint, corner speeds, the
+geofence), wind
 and disturbances drawn for a campaign (``disturbances``), PX4's modes and parameter table
 (``px4``) and what the parameters make of the vehicle (``params``), the profiles
 (``profiles``: ``px4``, ``ideal``), the camera's and gimbal's state (``payload_state``), the
