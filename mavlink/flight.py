@@ -480,8 +480,9 @@ def _departure_handler(
     tasks: list[asyncio.Task[None]],
 ) -> Callable[[Sequence[VehicleLeft]], bool]:
     """The monitor's ``on_departure`` for :func:`fly`: drop the vehicles that left, replan in
-    a task, and switch to its plan or halt the flight (one replan at a time: a departure
-    during one stops the flight)."""
+    a task, and switch to its plan or halt the flight.  One replan at a time: a departure
+    during one (a vehicle lost while the plan is made again around an area closed in flight)
+    is replanned once that one has ended and been switched to, from its plan."""
 
     async def replan(left: Sequence[VehicleLeft], now_s: float) -> None:
         names = [d.vehicle for d in left]
@@ -501,11 +502,18 @@ def _departure_handler(
             return
         mon.replace(driver.plans, got.clauses)
 
+    async def after(busy: Sequence[asyncio.Task[None]], left: Sequence[VehicleLeft]) -> None:
+        await asyncio.gather(*busy, return_exceptions=True)
+        if not mon.halted:
+            await replan(left, fleet.clock.monotonic() - t0)
+
     def on_departure(left: Sequence[VehicleLeft]) -> bool:
-        if any(not t.done() for t in tasks):
+        if mon.halted:
             return False
+        busy = [t for t in tasks if not t.done()]
         driver.drop([d.vehicle for d in left])
-        tasks.append(asyncio.create_task(replan(left, fleet.clock.monotonic() - t0)))
+        now_s = fleet.clock.monotonic() - t0
+        tasks.append(asyncio.create_task(after(busy, left) if busy else replan(left, now_s)))
         return True
 
     def request() -> bool:

@@ -73,9 +73,10 @@ class ReplanRecord:
     """One replan in a flight.
 
     Attributes:
-        event: what happened, for the operator ("d2: link lost").
+        event: what happened, for the operator ("d2: link lost at t = 11.0 s").
         vehicles: the vehicles that left.
-        t_s: plan time the departure was seen.
+        t_s: plan time the replan began: when the departure was seen, or, for one seen
+            during another replan, when that one had ended.
         switch_s: plan time the new plan differs from.
         solve_s: the replan's wall time (s).
         robustness: the new plan's exact robustness on the amended spec (None: no plan).

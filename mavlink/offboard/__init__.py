@@ -220,6 +220,8 @@ class OffboardDriver:
             raise StreamError(f"the switch at t = {switch_s:g} s came after setpoint {k}")
         plans = dict(self.trajectories)
         for name, tr in trajectories.items():
+            if name in self.dropped:  # left the flight while the plan was made
+                continue
             self._main.splice(name, self._setpoints_of(name, tr), k)
             plans[name] = tr
         self.trajectories = plans

@@ -129,12 +129,22 @@ async def fly(system: System, fleet: MockFleet, index: int, target_ned: tuple[fl
     assert vehicle.state.mode is Px4Mode.AUTO_LOITER
 
     await action.land()
-    await first(telemetry.subscribe_landed_state(), lambda s: s == LandedState.ON_GROUND, 20.0)
+    touchdown = []  # the vehicle's state when it reported itself on the ground
+
+    def on_ground(s: LandedState) -> bool:
+        if s == LandedState.ON_GROUND and not touchdown:
+            touchdown.append(vehicle.state)
+        return bool(touchdown)
+
+    await first(telemetry.subscribe_landed_state(), on_ground, 20.0)
     await first(telemetry.subscribe_armed(), lambda armed: not armed, 10.0)
     st = vehicle.state
     assert st.landed and not st.armed
-    # landed below the target as the vehicle believes it, the truth off by its EKF error
-    assert math.hypot(st.est_pos_ned_m[0] - n, st.est_pos_ned_m[1] - e) < 0.5
+    # landed below the target as the vehicle believed it then (on the ground the estimate
+    # still wanders with the EKF's random walk: read later, on a busy machine's slower
+    # answers, it was 0.51 m off), the truth off by its EKF error
+    down = touchdown[0]
+    assert math.hypot(down.est_pos_ned_m[0] - n, down.est_pos_ned_m[1] - e) < 0.5
     assert math.hypot(st.pos_ned_m[0] - n, st.pos_ned_m[1] - e) < 1.0
 
 
