@@ -7,7 +7,9 @@ Each subcommand lives in ``gcs/commands/<name>.py`` and exposes::
     def run(args: argparse.Namespace) -> int    # exit status
 
 Only subcommands whose module exists are offered, so ``gcs --help`` never
-lists a command that does not work.
+lists a command that does not work.  A command line that names its subcommand imports that
+subcommand's module alone (:func:`build_parser`), so a command loads only what it uses, and
+each command module imports what it needs at its top.
 
 Exit statuses (docs/architecture.md, "The gcs command", one meaning each; :mod:`gcs.errors`): 0 ok, 1 a check
 failed or the mission was not met, 2 bad user input, 3 a vehicle or its link failed (a refused
@@ -63,8 +65,19 @@ def available_commands() -> list[str]:
     return [n for n in COMMAND_NAMES if importlib.util.find_spec(f"gcs.commands.{n}") is not None]
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The full argument parser, one sub-parser per available subcommand."""
+def command_named(argv: Sequence[str]) -> str | None:
+    """The subcommand a command line names (its first word that is one), or None."""
+    for word in argv:
+        if word in COMMAND_NAMES:
+            return word
+        if not word.startswith("-"):
+            return None  # an unknown command: argparse says so
+    return None
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The argument parser, one sub-parser per available subcommand (``only``: that one
+    alone, the one a command line names; None: all of them, as ``gcs --help`` lists)."""
     parser = argparse.ArgumentParser(
         prog="gcs",
         description="Plan, verify and fly multi-drone missions from STL specifications.",
@@ -74,6 +87,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in available_commands():
+        if only is not None and name != only:
+            continue
         module = importlib.import_module(f"gcs.commands.{name}")
         p = sub.add_parser(name, help=module.HELP, description=module.HELP)
         p.add_argument(
@@ -127,8 +142,9 @@ def _stdout_closed() -> bool:
 
 
 def _main(argv: Sequence[str] | None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    words = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(command_named(words))
+    args = parser.parse_args(words)
     if getattr(args, "_run", None) is None:
         parser.print_help()
         return EXIT_BAD_INPUT

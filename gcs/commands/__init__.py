@@ -3,6 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import math
+
+from gcs.errors import UserError
+from mavlink.mock.sim.profiles import DEFAULT_PROFILE, PROFILES
+from mavlink.mock.sim.px4 import PARAM_SPECS
 
 
 def add_link_arguments(
@@ -49,7 +54,6 @@ def add_mock_vehicle_arguments(p: argparse.ArgumentParser, *, param_flag: str) -
     Declared once for ``gcs mock`` (``--param``) and the dry runs of ``gcs fly`` and
     ``gcs demo`` (``--mock-param``).
     """
-    from mavlink.mock.sim.profiles import DEFAULT_PROFILE, PROFILES
 
     p.add_argument(
         "--profile",
@@ -86,8 +90,6 @@ def add_speed_argument(p: argparse.ArgumentParser) -> None:
 def parse_param_overrides(items: list[str], flag: str) -> dict[str, float]:
     """``NAME=VALUE`` strings -> a dict; a malformed one raises :class:`gcs.errors.UserError`
     naming the flag, and so does a name the mock vehicle does not have."""
-    from gcs.errors import UserError
-    from mavlink.mock.sim.px4 import PARAM_SPECS
 
     specs = {p.name: p for p in PARAM_SPECS}
     params: dict[str, float] = {}
@@ -124,9 +126,6 @@ def add_photo_argument(p: argparse.ArgumentParser) -> None:
 
 def photo_interval(args: argparse.Namespace) -> float:
     """``--photo-interval`` checked: a finite number >= 0 (:class:`gcs.errors.UserError`)."""
-    import math
-
-    from gcs.errors import UserError
 
     value = float(args.photo_interval)
     if not (math.isfinite(value) and value >= 0):

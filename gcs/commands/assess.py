@@ -28,7 +28,18 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
+import numpy as np
+
+from gcs.assess import AssessOptions, assess, evaluate_batch, replay
+from gcs.assess.figure import plot_assessment
+from gcs.assess.rerun import fly_realtime, write_replay_csv
+from gcs.assess.stats import clopper_pearson
+from gcs.checks import verify_plan
 from gcs.commands import parse_param_overrides
+from gcs.errors import EXIT_INTERRUPTED, UserError
+from mavlink.mock.sim.disturbances import DISTURBANCES
+from mavlink.mock.sim.profiles import DEFAULT_PROFILE, PROFILES
+from planner.planfile import load_plan
 
 if TYPE_CHECKING:
     from gcs.assess import CampaignProgress
@@ -40,7 +51,6 @@ HELP = "fly a plan many times under drawn disturbances: P(spec holds), clauses, 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``gcs assess``."""
-    from mavlink.mock.sim.profiles import DEFAULT_PROFILE, PROFILES
 
     p.add_argument("plan", nargs="?", help="plan file written by gcs plan")
     p.add_argument("--runs", type=int, default=1000, help="how many runs (default 1000)")
@@ -101,8 +111,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _options(args: argparse.Namespace, plan: Plan) -> Any:
-    from gcs.assess import AssessOptions
-    from gcs.errors import UserError
 
     settings = disturbance_settings(args.disturbance, args.wind)
     if not (2.0 < args.rate <= 100.0):
@@ -158,7 +166,6 @@ def _replan_settings(args: argparse.Namespace, plan: Plan) -> Any:
 
 def disturbance_settings(items: list[str], wind: str | None) -> dict[str, str]:
     """``-d NAME=DIST`` options and ``--wind DIST`` as ``{name: distribution text}``."""
-    from gcs.errors import UserError
 
     settings: dict[str, str] = {}
     for item in items:
@@ -172,7 +179,6 @@ def disturbance_settings(items: list[str], wind: str | None) -> dict[str, str]:
 
 
 def _list_disturbances(out: TextIO) -> None:
-    from mavlink.mock.sim.disturbances import DISTURBANCES
 
     for name, d in DISTURBANCES.items():
         per = "per vehicle" if d.per_vehicle else "per run"
@@ -191,7 +197,6 @@ class _Progress:
         self._next = 0.1
 
     def __call__(self, p: CampaignProgress) -> None:
-        from gcs.assess.stats import clopper_pearson
 
         lo, hi = clopper_pearson(p.holds, p.done)
         line = (
@@ -311,7 +316,6 @@ def _format_monitor(r: AssessResult) -> list[str]:
 
 
 def _verify_first(plan: Plan, path: str, out: TextIO) -> None:
-    from gcs.checks import verify_plan
 
     failed = [c for c in verify_plan(plan, None) if not c.ok]
     if failed:
@@ -324,10 +328,6 @@ def _verify_first(plan: Plan, path: str, out: TextIO) -> None:
 
 
 def _write_reports(out_dir: Path, plan: Plan, opts: Any, result: AssessResult) -> list[Path]:
-    import numpy as np
-
-    from gcs.assess import replay
-    from gcs.assess.figure import plot_assessment
 
     out_dir.mkdir(parents=True, exist_ok=True)
     report = out_dir / "report.json"
@@ -344,10 +344,6 @@ def _write_reports(out_dir: Path, plan: Plan, opts: Any, result: AssessResult) -
 
 def run(args: argparse.Namespace) -> int:
     """Assess; see the module docstring for the exit statuses."""
-    from gcs.assess import assess, replay
-    from gcs.assess.rerun import fly_realtime, write_replay_csv
-    from gcs.errors import EXIT_INTERRUPTED, UserError
-    from planner.planfile import load_plan
 
     if args.list_disturbances:
         _list_disturbances(sys.stdout)
@@ -360,7 +356,6 @@ def run(args: argparse.Namespace) -> int:
     _verify_first(plan, args.plan, sys.stderr)
     if args.replay is not None:
         flights = replay(plan, opts, args.replay)
-        from gcs.assess import evaluate_batch
 
         true, rep, _, _ = evaluate_batch(plan, flights)
         print(

@@ -33,7 +33,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
 
+import planner
 from gcs.commands import add_mock_vehicle_arguments, add_speed_argument, parse_param_overrides
+from gcs.errors import InputFileError, UserError
+from gcs.flight import FlightRefused, FlyOptions, fly_plan, preflight_interlock, vehicle_specs
+from gcs.flight.dryrun import mock_vehicles
+from gcs.flight.progress import FlightProgress
+from gcs.plot import plot_plan
+from gcs.report import write_report
+from gcs.telemetry import Telemetry
+from planner.planfile import load_plan, save_plan
+from planner.scenario import load_scenario
 
 if TYPE_CHECKING:
     from gcs.flight.outcome import FlightOutcome
@@ -70,8 +80,6 @@ def find_config(name: str) -> Path:
     Raises:
         UserError: not found in either place (both named).
     """
-    import planner
-    from gcs.errors import UserError
 
     here = Path(planner.__file__).resolve().parent.parent / "configs" / name
     candidates = [here, Path.cwd() / "configs" / name]
@@ -128,16 +136,7 @@ def run_demo(
         profile, seed, mock_params, speed: the mock vehicles
             (:func:`gcs.flight.dryrun.mock_vehicles`).
     """
-    from gcs.errors import InputFileError
-    from gcs.flight import FlightRefused, FlyOptions, fly_plan, preflight_interlock, vehicle_specs
-    from gcs.flight.dryrun import mock_vehicles
-    from gcs.flight.progress import FlightProgress
-    from gcs.plot import plot_plan
-    from gcs.report import write_report
-    from gcs.telemetry import Telemetry
     from planner.optimize import plan as solve
-    from planner.planfile import load_plan, save_plan
-    from planner.scenario import load_scenario
 
     timings: dict[str, float] = {}
     t = time.perf_counter()
@@ -241,7 +240,6 @@ def summary(demo: DemoResult) -> str:
 def run(args: argparse.Namespace) -> int:
     """Run the demo; 0 when the plan verifies, the flight completed and the flown data satisfies
     the spec."""
-    from gcs.errors import UserError
 
     if not 1 <= args.vehicles <= 8:
         raise UserError(f"--vehicles: must be 1..8, got {args.vehicles}")

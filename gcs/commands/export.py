@@ -20,8 +20,14 @@ places simulated vehicles and ``kml`` is for people to look at: both are always 
 from __future__ import annotations
 
 import argparse
+import sys
 
 from gcs.commands import add_photo_argument, photo_interval
+from gcs.errors import UserError
+from gcs.export import DEFAULT_RATE_HZ, ExportFormat, QgcOptions, write_export
+from gcs.flight import FlightRefused, preflight_interlock
+from mavlink.mission import MissionEnd
+from planner.planfile import load_plan
 
 HELP = (
     "export a plan: QGroundControl .plan files, setpoint CSV or JSON, SITL home positions, "
@@ -70,15 +76,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Export; 0 when the files are written."""
-    from gcs.errors import UserError
-    from gcs.export import DEFAULT_RATE_HZ, ExportFormat, QgcOptions, write_export
-    from planner.planfile import load_plan
 
     fmt = ExportFormat.parse(args.format)
     qgc: QgcOptions | None = None
     if fmt is ExportFormat.QGC:
-        from mavlink.mission import MissionEnd
-
         end = None
         if args.end is not None:
             try:
@@ -102,10 +103,6 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--rate applies to --format csv and json only")
     plan = load_plan(args.plan)
     if fmt not in (ExportFormat.HOMES, ExportFormat.KML):
-        import sys
-
-        from gcs.flight import FlightRefused, preflight_interlock
-
         try:
             checks = preflight_interlock(plan, force=args.force)
         except FlightRefused as exc:

@@ -40,6 +40,27 @@ from gcs.commands import (
     parse_param_overrides,
     photo_interval,
 )
+from gcs.errors import EXIT_INTERRUPTED, UserError
+from gcs.flight import (
+    FlightRefused,
+    FlyOptions,
+    fly_plan,
+    preflight_interlock,
+    signed_links,
+    vehicle_specs,
+)
+from gcs.flight.dryrun import mock_vehicles
+from gcs.flight.landing import landing_lines
+from gcs.flight.mission import MissionRefused
+from gcs.flight.outcome import FlightMode, FlightOutcome, format_outcome, outcome_json
+from gcs.flight.progress import FlightProgress
+from gcs.report import write_report
+from mavlink.clock import WALL, Clock
+from mavlink.errors import PreflightError
+from mavlink.mock.vehicle_faults import FAULT_KINDS, VehicleFault
+from mavlink.offboard.setpoints import EndAction
+from planner.planfile import load_plan
+from planner.scenario.sections import ScenarioError
 
 if TYPE_CHECKING:
     from mavlink.mock.vehicle_faults import VehicleFault
@@ -155,8 +176,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def parse_mock_faults(texts: list[str], plan: Plan) -> list[tuple[int, VehicleFault]]:
     """``--mock-fault VEHICLE:KIND@T`` values: (vehicle index, fault), in plan order of
     vehicles; UserError naming the value otherwise."""
-    from gcs.errors import UserError
-    from mavlink.mock.vehicle_faults import FAULT_KINDS, VehicleFault
 
     names = [v.name for v in plan.vehicles]
     horizon = max(v.trajectory.duration_s for v in plan.vehicles)
@@ -183,23 +202,6 @@ def parse_mock_faults(texts: list[str], plan: Plan) -> list[tuple[int, VehicleFa
 
 def run(args: argparse.Namespace) -> int:
     """Fly; see the module docstring for the exit statuses."""
-    from gcs.errors import EXIT_INTERRUPTED, UserError
-    from gcs.flight import (
-        FlightRefused,
-        FlyOptions,
-        fly_plan,
-        preflight_interlock,
-        signed_links,
-        vehicle_specs,
-    )
-    from gcs.flight.dryrun import mock_vehicles
-    from gcs.flight.mission import MissionRefused
-    from gcs.flight.outcome import FlightMode, FlightOutcome, format_outcome, outcome_json
-    from gcs.flight.progress import FlightProgress
-    from mavlink.clock import WALL, Clock
-    from mavlink.errors import PreflightError
-    from mavlink.offboard.setpoints import EndAction
-    from planner.planfile import load_plan
 
     if not (2.0 < args.rate <= 100.0):
         raise UserError(f"--rate: must be in (2, 100] Hz, got {args.rate:g}")
@@ -235,7 +237,6 @@ def run(args: argparse.Namespace) -> int:
     replanner = None
     if args.replan:
         from gcs.flight.replan import FlightReplanner, replan_problem
-        from planner.scenario.sections import ScenarioError
 
         live = Path(args.live_regions) if args.live_regions else None
         try:
@@ -255,7 +256,6 @@ def run(args: argparse.Namespace) -> int:
     out = sys.stderr if args.json else sys.stdout
     if args.end == "land":
         # where landing straight down would meet a keep-out, somewhere clear (or refused)
-        from gcs.flight.landing import landing_lines
 
         for line in landing_lines(plan):
             print(line, file=out)
@@ -335,8 +335,6 @@ def run(args: argparse.Namespace) -> int:
         if replanner is not None:
             replanner.close()  # its warm-up solve, before the process may exit
     if options.log_dir is not None:
-        from gcs.report import write_report
-
         write_report(
             options.log_dir / "report.md",
             plan,

@@ -35,6 +35,7 @@ from mavlink.mock import (
     WindConfig,
 )
 from planner.frames import FrameError, GeodeticPoint
+from planner.scenario import load_scenario
 
 HELP = "run mock PX4 vehicles (MAVLink over UDP, PX4 SITL ports) until Ctrl-C"
 
@@ -183,7 +184,6 @@ def _floats(text: str, n: int, flag: str) -> tuple[float, ...]:
 
 def _scenario(path: str, n: int | None) -> tuple[GeodeticPoint, list[tuple[float, float, float]]]:
     """Origin and vehicle starts of a scenario file (planner.scenario's loader)."""
-    from planner.scenario import load_scenario
 
     problem = load_scenario(path, vehicles=n)
     starts = [tuple(float(c) for c in v.start_enu_m) for v in problem.vehicles]

@@ -16,8 +16,21 @@ import re
 import sys
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
+
+from gcs.assess import AssessOptions
+from gcs.commands.assess import disturbance_settings
+from gcs.errors import UserError
+from gcs.flight.tuning import px4_notes
+from mavlink.mock.sim.disturbances import parse_disturbances
+from mavlink.mock.sim.errors import MockConfigError
+from mavlink.mock.sim.profiles import PROFILES
+from planner.assurance import AssuranceGoal
+from planner.planfile import check_writable, load_plan, save_plan
+from planner.problem import SolverMethod
+from planner.scenario import load_scenario
 
 HELP = "plan trajectories for a scenario (STL robustness, CasADi/IPOPT) and write a plan file"
 
@@ -264,13 +277,8 @@ class _Ticker:
 
 def run(args: argparse.Namespace) -> int:
     """Plan; 0 on success, 1 when the plan fails its checks."""
-    from dataclasses import replace
 
-    from gcs.errors import UserError
     from planner.optimize import plan
-    from planner.planfile import check_writable, save_plan
-    from planner.problem import SolverMethod
-    from planner.scenario import load_scenario
 
     if not (math.isfinite(args.time_limit) and args.time_limit >= 0):
         raise UserError(f"--time-limit: must be a number of seconds >= 0, got {args.time_limit:g}")
@@ -299,8 +307,6 @@ def run(args: argparse.Namespace) -> int:
             progress_every_s=1.0 if sys.stderr.isatty() else 10.0,
         )
     save_plan(out, result, scenario_path=str(args.scenario))
-    from gcs.flight.tuning import px4_notes
-    from planner.planfile import load_plan
 
     notes = px4_notes(load_plan(out)) if result.success else []
     if args.json:
@@ -329,7 +335,6 @@ _TARGET_ONLY: dict[str, Any] = {
 
 
 def _no_target_options(args: argparse.Namespace) -> None:
-    from gcs.errors import UserError
 
     for name, unset in _TARGET_ONLY.items():
         if getattr(args, name) != unset:
@@ -346,15 +351,7 @@ def _first(*values: Any) -> Any:
 def _to_probability(args: argparse.Namespace, problem: Any, out: Path) -> int:
     """The loop of :mod:`gcs.assess.target`, set by the options over the scenario's
     ``assurance`` section; 0 when met."""
-    from gcs.assess import AssessOptions
     from gcs.assess.target import TargetOptions, plan_to_probability
-    from gcs.commands.assess import disturbance_settings
-    from gcs.errors import UserError
-    from mavlink.mock.sim.disturbances import parse_disturbances
-    from mavlink.mock.sim.errors import MockConfigError
-    from mavlink.mock.sim.profiles import PROFILES
-    from planner.assurance import AssuranceGoal
-    from planner.planfile import save_plan
 
     goal = problem.assurance or AssuranceGoal(probability=math.nan)
     if problem.assurance is not None:
@@ -398,7 +395,6 @@ def _to_probability(args: argparse.Namespace, problem: Any, out: Path) -> int:
             print("not assessed: the scenario as written cannot be planned")
             print(f"plan written to {out}")
         return 1
-    from gcs.flight.tuning import px4_notes
 
     notes = px4_notes(r.plan) if r.result.success else []
     if args.json:

@@ -16,7 +16,10 @@ import argparse
 import sys
 from pathlib import Path
 
+from gcs.plot import plot_plan
 from gcs.plot.map_view import MAP_FROM_M, View
+from gcs.telemetry import load_telemetry
+from planner.planfile import load_plan
 
 HELP = (
     "draw a plan: regions and paths (3-D or map), clause robustness over time, speed/acceleration"
@@ -56,9 +59,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Draw; 0 when the picture is written."""
-    from gcs.plot import plot_plan
-    from gcs.telemetry import load_telemetry
-    from planner.planfile import load_plan
 
     plan = load_plan(args.plan)
     telemetry = load_telemetry(args.telemetry, plan, args.t0) if args.telemetry else None

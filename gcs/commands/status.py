@@ -21,7 +21,14 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from pymavlink.dialects.v20 import common
+
 from gcs.commands import add_link_arguments
+from gcs.errors import UserError
+from gcs.flight import signed_links
+from mavlink.link.fleet import Fleet
+from mavlink.link.urls import default_url, parse_url
+from mavlink.link.vehicle_status import VehicleSpec
 
 if TYPE_CHECKING:
     from mavlink.link.vehicle_status import VehicleSpec, VehicleStatus
@@ -75,7 +82,6 @@ class StatusRow:
 
 
 def _enum_name(enum: str, value: Any, prefix: str) -> str | None:
-    from pymavlink.dialects.v20 import common
 
     try:
         entry = common.enums[enum][int(value)]
@@ -92,9 +98,6 @@ def specs_for(
     Raises:
         UserError: counts that do not match, or a system id outside 1..255.
     """
-    from gcs.errors import UserError
-    from mavlink.link.urls import default_url, parse_url
-    from mavlink.link.vehicle_status import VehicleSpec
 
     if urls:
         n = len(urls)
@@ -122,7 +125,6 @@ async def read_status(specs: tuple[VehicleSpec, ...], timeout_s: float) -> list[
     Raises:
         mavlink.errors.ConnectTimeoutError: a vehicle never answered (names its URL).
     """
-    from mavlink.link.fleet import Fleet
 
     heartbeat: dict[str, tuple[Any, Any]] = {}
     lock = threading.Lock()
@@ -207,12 +209,10 @@ def table(rows: list[StatusRow]) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Print the vehicles; 2 (via the CLI) when one never answers."""
-    from gcs.errors import UserError
 
     if not (args.timeout > 0):
         raise UserError(f"--timeout: must be > 0 s, got {args.timeout:g}")
     specs = specs_for(args.connection, args.sysid, args.vehicles, args.base_port)
-    from gcs.flight import signed_links
 
     async def signed_status() -> list[Any]:
         async with signed_links(specs, args.signing_key) as links:

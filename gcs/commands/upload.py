@@ -58,10 +58,40 @@ import json
 import math
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, replace
+from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
 
 from gcs.commands import add_link_arguments, add_photo_argument, photo_interval
+from gcs.errors import EXIT_CHECK_FAILED, EXIT_OK, EXIT_VEHICLE_FAILED, UserError
+from gcs.flight import FlightRefused, preflight_interlock, signed_links, vehicle_specs
+from gcs.flight.landing import landing_lines
+from gcs.flight.mission import (
+    MissionRefused,
+    mission_gate,
+    missions_driver,
+    prediction_params,
+    read_nav_params,
+)
+from gcs.flight.missions import (
+    KEEPS_CLOCK_S,
+    convert_plan_apart,
+    fence_plan,
+    timing_summary,
+)
+from gcs.flight.payload import capture_spans
+from gcs.flight.tuning import read_tuning
+from mavlink.errors import LinkError, MissionError, PreflightError, TransferGaveUpError
+from mavlink.flight import check_starts, start_together
+from mavlink.link.fleet import Fleet
+from mavlink.mission import (
+    MissionEnd,
+    MissionType,
+    RetryPolicy,
+    path_deviation,
+    upload_with_retries,
+)
+from planner.planfile import load_plan
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -187,8 +217,6 @@ async def _upload_one(
 ) -> UploadRow:
     """Mission, then fence, each retried until read back as sent, within ``budget_s`` for
     both (:func:`mavlink.mission.upload_with_retries`)."""
-    from mavlink.errors import LinkError, MissionError, TransferGaveUpError
-    from mavlink.mission import MissionType, RetryPolicy, path_deviation, upload_with_retries
 
     pv = plan.vehicle(v.name)
     dev = path_deviation(pv.trajectory, mission.path)
@@ -239,8 +267,6 @@ async def _start(fleet: Fleet, driver: MissionDriver, plan: Plan) -> tuple[float
         The shared start (Unix time; ``None`` if it did not happen) and, if it did not, why
         (every vehicle was commanded to hold).
     """
-    from mavlink.errors import LinkError
-    from mavlink.flight import start_together
 
     try:
         started = await start_together(fleet, driver, plan.origin)
@@ -284,24 +310,6 @@ async def upload_plan(
         gcs.flight.mission.MissionRefused: with ``start``, the predicted mission robustness
             is below epsilon (and not ``force``); nothing was uploaded.
     """
-    from gcs.flight.mission import (
-        MissionRefused,
-        mission_gate,
-        missions_driver,
-        prediction_params,
-        read_nav_params,
-    )
-    from gcs.flight.missions import (
-        KEEPS_CLOCK_S,
-        convert_plan_apart,
-        fence_plan,
-        timing_summary,
-    )
-    from gcs.flight.payload import capture_spans
-    from gcs.flight.tuning import read_tuning
-    from mavlink.flight import check_starts
-    from mavlink.link.fleet import Fleet
-    from mavlink.mission import MissionEnd
 
     names = [pv.name for pv in plan.vehicles]
     # the start follows the vehicles' positions (the gate): ask for them at the flight's rate
@@ -364,7 +372,6 @@ async def upload_plan(
 def _started_row(row: UploadRow, confirmed: MissionStart | None, failure: str) -> UploadRow:
     """``row`` with what its vehicle's start did: confirmed (and the whole fleet released),
     or why not."""
-    from dataclasses import replace
 
     if confirmed is None:
         return replace(row, started=False, start_detail=failure or "not started")
@@ -397,11 +404,6 @@ def table(rows: list[UploadRow]) -> str:
 def run(args: argparse.Namespace) -> int:
     """Upload; 0 when every read-back is as sent (and, with --start, every start happened),
     1 when a check refused it, 3 when a vehicle failed it."""
-    from gcs.errors import EXIT_CHECK_FAILED, EXIT_OK, EXIT_VEHICLE_FAILED, UserError
-    from gcs.flight import FlightRefused, preflight_interlock, signed_links, vehicle_specs
-    from gcs.flight.mission import MissionRefused
-    from mavlink.errors import PreflightError
-    from planner.planfile import load_plan
 
     budget_s = parse_budget_s(args.timeout)
     for name in ("tolerance", "connect_timeout"):
@@ -425,7 +427,6 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--fence-action: applies with --fence only")
     if args.end == "land":
         # the missions land clear of the keep-outs (gcs.flight.landing), or the upload is refused
-        from gcs.flight.landing import landing_lines
 
         for line in landing_lines(plan):
             print(line, file=sys.stderr)
@@ -484,8 +485,6 @@ def run(args: argparse.Namespace) -> int:
         }
         print(json.dumps(out))
     else:
-        from gcs.flight.missions import timing_summary
-
         print(table(rows))
         how = "chosen" if conv.acceptance_auto else "given"
         print(
@@ -506,8 +505,6 @@ def run(args: argparse.Namespace) -> int:
                 verdict = "started" if r.started else "NOT started"
                 print(f"  {r.vehicle}: mission {verdict}: {r.start_detail}")
         if t0_unix is not None:
-            from datetime import UTC, datetime
-
             when = datetime.fromtimestamp(t0_unix, UTC).isoformat(timespec="milliseconds")
             print(f"released together at {when}: the plan's t = 0 for every vehicle")
         if ok:
@@ -524,7 +521,6 @@ def run(args: argparse.Namespace) -> int:
 
 def parse_budget_s(text: str) -> float:
     """``--timeout``'s value in seconds: a finite number > 0, else one-line bad input."""
-    from gcs.errors import UserError
 
     try:
         value = float(text)
@@ -557,6 +553,5 @@ def print_progress(p: TransferProgress) -> None:
 
 
 def _row_json(r: UploadRow) -> dict[str, Any]:
-    from dataclasses import asdict
 
     return asdict(r)

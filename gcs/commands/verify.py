@@ -31,9 +31,14 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 from typing import Any
 
 from gcs.checks import MAX_TELEMETRY_GAP_S, Check, check_step_s, verify_plan, verify_telemetry
+from gcs.plot.coverage import compute_coverage, coverage_checks, coverage_json, coverage_lines
+from gcs.telemetry import load_images, load_telemetry
+from mavlink.link.camera import images_from_tlog
+from planner.planfile import load_plan
 
 __all__ = ["MAX_TELEMETRY_GAP_S", "Check", "add_arguments", "check_step_s", "run",
            "verify_plan", "verify_telemetry"]  # fmt: skip
@@ -63,9 +68,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Verify; 0 if every check holds, 1 otherwise."""
-    from gcs.plot.coverage import coverage_checks, coverage_json, coverage_lines
-    from gcs.telemetry import load_telemetry
-    from planner.planfile import load_plan
 
     plan = load_plan(args.plan)
     checks = verify_plan(plan, args.dt)
@@ -125,11 +127,6 @@ def _coverage(plan: Any, args: argparse.Namespace) -> Any:
         gcs.errors.InputFileError: an unreadable image log (file, line, column), or one with a
             vehicle that is not in the plan.
     """
-    from pathlib import Path
-
-    from gcs.plot.coverage import compute_coverage
-    from gcs.telemetry import load_images
-    from mavlink.link.camera import images_from_tlog
 
     tlog = args.telemetry and Path(args.telemetry).suffix.lower() == ".tlog"
     infos: dict[str, Any] = {}
