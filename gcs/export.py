@@ -82,7 +82,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from gcs.errors import InputFileError, UserError
+from gcs.flight.missions import convert_plan, fence_plan
+from gcs.flight.payload import capture_spans
 from gcs.kml import kml_bytes
+from mavlink.mission import Cmd, MissionEnd
+from planner.frames import enu_to_geodetic
 
 if TYPE_CHECKING:
     from mavlink.mission import MissionEnd, MissionItem, MissionPlan
@@ -205,7 +209,6 @@ def mission_item_to_qgc(item: MissionItem) -> dict[str, Any]:
 def _fence_qgc(items: Sequence[MissionItem]) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """FENCE items -> QGC ``(polygons, circles)``: polygon-vertex items (consecutive runs of
     ``param1`` vertices) and circle items (``param1`` the radius, m)."""
-    from mavlink.mission import Cmd
 
     vertex = (Cmd.NAV_FENCE_POLYGON_VERTEX_INCLUSION, Cmd.NAV_FENCE_POLYGON_VERTEX_EXCLUSION)
     circle = (Cmd.NAV_FENCE_CIRCLE_INCLUSION, Cmd.NAV_FENCE_CIRCLE_EXCLUSION)
@@ -250,9 +253,6 @@ def _fence_qgc(items: Sequence[MissionItem]) -> tuple[list[dict[str, Any]], list
 
 def qgc_missions(plan: Plan, options: QgcOptions | None = None) -> dict[str, MissionPlan]:
     """Every vehicle's mission as ``gcs upload`` converts it for PX4's default parameters."""
-    from gcs.flight.missions import convert_plan
-    from gcs.flight.payload import capture_spans
-    from mavlink.mission import MissionEnd
 
     opts = options if options is not None else QgcOptions()
     conv = convert_plan(
@@ -272,8 +272,6 @@ def qgc_plan(
 ) -> dict:
     """The QGroundControl plan (a JSON-ready dict) of one vehicle of ``plan`` (``missions``:
     :func:`qgc_missions`, computed here when not given)."""
-    from gcs.flight.missions import fence_plan
-    from planner.frames import enu_to_geodetic
 
     opts = options if options is not None else QgcOptions()
     mission = (missions if missions is not None else qgc_missions(plan, opts))[vehicle.name]
@@ -344,7 +342,6 @@ def homes_text(plan: Plan) -> str:
     PX4 v1.17's SIH takes them at start-up (``PX4_HOME_*`` become SIH_LOC_LAT0 / LON0 / H0,
     float32 parameters: about 0.4 m of quantisation at mid latitudes).
     """
-    from planner.frames import enu_to_geodetic
 
     lines = [
         "# vehicle, then the environment of PX4 SITL instance i (line i): the ground below "

@@ -39,6 +39,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from gcs.errors import InputFileError
+from mavlink.link.camera import IMAGE_COLUMNS, CapturedImage
+from mavlink.tlog import tracks_from_tlog
 from mavlink.tracks import FlownTrack
 from planner.strict_read import NotTextError, read_text
 
@@ -190,7 +192,6 @@ def load_images(path: str | Path, plan: Plan | None = None) -> dict[str, list[Ca
         InputFileError: unreadable file, a missing column, a bad value (file, line, column),
             a vehicle that is not in ``plan``.
     """
-    from mavlink.link.camera import IMAGE_COLUMNS, CapturedImage
 
     p = Path(path)
     src = str(p)
@@ -263,7 +264,6 @@ def _load_tlog(p: Path, plan: Plan | None, t0_unix_s: float | None) -> Telemetry
         )
     if not p.is_file():
         raise InputFileError(f"{p}: cannot read: no such file")
-    from mavlink.tlog import tracks_from_tlog
 
     tracks = tracks_from_tlog(
         p, {v.sysid: v.name for v in plan.vehicles}, plan.origin, float(t0_unix_s)

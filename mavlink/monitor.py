@@ -45,6 +45,7 @@ from mavsdk.plugins.offboard import OffboardResult
 
 from mavlink.clock import Clock
 from mavlink.errors import CommandError, LinkError
+from mavlink.link.mavsdk_glue import mavsdk_call
 from mavlink.monitor_findings import (
     MonitorStats,
     RunFindings,
@@ -77,7 +78,6 @@ async def safe_stop(v: Vehicle, action: SafetyAction) -> None:
 
     A vehicle not in offboard gets MAVSDK's plain Hold.
     """
-    from mavlink.link.mavsdk_glue import mavsdk_call
 
     if v.offboard.is_active():
         result = await mavsdk_call(v.offboard.stop_async)

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from mavlink.errors import LinkError, MissingHeadingError
+from planner.frames import ned_to_enu, ned_vector_to_enu, yaw_ned_to_enu
 from planner.stl.exact import window_extreme
 
 if TYPE_CHECKING:
@@ -201,7 +202,6 @@ def track_from_rows(
     into the mission frame's ENU yaw by the same rotation (:func:`planner.frames.yaw_ned_to_enu`).
     Without a yaw column, or with none known, the track has no heading.
     """
-    from planner.frames import ned_to_enu, ned_vector_to_enu, yaw_ned_to_enu
 
     rows = np.asarray(rows, dtype=float)
     if rows.shape[0] == 0:

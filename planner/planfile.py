@@ -48,7 +48,10 @@ from planner.frames import GeodeticPoint
 from planner.problem import MAX_HORIZON_S
 from planner.scenario.checks import horizon_sum
 from planner.scenario.spec import FUNCTION_NAMES
+from planner.spec.heading import heading_signals, uses_heading
+from planner.spec.predicates import build_registry
 from planner.spec.regions import Cylinder, Prism, Region, RegionKind, ShapeError
+from planner.stl import BinOp, Call, Comparison, Neg, Predicate, Signal, SpecError, STLError, parse
 from planner.strict_read import DuplicateKeyError, NotTextError, load_json, read_text
 from planner.trajectory import Trajectory, TrajectoryError
 
@@ -506,7 +509,6 @@ def _face_tolerance(rd: _Reader, data: dict[str, Any]) -> float:
 def planned_signals(plan: Plan, t_s: np.ndarray) -> dict[str, np.ndarray]:
     """Each vehicle's planned signal at ``t_s``: positions (n, 3), with the heading as a
     fourth column when the spec reads it (``face``: :mod:`planner.spec.heading`)."""
-    from planner.spec.heading import heading_signals, uses_heading
 
     trajectories = [v.trajectory for v in plan.vehicles]
     return heading_signals(trajectories, t_s, uses_heading([plan_formula(plan)]))
@@ -532,8 +534,6 @@ def plan_formula(plan: Plan) -> Formula:
 
 
 def _checked_formula(plan: Plan) -> Formula:
-    from planner.spec.predicates import build_registry
-    from planner.stl import BinOp, Call, Comparison, Neg, Predicate, Signal, SpecError, parse
 
     def fail(problem: str, key: str = "spec") -> PlanFileError:
         return PlanFileError(plan.input_file, key, problem)
@@ -598,7 +598,6 @@ def spec_errors(plan: Plan, key: str = "spec") -> Iterator[None]:
     What :func:`plan_formula` cannot rule out depends on the check step, e.g. an interval
     holding no sample step at the ``dt`` given; the error names ``plan.input_file`` and ``key``.
     """
-    from planner.stl import STLError
 
     try:
         yield

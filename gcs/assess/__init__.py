@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import logging
 import math
 import os
 import socket
@@ -40,6 +41,11 @@ import numpy as np
 from gcs.assess.stats import AssessResult, summarise
 from gcs.errors import UserError
 from gcs.flight.evaluation import heading_readers, plan_formula, reads_heading
+from mavlink.mock.sim.batch import prepare, run_seed, simulate
+from mavlink.mock.sim.disturbances import parse_disturbances
+from mavlink.mock.sim.errors import MockConfigError
+from mavlink.monitor import SafetyMonitor
+from mavlink.monitor_findings import always_clause_indices, always_clauses
 
 if TYPE_CHECKING:
     from gcs.assess.replanned import ReplannedRuns, ReplanSettings
@@ -244,7 +250,6 @@ def fly_batch(
 ) -> BatchOutcome:
     """Fly and judge one batch of runs (the task a Ray worker runs); with ``monitor``, fly
     them again under the safety monitor."""
-    from mavlink.mock.sim.batch import simulate
 
     t0 = time.perf_counter()
     flights = simulate(setup, seeds, dists)
@@ -305,8 +310,6 @@ class MonitorSettings:
 
     def build(self, plan: Plan) -> tuple[SafetyMonitor, np.ndarray]:
         """The monitor, and for each of its clauses the index of its top-level clause."""
-        from mavlink.monitor import SafetyMonitor
-        from mavlink.monitor_findings import always_clause_indices, always_clauses
 
         phi = plan_formula(plan)
         clauses = always_clauses(phi, [v.name for v in plan.vehicles], reads_heading)
@@ -318,9 +321,6 @@ def prepare_campaign(
     plan: Plan, opts: AssessOptions
 ) -> tuple[SimSetup, dict[str, Distribution], list[int]]:
     """The shared set-up, the distributions and every run's seed (bad input: UserError)."""
-    from mavlink.mock.sim.batch import prepare, run_seed
-    from mavlink.mock.sim.disturbances import parse_disturbances
-    from mavlink.mock.sim.errors import MockConfigError
 
     try:
         dists = parse_disturbances(opts.disturbances)
@@ -412,7 +412,6 @@ def ray_session(address: str | None, workers: int | None) -> Iterator[str]:
 
     Yields a description of where the batches run.
     """
-    import logging
 
     try:
         import ray
@@ -484,7 +483,6 @@ def _ray_batches(
 def replay(plan: Plan, opts: AssessOptions, seed: int) -> BatchFlights:
     """Fly the run with ``seed`` again, alone: the same disturbances, the same flight (under
     the safety monitor with ``opts.monitor``)."""
-    from mavlink.mock.sim.batch import simulate
 
     setup, dists, _ = prepare_campaign(plan, dataclasses.replace(opts, runs=1))
     watched = MonitorSettings(opts.max_off_plan_m).build(plan)[0] if opts.monitor else None

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from gcs.assess import MonitorSettings, evaluate_batch
 from mavlink.mock.sim.batch import BatchFlights, prepare, simulate
 from mavlink.monitor_findings import RunFindings, Verdict
 from planner.replan import Departure, ReplanError, replan, switch_time
@@ -97,7 +98,6 @@ def replan_runs(
 ) -> ReplannedRuns:
     """Replan and fly again the runs of ``monitored`` stopped on a lost link (module
     docstring); ``plain`` is the same batch without the monitor (the loss times)."""
-    from gcs.assess import evaluate_batch  # the package imports this module in its tasks
 
     assert monitored.stop is not None and monitored.stop_s is not None
     n = len(seeds)
@@ -207,7 +207,6 @@ def _fly_again(
     setup = dataclasses.replace(
         setup, plans={n: tr for n, tr in setup.plans.items() if n not in left}
     )
-    from gcs.assess import MonitorSettings  # the package imports this module in its tasks
 
     monitor = MonitorSettings(max_off_plan_m).build(plan)[0]  # as the campaign's, of this spec
     return simulate(setup, [seed], dists, monitor=monitor, excused=left)

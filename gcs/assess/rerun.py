@@ -21,6 +21,17 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from gcs.errors import UserError
+from gcs.flight import FlyOptions, fly_plan, signed_links, vehicle_specs
+from gcs.flight.dryrun import ground_spawns, mock_vehicles
+from gcs.flight.progress import FlightProgress
+from mavlink.mock.sim.batch import estimator_overrides
+from mavlink.mock.sim.config import FaultConfig, MockVehicleConfig, WindConfig
+from mavlink.mock.sim.errors import MockConfigError
+from mavlink.mock.sim.params import vehicle_params
+from mavlink.mock.sim.px4 import PARAM_SPECS
+from mavlink.mock.vehicle_faults import VehicleFault
+
 if TYPE_CHECKING:
     from gcs.assess import AssessOptions
     from gcs.flight.outcome import FlightOutcome
@@ -77,13 +88,6 @@ def realtime_configs(plan: Plan, opts: AssessOptions, flights: BatchFlights) -> 
     Raises:
         UserError: a drawn value the real-time mock cannot take (a parameter out of range).
     """
-    from gcs.errors import UserError
-    from gcs.flight.dryrun import ground_spawns
-    from mavlink.mock.sim.batch import estimator_overrides
-    from mavlink.mock.sim.config import FaultConfig, MockVehicleConfig, WindConfig
-    from mavlink.mock.sim.errors import MockConfigError
-    from mavlink.mock.sim.params import vehicle_params
-    from mavlink.mock.sim.px4 import PARAM_SPECS
 
     specs = {p.name: p for p in PARAM_SPECS}
     prm = vehicle_params(opts.profile, opts.params)
@@ -135,10 +139,6 @@ def fly_realtime(
 ) -> FlightOutcome:
     """Fly the first run's disturbances of ``flights`` on real-time mock vehicles
     (``gcs fly --dry-run``'s path: take-off, arrival gate, offboard at ``opts.rate_hz``)."""
-    from gcs.flight import FlyOptions, fly_plan, signed_links, vehicle_specs
-    from gcs.flight.dryrun import mock_vehicles
-    from gcs.flight.progress import FlightProgress
-    from mavlink.mock.vehicle_faults import VehicleFault
 
     configs, wind = realtime_configs(plan, opts, flights)
     # a vehicle the run lost (disturbance ``lost``) is lost at the same plan time here

@@ -16,8 +16,11 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from scipy.stats import binomtest
 
 from gcs.flight.evaluation import plan_formula
+from mavlink.monitor_findings import RunFindings, Verdict, always_clause_indices
+from planner.planfile import planned_signals
 
 if TYPE_CHECKING:
     from gcs.assess import AssessOptions, BatchOutcome
@@ -35,7 +38,6 @@ TARGET_P = 0.99
 def clopper_pearson(k: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
     """The exact (Clopper-Pearson) interval of a binomial proportion ``k / n``
     (:func:`scipy.stats.binomtest`); ``(0, 1)`` for ``n = 0``."""
-    from scipy.stats import binomtest
 
     if n <= 0:
         return (0.0, 1.0)
@@ -152,7 +154,6 @@ def _finite(x: float) -> float | None:
 
 
 def _replan_summary(outcomes: Sequence[BatchOutcome]) -> ReplanSummary | None:
-    from mavlink.monitor_findings import RunFindings, Verdict
 
     if not outcomes or any(o.replanned is None or o.monitored is None for o in outcomes):
         return None
@@ -426,7 +427,6 @@ def summarise(
     weakest = np.argmin(c_true, axis=1) if n and n_c else np.zeros(n, dtype=int)
     table = _runs_table(outcomes, true, rep, weakest)
     t = np.arange(round(plan.horizon_s / plan.check_dt_s) + 1) * plan.check_dt_s
-    from planner.planfile import planned_signals
 
     planned_sig = planned_signals(plan, t)
     clause_stats = []
@@ -491,7 +491,6 @@ def summarise(
 def _monitor_summary(
     phi: Any, outcomes: Sequence[BatchOutcome], true: np.ndarray, c_true: np.ndarray
 ) -> MonitorSummary | None:
-    from mavlink.monitor_findings import RunFindings, Verdict, always_clause_indices
 
     mon = [o.monitored for o in outcomes]
     if not mon or any(m is None for m in mon):

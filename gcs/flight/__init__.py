@@ -66,9 +66,11 @@ from gcs.flight.outcome import SEVERITY_NAMES, FlightMode, FlightOutcome
 from gcs.flight.payload import CameraCommands, capture_spans, run_offboard_captures
 from gcs.flight.progress import FlightProgress, PlanStarts
 from gcs.flight.tuning import expected_error_m, margin_warnings, read_tuning
+from gcs.plot.coverage import compute_coverage, coverage_figure
 from mavlink.clock import WALL, Clock
 from mavlink.errors import LinkError
 from mavlink.flight import fly
+from mavlink.link.camera import write_images_csv
 from mavlink.link.fleet import Fleet
 from mavlink.link.mavsdk_glue import mavsdk_log_file
 from mavlink.link.signing import SigningProxy, load_key
@@ -664,8 +666,6 @@ def _coverage(
 ) -> CoverageReport | None:
     """The flight's coverage report (``None`` when the plan pictures nothing), with the image
     log and the coverage figure written to ``log_dir``."""
-    from gcs.plot.coverage import compute_coverage, coverage_figure
-    from mavlink.link.camera import write_images_csv
 
     if log_dir is not None and any(images.values()):
         files["images"] = write_images_csv(

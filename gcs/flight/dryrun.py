@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from gcs.errors import UserError
+from mavlink.mock import MockFleet
 
 if TYPE_CHECKING:
     from mavlink.clock import Clock
@@ -117,7 +118,6 @@ def mock_vehicles(
     ``$STL_GCS_SIM_SPEED`` or 1); fly them on :attr:`DryRun.clock`. ``faults``: (vehicle
     index, fault) injected on each vehicle's plan clock (:mod:`mavlink.mock.vehicle_faults`).
     """
-    from mavlink.mock import MockFleet
 
     n = len(plan.vehicles)
     ports = free_udp_ports(2 * n)

@@ -17,7 +17,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from mavlink.errors import LinkError
 from mavlink.tracks import NO_HEADING
+from planner.planfile import plan_formula as checked_formula
+from planner.planfile import planned_signals
 from planner.spec.heading import heading_readers
 
 if TYPE_CHECKING:
@@ -51,7 +54,6 @@ def plan_formula(plan: Plan) -> Formula:
     """The plan's whole spec with the scenario's predicates (exact numpy semantics), checked
     against the plan: :func:`planner.planfile.plan_formula` (PlanFileError naming the plan file).
     """
-    from planner.planfile import plan_formula as checked_formula
 
     return checked_formula(plan)
 
@@ -169,13 +171,11 @@ def evaluate_flight(plan: Plan, tracks: Mapping[str, FlownTrack]) -> FlownEvalua
     without a heading leaves the clauses that read it unjudged (``flown`` None) and the
     overall flown robustness None, ``coverage_problem`` naming the vehicle.
     """
-    from mavlink.errors import LinkError
 
     phi = plan_formula(plan)
     dt = plan.check_dt_s
     n = round(plan.horizon_s / dt) + 1
     t = np.arange(n) * dt
-    from planner.planfile import planned_signals
 
     planned = planned_signals(plan, t)
     readers = heading_readers(phi)

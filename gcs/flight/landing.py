@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from gcs.errors import UserError
 from planner.spec.regions import KEEP_OUT_KINDS, Cylinder, Prism, Region
 
 if TYPE_CHECKING:
@@ -217,7 +218,6 @@ def landing_points(plan: Plan) -> dict[str, LandingPoint]:
 
 def _checked(plan: Plan) -> dict[str, LandingPoint]:
     """:func:`landing_points`; UserError (``--end land`` refused) if one found none."""
-    from gcs.errors import UserError
 
     points = landing_points(plan)
     for lp in points.values():

@@ -27,6 +27,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from gcs.errors import GcsError
+from gcs.flight.missions import convert_plan_apart, timing_summary
+from mavlink.flight import StartGate
+from mavlink.mission import MissionEnd
+from mavlink.mission.flight import START_ITEM, MissionDriver
+from planner.frames import yaw_enu_to_ned
 
 if TYPE_CHECKING:
     from gcs.flight import FlyOptions
@@ -89,7 +94,6 @@ def mission_gate(plan: Plan, tolerance_m: float, arrive_m: float | None = None) 
     """The start gate of a mission flight: refuse a vehicle farther than ``tolerance_m`` from
     its start; the arrival gate ``arrive_m`` (default :func:`arrive_gate_m`), with 30 s to
     get there (a reposition in Hold, at PX4's own speed)."""
-    from mavlink.flight import StartGate
 
     return StartGate(
         start_tolerance_m=tolerance_m,
@@ -104,8 +108,6 @@ def missions_driver(
     """The flight engine's driver for the plan's missions: ``conv``'s, uploaded first; without
     one, the missions are on the vehicles already (``gcs upload`` sent them). Each vehicle
     starts where its plan does, on the plan's heading there (the start waypoint's)."""
-    from mavlink.mission.flight import MissionDriver
-    from planner.frames import yaw_enu_to_ned
 
     return MissionDriver(
         starts_enu_m={pv.name: np.asarray(pv.start_enu_m, dtype=float) for pv in plan.vehicles},
@@ -135,8 +137,6 @@ async def mission_driver(
     Raises:
         MissionRefused: predicted robustness below epsilon without ``force``.
     """
-    from gcs.flight.missions import convert_plan_apart, timing_summary
-    from mavlink.mission import MissionEnd
 
     names = [v.name for v in plan.vehicles]
     known = await read_nav_params(fleet, names[0])
@@ -164,7 +164,6 @@ async def mission_driver(
 
 def mission_record(conv: MissionConversion, result: FlightResult) -> MissionFlight:
     """How each vehicle of a flown mission kept the predicted clock."""
-    from mavlink.mission.flight import START_ITEM
 
     dep: dict[str, float | None] = {}
     late: dict[str, float] = {}

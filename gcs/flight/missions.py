@@ -33,13 +33,29 @@ waypoint every 2 s segment, 7.5 m apart, holds a 3.75 m/s plan to about 3.6 m/s 
 
 from __future__ import annotations
 
+import asyncio
 import math
+import pickle
+import sys
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from gcs.flight.evaluation import plan_formula
+from gcs.flight.landing import landing_targets
+from gcs.flight.tuning import PX4_GAINS, drag_lag_s
+from mavlink.mission import (
+    MissionEnd,
+    braking_distance_m,
+    fence_zones,
+    geofence_items,
+    path_robustness,
+    trajectory_to_mission,
+)
+from mavlink.mock.predict import predict_missions
 
 if TYPE_CHECKING:
     from mavlink.mission import CaptureSpan, MissionEnd, MissionPlan
@@ -143,7 +159,6 @@ def auto_acceptance_m(plan: Plan, nav_acc_rad_m: float = PX4_DEFAULTS["NAV_ACC_R
     NAV_ACC_RAD, PX4's own default radius. Corner cutting that a larger radius brings is
     judged by the prediction, not here.
     """
-    from mavlink.mission import trajectory_to_mission
 
     fastest = 0.0
     for pv in plan.vehicles:
@@ -157,7 +172,6 @@ def expected_lag_s(params: Mapping[str, float]) -> float:
     """The lag of a vehicle with PX4 parameters ``params`` behind its setpoint (s):
     :func:`gcs.flight.tuning.drag_lag_s` of SIH_KDV (the drag the prediction flies with) and the
     position/velocity gains, PX4's defaults where absent."""
-    from gcs.flight.tuning import PX4_GAINS, drag_lag_s
 
     return drag_lag_s(
         params.get("SIH_KDV", 1.0),
@@ -195,10 +209,6 @@ def convert_plan(
             process (the best so far is kept; at least one is always made): a busy machine
             makes the same search, only later.
     """
-    from gcs.flight.evaluation import plan_formula
-    from gcs.flight.landing import landing_targets
-    from mavlink.mission import MissionEnd, path_robustness, trajectory_to_mission
-    from mavlink.mock.predict import predict_missions
 
     prm = dict(params or {})
     auto = acceptance_m is None
@@ -511,7 +521,6 @@ def fence_plan(plan: Plan, *, acc_hor_m_s2: float = 3.0, allowance_m: float = 0.
     ``allowance_m`` (tracking and estimator error); exclusions stay exact, and where the
     plan itself comes closer to one than its braking distance, a note says where and when.
     """
-    from mavlink.mission import braking_distance_m, fence_zones, geofence_items
 
     t = np.arange(0.0, plan.horizon_s + 1e-9, plan.check_dt_s)
     peak = 0.0
@@ -562,9 +571,6 @@ async def convert_plan_apart(plan: Plan, **kwargs: Any) -> MissionConversion:
     Raises:
         RuntimeError: the child failed (its last line of stderr).
     """
-    import asyncio
-    import pickle
-    import sys
 
     proc = await asyncio.create_subprocess_exec(
         sys.executable,
@@ -584,8 +590,6 @@ async def convert_plan_apart(plan: Plan, **kwargs: Any) -> MissionConversion:
 
 def _child() -> None:
     """``python -m gcs.flight.missions``: the child of :func:`convert_plan_apart`."""
-    import pickle
-    import sys
 
     plan, kwargs = pickle.loads(sys.stdin.buffer.read())
     sys.stdout.buffer.write(pickle.dumps(convert_plan(plan, **kwargs)))

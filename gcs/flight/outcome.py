@@ -16,6 +16,10 @@ from enum import Enum
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from gcs.flight.tuning import LAG_NOISE_S, drag_from_lag
+from gcs.plot.coverage import coverage_json, coverage_lines
+from mavlink.offboard.stream import STATS_HEADER
+
 if TYPE_CHECKING:
     from gcs.flight.evaluation import FlownEvaluation
     from gcs.flight.mission import MissionFlight
@@ -121,7 +125,6 @@ SEVERITY_NAMES = ("EMERGENCY", "ALERT", "CRITICAL", "ERROR", "WARNING")
 
 def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
     """The end-of-flight summary for the operator (several lines)."""
-    from mavlink.offboard.stream import STATS_HEADER
 
     lines = []
     if outcome.interrupted:
@@ -229,8 +232,6 @@ def format_outcome(plan: Plan, outcome: FlightOutcome) -> str:
         for refused in outcome.camera.refused.values():
             lines += [f"  camera command refused: {r}" for r in refused]
     if outcome.coverage is not None:
-        from gcs.plot.coverage import coverage_lines
-
         lines += coverage_lines(outcome.coverage)
     if outcome.tlog is not None:
         lines.append(f"telemetry: {outcome.tlog.path} ({outcome.tlog.messages} messages)")
@@ -263,7 +264,6 @@ def _replan_lines(outcome: FlightOutcome) -> list[str]:
 
 def _tuning_lines(outcome: FlightOutcome) -> list[str]:
     """Drag fed forward per vehicle, the lag it still showed, and the drag to set."""
-    from gcs.flight.tuning import LAG_NOISE_S, drag_from_lag
 
     ev = outcome.evaluation
     lags = {t.vehicle: t.lag_s for t in ev.tracking} if ev is not None else {}
@@ -397,6 +397,5 @@ def outcome_json(plan: Plan, outcome: FlightOutcome) -> dict[str, Any]:
 
 
 def _coverage_json(report: CoverageReport) -> dict[str, Any]:
-    from gcs.plot.coverage import coverage_json
 
     return coverage_json(report)

@@ -33,7 +33,11 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+from mavlink.errors import CommandError
+from mavlink.link.fleet import GCS_SYSID
 from mavlink.mission.conversion import CaptureSpan
+from planner.planfile import plan_formula
+from planner.spec.captures import capture_windows
 
 if TYPE_CHECKING:
     from mavlink.link.fleet import Fleet
@@ -69,8 +73,6 @@ def capture_spans(
     ``interval_s`` is 0, the camera left alone)."""
     if not interval_s > 0:
         return {v.name: () for v in plan.vehicles}
-    from planner.planfile import plan_formula
-    from planner.spec.captures import capture_windows
 
     out: dict[str, list[CaptureSpan]] = {v.name: [] for v in plan.vehicles}
     windows = capture_windows(
@@ -128,8 +130,6 @@ async def run_offboard_captures(
     Runs until the last span ends or it is cancelled (the flight ended); never raises for a
     refusal.  What it sent and what was refused goes into ``out`` as it happens.
     """
-    from mavlink.errors import CommandError
-    from mavlink.link.fleet import GCS_SYSID
 
     t0 = await started
     clock = fleet.clock

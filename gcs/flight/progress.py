@@ -26,6 +26,9 @@ import numpy as np
 
 from gcs.flight.evaluation import heading_readers, plan_formula
 from mavlink.tracks import wrap_pi
+from planner.frames import NedToEnuMap, yaw_ned_to_enu
+from planner.planfile import planned_signals
+from planner.stl.batch import ClauseBatch
 
 if TYPE_CHECKING:
     from mavlink.link.fleet import Fleet
@@ -97,8 +100,6 @@ class FlightProgress:
 
     def _load(self, plan: Plan) -> None:
         """The plan's signals and clauses (the flown samples so far written in again)."""
-        from planner.planfile import planned_signals
-        from planner.stl.batch import ClauseBatch
 
         phi = plan_formula(plan)
         # with the heading as a fourth column where the spec reads it (face)
@@ -201,7 +202,6 @@ class FlightProgress:
 
         ``with_robustness=False`` only records (the robustness is the costly part).
         """
-        from planner.frames import NedToEnuMap, yaw_ned_to_enu
 
         now = fleet.clock.monotonic()
         parts = []

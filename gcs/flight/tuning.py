@@ -21,6 +21,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 if TYPE_CHECKING:
     from mavlink.link.fleet import Fleet
     from mavlink.link.vehicle import Vehicle
@@ -100,7 +102,6 @@ async def read_tuning(
 
 def peak_speed_m_s(plan: Plan) -> dict[str, float]:
     """Each vehicle's fastest planned speed (m/s), on the plan's check grid."""
-    import numpy as np
 
     out = {}
     for pv in plan.vehicles:

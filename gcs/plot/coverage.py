@@ -34,7 +34,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from gcs.checks import Check
+from gcs.plot.figure import KIND_STYLE, is_large
 from mavlink.link.camera import CameraInfo, CapturedImage
+from planner.planfile import plan_formula
+from planner.spec.captures import aim_point
+from planner.spec.cover import drawn_regions
+from planner.spec.heading import facing_rules
+from planner.spec.predicates import face_tolerance_deg
 
 if TYPE_CHECKING:
     from planner.planfile import Plan
@@ -140,7 +147,6 @@ class CoverageReport:
 
 def _view(image: CapturedImage, target: Any, where: Any, origin: Any) -> tuple[float, float, float]:
     """(range, view angle, place margin) of ``image`` seen from ``target``."""
-    from planner.spec.captures import aim_point
 
     pos = image.position_enu_m(origin)
     aim = aim_point(target, pos)[0]
@@ -178,9 +184,6 @@ def compute_coverage(
         place_tolerance_m: how far outside the place a picture still counts.
         window_slack_s: how far outside a rule's window a picture still counts.
     """
-    from planner.planfile import plan_formula
-    from planner.spec.heading import facing_rules
-    from planner.spec.predicates import face_tolerance_deg
 
     tol = face_tolerance_deg(plan) if view_tolerance_deg is None else float(view_tolerance_deg)
     rules = facing_rules(plan_formula(plan), plan)
@@ -284,7 +287,6 @@ def coverage_lines(report: CoverageReport) -> list[str]:
 
 def coverage_checks(report: CoverageReport) -> list[Any]:
     """One :class:`gcs.checks.Check` per target: pictured at least once (``gcs verify``)."""
-    from gcs.checks import Check
 
     out = []
     for t in report.targets:
@@ -329,9 +331,6 @@ def _draw_regions_xy(ax: Any, plan: Plan) -> None:
     """The regions' footprints from above (poles grey, inspection places green, keep-outs red
     outlines where large), the workspace left out."""
     from matplotlib.patches import Polygon
-
-    from gcs.plot.figure import KIND_STYLE, is_large
-    from planner.spec.cover import drawn_regions
 
     for r in drawn_regions(plan.regions):
         kind = r.kind.value

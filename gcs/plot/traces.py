@@ -39,6 +39,8 @@ from numpy.typing import NDArray
 from gcs.errors import InputFileError
 from gcs.flight.evaluation import heading_readers
 from mavlink.tracks import NO_HEADING
+from planner.planfile import plan_formula, planned_signals, spec_errors
+from planner.stl import Always, Eventually, Until
 
 if TYPE_CHECKING:
     from gcs.telemetry import Telemetry
@@ -100,7 +102,6 @@ def _curve(clause: Formula, signals: Mapping[str, Any], dt: float) -> tuple[str,
     ``p until[a,b] q`` ``("until", c)`` with ``c(t') = min(q(t'), min over [0, t') of p)``
     on ``[a, b]`` (NaN elsewhere), whose maximum is the clause's value at t = 0; else the
     clause's own trace."""
-    from planner.stl import Always, Eventually, Until
 
     if isinstance(clause, Always | Eventually):
         return "body", clause.child.robustness_trace(signals, dt)
@@ -122,7 +123,6 @@ def _witness(
 
     Only called once the clause itself evaluated, so its window lies inside ``rho``.
     """
-    from planner.stl import Always, Eventually, Until
 
     if isinstance(clause, Always | Eventually):
         lo, hi = clause.steps(dt)
@@ -144,11 +144,9 @@ def clause_traces(
     The planned curves come from the trajectories' exact positions on :func:`plan_grid`; the
     flown ones from the telemetry on the same grid (module docstring).
     """
-    from planner.planfile import plan_formula, spec_errors
 
     phi = plan_formula(plan)
     t, dt = plan_grid(plan, dt_s)
-    from planner.planfile import planned_signals
 
     planned = planned_signals(plan, t)
     flown: dict[str, NDArray[np.float64]] | None = None

@@ -22,7 +22,11 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from mavlink.errors import MissionError, MissionResult
+from mavsdk.plugins.mavlink_direct import MavlinkDirectError, MavlinkMessage
+from mavsdk.plugins.mission_raw import MissionRawError
+
+from mavlink.errors import MissionError, MissionResult, TransferGaveUpError
+from mavlink.link.mavsdk_glue import mavsdk_call
 from mavlink.mission.items import MissionItem, MissionType, compare_items
 from mavlink.mission.transfer import (
     TransferReport,
@@ -154,7 +158,6 @@ def _send_cancel(v: Vehicle, mission_type: MissionType) -> None:
     partner and ignores it when idle, so sending it after every failed step is safe.
     Best effort: a send that fails is logged (the vehicle then times out by itself).
     """
-    from mavsdk.plugins.mavlink_direct import MavlinkDirectError, MavlinkMessage
 
     fields_json = json.dumps(
         {
@@ -180,7 +183,6 @@ def _send_cancel(v: Vehicle, mission_type: MissionType) -> None:
 
 def _abandon(v: Vehicle, kind: str) -> None:
     """Cancel MAVSDK's own transfer still under way (the budget ran out before it ended)."""
-    from mavsdk.plugins.mission_raw import MissionRawError
 
     cancel = (
         v.mission_raw.cancel_mission_download
@@ -220,7 +222,6 @@ async def _put(v: Vehicle, items: Sequence[MissionItem], mission_type: MissionTy
     if items:
         await upload(v, items, mission_type)
         return
-    from mavlink.link.mavsdk_glue import mavsdk_call
 
     try:
         result = await mavsdk_call(v.mission_raw.clear_mission_async, timeout_s=60.0)
@@ -274,7 +275,6 @@ async def upload_with_retries(
         MissionError: a failure no retry mends (too many items, an item the vehicle
             refuses, an empty FENCE or RALLY plan), at once.
     """
-    from mavlink.errors import TransferGaveUpError
 
     policy = policy if policy is not None else RetryPolicy()
     plan = tuple(items)

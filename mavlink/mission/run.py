@@ -18,6 +18,9 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from mavlink.clock import WALL, Clock
+from mavlink.errors import CommandError
+from mavlink.link.mavsdk_glue import MAV_RESULT_NAMES, mavsdk_call
+from mavlink.px4_modes import Px4Mode
 
 if TYPE_CHECKING:
     from mavlink.link.vehicle import Vehicle
@@ -71,9 +74,6 @@ async def start_mission_confirmed(
 
     Never raises for a refusal: the result says what happened, with PX4's STATUSTEXTs.
     """
-    from mavlink.errors import CommandError
-    from mavlink.link.mavsdk_glue import mavsdk_call
-    from mavlink.px4_modes import Px4Mode
 
     t_begin = v.clock.monotonic()
     deadline = t_begin + timeout_s
@@ -141,8 +141,6 @@ async def start_mission_confirmed(
                     f"disarmed it in {mode}){texts()}",
                 )
             if rejected:
-                from mavlink.link.mavsdk_glue import MAV_RESULT_NAMES
-
                 why = (
                     f"start ACCEPTED, then {MAV_RESULT_NAMES.get(rejected[-1], rejected[-1])} "
                     f"(mode {mode}, armed {st.armed})"

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 from mavsdk.plugins.mission_raw import MissionRawResult
 
 from mavlink.errors import MissionError, MissionResult
+from mavlink.link.mavsdk_glue import mavsdk_call
 from mavlink.mission.items import MissionItem, MissionType, compare_items
 
 if TYPE_CHECKING:
@@ -42,7 +43,6 @@ async def upload(
     v: Vehicle, items: Sequence[MissionItem], mission_type: MissionType = MissionType.MISSION
 ) -> None:
     """Upload a MISSION or FENCE plan with MAVSDK mission_raw (replacing the vehicle's)."""
-    from mavlink.link.mavsdk_glue import mavsdk_call
 
     raw = [i.to_mavsdk() for i in items]
     if mission_type is MissionType.MISSION:
@@ -62,7 +62,6 @@ async def download(
     v: Vehicle, mission_type: MissionType = MissionType.MISSION
 ) -> tuple[MissionItem, ...]:
     """Download the vehicle's MISSION, FENCE or RALLY plan."""
-    from mavlink.link.mavsdk_glue import mavsdk_call
 
     if mission_type is MissionType.MISSION:
         origin, start = "download_mission", v.mission_raw.download_mission_async

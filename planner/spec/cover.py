@@ -40,6 +40,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import shapely
+from shapely.ops import polygonize, unary_union
 
 from planner.spec.regions import Prism, Region, RegionKind, ShapeError
 
@@ -123,7 +125,6 @@ class Outline:
     @classmethod
     def of_parts(cls, name: str, parts: tuple[Region, ...]) -> Outline:
         """The outline of the polygon ``name`` over its parts."""
-        import shapely
 
         union = shapely.union_all([shapely.Polygon(r.footprint_xy()) for r in parts])
         corners = _drop_straight(_corners(union), _tol(np.asarray(parts[0].footprint_xy())))
@@ -153,7 +154,6 @@ class Outline:
     @property
     def center_enu_m(self) -> np.ndarray:
         """A point inside the polygon (its label's place), at mid height."""
-        import shapely
 
         p = shapely.Polygon(self.footprint_xy()).representative_point()
         z = 0.5 * (self.lo_enu_m[2] + self.hi_enu_m[2])
@@ -204,7 +204,6 @@ def convex_cover(vertices_xy: Any) -> list[np.ndarray]:
         ShapeError: the polygon crosses or touches itself, has no area, or needs more than
             :data:`MAX_PARTS` parts.
     """
-    import shapely
 
     v = np.asarray(vertices_xy, dtype=float)
     poly = shapely.Polygon(v)
@@ -231,7 +230,6 @@ def convex_cover(vertices_xy: Any) -> list[np.ndarray]:
 
 def _check_simple(poly: Any) -> None:
     """ShapeError unless the polygon is simple (its edges do not cross or touch) with area."""
-    import shapely
 
     if not poly.is_valid:
         why = shapely.is_valid_reason(poly)
@@ -266,7 +264,6 @@ def _drop_straight(v: np.ndarray, tol: float) -> np.ndarray:
 
 def _corners(p: Any) -> np.ndarray:
     """A shapely polygon's corners, counter-clockwise, not closed."""
-    import shapely
 
     ring = np.asarray(shapely.get_coordinates(shapely.geometry.polygon.orient(p).exterior))
     return ring[:-1]
@@ -274,8 +271,6 @@ def _corners(p: Any) -> np.ndarray:
 
 def _cells(poly: Any, v: np.ndarray, tol: float) -> list[Any]:
     """The polygon cut by both edges of each reflex corner, extended into it to the boundary."""
-    import shapely
-    from shapely.ops import polygonize, unary_union
 
     reach = 4.0 * float(np.ptp(v, axis=0).max()) + 1.0
     cuts = []
@@ -308,8 +303,6 @@ def _is_convex(geom: Any) -> bool:
 
 def _grow_parts(cells: Sequence[Any], tol: float) -> list[Any]:
     """Convex unions of cells (and bridges) covering every cell, seam and crossing."""
-    import shapely
-    from shapely.ops import unary_union
 
     n = len(cells)
     adjacent: dict[int, set[int]] = {i: set() for i in range(n)}
@@ -378,7 +371,6 @@ def _grow_parts(cells: Sequence[Any], tol: float) -> list[Any]:
 
 def _crossings(cells: Sequence[Any], tol: float) -> list[tuple[np.ndarray, frozenset[int]]]:
     """Corners of cells inside the polygon (where cut lines cross), with the cells round each."""
-    import shapely
 
     out: list[tuple[np.ndarray, frozenset[int]]] = []
     seen: list[np.ndarray] = []
@@ -411,7 +403,6 @@ def seam_bridge(a: Any, b: Any) -> Any:
     """A convex quadrilateral over the edge two convex cells share, in their union and holding
     the edge's inside: the edge's ends, and a point into each cell straight off its middle
     (half way to the cell's far side)."""
-    import shapely
 
     ends = shapely.get_coordinates(a.intersection(b))
     e0, e1 = ends[0], ends[-1]
@@ -431,7 +422,6 @@ def crossing_fan(point: np.ndarray, around: Sequence[Any], tol: float) -> Any:
     """A convex polygon round a point where cut lines cross, in the cells round it: a point
     along each cell edge from it, all at one distance (half the shortest edge), so they lie
     on a circle with gaps under a straight angle."""
-    import shapely
 
     dirs: list[float] = []
     reach = math.inf

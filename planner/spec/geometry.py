@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.optimize import linprog
 
 from planner.cache import BoundedCache
 from planner.spec.predicates import Role, role_of
@@ -192,7 +193,6 @@ def _bounding_box(
     A: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """The smallest box around ``A p <= b`` within ``[lo, hi]`` (six LPs, HiGHS)."""
-    from scipy.optimize import linprog
 
     out_lo, out_hi = lo.copy(), hi.copy()
     for i in range(3):

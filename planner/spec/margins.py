@@ -41,6 +41,7 @@ import math
 from collections.abc import Callable, Mapping
 
 import numpy as np
+from shapely.geometry import Polygon
 
 from planner.errors import PlannerError
 from planner.problem import Clause, Problem
@@ -118,8 +119,6 @@ def offset_region(region: Region, m: float, name: str) -> Region:
                 s.center_xy, s.radius_m - m, s.z_lo_m + m, s.z_hi_m - m
             )
         else:
-            from shapely.geometry import Polygon
-
             grown = Polygon(s.vertices_xy).buffer(-m, join_style="mitre", mitre_limit=1e6)
             if grown.is_empty or grown.geom_type != "Polygon":
                 raise ShapeError("empty")

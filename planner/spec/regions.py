@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.optimize import linprog
 
 from planner.errors import PlannerError
 
@@ -381,7 +382,6 @@ def ca_reshape_rows(v: Any, rows: int, cols: int) -> Any:
 def chebyshev_ball(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray | None, float]:
     """Centre and radius of the largest ball in ``A p <= b`` (any dimension; an LP, HiGHS);
     ``(None, 0)`` when there is none (empty or unbounded)."""
-    from scipy.optimize import linprog
 
     A = np.asarray(A, dtype=float)
     dim = A.shape[1]

@@ -254,7 +254,9 @@ def test_stepping_stones_plans_near_the_certified_optimum_in_both_spellings(spel
     assert res.success, res.status
     assert res.robustness >= 0.75 * 0.05272  # of stlpy's certified MILP optimum (0.8: 0.0422)
     # the route over the stones is the combinatorial stage's choice (the initial guess's
-    # nearest stones left the regions spelling at 0.0004: a local optimum)
-    assert "of 2: the combinatorial stage's plan (optimal" in res.status
+    # nearest stones left the regions spelling at 0.0004: a local optimum), at the certified
+    # optimum's value on the coarse model (proven optimal there, or, stopped on a busy machine
+    # before the proof, the best found)
+    assert "of 2: the combinatorial stage's plan (" in res.status
     assert res.stats is not None and res.stats.coarse is not None
     assert res.stats.coarse["robustness"] == pytest.approx(0.05272, abs=5e-5)
