@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import pymap3d
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.mock.fleet import MockFleet
@@ -193,7 +194,6 @@ def predict_missions(
 
 
 def _geodetic(fleet: MockFleet, enu: Sequence[float]) -> tuple[float, float, float]:
-    import pymap3d
 
     o = fleet.origin
     lat, lon, alt = pymap3d.enu2geodetic(
