@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pymavlink import mavutil
 
 from planner.frames import GeodeticPoint, geodetic_to_enu
 
@@ -206,6 +205,7 @@ def images_from_tlog(
     ``t_s`` is the record's timestamp minus ``t0_unix_s`` (the plan's start), as for the
     positions (:func:`mavlink.tlog.tracks_from_tlog`).
     """
+    from pymavlink import mavutil
 
     log = mavutil.mavlogfile(str(path), robust_parsing=True)
     images: dict[str, list[CapturedImage]] = {}

@@ -41,12 +41,9 @@ from mavlink.errors import (
     LinkLostError,
 )
 from mavlink.link.mavsdk_glue import calls_settled, mavsdk_instance_opened, route_mavsdk_logs
-from mavlink.link.scan import duplicates, scan_udpin
 from mavlink.link.urls import Scheme, default_sysid, default_url, parse_url
 from mavlink.link.vehicle import Vehicle
 from mavlink.link.vehicle_status import VehicleSpec, VehicleStatus
-from mavlink.monitor import safe_stop
-from mavlink.monitor_findings import SafetyAction
 from planner.frames import GeodeticPoint
 
 #: MAV_AUTOPILOT of PX4 in its HEARTBEAT.
@@ -215,6 +212,7 @@ class Fleet:
     async def _refuse_duplicates(self) -> None:
         """DuplicateSystemError if two autopilots answer as one of the fleet's system ids on
         the udpin ports (:mod:`mavlink.link.scan`), before MAVSDK merges them."""
+        from mavlink.link.scan import duplicates, scan_udpin
 
         urls = [parse_url(s.url, vehicle=s.name) for s in self.specs]
         sysids = [s.sysid for s in self.specs]
@@ -407,6 +405,8 @@ class Fleet:
         otherwise (:func:`mavlink.monitor.safe_stop`); every vehicle is attempted, and the
         guard records which did not accept it.
         """
+        from mavlink.monitor import safe_stop
+        from mavlink.monitor_findings import SafetyAction
 
         action = SafetyAction(on_exit)
         guard = FlightGuard(action=action.value)

@@ -35,12 +35,9 @@ Errors (under :class:`mavlink.errors.LinkError`, so the CLI prints one line)::
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import hashlib
-import signal
 import struct
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -338,6 +335,9 @@ def main(argv: list[str] | None = None) -> int:
     Then fly with ``gcs fly PLAN --connection udpin://127.0.0.1:<inner_base + i> ...``.
     Exit 0 on Ctrl-C/SIGTERM, 2 on a bad key or a busy port (one line).
     """
+    import argparse
+    import signal
+    import sys
 
     ap = argparse.ArgumentParser(prog="python -m mavlink.link.signing", description=main.__doc__)
     ap.add_argument("--key", required=True, metavar="FILE", help="signing key file")

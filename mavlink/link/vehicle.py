@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 from mavsdk.plugins.action import Action, ActionResult
 from mavsdk.plugins.mavlink_direct import MavlinkDirect, MavlinkDirectResult, MavlinkMessage
-from mavsdk.plugins.mission_raw import MissionRaw, MissionRawResult
+from mavsdk.plugins.mission_raw import MissionRaw
 from mavsdk.plugins.offboard import Offboard
 from mavsdk.plugins.telemetry import Telemetry, TelemetryResult
 
@@ -647,6 +647,7 @@ class Vehicle:
 
     async def set_current_item(self, seq: int) -> None:
         """Make mission item ``seq`` the current one (where AUTO.MISSION starts)."""
+        from mavsdk.plugins.mission_raw import MissionRawResult
 
         try:
             result = await mavsdk_call(self.mission_raw.set_current_mission_item_async, int(seq))

@@ -21,7 +21,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import pymap3d
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.mock.fleet import MockFleet
@@ -194,6 +193,7 @@ def predict_missions(
 
 
 def _geodetic(fleet: MockFleet, enu: Sequence[float]) -> tuple[float, float, float]:
+    import pymap3d
 
     o = fleet.origin
     lat, lon, alt = pymap3d.enu2geodetic(

@@ -17,10 +17,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-import highspy
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.sparse import csr_matrix
 
 __all__ = ["HighsOutcome", "MilpBuilder"]
 
@@ -151,6 +149,8 @@ class MilpBuilder:
         also stops (status ``kTimeLimit``) once the calling thread's CPU time
         (``time.thread_time()``) passes this: a budget of work that does not shrink when the
         thread shares its cores."""
+        import highspy
+        from scipy.sparse import csr_matrix
 
         t_setup = time.perf_counter()
         lp = highspy.HighsLp()

@@ -16,8 +16,6 @@ from planner.milp.builder import MilpBuilder
 from planner.milp.encode import Encoder, NotEncodable
 from planner.milp.model import SAMPLE_BUDGET, CoarseModel, choose_dt, second_differences
 from planner.problem import Problem
-from planner.scenario.spec import parse_clause
-from planner.spec.predicates import build_registry
 from planner.stl import Formula
 
 __all__ = ["CoarseResult", "CoarseStatus", "problem_formulas", "solve_coarse"]
@@ -134,6 +132,8 @@ def problem_formulas(problem: Problem) -> tuple[Formula, ...]:
     """The parsed clauses of a problem (parsed again when it was made without them)."""
     if len(problem.formulas) == len(problem.clauses):
         return problem.formulas
+    from planner.scenario.spec import parse_clause
+    from planner.spec.predicates import build_registry
 
     registry = build_registry(problem)
     return tuple(parse_clause(problem, c, registry) for c in problem.clauses)

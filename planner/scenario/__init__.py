@@ -66,7 +66,6 @@ import yaml
 from planner.frames import GeodeticPoint
 from planner.problem import MAX_HORIZON_S, DynamicsModel, Problem, Timing
 from planner.scenario.checks import clause_findings, start_findings
-from planner.scenario.line import line_regions, read_line
 from planner.scenario.sections import (
     Reader,
     ScenarioError,
@@ -148,6 +147,8 @@ def parse_scenario(
 
     line_names: dict[str, list[str]] = {}
     if "line" in top:
+        from planner.scenario.line import line_regions, read_line
+
         base = Path(source).parent if source and not source.startswith("<") else Path.cwd()
         model_ = read_line(rd.mapping(top["line"], "line"), origin, base, rd.fail, rd.number)
         made, line_names = line_regions(model_)

@@ -12,8 +12,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import dijkstra
 
 from planner.dynamics.limits import vehicle_bounds
 from planner.problem import Problem
@@ -244,6 +242,7 @@ def _grid_graph(
 ) -> tuple[np.ndarray, np.ndarray, Any]:
     """:func:`grid_path`'s grid: the cells' centres, which are blocked, and the graph of the
     free cells' 26 neighbours (``masks``: the blocked cells per box, cached)."""
+    from scipy.sparse import csr_matrix
 
     lo = np.asarray(problem.workspace.lo_enu_m)
     hi = np.asarray(problem.workspace.hi_enu_m)
@@ -327,6 +326,7 @@ def grid_path(
     sample's flight spans, at ``_GAP_COST`` times the length.  Returns (m, 3) vertices;
     falls back to straight segments where no path exists.
     """
+    from scipy.sparse.csgraph import dijkstra
 
     reach = np.zeros(3) if reach_m is None else np.asarray(reach_m, dtype=float)
     key = ("graph", tuple(avoid), tuple(tuple(u) for u in within), tuple(reach))

@@ -6,7 +6,6 @@ solve at its deadline (:class:`IterationWatch`), MUMPS's ordering and the one-th
 
 from __future__ import annotations
 
-import ctypes
 import math
 import os
 import time
@@ -224,6 +223,8 @@ def one_blas_thread() -> bool:
         chosen = any(os.environ.get(v) for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"))
         path = os.path.join(os.path.dirname(ca.__file__), "libcasadi-tp-openblas.so.0")
         if not chosen and os.path.exists(path):
+            import ctypes
+
             try:
                 ctypes.CDLL(path).openblas_set_num_threads(1)
                 _BLAS_SET = True

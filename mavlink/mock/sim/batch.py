@@ -55,11 +55,8 @@ from mavlink.mock.sim.params import (
 from mavlink.mock.sim.physics import FleetPhysics
 from mavlink.mock.sim.profiles import DEFAULT_PROFILE
 from mavlink.mock.sim.px4 import Px4Mode
-from mavlink.monitor_findings import RunFindings, SafetyAction, Verdict
 from mavlink.plan_setpoints import plan_setpoints_ned
 from mavlink.tracks import wrap_pi
-from planner.frames import GeodeticPoint as Geo
-from planner.frames import NedToEnuMap, enu_to_geodetic
 
 if TYPE_CHECKING:
     from mavlink.monitor import SafetyMonitor
@@ -215,6 +212,8 @@ def prepare(
         MockConfigError: bad parameters, a check step that is not a whole number of physics
             steps, or an offboard-loss action the simulator does not fly (Return).
     """
+    from planner.frames import GeodeticPoint as Geo
+    from planner.frames import NedToEnuMap, enu_to_geodetic
 
     prm = vehicle_params(profile, params)
     if not (2.0 < rate_hz <= 100.0):
@@ -584,6 +583,7 @@ class _MonitorState:
         lost_at_s: np.ndarray,
         excused: Sequence[str] = (),
     ) -> None:
+        from mavlink.monitor_findings import RunFindings, SafetyAction, Verdict
 
         self.monitor = monitor
         self.setup = setup

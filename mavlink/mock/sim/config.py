@@ -10,7 +10,6 @@ import math
 from dataclasses import dataclass, field
 
 from mavlink.mock.sim.errors import MockConfigError
-from mavlink.mock.sim.profiles import profile_params
 
 
 def _probability(name: str, value: float) -> None:
@@ -239,5 +238,6 @@ class MockVehicleConfig:
         params = self.params.items() if isinstance(self.params, dict) else self.params
         object.__setattr__(self, "params", tuple((str(k), float(v)) for k, v in params))
         _non_negative("ready_after_s", self.ready_after_s)
+        from mavlink.mock.sim.profiles import profile_params
 
         profile_params(self.profile)  # names the choices when unknown
