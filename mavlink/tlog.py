@@ -34,7 +34,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mav
 
 from mavlink.errors import LinkError
-from mavlink.tracks import FlownTrack, track_from_rows
+from mavlink.tracks import FlownTrack, track_from_rows, vehicle_instants
 from planner.frames import GeodeticPoint
 
 if TYPE_CHECKING:
@@ -166,7 +166,10 @@ def tracks_from_tlog(
     before its first LOCAL_POSITION_NED. Each position sample carries the latest
     ATTITUDE.yaw the autopilot sent before it (as the live recording does,
     :func:`mavlink.tracks.track_from_rows`); a log without ATTITUDE gives tracks without a
-    heading.
+    heading. Each sample's instant is when the vehicle took it, as in the live track: its
+    ``time_boot_ms`` carried onto the log's receipt times by the fastest delivery around it
+    (:func:`mavlink.tracks.vehicle_instants`), so a busy recorder's latency is not read as
+    the vehicle's lag.
 
     Args:
         path: the ``.tlog``.
@@ -198,7 +201,9 @@ def tracks_from_tlog(
                 yaw_ned[sid] = float(m.yaw)
         else:
             t = m._timestamp - t0_unix_s
-            rows[sid].append([t, m.x, m.y, m.z, m.vx, m.vy, m.vz, yaw_ned[sid]])
+            rows[sid].append(
+                [t, m.x, m.y, m.z, m.vx, m.vy, m.vz, yaw_ned[sid], 1e-3 * m.time_boot_ms]
+            )
     out = {}
     for sid, data in rows.items():
         name = names_by_sysid[sid]
@@ -206,5 +211,7 @@ def tracks_from_tlog(
             continue
         if sid not in origins:
             raise LinkError(f"{path}: no GPS_GLOBAL_ORIGIN from system {sid}", vehicle=name)
-        out[name] = track_from_rows(name, np.asarray(data), 0.0, mission_origin, origins[sid])
+        a = np.asarray(data)
+        a[:, 0] = vehicle_instants(a[:, 0], a[:, 8])
+        out[name] = track_from_rows(name, a[:, :8], 0.0, mission_origin, origins[sid])
     return out
