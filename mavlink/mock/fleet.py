@@ -4,9 +4,13 @@ Vehicle ``i`` binds UDP ``bind_host:vehicle_ports[i]`` (default 14580 + i) and
 sends to ``gcs_host:gcs_ports[i]`` (default 14540 + i) until it hears from a
 client, then to the address it last heard from, exactly as PX4 SITL's MAVLink
 instance does.  One task advances the vectorised physics at ``physics_rate_hz``
-against absolute deadlines (no drift; when the process falls behind, steps run
-back to back and :attr:`MockFleet.real_time_factor` drops below 1) and lets each
-vehicle run its mode logic and telemetry.
+against absolute deadlines (no drift) and lets each vehicle run its mode logic and
+telemetry. A stall of the process (a busy machine) is not made up: past
+:data:`MAX_BEHIND_TICKS` ticks late the pace starts again from where the simulation is,
+so simulated time stops while the process does, as in a lockstep simulator, rather than
+running a burst of steps the ground station (in the same process, behind the same
+interpreter lock) has no chance to see; :attr:`MockFleet.real_time_factor` then drops
+below 1. A machine that cannot keep the pace at all runs the steps back to back.
 
 Usage::
 
@@ -47,6 +51,9 @@ from planner.frames import GeodeticPoint, enu_to_geodetic
 DEFAULT_ORIGIN = GeodeticPoint(47.397742, 8.545594, 488.0)
 GCS_BASE_PORT = 14540
 VEHICLE_BASE_PORT = 14580
+#: How far behind its pace the simulation may fall and still catch up (ticks): a delay of the
+#: event loop's timer; past it the pace starts again (:meth:`MockFleet._run`).
+MAX_BEHIND_TICKS = 2
 
 
 class _VehicleProtocol(asyncio.DatagramProtocol):
@@ -380,11 +387,16 @@ class MockFleet:
     async def _run(self) -> None:
         loop = asyncio.get_running_loop()
         dt = self.dt_s / self.speed  # wall seconds per tick
-        t0 = self._t0_wall
+        # the pace: tick k is due at anchor + (k - k_anchor) * dt on the wall clock
+        anchor, k_anchor = self._t0_wall, 0
+        late_max = MAX_BEHIND_TICKS * dt
         sleep = asyncio.sleep
         while True:
             self._tick()
-            delay = t0 + self._ticks * dt - loop.time()
+            now = loop.time()
+            delay = anchor + (self._ticks - k_anchor) * dt - now
+            if delay < -late_max:  # a stall is not made up: the pace starts again from here
+                anchor, k_anchor, delay = now, self._ticks, 0.0
             await sleep(delay if delay > 0.0 else 0.0)
 
     def _tick(self) -> None:

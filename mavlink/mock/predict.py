@@ -25,6 +25,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.mock.fleet import MockFleet
 from mavlink.mock.sim.px4 import Px4Mode
+from mavlink.mock.telemetry import DEFAULT_RATES_HZ
 from mavlink.tracks import wrap_pi
 from planner.frames import GeodeticPoint, yaw_ned_to_enu
 
@@ -133,6 +134,16 @@ def predict_missions(
     )  # fmt: skip
     fleet.offline_links()
     vs = fleet.vehicles
+    for v in vs:
+        # nobody reads the telemetry of a prediction (its samples are the simulation's state):
+        # every stream off, as a ground station turns one off (SET_MESSAGE_INTERVAL -1), which
+        # leaves the vehicle's behaviour as it is and saves a fifth of the prediction's time
+        for msg_id in DEFAULT_RATES_HZ:
+            v.receive(
+                mavlink2.MAVLink_command_long_message(
+                    v.sysid, 1, mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, 0, msg_id, -1, 0, 0, 0, 0, 0
+                )
+            )
     for name, v in zip(names, vs, strict=True):
         alt = _geodetic(fleet, starts_enu_m[name])[2]
         yaw = (start_yaw_deg or {}).get(name, math.nan)

@@ -196,21 +196,27 @@ def test_mavsdk_mission_raw_reads_camera_items_back_and_the_flight_pictures_the_
         await first(TelemetryAsync(system).subscribe_health(), lambda h: h.is_armable, 10.0)
         await ActionAsync(system).arm()
         await mission.start_mission()
-        timeline: list[tuple[float, int]] = []  # (simulation time, current item) on change
+        # (simulation time of the last look before the change, of the first after, current
+        # item): a look comes when the event loop gets to it, late on a busy machine, so a
+        # change is known to lie between the two looks, not at the second
+        timeline: list[tuple[float, float, int]] = []
         deadline = time.monotonic() + 60.0
+        t_look = fleet.time_s
         while time.monotonic() < deadline and not v.mission_finished:
-            if not timeline or timeline[-1][1] != v.mission_seq:
-                timeline.append((fleet.time_s, v.mission_seq))
+            t_before, t_look = t_look, fleet.time_s
+            if not timeline or timeline[-1][2] != v.mission_seq:
+                timeline.append((t_before, t_look, v.mission_seq))
             await asyncio.sleep(0.005)
         await asyncio.sleep(0.5)
         captures.stop()
         assert v.mission_finished
-        start = next(t for t, s in timeline if s == 5)
-        end = next(t for t, s in timeline if s > 5)
+        after, start = next((a, b) for a, b, s in timeline if s == 5)
+        end = next(b for _, b, s in timeline if s > 5)
         shots = captures.items
         assert len(shots) == math.floor(hold2_s / interval_s) + 1
         t = [(s.time_utc_us / 1e6) - fleet.utc_start_s for s in shots]
-        assert start - 0.03 <= t[0] <= start + 0.03 and t[-1] <= end + 0.01
+        # the first picture when the capture's item began (one simulation step either side)
+        assert after - 0.03 <= t[0] <= start + 0.03 and t[-1] <= end + 0.01
         assert [b - a for a, b in itertools.pairwise(t)] == pytest.approx([1.0] * 3, abs=0.011)
         # the gimbal came down at 90 deg/s after the first picture
         assert [s.attitude_euler_angle.pitch_deg for s in shots[1:]] == pytest.approx([-45.0] * 3, abs=0.01)  # fmt: skip
