@@ -33,7 +33,7 @@ import json
 import math
 import os
 import stat
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -45,12 +45,13 @@ from planner.assurance import Assurance, assurance_from_json
 from planner.dynamics.limits import PX4_LIMIT_KEYS
 from planner.errors import FileFieldError
 from planner.frames import GeodeticPoint
+from planner.mission_model import FORMAT, VERSION, PlanFileModel, RegionModel, validate
 from planner.problem import MAX_HORIZON_S
 from planner.scenario.checks import horizon_sum
 from planner.scenario.spec import FUNCTION_NAMES
 from planner.spec.heading import heading_signals, uses_heading
 from planner.spec.predicates import build_registry
-from planner.spec.regions import Cylinder, Prism, Region, RegionKind, ShapeError
+from planner.spec.regions import Cylinder, Prism, Region, ShapeError
 from planner.stl import BinOp, Call, Comparison, Neg, Predicate, Signal, SpecError, STLError, parse
 from planner.strict_read import DuplicateKeyError, NotTextError, load_json, read_text
 from planner.trajectory import Trajectory, TrajectoryError
@@ -72,8 +73,13 @@ __all__ = [
     "spec_errors",
 ]
 
-FORMAT = "stl-gcs-plan"
-VERSION = 1
+#: The optional limit fields of :class:`PlannedVehicle`, as :meth:`VehicleLimits.given` names them.
+_LIMIT_FIELDS = (
+    "thrust_min_m_s2",
+    "thrust_max_m_s2",
+    "body_rate_max_rad_s",
+    *PX4_LIMIT_KEYS,
+)
 #: Most check samples (``horizon_s / check_dt_s``) a plan may ask for: an hour at 1 ms is
 #: 3.6e6, and ten million (n, 3) float samples already take 240 MB per vehicle.
 MAX_CHECK_SAMPLES = 10_000_000
@@ -81,6 +87,10 @@ MAX_CHECK_SAMPLES = 10_000_000
 
 class PlanFileError(FileFieldError):
     """A plan file that is missing, not JSON, or not a valid plan: names file and key."""
+
+
+#: Makes the error of a key path and a problem.
+_Fail = Callable[[str, str], PlanFileError]
 
 
 @dataclass(frozen=True, slots=True)
@@ -292,89 +302,27 @@ def check_writable(path: str | Path) -> None:
         raise PlanFileError(str(p), "", f"cannot write: {exc.strerror or exc}") from None
 
 
-class _Reader:
-    def __init__(self, source: str) -> None:
-        self.source = source
-
-    def fail(self, key: str, problem: str) -> PlanFileError:
-        return PlanFileError(self.source, key, problem)
-
-    def get(self, m: dict[str, Any], key: str, path: str, types: Any) -> Any:
-        full = f"{path}.{key}" if path else key
-        if key not in m:
-            raise self.fail(full, "missing")
-        v = m[key]
-        if types is float:
-            if isinstance(v, bool) or not isinstance(v, int | float):
-                raise self.fail(full, f"expected a number, got {type(v).__name__}")
-            return float(v)
-        if not isinstance(v, types):
-            raise self.fail(
-                full, f"expected {getattr(types, '__name__', types)}, got {type(v).__name__}"
-            )
-        return v
-
-    def vec3(self, v: Any, path: str) -> tuple[float, float, float]:
-        if (
-            not isinstance(v, list)
-            or len(v) != 3
-            or not all(isinstance(x, int | float) and not isinstance(x, bool) for x in v)
-        ):
-            raise self.fail(path, "expected [x, y, z] numbers")
-        return (float(v[0]), float(v[1]), float(v[2]))
-
-    def region(self, name: str, v: Any, path: str) -> Region:
-        if not isinstance(v, dict):
-            raise self.fail(path, "expected {kind, min, max}")
-        try:
-            kind = RegionKind(v.get("kind", "region"))
-        except ValueError:
-            raise self.fail(f"{path}.kind", f"unknown kind {v.get('kind')!r}") from None
-        lo = self.vec3(v.get("min"), f"{path}.min")
-        hi = self.vec3(v.get("max"), f"{path}.max")
-        if not all(a < b for a, b in zip(lo, hi, strict=True)):
-            raise self.fail(path, "empty box (min must be below max)")
-        if "polygon" not in v and "radius" not in v:
-            return Region(name, kind, lo, hi)
-        try:
-            z = v.get("z")
-            if not (isinstance(z, list) and len(z) == 2):
-                raise ShapeError("expected z: [bottom, top]")
-            if "polygon" in v:
-                shape: Prism | Cylinder = Prism.from_polygon(v["polygon"], float(z[0]), float(z[1]))
-            else:
-                c = v.get("center")
-                if not (isinstance(c, list) and len(c) == 2):
-                    raise ShapeError("expected center: [x, y]")
-                shape = Cylinder(
-                    (float(c[0]), float(c[1])), float(v["radius"]), float(z[0]), float(z[1])
-                )
-        except (ShapeError, TypeError, ValueError) as exc:
-            raise self.fail(path, f"bad shape: {exc}") from None
-        part_of = v.get("part_of")
-        if part_of is not None and not (isinstance(part_of, str) and part_of):
-            raise self.fail(f"{path}.part_of", "expected the name of the polygon it is part of")
-        return Region.of_shape(name, kind, shape, part_of)
-
-    def number(
-        self, m: dict[str, Any], key: str, *, positive: bool = False, nonnegative: bool = False
-    ) -> float:
-        """A finite number (``json`` reads ``NaN`` and ``Infinity``), optionally > 0 or >= 0."""
-        x = self.get(m, key, "", float)
-        if not math.isfinite(x):
-            raise self.fail(key, f"expected a finite number, got {x!r}")
-        if positive and not x > 0:
-            raise self.fail(key, f"must be > 0, got {x:g}")
-        if nonnegative and not x >= 0:
-            raise self.fail(key, f"must be >= 0, got {x:g}")
-        return x
+def _region(name: str, m: RegionModel, path: str, fail: _Fail) -> Region:
+    """A plan file's region as the planner's: a box, or a polygon's or circle's prism."""
+    kind = m.kind
+    if m.polygon is None and m.radius is None:
+        return Region(name, kind, m.min, m.max)
+    try:
+        if m.z is None:
+            raise ShapeError("expected z: [bottom, top]")
+        if m.polygon is not None:
+            shape: Prism | Cylinder = Prism.from_polygon([list(p) for p in m.polygon], *m.z)
+        else:
+            if m.center is None or m.radius is None:
+                raise ShapeError("expected center: [x, y]")
+            shape = Cylinder(m.center, m.radius, *m.z)
+    except ShapeError as exc:
+        raise fail(path, f"bad shape: {exc}") from None
+    return Region.of_shape(name, kind, shape, m.part_of)
 
 
-def load_plan(path: str | Path) -> Plan:
-    """Read and validate a plan file; trajectories are rebuilt from ``segments``."""
-    p = Path(path)
-    src = str(p)
-    rd = _Reader(src)
+def _read_json(src: str) -> Any:
+    p = Path(src)
     try:
         text = read_text(p)
     except OSError as exc:
@@ -382,7 +330,7 @@ def load_plan(path: str | Path) -> Plan:
     except NotTextError as exc:
         raise PlanFileError(src, "", f"{exc} (expected a JSON plan file)") from None
     try:
-        data = load_json(text)
+        return load_json(text)
     except DuplicateKeyError as exc:
         raise PlanFileError(src, exc.mapping_path, str(exc)) from None
     except RecursionError:
@@ -391,119 +339,80 @@ def load_plan(path: str | Path) -> Plan:
         raise PlanFileError(
             src, f"line {exc.lineno}, column {exc.colno}", f"not JSON: {exc.msg}"
         ) from None
+
+
+def load_plan(path: str | Path) -> Plan:
+    """Read and validate a plan file; trajectories are rebuilt from ``segments``.
+
+    The file is validated against :class:`planner.mission_model.PlanFileModel` (the plan
+    file's JSON Schema, docs/plan-file.schema.json); what the schema cannot say (a
+    trajectory's continuity, a shape, the horizon's size) is checked here.
+    """
+    src = str(Path(path))
+
+    def fail(key: str, problem: str) -> PlanFileError:
+        return PlanFileError(src, key, problem)
+
+    data = _read_json(src)
     if not isinstance(data, dict):
-        raise rd.fail("", "expected a JSON object")
+        raise fail("", "expected a JSON object")
     if data.get("format") != FORMAT:
-        raise rd.fail("format", f"expected {FORMAT!r}, got {data.get('format')!r}")
+        raise fail("format", f"expected {FORMAT!r}, got {data.get('format')!r}")
     if data.get("version") != VERSION:
-        raise rd.fail(
-            "version", f"unsupported version {data.get('version')!r} (this reads {VERSION})"
-        )
-    o = rd.get(data, "origin", "", dict)
-    origin = GeodeticPoint(
-        lat_deg=rd.get(o, "lat", "origin", float),
-        lon_deg=rd.get(o, "lon", "origin", float),
-        alt_m=rd.get(o, "alt", "origin", float),
-    )
-    regions_raw = rd.get(data, "regions", "", dict)
-    regions = tuple(rd.region(k, v, f"regions.{k}") for k, v in regions_raw.items())
-    workspace = rd.region("workspace", rd.get(data, "workspace", "", dict), "workspace")
-    rob = data.get("robustness")
-    srob = data.get("smooth_robustness")
+        raise fail("version", f"unsupported version {data.get('version')!r} (this reads {VERSION})")
+    m = validate(PlanFileModel, data, fail)
+    regions = tuple(_region(k, r, f"regions.{k}", fail) for k, r in m.regions.items())
+    workspace = _region("workspace", m.workspace, "workspace", fail)
     vehicles = []
-    vlist = rd.get(data, "vehicles", "", list)
-    if not vlist:
-        raise rd.fail("vehicles", "no vehicles")
-    for i, v in enumerate(vlist):
+    for i, v in enumerate(m.vehicles):
         vp = f"vehicles[{i}]"
-        if not isinstance(v, dict):
-            raise rd.fail(vp, "expected an object")
-        segs = rd.get(v, "segments", vp, list)
-        name = rd.get(v, "name", vp, str)
         try:
-            traj = Trajectory.from_segments(segs, name=name, where=f"{vp}.segments")
+            traj = Trajectory.from_segments(
+                data["vehicles"][i]["segments"], name=v.name, where=f"{vp}.segments"
+            )
         except TrajectoryError as exc:
-            raise rd.fail("", str(exc)) from None
-        lim = rd.get(v, "limits", vp, dict)
-        thrust = lim.get("thrust_m_s2")
-        if thrust is not None and (not isinstance(thrust, list) or len(thrust) != 2):
-            raise rd.fail(f"{vp}.limits.thrust_m_s2", "expected [min, max]")
-        br = lim.get("body_rate_max_rad_s")
-        if br is not None and (isinstance(br, bool) or not isinstance(br, int | float)):
-            raise rd.fail(f"{vp}.limits.body_rate_max_rad_s", "expected a number")
-        px4_like = {}
-        for key in PX4_LIMIT_KEYS:
-            val = lim.get(key)
-            if val is not None and (
-                isinstance(val, bool) or not isinstance(val, int | float) or not val > 0
-            ):
-                raise rd.fail(f"{vp}.limits.{key}", f"expected a number > 0, got {val!r}")
-            px4_like[key] = None if val is None else float(val)
-        sysid = rd.get(v, "sysid", vp, int)
-        if isinstance(sysid, bool) or not 1 <= sysid <= 255:
-            raise rd.fail(f"{vp}.sysid", f"expected 1..255, got {sysid!r}")
+            raise fail("", str(exc)) from None
+        lim = v.limits.given()
         vehicles.append(
             PlannedVehicle(
-                name=name,
-                sysid=sysid,
+                name=v.name,
+                sysid=v.sysid,
                 trajectory=traj,
-                start_enu_m=rd.vec3(v.get("start"), f"{vp}.start"),
-                v_max_m_s=rd.vec3(lim.get("v_max_m_s"), f"{vp}.limits.v_max_m_s"),
-                a_max_m_s2=rd.vec3(lim.get("a_max_m_s2"), f"{vp}.limits.a_max_m_s2"),
-                thrust_min_m_s2=None if thrust is None else float(thrust[0]),
-                thrust_max_m_s2=None if thrust is None else float(thrust[1]),
-                body_rate_max_rad_s=None if br is None else float(br),
-                **px4_like,
+                start_enu_m=v.start,
+                v_max_m_s=v.limits.v_max_m_s,
+                a_max_m_s2=v.limits.a_max_m_s2,
+                **{k: lim.get(k) for k in _LIMIT_FIELDS},
             )
         )
-    for key, val in (("robustness", rob), ("smooth_robustness", srob)):
-        if val is not None and (isinstance(val, bool) or not isinstance(val, int | float)):
-            raise rd.fail(key, "expected a number or null")
-    horizon_s = rd.number(data, "horizon_s", positive=True)
-    if horizon_s > MAX_HORIZON_S:
-        raise rd.fail("horizon_s", f"{horizon_s:g} s is longer than {MAX_HORIZON_S:g} s")
-    check_dt_s = rd.number(data, "check_dt_s", positive=True)
-    if horizon_s / check_dt_s > MAX_CHECK_SAMPLES:
-        raise rd.fail(
+    if m.horizon_s > MAX_HORIZON_S:
+        raise fail("horizon_s", f"{m.horizon_s:g} s is longer than {MAX_HORIZON_S:g} s")
+    if m.horizon_s / m.check_dt_s > MAX_CHECK_SAMPLES:
+        raise fail(
             "check_dt_s",
-            f"{check_dt_s:g} s gives more than {MAX_CHECK_SAMPLES:g} check samples "
-            f"over the {horizon_s:g} s horizon",
+            f"{m.check_dt_s:g} s gives more than {MAX_CHECK_SAMPLES:g} check samples "
+            f"over the {m.horizon_s:g} s horizon",
         )
     return Plan(
-        scenario=rd.get(data, "scenario", "", str),
-        origin=origin,
-        spec=rd.get(data, "spec", "", str),
-        robustness=float("nan") if rob is None else float(rob),
-        smooth_robustness=float("nan") if srob is None else float(srob),
-        status=rd.get(data, "status", "", str),
-        success=bool(data.get("success", False)),
-        solve_time_s=rd.get(data, "solve_time_s", "", float),
+        scenario=m.scenario,
+        origin=GeodeticPoint(m.origin.lat, m.origin.lon, m.origin.alt),
+        spec=m.spec,
+        robustness=math.nan if m.robustness is None else m.robustness,
+        smooth_robustness=math.nan if m.smooth_robustness is None else m.smooth_robustness,
+        status=m.status,
+        success=m.success,
+        solve_time_s=m.solve_time_s,
         vehicles=tuple(vehicles),
         workspace=workspace,
         regions=regions,
-        separation_m=rd.number(data, "separation_m", nonnegative=True),
-        epsilon=rd.number(data, "epsilon", nonnegative=True),
-        horizon_s=horizon_s,
-        sample_dt_s=rd.number(data, "sample_dt_s", positive=True),
-        check_dt_s=check_dt_s,
-        face_tolerance_deg=_face_tolerance(rd, data),
-        assurance=(
-            None
-            if data.get("assurance") is None
-            else assurance_from_json(data["assurance"], rd.fail)
-        ),
+        separation_m=m.separation_m,
+        epsilon=m.epsilon,
+        horizon_s=m.horizon_s,
+        sample_dt_s=m.sample_dt_s,
+        check_dt_s=m.check_dt_s,
+        face_tolerance_deg=m.face_tolerance_deg,
+        assurance=None if m.assurance is None else assurance_from_json(m.assurance, fail),
         source=src,
     )
-
-
-def _face_tolerance(rd: _Reader, data: dict[str, Any]) -> float:
-    """``face_tolerance_deg``: in (0, 90) degrees; 15 in a file from before it was stored."""
-    if "face_tolerance_deg" not in data:
-        return 15.0
-    tol = rd.number(data, "face_tolerance_deg", positive=True)
-    if tol >= 90.0:
-        raise rd.fail("face_tolerance_deg", f"must be below 90 degrees, got {tol:g}")
-    return tol
 
 
 def planned_signals(plan: Plan, t_s: np.ndarray) -> dict[str, np.ndarray]:

@@ -22,6 +22,7 @@ import numpy as np
 from planner.assurance import AssuranceGoal
 from planner.dynamics.limits import PX4_LIMIT_KEYS
 from planner.errors import FileFieldError
+from planner.mission_model import VehicleLimits, validate
 from planner.problem import QP_SOLVERS, SolverMethod, SolverOptions, Vehicle
 from planner.spec.cover import polygon_regions
 from planner.spec.predicates import PREDICATES
@@ -254,32 +255,11 @@ def _per_axis_caps(
 
 
 def read_limits(rd: Reader, value: Any, path: str, base: dict[str, Any]) -> dict[str, Any]:
-    allowed = {"v_max_m_s", "a_max_m_s2", "thrust_m_s2", "body_rate_max_rad_s", *_PX4_LIMITS}
-    m = rd.mapping(value, path, allowed)
+    """A ``limits:`` mapping over ``base`` (the scenario's, for a vehicle's own): the fields
+    of :class:`planner.mission_model.VehicleLimits`, the model the plan file keeps them in."""
+    m = rd.mapping(value, path, set(VehicleLimits.model_fields))
     out = dict(base)
-    if "v_max_m_s" in m:
-        out["v_max_m_s"] = rd.per_axis(m["v_max_m_s"], join_key(path, "v_max_m_s"))
-    if "a_max_m_s2" in m:
-        out["a_max_m_s2"] = rd.per_axis(m["a_max_m_s2"], join_key(path, "a_max_m_s2"))
-    for key in _PX4_LIMITS:
-        if key in m:
-            out[key] = rd.number(m[key], join_key(path, key), positive=True)
-    if "thrust_m_s2" in m:
-        p = join_key(path, "thrust_m_s2")
-        t = m["thrust_m_s2"]
-        if not isinstance(t, list) or len(t) != 2:
-            raise rd.fail(p, "expected [min, max] mass-normalised thrust in m/s^2")
-        lo = rd.number(t[0], f"{p}[0]", nonnegative=True)
-        hi = rd.number(t[1], f"{p}[1]", positive=True)
-        if not lo < hi:
-            raise rd.fail(p, f"min {lo:g} must be below max {hi:g}")
-        if hi <= 9.81:
-            raise rd.fail(p, f"max thrust {hi:g} m/s^2 cannot hover (needs > 9.81)")
-        out["thrust_min_m_s2"], out["thrust_max_m_s2"] = lo, hi
-    if "body_rate_max_rad_s" in m:
-        out["body_rate_max_rad_s"] = rd.number(
-            m["body_rate_max_rad_s"], join_key(path, "body_rate_max_rad_s"), positive=True
-        )
+    out.update(validate(VehicleLimits, m, rd.fail, path).given())
     return out
 
 

@@ -122,7 +122,7 @@ def _set(key: str, value: object):  # type: ignore[no-untyped-def]
             "spec: line 1, column 25: expected ')', found '>='",
         ),
         (_set("check_dt_s", 0), "check_dt_s: must be > 0, got 0"),
-        (_set("check_dt_s", float("nan")), "check_dt_s: expected a finite number, got nan"),
+        (_set("check_dt_s", float("nan")), "check_dt_s: must be finite, got nan"),
         # Only the check step can tell: an interval without a sample step at dt = 0.01 s.
         (
             _set("spec", "eventually[0.111,0.115] inside(d1, goal)"),

@@ -71,7 +71,10 @@ def test_segments_round_trip_exactly(planned: tuple[PlanResult, Path]) -> None:
             r"vehicles\[0\]\.segments",
         ),
         (lambda d: d["vehicles"][0].update(sysid=0), r"vehicles\[0\]\.sysid: expected 1\.\.255"),
-        (lambda d: d["workspace"].update(max=[1, 1]), r"workspace\.max: expected \[x, y, z\]"),
+        (
+            lambda d: d["workspace"].update(max=[1, 1]),
+            r"workspace\.max: expected a list of 3 numbers \[x, y, z\]",
+        ),
     ],
 )
 def test_bad_plan_files_name_the_key(

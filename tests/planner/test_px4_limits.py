@@ -241,7 +241,8 @@ def test_plan_files_keep_px4_like_limits_and_verify_checks_them(px4_plan, tmp_pa
     data["vehicles"][0]["limits"]["v_xy_max_m_s"] = "fast"
     path.write_text(json.dumps(data))
     with pytest.raises(
-        PlanFileError, match=r"vehicles\[0\]\.limits\.v_xy_max_m_s: expected a number > 0"
+        PlanFileError,
+        match=r"vehicles\[0\]\.limits\.v_xy_max_m_s: expected a number, got str 'fast'",
     ):
         load_plan(path)
 
