@@ -49,6 +49,7 @@ __all__ = [
     "PlannedVehicleModel",
     "RegionModel",
     "SegmentModel",
+    "TimingModel",
     "VehicleLimits",
     "key_path",
     "kind_of",
@@ -271,6 +272,38 @@ class PlannedVehicleModel(BaseModel):
     yaw: list[Sample] = Field(default_factory=list, description="headings (rad, ENU)")
 
 
+class ClauseSeconds(BaseModel):
+    """How many seconds of timing error a clause tolerates on the plan."""
+
+    model_config = ConfigDict(extra="ignore", frozen=True)
+
+    clause: Text
+    tolerates_s: NonNegative
+
+
+class ClauseMargin(BaseModel):
+    """The margin (m) a clause was planned with."""
+
+    model_config = ConfigDict(extra="ignore", frozen=True)
+
+    clause: Text
+    margin_m: NonNegative
+
+
+class TimingModel(BaseModel):
+    """How a plan was made for PX4's missions (``gcs plan --for mission``)."""
+
+    model_config = ConfigDict(extra="ignore", frozen=True)
+
+    tolerance_s: Positive = Field(
+        description="the timing error each clause was planned to tolerate"
+    )
+    met: Flag
+    clauses: list[ClauseSeconds]
+    margins: list[ClauseMargin] = Field(default_factory=list)
+    rounds: Annotated[int, Strict(), Field(ge=1)]
+
+
 class PlanFileModel(BaseModel):
     """A plan file: what ``gcs plan`` writes and ``gcs verify``, ``fly``, ``upload`` read."""
 
@@ -306,6 +339,9 @@ class PlanFileModel(BaseModel):
     )
     assurance: dict[str, Any] | None = Field(
         None, description="how the plan was made to a probability (gcs plan --target-probability)"
+    )
+    timing: TimingModel | None = Field(
+        None, description="how the plan was made for PX4's missions (gcs plan --for mission)"
     )
 
 

@@ -56,6 +56,7 @@ from mavlink.mission import (
     trajectory_to_mission,
 )
 from mavlink.mock.predict import predict_missions
+from planner.spec.timing import time_tolerance as clause_tolerance
 
 if TYPE_CHECKING:
     from mavlink.mission import CaptureSpan, MissionEnd, MissionPlan
@@ -356,42 +357,16 @@ def time_tolerance(
     up_to_s: float = TOLERANCE_MAX_S,
 ) -> dict[str, float]:
     """Per top-level clause, how many seconds of timing error it tolerates on the predicted
-    flight: the largest ``d`` (to 0.05 s, at most ``up_to_s``) for which the clause stays at
-    or above ``epsilon`` when any one of its vehicles flies ``d`` seconds early or late, and
-    when two of them are off by ``d`` the opposite ways (a separation between two vehicles
-    sees ``2 d`` between them). The temporal robustness of Donzé and Maler ("Robust
-    satisfaction of temporal logic over real-valued signals", FORMATS 2010), taken per vehicle
-    on the predicted tracks; 0 for a clause already below ``epsilon``.
-    """
-    out: dict[str, float] = {}
+    flight (:func:`planner.spec.timing.time_tolerance`: any one of its vehicles early or late,
+    or two off the opposite ways; to 0.05 s, at most ``up_to_s``; 0 for a clause already
+    below ``epsilon``)."""
     names = list(pred.pos_enu_m)
-    base = {n: pred.signal(n, t) for n in names}
-    for clause in phi.clauses:
-        mine = [n for n in names if n in clause.signal_names()]
-
-        def holds(d: float, clause: Any = clause, mine: list[str] = mine) -> bool:
-            shifts: list[dict[str, float]] = [{n: s * d} for n in mine for s in (-1.0, 1.0)]
-            shifts += [{a: d, b: -d} for i, a in enumerate(mine) for b in mine[i + 1 :]] + [
-                {a: -d, b: d} for i, a in enumerate(mine) for b in mine[i + 1 :]
-            ]
-            for shift in shifts or [{}]:
-                sig = base | {n: pred.signal(n, t + d_n) for n, d_n in shift.items()}
-                if float(clause.robustness(sig, dt)) < epsilon:
-                    return False
-            return True
-
-        if not holds(0.0):
-            out[str(clause)] = 0.0
-            continue
-        if holds(up_to_s):
-            out[str(clause)] = up_to_s
-            continue
-        lo, hi = 0.0, up_to_s
-        while hi - lo > 0.05:
-            mid = 0.5 * (lo + hi)
-            lo, hi = (mid, hi) if holds(mid) else (lo, mid)
-        out[str(clause)] = round(lo, 2)
-    return out
+    return {
+        str(clause): clause_tolerance(
+            clause, pred.signal, names, t, dt, epsilon=epsilon, up_to_s=up_to_s
+        )
+        for clause in phi.clauses
+    }
 
 
 def timing_summary(late_s: Mapping[str, float]) -> str:
