@@ -16,7 +16,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["Assurance", "AssuranceGoal", "MissionTiming", "assurance_from_json"]
+__all__ = ["Assurance", "AssuranceGoal", "assurance_from_json"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -190,56 +190,3 @@ def assurance_from_json(v: Any, fail: Any) -> Assurance:
         elapsed_s=number("elapsed_s", 0.0, math.inf),
         limiting=limiting,
     )
-
-
-@dataclass(frozen=True, slots=True)
-class MissionTiming:
-    """A plan made for PX4's missions (``gcs plan --for mission``, :mod:`planner.for_missions`).
-
-    Attributes:
-        tolerance_s: the timing error (s) each clause was planned to tolerate: one vehicle
-            that many seconds early or late, or two off the opposite ways
-            (:func:`planner.spec.timing.time_tolerance`).
-        met: every clause tolerates it on the plan.
-        clauses_s: per top-level clause of the split spec (its text), the seconds it
-            tolerates on the plan (to 0.05 s, at most 3).
-        margins_m: per clause, the margin (m) it was planned with (:mod:`planner.spec.margins`).
-        rounds: plans made.
-    """
-
-    tolerance_s: float
-    met: bool
-    clauses_s: Mapping[str, float]
-    margins_m: Mapping[str, float] = field(default_factory=dict)
-    rounds: int = 1
-
-    def summary(self) -> str:
-        """One line: the tolerance asked, met or not, the least tolerant clause, the margins."""
-        least = self.least()
-        line = (
-            f"planned for missions: every clause to tolerate {self.tolerance_s:g} s of timing "
-            f"error ({'met' if self.met else 'NOT met'}, {self.rounds} plans)"
-        )
-        if least is not None:
-            line += f"; least tolerant: {least[0]} {least[1]:.2f} s"
-        if self.margins_m:
-            line += (
-                f"; {len(self.margins_m)} clause(s) tightened, by up to "
-                f"{max(self.margins_m.values()):.2f} m"
-            )
-        return line
-
-    def least(self) -> tuple[str, float] | None:
-        """The clause that tolerates the least timing error, and how much (s)."""
-        if not self.clauses_s:
-            return None
-        return min(self.clauses_s.items(), key=lambda kv: kv[1])
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "tolerance_s": self.tolerance_s,
-            "met": self.met,
-            "clauses": [{"clause": c, "tolerates_s": s} for c, s in self.clauses_s.items()],
-            "margins": [{"clause": c, "margin_m": m} for c, m in self.margins_m.items()],
-            "rounds": self.rounds,
-        }

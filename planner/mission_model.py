@@ -49,7 +49,6 @@ __all__ = [
     "PlannedVehicleModel",
     "RegionModel",
     "SegmentModel",
-    "TimingModel",
     "VehicleLimits",
     "key_path",
     "kind_of",
@@ -160,7 +159,7 @@ class VehicleLimits(BaseModel):
     (:func:`planner.scenario.sections.read_limits`).
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, defer_build=True)
 
     v_max_m_s: PerAxis | None = Field(None, description="velocity cap per axis (m/s)")
     a_max_m_s2: PerAxis | None = Field(None, description="acceleration cap per axis (m/s^2)")
@@ -209,7 +208,7 @@ class PlannedLimits(VehicleLimits):
 class OriginModel(BaseModel):
     """The mission frame's origin (WGS-84 degrees, metres above mean sea level)."""
 
-    model_config = ConfigDict(extra="ignore", frozen=True)
+    model_config = ConfigDict(extra="ignore", frozen=True, defer_build=True)
 
     lat: Annotated[float, Strict(), AllowInfNan(False), Field(ge=-90, le=90)]
     lon: Annotated[float, Strict(), AllowInfNan(False), Field(ge=-180, le=180)]
@@ -220,7 +219,7 @@ class RegionModel(BaseModel):
     """A region of a plan file: its bounding box, and where it is a polygon or a circle, its
     shape (a prism from ``z[0]`` to ``z[1]``)."""
 
-    model_config = ConfigDict(extra="ignore", frozen=True)
+    model_config = ConfigDict(extra="ignore", frozen=True, defer_build=True)
 
     kind: RegionKind = Field(RegionKind.REGION, description="what the box means to the mission")
     min: Vec3
@@ -245,7 +244,7 @@ class SegmentModel(BaseModel):
     from ``t0_s`` for ``duration_s``, ``coeffs`` per axis (east, north, up) in powers of the
     time since ``t0_s``, and the heading policy."""
 
-    model_config = ConfigDict(extra="ignore", frozen=True)
+    model_config = ConfigDict(extra="ignore", frozen=True, defer_build=True)
 
     t0_s: Number
     duration_s: Number
@@ -256,7 +255,7 @@ class SegmentModel(BaseModel):
 class PlannedVehicleModel(BaseModel):
     """A vehicle of a plan file: its trajectory, its limits and where it starts."""
 
-    model_config = ConfigDict(extra="ignore", frozen=True)
+    model_config = ConfigDict(extra="ignore", frozen=True, defer_build=True)
 
     segments: Annotated[list[SegmentModel], Field(min_length=1)] = Field(
         description="the trajectory, lossless: the source of truth"
@@ -272,44 +271,13 @@ class PlannedVehicleModel(BaseModel):
     yaw: list[Sample] = Field(default_factory=list, description="headings (rad, ENU)")
 
 
-class ClauseSeconds(BaseModel):
-    """How many seconds of timing error a clause tolerates on the plan."""
-
-    model_config = ConfigDict(extra="ignore", frozen=True)
-
-    clause: Text
-    tolerates_s: NonNegative
-
-
-class ClauseMargin(BaseModel):
-    """The margin (m) a clause was planned with."""
-
-    model_config = ConfigDict(extra="ignore", frozen=True)
-
-    clause: Text
-    margin_m: NonNegative
-
-
-class TimingModel(BaseModel):
-    """How a plan was made for PX4's missions (``gcs plan --for mission``)."""
-
-    model_config = ConfigDict(extra="ignore", frozen=True)
-
-    tolerance_s: Positive = Field(
-        description="the timing error each clause was planned to tolerate"
-    )
-    met: Flag
-    clauses: list[ClauseSeconds]
-    margins: list[ClauseMargin] = Field(default_factory=list)
-    rounds: Annotated[int, Strict(), Field(ge=1)]
-
-
 class PlanFileModel(BaseModel):
     """A plan file: what ``gcs plan`` writes and ``gcs verify``, ``fly``, ``upload`` read."""
 
     model_config = ConfigDict(
         extra="ignore",
         frozen=True,
+        defer_build=True,
         title="stl-gcs plan file",
         json_schema_extra={
             "$schema": "https://json-schema.org/draft/2020-12/schema",
@@ -339,9 +307,6 @@ class PlanFileModel(BaseModel):
     )
     assurance: dict[str, Any] | None = Field(
         None, description="how the plan was made to a probability (gcs plan --target-probability)"
-    )
-    timing: TimingModel | None = Field(
-        None, description="how the plan was made for PX4's missions (gcs plan --for mission)"
     )
 
 

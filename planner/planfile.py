@@ -41,18 +41,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from planner.assurance import Assurance, MissionTiming, assurance_from_json
+from planner.assurance import Assurance, assurance_from_json
 from planner.dynamics.limits import PX4_LIMIT_KEYS
 from planner.errors import FileFieldError
 from planner.frames import GeodeticPoint
-from planner.mission_model import (
-    FORMAT,
-    VERSION,
-    PlanFileModel,
-    RegionModel,
-    TimingModel,
-    validate,
-)
+from planner.mission_model import FORMAT, VERSION, PlanFileModel, RegionModel, validate
 from planner.problem import MAX_HORIZON_S
 from planner.scenario.checks import horizon_sum
 from planner.scenario.spec import FUNCTION_NAMES
@@ -149,8 +142,6 @@ class Plan:
     face_tolerance_deg: float = 15.0
     #: How the plan was made to a probability (``gcs plan --target-probability``), else None.
     assurance: Assurance | None = None
-    #: How the plan was made for PX4's missions (``gcs plan --for mission``), else None.
-    timing: MissionTiming | None = None
     #: The file the plan was read from; ``""`` for a plan made in memory (``PlanResult.to_plan``).
     source: str = field(default="", compare=False)
     #: The parsed and checked spec, made on first use (:func:`plan_formula`), once per plan.
@@ -254,7 +245,6 @@ def plan_to_json(plan: Plan) -> dict[str, Any]:
         "regions": {r.name: _region_json(r) for r in plan.regions},
         "vehicles": vehicles,
         **({} if plan.assurance is None else {"assurance": plan.assurance.to_json()}),
-        **({} if plan.timing is None else {"timing": plan.timing.to_json()}),
     }
 
 
@@ -421,18 +411,7 @@ def load_plan(path: str | Path) -> Plan:
         check_dt_s=m.check_dt_s,
         face_tolerance_deg=m.face_tolerance_deg,
         assurance=None if m.assurance is None else assurance_from_json(m.assurance, fail),
-        timing=None if m.timing is None else _timing(m.timing),
         source=src,
-    )
-
-
-def _timing(m: TimingModel) -> MissionTiming:
-    return MissionTiming(
-        tolerance_s=m.tolerance_s,
-        met=m.met,
-        clauses_s={c.clause: c.tolerates_s for c in m.clauses},
-        margins_m={c.clause: c.margin_m for c in m.margins},
-        rounds=m.rounds,
     )
 
 

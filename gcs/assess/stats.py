@@ -4,8 +4,8 @@ need, and the runs table.
 
 A room of its own because it is pure computation on the batches' numbers (no simulation, no
 Ray, no printing): :func:`gcs.assess.assess` calls :func:`summarise` once the batches are in,
-and the tests check it against independent references (scipy's binomial test, numpy's
-quantiles over the concatenated runs).
+and the tests check it against independent references (the binomial tails of
+``scipy.stats.binom``, numpy's quantiles over the concatenated runs).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.stats import binomtest
+from scipy.special import betaincinv
 
 from gcs.flight.evaluation import plan_formula
 from mavlink.monitor_findings import RunFindings, Verdict, always_clause_indices
@@ -36,13 +36,18 @@ TARGET_P = 0.99
 
 
 def clopper_pearson(k: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
-    """The exact (Clopper-Pearson) interval of a binomial proportion ``k / n``
-    (:func:`scipy.stats.binomtest`); ``(0, 1)`` for ``n = 0``."""
+    """The exact (Clopper-Pearson) interval of a binomial proportion ``k / n``; ``(0, 1)`` for
+    ``n = 0``. Its ends are the beta distribution's quantiles (Clopper and Pearson, 1934):
+    ``B^-1(a/2; k, n-k+1)`` and ``B^-1(1-a/2; k+1, n-k)``, by the inverse of the regularised
+    incomplete beta function (:func:`scipy.special.betaincinv`, which ``scipy.stats`` uses
+    too, without its second of import)."""
 
     if n <= 0:
         return (0.0, 1.0)
-    ci = binomtest(k, n).proportion_ci(confidence_level=confidence, method="exact")
-    return float(ci.low), float(ci.high)
+    alpha = 1.0 - confidence
+    lo = 0.0 if k <= 0 else float(betaincinv(k, n - k + 1, 0.5 * alpha))
+    hi = 1.0 if k >= n else float(betaincinv(k + 1, n - k, 1.0 - 0.5 * alpha))
+    return lo, hi
 
 
 def _quantiles(x: np.ndarray) -> dict[str, float]:

@@ -65,17 +65,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         choices=["ipopt", "sqpmethod"],
         help="override the scenario's NLP method (sqpmethod: with BFGS and solver.qpsol)",
     )
-    m = p.add_argument_group(
-        "planning for missions",
-        "plan so that every clause tolerates the timing error of PX4's mission flight: time "
-        "margins on the timed clauses, then margins on the clauses that break with their "
-        "vehicles off by that much, planned again until each tolerates it (--rounds, 6)",
-    )
-    m.add_argument("--for", dest="fly_for", choices=["offboard", "mission"], default="offboard",
-                   help="how the plan will be flown (offboard: as planned; mission: see above)")  # fmt: skip
-    m.add_argument("--timing-tolerance", type=float, metavar="S",
-                   help="with --for mission: seconds of timing error each clause must tolerate "
-                   "(0.5, what PX4 SITL kept between two vehicles' missions)")  # fmt: skip
     g = p.add_argument_group(
         "planning to a probability",
         "plan, assess the plan as gcs assess does, tighten the clauses that fail and plan "
@@ -307,15 +296,6 @@ def run(args: argparse.Namespace) -> int:
         method = SolverMethod(args.solver)
         hessian = "limited-memory" if method is SolverMethod.SQP else problem.solver.hessian
         problem = replace(problem, solver=replace(problem.solver, method=method, hessian=hessian))
-    if args.fly_for == "mission":
-        if args.target_probability is not None or problem.assurance is not None:
-            raise UserError(
-                "--for mission: plans to a probability (--target-probability or the "
-                "scenario's assurance section) are for offboard flight"
-            )
-        return _for_missions(args, problem, out)
-    if args.timing_tolerance is not None:
-        raise UserError("--timing-tolerance needs --for mission")
     if args.target_probability is not None or problem.assurance is not None:
         return _to_probability(args, problem, out)
     _no_target_options(args)
@@ -354,74 +334,14 @@ _TARGET_ONLY: dict[str, Any] = {
 }
 
 
-def _no_target_options(args: argparse.Namespace, but: tuple[str, ...] = ()) -> None:
+def _no_target_options(args: argparse.Namespace) -> None:
 
     for name, unset in _TARGET_ONLY.items():
-        if name not in but and getattr(args, name) != unset:
+        if getattr(args, name) != unset:
             raise UserError(
                 f"--{name.replace('_', '-')} needs --target-probability "
                 "(or the scenario's assurance section)"
             )
-
-
-def _for_missions(args: argparse.Namespace, problem: Any, out: Path) -> int:
-    """The loop of :mod:`planner.for_missions`; 0 when the plan meets the spec and every
-    clause tolerates the timing error asked for."""
-    from planner.for_missions import KEEPS_CLOCK_S, ROUNDS, plan_for_missions
-
-    _no_target_options(args, but=("rounds",))
-    tol = _first(args.timing_tolerance, KEEPS_CLOCK_S)
-    if not (math.isfinite(tol) and 0.0 < tol <= 3.0):
-        raise UserError(f"--timing-tolerance: must be in (0, 3] seconds, got {tol:g}")
-    rounds = _first(args.rounds, ROUNDS)
-    if rounds < 1:
-        raise UserError(f"--rounds: must be >= 1, got {rounds}")
-    t0 = time.perf_counter()
-
-    def say(line: str) -> None:
-        print(f"gcs plan: {line} ({time.perf_counter() - t0:.1f} s)", file=sys.stderr, flush=True)
-
-    r = plan_for_missions(
-        problem, tolerance_s=tol, rounds=rounds, time_limit_s=args.time_limit or None, say=say
-    )
-    saved = replace(r.result.to_plan(str(args.scenario)), timing=r.timing)
-    save_plan(out, saved)
-    least = r.timing.least()
-    notes = px4_notes(load_plan(out)) if r.result.success else []
-    if args.json:
-        rounds_json = [
-            {"robustness": x.robustness, "success": x.success, "least_clause": x.least_clause,
-             "least_s": x.least_s, "margins_m": x.margins_m, "elapsed_s": round(x.elapsed_s, 2)}
-            for x in r.rounds
-        ]  # fmt: skip
-        print(json.dumps({**summary(r.result, str(out)), "timing": r.timing.to_json(),
-                          "rounds": rounds_json, "px4_notes": notes}))  # fmt: skip
-    else:
-        print(plan_table(r.result))
-        print(timing_table(r.timing))
-        for note in notes:
-            print(note)
-        print(f"plan written to {out}")
-    if r.result.success and not r.timing.met and least is not None:
-        print(
-            f"gcs plan: not met for missions: {least[0]} tolerates {least[1]:.2f} s of timing "
-            f"error, {tol:g} s was asked for ({len(r.rounds)} plans)",
-            file=sys.stderr,
-        )
-    return 0 if r.result.success and r.timing.met else 1
-
-
-def timing_table(timing: Any, shown: int = 5) -> str:
-    """The clauses that tolerate the least timing error, and the margins planned with."""
-    rows = sorted(timing.clauses_s.items(), key=lambda kv: kv[1])[:shown]
-    lines = [
-        f"planned for missions: every clause to tolerate {timing.tolerance_s:g} s of timing "
-        f"error ({'met' if timing.met else 'not met'}; {timing.rounds} plans); least tolerant:"
-    ]
-    lines += [f"  {s:5.2f} s  {clause_cell(c, set())}" for c, s in rows]
-    for c, m in timing.margins_m.items():
-        lines.append(f"  margin {m:.2f} m  {clause_cell(c, set())}")
-    return "\n".join(lines)
 
 
 def _first(*values: Any) -> Any:

@@ -95,7 +95,6 @@ def run(args: argparse.Namespace) -> int:
                     ],
                     "coverage": None if report is None else coverage_json(report),
                     "assurance": None if plan.assurance is None else plan.assurance.to_json(),
-                    "timing": None if plan.timing is None else plan.timing.to_json(),
                 }
             )
         )
@@ -113,8 +112,6 @@ def run(args: argparse.Namespace) -> int:
             print("\n".join(coverage_lines(report)))
         if plan.assurance is not None:
             print(plan.assurance.summary())
-        if plan.timing is not None:
-            print(plan.timing.summary())
         if failed:
             print(f"FAILED: {len(failed)} of {len(checks)} checks; first: {failed[0].name}")
         else:

@@ -1,4 +1,4 @@
-"""Clauses and timing error: how many seconds a clause tolerates, and a clause made to.
+"""Clauses and timing error: how many seconds of it a clause tolerates on a flight.
 
 A vehicle flown as a PX4 mission keeps the plan's path but not exactly its clock: PX4's
 navigator slows at corners and stops, and on SITL it kept the power line's missions within
@@ -9,25 +9,20 @@ between two vehicles then sees ``2 d`` between them): the temporal robustness of
 Maler ("Robust satisfaction of temporal logic over real-valued signals", FORMATS 2010), taken
 per vehicle (:func:`time_tolerance`, :func:`worst_shifted`).
 
-:func:`widened` writes a top-level clause so that it holds whenever the original holds under
-every shift of the whole signal by up to ``tau`` (``always[-tau, tau] phi``, which the spec
-language cannot say, by a sufficient formula in it): an ``eventually[a, b]`` looks in
-``[a + tau, b - tau]``, an ``always[a, b]`` over ``[a - tau, b + tau]`` (clipped to the
-plan's time: the vehicles wait at their starts before 0 and hold after the horizon). It
-covers a late or early mission as a whole; vehicles off against each other are what the
-margins of :mod:`planner.spec.margins` add room for (:mod:`planner.for_missions`).
+The mission conversion of ``gcs upload`` and ``gcs fly --mode mission`` reports it per clause
+on PX4's predicted flight (:func:`gcs.flight.missions.time_tolerance`), and ``gcs upload
+--start`` refuses missions with a clause that tolerates less than PX4 keeps.
 """
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from planner.stl import Always, And, Eventually, Formula, Or
+from planner.stl import Formula
 
-__all__ = ["SignalAt", "time_tolerance", "widened", "worst_shifted"]
+__all__ = ["SignalAt", "time_tolerance", "worst_shifted"]
 
 #: A vehicle's signal at the instants given (s): ``signal(name, t)`` -> (n, 3) or (n, 4).
 SignalAt = Callable[[str, np.ndarray], np.ndarray]
@@ -83,27 +78,3 @@ def time_tolerance(
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if holds(mid) else (lo, mid)
     return round(lo, 2)
-
-
-def widened(node: Formula, tau: float, horizon_s: float) -> Formula:
-    """``node`` (a top-level clause, evaluated at 0) made to hold under every shift of the
-    whole signal by up to ``tau`` seconds (module docstring): sufficient, not equivalent.
-
-    ``and`` and ``or`` are looked through (each operand widened: for ``or`` sufficient, as
-    the option that holds may not change with the shift); an ``eventually[a, b]`` whose
-    window is shorter than ``2 tau`` keeps it (no window inside it is safe: the clause
-    tolerates less, which :func:`time_tolerance` reports); an ``always`` ends at most where
-    its look-ahead still fits the horizon; anything else is left as it is.
-    """
-    if tau <= 0.0:
-        return node
-    if isinstance(node, And | Or):
-        return type(node)(tuple(widened(c, tau, horizon_s) for c in node.operands))
-    if isinstance(node, Eventually):
-        a, b = node.start_s + tau, node.end_s - tau
-        return dataclasses.replace(node, start_s=a, end_s=b) if a <= b else node
-    if isinstance(node, Always):
-        room = horizon_s - node.child.horizon
-        a, b = max(0.0, node.start_s - tau), max(node.end_s, min(node.end_s + tau, room))
-        return dataclasses.replace(node, start_s=a, end_s=b)
-    return node
