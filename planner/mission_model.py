@@ -22,10 +22,12 @@ read plan files without this package.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable
 from typing import Annotated, Any, Literal, TypeVar
 
 from pydantic import (
+    AfterValidator,
     AllowInfNan,
     BaseModel,
     BeforeValidator,
@@ -39,17 +41,23 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
+from planner.spec.predicates import PREDICATES
 from planner.spec.regions import RegionKind
 
 __all__ = [
     "FORMAT",
+    "NAME_RE",
+    "RESERVED",
     "VERSION",
+    "OriginModel",
     "PlanFileModel",
     "PlannedLimits",
     "PlannedVehicleModel",
     "RegionModel",
     "SegmentModel",
+    "VehicleEntry",
     "VehicleLimits",
+    "VehicleModel",
     "key_path",
     "kind_of",
     "plan_file_schema",
@@ -58,6 +66,30 @@ __all__ = [
 
 FORMAT = "stl-gcs-plan"
 VERSION = 1
+
+#: A name of a vehicle, region or group: what the spec's text can refer to.
+NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+#: Words of the spec language, which no name may be.
+RESERVED = frozenset(
+    {
+        "true",
+        "false",
+        "not",
+        "and",
+        "or",
+        "implies",
+        "always",
+        "eventually",
+        "until",
+        "G",
+        "F",
+        "U",
+        "pairs",
+        "in",
+        # the spec's function names (planner.scenario.spec.FUNCTION_NAMES has the same keys)
+        *PREDICATES,
+    }
+)
 
 
 def kind_of(value: Any) -> str:
@@ -107,6 +139,14 @@ def _text(value: Any) -> str:
     return value
 
 
+def _identifier(value: Any) -> str:
+    if not isinstance(value, str) or not NAME_RE.match(value):
+        raise _fail(f"expected an identifier (letters, digits, _), got {value!r}")
+    if value in RESERVED:
+        raise _fail(f"{value!r} is a reserved word of the spec language")
+    return value
+
+
 def _flag(value: Any) -> bool:
     if not isinstance(value, bool):
         raise _fail(f"expected true or false, got {kind_of(value)}")
@@ -146,6 +186,12 @@ PerAxis = Annotated[
 ]
 SysId = Annotated[int, Field(ge=1), Field(le=255), BeforeValidator(_sysid)]
 Text = Annotated[str, BeforeValidator(_text)]
+#: A vehicle's (region's, group's) name: an identifier that is not a word of the spec language.
+Name = Annotated[
+    str,
+    BeforeValidator(_identifier),
+    WithJsonSchema({"type": "string", "pattern": NAME_RE.pattern}),
+]
 Flag = Annotated[bool, BeforeValidator(_flag)]
 
 
@@ -205,13 +251,61 @@ class PlannedLimits(VehicleLimits):
     a_max_m_s2: PerAxis = Field(description="acceleration cap per axis (m/s^2)")
 
 
+def _within(what: str, bound: float) -> Callable[[float], float]:
+    def check(x: float) -> float:
+        if not -bound <= x <= bound:
+            raise _fail(f"{what} {x:g} is outside [{-bound:g}, {bound:g}]")
+        return x
+
+    return check
+
+
+#: A latitude (degrees, WGS-84), refused in words outside [-90, 90].
+Latitude = Annotated[
+    float,
+    Strict(),
+    AllowInfNan(False),
+    AfterValidator(_within("latitude", 90.0)),
+    WithJsonSchema({"type": "number", "minimum": -90.0, "maximum": 90.0}),
+]
+#: A longitude (degrees), refused in words outside [-180, 180].
+Longitude = Annotated[
+    float,
+    Strict(),
+    AllowInfNan(False),
+    AfterValidator(_within("longitude", 180.0)),
+    WithJsonSchema({"type": "number", "minimum": -180.0, "maximum": 180.0}),
+]
+
+
+class VehicleModel(BaseModel):
+    """What a scenario's listed vehicle and a plan file's vehicle both are: a name and a start
+    (m, the mission's ENU frame); each has a MAVLink system id (a scenario's by default its
+    place) and :class:`VehicleLimits` (a plan file's with the per-axis caps written)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, defer_build=True)
+
+    name: Name
+    start: Vec3
+
+
+class VehicleEntry(VehicleModel):
+    """A vehicle listed in a scenario's ``vehicles:``: its system id by default its place
+    (1-based), its limits over the scenario's (any of them), its groups."""
+
+    sysid: SysId | None = Field(None, description="MAVLink system id (default: its place, 1-based)")
+    limits: VehicleLimits | None = None
+    groups: list[Name] = Field(default_factory=list)
+
+
 class OriginModel(BaseModel):
-    """The mission frame's origin (WGS-84 degrees, metres above mean sea level)."""
+    """The mission frame's origin (WGS-84 degrees, metres above mean sea level): a scenario's
+    ``origin:`` and a plan file's ``origin``."""
 
-    model_config = ConfigDict(extra="ignore", frozen=True, defer_build=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, defer_build=True)
 
-    lat: Annotated[float, Strict(), AllowInfNan(False), Field(ge=-90, le=90)]
-    lon: Annotated[float, Strict(), AllowInfNan(False), Field(ge=-180, le=180)]
+    lat: Latitude
+    lon: Longitude
     alt: Number
 
 
@@ -252,18 +346,17 @@ class SegmentModel(BaseModel):
     yaw: dict[str, Any] | None = None
 
 
-class PlannedVehicleModel(BaseModel):
-    """A vehicle of a plan file: its trajectory, its limits and where it starts."""
+class PlannedVehicleModel(VehicleModel):
+    """A vehicle of a plan file: its trajectory and, for other tools, its samples; its limits
+    with the per-axis caps always written."""
 
     model_config = ConfigDict(extra="ignore", frozen=True, defer_build=True)
 
+    sysid: SysId
+    limits: PlannedLimits
     segments: Annotated[list[SegmentModel], Field(min_length=1)] = Field(
         description="the trajectory, lossless: the source of truth"
     )
-    name: Text
-    limits: PlannedLimits
-    sysid: SysId
-    start: Vec3
     t: list[Sample] = Field(default_factory=list, description="sample instants (s), for tools")
     pos: list[list[Sample]] = Field(default_factory=list, description="positions (m), ENU")
     vel: list[list[Sample]] = Field(default_factory=list, description="velocities (m/s)")

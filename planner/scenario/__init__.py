@@ -64,6 +64,7 @@ import numpy as np
 import yaml
 
 from planner.frames import GeodeticPoint
+from planner.mission_model import OriginModel, validate
 from planner.problem import MAX_HORIZON_S, DynamicsModel, Problem, Timing
 from planner.scenario.checks import clause_findings, start_findings
 from planner.scenario.sections import (
@@ -123,15 +124,10 @@ def parse_scenario(
     if not isinstance(name, str):
         raise rd.fail("name", "expected a string")
 
-    o = rd.mapping(rd.require(top, "origin", ""), "origin", {"lat", "lon", "alt"})
-    lat = rd.number(rd.require(o, "lat", "origin"), "origin.lat")
-    lon = rd.number(rd.require(o, "lon", "origin"), "origin.lon")
-    alt = rd.number(rd.require(o, "alt", "origin"), "origin.alt")
-    if not -90 <= lat <= 90:
-        raise rd.fail("origin.lat", f"latitude {lat:g} is outside [-90, 90]")
-    if not -180 <= lon <= 180:
-        raise rd.fail("origin.lon", f"longitude {lon:g} is outside [-180, 180]")
-    origin = GeodeticPoint(lat_deg=lat, lon_deg=lon, alt_m=alt)
+    # the origin, as a plan file keeps it: one model (planner.mission_model)
+    o = rd.mapping(rd.require(top, "origin", ""), "origin", set(OriginModel.model_fields))
+    om = validate(OriginModel, o, rd.fail, "origin")
+    origin = GeodeticPoint(lat_deg=om.lat, lon_deg=om.lon, alt_m=om.alt)
 
     (workspace, *more) = read_region(
         rd, "workspace", rd.require(top, "workspace", ""), "workspace", RegionKind.WORKSPACE

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import itertools
 import math
-import re
 from collections.abc import Mapping
 from typing import Any
 
@@ -22,10 +21,9 @@ import numpy as np
 from planner.assurance import AssuranceGoal
 from planner.dynamics.limits import PX4_LIMIT_KEYS
 from planner.errors import FileFieldError
-from planner.mission_model import VehicleLimits, validate
+from planner.mission_model import NAME_RE, RESERVED, VehicleEntry, VehicleLimits, validate
 from planner.problem import QP_SOLVERS, SolverMethod, SolverOptions, Vehicle
 from planner.spec.cover import polygon_regions
-from planner.spec.predicates import PREDICATES
 from planner.spec.regions import Cylinder, Region, RegionKind, ShapeError
 
 __all__ = ["ScenarioError"]
@@ -33,27 +31,6 @@ __all__ = ["ScenarioError"]
 
 class ScenarioError(FileFieldError):
     """A mistake in a scenario file: ``"<file>: <key path>: <problem>"``."""
-
-
-NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
-_RESERVED = {
-    "true",
-    "false",
-    "not",
-    "and",
-    "or",
-    "implies",
-    "always",
-    "eventually",
-    "until",
-    "G",
-    "F",
-    "U",
-    "pairs",
-    "in",
-    # The spec's function names (planner.scenario.spec.FUNCTION_NAMES has the same keys).
-    *PREDICATES,
-}
 
 
 class Reader:
@@ -128,7 +105,7 @@ class Reader:
     def name(self, value: Any, path: str) -> str:
         if not isinstance(value, str) or not NAME_RE.match(value):
             raise self.fail(path, f"expected an identifier (letters, digits, _), got {value!r}")
-        if value in _RESERVED:
+        if value in RESERVED:
             raise self.fail(path, f"{value!r} is a reserved word of the spec language")
         return value
 
@@ -306,22 +283,15 @@ def read_vehicles(
             raise rd.fail("vehicles", "no vehicles")
         for i, v in enumerate(value):
             p = f"vehicles[{i}]"
-            m = rd.mapping(v, p, {"name", "start", "sysid", "limits", "groups"})
-            name = rd.name(rd.require(m, "name", p), join_key(p, "name"))
-            sysid = rd.integer(m.get("sysid", i + 1), join_key(p, "sysid"), minimum=1)
-            start = rd.vec3(rd.require(m, "start", p), join_key(p, "start"))
-            lim = (
-                read_limits(rd, m["limits"], join_key(p, "limits"), limits)
-                if "limits" in m
-                else limits
-            )
-            gs = m.get("groups", [])
-            if not isinstance(gs, list):
-                raise rd.fail(join_key(p, "groups"), "expected a list of group names")
-            g_names = tuple(rd.name(g, f"{p}.groups[{j}]") for j, g in enumerate(gs))
-            for g in g_names:
-                groups.setdefault(g, []).append(name)
-            out.append(_make_vehicle(rd, p, name, sysid, start, lim, g_names))
+            m = rd.mapping(v, p, set(VehicleEntry.model_fields))
+            if "limits" in m:  # its unknown keys named with what is allowed
+                rd.mapping(m["limits"], join_key(p, "limits"), set(VehicleLimits.model_fields))
+            e = validate(VehicleEntry, m, rd.fail, p)  # the plan file's model of a vehicle
+            lim = limits if e.limits is None else {**limits, **e.limits.given()}
+            for g in e.groups:
+                groups.setdefault(g, []).append(e.name)
+            sysid = i + 1 if e.sysid is None else e.sysid
+            out.append(_make_vehicle(rd, p, e.name, sysid, e.start, lim, tuple(e.groups)))
         return out, groups
     p = "vehicles"
     m = rd.mapping(value, p, {"count", "max_count", "name", "starts", "groups", "limits"})

@@ -118,3 +118,56 @@ def test_a_scenarios_scalar_limit_is_every_axis_and_its_own_limits_are_over_the_
     (v,) = load_scenario(scenario).vehicles
     assert v.v_max_m_s == (2.0, 2.0, 2.0) and v.a_max_m_s2 == (3.0, 3.0, 3.0)
     assert v.v_xy_max_m_s == 1.5
+
+
+@pytest.mark.parametrize(
+    ("origin", "key", "problem"),
+    [
+        ("{lat: 123, lon: 8.5, alt: 488}", "origin.lat", r"latitude 123 is outside \[-90, 90\]"),
+        ("{lat: 47, lon: -181, alt: 488}", "origin.lon", r"longitude -181 is outside \[-180"),
+        ("{lat: 47, lon: 8.5, alt: .nan}", "origin.alt", "must be finite, got nan"),
+        ("{lat: 47, lon: 8.5}", "origin.alt", "missing"),
+    ],
+)
+def test_a_scenario_and_a_plan_file_refuse_the_same_origin_in_the_same_words(
+    tmp_path: Path, origin: str, key: str, problem: str
+) -> None:
+    text = _SCENARIO.replace("LIMITS", "{}").replace(
+        "origin: {lat: 47.397742, lon: 8.545594, alt: 488.0}", f"origin: {origin}"
+    )
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text(text, encoding="utf-8")
+    with pytest.raises(ScenarioError, match=rf"{_re(key)}: {problem}"):
+        load_scenario(scenario)
+    data = json.loads(PLANS[0].read_text(encoding="utf-8"))
+    data["origin"] = yaml.safe_load(origin)
+    bad = tmp_path / "p.plan.json"
+    bad.write_text(json.dumps(data), encoding="utf-8")  # NaN as JSON's NaN, which json reads
+    with pytest.raises(PlanFileError, match=rf"{_re(key)}: {problem}"):
+        load_plan(bad)
+
+
+@pytest.mark.parametrize(
+    ("vehicle", "key", "problem"),
+    [
+        ("{name: always, start: [0, 0, 1]}", "name", "'always' is a reserved word"),
+        ("{name: d 1, start: [0, 0, 1]}", "name", r"expected an identifier \(letters, digits, _\)"),
+        ("{name: d1, sysid: 300, start: [0, 0, 1]}", "sysid", r"expected 1\.\.255, got 300"),
+        ("{name: d1, start: [0, 0]}", "start", r"expected a list of 3 numbers \[x, y, z\]"),
+        ("{name: d1, start: [0, a, 1]}", r"start\[1\]", "expected a number, got str 'a'"),
+    ],
+)
+def test_a_scenarios_vehicle_and_a_plan_files_are_one_model(
+    tmp_path: Path, vehicle: str, key: str, problem: str
+) -> None:
+    text = _SCENARIO.replace("{name: d1, start: [0, 0, 1], limits: LIMITS}", vehicle)
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text(text, encoding="utf-8")
+    with pytest.raises(ScenarioError, match=rf"vehicles\[0\]\.{key}: {problem}"):
+        load_scenario(scenario)
+    data = json.loads(PLANS[0].read_text(encoding="utf-8"))
+    data["vehicles"][0].update(yaml.safe_load(vehicle))
+    bad = tmp_path / "p.plan.json"
+    bad.write_text(json.dumps(data), encoding="utf-8")
+    with pytest.raises(PlanFileError, match=rf"vehicles\[0\]\.{key}: {problem}"):
+        load_plan(bad)
