@@ -383,7 +383,7 @@ class PlanFileModel(BaseModel):
     regions: dict[str, RegionModel]
     workspace: RegionModel
     vehicles: Annotated[list[PlannedVehicleModel], Field(min_length=1)]
-    robustness: NumberOrNull = Field(description="exact robustness of the plan (m)")
+    robustness: NumberOrNull = Field(None, description="exact robustness of the plan (m)")
     smooth_robustness: NumberOrNull = None
     horizon_s: Positive
     check_dt_s: Positive

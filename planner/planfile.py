@@ -316,7 +316,7 @@ def _region(name: str, m: RegionModel, path: str, fail: _Fail) -> Region:
             if m.center is None or m.radius is None:
                 raise ShapeError("expected center: [x, y]")
             shape = Cylinder(m.center, m.radius, *m.z)
-    except ShapeError as exc:
+    except (ShapeError, TypeError, ValueError) as exc:
         raise fail(path, f"bad shape: {exc}") from None
     return Region.of_shape(name, kind, shape, m.part_of)
 
