@@ -60,6 +60,7 @@ __all__ = [
     "VehicleModel",
     "key_path",
     "kind_of",
+    "name_problem",
     "plan_file_schema",
     "validate",
 ]
@@ -139,12 +140,20 @@ def _text(value: Any) -> str:
     return value
 
 
-def _identifier(value: Any) -> str:
+def name_problem(value: Any) -> str | None:
+    """Why ``value`` cannot name a vehicle, region or group (``None``: it can)."""
     if not isinstance(value, str) or not NAME_RE.match(value):
-        raise _fail(f"expected an identifier (letters, digits, _), got {value!r}")
+        return f"expected an identifier (letters, digits, _), got {value!r}"
     if value in RESERVED:
-        raise _fail(f"{value!r} is a reserved word of the spec language")
-    return value
+        return f"{value!r} is a reserved word of the spec language"
+    return None
+
+
+def _identifier(value: Any) -> str:
+    problem = name_problem(value)
+    if problem is not None:
+        raise _fail(problem)
+    return str(value)
 
 
 def _flag(value: Any) -> bool:

@@ -21,7 +21,7 @@ import numpy as np
 from planner.assurance import AssuranceGoal
 from planner.dynamics.limits import PX4_LIMIT_KEYS
 from planner.errors import FileFieldError
-from planner.mission_model import NAME_RE, RESERVED, VehicleEntry, VehicleLimits, validate
+from planner.mission_model import VehicleEntry, VehicleLimits, name_problem, validate
 from planner.problem import QP_SOLVERS, SolverMethod, SolverOptions, Vehicle
 from planner.spec.cover import polygon_regions
 from planner.spec.regions import Cylinder, Region, RegionKind, ShapeError
@@ -103,11 +103,10 @@ class Reader:
         return (v, v, v)
 
     def name(self, value: Any, path: str) -> str:
-        if not isinstance(value, str) or not NAME_RE.match(value):
-            raise self.fail(path, f"expected an identifier (letters, digits, _), got {value!r}")
-        if value in RESERVED:
-            raise self.fail(path, f"{value!r} is a reserved word of the spec language")
-        return value
+        problem = name_problem(value)  # as the mission model's names
+        if problem is not None:
+            raise self.fail(path, problem)
+        return str(value)
 
 
 def _kind(value: Any) -> str:

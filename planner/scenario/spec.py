@@ -17,9 +17,10 @@ from collections.abc import Mapping, Sequence
 from functools import partial
 from typing import Any
 
+from planner.mission_model import NAME_RE
 from planner.problem import Clause, Problem
 from planner.scenario.checks import horizon_sum
-from planner.scenario.sections import NAME_RE, Reader, ScenarioError, join_key
+from planner.scenario.sections import Reader, ScenarioError, join_key
 from planner.spec.predicates import PREDICATES, build_registry
 from planner.spec.regions import Region
 from planner.stl import (
