@@ -139,11 +139,7 @@ def predict_missions(
         # every stream off, as a ground station turns one off (SET_MESSAGE_INTERVAL -1), which
         # leaves the vehicle's behaviour as it is and saves a fifth of the prediction's time
         for msg_id in DEFAULT_RATES_HZ:
-            v.receive(
-                mavlink2.MAVLink_command_long_message(
-                    v.sysid, 1, mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, 0, msg_id, -1, 0, 0, 0, 0, 0
-                )
-            )
+            _command_int(v, mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, float(msg_id), -1.0)
     for name, v in zip(names, vs, strict=True):
         alt = _geodetic(fleet, starts_enu_m[name])[2]
         yaw = (start_yaw_deg or {}).get(name, math.nan)

@@ -21,7 +21,7 @@ import numpy as np
 from planner.assurance import AssuranceGoal
 from planner.dynamics.limits import PX4_LIMIT_KEYS
 from planner.errors import FileFieldError
-from planner.mission_model import VehicleEntry, VehicleLimits, name_problem, validate
+from planner.mission_model import VehicleEntry, VehicleLimits, kind_of, name_problem, validate
 from planner.problem import QP_SOLVERS, SolverMethod, SolverOptions, Vehicle
 from planner.spec.cover import polygon_regions
 from planner.spec.regions import Cylinder, Region, RegionKind, ShapeError
@@ -44,7 +44,7 @@ class Reader:
 
     def mapping(self, value: Any, path: str, allowed: set[str] | None = None) -> dict[str, Any]:
         if not isinstance(value, dict):
-            raise self.fail(path, f"expected a mapping, got {_kind(value)}")
+            raise self.fail(path, f"expected a mapping, got {kind_of(value)}")
         for key in value:
             if not isinstance(key, str):
                 raise self.fail(path, f"keys must be strings, got {key!r}")
@@ -68,7 +68,7 @@ class Reader:
         nonnegative: bool = False,
     ) -> float:
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise self.fail(path, f"expected a number, got {_kind(value)}")
+            raise self.fail(path, f"expected a number, got {kind_of(value)}")
         x = float(value)
         if not math.isfinite(x):
             raise self.fail(path, f"must be finite, got {x}")
@@ -80,14 +80,14 @@ class Reader:
 
     def integer(self, value: Any, path: str, *, minimum: int | None = None) -> int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise self.fail(path, f"expected an integer, got {_kind(value)}")
+            raise self.fail(path, f"expected an integer, got {kind_of(value)}")
         if minimum is not None and value < minimum:
             raise self.fail(path, f"must be >= {minimum}, got {value}")
         return int(value)
 
     def vec3(self, value: Any, path: str) -> tuple[float, float, float]:
         if not isinstance(value, list | tuple) or len(value) != 3:
-            raise self.fail(path, f"expected a list of 3 numbers [x, y, z], got {_kind(value)}")
+            raise self.fail(path, f"expected a list of 3 numbers [x, y, z], got {kind_of(value)}")
         x, y, z = (self.number(v, f"{path}[{i}]") for i, v in enumerate(value))
         return (x, y, z)
 
@@ -107,12 +107,6 @@ class Reader:
         if problem is not None:
             raise self.fail(path, problem)
         return str(value)
-
-
-def _kind(value: Any) -> str:
-    if value is None:
-        return "nothing"
-    return f"{type(value).__name__} {value!r}" if not isinstance(value, dict) else "a mapping"
 
 
 def join_key(path: str, key: str | int) -> str:
@@ -143,7 +137,7 @@ def _box(rd: Reader, value: Any, path: str) -> tuple[np.ndarray, np.ndarray]:
 
 def _pair(rd: Reader, value: Any, path: str, what: str) -> tuple[float, float]:
     if not isinstance(value, list | tuple) or len(value) != 2:
-        raise rd.fail(path, f"expected a list of 2 numbers {what}, got {_kind(value)}")
+        raise rd.fail(path, f"expected a list of 2 numbers {what}, got {kind_of(value)}")
     a, b = (rd.number(v, f"{path}[{i}]") for i, v in enumerate(value))
     return (a, b)
 
@@ -176,7 +170,8 @@ def _one_region(
         poly = m["polygon"]
         if not isinstance(poly, list) or len(poly) < 3:
             raise rd.fail(
-                join_key(path, "polygon"), f"expected at least 3 corners [x, y], got {_kind(poly)}"
+                join_key(path, "polygon"),
+                f"expected at least 3 corners [x, y], got {kind_of(poly)}",
             )
         corners = [
             _pair(rd, c, join_key(join_key(path, "polygon"), i), "[x, y]")
@@ -491,7 +486,7 @@ def read_assurance(rd: Reader, value: Any) -> AssuranceGoal:
         key = join_key("assurance.disturbances", name)
         if isinstance(text, bool) or not isinstance(text, str | int | float):
             raise rd.fail(
-                key, f"expected a distribution such as 'uniform(0, 6)', got {_kind(text)}"
+                key, f"expected a distribution such as 'uniform(0, 6)', got {kind_of(text)}"
             )
         dist[name] = str(text)
     return AssuranceGoal(

@@ -7,7 +7,7 @@ error on a flight when it stays at or above ``epsilon`` with any one of its vehi
 seconds early or late, and with two of them off by ``d`` the opposite ways (a separation
 between two vehicles then sees ``2 d`` between them): the temporal robustness of Donzé and
 Maler ("Robust satisfaction of temporal logic over real-valued signals", FORMATS 2010), taken
-per vehicle (:func:`time_tolerance`, :func:`worst_shifted`).
+per vehicle (:func:`time_tolerance`).
 
 The mission conversion of ``gcs upload`` and ``gcs fly --mode mission`` reports it per clause
 on PX4's predicted flight (:func:`gcs.flight.missions.time_tolerance`), and ``gcs upload
@@ -22,7 +22,7 @@ import numpy as np
 
 from planner.stl import Formula
 
-__all__ = ["SignalAt", "time_tolerance", "worst_shifted"]
+__all__ = ["SignalAt", "time_tolerance"]
 
 #: A vehicle's signal at the instants given (s): ``signal(name, t)`` -> (n, 3) or (n, 4).
 SignalAt = Callable[[str, np.ndarray], np.ndarray]
@@ -35,20 +35,6 @@ def _shifts(names: Sequence[str], d: float) -> list[dict[str, float]]:
         for b in names[i + 1 :]:
             out += [{a: d, b: -d}, {a: -d, b: d}]
     return out
-
-
-def worst_shifted(
-    clause: Formula, signal: SignalAt, names: Sequence[str], t: np.ndarray, dt: float, d: float
-) -> float:
-    """The clause's lowest robustness with its vehicles off by ``d`` seconds
-    (:func:`_shifts`: one early or late, or two the opposite ways); the others on time."""
-    mine = [n for n in names if n in clause.signal_names()]
-    base = {n: signal(n, t) for n in names}
-    worst = float(clause.robustness(base, dt))
-    for shift in _shifts(mine, d) if d > 0.0 else []:
-        sig = base | {n: signal(n, t + d_n) for n, d_n in shift.items()}
-        worst = min(worst, float(clause.robustness(sig, dt)))
-    return worst
 
 
 def time_tolerance(
@@ -64,10 +50,17 @@ def time_tolerance(
 ) -> float:
     """How many seconds of timing error ``clause`` tolerates on the flight ``signal``: the
     largest ``d`` (to ``resolution_s``, at most ``up_to_s``) at which it stays at or above
-    ``epsilon`` under :func:`worst_shifted`; 0 for a clause already below ``epsilon``."""
+    ``epsilon`` with its vehicles off by ``d`` (:func:`_shifts`: one early or late, or two the
+    opposite ways; the others on time); 0 for a clause already below ``epsilon``."""
+    mine = [n for n in names if n in clause.signal_names()]
+    base = {n: signal(n, t) for n in names}  # once: each step shifts only its vehicles
 
     def holds(d: float) -> bool:
-        return worst_shifted(clause, signal, names, t, dt, d) >= epsilon
+        for shift in _shifts(mine, d) or [{}]:
+            sig = base | {n: signal(n, t + d_n) for n, d_n in shift.items()}
+            if float(clause.robustness(sig, dt)) < epsilon:
+                return False
+        return True
 
     if not holds(0.0):
         return 0.0
