@@ -373,6 +373,21 @@ class PlannedVehicleModel(VehicleModel):
     yaw: list[Sample] = Field(default_factory=list, description="headings (rad, ENU)")
 
 
+class TerrainModel(BaseModel):
+    """The ground under the mission (a scenario's ``terrain:``), as a plan file keeps it: a
+    regular grid of the ground's mission-frame ``z`` (:class:`planner.spec.terrain.Terrain`)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, defer_build=True)
+
+    source: Text = Field("", description="the elevation model it was sampled from")
+    x0_m: Number = Field(description="east of the grid's south-west node (m, ENU)")
+    y0_m: Number = Field(description="north of the grid's south-west node (m, ENU)")
+    step_m: Positive = Field(description="distance between nodes along x and y (m)")
+    ground_z_m: Annotated[
+        list[Annotated[list[Number], Field(min_length=2)]], Field(min_length=2)
+    ] = Field(description="the ground's z (m) at node (i, j): x0 + i step, y0 + j step")
+
+
 class PlanFileModel(BaseModel):
     """A plan file: what ``gcs plan`` writes and ``gcs verify``, ``fly``, ``upload`` read."""
 
@@ -409,6 +424,9 @@ class PlanFileModel(BaseModel):
     )
     assurance: dict[str, Any] | None = Field(
         None, description="how the plan was made to a probability (gcs plan --target-probability)"
+    )
+    terrain: TerrainModel | None = Field(
+        None, description="the ground agl() measures from (a scenario's terrain section)"
     )
 
 

@@ -52,6 +52,7 @@ from planner.scenario.spec import FUNCTION_NAMES
 from planner.spec.heading import heading_signals, uses_heading
 from planner.spec.predicates import build_registry
 from planner.spec.regions import Cylinder, Prism, Region, ShapeError
+from planner.spec.terrain import Terrain, TerrainError
 from planner.stl import BinOp, Call, Comparison, Neg, Predicate, Signal, SpecError, STLError, parse
 from planner.strict_read import DuplicateKeyError, NotTextError, load_json, read_text
 from planner.trajectory import Trajectory, TrajectoryError
@@ -142,6 +143,8 @@ class Plan:
     face_tolerance_deg: float = 15.0
     #: How the plan was made to a probability (``gcs plan --target-probability``), else None.
     assurance: Assurance | None = None
+    #: The ground ``agl`` measures from (the scenario's terrain), else None.
+    terrain: Terrain | None = None
     #: The file the plan was read from; ``""`` for a plan made in memory (``PlanResult.to_plan``).
     source: str = field(default="", compare=False)
     #: The parsed and checked spec, made on first use (:func:`plan_formula`), once per plan.
@@ -245,6 +248,7 @@ def plan_to_json(plan: Plan) -> dict[str, Any]:
         "regions": {r.name: _region_json(r) for r in plan.regions},
         "vehicles": vehicles,
         **({} if plan.assurance is None else {"assurance": plan.assurance.to_json()}),
+        **({} if plan.terrain is None else {"terrain": plan.terrain.to_dict()}),
     }
 
 
@@ -411,8 +415,19 @@ def load_plan(path: str | Path) -> Plan:
         check_dt_s=m.check_dt_s,
         face_tolerance_deg=m.face_tolerance_deg,
         assurance=None if m.assurance is None else assurance_from_json(m.assurance, fail),
+        terrain=None if m.terrain is None else _terrain(m.terrain, fail),
         source=src,
     )
+
+
+def _terrain(t: Any, fail: Callable[[str, str], Exception]) -> Terrain:
+    rows = {len(r) for r in t.ground_z_m}
+    if len(rows) != 1:
+        raise fail("terrain.ground_z_m", f"rows of different lengths {sorted(rows)}")
+    try:
+        return Terrain(t.x0_m, t.y0_m, t.step_m, np.array(t.ground_z_m, dtype=float), t.source)
+    except TerrainError as exc:
+        raise fail("terrain", str(exc)) from None
 
 
 def planned_signals(plan: Plan, t_s: np.ndarray) -> dict[str, np.ndarray]:
@@ -484,6 +499,10 @@ def _checked_formula(plan: Plan) -> Formula:
                     f"(vehicles: {', '.join(known['v'][1])})"
                 )
             assert isinstance(atom, Call)
+            if atom.name == "agl" and plan.terrain is None:
+                raise fail(
+                    f"{str(atom)!r} is a height above the ground, and the plan has no terrain"
+                )
             for arg, kind in zip(atom.args, FUNCTION_NAMES[atom.name], strict=True):
                 what, names = known[kind]
                 if arg not in names:

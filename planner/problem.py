@@ -17,6 +17,7 @@ from typing import Any
 from planner.assurance import AssuranceGoal
 from planner.frames import GeodeticPoint
 from planner.spec.regions import Region
+from planner.spec.terrain import Terrain
 from planner.stl import Formula
 
 __all__ = [
@@ -189,6 +190,9 @@ class Problem:
     face_tolerance_deg: float = 15.0
     #: The scenario's ``assurance`` section (``gcs plan`` plans to that probability), or None.
     assurance: AssuranceGoal | None = None
+    #: The ground under the mission (the scenario's ``terrain`` section: ``agl(d)`` is the
+    #: height above it), or None (no ground: ``agl`` refused).
+    terrain: Terrain | None = None
     #: The clauses parsed at load (exact and smooth semantics), in order; empty for a
     #: problem made otherwise (``dataclasses.replace``), which is parsed where it is used.
     formulas: tuple[Formula, ...] = field(default=(), init=False, repr=False, compare=False)

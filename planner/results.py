@@ -149,4 +149,5 @@ class PlanResult:
             sample_dt_s=p.timing.sample_dt_s,
             check_dt_s=p.timing.check_dt_s,
             face_tolerance_deg=p.face_tolerance_deg,
+            terrain=p.terrain,
         )

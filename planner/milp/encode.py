@@ -28,6 +28,13 @@ Encodings, after negations are pushed to the atoms (negation normal form):
   one face, a cylinder by the circumscribed polygon); ``outside = -inside``;
   ``dist(a, b)`` from below by the L-infinity distance (``delta <= +-(p_a - p_b)_i`` for one
   of six choices, binaries), from above by the L1 distance (no binaries);
+* ``agl(d)`` (the height above a terrain, bilinear) is *relaxed*, as ``face`` is: ``z`` less
+  a plane under the ground where a floor is asked (``agl >= h``), over it where a ceiling is
+  (:meth:`~planner.spec.terrain.Terrain.plane_bounds`; no new column), recorded in
+  :attr:`Encoder.notes`. Never stricter than the ground, so no coarse infeasibility, and no
+  conflict named, comes of it (a plane over the ground would keep every coarse path above the
+  highest hill, and claim a ridge the start stands beside impossible); the NLP and the exact
+  check keep the floor;
 * ``face(d, R)`` (needs the heading, which the coarse model has not): its atom is ``true``
   (recorded in :attr:`Encoder.notes`); the NLP and the exact check decide it.
 
@@ -144,7 +151,7 @@ def _le_rows(b: MilpBuilder, r: Ints, lin: Lin, big_m: Floats | None, bins: Ints
 # --------------------------------------------------------------------------- normal form
 
 #: A linear form: (constant, ((key, coefficient), ...)); a key is ("p", vehicle, axis),
-#: ("inside", vehicle, region) or ("dist", vehicle, vehicle).
+#: ("inside", vehicle, region), ("dist", vehicle, vehicle) or ("agl", vehicle, None).
 LinForm = tuple[float, tuple[tuple[tuple[str, str, object], float], ...]]
 
 
@@ -259,6 +266,18 @@ class Normaliser:
         if c.name == "dist":
             a, b = sorted((self.vehicle(c.args[0], c), self.vehicle(c.args[1], c)))
             return {} if a == b else {("dist", a, b): 1.0}
+        if c.name == "agl":
+            terrain = getattr(self.model.problem, "terrain", None)
+            if terrain is None:
+                raise NotEncodable(f"{c}: no terrain")
+            a, b, c_lo, c_hi = terrain.plane_bounds()
+            note = (
+                f"agl: relaxed to planes under and over the ground ({c_hi - c_lo:.2f} m apart); "
+                "the NLP keeps it"
+            )
+            if note not in self.notes:
+                self.notes.append(note)
+            return {("agl", self.vehicle(c.args[0], c), None): 1.0}
         if c.name == "face":
             raise _Face
         raise NotEncodable(f"the function {c.name!r} has no linear encoding")
@@ -518,21 +537,25 @@ class Encoder:
         const, items = node.lin
         m = len(steps)
         cols, vals = [], []
-        lo, hi = np.full(m, const), np.full(m, const)
+        base = np.full(m, const)
+        lo, hi = base.copy(), base.copy()
         for key, w in items:
             if key[0] == "p":
                 c, clo, chi = self._pos(key[1], int(key[2]), steps)  # type: ignore[call-overload]
-            else:
+                cols.append(c)
+                vals.append(np.full(m, w))
+            else:  # a function's bound: its column, or (agl) an affine form of positions
                 have, d = self._deltas[(key, w > 0)]
                 dl = d.take(np.searchsorted(have, steps))
-                c, clo, chi = dl.cols[:, 0], dl.lo, dl.hi
-            cols.append(c)
-            vals.append(np.full(m, w))
+                cols.extend(dl.cols.T)
+                vals.extend(w * dl.vals.T)
+                base += w * dl.const
+                clo, chi = dl.lo, dl.hi
             lo += np.minimum(w * clo, w * chi)
             hi += np.maximum(w * clo, w * chi)
         if not cols:
-            return Lin(np.zeros((m, 0), np.int64), np.zeros((m, 0)), np.full(m, const), lo, hi)
-        return Lin(np.column_stack(cols), np.column_stack(vals), np.full(m, const), lo, hi)
+            return Lin(np.zeros((m, 0), np.int64), np.zeros((m, 0)), base, lo, hi)
+        return Lin(np.column_stack(cols), np.column_stack(vals), base, lo, hi)
 
     def _make_deltas(self, order: list[Node], need: dict[Node, NDArray[np.bool_]]) -> None:
         """One column per (function term, direction, step), at the steps its atoms need."""
@@ -550,6 +573,8 @@ class Encoder:
                 continue
             if key[0] == "inside":
                 lin = self._inside(str(key[1]), self.norm.region(str(key[2])), steps, lower)
+            elif key[0] == "agl":
+                lin = self._agl(str(key[1]), steps, lower)
             else:
                 lin = self._dist(str(key[1]), str(key[2]), steps, lower)
             self._deltas[(key, lower)] = (steps, lin)
@@ -618,6 +643,21 @@ class Encoder:
             has = count > 1
             self.b.add_rows(table[has], tv[has], 1.0, math.inf)
         return Lin.var(d, lo, hi)
+
+    def _agl(self, vehicle: str, steps: Ints, lower: bool) -> Lin:
+        """``z - (a x + b y + c)`` with the plane under the ground where the term is bounded
+        from below (``lower``: a floor), over it where from above: a relaxation either way."""
+        terrain = self.model.problem.terrain
+        assert terrain is not None  # Normaliser.call refuses agl without one
+        a, b, c_lo, c_hi = terrain.plane_bounds()
+        vals = np.array([-a, -b, 1.0])
+        m = len(steps)
+        vc = self.model.vehicles[vehicle]
+        plo, phi = vc.lo[steps], vc.hi[steps]
+        const = np.full(m, -(c_lo if lower else c_hi))
+        lo = const + np.minimum(vals * plo, vals * phi).sum(axis=1)
+        hi = const + np.maximum(vals * plo, vals * phi).sum(axis=1)
+        return Lin(vc.cols[steps], np.tile(vals, (m, 1)), const, lo, hi)
 
     def _dist(self, va: str, vb: str, steps: Ints, lower: bool) -> Lin:
         m = len(steps)

@@ -56,6 +56,7 @@ This module reads the file and puts the sections together (:func:`parse_scenario
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 from typing import Any
@@ -78,8 +79,10 @@ from planner.scenario.sections import (
     read_vehicles,
 )
 from planner.scenario.spec import check_calls, expand_spec, parse_clause, spell_parts
+from planner.scenario.terrain import floor_clauses, read_terrain
 from planner.spec.predicates import build_registry
 from planner.spec.regions import Region, RegionKind
+from planner.spec.terrain import Terrain
 from planner.strict_read import DuplicateKeyError, NotTextError, load_yaml, read_text
 
 __all__ = ["load_scenario", "parse_scenario"]
@@ -103,6 +106,7 @@ _TOP_KEYS = {
     "spec",
     "description",
     "assurance",
+    "terrain",
 }
 
 
@@ -141,12 +145,18 @@ def parse_scenario(
 
     regions = read_regions(rd, top.get("regions", {}) or {})
 
+    base = Path(source).parent if source and not source.startswith("<") else Path.cwd()
+    terrain, min_agl = None, None
+    if "terrain" in top:
+        terrain, min_agl = read_terrain(rd, top["terrain"], origin, workspace, base)
+
     line_names: dict[str, list[str]] = {}
     if "line" in top:
         from planner.scenario.line import line_regions, read_line
 
-        base = Path(source).parent if source and not source.startswith("<") else Path.cwd()
         model_ = read_line(rd.mapping(top["line"], "line"), origin, base, rd.fail, rd.number)
+        if terrain is not None:
+            model_ = dataclasses.replace(model_, ground_z_m=terrain.ground(model_.poles_xy))
         made, line_names = line_regions(model_)
         taken = {r.name for r in regions}
         for r in made:
@@ -161,6 +171,8 @@ def parse_scenario(
         limits = read_limits(rd, top["limits"], "limits", {})
 
     vlist, groups = read_vehicles(rd, rd.require(top, "vehicles", ""), limits, vehicles)
+    if terrain is not None:  # a start's z is above the ground where it is
+        vlist = [dataclasses.replace(v, start_enu_m=_above(v.start_enu_m, terrain)) for v in vlist]
     names = [v.name for v in vlist]
     region_names = {"workspace"} | {r.name for r in regions}
     seen: set[str] = set()
@@ -281,7 +293,9 @@ def parse_scenario(
             )
     clauses = expand_spec(rd, rd.require(top, "spec", ""), {**groups, **line_names}, constants)
     clauses = spell_parts(rd, clauses, regions)
-    check_calls(rd, clauses, seen, region_names)
+    if min_agl is not None:
+        clauses.extend(floor_clauses(names, min_agl, horizon))
+    check_calls(rd, clauses, seen, region_names, ground=terrain is not None)
 
     problem = Problem(
         name=name,
@@ -300,6 +314,7 @@ def parse_scenario(
         constants=constants,
         face_tolerance_deg=face_tol,
         assurance=None if top.get("assurance") is None else read_assurance(rd, top["assurance"]),
+        terrain=terrain,
     )
     for finding in start_findings(problem, start_keys):
         raise rd.fail(finding.key_path, finding.message)
@@ -311,6 +326,11 @@ def parse_scenario(
     for finding in clause_findings(problem, start_keys):
         raise rd.fail(finding.key_path, finding.message)
     return problem
+
+
+def _above(start: tuple[float, float, float], terrain: Terrain) -> tuple[float, float, float]:
+    """A start written above the ground, in the mission frame."""
+    return (start[0], start[1], start[2] + float(terrain.ground(start[:2])[0]))
 
 
 def load_scenario(path: str | Path, *, vehicles: int | None = None) -> Problem:

@@ -23,7 +23,11 @@ For pole ``i`` (1-based, in line order) it makes:
   last; ``both``: ``insp{i}_left`` and ``insp{i}_right``), turned with the line there (the
   mean direction of the spans on either side).
 
-and the lists ``poles``, ``spans`` and ``inspections`` of those names, which a clause's
+Heights are above the ground at each pole: ``z = 0`` without a terrain; with one (the
+scenario's ``terrain:`` section) the ground under the pole, and a span's keep-out, a level
+box, reaches from the lower pole's conductors to the higher one's.
+
+It also makes the lists ``poles``, ``spans`` and ``inspections`` of those names, which a clause's
 ``each`` may bind (``each: [d in all, s in spans]``).  A straight line along the x or y
 axis makes axis-aligned boxes (the planner's fastest form); any other direction makes
 prisms.
@@ -62,6 +66,8 @@ class LineModel:
         half_width_m, conductor_z_m, clearance_m: the conductors (outer phase's distance
             from the line's axis, their height range) and the keep-out's clearance.
         standoff_m, depth_m, length_m, inspection_z_m, side: the inspection boxes.
+        ground_z_m: the ground's mission-frame ``z`` at each pole, ``(n,)`` (a scenario's
+            terrain); every height above is from there. None: flat ground at ``z = 0``.
     """
 
     poles_xy: np.ndarray
@@ -75,6 +81,7 @@ class LineModel:
     length_m: float = 5.0
     inspection_z_m: tuple[float, float] = (9.5, 12.5)
     side: str = "right"
+    ground_z_m: np.ndarray | None = None
 
 
 def _region(name: str, kind: RegionKind, center_xy: np.ndarray, half: Sequence[float],
@@ -90,19 +97,26 @@ def _region(name: str, kind: RegionKind, center_xy: np.ndarray, half: Sequence[f
 def line_regions(model: LineModel) -> tuple[list[Region], dict[str, list[str]]]:
     """The regions of ``model`` and the name lists ``poles``, ``spans``, ``inspections``."""
     p = np.asarray(model.poles_xy, dtype=float)
+    g = np.zeros(len(p)) if model.ground_z_m is None else np.asarray(model.ground_z_m, float)
     spans = np.diff(p, axis=0)
     regions: list[Region] = []
     names: dict[str, list[str]] = {"poles": [], "spans": [], "inspections": []}
     for i, xy in enumerate(p, start=1):
         name = f"pole{i}"
-        cyl = Cylinder((float(xy[0]), float(xy[1])), model.pole_radius_m, 0.0, model.pole_height_m)
+        g_i = float(g[i - 1])
+        cyl = Cylinder(
+            (float(xy[0]), float(xy[1])), model.pole_radius_m, g_i, g_i + model.pole_height_m
+        )
         regions.append(Region.of_shape(name, RegionKind.POLE, cyl))
         names["poles"].append(name)
     c = model.clearance_m
-    z_keep = (model.conductor_z_m[0] - c, model.conductor_z_m[1] + c)
     for i, d in enumerate(spans, start=1):
         name = f"span{i}"
         half = (0.5 * float(np.linalg.norm(d)) + c, model.half_width_m + c)
+        # over sloping ground the conductors run from one pole's height to the next: the
+        # keep-out (a box, level) spans both ends' heights
+        lo_g, hi_g = float(min(g[i - 1], g[i])), float(max(g[i - 1], g[i]))
+        z_keep = (lo_g + model.conductor_z_m[0] - c, hi_g + model.conductor_z_m[1] + c)
         regions.append(_region(name, RegionKind.CONDUCTOR, p[i - 1] + 0.5 * d, half, z_keep, d))
         names["spans"].append(name)
     sides = ("left", "right") if model.side == "both" else (model.side,)
@@ -118,10 +132,9 @@ def line_regions(model: LineModel) -> tuple[list[Region], dict[str, list[str]]]:
             name = f"insp{i}" if len(sides) == 1 else f"insp{i}_{side}"
             normal = left if side == "left" else -left
             half = (0.5 * model.length_m, 0.5 * model.depth_m)
+            z_insp = (g[i - 1] + model.inspection_z_m[0], g[i - 1] + model.inspection_z_m[1])
             regions.append(
-                _region(
-                    name, RegionKind.INSPECTION, xy + reach * normal, half, model.inspection_z_m, u
-                )
+                _region(name, RegionKind.INSPECTION, xy + reach * normal, half, z_insp, u)
             )
             names["inspections"].append(name)
     return regions, names

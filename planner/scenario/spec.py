@@ -190,8 +190,11 @@ def check_calls(
     clauses: Sequence[Clause],
     vehicles: set[str],
     regions: set[str],
+    *,
+    ground: bool = False,
 ) -> None:
-    """Every function call names a known predicate with arguments of the right kinds."""
+    """Every function call names a known predicate with arguments of the right kinds
+    (``agl`` only over a ``ground``: a terrain section)."""
     for cl in clauses:
         for mt in _CALL.finditer(cl.text):
             fn, args_text = mt.group(1), mt.group(2)
@@ -199,6 +202,12 @@ def check_calls(
                 raise rd.fail(
                     cl.key_path,
                     f"unknown function {fn!r} in {cl.text!r} (known: {', '.join(FUNCTION_NAMES)})",
+                )
+            if fn == "agl" and not ground:
+                raise rd.fail(
+                    cl.key_path,
+                    f"{mt[0]!r} is a height above the ground, and the scenario has none: "
+                    "add a terrain section (docs/scenario-format.md, Terrain), or use z(d)",
                 )
             args = [a.strip() for a in args_text.split(",")] if args_text.strip() else []
             kinds = FUNCTION_NAMES[fn]

@@ -165,6 +165,9 @@ class _SymbolicRegions:
     """A region source (:class:`planner.spec.predicates.RegionSource`) whose boxes are symbols."""
 
     all_regions: tuple[Any, ...]
+    #: the ground ``agl`` reads (:class:`planner.spec.terrain.Terrain`), a constant of the
+    #: template (its digest part of the key)
+    terrain: Any = None
 
     def region(self, name: str) -> Any:
         for r in self.all_regions:
@@ -232,6 +235,7 @@ def template(
     k: float,
     k_pred: float,
     region_of: Callable[[str], Region] | None = None,
+    terrain: Any = None,
 ) -> tuple[LeafTemplate, tuple[str, ...], tuple[str, ...], np.ndarray]:
     """The template of ``leaf`` evaluated at sample ``step`` (built or from the cache), the
     leaf's vehicles and regions in the template's argument order, and the decision rows
@@ -244,6 +248,7 @@ def template(
         dt: planning sample step (s); k: temporal sharpness; k_pred: predicate sharpness.
         region_of: the regions by name (their kinds of shape, :attr:`Region.signature`, are
             part of the template; default: every region a box).
+        terrain: the ground of ``agl`` (:class:`planner.spec.terrain.Terrain`), if any.
     """
     leaf, step = _shifted(leaf, step, dt)
     shape_text, vehicles, regions = canonical_leaf(leaf)
@@ -254,11 +259,13 @@ def template(
         a = np.ascontiguousarray(a, dtype=float)
         digest.update(repr(a.shape).encode())
         digest.update(a.tobytes())
-    key = (shape_text, signatures, digest.hexdigest(), model.n_init, dt, k, k_pred)
+    ground = terrain if terrain is not None and "agl(" in shape_text else None
+    key = (shape_text, signatures, digest.hexdigest(), model.n_init, dt, k, k_pred,
+           None if ground is None else ground.digest)  # fmt: skip
     tpl, _ = _TEMPLATES.get_or_build(
         key,
         lambda: _build_template(
-            leaf, mp, np_, model.n_init, dt, k, k_pred, len(vehicles), signatures
+            leaf, mp, np_, model.n_init, dt, k, k_pred, len(vehicles), signatures, ground
         ),
     )
     return tpl, vehicles, regions, cols
@@ -274,6 +281,7 @@ def _build_template(
     k_pred: float,
     n_veh: int,
     signatures: tuple[tuple[Any, ...], ...],
+    terrain: Any = None,
 ) -> LeafTemplate:
     n_loc = mp.shape[1]
     nd, ni = n_loc * 3, n_init * 3
@@ -285,7 +293,7 @@ def _build_template(
     sym_regions = tuple(
         Region.symbolic(f"r{j}", sig, b[at[j] : at[j + 1]]) for j, sig in enumerate(signatures)
     )
-    registry = build_registry(_SymbolicRegions(sym_regions), k_pred)
+    registry = build_registry(_SymbolicRegions(sym_regions, terrain), k_pred)
     shape, _, _ = _canonical_tree(leaf, registry)
     hz = shape.horizon_steps(dt)
     Mp = ca.sparsify(ca.DM(mp))
@@ -346,11 +354,12 @@ def instance(
     k_pred: float,
     vehicle_index: dict[str, int],
     region_of: Callable[[str], Region],
+    terrain: Any = None,
 ) -> LeafInstance:
     """The :class:`LeafInstance` of ``leaf`` at ``step`` in an NLP whose ``w`` starts with
     the vehicles' ``vec(Z)`` blocks and whose ``p`` is their ``vec(X0)`` blocks, in the
     order of ``vehicle_index``."""
-    tpl, vehicles, regions, cols = template(leaf, step, model, dt, k, k_pred, region_of)
+    tpl, vehicles, regions, cols = template(leaf, step, model, dt, k, k_pred, region_of, terrain)
     nd, ni = model.n_dec * 3, model.n_init * 3
     z_index: list[int] = []
     x0_index: list[int] = []

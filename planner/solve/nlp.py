@@ -152,6 +152,7 @@ def structure_key(problem: Problem, sharp: bool = False, screen: Screen | None =
         dataclasses.replace(s, starts=1, polish_s=0.0, lexicographic_rounds=0, coarse_s=0.0),
         problem.epsilon,
         _has_norm_limits(problem),
+        None if problem.terrain is None else problem.terrain.digest,
     )
 
 
@@ -467,7 +468,15 @@ class NlpBuilder:
         def inst(leaf: Formula, st: int) -> LeafInstance:
             self.check_deadline()
             return instance(
-                leaf, st, self.model, self.dt, k, k_pred, vehicle_index, self.problem.region
+                leaf,
+                st,
+                self.model,
+                self.dt,
+                k,
+                k_pred,
+                vehicle_index,
+                self.problem.region,
+                self.problem.terrain,
             )
 
         items: list[LeafInstance | list[LeafInstance]] = [

@@ -25,6 +25,10 @@ names the function resolves from the scenario or plan (:class:`RegionSource`).
                           leaves the tolerance.  Needs the heading (a vehicle signal of
                           shape (n, 4): ENU position, then ENU yaw in rad).
 ``alt(d)``, ``z(d)``      height above the mission origin (m); ``x(d)``, ``y(d)`` east, north.
+``agl(d)``                height above the ground under the vehicle (m): ``z - ground(x, y)``
+                          over the scenario's or plan's terrain
+                          (:class:`planner.spec.terrain.Terrain`: bilinear between its
+                          nodes); refused without one.
 ========================  ==========================================================
 
 Exact values (numpy) are what the checker uses, on dense samples.  The CasADi versions are
@@ -40,6 +44,7 @@ so a smooth margin >= 0 implies an exact margin >= 0:
   delta - r``).
 * ``dist``: ``sqrt(|p1 - p2|^2 + delta^2) - delta`` with ``delta = 1e-4`` m; lies in
   ``[exact - delta, exact]`` and is smooth where the exact distance is not (at 0).
+* ``agl``: the same bilinear ground (CasADi's linear interpolant on the terrain's grid): exact.
 * ``face``: ``FACE_NLP_M`` (a constant far above any margin): the heading is not a decision
   of the NLP; :mod:`planner.spec.heading` derives it from the plan (facing the target wherever
   the spec asks), and the exact check decides.
@@ -66,6 +71,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from planner.spec.regions import Cylinder, Prism, Region
+from planner.spec.terrain import Terrain
 from planner.stl import Call, EvaluationError, Expr, Formula, FunctionRegistry, Predicate
 
 __all__ = [
@@ -83,6 +89,7 @@ __all__ = [
     "positions",
     "predicate_sharpness",
     "role_of",
+    "terrain_of",
 ]
 
 #: Smoothing offset of ``dist`` in metres (see module docstring).
@@ -108,6 +115,8 @@ class Role(enum.Enum):
     KEEP_APART = "keep apart"
     #: ``x(d)``, ``y(d)``, ``z(d)``, ``alt(d)``: one coordinate of a vehicle.
     COORDINATE = "coordinate"
+    #: ``agl(d)``: height above the terrain (a vehicle's ``z`` less the ground under it).
+    TERRAIN = "terrain"
     #: ``face(d, target)``: the vehicle's heading; derived after the NLP
     #: (:mod:`planner.spec.heading`), a constant in it.
     HEADING = "heading"
@@ -144,6 +153,7 @@ PREDICATES: dict[str, PredicateKind] = {
         PredicateKind("x", ("v",), Role.COORDINATE),
         PredicateKind("y", ("v",), Role.COORDINATE),
         PredicateKind("z", ("v",), Role.COORDINATE),
+        PredicateKind("agl", ("v",), Role.TERRAIN),
     )
 }
 
@@ -164,6 +174,18 @@ class RegionSource(Protocol):
     def all_regions(self) -> tuple[Region, ...]: ...
 
     def region(self, name: str) -> Region: ...
+
+
+def terrain_of(problem: Any) -> Terrain:
+    """The terrain ``agl`` is measured over (a scenario's or plan's ``terrain``), else an
+    :class:`EvaluationError` saying there is none."""
+    t = getattr(problem, "terrain", None)
+    if t is None:
+        raise EvaluationError(
+            "agl(d) is the height above the ground, and there is no ground: give the "
+            "scenario a terrain section (docs/scenario-format.md, Terrain)"
+        )
+    return t
 
 
 def predicate_sharpness(problem: RegionSource) -> float:
@@ -319,6 +341,9 @@ def numpy_functions(problem: RegionSource) -> dict[str, Callable[..., np.ndarray
 
         return f
 
+    def agl(args: tuple[str, ...], signals: Mapping[str, Any]) -> np.ndarray:
+        return terrain_of(problem).agl(positions(_vehicle_signal(signals, args[0])))
+
     return {
         "inside": inside,
         "outside": outside,
@@ -328,6 +353,7 @@ def numpy_functions(problem: RegionSource) -> dict[str, Callable[..., np.ndarray
         "x": axis(0),
         "y": axis(1),
         "z": axis(2),
+        "agl": agl,
     }
 
 
@@ -357,6 +383,10 @@ def casadi_functions(problem: RegionSource, k_pred: float) -> dict[str, Callable
 
         return f
 
+    def agl(args: tuple[str, ...], signals: Mapping[str, Any]) -> Any:
+        pos = _vehicle_signal(signals, args[0])
+        return pos[:, 2] - terrain_of(problem).ca_ground(pos[:, 0:2])
+
     return {
         "inside": inside,
         "outside": outside,
@@ -366,6 +396,7 @@ def casadi_functions(problem: RegionSource, k_pred: float) -> dict[str, Callable
         "x": axis(0),
         "y": axis(1),
         "z": axis(2),
+        "agl": agl,
     }
 
 
