@@ -39,7 +39,8 @@ Choices and why:
 * ``params[4:6]`` are ``x / 1e7`` and ``y / 1e7`` of the item (degrees); importers compute
   ``round(deg * 1e7)``, which gives back the integer exactly. NaN params are ``null``.
 * ``plannedHomePosition`` is the ground point below the vehicle's start (mission-frame
-  ``z = 0``, the origin's AMSL altitude), where the vehicle is armed.
+  ``z = 0``, the origin's AMSL altitude; over a terrain, the ground there), where the
+  vehicle is armed.
 * ``hoverSpeed`` / ``cruiseSpeed`` (QGC's defaults for time estimates) are the mean commanded
   leg speed; the legs themselves carry their own ``DO_CHANGE_SPEED``.
 * The fence is what ``gcs upload --fence`` sends (:func:`gcs.flight.missions.fence_plan`): the
@@ -276,7 +277,9 @@ def qgc_plan(
     opts = options if options is not None else QgcOptions()
     mission = (missions if missions is not None else qgc_missions(plan, opts))[vehicle.name]
     x0, y0, _ = vehicle.trajectory.position(np.array([0.0]))[0]
-    home_lat, home_lon, home_alt = enu_to_geodetic(np.array([x0, y0, 0.0]), plan.origin)
+    home_lat, home_lon, home_alt = enu_to_geodetic(
+        np.array([x0, y0, _ground_under(plan, x0, y0)]), plan.origin
+    )
     legs = np.asarray(mission.leg_speed_m_s, dtype=float)
     speed = float(legs.mean()) if legs.size else float(min(vehicle.v_max_m_s[:2]))
     polygons: list[dict[str, Any]] = []
@@ -334,9 +337,14 @@ def write_qgc_plans(
     return paths
 
 
+def _ground_under(plan: Plan, x: float, y: float) -> float:
+    """The ground's mission ``z`` at ``(x, y)``: 0, or the plan's terrain there."""
+    return 0.0 if plan.terrain is None else float(plan.terrain.ground([x, y])[0])
+
+
 def homes_text(plan: Plan) -> str:
     """Where each vehicle must stand for the plan: the ground point below its start (mission
-    ``z = 0``), as PX4's home variables, one line per vehicle (SITL instance ``i`` = line
+    ``z = 0``, or the plan's terrain there), as PX4's home variables, one line per vehicle (SITL instance ``i`` = line
     ``i``): ``NAME PX4_HOME_LAT=.. PX4_HOME_LON=.. PX4_HOME_ALT=..`` (degrees, m AMSL).
 
     PX4 v1.17's SIH takes them at start-up (``PX4_HOME_*`` become SIH_LOC_LAT0 / LON0 / H0,
@@ -349,9 +357,8 @@ def homes_text(plan: Plan) -> str:
     ]
     for v in plan.vehicles:
         x, y, _ = (float(c) for c in v.start_enu_m)
-        lat, lon, alt = (
-            float(np.ravel(c)[0]) for c in enu_to_geodetic(np.array([x, y, 0.0]), plan.origin)
-        )
+        ground = np.array([x, y, _ground_under(plan, x, y)])
+        lat, lon, alt = (float(np.ravel(c)[0]) for c in enu_to_geodetic(ground, plan.origin))
         lines.append(
             f"{v.name} PX4_HOME_LAT={lat:.8f} PX4_HOME_LON={lon:.8f} PX4_HOME_ALT={alt:.3f}"
         )

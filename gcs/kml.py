@@ -5,9 +5,11 @@ The document has four folders:
 * ``paths``: each vehicle's planned path, a ``LineString`` sampled every second (and at the
   horizon), altitudes absolute (above the WGS84 ellipsoid as the origin's ``alt`` is: the
   mission frame's up axis, :func:`planner.frames.enu_to_geodetic`);
-* ``poles``: one ``Point`` per pole (the regions of kind ``pole``, in the plan's order) on
-  the ground at the origin's altitude; these are what ``line: file:`` reads back from the
-  file (:mod:`planner.scenario.kml`), so a line exported and imported again keeps its towers;
+* ``poles``: one ``Point`` per pole (the regions of kind ``pole``, in the plan's order) at its
+  foot (the origin's altitude, or its ground over a terrain), ``altitudeMode`` absolute;
+  these are what ``line: file:`` reads back from the file (:mod:`planner.scenario.kml`), so a
+  line exported and imported again keeps its towers, and with ``terrain: {from: line}``
+  their ground;
 * ``keep-outs`` (obstacles, no-fly areas, conductors, the poles' cylinders) and
   ``inspection`` (inspection places) and ``regions`` (the others): each region as a solid,
   a ``MultiGeometry`` of its floor, roof and walls (a cylinder as a 48-gon), absolute
@@ -132,10 +134,10 @@ def plan_kml(plan: Plan, name: str = "plan") -> str:
         {"keep-out": keep_outs, "inspection": inspection, "region": others}[style].append(mark)
         if r.kind is RegionKind.POLE:
             c = np.asarray(r.center_enu_m, dtype=float)
-            ((lon, lat, alt),) = _lonlatalt(np.array([c[0], c[1], 0.0]), origin)
-            poles.append(
-                Placemark(name=r.name, kml_geometry=Point(geometry=geo.Point(lon, lat, alt)))
-            )
+            foot = float(r.lo_enu_m[2])  # the pole's ground (over a terrain, its own)
+            ((lon, lat, alt),) = _lonlatalt(np.array([c[0], c[1], foot]), origin)
+            point = Point(geometry=geo.Point(lon, lat, alt), altitude_mode=AltitudeMode.absolute)
+            poles.append(Placemark(name=r.name, kml_geometry=point))
     ws = plan.workspace
     outline = Placemark(
         name="workspace",

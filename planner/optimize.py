@@ -534,11 +534,12 @@ class PlanSearch:
             # layout in every screen: planner.solve.nlp lifts every constraint step)
             best = again if again.robustness > got.robustness else got
             cost = got.run.then(again.run)
+            # the multipliers are the rows' of the NLP that found the point: kept only for
+            # the new one (the earlier NLP had fewer rows)
+            lam_g = best.run.lam_g if best is again else None
             got = dataclasses.replace(
                 best,
-                run=dataclasses.replace(
-                    cost, w=best.run.w, status=best.run.status, lam_g=best.run.lam_g
-                ),
+                run=dataclasses.replace(cost, w=best.run.w, status=best.run.status, lam_g=lam_g),
             )
         return got
 

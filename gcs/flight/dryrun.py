@@ -24,6 +24,8 @@ from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from gcs.errors import UserError
 from mavlink.mock import MockFleet
 
@@ -64,8 +66,11 @@ def sim_speed(speed: float | None = None) -> float:
 
 
 def ground_spawns(plan: Plan) -> list[tuple[float, float, float]]:
-    """Spawn points for a dry run: on the ground (mission ``z = 0``) below each planned start."""
-    return [(float(v.start_enu_m[0]), float(v.start_enu_m[1]), 0.0) for v in plan.vehicles]
+    """Spawn points for a dry run: on the ground below each planned start (mission ``z = 0``,
+    or the plan's terrain there)."""
+    xy = np.array([[v.start_enu_m[0], v.start_enu_m[1]] for v in plan.vehicles], dtype=float)
+    z = np.zeros(len(xy)) if plan.terrain is None else plan.terrain.ground(xy)
+    return [(float(p[0]), float(p[1]), float(h)) for p, h in zip(xy, z, strict=True)]
 
 
 def free_udp_ports(k: int) -> list[int]:
@@ -133,6 +138,7 @@ def mock_vehicles(
         vehicle_configs=vehicle_configs,
         wind=wind,
         speed=sim_speed(speed),
+        terrain=plan.terrain,
     )
     for i, fault in faults:
         mock.vehicles[i].plan_faults.add(fault)

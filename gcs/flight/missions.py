@@ -256,6 +256,7 @@ def convert_plan(
             start_yaw_deg={n: float(m.items[1].param4) for n, m in missions.items()},
             params=prm,
             sample_dt_s=dt if dt >= 0.02 else 0.02,
+            terrain=plan.terrain,
         )
         return float(phi.robustness({n: pred.signal(n, t) for n in missions}, dt)), pred
 

@@ -145,7 +145,8 @@ TAKEOFF_MIN_M = 0.8 + 0.2  # mavlink.preflight.TAKEOFF_MARGIN_M
 def px4_notes(plan: Plan) -> list[str]:
     """What to expect of ``plan`` on PX4 before any vehicle is known (``gcs plan``): the
     margin against PX4-on-SIH's position errors with the drag fed forward, and starts too
-    low for PX4's take-off from the mission frame's ground (z = 0)."""
+    low for PX4's take-off from the ground (the mission frame's z = 0, or the plan's
+    terrain)."""
     speed = peak_speed_m_s(plan)
     notes = []
     worst = max(speed, key=lambda n: speed[n])
@@ -157,10 +158,17 @@ def px4_notes(plan: Plan) -> list[str]:
             f"plan's margin {plan.robustness:+.3f} m: a flight can violate the spec while "
             "tracking the plan"
         )
-    low = [pv.name for pv in plan.vehicles if float(pv.start_enu_m[2]) <= TAKEOFF_MIN_M]
+    starts = np.array([pv.start_enu_m for pv in plan.vehicles], dtype=float)
+    ground = np.zeros(len(starts)) if plan.terrain is None else plan.terrain.ground(starts[:, :2])
+    where = "z = 0" if plan.terrain is None else "the ground"
+    low = [
+        pv.name
+        for pv, h in zip(plan.vehicles, starts[:, 2] - ground, strict=True)
+        if h <= TAKEOFF_MIN_M
+    ]
     if low:
         notes.append(
-            f"note: {', '.join(low)} start at or below {TAKEOFF_MIN_M:g} m above z = 0: PX4 "
+            f"note: {', '.join(low)} start at or below {TAKEOFF_MIN_M:g} m above {where}: PX4 "
             "takes off only to more than NAV_MC_ALT_RAD (0.8 m) above the vehicle, so from the "
             "ground there gcs fly / upload --start refuse them (start in the air, or higher)"
         )

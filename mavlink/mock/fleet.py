@@ -42,10 +42,11 @@ from mavlink.mock.sim.clock import TICK_SLACK_S, SimClock
 from mavlink.mock.sim.config import FaultConfig, MockVehicleConfig, NoiseConfig, WindConfig
 from mavlink.mock.sim.errors import MockConfigError, MockStartError
 from mavlink.mock.sim.faults import FaultyChannel
-from mavlink.mock.sim.physics import FleetPhysics
+from mavlink.mock.sim.physics import FleetPhysics, terrain_ground
 from mavlink.mock.sim.profiles import DEFAULT_PROFILE, profile_params
 from mavlink.mock.vehicle import MockVehicle
 from planner.frames import GeodeticPoint, enu_to_geodetic
+from planner.spec.terrain import Terrain
 
 #: PX4 SITL's default home (Zurich, the Gazebo/jMAVSim worlds).
 DEFAULT_ORIGIN = GeodeticPoint(47.397742, 8.545594, 488.0)
@@ -101,6 +102,9 @@ class MockFleet:
     speed : simulated seconds per wall-clock second (1: real time; PX4 SITL's
         ``PX4_SIM_SPEED_FACTOR``). A ground station that waits on :attr:`clock` keeps the
         flight's timing at any speed; one on the wall clock does not.
+    terrain : the ground under the mission frame (:class:`planner.spec.terrain.Terrain`):
+        every vehicle stands, lands and takes off on it (a spawn above it stands on a
+        platform there); None: flat ground at each spawn's height.
     """
 
     def __init__(
@@ -125,6 +129,7 @@ class MockFleet:
         camera: bool = True,
         utc_start_s: float | None = None,
         speed: float = 1.0,
+        terrain: Terrain | None = None,
     ) -> None:
         if not isinstance(n, int) or n < 1 or n > 254:
             raise MockConfigError(f"n must be an integer in 1..254, got {n!r}")
@@ -172,6 +177,9 @@ class MockFleet:
         self.physics = FleetPhysics(n, self.dt_s, np.random.default_rng(phys_seed), wind, noise)
         self._link_seed = int(link_seed.generate_state(1)[0])
         spawns = np.array([c.spawn_enu_m for c in self.configs])
+        if terrain is not None:
+            self.physics.ground_of = terrain_ground(terrain, spawns)
+            self.physics.ground_d_m = self.physics.ground_of(np.zeros((n, 3)))
         lat, lon, alt = enu_to_geodetic(spawns, self.origin)
         self.vehicles: list[MockVehicle] = []
         for i, cfg in enumerate(self.configs):

@@ -28,6 +28,7 @@ from mavlink.mock.sim.px4 import Px4Mode
 from mavlink.mock.telemetry import DEFAULT_RATES_HZ
 from mavlink.tracks import wrap_pi
 from planner.frames import GeodeticPoint, yaw_ned_to_enu
+from planner.spec.terrain import Terrain
 
 #: Parameters that make the px4 vehicle's estimate its truth: the expected flight.
 QUIET_ESTIMATOR = {
@@ -106,6 +107,7 @@ def predict_missions(
     sample_dt_s: float = 0.01,
     settle_s: float = 30.0,
     min_duration_s: float | None = None,
+    terrain: Terrain | None = None,
 ) -> PredictedMissions:
     """Fly ``missions`` (name -> items with MISSION_ITEM_INT's fields) on offline px4 mocks.
 
@@ -119,18 +121,22 @@ def predict_missions(
             MPC_XY_CRUISE, SIH_KDV); the estimator stays quiet (:data:`QUIET_ESTIMATOR`).
         min_duration_s: stop early once this much has been flown and every mission has
             finished (positions are held after the run); default: fly ``duration_s``.
+        terrain: the ground the vehicles stand, take off and land on (the plan's), else flat
+            at the mission frame's ``z = 0``.
     """
     if min_duration_s is None:
         min_duration_s = duration_s
     names = list(missions)
     prm = dict(params or {})
     prm.update(QUIET_ESTIMATOR)
-    spawns = [(float(starts_enu_m[n][0]), float(starts_enu_m[n][1]), 0.0) for n in names]
+    xy = np.array([[starts_enu_m[n][0], starts_enu_m[n][1]] for n in names], dtype=float)
+    ground = np.zeros(len(names)) if terrain is None else terrain.ground(xy)
+    spawns = [(float(p[0]), float(p[1]), float(g)) for p, g in zip(xy, ground, strict=True)]
     # no payload: the cameras' traffic would only cost time (the missions' camera and gimbal
     # items are still issued, as PX4's navigator issues them without a camera)
     fleet = MockFleet(
         n=len(names), origin=origin, spawns_enu_m=spawns, params=prm, ready_after_s=0.0,
-        camera=False,
+        camera=False, terrain=terrain,
     )  # fmt: skip
     fleet.offline_links()
     vs = fleet.vehicles

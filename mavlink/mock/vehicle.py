@@ -523,7 +523,8 @@ class MockVehicle(
         i = self.index
         phys = self.phys
         d = phys.pos_ned_m[i, 2]
-        true_d = phys.true_pos_ned_m[i, 2]
+        ground_d = float(phys.ground_d_m[i])  # the ground under it (spawn frame; 0: flat)
+        true_d = phys.true_pos_ned_m[i, 2] - ground_d  # below the ground under it
         true_vd = phys.true_vel_ned_m_s[i, 2]
         px4_nav = self.px4_nav
         if self.landed:
@@ -533,7 +534,7 @@ class MockVehicle(
         elif (
             true_d > -0.05
             and abs(true_vd) < 0.3
-            and (not px4_nav or float(self.home_ned_m[2]) - d < _CLOSE_TO_GROUND_M)
+            and (not px4_nav or float(self.home_ned_m[2]) + ground_d - d < _CLOSE_TO_GROUND_M)
         ):
             # PX4's land detector also needs the *estimate* close to the ground: with the
             # ground-effect creep a vehicle sitting on the ground can stay "in air"; and it

@@ -146,18 +146,24 @@ def parse_scenario(
     regions = read_regions(rd, top.get("regions", {}) or {})
 
     base = Path(source).parent if source and not source.startswith("<") else Path.cwd()
-    terrain, min_agl = None, None
+    line_model = None
+    if "line" in top:
+        from planner.scenario.line import line_regions, read_line  # fastkml, lxml: on use
+
+        line_model = read_line(rd.mapping(top["line"], "line"), origin, base, rd.fail, rd.number)
+    terrain, min_agl, feet = None, None, None
     if "terrain" in top:
-        terrain, min_agl = read_terrain(rd, top["terrain"], origin, workspace, base)
+        line_file = str(top["line"].get("file", "")) if line_model is not None else ""
+        terrain, min_agl, feet = read_terrain(
+            rd, top["terrain"], origin, workspace, base, line_model, line_file
+        )
 
     line_names: dict[str, list[str]] = {}
-    if "line" in top:
-        from planner.scenario.line import line_regions, read_line
-
-        model_ = read_line(rd.mapping(top["line"], "line"), origin, base, rd.fail, rd.number)
-        if terrain is not None:
-            model_ = dataclasses.replace(model_, ground_z_m=terrain.ground(model_.poles_xy))
-        made, line_names = line_regions(model_)
+    if line_model is not None:
+        if terrain is not None:  # the poles stand on their own feet's ground where known
+            ground = terrain.ground(line_model.poles_xy) if feet is None else feet
+            line_model = dataclasses.replace(line_model, ground_z_m=ground)
+        made, line_names = line_regions(line_model)
         taken = {r.name for r in regions}
         for r in made:
             if r.name in taken:

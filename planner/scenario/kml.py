@@ -84,9 +84,12 @@ def _placemarks(feature: Any) -> Iterator[Placemark]:
             yield from _placemarks(f)
 
 
-def kml_towers(data: bytes, name: str) -> np.ndarray:
+def kml_towers(data: bytes, name: str, absolute_only: bool = False) -> np.ndarray:
     """Towers ``(n, 3)`` as ``lat, lon, alt`` (degrees, metres; alt NaN where none is given)
-    from KML or KMZ bytes (see the module docstring for which geometries).
+    from KML or KMZ bytes (see the module docstring for which geometries). With
+    ``absolute_only``, alt is NaN too where the geometry's ``altitudeMode`` is not
+    ``absolute`` (KML's default, ``clampToGround``, ignores the altitude; Google Earth writes
+    0 there).
 
     Raises:
         KmlError: not KML/KMZ, no Point or LineString, two LineStrings, a bad coordinate.
@@ -101,10 +104,15 @@ def kml_towers(data: bytes, name: str) -> np.ndarray:
     for pm in _placemarks(doc):
         g: Any = pm.geometry  # pygeoif's: Point and LineString have coords
         kind = getattr(g, "geom_type", None)
+        if kind not in ("Point", "LineString"):
+            continue
+        mode = getattr(getattr(pm, "kml_geometry", None), "altitude_mode", None)
+        drop = absolute_only and getattr(mode, "value", None) != "absolute"
+        coords = [tuple(c)[:2] if drop else tuple(c) for c in g.coords]
         if kind == "Point":
-            points.append(tuple(g.coords[0]))
+            points.append(coords[0])
         elif kind == "LineString":
-            lines.append([tuple(c) for c in g.coords])
+            lines.append(coords)
     if points:
         coords = points
     elif len(lines) == 1:
@@ -129,6 +137,6 @@ def kml_towers(data: bytes, name: str) -> np.ndarray:
     return out
 
 
-def read_kml_towers(path: Path) -> np.ndarray:
+def read_kml_towers(path: Path, absolute_only: bool = False) -> np.ndarray:
     """:func:`kml_towers` of the file at ``path``."""
-    return kml_towers(path.read_bytes(), path.name)
+    return kml_towers(path.read_bytes(), path.name, absolute_only)

@@ -5,7 +5,8 @@
     line:
       poles: [[0, 0], [24, 18], ...]      # ENU [x, y] metres, or {lat: .., lon: ..} each
       # along: {start: [0, 0], bearing_deg: 37, span_m: 30, count: 10}
-      # file: poles.csv                   # a GIS export: CSV (x,y or lat,lon columns),
+      # file: poles.csv                   # a GIS export: CSV (x,y or lat,lon columns, and
+      #                                   # alt or elevation: the ground at the foot),
       #                                   # GeoJSON or KML/KMZ (Points, or one LineString)
       pole: {radius_m: 0.4, height_m: 12}
       conductors: {half_width_m: 1.8, z: [9, 12], clearance_m: 1.0}
@@ -68,6 +69,10 @@ class LineModel:
         standoff_m, depth_m, length_m, inspection_z_m, side: the inspection boxes.
         ground_z_m: the ground's mission-frame ``z`` at each pole, ``(n,)`` (a scenario's
             terrain); every height above is from there. None: flat ground at ``z = 0``.
+        tower_alt_m: the ground's altitude (m AMSL) at each tower's foot as its file gives
+            it (a CSV's ``alt`` or ``elevation`` column, a GeoJSON position's third number, a
+            KML coordinate's altitude under ``altitudeMode`` absolute), NaN where it gives
+            none; None for poles written in the scenario (``terrain: {from: line}``).
     """
 
     poles_xy: np.ndarray
@@ -82,6 +87,8 @@ class LineModel:
     inspection_z_m: tuple[float, float] = (9.5, 12.5)
     side: str = "right"
     ground_z_m: np.ndarray | None = None
+    #: each tower's ground altitude (m AMSL) as its file gave it (NaN where none), or None
+    tower_alt_m: np.ndarray | None = None
 
 
 def _region(name: str, kind: RegionKind, center_xy: np.ndarray, half: Sequence[float],
@@ -156,12 +163,13 @@ def read_line(
     if len(sources) != 1:
         raise fail("line", "give the poles one way: poles, along or file")
     src = sources[0]
+    alt = None
     if src == "poles":
         xy = _pole_list(value["poles"], origin, fail, number)
     elif src == "along":
         xy = _along(value["along"], fail, number)
     else:
-        xy = _pole_file(value["file"], origin, base_dir, fail)
+        xy, alt = _pole_file(value["file"], origin, base_dir, fail)
     # a file's poles are named with the file (the mistake is in it, not in the scenario)
     in_file = f"{value['file']}: " if src == "file" else ""
     if len(xy) < 2:
@@ -173,7 +181,7 @@ def read_line(
             f"line.{src}",
             f"{in_file}poles {j + 1} and {j + 2} are {gaps[j]:.3g} m apart (< 1 m)",
         )
-    kw: dict[str, Any] = {"poles_xy": xy}
+    kw: dict[str, Any] = {"poles_xy": xy, "tower_alt_m": alt}
     sections = {
         "pole": {"radius_m": "pole_radius_m", "height_m": "pole_height_m"},
         "conductors": {"half_width_m": "half_width_m", "z": "conductor_z_m",
@@ -254,18 +262,22 @@ def _along(v: Any, fail: Any, number: Any) -> np.ndarray:
     return start + span * np.arange(count)[:, None] * u
 
 
-def _pole_file(v: Any, origin: GeodeticPoint, base_dir: Path, fail: Any) -> np.ndarray:
+def _pole_file(
+    v: Any, origin: GeodeticPoint, base_dir: Path, fail: Any
+) -> tuple[np.ndarray, np.ndarray]:
+    """The towers' ENU ``(n, 2)`` and their ground altitudes ``(n,)`` (m AMSL, NaN where the
+    file gives none)."""
     if not isinstance(v, str):
         raise fail("line.file", "expected a file name (CSV, GeoJSON, KML or KMZ)")
     path = (base_dir / v) if not Path(v).is_absolute() else Path(v)
     if path.suffix.lower() in (".kml", ".kmz"):
         try:
-            towers = read_kml_towers(path)
+            towers = read_kml_towers(path, absolute_only=True)
         except OSError as exc:
             raise fail("line.file", f"cannot read {path}: {exc.strerror or exc}") from None
         except KmlError as exc:
             raise fail("line.file", str(exc)) from None
-        return _to_enu(towers[:, 0], towers[:, 1], origin)
+        return _to_enu(towers[:, 0], towers[:, 1], origin), towers[:, 2]
     try:
         text = read_text(path)
     except OSError as exc:
@@ -281,7 +293,9 @@ def _to_enu(lat: np.ndarray, lon: np.ndarray, origin: GeodeticPoint) -> np.ndarr
     return geodetic_to_enu(lat, lon, np.full(len(lat), origin.alt_m), origin)[:, :2]
 
 
-def _csv_poles(text: str, path: Path, origin: GeodeticPoint, fail: Any) -> np.ndarray:
+def _csv_poles(
+    text: str, path: Path, origin: GeodeticPoint, fail: Any
+) -> tuple[np.ndarray, np.ndarray]:
     reader = csv.DictReader(text.splitlines())
     try:
         rows = list(reader)
@@ -296,10 +310,11 @@ def _csv_poles(text: str, path: Path, origin: GeodeticPoint, fail: Any) -> np.nd
         raise fail(
             "line.file", f"{path.name}: expected columns x,y (ENU metres) or lat,lon (degrees)"
         )
+    alt_col = next((c for c in ("alt", "elevation") if c in cols), None)
     vals = []
     for i, r in enumerate(rows, start=2):
         ab = []
-        for name in pair:
+        for name in (*pair, *((alt_col,) if alt_col else ())):
             col = cols[name]
             cell = r.get(col)
             try:
@@ -316,16 +331,18 @@ def _csv_poles(text: str, path: Path, origin: GeodeticPoint, fail: Any) -> np.nd
                     f"{path.name} line {i}, column {col.strip()}: not a finite number ({cell})",
                 )
             ab.append(x)
-        vals.append((ab[0], ab[1]))
-    arr = np.array(vals, dtype=float).reshape(-1, 2)
+        vals.append((ab[0], ab[1], ab[2] if alt_col else math.nan))
+    arr = np.array(vals, dtype=float).reshape(-1, 3)
     if pair == ("x", "y"):
-        return arr
+        return arr[:, :2], arr[:, 2]
     if np.any(np.abs(arr[:, 0]) > 90) or np.any(np.abs(arr[:, 1]) > 180):
         raise fail("line.file", f"{path.name}: a latitude/longitude out of range")
-    return _to_enu(arr[:, 0], arr[:, 1], origin)
+    return _to_enu(arr[:, 0], arr[:, 1], origin), arr[:, 2]
 
 
-def _geojson_poles(text: str, path: Path, origin: GeodeticPoint, fail: Any) -> np.ndarray:
+def _geojson_poles(
+    text: str, path: Path, origin: GeodeticPoint, fail: Any
+) -> tuple[np.ndarray, np.ndarray]:
     """Points (a FeatureCollection of Point features, in order) or one LineString's vertices;
     GeoJSON coordinates are [lon, lat] (RFC 7946)."""
     try:
@@ -348,7 +365,10 @@ def _geojson_poles(text: str, path: Path, origin: GeodeticPoint, fail: Any) -> n
         elif g.get("type") == "LineString":
             coords.extend(g.get("coordinates") or [])
     try:
-        arr = np.array([[float(c[1]), float(c[0])] for c in coords], dtype=float).reshape(-1, 2)
+        arr = np.array(
+            [[float(c[1]), float(c[0]), float(c[2]) if len(c) > 2 else math.nan] for c in coords],
+            dtype=float,
+        ).reshape(-1, 3)
     except (TypeError, ValueError, IndexError):
         raise fail("line.file", f"{path.name}: a coordinate is not [lon, lat]") from None
     if not len(arr):
@@ -357,4 +377,4 @@ def _geojson_poles(text: str, path: Path, origin: GeodeticPoint, fail: Any) -> n
         raise fail(
             "line.file", f"{path.name}: a coordinate is out of range (GeoJSON is [lon, lat])"
         )
-    return _to_enu(arr[:, 0], arr[:, 1], origin)
+    return _to_enu(arr[:, 0], arr[:, 1], origin), arr[:, 2]

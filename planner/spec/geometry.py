@@ -31,7 +31,7 @@ from scipy.optimize import linprog
 from planner.cache import BoundedCache
 from planner.spec.predicates import Role, role_of
 from planner.spec.regions import chebyshev_ball
-from planner.stl import And, Comparison, Formula, Not, Or, Predicate
+from planner.stl import And, BinOp, Call, Comparison, Expr, Formula, Neg, Not, Or, Predicate
 
 __all__ = ["Place", "keep_out", "place"]
 
@@ -123,8 +123,8 @@ def _half_spaces(
         return vehicle, [(a, float(c)) for a, c in zip(A, b, strict=True)]
     if isinstance(node, Comparison):
         names = node.signal_names()
-        if len(names) != 1:
-            return None
+        if len(names) != 1 or _reads_ground(node):
+            return None  # a height above the terrain is no place (nor affine, but for a plane)
         (vehicle,) = names
         try:
             m = np.asarray(node.robustness_trace({vehicle: _PROBES}, 1.0), dtype=float)
@@ -143,6 +143,21 @@ def _half_spaces(
             return vehicle, [(-g / norm, c0 / norm)]
         return vehicle, [(g / norm, -c0 / norm)]
     return None
+
+
+def _reads_ground(node: Comparison) -> bool:
+    """Whether a comparison reads a call of the terrain (``agl``)."""
+
+    def calls(e: Expr) -> bool:
+        if isinstance(e, Call):
+            return role_of(e) is Role.TERRAIN
+        if isinstance(e, BinOp):
+            return calls(e.lhs) or calls(e.rhs)
+        if isinstance(e, Neg):
+            return calls(e.operand)
+        return False
+
+    return calls(node.lhs) or calls(node.rhs)
 
 
 def _make(vehicle: str, name: str, rows: list[Any], problem: Any, outer: bool = False) -> Place:

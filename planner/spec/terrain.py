@@ -35,7 +35,14 @@ from numpy.typing import ArrayLike, NDArray
 from planner.errors import PlannerError
 from planner.frames import GeodeticPoint, enu_to_geodetic
 
-__all__ = ["MAX_NODES", "Terrain", "TerrainError", "terrain_from_geotiff", "write_geotiff"]
+__all__ = [
+    "MAX_NODES",
+    "Terrain",
+    "TerrainError",
+    "terrain_from_geotiff",
+    "terrain_from_profile",
+    "write_geotiff",
+]
 
 #: Most grid nodes a terrain keeps (a finer raster is sampled at a coarser step).
 MAX_NODES = 250_000
@@ -315,3 +322,38 @@ def write_geotiff(
         predictor=3,
     ) as dst:
         dst.write(h, 1)
+
+
+def terrain_from_profile(
+    poles_xy: ArrayLike,
+    ground_z_m: ArrayLike,
+    lo_xy: ArrayLike,
+    hi_xy: ArrayLike,
+    step_m: float = 5.0,
+    name: str = "",
+) -> Terrain:
+    """The ground from a line's towers alone (their files' ground altitudes, as mission
+    ``z``): at any point, the ground at the nearest point of the line, linear between two
+    towers, the end tower's beyond an end; level across the line. A grid over
+    ``[lo_xy, hi_xy]`` at ``step_m`` (coarser past :data:`MAX_NODES`)."""
+    p = np.asarray(poles_xy, dtype=float).reshape(-1, 2)
+    g = np.asarray(ground_z_m, dtype=float).reshape(-1)
+    if len(p) < 2 or len(g) != len(p):
+        raise TerrainError("a ground profile needs at least 2 towers, each with its ground")
+    lo, hi = np.asarray(lo_xy, dtype=float), np.asarray(hi_xy, dtype=float)
+    area = float(np.prod(np.maximum(hi - lo, step_m)))
+    step_m = max(float(step_m), math.sqrt(area / MAX_NODES))
+    xs, ys = _grid_axis(lo[0], hi[0], step_m), _grid_axis(lo[1], hi[1], step_m)
+    nodes = np.column_stack([c.ravel() for c in np.meshgrid(xs, ys, indexing="ij")])
+    a, d = p[:-1], np.diff(p, axis=0)  # segments a + t d, t in [0, 1]
+    dd = np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
+    out = np.empty(len(nodes))
+    for k in range(0, len(nodes), 20_000):  # nodes x segments in blocks
+        q = nodes[k : k + 20_000, None, :] - a[None]
+        t = np.clip(np.einsum("nsj,sj->ns", q, d) / dd, 0.0, 1.0)
+        dist = np.linalg.norm(q - t[..., None] * d[None], axis=2)
+        s = np.argmin(dist, axis=1)
+        ts = t[np.arange(len(s)), s]
+        out[k : k + 20_000] = g[s] + ts * (g[s + 1] - g[s])
+    ground = np.round(out.reshape(len(xs), len(ys)), 3)
+    return Terrain(float(xs[0]), float(ys[0]), float(step_m), ground, name)

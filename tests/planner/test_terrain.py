@@ -14,52 +14,37 @@ import pytest
 import yaml
 from rasterio.warp import transform
 
-from planner.frames import GeodeticPoint
 from planner.milp.solve import solve_coarse
 from planner.optimize import plan
 from planner.planfile import PlanFileError, load_plan, plan_formula, save_plan
 from planner.scenario import ScenarioError, load_scenario
+from planner.spec.geometry import keep_out, place
+from planner.spec.predicates import build_registry
 from planner.spec.terrain import TerrainError, terrain_from_geotiff, write_geotiff
+from planner.stl import parse
 from planner.trajectory import Trajectory
-
-ORIGIN = GeodeticPoint(47.397742, 8.545594, 488.0)
-O3 = (ORIGIN.lat_deg, ORIGIN.lon_deg, ORIGIN.alt_m)
-(E0,), (N0,) = transform("EPSG:4326", "EPSG:32632", [ORIGIN.lon_deg], [ORIGIN.lat_deg])
-
-
-def _utm_raster(path: Path, height: object, pixel: float = 5.0, nodata_at: tuple = ()) -> None:
-    """A UTM 32N raster 600 m x 400 m round the origin, heights ``height(dE, dN)`` AMSL."""
-    west, north = E0 - 200.0, N0 + 200.0
-    cols, rows = np.meshgrid(np.arange(int(600 / pixel)), np.arange(int(400 / pixel)))
-    d_e = west + (cols + 0.5) * pixel - E0
-    d_n = north - (rows + 0.5) * pixel - N0
-    h = np.asarray(height(d_e, d_n), dtype=float)  # type: ignore[operator]
-    for r, c in nodata_at:
-        h[r, c] = -9999.0
-    write_geotiff(str(path), h, west, north, pixel, "EPSG:32632")
-
-
-def _plane(d_e: np.ndarray, d_n: np.ndarray) -> np.ndarray:
-    return 480.0 + 0.1 * d_e + 0.05 * d_n
-
-
-def _ground_reference(xy: np.ndarray, height: object) -> np.ndarray:
-    """The surface's mission-frame z under ENU points: through pymap3d and PROJ, not the grid."""
-    lat, lon, _ = pymap3d.enu2geodetic(
-        xy[:, 0], xy[:, 1], 0.0, ORIGIN.lat_deg, ORIGIN.lon_deg, ORIGIN.alt_m
-    )
-    e, n = transform("EPSG:4326", "EPSG:32632", list(lon), list(lat))
-    h = height(np.asarray(e) - E0, np.asarray(n) - N0)  # type: ignore[operator]
-    return np.asarray(pymap3d.geodetic2enu(lat, lon, h, *O3)[2])
+from tests.planner.line_support import enu_poles, geodetic
+from tests.planner.line_support import scenario as line_scenario
+from tests.terrain_support import (
+    E0,
+    N0,
+    O3,
+    ORIGIN,
+    ground_reference,
+    plane,
+    ridge,
+    ridge_scenario,
+    utm_raster,
+)
 
 
 def test_a_utm_raster_gives_the_surface_it_was_made_from(tmp_path: Path) -> None:
-    _utm_raster(tmp_path / "dem.tif", _plane)
+    utm_raster(tmp_path / "dem.tif", plane)
     t = terrain_from_geotiff(str(tmp_path / "dem.tif"), ORIGIN, [-100, -80], [300, 150])
     assert t.step_m == pytest.approx(5.0, rel=0.01)  # the pixel's size on the ground
     xy = np.random.default_rng(1).uniform([-100, -80], [300, 150], size=(50, 2))
     # a plane is bilinear in any grid: the only errors are the sampling's round-offs
-    np.testing.assert_allclose(t.ground(xy), _ground_reference(xy, _plane), atol=1e-3)
+    np.testing.assert_allclose(t.ground(xy), ground_reference(xy, plane), atol=1e-3)
     assert t.ground([0.0, 0.0])[0] == pytest.approx(-8.0, abs=1e-3)  # 480 m under 488 m
     # agl is z less that ground
     p = np.column_stack([xy, np.full(len(xy), 20.0)])
@@ -74,7 +59,7 @@ def test_each_node_is_the_raster_read_bilinearly_between_its_pixel_centres(
     import rasterio
 
     rough = np.random.default_rng(7).normal(0.0, 3.0, size=(80, 120))
-    _utm_raster(tmp_path / "dem.tif", lambda e, n: 500.0 + rough)
+    utm_raster(tmp_path / "dem.tif", lambda e, n: 500.0 + rough)
     t = terrain_from_geotiff(str(tmp_path / "dem.tif"), ORIGIN, [-150, -150], [350, 150])
     nodes = [(3, 5), (20, 17), (47, 31), (88, 52)]
     xy = np.array([[t.xs_m[i], t.ys_m[j]] for i, j in nodes])
@@ -82,7 +67,7 @@ def test_each_node_is_the_raster_read_bilinearly_between_its_pixel_centres(
     e, n = transform("EPSG:4326", "EPSG:32632", list(lon), list(lat))
     with rasterio.open(tmp_path / "dem.tif") as src:
         for k, (i, j) in enumerate(nodes):
-            west, north = E0 - 200.0, N0 + 200.0  # as _utm_raster wrote it, 5 m pixels
+            west, north = E0 - 200.0, N0 + 200.0  # as utm_raster wrote it, 5 m pixels
             r = (north - n[k]) / 5.0 - 0.5  # from the pixel centres
             c = (e[k] - west) / 5.0 - 0.5
             r0, c0 = math.floor(r), math.floor(c)
@@ -125,10 +110,10 @@ def test_a_geographic_raster_reads_too(tmp_path: Path) -> None:
 
 
 def test_a_raster_that_does_not_cover_the_workspace_is_refused_by_place(tmp_path: Path) -> None:
-    _utm_raster(tmp_path / "dem.tif", _plane)
+    utm_raster(tmp_path / "dem.tif", plane)
     with pytest.raises(TerrainError, match=r"dem.tif: does not cover .* is outside the raster"):
         terrain_from_geotiff(str(tmp_path / "dem.tif"), ORIGIN, [-100, -80], [900, 150])
-    _utm_raster(tmp_path / "dem.tif", _plane, nodata_at=((40, 60),))
+    utm_raster(tmp_path / "dem.tif", plane, nodata_at=((40, 60),))
     # pixel (40, 60) is 100 m east of the west edge, 0 north of the origin: a hole there
     with pytest.raises(TerrainError, match=r"has no data \(nodata\)"):
         terrain_from_geotiff(str(tmp_path / "dem.tif"), ORIGIN, [-150, -50], [100, 50])
@@ -141,7 +126,7 @@ def test_casadi_reads_the_same_ground_as_the_exact_semantics(tmp_path: Path) -> 
     import casadi as ca
 
     rough = np.random.default_rng(2).normal(0.0, 2.0, size=(80, 120))
-    _utm_raster(tmp_path / "dem.tif", lambda e, n: 490.0 + rough)
+    utm_raster(tmp_path / "dem.tif", lambda e, n: 490.0 + rough)
     t = terrain_from_geotiff(str(tmp_path / "dem.tif"), ORIGIN, [-50, -50], [150, 100])
     xy = np.random.default_rng(4).uniform([-80, -80], [180, 130], size=(200, 2))  # some beyond
     sym = ca.SX.sym("p", 200, 2)
@@ -154,36 +139,6 @@ def test_casadi_reads_the_same_ground_as_the_exact_semantics(tmp_path: Path) -> 
 # ------------------------------------------------------------------------- scenarios
 
 
-def _ridge(d_e: np.ndarray, d_n: np.ndarray) -> np.ndarray:
-    """A 14 m ridge running north-south 40 m east of the origin, on ground at 486 m."""
-    return 486.0 + 14.0 * np.exp(-(((d_e - 40.0) / 10.0) ** 2))
-
-
-def _scenario(tmp_path: Path, **over: object) -> Path:
-    _utm_raster(tmp_path / "ridge.tif", _ridge)
-    data: dict[str, object] = {
-        "name": "ridge",
-        "origin": {"lat": ORIGIN.lat_deg, "lon": ORIGIN.lon_deg, "alt": ORIGIN.alt_m},
-        "workspace": {"min": [-20, -20, -10], "max": [100, 20, 40]},
-        "terrain": {"file": "ridge.tif", "min_agl_m": 3},
-        "regions": {"goal": {"kind": "goal", "min": [76, -3, 2], "max": [84, 3, 8]}},
-        "limits": {"v_max_m_s": 6, "a_max_m_s2": 3},
-        "vehicles": [{"name": "d1", "start": [0, 0, 4]}],
-        "timing": {"horizon_s": 30, "segment_s": 3, "Ts_s": 0.5, "check_dt_s": 0.1},
-        "epsilon": 0.01,
-        "solver": {"coarse_s": 0},
-        "spec": [
-            "eventually[0, 26] always[0, 2] inside(d1, goal)",
-            "always[0, 30] inside(d1, workspace)",
-        ],
-    }
-    data.update(over)
-    data = {k: v for k, v in data.items() if v is not None}  # None: leave the key out
-    path = tmp_path / "ridge.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
-
-
 def test_heights_of_the_line_and_the_starts_are_above_the_ground_there(tmp_path: Path) -> None:
     line = {
         "along": {"start": [0, 10], "bearing_deg": 90, "span_m": 40, "count": 3},
@@ -191,7 +146,7 @@ def test_heights_of_the_line_and_the_starts_are_above_the_ground_there(tmp_path:
         "conductors": {"half_width_m": 1.8, "z": [9, 12], "clearance_m": 1.0},
         "inspection": {"standoff_m": 1.5, "depth_m": 2.2, "length_m": 5, "z": [9.5, 12.5]},
     }
-    p = load_scenario(_scenario(tmp_path, line=line, spec=["always[0, 30] agl(d1) >= 1"]))
+    p = load_scenario(ridge_scenario(tmp_path, line=line, spec=["always[0, 30] agl(d1) >= 1"]))
     # the ground at each pole as the terrain has it (how near that is to the surface the
     # raster was made from is the tests above's business: on this ridge's crest, 0.9 m)
     ground = p.terrain.ground(np.array([[0.0, 10.0], [40.0, 10.0], [80.0, 10.0]]))
@@ -236,7 +191,7 @@ def test_heights_of_the_line_and_the_starts_are_above_the_ground_there(tmp_path:
 def test_terrain_mistakes_are_one_line_naming_the_key(
     tmp_path: Path, over: dict[str, object], key: str, words: str
 ) -> None:
-    path = _scenario(tmp_path, **over)
+    path = ridge_scenario(tmp_path, **over)
     with pytest.raises(ScenarioError) as err:
         load_scenario(path)
     assert err.value.key_path == key
@@ -245,10 +200,10 @@ def test_terrain_mistakes_are_one_line_naming_the_key(
 
 
 @pytest.mark.slow
-def test_a_path_over_a_ridge_keeps_its_height_above_the_ground(tmp_path: Path) -> None:
+def test_a_path_over_aridge_keeps_its_height_above_the_ground(tmp_path: Path) -> None:
     """Planned with the floor, the path climbs over the ridge; the heights above ground along
     it, sampled densely and measured on the surface itself, keep min_agl_m."""
-    path = _scenario(tmp_path)
+    path = ridge_scenario(tmp_path)
     problem = load_scenario(path)
     res = plan(problem)
     assert res.success, res.status
@@ -271,7 +226,7 @@ def test_a_path_over_a_ridge_keeps_its_height_above_the_ground(tmp_path: Path) -
     )
     assert (pos[:, 2] - under).min() >= 3.0 - 1e-6
     # and over the smooth ridge the raster was made from: within its 5 m pixels' reach
-    assert (pos[:, 2] - _ground_reference(pos[:, :2], _ridge)).min() >= 3.0 - 1.0
+    assert (pos[:, 2] - ground_reference(pos[:, :2], ridge)).min() >= 3.0 - 1.0
     crest = np.argmin(np.abs(pos[:, 0] - 40.0))
     assert pos[crest, 2] > -2.0 + 14.0 + 3.0 - 1.0  # it went over the 14 m ridge
     # the plan's exact check reads the grid it carries: the whole spec holds
@@ -291,13 +246,13 @@ def test_a_path_over_a_ridge_keeps_its_height_above_the_ground(tmp_path: Path) -
         load_plan(tmp_path / "ragged.plan.json")
 
 
-def test_the_coarse_stage_relaxes_the_floor_and_never_claims_a_ridge_impossible(
+def test_the_coarse_stage_relaxes_the_floor_and_never_claims_aridge_impossible(
     tmp_path: Path,
 ) -> None:
     """Beside a ridge a plane through the ground is 3 m over the start: a floor on it would
     make the start break the floor and the coarse program infeasible. Relaxed, the stage plans,
     and its waypoints keep the floor over the plane under the ground."""
-    problem = load_scenario(_scenario(tmp_path))
+    problem = load_scenario(ridge_scenario(tmp_path))
     res = solve_coarse(problem, time_limit_s=20, robustness_cap_m=0.5, min_robustness=0.01)
     assert res.success, res.message
     a, b, c_lo, c_hi = problem.terrain.plane_bounds()
@@ -310,3 +265,121 @@ def test_the_coarse_stage_relaxes_the_floor_and_never_claims_a_ridge_impossible(
     assert np.all(plane + c_lo <= problem.terrain.ground_z_m + 1e-9)
     assert np.all(problem.terrain.ground_z_m <= plane + c_hi + 1e-9)
     assert math.isfinite(c_hi - c_lo)
+
+
+# ------------------------------------------------------------- the ground from the towers
+
+#: ground altitudes (m AMSL) at the feet of line_support's four towers
+TOWER_ALT = [490.0, 494.0, 486.0, 500.0]
+
+
+def _towers_scenario(tmp_path: Path, name: str, text: str) -> Path:
+    (tmp_path / name).write_text(text)
+    data = line_scenario(f"  file: {name}\n")
+    data["terrain"] = {"from": "line", "min_agl_m": 2}
+    data["workspace"] = {"min": [-150, -150, -20], "max": [250, 250, 40]}
+    data["vehicles"] = [{"name": "d1", "start": [-12, -12, 8]}, {"name": "d2", "start": [-8, -12, 8]}]  # fmt: skip
+    path = tmp_path / "towers.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def _tower_z(xy: np.ndarray, alt: list[float]) -> np.ndarray:
+    lat, lon, _ = pymap3d.enu2geodetic(xy[:, 0], xy[:, 1], 0.0, *O3)
+    return np.asarray(pymap3d.geodetic2enu(lat, lon, np.asarray(alt), *O3)[2])
+
+
+def test_the_ground_from_the_towers_altitudes_runs_along_the_line(tmp_path: Path) -> None:
+    xy = enu_poles()
+    rows = "\n".join(f"{a!r},{o!r},{h}" for (a, o), h in zip(geodetic(xy), TOWER_ALT, strict=True))
+    p = load_scenario(_towers_scenario(tmp_path, "towers.csv", "lat,lon,alt\n" + rows + "\n"))
+    want = _tower_z(xy, TOWER_ALT)
+    assert p.terrain is not None
+    # the poles stand on their towers' ground; the 2 m grid rounds the profile's corners there
+    for i, g in enumerate(want, start=1):
+        assert p.region(f"pole{i}").shape.z_lo_m == pytest.approx(g, abs=1e-9)
+    np.testing.assert_allclose(p.terrain.ground(xy), want, atol=0.3)
+    # half-way along a span: half-way between its towers' ground; 10 m across: the same
+    mid = 0.5 * (xy[1] + xy[2])
+    across = mid + 10.0 * np.array([-(xy[2] - xy[1])[1], (xy[2] - xy[1])[0]]) / np.linalg.norm(
+        xy[2] - xy[1]
+    )
+    assert p.terrain.ground(mid)[0] == pytest.approx(0.5 * (want[1] + want[2]), abs=0.05)
+    assert p.terrain.ground(across)[0] == pytest.approx(0.5 * (want[1] + want[2]), abs=0.05)
+    # beyond the last tower: its ground
+    beyond = xy[3] + 30.0 * (xy[3] - xy[2]) / np.linalg.norm(xy[3] - xy[2])
+    assert p.terrain.ground(beyond)[0] == pytest.approx(want[3], abs=0.05)
+    assert p.vehicles[0].start_enu_m[2] == pytest.approx(want[0] + 8.0, abs=0.2)
+
+
+def test_geojson_and_absolute_kml_altitudes_give_the_same_ground(tmp_path: Path) -> None:
+    ll = geodetic(enu_poles())
+    feats = [
+        {"type": "Feature", "geometry": {"type": "Point", "coordinates": [o, a, h]}}
+        for (a, o), h in zip(ll, TOWER_ALT, strict=True)
+    ]
+    gj = load_scenario(
+        _towers_scenario(
+            tmp_path, "t.geojson", json.dumps({"type": "FeatureCollection", "features": feats})
+        )
+    )
+    marks = "".join(
+        f"<Placemark><Point><altitudeMode>absolute</altitudeMode><coordinates>{o!r},{a!r},{h}"
+        "</coordinates></Point></Placemark>"
+        for (a, o), h in zip(ll, TOWER_ALT, strict=True)
+    )
+    kml = f'<kml xmlns="http://www.opengis.net/kml/2.2"><Document>{marks}</Document></kml>'
+    km = load_scenario(_towers_scenario(tmp_path, "t.kml", kml))
+    assert gj.terrain is not None and km.terrain is not None
+    np.testing.assert_array_equal(gj.terrain.ground_z_m, km.terrain.ground_z_m)
+
+
+@pytest.mark.parametrize(
+    ("name", "text", "key", "words"),
+    [
+        (  # KML's default altitude mode (clampToGround) says nothing of the ground
+            "t.kml",
+            '<kml xmlns="http://www.opengis.net/kml/2.2"><Document><Placemark><Point>'
+            "<coordinates>8.5456,47.3977,0</coordinates></Point></Placemark><Placemark><Point>"
+            "<coordinates>8.5460,47.3980,0</coordinates></Point></Placemark></Document></kml>",
+            "line.file",
+            "t.kml: tower 1 has no ground altitude",
+        ),
+        ("t.csv", "lat,lon\n47.3977,8.5456\n47.3980,8.5460\n", "line.file", "tower 1 has no"),
+    ],
+)
+def test_towers_without_their_ground_are_refused_naming_the_tower(
+    tmp_path: Path, name: str, text: str, key: str, words: str
+) -> None:
+    with pytest.raises(ScenarioError) as err:
+        load_scenario(_towers_scenario(tmp_path, name, text))
+    assert err.value.key_path == key and words in str(err.value)
+
+
+def test_the_ground_from_a_line_written_in_the_scenario_is_refused(tmp_path: Path) -> None:
+    data = line_scenario("  along: {start: [0, 0], bearing_deg: 37, span_m: 30, count: 4}\n")
+    data["terrain"] = {"from": "line"}
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ScenarioError, match=r"terrain.from: the ground from the line needs"):
+        load_scenario(path)
+    data["terrain"] = {"from": "line", "file": "x.tif"}
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ScenarioError, match=r"terrain: give the ground one way"):
+        load_scenario(path)
+
+
+def test_a_height_above_the_ground_is_no_place_to_fly_to_even_over_a_plane(
+    tmp_path: Path,
+) -> None:
+    """Over a plane, ``agl(d) >= 3`` is affine in the position; the initial guess must still
+    not read it as a place to visit (it holds everywhere above the ground)."""
+    path = ridge_scenario(tmp_path)
+    utm_raster(tmp_path / "ridge.tif", plane)  # the scenario's raster, made a plane
+    problem = load_scenario(path)
+    floor = next(
+        f for f, c in zip(problem.formulas, problem.clauses, strict=True) if "agl" in c.text
+    )
+    assert place(floor.child, problem) is None and keep_out(floor.child, problem) is None
+    # x(d1) >= 3 is a place (the reading the guess does make)
+    assert place(parse("x(d1) >= 3", functions=build_registry(problem)), problem) is not None

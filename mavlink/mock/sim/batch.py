@@ -52,7 +52,7 @@ from mavlink.mock.sim.params import (
     mode_limits,
     vehicle_params,
 )
-from mavlink.mock.sim.physics import FleetPhysics
+from mavlink.mock.sim.physics import FleetPhysics, terrain_ground
 from mavlink.mock.sim.profiles import DEFAULT_PROFILE
 from mavlink.mock.sim.px4 import Px4Mode
 from mavlink.plan_setpoints import plan_setpoints_ned
@@ -88,6 +88,8 @@ class PlanLike(Protocol):
     def check_dt_s(self) -> float: ...
     @property
     def vehicles(self) -> Sequence[PlannedVehicleLike]: ...
+    @property
+    def terrain(self) -> Any: ...
 
 
 __all__ = [
@@ -165,6 +167,9 @@ class SimSetup:
         plans: per vehicle, its planned trajectory (what the safety monitor predicts from).
         telemetry_hz: how often the reported position is sampled (``gcs fly`` asks each
             vehicle for 20 Hz, :class:`mavlink.link.fleet.Fleet`).
+        spawns_enu_m: ``(V, 3)`` each vehicle's spawn (mission ENU: on the ground below its
+            start); ground: the plan's terrain (:class:`planner.spec.terrain.Terrain`) the
+            vehicles stand and land on, or None (flat at each spawn).
     """
 
     names: tuple[str, ...]
@@ -184,6 +189,8 @@ class SimSetup:
     drag_per_s: float
     plans: Mapping[str, Trajectory]
     telemetry_hz: float
+    spawns_enu_m: np.ndarray | None = None
+    ground: Any = None
 
     @property
     def ticks(self) -> int:
@@ -243,8 +250,10 @@ def prepare(
     drag = kdv if drag_per_s is None else float(drag_per_s)
     pre = round(settle_s * rate_hz)
     pos, vel, acc, yaw, maps = [], [], [], [], []
-    for v in plan.vehicles:
-        spawn = np.array([v.start_enu_m[0], v.start_enu_m[1], 0.0])
+    spawns = np.array([[v.start_enu_m[0], v.start_enu_m[1], 0.0] for v in plan.vehicles])
+    if plan.terrain is not None:  # on the ground below the start
+        spawns[:, 2] = plan.terrain.ground(spawns[:, :2])
+    for v, spawn in zip(plan.vehicles, spawns, strict=True):
         lat, lon, alt = enu_to_geodetic(spawn, plan.origin)
         spawn_geo = Geo(float(lat), float(lon), float(alt))
         sp = plan_setpoints_ned(v.trajectory, rate_hz, plan.origin, spawn_geo, drag_per_s=drag)
@@ -274,6 +283,8 @@ def prepare(
         drag_per_s=drag,
         plans={v.name: v.trajectory for v in plan.vehicles},
         telemetry_hz=float(telemetry_hz),
+        spawns_enu_m=spawns,
+        ground=plan.terrain,
     )
 
 
@@ -403,6 +414,8 @@ def simulate(
         else np.zeros(0)
     )
     origin = est.origin_ned_m  # the EKF origins in the spawn frames
+    if setup.ground is not None and setup.spawns_enu_m is not None:
+        phys.ground_of = terrain_ground(setup.ground, setup.spawns_enu_m[veh_of])
     phys.true_pos_ned_m[:] = setup.sp_pos_ned_m[veh_of, 0]
     phys.true_pos_ned_m[:, 0] += start_err * np.cos(ang)
     phys.true_pos_ned_m[:, 1] += start_err * np.sin(ang)

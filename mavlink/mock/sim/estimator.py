@@ -187,10 +187,12 @@ class FleetEstimator:
         motors_on: np.ndarray,
         out_pos_ned_m: np.ndarray,
         out_vel_ned_m_s: np.ndarray,
+        ground_d_m: np.ndarray | float = 0.0,
     ) -> None:
         """Advance the error processes by one step and write the estimate into ``out_*``.
 
         ``motors_on`` (n,) bool: armed (props spinning, idling on the ground or not).
+        ``ground_d_m``: the ground's ``down`` under each vehicle (spawn frame; 0: flat).
         """
         dt = self.dt_s
         if self.active:
@@ -202,7 +204,7 @@ class FleetEstimator:
             _ou_step(self.vel_bias_m_s[:, :2], dt / self._vb_tau, self._vb_sd, draw[:, 9:11])
             self.drift_m += (self.vel_err_m_s + self.vel_bias_m_s - self.drift_m / _GPS_TAU_S) * dt
             white = self._pos_sd * draw[:, 6:9]
-            agl = -true_pos_ned_m[:, 2]
+            agl = ground_d_m - true_pos_ned_m[:, 2]
             in_effect = motors_on & (agl < self._creep_h)
             grow = np.minimum(self.creep_m + self._creep_rate * dt, self.creep_max_m)
             decayed = self.creep_m * np.exp(-dt / _CREEP_DECAY_TAU_S)

@@ -1,7 +1,8 @@
 """Translational quad-rotor dynamics of the whole fleet, vectorised over vehicles.
 
 Each vehicle is a point mass in its own local NED frame (origin at its spawn
-point, ground at ``down = 0``) driven by a PX4-like cascaded controller:
+point, ground at ``down = 0``, or under a terrain where :attr:`FleetPhysics.ground_of`
+puts it) driven by a PX4-like cascaded controller:
 
 * position loop: ``v_cmd = v_ff + Kp_pos * (p_sp - p)``, the P term capped by the
   braking speed ``sqrt(2 a d)`` (no overshoot on large steps), limited to the
@@ -36,13 +37,15 @@ falls until it reaches the ground.  All arrays have one row per vehicle:
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+from typing import Any
+
 import numpy as np
 
 from mavlink.mock.sim.config import NoiseConfig, WindConfig
 from mavlink.mock.sim.estimator import FleetEstimator
 
 GRAVITY_M_S2 = 9.80665
-_GROUND_D_M = 0.0
 _BRAKE_MARGIN = 0.6
 
 
@@ -122,6 +125,11 @@ class FleetPhysics:
         self.pitch_rad = np.zeros(n)
         self.roll_rate_rad_s = np.zeros(n)
         self.pitch_rate_rad_s = np.zeros(n)
+        #: the ground's ``down`` under each vehicle in its spawn frame (0: flat at the spawn)
+        self.ground_d_m = np.zeros(n)
+        #: ``(n, 3)`` true spawn-frame positions -> ``(n,)`` the ground's ``down`` under them
+        #: (:func:`terrain_ground`), or None for flat ground at each spawn
+        self.ground_of: Callable[[np.ndarray], np.ndarray] | None = None
 
     def set_thrust_tau(self, i: int | slice | np.ndarray, tau_s: float) -> None:
         """The rotors' first-order time constant of vehicle(s) ``i`` (SIH_T_TAU)."""
@@ -236,7 +244,8 @@ class FleetPhysics:
         acc[:, 2] += (a_cmd[:, 2] - acc[:, 2]) * alpha[:, 0]
         a_total = acc.copy()
         pos, vel = self.true_pos_ned_m, self.true_vel_ned_m_s
-        airborne = pos[:, 2] < _GROUND_D_M - 1e-3
+        ground = self.ground_d_m
+        airborne = pos[:, 2] < ground - 1e-3
         w = self.wind
         gusty = self.gust_sigma_m_s > 0.0
         if gusty.any():
@@ -260,9 +269,11 @@ class FleetPhysics:
         pos += vel * dt
         self._vel_dot = a_total
         # ground contact: no penetration, no sliding
-        grounded = pos[:, 2] >= _GROUND_D_M
+        if self.ground_of is not None:
+            self.ground_d_m = ground = self.ground_of(pos)
+        grounded = pos[:, 2] >= ground
         if grounded.any():
-            pos[grounded, 2] = _GROUND_D_M
+            pos[grounded, 2] = ground[grounded]
             vel[grounded, 2] = np.minimum(vel[grounded, 2], 0.0)
             vel[grounded, :2] = 0.0
             acc[grounded & (acc[:, 2] > 0.0), 2] = 0.0
@@ -281,7 +292,9 @@ class FleetPhysics:
             self._attitude(acc, dt)
         # what the vehicle believes (its controller's input in the next step)
         # (the ground-effect creep runs whenever the motors spin: armed, idling or not)
-        self.estimator.step(pos, vel, rate, self.armed, self.pos_ned_m, self.vel_ned_m_s)
+        self.estimator.step(
+            pos, vel, rate, self.armed, self.pos_ned_m, self.vel_ned_m_s, ground_d_m=ground
+        )
         # telemetry noise for this tick
         nz = self.noise
         if nz.pos_m > 0.0 or nz.vel_m_s > 0.0:
@@ -300,3 +313,23 @@ class FleetPhysics:
         self.roll_rate_rad_s = (roll - self.roll_rad) / dt
         self.pitch_rate_rad_s = (pitch - self.pitch_rad) / dt
         self.roll_rad, self.pitch_rad = roll, pitch
+
+
+def terrain_ground(
+    terrain: Any, spawns_enu_m: Sequence[Sequence[float]] | np.ndarray
+) -> Callable[[np.ndarray], np.ndarray]:
+    """:attr:`FleetPhysics.ground_of` over a terrain (:class:`planner.spec.terrain.Terrain`)
+    for vehicles spawned at ``spawns_enu_m`` (mission ENU, one per physics row): the ground's
+    ``down`` under a spawn-frame position is the spawn's height less the terrain's there. A
+    spawn above the terrain stands on a platform: within half a metre of it the ground is
+    the spawn's own height. (The spawn frame's axes are the mission frame's to within the
+    tangent planes' turn, 1e-4 rad per km: a few millimetres of ground.)"""
+    spawns = np.asarray(spawns_enu_m, dtype=float).reshape(-1, 3)
+
+    def ground_of(pos_ned_m: np.ndarray) -> np.ndarray:
+        xy = spawns[:, :2] + pos_ned_m[:, 1::-1]  # east, north
+        down = spawns[:, 2] - terrain.ground(xy)
+        pad = np.hypot(pos_ned_m[:, 0], pos_ned_m[:, 1]) < 0.5
+        return np.where(pad, np.minimum(down, 0.0), down)
+
+    return ground_of
