@@ -42,11 +42,10 @@ from mavlink.mock.sim.clock import TICK_SLACK_S, SimClock
 from mavlink.mock.sim.config import FaultConfig, MockVehicleConfig, NoiseConfig, WindConfig
 from mavlink.mock.sim.errors import MockConfigError, MockStartError
 from mavlink.mock.sim.faults import FaultyChannel
-from mavlink.mock.sim.physics import FleetPhysics, terrain_ground
+from mavlink.mock.sim.physics import FleetPhysics, Ground, terrain_ground
 from mavlink.mock.sim.profiles import DEFAULT_PROFILE, profile_params
 from mavlink.mock.vehicle import MockVehicle
 from planner.frames import GeodeticPoint, enu_to_geodetic
-from planner.spec.terrain import Terrain
 
 #: PX4 SITL's default home (Zurich, the Gazebo/jMAVSim worlds).
 DEFAULT_ORIGIN = GeodeticPoint(47.397742, 8.545594, 488.0)
@@ -129,7 +128,7 @@ class MockFleet:
         camera: bool = True,
         utc_start_s: float | None = None,
         speed: float = 1.0,
-        terrain: Terrain | None = None,
+        terrain: Ground | None = None,
     ) -> None:
         if not isinstance(n, int) or n < 1 or n > 254:
             raise MockConfigError(f"n must be an integer in 1..254, got {n!r}")

@@ -24,11 +24,11 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from mavlink.mock.fleet import MockFleet
+from mavlink.mock.sim.physics import Ground
 from mavlink.mock.sim.px4 import Px4Mode
 from mavlink.mock.telemetry import DEFAULT_RATES_HZ
 from mavlink.tracks import wrap_pi
 from planner.frames import GeodeticPoint, yaw_ned_to_enu
-from planner.spec.terrain import Terrain
 
 #: Parameters that make the px4 vehicle's estimate its truth: the expected flight.
 QUIET_ESTIMATOR = {
@@ -107,7 +107,7 @@ def predict_missions(
     sample_dt_s: float = 0.01,
     settle_s: float = 30.0,
     min_duration_s: float | None = None,
-    terrain: Terrain | None = None,
+    terrain: Ground | None = None,
 ) -> PredictedMissions:
     """Fly ``missions`` (name -> items with MISSION_ITEM_INT's fields) on offline px4 mocks.
 

@@ -12,6 +12,8 @@ A scenario names everything the planner needs (see ``configs/*.yaml`` for commen
       # row: {center: [0, 0, 5], half_size: [20, 3, 5], bearing_deg: 37}
       # nofly: {kind: no_fly, polygon: [[x, y], ...], z: [0, 50]}   # any simple polygon
       # pole: {kind: pole, center: [x, y], radius: 0.3, z: [0, 12]}
+    # line: {along: {...}, ...}                             # poles, spans, inspection boxes
+    # terrain: {file: dem.tif, min_agl_m: 3}                # the ground (or from: line)
     limits: {v_max_m_s: 0.751, a_max_m_s2: 1.0}             # scalar or [x, y, z] per axis
     vehicles:                                               # a list of vehicles ...
       - {name: d1, start: [-1.5, -1.5, 0.5]}

@@ -71,6 +71,7 @@ class Terrain:
     _interp: Any = field(default=None, init=False, repr=False)
     _ca: Any = field(default=None, init=False, repr=False)
     _plane: Any = field(default=None, init=False, repr=False)
+    _digest: str = field(default="", init=False, repr=False)
 
     def __post_init__(self) -> None:
         g = np.asarray(self.ground_z_m, dtype=float)
@@ -93,6 +94,7 @@ class Terrain:
         object.__setattr__(self, "_interp", None)
         object.__setattr__(self, "_ca", None)
         object.__setattr__(self, "_plane", None)
+        object.__setattr__(self, "_digest", "")
 
     @property
     def xs_m(self) -> NDArray[np.float64]:
@@ -107,10 +109,12 @@ class Terrain:
     @property
     def digest(self) -> str:
         """A fingerprint of the grid (what the planner's caches key a built NLP by)."""
-        h = hashlib.sha1()
-        h.update(repr((self.x0_m, self.y0_m, self.step_m, self.ground_z_m.shape)).encode())
-        h.update(np.ascontiguousarray(self.ground_z_m).tobytes())
-        return h.hexdigest()
+        if not self._digest:
+            h = hashlib.sha1()
+            h.update(repr((self.x0_m, self.y0_m, self.step_m, self.ground_z_m.shape)).encode())
+            h.update(np.ascontiguousarray(self.ground_z_m).tobytes())
+            object.__setattr__(self, "_digest", h.hexdigest())
+        return self._digest
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, Terrain) and self.digest == other.digest
@@ -165,9 +169,9 @@ class Terrain:
 
     def plane_bounds(self) -> tuple[float, float, float, float]:
         """``(a, b, c_lo, c_hi)`` with ``a x + b y + c_lo <= ground(x, y) <= a x + b y + c_hi``
-        everywhere: the nodes' least-squares plane moved down and up by their largest
-        excess and shortfall (between nodes the ground is bilinear, within its cell's
-        nodes' bounds; beyond the grid it is the edge's). The combinatorial stage's linear
+        over the grid (the workspace): the nodes' least-squares plane moved down and up by
+        their largest excess and shortfall (in a cell, ground less plane is bilinear, so its
+        extremes are at the cell's nodes). The combinatorial stage's linear
         ground (:mod:`planner.milp.encode`)."""
         if self._plane is None:
             xs, ys = np.meshgrid(self.xs_m, self.ys_m, indexing="ij")

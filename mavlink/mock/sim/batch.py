@@ -419,6 +419,8 @@ def simulate(
     phys.true_pos_ned_m[:] = setup.sp_pos_ned_m[veh_of, 0]
     phys.true_pos_ned_m[:, 0] += start_err * np.cos(ang)
     phys.true_pos_ned_m[:, 1] += start_err * np.sin(ang)
+    if phys.ground_of is not None:
+        phys.ground_d_m = phys.ground_of(phys.true_pos_ned_m)
     phys.yaw_rad[:] = setup.sp_yaw_rad[veh_of, 0]
     phys.armed[:] = True
     phys.idle[:] = False

@@ -38,7 +38,7 @@ falls until it reaches the ground.  All arrays have one row per vehicle:
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Protocol
 
 import numpy as np
 
@@ -46,6 +46,17 @@ from mavlink.mock.sim.config import NoiseConfig, WindConfig
 from mavlink.mock.sim.estimator import FleetEstimator
 
 GRAVITY_M_S2 = 9.80665
+
+
+class Ground(Protocol):
+    """The ground under the mission frame (a plan's :class:`planner.spec.terrain.Terrain`;
+    the link layer does not import the planner's spec, docs/architecture.md)."""
+
+    def ground(self, xy: np.ndarray) -> np.ndarray:
+        """The ground's mission-frame ``z`` under points ``(n, 2)``."""
+        ...
+
+
 _BRAKE_MARGIN = 0.6
 
 
@@ -316,10 +327,9 @@ class FleetPhysics:
 
 
 def terrain_ground(
-    terrain: Any, spawns_enu_m: Sequence[Sequence[float]] | np.ndarray
+    terrain: Ground, spawns_enu_m: Sequence[Sequence[float]] | np.ndarray
 ) -> Callable[[np.ndarray], np.ndarray]:
-    """:attr:`FleetPhysics.ground_of` over a terrain (:class:`planner.spec.terrain.Terrain`)
-    for vehicles spawned at ``spawns_enu_m`` (mission ENU, one per physics row): the ground's
+    """:attr:`FleetPhysics.ground_of` over a terrain (:class:`Ground`) for vehicles spawned at ``spawns_enu_m`` (mission ENU, one per physics row): the ground's
     ``down`` under a spawn-frame position is the spawn's height less the terrain's there. A
     spawn above the terrain stands on a platform: within half a metre of it the ground is
     the spawn's own height. (The spawn frame's axes are the mission frame's to within the
