@@ -395,8 +395,12 @@ class RebootRunResult:
     elapsed_s: float
 
 
-async def reboot_run(seed: int, silent_s: float = 6.0) -> RebootRunResult:
-    """Upload a mission to d1, reboot it (``silent_s`` without any traffic), watch the GCS."""
+async def reboot_run(seed: int, silent_s: float = 8.0) -> RebootRunResult:
+    """Upload a mission to d1, reboot it (``silent_s`` without any traffic), watch the GCS.
+
+    The link timeout is 3 s: d1 is silent long enough to be seen lost and to fail the Hold,
+    and d2, which talks throughout, is not taken for lost when a loaded machine stalls the
+    process for 1.5 s (it was, beside the test suite and a planner: issue 41)."""
     plan = load_plan(PLAN_PATH)
     items = plan_items(plan)
     ports = free_udp_ports(4)
@@ -405,7 +409,7 @@ async def reboot_run(seed: int, silent_s: float = 6.0) -> RebootRunResult:
         n=2, origin=plan.origin, gcs_ports=ports[:2], vehicle_ports=ports[2:], seed=seed
     ) as mock:
         specs = [VehicleSpec(f"d{i + 1}", f"udpin://127.0.0.1:{ports[i]}", i + 1) for i in (0, 1)]
-        async with Fleet(specs, link_timeout_s=1.5, telemetry_rate_hz=None) as fleet:
+        async with Fleet(specs, link_timeout_s=3.0, telemetry_rate_hz=None) as fleet:
             await upload_and_verify(fleet["d1"], items)
             mock.vehicles[0].reboot(silent_s=silent_s)
             async with asyncio.timeout(10.0):
