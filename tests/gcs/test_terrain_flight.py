@@ -10,10 +10,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from gcs.assess import evaluate_batch
 from gcs.cli import main
+from mavlink.mock.sim.batch import prepare, run_seed, simulate
+from mavlink.mock.sim.disturbances import parse_disturbances
 from mavlink.tlog import tracks_from_tlog
-from planner.planfile import load_plan
-from tests.terrain_support import ridge_scenario
+from planner.optimize import plan
+from planner.planfile import load_plan, save_plan
+from planner.scenario import load_scenario
+from tests.terrain_support import ridge_scenario, utm_raster
 
 
 @pytest.mark.slow
@@ -53,3 +58,34 @@ def test_a_plan_over_a_ridge_flies_above_the_ground_from_a_take_off_on_it(
     home = json.loads(next(qgc.iterdir()).read_text())["mission"]["plannedHomePosition"]
     ground_amsl = plan.origin.alt_m + float(terrain.ground(plan.vehicles[0].start_enu_m[:2])[0])
     assert home[2] == pytest.approx(ground_amsl, abs=0.05)
+    homes = tmp_path / "homes.txt"
+    assert main(["export", str(plan_path), "--format", "homes", "-o", str(homes)]) == 0
+    line = homes.read_text().splitlines()[1]
+    assert float(line.split("PX4_HOME_ALT=")[1]) == pytest.approx(ground_amsl, abs=0.01)
+
+
+def test_assessment_runs_fly_down_into_a_valley_below_where_they_took_off(tmp_path: Path) -> None:
+    """``gcs assess``'s batch simulator stands each vehicle on the terrain: a goal in a valley
+    13 m below the take-off is reached (on flat ground at the take-off's height the vehicle
+    would stop there), and the floor holds on the true positions."""
+    utm_raster(tmp_path / "valley.tif", lambda e, n: 490.0 - 0.25 * e)  # falls eastward
+    scenario = ridge_scenario(
+        tmp_path,
+        terrain={"file": "valley.tif", "min_agl_m": 3},
+        workspace={"min": [-20, -20, -25], "max": [80, 20, 20]},
+        regions={"goal": {"kind": "goal", "min": [56, -3, -10], "max": [64, 3, -6]}},
+    )
+    problem = load_scenario(scenario)
+    res = plan(problem)
+    assert res.success, res.status
+    save_plan(tmp_path / "valley.plan.json", res, str(scenario))
+    valley = load_plan(tmp_path / "valley.plan.json")
+    flights = simulate(prepare(valley), [run_seed(3, r) for r in range(3)], parse_disturbances({}))
+    assert valley.terrain is not None
+    pos = flights.true_enu_m[:, 0]  # (runs, samples, 3), the one vehicle
+    start_ground = float(valley.terrain.ground([0.0, 0.0])[0])
+    assert np.all(pos[:, -1, 2] < start_ground - 8.0)  # well below where it took off
+    agl = pos[..., 2] - valley.terrain.ground(pos[..., :2].reshape(-1, 2)).reshape(pos.shape[:2])
+    assert agl.min() >= 3.0 - 0.5  # the floor, within the px4 vehicle's tracking
+    true, _rep, _ct, _cr = evaluate_batch(valley, flights)
+    assert np.all(true > 0)  # every run meets the spec on its true positions

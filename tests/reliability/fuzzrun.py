@@ -198,8 +198,13 @@ async def fuzz_fleet(n: int, seed: int) -> tuple[FuzzReport, Any, Any]:
         # the vehicle's heartbeats fall behind the wall clock with it, not behind its own time
         async with Fleet([spec], telemetry_rate_hz=None, clock=mock.clock) as fleet:
             v = fleet["d1"]
+            # the snapshot the burst must not change: mode, armed, and the home and origin,
+            # which come a moment after the first heartbeat (on a loaded machine, after the
+            # mode: the snapshot once had no home yet, and the comparison failed)
             await v.wait_for(
-                lambda s: s.mode is not None and s.armed is not None, "mode", timeout_s=5.0
+                lambda s: None not in (s.mode, s.armed, s.home, s.origin),
+                "mode, home and origin",
+                timeout_s=10.0,
             )
             before = v.status()
             stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
