@@ -344,8 +344,9 @@ def _ground_under(plan: Plan, x: float, y: float) -> float:
 
 def homes_text(plan: Plan) -> str:
     """Where each vehicle must stand for the plan: the ground point below its start (mission
-    ``z = 0``, or the plan's terrain there), as PX4's home variables, one line per vehicle (SITL instance ``i`` = line
-    ``i``): ``NAME PX4_HOME_LAT=.. PX4_HOME_LON=.. PX4_HOME_ALT=..`` (degrees, m AMSL).
+    ``z = 0``, or the plan's terrain there), as PX4's home variables, one line per vehicle
+    (SITL instance ``i`` = line ``i``): ``NAME PX4_HOME_LAT=.. PX4_HOME_LON=..
+    PX4_HOME_ALT=..`` (degrees, m AMSL).
 
     PX4 v1.17's SIH takes them at start-up (``PX4_HOME_*`` become SIH_LOC_LAT0 / LON0 / H0,
     float32 parameters: about 0.4 m of quantisation at mid latitudes).

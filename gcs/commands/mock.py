@@ -36,6 +36,7 @@ from mavlink.mock import (
 )
 from planner.frames import FrameError, GeodeticPoint
 from planner.scenario import load_scenario
+from planner.spec.terrain import Terrain
 
 HELP = "run mock PX4 vehicles (MAVLink over UDP, PX4 SITL ports) until Ctrl-C"
 
@@ -89,7 +90,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--ground-spawn",
         action="store_true",
-        help="spawn on the ground below the given points (z = 0), e.g. under a scenario's airborne starts",
+        help="spawn on the ground below the given points (z = 0, or a --scenario's terrain), e.g. under a scenario's airborne starts",
     )
     add_mock_vehicle_arguments(p, param_flag="--param")
     g = p.add_argument_group("link faults (all vehicles, or those in --fault-vehicles)")
@@ -182,12 +183,14 @@ def _floats(text: str, n: int, flag: str) -> tuple[float, ...]:
     return values
 
 
-def _scenario(path: str, n: int | None) -> tuple[GeodeticPoint, list[tuple[float, float, float]]]:
-    """Origin and vehicle starts of a scenario file (planner.scenario's loader)."""
+def _scenario(
+    path: str, n: int | None
+) -> tuple[GeodeticPoint, list[tuple[float, float, float]], Terrain | None]:
+    """Origin, vehicle starts and terrain of a scenario file (planner.scenario's loader)."""
 
     problem = load_scenario(path, vehicles=n)
     starts = [tuple(float(c) for c in v.start_enu_m) for v in problem.vehicles]
-    return problem.origin, starts  # type: ignore[return-value]
+    return problem.origin, starts, problem.terrain  # type: ignore[return-value]
 
 
 def build_fleet(args: argparse.Namespace) -> MockFleet:
@@ -197,8 +200,9 @@ def build_fleet(args: argparse.Namespace) -> MockFleet:
         raise UserError(f"--vehicles {n}: must be in 1..254")
     origin: GeodeticPoint = DEFAULT_ORIGIN
     spawns: list[tuple[float, float, float]] | None = None
+    terrain: Terrain | None = None
     if args.scenario is not None:
-        origin, spawns = _scenario(args.scenario, n)
+        origin, spawns, terrain = _scenario(args.scenario, n)
         n = len(spawns) if n is None else n
     if args.origin is not None:
         try:
@@ -212,8 +216,9 @@ def build_fleet(args: argparse.Namespace) -> MockFleet:
         elif len(spawns) != n:
             raise UserError(f"--spawn given {len(spawns)} times for {n} vehicles")
     n = 1 if n is None else n
-    if spawns is not None and args.ground_spawn:
-        spawns = [(x, y, 0.0) for x, y, _ in spawns]
+    if spawns is not None and args.ground_spawn:  # on z = 0, or the scenario's terrain
+        ground = [0.0] * len(spawns) if terrain is None else terrain.ground([s[:2] for s in spawns])
+        spawns = [(x, y, float(g)) for (x, y, _), g in zip(spawns, ground, strict=True)]
     if spawns is not None and len(spawns) != n:
         raise UserError(
             f"--scenario {args.scenario}: has {len(spawns)} vehicles, --vehicles is {n}"
@@ -266,6 +271,7 @@ def build_fleet(args: argparse.Namespace) -> MockFleet:
             noise=noise,
             signing_key=key,
             profile=args.profile,
+            terrain=terrain,
         )
     except MockError as exc:
         raise UserError(str(exc)) from None

@@ -227,3 +227,20 @@ def test_ctrl_c_stops_cleanly() -> None:
             proc.wait()
     assert proc.returncode == 0, err
     assert "stopped after" in out and "Traceback" not in err
+
+
+def test_ground_spawn_stands_on_a_scenarios_terrain(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    from planner.scenario import load_scenario
+    from tests.terrain_support import ridge_scenario
+
+    scenario = ridge_scenario(tmp_path)  # d1 starts 4 m above the ridge's foot at z = -2
+    gbase, vbase = free_block(1), free_block(1)
+    argv = ["mock", "--scenario", str(scenario), "--base-port", str(gbase)]
+    argv += ["--vehicle-base-port", str(vbase), "--duration", "0.2", "--json", "--ground-spawn"]
+    assert main(argv) == 0
+    table = json.loads(capsys.readouterr().out.splitlines()[0])["vehicles"]
+    terrain = load_scenario(scenario).terrain
+    assert terrain is not None
+    ground = float(terrain.ground([0.0, 0.0])[0])
+    assert table[0]["spawn_enu_m"] == pytest.approx([0.0, 0.0, ground], abs=1e-9)
+    assert ground == pytest.approx(-2.0, abs=0.01)
