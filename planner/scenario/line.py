@@ -317,6 +317,9 @@ def _csv_poles(
         for name in (*pair, *((alt_col,) if alt_col else ())):
             col = cols[name]
             cell = r.get(col)
+            if name == alt_col and (cell is None or not cell.strip()):
+                ab.append(math.nan)  # a tower without its ground: only from: line needs it
+                continue
             try:
                 x = float(cell)  # type: ignore[arg-type]
             except (TypeError, ValueError):

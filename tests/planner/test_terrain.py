@@ -346,6 +346,14 @@ def test_geojson_and_absolute_kml_altitudes_give_the_same_ground(tmp_path: Path)
             "t.kml: tower 1 has no ground altitude",
         ),
         ("t.csv", "lat,lon\n47.3977,8.5456\n47.3980,8.5460\n", "line.file", "tower 1 has no"),
+        (  # an empty cell is a tower without its ground (a line read for its poles alone
+            # does not mind), a word in it a mistake
+            "t.csv",
+            "lat,lon,alt\n47.3977,8.5456,490\n47.3980,8.5460,\n",
+            "line.file",
+            "tower 2 has no",
+        ),
+        ("t.csv", "lat,lon,alt\n47.3977,8.5456,high\n", "line.file", "column alt: expected a"),
     ],
 )
 def test_towers_without_their_ground_are_refused_naming_the_tower(
@@ -383,3 +391,15 @@ def test_a_height_above_the_ground_is_no_place_to_fly_to_even_over_a_plane(
     assert place(floor.child, problem) is None and keep_out(floor.child, problem) is None
     # x(d1) >= 3 is a place (the reading the guess does make)
     assert place(parse("x(d1) >= 3", functions=build_registry(problem)), problem) is not None
+
+
+def test_a_towers_file_with_some_ground_altitudes_still_places_its_poles(tmp_path: Path) -> None:
+    """Without ``from: line`` a missing ground altitude does not matter."""
+    ll = geodetic(enu_poles())
+    rows = "".join(f"{a!r},{o!r},{'' if i == 2 else 490}\n" for i, (a, o) in enumerate(ll))
+    (tmp_path / "towers.csv").write_text("lat,lon,alt\n" + rows)
+    path = tmp_path / "towers.yaml"
+    path.write_text(yaml.safe_dump(line_scenario("  file: towers.csv\n")))
+    p = load_scenario(path)
+    assert p.terrain is None
+    assert p.region("pole3").shape.z_lo_m == 0.0  # flat ground at the origin's altitude
