@@ -38,7 +38,7 @@ from gcs.cli import main as gcs  # noqa: E402
 
 def fly_one(plan_path: Path, seed: int, speed: float, force: bool) -> dict:  # type: ignore[type-arg]
     """One boot: upload --start, the truth recorded to the horizon, the spec judged."""
-    from gcs.flight.dryrun import free_udp_ports, ground_spawns
+    from gcs.flight.dryrun import free_udp_ports
     from gcs.flight.evaluation import evaluate_flight
     from mavlink.mock.fleet import MockFleet
     from mavlink.mock.sim.px4 import Px4Mode
@@ -49,7 +49,7 @@ def fly_one(plan_path: Path, seed: int, speed: float, force: bool) -> dict:  # t
     n = len(plan.vehicles)
     ports = free_udp_ports(2 * n)
     fleet = MockFleet(
-        speed=speed, n=n, origin=plan.origin, spawns_enu_m=ground_spawns(plan),
+        speed=speed, n=n, origin=plan.origin, spawns_enu_m=plan.ground_spawns(),
         gcs_ports=ports[:n], vehicle_ports=ports[n:], profile="px4", seed=seed,
     )  # fmt: skip
     rows: list[tuple[float, np.ndarray, list[Px4Mode]]] = []

@@ -276,10 +276,8 @@ def qgc_plan(
 
     opts = options if options is not None else QgcOptions()
     mission = (missions if missions is not None else qgc_missions(plan, opts))[vehicle.name]
-    x0, y0, _ = vehicle.trajectory.position(np.array([0.0]))[0]
-    home_lat, home_lon, home_alt = enu_to_geodetic(
-        np.array([x0, y0, _ground_under(plan, x0, y0)]), plan.origin
-    )
+    home = plan.ground_spawns()[plan.vehicles.index(vehicle)]  # the ground below its start
+    home_lat, home_lon, home_alt = enu_to_geodetic(np.array(home), plan.origin)
     legs = np.asarray(mission.leg_speed_m_s, dtype=float)
     speed = float(legs.mean()) if legs.size else float(min(vehicle.v_max_m_s[:2]))
     polygons: list[dict[str, Any]] = []
@@ -337,11 +335,6 @@ def write_qgc_plans(
     return paths
 
 
-def _ground_under(plan: Plan, x: float, y: float) -> float:
-    """The ground's mission ``z`` at ``(x, y)``: 0, or the plan's terrain there."""
-    return 0.0 if plan.terrain is None else float(plan.terrain.ground([x, y])[0])
-
-
 def homes_text(plan: Plan) -> str:
     """Where each vehicle must stand for the plan: the ground point below its start (mission
     ``z = 0``, or the plan's terrain there), as PX4's home variables, one line per vehicle
@@ -356,10 +349,10 @@ def homes_text(plan: Plan) -> str:
         "# vehicle, then the environment of PX4 SITL instance i (line i): the ground below "
         "its planned start"
     ]
-    for v in plan.vehicles:
-        x, y, _ = (float(c) for c in v.start_enu_m)
-        ground = np.array([x, y, _ground_under(plan, x, y)])
-        lat, lon, alt = (float(np.ravel(c)[0]) for c in enu_to_geodetic(ground, plan.origin))
+    for v, ground in zip(plan.vehicles, plan.ground_spawns(), strict=True):
+        lat, lon, alt = (
+            float(np.ravel(c)[0]) for c in enu_to_geodetic(np.array(ground), plan.origin)
+        )
         lines.append(
             f"{v.name} PX4_HOME_LAT={lat:.8f} PX4_HOME_LON={lon:.8f} PX4_HOME_ALT={alt:.3f}"
         )

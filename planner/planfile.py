@@ -179,6 +179,14 @@ class Plan:
                 return v
         raise KeyError(name)
 
+    def ground_spawns(self) -> list[tuple[float, float, float]]:
+        """Where each vehicle stands before its flight (plan order, mission frame): on the
+        ground below its planned start, ``z = 0`` or the plan's terrain there (dry runs,
+        ``gcs assess``'s runs, the exports' home, the take-off note)."""
+        xy = np.array([[v.start_enu_m[0], v.start_enu_m[1]] for v in self.vehicles], dtype=float)
+        z = np.zeros(len(xy)) if self.terrain is None else self.terrain.ground(xy)
+        return [(float(p[0]), float(p[1]), float(h)) for p, h in zip(xy, z, strict=True)]
+
 
 def _region_json(r: Region) -> dict[str, Any]:
     """``{kind, min, max}`` (a shaped region's bounding box), and a prism's ``polygon`` and

@@ -23,7 +23,7 @@ import numpy as np
 
 from gcs.errors import UserError
 from gcs.flight import FlyOptions, fly_plan, signed_links, vehicle_specs
-from gcs.flight.dryrun import ground_spawns, mock_vehicles
+from gcs.flight.dryrun import mock_vehicles
 from gcs.flight.progress import FlightProgress
 from mavlink.mock.sim.batch import estimator_overrides
 from mavlink.mock.sim.config import FaultConfig, MockVehicleConfig, WindConfig
@@ -99,7 +99,7 @@ def realtime_configs(plan: Plan, opts: AssessOptions, flights: BatchFlights) -> 
 
     configs = []
     try:
-        for v, spawn in enumerate(ground_spawns(plan)):
+        for v, spawn in enumerate(plan.ground_spawns()):
             params = dict(opts.params)
             params.update(estimator_overrides(prm, one("estimator", v), one("ekf_origin", v)))
             params.update(_derated(prm, one("derate", v)))

@@ -24,8 +24,6 @@ from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from gcs.errors import UserError
 from mavlink.mock import MockFleet
 
@@ -36,7 +34,7 @@ if TYPE_CHECKING:
     from mavlink.mock.vehicle_faults import VehicleFault
     from planner.planfile import Plan
 
-__all__ = ["SPEED_ENV", "DryRun", "free_udp_ports", "ground_spawns", "mock_vehicles", "sim_speed"]
+__all__ = ["SPEED_ENV", "DryRun", "free_udp_ports", "mock_vehicles", "sim_speed"]
 
 #: The environment variable of the dry runs' default speed (times real time).
 SPEED_ENV = "STL_GCS_SIM_SPEED"
@@ -63,14 +61,6 @@ def sim_speed(speed: float | None = None) -> float:
     if not (math.isfinite(speed) and 0.0 < speed <= MAX_SPEED):
         raise UserError(f"{where}: must be in (0, {MAX_SPEED:g}] times real time, got {speed:g}")
     return float(speed)
-
-
-def ground_spawns(plan: Plan) -> list[tuple[float, float, float]]:
-    """Spawn points for a dry run: on the ground below each planned start (mission ``z = 0``,
-    or the plan's terrain there)."""
-    xy = np.array([[v.start_enu_m[0], v.start_enu_m[1]] for v in plan.vehicles], dtype=float)
-    z = np.zeros(len(xy)) if plan.terrain is None else plan.terrain.ground(xy)
-    return [(float(p[0]), float(p[1]), float(h)) for p, h in zip(xy, z, strict=True)]
 
 
 def free_udp_ports(k: int) -> list[int]:
@@ -129,7 +119,7 @@ def mock_vehicles(
     mock = MockFleet(
         n=n,
         origin=plan.origin,
-        spawns_enu_m=ground_spawns(plan),
+        spawns_enu_m=plan.ground_spawns(),
         gcs_ports=ports[:n],
         vehicle_ports=ports[n:],
         seed=seed,

@@ -158,13 +158,11 @@ def px4_notes(plan: Plan) -> list[str]:
             f"plan's margin {plan.robustness:+.3f} m: a flight can violate the spec while "
             "tracking the plan"
         )
-    starts = np.array([pv.start_enu_m for pv in plan.vehicles], dtype=float)
-    ground = np.zeros(len(starts)) if plan.terrain is None else plan.terrain.ground(starts[:, :2])
     where = "z = 0" if plan.terrain is None else "the ground"
     low = [
         pv.name
-        for pv, h in zip(plan.vehicles, starts[:, 2] - ground, strict=True)
-        if h <= TAKEOFF_MIN_M
+        for pv, ground in zip(plan.vehicles, plan.ground_spawns(), strict=True)
+        if pv.start_enu_m[2] - ground[2] <= TAKEOFF_MIN_M
     ]
     if low:
         notes.append(

@@ -18,7 +18,6 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
-from gcs.flight.dryrun import ground_spawns
 from gcs.flight.missions import convert_plan
 from gcs.flight.payload import capture_spans
 from gcs.plot.coverage import compute_coverage, coverage_lines
@@ -57,7 +56,7 @@ def test_the_10_pole_line_at_37_degrees_flown_as_missions_pictures_every_pole(
         assert commands.count(Cmd.IMAGE_START_CAPTURE) == len(m.captures)
 
     f = MockFleet(
-        n=3, origin=plan.origin, spawns_enu_m=ground_spawns(plan), seed=1, ready_after_s=0.0
+        n=3, origin=plan.origin, spawns_enu_m=plan.ground_spawns(), seed=1, ready_after_s=0.0
     )
     f.offline_links()
     vs = list(f.vehicles)

@@ -95,22 +95,23 @@ def test_reach_avoid_tracks_as_on_px4_and_fails_as_it_did(
     # the drag's lag is gone: PX4 0.3-0.7 s with drag, -0.13..+0.17 s without
     assert sum(lags) / len(lags) - sum(free_lags) / len(free_lags) > 0.25, (lags, free_lags)
     # Today's ground station on the same vehicle: the drag (SIH_KDV / SIH_MASS, read from
-    # the vehicle) fed forward takes the lag out. At 0.75 m/s the lag is 0.44 m of a tracking
-    # error that also holds the estimator's ~0.15 m and the hovers, which have no lag to take
-    # out: rms down by at least 30 % (by 35-37 % in three runs, at the mock's speeds 2 and 4;
-    # the power line, at 3-6 m/s, is halved and more: benchmarks/bench_px4_flight.py).
-    now = fly(plans["reach_avoid"], capsys, *low, gcs=())
-    assert {t["drag_source"] for t in now["tuning"].values()} == {"SIH_KDV/SIH_MASS"}
-    for before, after in zip(res["tracking"], now["tracking"], strict=True):
-        assert after["rms_m"] <= 0.7 * before["rms_m"], (before, after)
-    # And the best-fit lag is gone. On a 6 s flight at 0.75 m/s the estimator's errors move
-    # one vehicle's best-fit lag by up to 0.3 s (its slow velocity bias alone by
-    # bias_lag_s(0.75)), and which errors it has when the plan starts depends on how long
-    # the take-off took (random walks drawn every tick): the lag is judged on a quiet
-    # estimator, where only the drag and its feed-forward act (seeds 0-2: 0.03-0.08 s with
-    # the feed-forward, 0.31-0.36 s without).
+    # the vehicle) fed forward takes the lag out. Judged on a quiet estimator, where only
+    # the drag and its feed-forward act: on a 6 s flight at 0.75 m/s the estimator's errors
+    # move one vehicle's best-fit lag by up to 0.3 s (its slow velocity bias alone by
+    # bias_lag_s(0.75)) and its rms by as much as the gain, and which errors it has when the
+    # plan starts depends on how long the take-off took on the wall clock (random walks
+    # drawn every tick: the gain read 26-37 % on the noisy estimator).
     quiet = ("MOCK_EST_VB=0", "MOCK_EST_SLOW_B=0", "MOCK_EST_V_N=0", "MOCK_EST_P_N=0")
-    for after in fly(plans["reach_avoid"], capsys, *low, *quiet, gcs=())["tracking"]:
+    then = fly(plans["reach_avoid"], capsys, *low, *quiet)
+    now = fly(plans["reach_avoid"], capsys, *low, *quiet, gcs=())
+    assert {t["drag_source"] for t in now["tuning"].values()} == {"SIH_KDV/SIH_MASS"}
+    for before, after in zip(then["tracking"], now["tracking"], strict=True):
+        # the lag's 0.44 m of a tracking error that also holds the hovers, which have no
+        # lag to take out: rms down by at least 40 % (by 56-62 % at seeds 0 and 1: 0.22-0.26 m
+        # without, 0.08-0.11 m with), the lag gone (0.03-0.09 s with the feed-forward,
+        # 0.31-0.37 s without)
+        assert after["rms_m"] <= 0.6 * before["rms_m"], (before, after)
+        assert before["lag_s"] > 0.25, before
         assert abs(after["lag_s"]) < 0.12, after
 
 

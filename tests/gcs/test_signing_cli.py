@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from gcs.cli import main
-from gcs.flight.dryrun import free_udp_ports, ground_spawns, sim_speed
+from gcs.flight.dryrun import free_udp_ports, sim_speed
 from mavlink.mock import MockFleet
 from planner.planfile import load_plan
 
@@ -27,7 +27,7 @@ def signed_mock() -> Iterator[tuple[MockFleet, list[str]]]:
         speed=sim_speed(),
         n=2,
         origin=plan.origin,
-        spawns_enu_m=ground_spawns(plan),
+        spawns_enu_m=plan.ground_spawns(),
         gcs_ports=ports[:2],
         vehicle_ports=ports[2:],
         signing_key=KEY,

@@ -20,7 +20,7 @@ import pymap3d
 import pytest
 
 from gcs.cli import main
-from gcs.flight.dryrun import free_udp_ports, ground_spawns, sim_speed
+from gcs.flight.dryrun import free_udp_ports, sim_speed
 from gcs.flight.missions import fence_plan
 from mavlink.mission import trajectory_to_mission
 from mavlink.mock import MockFleet, Px4Mode
@@ -44,7 +44,7 @@ def _running_mock(
         speed=sim_speed(),
         n=2,
         origin=plan.origin,
-        spawns_enu_m=ground_spawns(plan),
+        spawns_enu_m=plan.ground_spawns(),
         gcs_ports=ports[:2],
         vehicle_ports=ports[2:],
         profile=profile,
@@ -191,7 +191,7 @@ def test_status_shows_each_vehicle_as_it_is(
         done.set()
         watcher.join()
     rows = json.loads(capsys.readouterr().out)["vehicles"]
-    lat, lon, alt = enu_to_geodetic(np.array(ground_spawns(plan)), plan.origin)
+    lat, lon, alt = enu_to_geodetic(np.array(plan.ground_spawns()), plan.origin)
     for i, r in enumerate(rows):
         assert r["sysid"] == i + 1 and r["url"] == urls[i]
         assert (r["autopilot"], r["type"]) == ("PX4", "QUADROTOR")

@@ -90,6 +90,7 @@ class PlanLike(Protocol):
     def vehicles(self) -> Sequence[PlannedVehicleLike]: ...
     @property
     def terrain(self) -> Any: ...
+    def ground_spawns(self) -> list[tuple[float, float, float]]: ...
 
 
 __all__ = [
@@ -212,7 +213,7 @@ def prepare(
     """The shared part of a plan's runs (see :class:`SimSetup`).
 
     Each vehicle spawns on the ground below its planned start (as in a dry run,
-    :func:`gcs.flight.dryrun.ground_spawns`); ``drag_per_s`` ``None`` feeds forward the vehicle's
+    :meth:`planner.planfile.Plan.ground_spawns`); ``drag_per_s`` ``None`` feeds forward the vehicle's
     own drag (SIH_KDV / SIH_MASS), as ``gcs fly`` does after reading it from the vehicle.
 
     Raises:
@@ -250,9 +251,7 @@ def prepare(
     drag = kdv if drag_per_s is None else float(drag_per_s)
     pre = round(settle_s * rate_hz)
     pos, vel, acc, yaw, maps = [], [], [], [], []
-    spawns = np.array([[v.start_enu_m[0], v.start_enu_m[1], 0.0] for v in plan.vehicles])
-    if plan.terrain is not None:  # on the ground below the start
-        spawns[:, 2] = plan.terrain.ground(spawns[:, :2])
+    spawns = np.array(plan.ground_spawns(), dtype=float).reshape(-1, 3)
     for v, spawn in zip(plan.vehicles, spawns, strict=True):
         lat, lon, alt = enu_to_geodetic(spawn, plan.origin)
         spawn_geo = Geo(float(lat), float(lon), float(alt))
