@@ -152,7 +152,7 @@ class SolverOptions:
     #: order and timing chosen as a mixed-integer program on a coarse model, its plan the
     #: NLP's first start), at most a quarter of the time limit; 0: off (the initial
     #: guess's starts only).
-    coarse_s: float = 5.0
+    coarse_s: float = 30.0
     #: Keep the row-wise constraints (keep-outs, separations, boxes) only where they can
     #: bind, grown until no row left out is missed (:mod:`planner.solve.screen`); None
     #: (auto): where the rows are many and most are far from binding

@@ -348,11 +348,15 @@ class Encoder:
         binaries: how many binaries the STL rows added.
     """
 
-    def __init__(self, builder: MilpBuilder, model: CoarseModel, cover: bool = True) -> None:
+    def __init__(
+        self, builder: MilpBuilder, model: CoarseModel, cover: bool = True, legs: bool | None = None
+    ) -> None:
         self.b = builder
         self.model = model
         self.n = model.n_steps + 1
         self.norm = Normaliser(model, cover)
+        #: a polygon kept out of the straight legs as well as the samples (default: cover)
+        self.legs = cover if legs is None else legs
         self.binaries = 0
         self._deltas: dict[tuple[tuple[str, str, object], bool], tuple[Ints, Lin]] = {}
 
@@ -602,8 +606,8 @@ class Encoder:
             faces = self._faces(vehicle, region, steps, outer=False)
             return self._min(faces, m, len(faces.lo) // m)
         # delta >= the smallest face margin: delta >= m_i for one face i (outer polygon);
-        # for a polygon (a part of a non-convex outline, planner.spec.cover) with covered
-        # windows also at the next sample, the same face i: the straight leg to it stays
+        # for a polygon (a part of a non-convex outline, planner.spec.cover) with ``legs``
+        # (by default with covered windows) also at the next sample, the same face i: the straight leg to it stays
         # beyond that face's plane, so the region is kept out of between samples too (a
         # U-shaped keep-out: 12 m legs jumped its 10 m walls into a pocket the NLP could
         # not leave).  Boxes and cylinders are held out at the samples only: a leg that
@@ -612,7 +616,7 @@ class Encoder:
         faces = self._faces(vehicle, region, steps, outer=True)
         f = len(faces.lo) // m
         legs = [faces]
-        if self.norm.cover and isinstance(region.shape, Prism):
+        if self.legs and isinstance(region.shape, Prism):
             legs.append(self._faces(vehicle, region, np.minimum(steps + 1, self.n - 1), True))
         flo = faces.lo.reshape(m, f)
         fhi = np.max([leg.hi.reshape(m, f) for leg in legs], axis=0)

@@ -159,6 +159,7 @@ def solve_coarse(
     mip_rel_gap: float = 1e-4,
     sample_budget: int = SAMPLE_BUDGET,
     cover: bool = True,
+    legs: bool | None = None,
     stop: threading.Event | None = None,
     on_incumbent: Callable[[float], None] | None = None,
     cpu_until: float | None = None,
@@ -187,6 +188,9 @@ def solve_coarse(
         cover: an ``always`` holds over the coarse steps that cover its window (the straight
             legs between samples then keep a convex predicate throughout; the default), not
             only at the steps inside it (:mod:`planner.milp.encode`).
+        legs: a polygon keep-out (a part of a non-convex outline) held out of the straight
+            legs between samples too, not only at the samples; None: as ``cover`` (the
+            conflict search's weaker reading drops both).
         stop: once set (from another thread), HiGHS stops with the incumbent it has (the
             result then says ``HiGHS: kInterrupt`` in its message).
         on_incumbent: called (from HiGHS's thread) with the robustness of each better
@@ -230,7 +234,7 @@ def solve_coarse(
         base.update(kw)
         return CoarseResult(**base)  # type: ignore[arg-type]
 
-    encoder = Encoder(builder, model, cover)
+    encoder = Encoder(builder, model, cover, legs)
     try:
         root = encoder.encode(formulas)
     except NotEncodable as exc:

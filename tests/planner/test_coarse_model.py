@@ -14,11 +14,12 @@ import numpy as np
 import pytest
 from shapely.geometry import LineString, Polygon
 
-from planner.milp import CoarseStatus, solve_coarse
+from planner.milp import CoarseResult, CoarseStatus, solve_coarse
 from planner.milp import solve as solve_mod
 from planner.optimize import make_model, plan
 from planner.scenario import load_scenario
 from planner.solve.coarse_fit import waypoint_guess
+from planner.solve.coarse_start import coarse_start
 from planner.solve.path_fit import fit_within_limits
 from planner.solve.plan_check import initial_states
 from tests.planner.test_milp import TOL, ZOO, exact, scenario
@@ -55,9 +56,11 @@ U_REGIONS = (
 )
 
 
-def test_legs_between_samples_stay_out_of_a_polygon_keep_out(tmp_path: Path):
+@pytest.mark.parametrize("cover", [True, False])
+def test_legs_between_samples_stay_out_of_a_polygon_keep_out(tmp_path: Path, cover: bool):
     # a U open to the north, the vehicle in its cup, the goal south of its 2 m bottom: at
-    # 2 m/s and 2 s steps a leg could jump the bottom; held legs go round a side
+    # 2 m/s and 2 s steps a leg could jump the bottom; held legs go round a side, in the
+    # covering reading and in the weaker one the stage falls back on (legs=True)
     problem = scenario(
         tmp_path,
         ["eventually[0,20] always[0,2] inside(d1, goal)", "always[0,24] outside(d1, u)"],
@@ -66,14 +69,25 @@ def test_legs_between_samples_stay_out_of_a_polygon_keep_out(tmp_path: Path):
         horizon=24.0,
     )
     u = Polygon([(0, 0), (6, 0), (6, 6), (4, 6), (4, 2), (2, 2), (2, 6), (0, 6)])
-    res = solve_coarse(problem, time_limit_s=10.0, dt_c=2.0)
+
+    def nearest_leg(res: CoarseResult) -> float:
+        p = res.waypoints_enu_m["d1"]
+        return min(
+            LineString([a[:2], b[:2]]).distance(u)
+            for a, b in itertools.pairwise(p)
+            if np.any(a[:2] != b[:2])
+        )
+
+    res = solve_coarse(problem, time_limit_s=10.0, dt_c=2.0, cover=cover, legs=True)
     assert res.success and res.robustness >= problem.epsilon
-    p = res.waypoints_enu_m["d1"]
-    for a, b in itertools.pairwise(p):
-        leg = LineString([a[:2], b[:2]]) if np.any(a[:2] != b[:2]) else None
-        if leg is not None:
-            assert leg.distance(u) >= res.robustness - 1e-6, (a, b)
+    assert res.cover is cover
+    assert nearest_leg(res) >= res.robustness - 1e-6
     assert exact(problem, dict(res.waypoints_enu_m), res.dt_s) >= res.robustness - TOL
+    if not cover:
+        # the conflict search's reading (legs off): the samples out of the U, a leg across
+        # its bottom (HiGHS's optimum here)
+        free = solve_coarse(problem, time_limit_s=10.0, dt_c=2.0, cover=False)
+        assert free.success and nearest_leg(free) < 1e-9
 
 
 @pytest.mark.slow
@@ -129,3 +143,31 @@ def test_the_issues_implication_and_revisit_missions_plan_with_the_stage(name: s
     assert res.robustness >= problem.epsilon
     assert res.stats is not None and res.stats.coarse is not None
     assert res.stats.coarse["status"] == "optimal"
+
+
+def test_the_stage_falls_back_on_the_steps_inside_a_window(tmp_path: Path):
+    # In a by t = 4 for half a second, in b (east of a) at t = 5, 1 s steps: the covering
+    # reading asks for a at steps 4 and 5 (b too at 5: impossible) or 3 and 4 (x <= 5 at
+    # t = 3 from rest, at a's face: below epsilon), proven infeasible; the steps inside the
+    # window ask for a at step 4 alone, which a coarse path meets. The stage says which.
+    problem = scenario(
+        tmp_path,
+        ["eventually[0,4] always[0,0.5] inside(d1, a)", "always[5,5] inside(d1, b)"],
+        regions=(
+            "  a: {kind: goal, min: [5, -2, 1], max: [7, 2, 3]}\n"
+            "  b: {kind: goal, min: [8, -2, 1], max: [10, 2, 3]}\n"
+        ),
+        vehicles="  - {name: d1, start: [0, 0, 2]}\n",
+        horizon=10.0,
+    )
+    covered = solve_coarse(problem, time_limit_s=10.0, min_robustness=problem.epsilon)
+    assert covered.dt_s == 1.0 and covered.status is CoarseStatus.INFEASIBLE
+    outcome = coarse_start(
+        problem, make_model(problem), initial_states(problem, make_model(problem)), 10.0
+    )
+    summary = outcome.summary()
+    assert summary["windows"] == "inner samples" and outcome.result.success, summary
+    p = outcome.result.waypoints_enu_m["d1"]
+    assert 5 < p[4, 0] < 7 and 8 < p[5, 0] < 10, p
+    assert exact(problem, dict(outcome.result.waypoints_enu_m), 1.0) >= problem.epsilon
+    assert outcome.decision is not None and outcome.conflict is None
