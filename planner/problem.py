@@ -151,8 +151,9 @@ class SolverOptions:
     #: Time budget (s) of the combinatorial stage (:mod:`planner.milp`: options, allocation,
     #: order and timing chosen as a mixed-integer program on a coarse model, its plan the
     #: NLP's first start), at most a quarter of the time limit; 0: off (the initial
-    #: guess's starts only).
-    coarse_s: float = 30.0
+    #: guess's starts only); None (auto): 30 s to find a coarse plan, 5 s once a plan is in
+    #: hand (:data:`planner.solve.coarse_start.AUTO_BUDGET_S`).
+    coarse_s: float | None = None
     #: Keep the row-wise constraints (keep-outs, separations, boxes) only where they can
     #: bind, grown until no row left out is missed (:mod:`planner.solve.screen`); None
     #: (auto): where the rows are many and most are far from binding

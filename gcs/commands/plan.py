@@ -58,8 +58,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=float,
         metavar="S",
         help="CPU seconds of the combinatorial stage (a MILP that chooses options, allocation, "
-        "order and timing, beside the NLP; overrides solver.coarse_s, 30, at most a quarter of "
-        "the time limit; 0: off)",
+        "order and timing, beside the NLP; overrides solver.coarse_s; default 30 to find a "
+        "coarse plan, 5 once a plan is in hand; at most a quarter of the time limit; 0: off)",
     )
     p.add_argument(
         "--solver",
