@@ -573,11 +573,15 @@ class PlanSearch:
         run = run_solvers(struct, w0, bounds, say, problem.solver.method.value, stop, refine)
         if side is not None:
             side.nlp_ended()
-        if self.watch.stopped and time.perf_counter() < min(
+        by_share = self.watch.stopped and time.perf_counter() < min(
             self.solve_deadline(), self.polish_until
-        ):
+        )
+        if by_share:
             self.watch.stopped = False  # stopped by this start's share only: others may run
         w_opt, status = run.w, run.status
+        note = side.yield_note() if side is not None and by_share else None
+        if note is not None and status == "User_Requested_Stop":
+            status = f"{status}; {note}"  # not an error inside the solver
         rob = self._timed_exact(w_opt)
         if rob < problem.epsilon and rob_start > rob:
             # The solver fell short from a start that was better (it met the mission, or

@@ -231,8 +231,8 @@ class BackgroundStage:
         problem, model, x0s: as for :func:`coarse_start`.
         budget_s: CPU seconds of the stage's thread for the whole stage (its wall time at
             most ``_WALL_FACTOR`` times that).
-        on_plan: called from the stage's thread when it ends with a coarse plan (the
-            planner then lets the running start yield to it; see
+        on_answer: called from the stage's thread when it ends with a coarse plan or with
+            clauses in conflict (the planner then lets the running start yield to it; see
             :class:`planner.optimize.PlanSearch`).
     """
 
@@ -242,13 +242,13 @@ class BackgroundStage:
         model: Any,
         x0s: list[np.ndarray],
         budget_s: float,
-        on_plan: Callable[[], None] | None = None,
+        on_answer: Callable[[str], None] | None = None,
     ) -> None:
         self.problem, self.model, self.x0s = problem, model, x0s
         self.budget_s = budget_s
         #: when the stage began (``time.perf_counter()``)
         self.started_at = time.perf_counter()
-        self._on_plan = on_plan
+        self._on_answer = on_answer
         self._stop = threading.Event()
         self._done = threading.Event()
         self._answer: tuple[CoarseResult, Conflict | None] | None = None
@@ -275,11 +275,11 @@ class BackgroundStage:
             self._done.set()
         if (
             self._answer is not None
-            and self._answer[0].success
+            and (self._answer[0].success or self._answer[1] is not None)
             and not self._cut
-            and self._on_plan is not None
+            and self._on_answer is not None
         ):
-            self._on_plan()
+            self._on_answer("plan" if self._answer[0].success else "conflict")
 
     def _improved(self, robustness: float) -> None:
         if not robustness <= self.incumbent:  # nan at first
@@ -354,37 +354,51 @@ class StageBeside:
         #: and had not ended in :data:`_STOP_WAIT_S`)
         self.outcome: CoarseOutcome | None = None
         self._lock = threading.Lock()  # the two instants below and the NLP's watch
-        self._plan_at: float | None = None  # when the stage ended with a plan
+        self._answer_at: float | None = None  # when the stage ended with a plan or a conflict
+        self._answer_kind: str | None = None  # which ("plan", "conflict")
         self._nlp_at: float | None = None  # when the guess's first NLP began, while it runs
         self._watch: Any = None  # that NLP's iteration watch (its ``deadline``)
         self._stopped = False
-        self.stage = BackgroundStage(problem, model, x0s, budget_s, on_plan=self._has_plan)
+        self.stage = BackgroundStage(problem, model, x0s, budget_s, on_answer=self._has_answer)
 
     # ---------------------------------------------------------- the guess's first NLP
 
     def _yield_at(self) -> float:
-        """When the guess's first NLP yields to the stage's plan: once the stage has one and
-        the NLP has had :attr:`in_hand_s` (an NLP that meets the mission in that time is
-        never cut, whatever the stage does)."""
+        """When the guess's first NLP yields to the stage's answer: once the stage has a plan,
+        or has named clauses in conflict, and the NLP has had :attr:`in_hand_s` (an NLP that
+        meets the mission in that time is never cut, whatever the stage does)."""
         assert self._nlp_at is not None
         return max(time.perf_counter(), self._nlp_at + self.in_hand_s)
 
     def nlp_began(self, watch: Any) -> None:
         """The guess's first NLP begins, stopped by ``watch.deadline``: it yields to the
-        stage's plan (:meth:`_yield_at`)."""
+        stage's answer (:meth:`_yield_at`)."""
         with self._lock:
             self._nlp_at, self._watch = time.perf_counter(), watch
-            if self._plan_at is not None:
+            if self._answer_at is not None:
                 watch.deadline = min(watch.deadline, self._yield_at())
 
     def nlp_ended(self) -> None:
         with self._lock:
             self._nlp_at = self._watch = None
 
-    def _has_plan(self) -> None:
-        """From the stage's thread: it has a plan; the guess's NLP, if it runs, yields."""
+    def yield_note(self) -> str | None:
+        """Why the guess's first NLP was stopped, if the stage's answer came while it ran
+        (for its status; None otherwise)."""
         with self._lock:
-            self._plan_at = time.perf_counter()
+            kind = self._answer_kind
+        if kind is None:
+            return None
+        what = "plan" if kind == "plan" else "clauses in conflict"
+        return f"stopped after {self.in_hand_s:g} s for the combinatorial stage's {what}"
+
+    def _has_answer(self, kind: str) -> None:
+        """From the stage's thread: it has a plan, or clauses in conflict (proven on the
+        coarse model that no plan meets the spec: the NLP's own answer is then wanted
+        within seconds, issue 40, not after its iteration limit); the guess's NLP, if it
+        runs, yields."""
+        with self._lock:
+            self._answer_at, self._answer_kind = time.perf_counter(), kind
             if self._nlp_at is not None:
                 self._watch.deadline = min(self._watch.deadline, self._yield_at())
 

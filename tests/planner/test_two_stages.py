@@ -64,6 +64,11 @@ def test_clauses_in_conflict_are_named_and_nothing_else_is_advised() -> None:
     assert "spec[2]" not in line and "spec[3]" not in line and "more starts" not in line
     assert got.stats.coarse is not None
     assert got.stats.coarse["conflict"] == ["spec[0].formula", "spec[1].formula"]
+    # the guess's NLP, running when the conflict came, stopped for it (not at its iteration
+    # limit, 500, as before) and says so, not as an error inside the solver
+    assert "for the combinatorial stage's clauses in conflict" in got.status, got.status
+    assert got.status.startswith("the solver was stopped for the combinatorial stage's answer")
+    assert got.iterations < 500
 
 
 def test_two_threads_planning_one_structure_take_turns_and_agree() -> None:
