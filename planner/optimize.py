@@ -579,9 +579,8 @@ class PlanSearch:
         if by_share:
             self.watch.stopped = False  # stopped by this start's share only: others may run
         w_opt, status = run.w, run.status
-        note = side.yield_note() if side is not None and by_share else None
-        if note is not None and status == "User_Requested_Stop":
-            status = f"{status}; {note}"  # not an error inside the solver
+        if side is not None and by_share and status == "User_Requested_Stop":
+            status = side.yielded(status, self.watch, min(self.solve_deadline(), self.polish_until))
         rob = self._timed_exact(w_opt)
         if rob < problem.epsilon and rob_start > rob:
             # The solver fell short from a start that was better (it met the mission, or
@@ -722,16 +721,13 @@ class PlanSearch:
         if self.n_starts > 1 or self.combinatorial is not None:
             n, what = self.best_start
             status = f"{status}; start {n} of {self.n_starts}: {what}"
-        # An iterate the watch saw (every progress_every_s) better than where the search
-        # ended is the plan, however the solve ended: stopped by the time limit or Ctrl-C, or
-        # a start that wandered off it (issue 40's mission of every class: +0.391 at
-        # iteration 320, the start ended at -0.512 and the plan was that).
+        # An iterate the watch saw better than where the search ended is the plan, however
+        # the solve ended (issue 40's mission of every class: +0.391 seen, -0.512 kept before)
         ended = self.exact_of(w_opt)
         if self._iterate_w is not None and self._iterate_rho > ended:
             w_opt = self._iterate_w
-            status = (
-                f"{status}; kept an earlier iterate ({self._iterate_rho:.4g}; where the search "
-                f"ended {ended:.4g})"
+            status += (
+                f"; kept an earlier iterate ({self._iterate_rho:.4g}; where it ended {ended:.4g})"
             )
         if (stop.hit or by_time) and w_opt is self._iterate_w:
             pass  # no time left to raise the rest

@@ -606,13 +606,13 @@ class Encoder:
             faces = self._faces(vehicle, region, steps, outer=False)
             return self._min(faces, m, len(faces.lo) // m)
         # delta >= the smallest face margin: delta >= m_i for one face i (outer polygon);
-        # for a polygon (a part of a non-convex outline, planner.spec.cover) with ``legs``
-        # (by default with covered windows) also at the next sample, the same face i: the straight leg to it stays
-        # beyond that face's plane, so the region is kept out of between samples too (a
-        # U-shaped keep-out: 12 m legs jumped its 10 m walls into a pocket the NLP could
-        # not leave).  Boxes and cylinders are held out at the samples only: a leg that
-        # cuts one the NLP slides off its nearest face, and the leg rows made the
-        # allocation mission's program too hard for its 5 s (no incumbent, against 3.5 s).
+        # for a polygon (a part of a non-convex outline, planner.spec.cover) with ``legs`` (by
+        # default with covered windows) also at the next sample, the same face i: the straight leg
+        # to it stays beyond that face's plane, so the region is kept out of between samples too (a
+        # U-shaped keep-out: 12 m legs jumped its 10 m walls into a pocket the NLP could not leave).
+        # Boxes and cylinders are held out at the samples only: a leg that cuts one the NLP slides
+        # off its nearest face, and the leg rows made the allocation mission's program too hard for
+        # its 5 s (no incumbent, against 3.5 s).
         faces = self._faces(vehicle, region, steps, outer=True)
         f = len(faces.lo) // m
         legs = [faces]

@@ -187,7 +187,8 @@ def _solve_stage(
     # or has found no coarse plan by then, the weaker reading (the steps inside the window)
     # with the rest, before any conflict is named. (Issue 40's mission of every class: the
     # covering reading, 6 s steps asking every 1-2 s hover for 6-12 s, found nothing in
-    # 110 s; the weaker one its optimum in 11 s.)
+    # 110 s; the weaker one its optimum in 8-11 s. Both keep the legs out of polygons:
+    # without, the weaker optimum cut through the U's wall and the NLP ended at -4.85.)
     result = solve(True, _COVER_SHARE)
     if result.status in (CoarseStatus.INFEASIBLE, CoarseStatus.NO_SOLUTION) and left() > 0.05:
         weaker = solve(False)  # a relaxation of the covering reading: its proof is one too
@@ -382,15 +383,18 @@ class StageBeside:
         with self._lock:
             self._nlp_at = self._watch = None
 
-    def yield_note(self) -> str | None:
-        """Why the guess's first NLP was stopped, if the stage's answer came while it ran
-        (for its status; None otherwise)."""
+    def yielded(self, status: str, watch: Any, until: float) -> str:
+        """The guess's first NLP was stopped before ``until`` (``status``: IPOPT's): if the
+        stage's answer stopped it, its status says so (not an error inside the solver), and
+        what is left of that start (the eq. (1) rounds' plain maximisation) gets as long
+        again, :attr:`in_hand_s`, within ``until``."""
         with self._lock:
             kind = self._answer_kind
         if kind is None:
-            return None
+            return status
+        watch.deadline = min(until, time.perf_counter() + self.in_hand_s)
         what = "plan" if kind == "plan" else "clauses in conflict"
-        return f"stopped after {self.in_hand_s:g} s for the combinatorial stage's {what}"
+        return f"{status}; stopped after {self.in_hand_s:g} s for the combinatorial stage's {what}"
 
     def _has_answer(self, kind: str) -> None:
         """From the stage's thread: it has a plan, or clauses in conflict (proven on the

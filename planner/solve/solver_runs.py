@@ -68,7 +68,7 @@ def user_status(
         )
     elif success:
         head = "the mission is met"
-    elif "for the combinatorial stage's" in solver:  # StageBeside.yield_note
+    elif "for the combinatorial stage's" in solver:  # StageBeside.yielded
         head = "the solver was stopped for the combinatorial stage's answer; the best plan found"
     elif "NonIpopt_Exception_Thrown" in solver or "User_Requested_Stop" in solver:
         head = "the solver stopped on an error inside it; the best plan found"
