@@ -276,7 +276,8 @@ def qgc_plan(
 
     opts = options if options is not None else QgcOptions()
     mission = (missions if missions is not None else qgc_missions(plan, opts))[vehicle.name]
-    home = plan.ground_spawns()[plan.vehicles.index(vehicle)]  # the ground below its start
+    names = [v.name for v in plan.vehicles]
+    home = plan.ground_spawns()[names.index(vehicle.name)]  # the ground below its start
     home_lat, home_lon, home_alt = enu_to_geodetic(np.array(home), plan.origin)
     legs = np.asarray(mission.leg_speed_m_s, dtype=float)
     speed = float(legs.mean()) if legs.size else float(min(vehicle.v_max_m_s[:2]))
