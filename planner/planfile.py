@@ -52,7 +52,7 @@ from planner.scenario.spec import FUNCTION_NAMES
 from planner.spec.heading import heading_signals, uses_heading
 from planner.spec.predicates import build_registry
 from planner.spec.regions import Cylinder, Prism, Region, ShapeError
-from planner.spec.terrain import Terrain, TerrainError
+from planner.spec.terrain import Terrain, TerrainError, ground_below
 from planner.stl import BinOp, Call, Comparison, Neg, Predicate, Signal, SpecError, STLError, parse
 from planner.strict_read import DuplicateKeyError, NotTextError, load_json, read_text
 from planner.trajectory import Trajectory, TrajectoryError
@@ -183,9 +183,7 @@ class Plan:
         """Where each vehicle stands before its flight (plan order, mission frame): on the
         ground below its planned start, ``z = 0`` or the plan's terrain there (dry runs,
         ``gcs assess``'s runs, the exports' home, the take-off note)."""
-        xy = np.array([[v.start_enu_m[0], v.start_enu_m[1]] for v in self.vehicles], dtype=float)
-        z = np.zeros(len(xy)) if self.terrain is None else self.terrain.ground(xy)
-        return [(float(p[0]), float(p[1]), float(h)) for p, h in zip(xy, z, strict=True)]
+        return ground_below(self.terrain, [v.start_enu_m for v in self.vehicles])
 
 
 def _region_json(r: Region) -> dict[str, Any]:

@@ -36,7 +36,7 @@ from mavlink.mock import (
 )
 from planner.frames import FrameError, GeodeticPoint
 from planner.scenario import load_scenario
-from planner.spec.terrain import Terrain
+from planner.spec.terrain import Terrain, ground_below
 
 HELP = "run mock PX4 vehicles (MAVLink over UDP, PX4 SITL ports) until Ctrl-C"
 
@@ -217,8 +217,7 @@ def build_fleet(args: argparse.Namespace) -> MockFleet:
             raise UserError(f"--spawn given {len(spawns)} times for {n} vehicles")
     n = 1 if n is None else n
     if spawns is not None and args.ground_spawn:  # on z = 0, or the scenario's terrain
-        ground = [0.0] * len(spawns) if terrain is None else terrain.ground([s[:2] for s in spawns])
-        spawns = [(x, y, float(g)) for (x, y, _), g in zip(spawns, ground, strict=True)]
+        spawns = ground_below(terrain, spawns)
     if spawns is not None and len(spawns) != n:
         raise UserError(
             f"--scenario {args.scenario}: has {len(spawns)} vehicles, --vehicles is {n}"

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -39,6 +40,7 @@ __all__ = [
     "MAX_NODES",
     "Terrain",
     "TerrainError",
+    "ground_below",
     "terrain_from_geotiff",
     "terrain_from_profile",
     "write_geotiff",
@@ -197,6 +199,16 @@ class Terrain:
             "step_m": self.step_m,
             "ground_z_m": np.round(self.ground_z_m, 3).tolist(),
         }
+
+
+def ground_below(
+    terrain: Terrain | None, points: Sequence[Sequence[float]]
+) -> list[tuple[float, float, float]]:
+    """Each point ``(x, y, ...)`` put on the ground below it: the mission frame's ``z = 0``
+    without a terrain, else the terrain there (a plan's spawns, ``gcs mock --ground-spawn``)."""
+    xy = np.array([[p[0], p[1]] for p in points], dtype=float).reshape(-1, 2)
+    z = np.zeros(len(xy)) if terrain is None else terrain.ground(xy)
+    return [(float(p[0]), float(p[1]), float(h)) for p, h in zip(xy, z, strict=True)]
 
 
 def _grid_axis(lo: float, hi: float, step: float) -> NDArray[np.float64]:
